@@ -1,0 +1,5 @@
+import sys
+
+from cinetransfer.cli import main
+
+sys.exit(main())

@@ -1,0 +1,76 @@
+"""The `cinetransfer` command: one console script, one subcommand per job.
+
+Subcommands are registered lazily (module path + function) so that `cinetransfer --help`
+stays fast and a service's heavy imports (torch, mediapipe, casadi) load only when used.
+Each target is `main(argv: list[str]) -> int`.
+"""
+from __future__ import annotations
+
+import importlib
+import sys
+
+#: name -> (module, function, one-line help)
+COMMANDS: dict[str, tuple[str, str, str]] = {
+    # services (long-running Zenoh nodes)
+    "detector": ("cinetransfer.services.detector.service", "main", "run the detector node"),
+    "smoother": ("cinetransfer.services.smoother.service", "main", "run the smoother node"),
+    "planner": ("cinetransfer.services.planner.service", "main", "run the planner (MPC) node"),
+    "autopilot_bridge": ("cinetransfer.services.autopilot_bridge.service", "main",
+                         "run the vehicle bridge node (built-in simulator or MAVLink)"),
+    "camera": ("cinetransfer.services.autopilot_bridge.camera_node", "main",
+               "publish frames from a video device, file or RTSP URL"),
+    "sim-vehicle": ("cinetransfer.services.autopilot_bridge.sim_vehicle", "main",
+                    "a simulated vehicle behind a real MAVLink endpoint"),
+    # tools
+    "deploy": ("cinetransfer.deploy.supervisor", "main", "start/stop/inspect a set of nodes from a config"),
+    "monitor": ("cinetransfer.shared.monitor", "main", "live table of keys, rates and alive nodes"),
+    "router": ("cinetransfer.shared.router", "main", "run a Zenoh router"),
+    "detect": ("cinetransfer.services.detector.cli", "main", "measure a video: people, joints, focus"),
+    "smooth": ("cinetransfer.services.smoother.cli", "smooth_main", "measurements -> style.json"),
+    "extract": ("cinetransfer.services.smoother.cli", "extract_main", "video -> style.json (detect + smooth)"),
+    "plot": ("cinetransfer.services.smoother.cli", "plot_main", "plot a style.json"),
+    "plan": ("cinetransfer.services.planner.cli", "main", "fly a style.json in the simulator, in-process"),
+    "transfer": ("cinetransfer.transfer", "main", "source video -> recorded shot + fidelity report"),
+    "replay": ("cinetransfer.replay", "main", "republish a recorded run on Zenoh"),
+    "docs": ("cinetransfer.shared.docgen", "main", "generate docs/messages.md from the schemas"),
+}
+
+
+def _usage() -> str:
+    lines = ["usage: cinetransfer COMMAND [ARGS...]", "", "commands:"]
+    for name, (_, _, help_) in COMMANDS.items():
+        lines.append(f"  {name:<17} {help_}")
+    lines.append("")
+    lines.append("Run 'cinetransfer COMMAND --help' for a command's options.")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help", "help"):
+        print(_usage())
+        return 0
+    if argv[0] == "--version":
+        from cinetransfer import __version__
+
+        print(__version__)
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name not in COMMANDS:
+        print(f"cinetransfer: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
+        return 2
+    mod_name, fn_name, _ = COMMANDS[name]
+    try:
+        mod = importlib.import_module(mod_name)
+    except ModuleNotFoundError as e:
+        if e.name and e.name.startswith("cinetransfer"):
+            print(f"cinetransfer: command {name!r} is not available in this build ({e.name} missing)",
+                  file=sys.stderr)
+            return 2
+        raise
+    rc = getattr(mod, fn_name)(rest)
+    return int(rc or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

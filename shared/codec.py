@@ -1,0 +1,365 @@
+"""The only module that touches msgpack: message dataclasses <-> bytes.
+
+Wire format (little-endian):
+
+    b"CTM" | format (1 byte, = 1) | header length L (uint32) | msgpack header (L bytes)
+    | zero padding to a multiple of 16 | array blobs
+
+The header is the msgpack map {"t": type name, "v": schema version, "d": fields}. Numpy arrays
+are not inside the msgpack: the header holds {"__nd__": encoding, "dt", "sh", "o", "n"} and the
+bytes follow in the blob section, so a raw 1280x720 frame decodes as a read-only numpy view of
+the payload (zero-copy). Boolean arrays are bit-packed; a Frame image may be sent as JPEG
+(`encode(msg, jpeg_quality=90)`) for a radio link.
+
+`decode` validates everything (type tag, schema version, field types, dtypes, shapes, finiteness)
+and raises `DecodeError` — one error type for every malformed or unsupported payload.
+Unknown fields are ignored (a newer sender may add fields); missing fields are an error.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import struct
+import types
+import typing
+from typing import Any
+
+import msgpack
+import numpy as np
+
+from cinetransfer.shared import messages as M
+
+MAGIC = b"CTM"
+FORMAT = 1
+_PREFIX = struct.Struct("<3sBI")
+_ALIGN = 16
+_UNIONS = (typing.Union, types.UnionType)
+
+
+class CodecError(ValueError):
+    """A message could not be encoded or decoded."""
+
+
+class DecodeError(CodecError):
+    """A payload is malformed, of an unknown type, or of an unsupported schema version."""
+
+
+class EncodeError(CodecError):
+    """A message does not satisfy its own schema (wrong dtype/shape, non-finite value, ...)."""
+
+
+# --------------------------------------------------------------------------- field specs
+@functools.cache
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls, vars(M))
+
+
+@functools.cache
+def _fields(cls: type) -> tuple[tuple[dataclasses.Field, Any], ...]:
+    hints = _hints(cls)
+    return tuple((f, hints[f.name]) for f in dataclasses.fields(cls))
+
+
+def _nan_ok(f: dataclasses.Field) -> bool:
+    return "NaN =" in f.metadata.get("doc", "")
+
+
+# --------------------------------------------------------------------------- encode
+class _Blobs:
+    def __init__(self) -> None:
+        self.parts: list[memoryview | bytes] = []
+        self.size = 0
+
+    def add(self, data: memoryview | bytes) -> tuple[int, int]:
+        pad = (-self.size) % _ALIGN
+        if pad:
+            self.parts.append(b"\0" * pad)
+            self.size += pad
+        off = self.size
+        n = len(data) if isinstance(data, bytes) else data.nbytes
+        self.parts.append(data)
+        self.size += n
+        return off, n
+
+
+def _check_array(value: Any, meta: dict, where: str, err: type[CodecError]) -> np.ndarray:
+    if not isinstance(value, np.ndarray):
+        raise err(f"{where}: expected a numpy array, got {type(value).__name__}")
+    dt = np.dtype(meta["dtype"])
+    if value.dtype != dt:
+        if err is EncodeError and np.can_cast(value.dtype, dt, casting="same_kind"):
+            value = value.astype(dt)
+        else:
+            raise err(f"{where}: dtype {value.dtype} where {dt} is required")
+    shape = meta["shape"]
+    if value.ndim != len(shape) or any(s is not None and s != v for s, v in zip(shape, value.shape)):
+        want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
+        raise err(f"{where}: shape {value.shape} where {want} is required")
+    if dt.kind == "f":
+        if meta["allow_nan"]:
+            if np.isinf(value).any():
+                raise err(f"{where}: contains ±inf")
+        elif not np.isfinite(value).all():
+            raise err(f"{where}: contains NaN or ±inf")
+    return value
+
+
+def _encode_array(value: np.ndarray, meta: dict, blobs: _Blobs, jpeg_quality: int | None) -> dict:
+    if meta["dtype"] == "bool":
+        packed = np.packbits(value.reshape(-1))
+        off, n = blobs.add(packed.tobytes())
+        return {"__nd__": "bits", "dt": "bool", "sh": list(value.shape), "o": off, "n": n}
+    if jpeg_quality is not None and meta["dtype"] == "uint8" and meta["shape"] == (None, None, 3):
+        import cv2
+
+        ok, buf = cv2.imencode(".jpg", value, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
+        if not ok:
+            raise EncodeError("JPEG encoding failed")
+        off, n = blobs.add(buf.tobytes())
+        return {"__nd__": "jpeg", "dt": "uint8", "sh": list(value.shape), "o": off, "n": n}
+    value = np.ascontiguousarray(value)
+    off, n = blobs.add(memoryview(value.reshape(-1).view(np.uint8)) if value.size else b"")
+    return {"__nd__": "raw", "dt": value.dtype.str, "sh": list(value.shape), "o": off, "n": n}
+
+
+def _encode_value(value: Any, tp: Any, where: str, f: dataclasses.Field | None, blobs: _Blobs,
+                  jq: int | None) -> Any:
+    origin = typing.get_origin(tp)
+    if origin in _UNIONS:
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if value is None:
+            return None
+        return _encode_value(value, args[0], where, f, blobs, jq)
+    if tp is np.ndarray:
+        meta = f.metadata if f is not None else {}
+        if value is None:
+            if meta.get("optional"):
+                return None
+            raise EncodeError(f"{where}: array is required")
+        value = _check_array(value, meta, where, EncodeError)
+        return _encode_array(value, meta, blobs, jq)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, tp):
+            raise EncodeError(f"{where}: expected {tp.__name__}, got {type(value).__name__}")
+        return _encode_fields(value, blobs, jq, where)
+    if origin is list:
+        (item_tp,) = typing.get_args(tp)
+        if not isinstance(value, (list, tuple)):
+            raise EncodeError(f"{where}: expected a list")
+        return [_encode_value(v, item_tp, f"{where}[{i}]", None, blobs, jq) for i, v in enumerate(value)]
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise EncodeError(f"{where}: expected a dict")
+        return {str(k): _plain(v, f"{where}.{k}", EncodeError) for k, v in value.items()}
+    return _scalar(value, tp, where, f, EncodeError)
+
+
+def _encode_fields(msg: Any, blobs: _Blobs, jq: int | None, where: str) -> dict:
+    return {f.name: _encode_value(getattr(msg, f.name), tp, f"{where}.{f.name}", f, blobs, jq)
+            for f, tp in _fields(type(msg))}
+
+
+def encode(msg: Any, *, jpeg_quality: int | None = None) -> bytes:
+    """Encode a message dataclass. `jpeg_quality` (1-100) sends images as JPEG instead of raw."""
+    cls = type(msg)
+    if cls.__name__ not in M.MESSAGE_TYPES:
+        raise EncodeError(f"{cls.__name__} is not a top-level message type")
+    blobs = _Blobs()
+    body = _encode_fields(msg, blobs, jpeg_quality, cls.__name__)
+    header = msgpack.packb({"t": cls.__name__, "v": cls.SCHEMA_VERSION, "d": body}, use_bin_type=True)
+    head_len = _PREFIX.size + len(header)
+    pad = (-head_len) % _ALIGN
+    # One join = one copy of the array bytes (no zero-fill, no second copy).
+    return b"".join([_PREFIX.pack(MAGIC, FORMAT, len(header)), header, b"\0" * pad, *blobs.parts])
+
+
+# --------------------------------------------------------------------------- decode
+def _scalar(value: Any, tp: Any, where: str, f: dataclasses.Field | None, err: type[CodecError]) -> Any:
+    if tp is bool:
+        if not isinstance(value, (bool, np.bool_)):
+            raise err(f"{where}: expected bool, got {type(value).__name__}")
+        return bool(value)
+    if tp is int:
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+            raise err(f"{where}: expected int, got {type(value).__name__}")
+        return int(value)
+    if tp is float:
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise err(f"{where}: expected float, got {type(value).__name__}")
+        value = float(value)
+        if math.isinf(value) or (math.isnan(value) and not (f is not None and _nan_ok(f))):
+            raise err(f"{where}: non-finite value {value}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise err(f"{where}: expected str, got {type(value).__name__}")
+        return value
+    if tp is Any:
+        return _plain(value, where, err)
+    raise err(f"{where}: unsupported field type {tp}")
+
+
+def _plain(value: Any, where: str, err: type[CodecError]) -> Any:
+    """Values allowed in free-form dict fields: scalars and lists of scalars."""
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value)
+    if isinstance(value, (list, tuple)):
+        return [_plain(v, where, err) for v in value]
+    raise err(f"{where}: unsupported value type {type(value).__name__}")
+
+
+def _decode_array(obj: Any, meta: dict, where: str, blob: memoryview) -> np.ndarray:
+    if not isinstance(obj, dict) or "__nd__" not in obj:
+        raise DecodeError(f"{where}: expected an array reference")
+    try:
+        kind, dt, shape, off, n = obj["__nd__"], obj["dt"], [int(s) for s in obj["sh"]], int(obj["o"]), int(obj["n"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise DecodeError(f"{where}: malformed array reference ({e})") from None
+    if off < 0 or n < 0 or off + n > len(blob) or any(s < 0 for s in shape):
+        raise DecodeError(f"{where}: array bytes out of range")
+    count = math.prod(shape)
+    data = blob[off:off + n]
+    if kind == "raw":
+        try:
+            dtype = np.dtype(dt)
+        except TypeError:
+            raise DecodeError(f"{where}: unknown dtype {dt!r}") from None
+        if dtype.hasobject or count * dtype.itemsize != n:
+            raise DecodeError(f"{where}: {n} bytes do not hold shape {shape} of {dtype}")
+        arr = np.frombuffer(data, dtype=dtype, count=count).reshape(shape)
+    elif kind == "bits":
+        if (count + 7) // 8 != n:
+            raise DecodeError(f"{where}: {n} packed bytes do not hold shape {shape}")
+        arr = np.unpackbits(np.frombuffer(data, dtype=np.uint8), count=count).astype(bool).reshape(shape)
+    elif kind == "jpeg":
+        import cv2
+
+        arr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+        if arr is None or list(arr.shape) != shape:
+            raise DecodeError(f"{where}: corrupt JPEG image")
+    else:
+        raise DecodeError(f"{where}: unknown array encoding {kind!r}")
+    return _check_array(arr, meta, where, DecodeError)
+
+
+def _decode_value(obj: Any, tp: Any, where: str, f: dataclasses.Field | None, blob: memoryview) -> Any:
+    origin = typing.get_origin(tp)
+    if origin in _UNIONS:
+        if obj is None:
+            return None
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        return _decode_value(obj, args[0], where, f, blob)
+    if tp is np.ndarray:
+        meta = f.metadata if f is not None else {}
+        if obj is None and meta.get("optional"):
+            return None
+        return _decode_array(obj, meta, where, blob)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(obj, dict):
+            raise DecodeError(f"{where}: expected a map for {tp.__name__}")
+        return _decode_fields(tp, obj, blob, where)
+    if origin is list:
+        (item_tp,) = typing.get_args(tp)
+        if not isinstance(obj, list):
+            raise DecodeError(f"{where}: expected a list")
+        return [_decode_value(v, item_tp, f"{where}[{i}]", None, blob) for i, v in enumerate(obj)]
+    if origin is dict:
+        if not isinstance(obj, dict) or not all(isinstance(k, str) for k in obj):
+            raise DecodeError(f"{where}: expected a map with string keys")
+        return {k: _plain(v, f"{where}.{k}", DecodeError) for k, v in obj.items()}
+    return _scalar(obj, tp, where, f, DecodeError)
+
+
+def _decode_fields(cls: type, body: dict, blob: memoryview, where: str) -> Any:
+    kwargs = {}
+    for f, tp in _fields(cls):
+        if f.name not in body:
+            raise DecodeError(f"{where}.{f.name}: missing field")
+        kwargs[f.name] = _decode_value(body[f.name], tp, f"{where}.{f.name}", f, blob)
+    return cls(**kwargs)
+
+
+def peek_type(payload: bytes | bytearray | memoryview) -> tuple[str, int]:
+    """(type name, schema version) of a payload without decoding its body."""
+    _, header, _ = _split(payload)
+    return header["t"], header["v"]
+
+
+def _split(payload: bytes | bytearray | memoryview) -> tuple[int, dict, memoryview]:
+    view = memoryview(payload).cast("B") if not isinstance(payload, memoryview) else payload.cast("B")
+    if len(view) < _PREFIX.size:
+        raise DecodeError(f"payload of {len(view)} bytes is too short to be a cinetransfer message")
+    magic, fmt, hlen = _PREFIX.unpack_from(view, 0)
+    if magic != MAGIC:
+        raise DecodeError("not a cinetransfer message (bad magic bytes)")
+    if fmt != FORMAT:
+        raise DecodeError(f"wire format {fmt} is not supported (this build reads format {FORMAT})")
+    end = _PREFIX.size + hlen
+    if end > len(view):
+        raise DecodeError("truncated payload (header runs past the end)")
+    try:
+        header = msgpack.unpackb(view[_PREFIX.size:end], raw=False, strict_map_key=True)
+    except Exception as e:  # msgpack raises several unrelated types for garbage
+        raise DecodeError(f"corrupt message header ({type(e).__name__}: {e})") from None
+    if not isinstance(header, dict) or not {"t", "v", "d"} <= header.keys():
+        raise DecodeError("message header lacks type/version/data")
+    start = end + ((-end) % _ALIGN)
+    return start, header, view[start:] if start <= len(view) else view[len(view):]
+
+
+def decode(payload: bytes | bytearray | memoryview, expected: type | None = None) -> Any:
+    """Decode and validate a payload; raise DecodeError on anything wrong.
+
+    `expected` (a message class) additionally requires that type.
+    """
+    _, header, blob = _split(payload)
+    name, version, body = header["t"], header["v"], header["d"]
+    cls = M.MESSAGE_TYPES.get(name) if isinstance(name, str) else None
+    if cls is None:
+        raise DecodeError(f"unknown message type {name!r}")
+    if expected is not None and cls is not expected:
+        raise DecodeError(f"expected a {expected.__name__} message, got {name}")
+    if version != cls.SCHEMA_VERSION:
+        raise DecodeError(f"{name} schema version {version!r} is not supported "
+                          f"(this build reads version {cls.SCHEMA_VERSION})")
+    if not isinstance(body, dict):
+        raise DecodeError(f"{name}: body is not a map")
+    return _decode_fields(cls, body, blob, name)
+
+
+def summary(msg: Any) -> str:
+    """A one-line human summary of a decoded message (for the monitor and logs)."""
+    name = type(msg).__name__
+    if isinstance(msg, M.Frame):
+        h, w = msg.image.shape[:2]
+        return f"Frame #{msg.index} {w}x{h} from {msg.source or '?'}"
+    if isinstance(msg, M.Measurement):
+        fm = "focus" if msg.focus_map is not None else "no focus"
+        return f"Measurement #{msg.frame_index} {len(msg.people)} people, {len(msg.skeletons)} skeletons, {fm}"
+    if isinstance(msg, M.Instructions):
+        k = msg.image_targets.shape[0]
+        return (f"Instructions frames {msg.first_frame}..{msg.first_frame + k - 1} "
+                f"({'final' if msg.final else 'window'}), joints {','.join(msg.joint_names)}")
+    if isinstance(msg, M.Setpoint):
+        p = msg.position_m
+        return (f"Setpoint {msg.mode} p=({p[0]:.2f},{p[1]:.2f},{p[2]:.2f}) f={msg.lens.focal_length_mm:.0f}mm "
+                f"s={msg.lens.focus_distance_m:.1f}m A={msg.lens.f_number:.1f} k={msg.instruction_frame} "
+                f"{msg.solver_status}")
+    if isinstance(msg, M.VehicleState):
+        p = msg.position_m
+        return (f"VehicleState {msg.backend}/{msg.mode} p=({p[0]:.2f},{p[1]:.2f},{p[2]:.2f})"
+                f"{' HOLD' if msg.holding else ''}{' armed' if msg.armed else ''}")
+    if isinstance(msg, M.SubjectState):
+        c = np.nanmean(msg.joints_m, axis=0) if len(msg.joints_m) else np.full(3, np.nan)
+        return f"SubjectState {msg.subject_id} centre=({c[0]:.2f},{c[1]:.2f},{c[2]:.2f})"
+    if isinstance(msg, M.Command):
+        return f"Command {msg.action} {msg.args or ''}".strip()
+    if isinstance(msg, M.Health):
+        return (f"Health {msg.node} rx={msg.received} rej={msg.rejected} drop={msg.dropped} "
+                f"tx={msg.published} p50={msg.latency_ms_p50:.2f}ms{' ERR ' + msg.last_error if msg.last_error else ''}")
+    return name

@@ -1,0 +1,93 @@
+"""Key expressions and the topic table — the only place key strings are spelled.
+
+Every key is ``{root}/{rig}/{service}/{topic}``; `root` is "ct". One rig = one vehicle, so
+several rigs can share a Zenoh network. The topic table gives, for each topic, its message
+type, publisher, expected rate and queue policy; health checks and docs derive from it.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from cinetransfer.shared import messages as M
+
+ROOT = "ct"
+_NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
+
+
+def _check(part: str, what: str) -> str:
+    if not _NAME.match(part):
+        raise ValueError(f"invalid {what} {part!r}: use letters, digits, '_' or '-'")
+    return part
+
+
+@dataclass(frozen=True)
+class Topic:
+    service: str
+    topic: str
+    msg_type: type
+    publisher: str
+    rate_hz: float  # expected rate; 0 = event-driven
+    policy: str  # 'drop-oldest' (latest wins) or 'no-drop' (commands, whole sequences)
+    doc: str
+
+    def key(self, rig: str) -> str:
+        return f"{ROOT}/{_check(rig, 'rig name')}/{self.service}/{self.topic}"
+
+
+FRAME = Topic("camera", "frame", M.Frame, "autopilot_bridge | camera node | detector --video", 24.0,
+              "drop-oldest", "camera frames with the lens state they were taken with")
+MEASUREMENT = Topic("detector", "measurement", M.Measurement, "detector", 24.0, "no-drop",
+                    "people, skeletons and focus map of one frame")
+INSTRUCTIONS = Topic("smoother", "instructions", M.Instructions, "smoother", 2.0, "no-drop",
+                     "recording instructions: a streaming window, or the whole sequence (final)")
+SETPOINT = Topic("planner", "setpoint", M.Setpoint, "planner", 20.0, "drop-oldest",
+                 "next state to track and the planned horizon")
+PLANNER_COMMAND = Topic("planner", "command", M.Command, "operator / transfer", 0.0, "no-drop",
+                        "start / pause / resume / stop a recording")
+VEHICLE_STATE = Topic("vehicle", "state", M.VehicleState, "autopilot_bridge", 50.0, "drop-oldest",
+                      "pose, velocity, gimbal, lens, mode")
+SUBJECT_STATE = Topic("subject", "state", M.SubjectState, "autopilot_bridge | perception", 50.0,
+                      "drop-oldest", "3-D joints of the filmed subject")
+BRIDGE_COMMAND = Topic("vehicle", "command", M.Command, "operator / transfer", 0.0, "no-drop",
+                       "arm / takeoff / hold / land requests to the bridge")
+
+SIM_TRUTH = Topic("sim", "truth", M.GroundTruth, "autopilot_bridge (sim backend)", 24.0, "no-drop",
+                  "exact ground truth of each rendered frame")
+
+TOPICS: tuple[Topic, ...] = (FRAME, MEASUREMENT, INSTRUCTIONS, SETPOINT, PLANNER_COMMAND, VEHICLE_STATE,
+                             SUBJECT_STATE, BRIDGE_COMMAND, SIM_TRUTH)
+
+
+def health(rig: str, node: str) -> str:
+    """Key of a node's periodic Health message."""
+    return f"{ROOT}/{_check(rig, 'rig name')}/health/{_check(node, 'node name')}"
+
+
+def alive(rig: str, node: str) -> str:
+    """Key of a node's liveliness token."""
+    return f"{ROOT}/{_check(rig, 'rig name')}/alive/{_check(node, 'node name')}"
+
+
+def config(rig: str, node: str) -> str:
+    """Key of a node's effective-config queryable."""
+    return f"{ROOT}/{_check(rig, 'rig name')}/{_check(node, 'node name')}/config"
+
+
+def all_alive(rig: str = "*") -> str:
+    return f"{ROOT}/{rig}/alive/*"
+
+
+def everything(rig: str = "*") -> str:
+    return f"{ROOT}/{rig}/**" if rig != "*" else f"{ROOT}/**"
+
+
+def topic_for_key(key: str) -> Topic | None:
+    """The topic-table entry a concrete key belongs to (None for health/alive/unknown keys)."""
+    parts = key.split("/")
+    if len(parts) != 4 or parts[0] != ROOT:
+        return None
+    for t in TOPICS:
+        if parts[2] == t.service and parts[3] == t.topic:
+            return t
+    return None

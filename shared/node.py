@@ -1,0 +1,382 @@
+"""Node runtime: the plumbing every service shares.
+
+    with Node("smoother", rig, zenoh_opts, config=cfg) as node:
+        inbox = node.subscribe(keys.MEASUREMENT, maxlen=256)
+        pub = node.publisher(keys.INSTRUCTIONS)
+        node.ready()                      # liveliness token: slow set-up is finished
+        while node.running:
+            msg = inbox.get(timeout=0.1)  # decoded & validated, or None
+            if msg is None:
+                continue
+            with node.timed():
+                out = core.step(msg)
+            pub.put(out)
+
+What it gives a service:
+- a Zenoh session opened from shared flags and closed on exit (a session left open can hang
+  the interpreter at exit);
+- SIGINT/SIGTERM → `node.running` becomes False → the service leaves its loop and exits 0;
+- subscribers whose callbacks only enqueue raw payloads into bounded queues (drop-oldest for
+  frames and states, no-drop for commands); decoding happens in the service thread, and a
+  payload that fails to decode is counted as rejected, logged (rate-limited) and skipped;
+- publishers that stamp `seq` and count what they send;
+- a liveliness token `ct/{rig}/alive/{node}` and a Health message every `health_period_s` on
+  `ct/{rig}/health/{node}` (received, rejected, dropped, published, latency, last error, and
+  node-specific counters);
+- the effective config answered on the `ct/{rig}/{node}/config` query.
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import contextlib
+import dataclasses
+import json
+import logging
+import signal
+import threading
+import time
+from typing import Any, Callable, Iterator
+
+import zenoh
+
+from cinetransfer.shared import codec, keys
+from cinetransfer.shared import messages as M
+from cinetransfer.shared.zenoh_config import ZenohOptions, add_arguments, open_session, options_from_args
+
+NO_DROP_CAP = 100_000  # a no-drop queue past this is a bug upstream; it then drops and says so
+
+
+def add_node_arguments(parser: argparse.ArgumentParser, *, default_rig: str = "rig0") -> None:
+    """Flags every node takes: rig, logging, health period, and the Zenoh flags."""
+    parser.add_argument("--rig", default=default_rig, help="rig (vehicle) name used in keys (default %(default)s)")
+    parser.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    parser.add_argument("--health-period", type=float, default=1.0, metavar="S",
+                        help="seconds between Health messages (default %(default)s)")
+    add_arguments(parser)
+
+
+def setup_logging(level: str = "INFO") -> None:
+    logging.basicConfig(level=getattr(logging, level), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+
+
+class RateLimitedLog:
+    """Logs a repeating warning at most once per `period_s`, with how many were suppressed."""
+
+    def __init__(self, logger: logging.Logger, period_s: float = 5.0) -> None:
+        self.logger, self.period_s = logger, period_s
+        self._last: dict[str, float] = {}
+        self._suppressed: collections.Counter[str] = collections.Counter()
+
+    def warning(self, kind: str, msg: str) -> None:
+        now = time.monotonic()
+        if now - self._last.get(kind, -1e9) >= self.period_s:
+            n = self._suppressed.pop(kind, 0)
+            self.logger.warning("%s%s", msg, f" (+{n} similar suppressed)" if n else "")
+            self._last[kind] = now
+        else:
+            self._suppressed[kind] += 1
+
+
+class Inbox:
+    """A bounded queue of raw payloads filled by a Zenoh callback, decoded on `get`."""
+
+    def __init__(self, node: "Node", key: str, msg_type: type | None, maxlen: int, policy: str) -> None:
+        if policy not in ("drop-oldest", "no-drop"):
+            raise ValueError(f"queue policy {policy!r} must be 'drop-oldest' or 'no-drop'")
+        self.node, self.key, self.msg_type, self.policy = node, key, msg_type, policy
+        self.maxlen = maxlen if policy == "drop-oldest" else NO_DROP_CAP
+        self._q: collections.deque[tuple[bytes, str, float]] = collections.deque()
+        self.received = 0
+        self.dropped = 0
+        self.last_rx_mono: float | None = None
+        self._sub: Any = None
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        # Runs on a Zenoh thread: enqueue only, never compute or call Zenoh.
+        item = (sample.payload.to_bytes(), str(sample.key_expr), time.monotonic())
+        with self.node._cond:
+            if len(self._q) >= self.maxlen:
+                self._q.popleft()
+                self.dropped += 1
+                self.node._dropped += 1
+            self._q.append(item)
+            self.received += 1
+            self.node._received += 1
+            self.last_rx_mono = item[2]
+            self.node._cond.notify_all()
+
+    def __len__(self) -> int:
+        return len(self._q)
+
+    def get_raw(self, timeout: float | None = 0.0) -> tuple[bytes, str, float] | None:
+        """Oldest (payload, key, receive time) or None after `timeout` seconds."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with self.node._cond:
+            while not self._q:
+                remaining = None if deadline is None else deadline - time.monotonic()
+                if (remaining is not None and remaining <= 0) or not self.node.running:
+                    return None
+                self.node._cond.wait(0.1 if remaining is None else min(remaining, 0.1))
+            return self._q.popleft()
+
+    def get(self, timeout: float | None = 0.0) -> Any:
+        """Oldest valid decoded message, or None. Malformed payloads are counted and skipped."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            remaining = None if deadline is None else max(0.0, deadline - time.monotonic())
+            item = self.get_raw(remaining)
+            if item is None:
+                return None
+            msg = self.node.decode(item[0], self.msg_type, item[1])
+            if msg is not None:
+                return msg
+
+    def drain(self) -> list[Any]:
+        """Every queued valid message, oldest first."""
+        out = []
+        while True:
+            item = self.get_raw(0.0)
+            if item is None:
+                return out
+            msg = self.node.decode(item[0], self.msg_type, item[1])
+            if msg is not None:
+                out.append(msg)
+
+    def latest(self) -> Any:
+        """The newest valid message in the queue (older ones are discarded), or None."""
+        out = None
+        for msg in self.drain():
+            out = msg
+        return out
+
+    def age_s(self) -> float:
+        """Seconds since the last sample arrived (inf if none yet)."""
+        return float("inf") if self.last_rx_mono is None else time.monotonic() - self.last_rx_mono
+
+
+class Publisher:
+    """Encodes, stamps `seq` and publishes messages of one key."""
+
+    def __init__(self, node: "Node", key: str, jpeg_quality: int | None, drop: bool) -> None:
+        self.node, self.key, self.jpeg_quality = node, key, jpeg_quality
+        cc = zenoh.CongestionControl.DROP if drop else zenoh.CongestionControl.BLOCK
+        self._pub = node.session.declare_publisher(key, congestion_control=cc, express=True)
+        self.seq = 0
+        self.published = 0
+
+    def put(self, msg: Any) -> None:
+        if dataclasses.is_dataclass(msg):
+            msg = dataclasses.replace(msg, seq=self.seq)
+            payload = codec.encode(msg, jpeg_quality=self.jpeg_quality)
+        else:
+            payload = bytes(msg)  # raw bytes: tests of rejection, replay of recorded payloads
+        self._pub.put(payload)
+        self.seq += 1
+        self.published += 1
+        self.node._published += 1
+
+    def undeclare(self) -> None:
+        self._pub.undeclare()
+
+
+class Node:
+    """A service's session, queues, publishers, liveliness token and Health reporting."""
+
+    def __init__(self, name: str, rig: str, zenoh_options: ZenohOptions, *, config: Any = None,
+                 health_period_s: float = 1.0, install_signal_handlers: bool = True) -> None:
+        self.name, self.rig, self.zopts, self.config = name, rig, zenoh_options, config
+        keys.health(rig, name)  # validates both names early
+        self.health_period_s = health_period_s
+        self.log = logging.getLogger(f"cinetransfer.{name}")
+        self.rl = RateLimitedLog(self.log)
+        self.session: zenoh.Session | None = None
+        self._stop = threading.Event()
+        self._cond = threading.Condition()
+        self._received = self._rejected = self._dropped = self._published = 0
+        self._latencies: collections.deque[float] = collections.deque(maxlen=1000)
+        self.last_error = ""
+        self.counters: dict[str, Any] = {}
+        self.healthy = True
+        self._inboxes: list[Inbox] = []
+        self._publishers: list[Publisher] = []
+        self._decls: list[Any] = []
+        self._token: Any = None
+        self._health_pub: Publisher | None = None
+        self._health_thread: threading.Thread | None = None
+        self._t0 = time.monotonic()
+        self._install_signals = install_signal_handlers
+        self._old_handlers: dict[int, Any] = {}
+
+    # ------------------------------------------------------------------ lifecycle
+    def __enter__(self) -> "Node":
+        if self._install_signals and threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._old_handlers[sig] = signal.signal(sig, self._on_signal)
+        self.session = open_session(self.zopts)
+        self._health_pub = Publisher(self, keys.health(self.rig, self.name), None, drop=True)
+        self._decls.append(self.session.declare_queryable(keys.config(self.rig, self.name), self._on_config_query))
+        self._health_thread = threading.Thread(target=self._health_loop, name=f"{self.name}-health", daemon=True)
+        self._health_thread.start()
+        if self.config is not None:
+            self.log.info("effective config: %s", self._config_json())
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+        if self._health_thread is not None:
+            self._health_thread.join(timeout=2.0)
+        try:
+            if self._health_pub is not None:
+                self._publish_health()
+        except zenoh.ZError:
+            pass
+        for obj in [self._token, *self._decls, *(i._sub for i in self._inboxes), *self._publishers]:
+            if obj is None:
+                continue
+            with contextlib.suppress(Exception):  # already gone on a dying session: nothing to undo
+                obj.undeclare()
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+        for sig, h in self._old_handlers.items():
+            signal.signal(sig, h)
+        self.log.info("stopped")
+
+    def _on_signal(self, signum: int, _frame: object) -> None:
+        self.log.info("received %s, shutting down", signal.Signals(signum).name)
+        self.stop()
+
+    def stop(self) -> None:
+        self._stop.set()
+        with self._cond:
+            self._cond.notify_all()
+
+    @property
+    def running(self) -> bool:
+        return not self._stop.is_set()
+
+    def sleep(self, seconds: float) -> bool:
+        """Sleep unless stopped; returns `running`."""
+        self._stop.wait(seconds)
+        return self.running
+
+    def ready(self) -> None:
+        """Declare the liveliness token: call once slow set-up is done."""
+        self._token = self.session.liveliness().declare_token(keys.alive(self.rig, self.name))
+        self.log.info("ready as %s", keys.alive(self.rig, self.name))
+
+    # ------------------------------------------------------------------ pub/sub
+    def _resolve(self, topic: keys.Topic | str) -> tuple[str, type | None, str]:
+        if isinstance(topic, keys.Topic):
+            return topic.key(self.rig), topic.msg_type, topic.policy
+        t = keys.topic_for_key(topic)
+        return topic, (t.msg_type if t else None), (t.policy if t else "drop-oldest")
+
+    def subscribe(self, topic: keys.Topic | str, *, msg_type: type | None = None, maxlen: int = 8,
+                  policy: str | None = None) -> Inbox:
+        key, tp, pol = self._resolve(topic)
+        inbox = Inbox(self, key, msg_type or tp, maxlen, policy or pol)
+        inbox._sub = self.session.declare_subscriber(key, inbox._on_sample)
+        self._inboxes.append(inbox)
+        return inbox
+
+    def publisher(self, topic: keys.Topic | str, *, jpeg_quality: int | None = None) -> Publisher:
+        key, _, pol = self._resolve(topic)
+        pub = Publisher(self, key, jpeg_quality, drop=(pol == "drop-oldest"))
+        self._publishers.append(pub)
+        return pub
+
+    def wait(self, timeout: float) -> None:
+        """Block until any inbox receives something, the node stops, or `timeout` passes."""
+        with self._cond:
+            if self.running and not any(len(i) for i in self._inboxes):
+                self._cond.wait(timeout)
+
+    def decode(self, payload: bytes, msg_type: type | None, key: str = "?") -> Any:
+        try:
+            return codec.decode(payload, msg_type)
+        except codec.DecodeError as e:
+            self.reject(f"{key}: {e}")
+            return None
+
+    def reject(self, reason: str) -> None:
+        """Count and log (rate-limited) a rejected input; the node carries on."""
+        with self._cond:
+            self._rejected += 1
+        self.last_error = reason
+        self.rl.warning("reject", f"rejected message: {reason}")
+
+    def error(self, reason: str, kind: str = "error") -> None:
+        """Record a non-fatal processing error (rate-limited log)."""
+        self.last_error = reason
+        self.rl.warning(kind, reason)
+
+    # ------------------------------------------------------------------ health
+    @contextlib.contextmanager
+    def timed(self) -> Iterator[None]:
+        t = time.perf_counter()
+        try:
+            yield
+        finally:
+            self._latencies.append((time.perf_counter() - t) * 1e3)
+
+    def record_latency_ms(self, ms: float) -> None:
+        self._latencies.append(ms)
+
+    def stats(self) -> dict[str, int]:
+        return {"received": self._received, "rejected": self._rejected, "dropped": self._dropped,
+                "published": self._published}
+
+    def health(self) -> M.Health:
+        lat = sorted(self._latencies)
+        self._latencies.clear()
+        p50 = lat[len(lat) // 2] if lat else float("nan")
+        mx = lat[-1] if lat else float("nan")
+        counters = {k: v for k, v in self.counters.items() if isinstance(v, (str, int, float, bool))}
+        return M.Health(stamp_ns=M.now_ns(), valid=self.healthy, node=self.name,
+                        uptime_s=time.monotonic() - self._t0, latency_ms_p50=p50, latency_ms_max=mx,
+                        last_error=self.last_error[:500], counters=counters, **self.stats())
+
+    def _publish_health(self) -> None:
+        assert self._health_pub is not None
+        h = self.health()
+        self._health_pub.put(h)
+        # Health messages themselves are not part of the node's published count.
+        self._published -= 1
+
+    def _health_loop(self) -> None:
+        while not self._stop.wait(self.health_period_s):
+            try:
+                self._publish_health()
+            except (zenoh.ZError, codec.CodecError) as e:
+                self.error(f"health publish failed: {e}", "health")
+
+    def _config_json(self) -> str:
+        cfg = self.config
+        if dataclasses.is_dataclass(cfg):
+            cfg = dataclasses.asdict(cfg)
+        return json.dumps(cfg, default=str, sort_keys=True)
+
+    def _on_config_query(self, query: zenoh.Query) -> None:
+        query.reply(keys.config(self.rig, self.name), self._config_json())
+
+
+def node_from_args(name: str, args: argparse.Namespace, *, config: Any = None, **zenoh_defaults: Any) -> Node:
+    """Node built from the flags of `add_node_arguments`."""
+    setup_logging(args.log_level)
+    return Node(name, args.rig, options_from_args(args, **zenoh_defaults), config=config,
+                health_period_s=args.health_period)
+
+
+def call_periodically(period_s: float, node: Node, fn: Callable[[], None]) -> None:
+    """Run `fn` every `period_s` (drift-free) until the node stops."""
+    nxt = time.monotonic()
+    while node.running:
+        fn()
+        nxt += period_s
+        delay = nxt - time.monotonic()
+        if delay < -period_s:  # fell far behind (e.g. suspended): resynchronise, don't burst
+            nxt = time.monotonic()
+            delay = 0.0
+        node.sleep(max(0.0, delay))
