@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     # tools
     "deploy": ("cinetransfer.deploy.supervisor", "main", "start/stop/inspect a set of nodes from a config"),
     "monitor": ("cinetransfer.shared.monitor", "main", "live table of keys, rates and alive nodes"),
+    "relay": ("cinetransfer.shared.relay", "main", "forward validated messages from one key to another"),
     "router": ("cinetransfer.shared.router", "main", "run a Zenoh router"),
     "detect": ("cinetransfer.services.detector.cli", "main", "measure a video: people, joints, focus"),
     "smooth": ("cinetransfer.services.smoother.cli", "smooth_main", "measurements -> style.json"),

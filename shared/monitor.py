@@ -1,0 +1,163 @@
+"""`cinetransfer monitor [KEYEXPR]`: what is on the bus, and who is alive.
+
+A live table of keys with rate, size, age and a one-line decoded summary, plus the nodes
+whose liveliness tokens are present. `--json` streams every decoded message as one JSON line
+(for scripts); `--once` collects for `--duration` seconds, prints one snapshot and exits.
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import dataclasses
+import json
+import signal
+import sys
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from cinetransfer.shared import codec, keys, zenoh_config
+
+RATE_WINDOW_S = 5.0
+
+
+def to_jsonable(obj: Any, max_array: int = 64) -> Any:
+    """A decoded message as plain JSON values; large arrays become a shape/dtype summary."""
+    if dataclasses.is_dataclass(obj):
+        out = {"_type": type(obj).__name__} if hasattr(obj, "SCHEMA_VERSION") else {}
+        for f in dataclasses.fields(obj):
+            out[f.name] = to_jsonable(getattr(obj, f.name), max_array)
+        return out
+    if isinstance(obj, np.ndarray):
+        if obj.size <= max_array:
+            return np.where(np.isfinite(obj), obj, None).tolist() if obj.dtype.kind == "f" else obj.tolist()
+        return {"shape": list(obj.shape), "dtype": str(obj.dtype)}
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v, max_array) for v in obj]
+    if isinstance(obj, dict):
+        return {k: to_jsonable(v, max_array) for k, v in obj.items()}
+    return obj
+
+
+@dataclasses.dataclass
+class KeyStats:
+    count: int = 0
+    errors: int = 0
+    last_size: int = 0
+    last_rx: float = 0.0
+    summary: str = ""
+    times: collections.deque = dataclasses.field(default_factory=lambda: collections.deque(maxlen=2000))
+
+    def rate(self, now: float) -> float:
+        recent = [t for t in self.times if now - t <= RATE_WINDOW_S]
+        if len(recent) < 2:
+            return 0.0
+        return (len(recent) - 1) / max(recent[-1] - recent[0], 1e-6)
+
+
+class Monitor:
+    def __init__(self, session: zenoh.Session, keyexpr: str, json_out: bool = False) -> None:
+        self.session, self.keyexpr, self.json_out = session, keyexpr, json_out
+        self.stats: dict[str, KeyStats] = collections.defaultdict(KeyStats)
+        self.alive: set[str] = set()
+        self.lock = threading.Lock()
+        self._subs = [session.declare_subscriber(keyexpr, self._on_sample)]
+        alive_expr = f"{keys.ROOT}/*/alive/*"
+        self._subs.append(session.liveliness().declare_subscriber(alive_expr, self._on_alive, history=True))
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        with self.lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self.alive.add(str(sample.key_expr))
+            else:
+                self.alive.discard(str(sample.key_expr))
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        key, payload, now = str(sample.key_expr), sample.payload.to_bytes(), time.monotonic()
+        try:
+            msg = codec.decode(payload)
+            summary, err = codec.summary(msg), False
+        except codec.DecodeError as e:
+            msg, summary, err = None, f"UNDECODABLE: {e}", True
+        with self.lock:
+            st = self.stats[key]
+            st.count += 1
+            st.errors += err
+            st.last_size, st.last_rx, st.summary = len(payload), now, summary
+            st.times.append(now)
+        if self.json_out:
+            line = {"key": key, "size": len(payload), "error": summary if err else None,
+                    "msg": to_jsonable(msg) if msg is not None else None}
+            sys.stdout.write(json.dumps(line) + "\n")
+            sys.stdout.flush()
+
+    def table(self) -> str:
+        now = time.monotonic()
+        with self.lock:
+            rows = sorted(self.stats.items())
+            alive = sorted(self.alive)
+        lines = [f"{'key':<40} {'rate/s':>8} {'size':>10} {'age':>8} {'count':>7}  summary"]
+        for key, st in rows:
+            age = now - st.last_rx
+            lines.append(f"{key:<40} {st.rate(now):8.1f} {_size(st.last_size):>10} {age:7.1f}s {st.count:7d}  "
+                         f"{st.summary[:90]}")
+        if not rows:
+            lines.append("(no messages yet)")
+        lines.append("")
+        lines.append("alive: " + (", ".join(k.split("/")[1] + "/" + k.split("/")[-1] for k in alive) or "(none)"))
+        return "\n".join(lines)
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()
+
+
+def _size(n: int) -> str:
+    for unit in ("B", "KB", "MB"):
+        if n < 1024:
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} GB"
+
+
+def main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="cinetransfer monitor", description=__doc__.splitlines()[0])
+    p.add_argument("keyexpr", nargs="?", default=f"{keys.ROOT}/**", help="key expression (default %(default)s)")
+    p.add_argument("--json", action="store_true", help="stream decoded messages as JSON lines")
+    p.add_argument("--once", action="store_true", help="print one snapshot after --duration seconds and exit")
+    p.add_argument("--duration", type=float, default=2.0, help="collection time for --once (default %(default)s s)")
+    p.add_argument("--period", type=float, default=1.0, help="table refresh period (default %(default)s s)")
+    zenoh_config.add_arguments(p)
+    args = p.parse_args(argv)
+    try:
+        # The monitor joins as a client of the local router by default, so it sees every node.
+        opts = zenoh_config.options_from_args(args)
+    except ValueError as e:
+        p.error(str(e))
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    with zenoh_config.open_session(opts) as session:
+        mon = Monitor(session, args.keyexpr, json_out=args.json)
+        try:
+            if args.once:
+                stop.wait(args.duration)
+                if not args.json:
+                    print(mon.table())
+            elif args.json:
+                stop.wait()
+            else:
+                tty = sys.stdout.isatty()
+                while not stop.wait(args.period):
+                    if tty:
+                        sys.stdout.write("\x1b[2J\x1b[H")
+                    sys.stdout.write(mon.table() + "\n\n")
+                    sys.stdout.flush()
+        finally:
+            mon.close()
+    return 0

@@ -1,0 +1,81 @@
+"""Shared fixtures: free loopback ports, Zenoh options, data paths, node processes."""
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from cinetransfer.shared.zenoh_config import ZenohOptions
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def data_dir() -> Path:
+    """The real clips: $CT_DATA_DIR, else ../shared/data beside the repository."""
+    env = os.environ.get("CT_DATA_DIR")
+    return Path(env) if env else REPO.parent / "shared" / "data"
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def port() -> int:
+    return free_port()
+
+
+@pytest.fixture
+def data() -> Path:
+    d = data_dir()
+    if not d.is_dir():
+        pytest.fail(f"real data folder {d} is missing (set CT_DATA_DIR)")
+    return d
+
+
+@pytest.fixture
+def listener_opts(port: int) -> ZenohOptions:
+    """Options for the test's own session: it listens, node processes connect to it."""
+    return ZenohOptions(mode="peer", listen=(f"tcp/127.0.0.1:{port}",))
+
+
+def connect_flags(port: int) -> list[str]:
+    return ["--connect", f"tcp/127.0.0.1:{port}", "--listen", "tcp/127.0.0.1:0"]
+
+
+def spawn(*args: str, log: Path | None = None, env: dict | None = None) -> subprocess.Popen:
+    """Start `python -m cinetransfer ARGS...` as a real process."""
+    out = open(log, "wb") if log else subprocess.DEVNULL
+    return subprocess.Popen([sys.executable, "-m", "cinetransfer", *args], stdout=out, stderr=subprocess.STDOUT,
+                            env={**os.environ, **(env or {})})
+
+
+def stop(proc: subprocess.Popen, timeout: float = 15.0) -> int:
+    """SIGINT, then wait; kill if it does not exit (and fail the caller via the return code)."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            return proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+            return -9
+    return proc.returncode
+
+
+def wait_for(pred, timeout: float = 20.0, interval: float = 0.02, what: str = "condition"):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        v = pred()
+        if v:
+            return v
+        time.sleep(interval)
+    raise AssertionError(f"timed out after {timeout}s waiting for {what}")
