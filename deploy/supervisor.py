@@ -145,6 +145,8 @@ def load_config(name_or_path: str) -> DeployConfig:
     check = raw.get("check_endpoint")
     if check is None and raw.get("routers"):
         listen = ((raw["routers"][0].get("zenoh") or {}).get("listen") or [None])[0]
+        if listen is not None and not isinstance(listen, str):
+            raise ConfigError(f"{path}: routers[0].zenoh.listen entries must be strings like tcp/127.0.0.1:7447")
         check = listen.replace("0.0.0.0", "127.0.0.1") if listen else None
     try:
         return DeployConfig(name=path.stem, path=str(path.resolve()), rig=rig, routers=tuple(routers), nodes=tuple(nodes), check_endpoint=check,

@@ -54,8 +54,12 @@ def connect_flags(port: int) -> list[str]:
 def spawn(*args: str, log: Path | None = None, env: dict | None = None) -> subprocess.Popen:
     """Start `python -m cinetransfer ARGS...` as a real process."""
     out = open(log, "wb") if log else subprocess.DEVNULL
-    return subprocess.Popen([sys.executable, "-m", "cinetransfer", *args], stdout=out, stderr=subprocess.STDOUT,
-                            env={**os.environ, **(env or {})})
+    try:
+        return subprocess.Popen([sys.executable, "-m", "cinetransfer", *args], stdout=out, stderr=subprocess.STDOUT,
+                                env={**os.environ, **(env or {})})
+    finally:
+        if log:
+            out.close()  # the child keeps its own descriptor
 
 
 def stop(proc: subprocess.Popen, timeout: float = 15.0) -> int:

@@ -57,6 +57,12 @@ class VehiclePort(abc.ABC):
         """Ground truth of the frames returned by `frames()` (simulator only)."""
         return []
 
+    def command(self, action: str, args: dict) -> bool:
+        """Operator request from the bridge command key: 'arm', 'disarm', 'engage' (arm and
+        enter the autopilot's external-control mode), 'takeoff' (args: altitude_m), 'land'.
+        Returns False when this backend does not support the action (the default)."""
+        return False
+
     @property
     def connected(self) -> bool:
         """False while the link to the vehicle is lost."""

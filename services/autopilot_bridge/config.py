@@ -1,0 +1,240 @@
+"""Configuration of the autopilot_bridge service, its safety layer and its MAVLink backend.
+
+Three frozen dataclasses, each validated on construction (`validate()` names the field and
+its allowed values). Units are in the field names; frames are the world frame of
+cinetransfer.shared.messages (z up, metres, radians) unless stated.
+
+    SafetyConfig   limits every backend shares (geofence, altitude band, speed, acceleration,
+                   subject distance, gimbal and lens ranges, watchdog)
+    MavlinkConfig  link, autopilot flavour, stream rates, link-loss detection
+    BridgeConfig   backend choice, loop rate, scene, frame encoding + the two above
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+GEOFENCE_SHAPES = ("cylinder", "box")
+BACKENDS = ("sim", "mavlink")
+AUTOPILOTS = ("auto", "px4", "ardupilot")
+
+
+class ConfigError(ValueError):
+    """A configuration value is out of its allowed range (the message names the field)."""
+
+
+def _finite(name: str, v: float) -> None:
+    if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+        raise ConfigError(f"{name} = {v!r}: must be a finite number")
+
+
+def _positive(name: str, v: float) -> None:
+    _finite(name, v)
+    if v <= 0:
+        raise ConfigError(f"{name} = {v!r}: must be > 0")
+
+
+def _range(lo_name: str, lo: float, hi_name: str, hi: float) -> None:
+    _finite(lo_name, lo)
+    _finite(hi_name, hi)
+    if not lo < hi:
+        raise ConfigError(f"{lo_name} = {lo!r} must be < {hi_name} = {hi!r}")
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    """Limits the bridge enforces on every setpoint, whatever the backend.
+
+    Defaults suit a small camera drone filming a person in an open field; the speed and
+    acceleration limits sit a little above the planner's own bounds (CineMPC: |v| <= 2 m/s,
+    |a| <= 1.2 m/s^2, DESIGN §4) so that the safety layer only acts on plans that break them.
+    """
+
+    #: home point [m], world frame: centre of the geofence; altitudes are measured from its z.
+    home_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: 'cylinder' (radius around home, in x/y) or 'box' (x/y half-extents around home).
+    geofence_shape: str = "cylinder"
+    #: cylinder radius [m] (shape 'cylinder'), 1..10000.
+    geofence_radius_m: float = 60.0
+    #: box half-extents (x, y) [m] around home (shape 'box').
+    geofence_half_extent_m: tuple[float, float] = (60.0, 60.0)
+    #: altitude band above home [m]: setpoints below/above are clamped.
+    altitude_min_m: float = 0.5
+    altitude_max_m: float = 40.0
+    #: speed limit [m/s]: clamps the velocity feed-forward AND how fast the commanded position
+    #: may move (a jump in the position setpoint is approached at this speed).
+    max_speed_mps: float = 3.0
+    #: acceleration limit [m/s^2]: clamps the acceleration feed-forward and the change of the
+    #: velocity feed-forward between ticks.
+    max_accel_mps2: float = 2.0
+    #: minimum horizontal distance [m] between the commanded position and the subject's centre
+    #: (the planner keeps 2 m itself, DESIGN §4); 0 disables.
+    min_subject_distance_m: float = 1.5
+    #: subject state older than this [s] is ignored by the distance rule.
+    subject_timeout_s: float = 1.0
+    #: camera pitch band [rad] (positive = looking up) and |roll| limit [rad].
+    gimbal_pitch_min_rad: float = -math.pi / 2
+    gimbal_pitch_max_rad: float = math.radians(30.0)
+    gimbal_roll_max_rad: float = math.radians(20.0)
+    #: lens ranges: focal length [mm], focus distance [m], f-number.
+    focal_length_min_mm: float = 10.0
+    focal_length_max_mm: float = 500.0
+    focus_min_m: float = 0.3
+    focus_max_m: float = 1000.0
+    f_number_min: float = 1.0
+    f_number_max: float = 22.0
+    #: watchdog [s]: no fresh accepted setpoint for this long -> hold position.
+    watchdog_timeout_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        if len(self.home_m) != 3:
+            raise ConfigError(f"home_m = {self.home_m!r}: needs 3 values (x, y, z)")
+        for i, v in enumerate(self.home_m):
+            _finite(f"home_m[{i}]", v)
+        if self.geofence_shape not in GEOFENCE_SHAPES:
+            raise ConfigError(f"geofence_shape = {self.geofence_shape!r}: must be one of {GEOFENCE_SHAPES}")
+        _positive("geofence_radius_m", self.geofence_radius_m)
+        if len(self.geofence_half_extent_m) != 2:
+            raise ConfigError("geofence_half_extent_m needs 2 values (x, y)")
+        for i, v in enumerate(self.geofence_half_extent_m):
+            _positive(f"geofence_half_extent_m[{i}]", v)
+        _range("altitude_min_m", self.altitude_min_m, "altitude_max_m", self.altitude_max_m)
+        _positive("max_speed_mps", self.max_speed_mps)
+        _positive("max_accel_mps2", self.max_accel_mps2)
+        _finite("min_subject_distance_m", self.min_subject_distance_m)
+        if self.min_subject_distance_m < 0:
+            raise ConfigError("min_subject_distance_m must be >= 0 (0 disables)")
+        _positive("subject_timeout_s", self.subject_timeout_s)
+        _range("gimbal_pitch_min_rad", self.gimbal_pitch_min_rad, "gimbal_pitch_max_rad", self.gimbal_pitch_max_rad)
+        if self.gimbal_pitch_min_rad < -math.pi / 2 - 1e-9 or self.gimbal_pitch_max_rad > math.pi / 2 + 1e-9:
+            raise ConfigError("gimbal pitch band must lie within [-pi/2, pi/2]")
+        _finite("gimbal_roll_max_rad", self.gimbal_roll_max_rad)
+        if not 0 <= self.gimbal_roll_max_rad <= math.pi / 2:
+            raise ConfigError("gimbal_roll_max_rad must be in [0, pi/2]")
+        _range("focal_length_min_mm", self.focal_length_min_mm, "focal_length_max_mm", self.focal_length_max_mm)
+        _range("focus_min_m", self.focus_min_m, "focus_max_m", self.focus_max_m)
+        _range("f_number_min", self.f_number_min, "f_number_max", self.f_number_max)
+        if self.focal_length_min_mm <= 0 or self.focus_min_m <= 0 or self.f_number_min <= 0:
+            raise ConfigError("lens lower limits must be > 0")
+        _positive("watchdog_timeout_s", self.watchdog_timeout_s)
+
+
+@dataclass(frozen=True)
+class MavlinkConfig:
+    """The MAVLink link to a PX4 / ArduPilot flight controller (or `cinetransfer sim-vehicle`)."""
+
+    #: pymavlink connection string: 'udpin:0.0.0.0:14540' (listen), 'udpout:127.0.0.1:14550'
+    #: (send first), 'tcp:127.0.0.1:5760', '/dev/ttyACM0' (serial, see baud_rate).
+    url: str = "udpin:127.0.0.1:14540"
+    baud_rate: int = 921600
+    #: 'px4' (OFFBOARD), 'ardupilot' (GUIDED) or 'auto' (from the vehicle's HEARTBEAT).
+    autopilot: str = "auto"
+    #: our own MAVLink ids (an onboard computer: MAV_COMP_ID_ONBOARD_COMPUTER = 191).
+    source_system: int = 245
+    source_component: int = 191
+    #: vehicle ids; 0 = take them from the first autopilot HEARTBEAT.
+    target_system: int = 0
+    target_component: int = 0
+    #: camera / gimbal component ids; 0 = send to the autopilot component (it forwards).
+    camera_component: int = 0
+    gimbal_device_id: int = 0
+    #: rate of the SET_POSITION_TARGET_LOCAL_NED stream [Hz] (PX4 OFFBOARD needs > 2 Hz).
+    setpoint_rate_hz: float = 20.0
+    #: rate of our HEARTBEAT [Hz].
+    heartbeat_rate_hz: float = 1.0
+    #: telemetry rates we ask the vehicle for (MAV_CMD_SET_MESSAGE_INTERVAL) [Hz]; 0 = don't ask.
+    telemetry_rate_hz: float = 50.0
+    #: no vehicle HEARTBEAT for this long [s] -> link lost (VehicleState invalid, hold).
+    link_timeout_s: float = 1.5
+    #: link lost for this long [s] -> close and reopen the connection (then every period).
+    reopen_period_s: float = 3.0
+    #: wait at most this long [s] in start() for the first HEARTBEAT.
+    connect_timeout_s: float = 10.0
+    #: after a link loss, re-enter OFFBOARD/GUIDED by itself once the link is back (else wait
+    #: for an 'engage' command).
+    reengage_after_link_loss: bool = False
+    #: arm and switch to OFFBOARD/GUIDED on start (also: the 'engage' bridge command).
+    engage_on_start: bool = False
+    #: ArduPilot needs a take-off when landed before GUIDED position targets move it [m].
+    takeoff_altitude_m: float = 3.0
+    #: offset of the autopilot's local NED origin in the world frame [m] (ENU, z up).
+    local_origin_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: camera sensor [mm]: converts CAMERA_FOV_STATUS's field of view to a focal length.
+    sensor_width_mm: float = 23.76
+    sensor_height_mm: float = 13.365
+    coc_mm: float = 0.05
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        if not self.url or not isinstance(self.url, str):
+            raise ConfigError("mavlink url must be a pymavlink connection string, e.g. udpin:0.0.0.0:14540")
+        if self.autopilot not in AUTOPILOTS:
+            raise ConfigError(f"autopilot = {self.autopilot!r}: must be one of {AUTOPILOTS}")
+        for name in ("source_system", "source_component", "target_system", "target_component",
+                     "camera_component", "gimbal_device_id"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or not 0 <= v <= 255:
+                raise ConfigError(f"{name} = {v!r}: must be an integer in 0..255")
+        if self.source_system == 0:
+            raise ConfigError("source_system must be 1..255")
+        _positive("setpoint_rate_hz", self.setpoint_rate_hz)
+        if self.setpoint_rate_hz <= 2.0:
+            raise ConfigError("setpoint_rate_hz must be > 2 Hz (PX4 leaves OFFBOARD below that)")
+        _positive("heartbeat_rate_hz", self.heartbeat_rate_hz)
+        _finite("telemetry_rate_hz", self.telemetry_rate_hz)
+        if self.telemetry_rate_hz < 0:
+            raise ConfigError("telemetry_rate_hz must be >= 0")
+        _positive("link_timeout_s", self.link_timeout_s)
+        _positive("reopen_period_s", self.reopen_period_s)
+        _positive("connect_timeout_s", self.connect_timeout_s)
+        _positive("takeoff_altitude_m", self.takeoff_altitude_m)
+        _positive("baud_rate", self.baud_rate)
+        if len(self.local_origin_m) != 3:
+            raise ConfigError("local_origin_m needs 3 values")
+        _positive("sensor_width_mm", self.sensor_width_mm)
+        _positive("sensor_height_mm", self.sensor_height_mm)
+        _positive("coc_mm", self.coc_mm)
+
+
+@dataclass(frozen=True)
+class BridgeConfig:
+    """The autopilot_bridge node."""
+
+    #: 'sim' (built-in simulator, the default) or 'mavlink' (flight controller / sim-vehicle).
+    backend: str = "sim"
+    #: simulator scene: a bundled scene name or a path to a scene file (sim backend only).
+    scene: str = "default"
+    #: control loop rate [Hz]: setpoints are checked, the backend stepped and state published.
+    rate_hz: float = 50.0
+    #: publish frames as JPEG of this quality (1..100) for a radio link; 0 = raw (one host).
+    jpeg_quality: int = 0
+    #: publish VehicleState every n-th tick (1 = every tick).
+    state_every_n: int = 1
+    safety: SafetyConfig = field(default_factory=SafetyConfig)
+    mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        if self.backend not in BACKENDS:
+            raise ConfigError(f"backend = {self.backend!r}: must be one of {BACKENDS}")
+        _positive("rate_hz", self.rate_hz)
+        if self.rate_hz > 1000:
+            raise ConfigError("rate_hz must be <= 1000")
+        if not isinstance(self.jpeg_quality, int) or not 0 <= self.jpeg_quality <= 100:
+            raise ConfigError(f"jpeg_quality = {self.jpeg_quality!r}: must be 0 (raw) or 1..100")
+        if not isinstance(self.state_every_n, int) or self.state_every_n < 1:
+            raise ConfigError("state_every_n must be an integer >= 1")
+
+
+def replace_nested(cfg: Any, **changes: Any) -> Any:
+    """dataclasses.replace that re-validates (frozen configs validate in __post_init__)."""
+    return dataclasses.replace(cfg, **changes)

@@ -1,0 +1,284 @@
+"""The safety layer every backend shares: pure functions and one small stateful checker.
+
+No Zenoh, no clock, no globals: time and the current vehicle/subject state are passed in.
+
+What it enforces (limits in `SafetyConfig`):
+- reject a setpoint with NaN/inf in position, velocity, acceleration or camera attitude, or
+  with an unknown mode (lens NaN means "keep the current value", per the schema);
+- clamp the position to the geofence (cylinder or box around home) and the altitude band;
+- keep a minimum horizontal distance to the subject: push the position out radially;
+  if the geofence then pulls it back inside that distance the setpoint is rejected;
+- clamp the velocity feed-forward to the speed limit and the acceleration feed-forward to the
+  acceleration limit; `limit_motion` also moves the commanded position towards the requested
+  one no faster than the speed limit and changes the commanded velocity no faster than the
+  acceleration limit (so a jump in the plan becomes a bounded-speed transfer);
+- clamp gimbal pitch/roll to their band and wrap yaw to (-pi, pi];
+- clamp focal length, focus distance and f-number to the lens ranges.
+
+Every rejection and clamp increments a named counter in `SafetyLayer.counters`; the service
+exports them in its Health message.
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cinetransfer.services.autopilot_bridge.config import SafetyConfig
+from cinetransfer.shared import messages as M
+
+MODES = ("track", "hold")
+
+#: counter names, in the order Health shows them
+COUNTER_NAMES = (
+    "sp_checked", "sp_accepted", "sp_rejected_nonfinite", "sp_rejected_mode",
+    "sp_rejected_subject_conflict", "clamp_geofence", "clamp_altitude", "clamp_subject_distance",
+    "clamp_speed", "clamp_accel", "clamp_position_rate", "clamp_velocity_rate", "clamp_gimbal",
+    "clamp_lens",
+)
+
+
+# ----------------------------------------------------------------------------- pure helpers
+def wrap_angle(a: float) -> float:
+    """Angle wrapped to (-pi, pi]."""
+    w = math.remainder(a, 2.0 * math.pi)
+    return math.pi if w == -math.pi else w
+
+
+def clamp_norm(v: np.ndarray, max_norm: float) -> tuple[np.ndarray, bool]:
+    """`v` scaled down to norm <= max_norm; (vector, whether it was clamped)."""
+    n = float(np.linalg.norm(v))
+    if n <= max_norm or n == 0.0:
+        return v, False
+    return v * (max_norm / n), True
+
+
+def clamp_geofence(p: np.ndarray, cfg: SafetyConfig) -> tuple[np.ndarray, bool]:
+    """Position with x/y clamped into the geofence around home (z untouched)."""
+    home = np.asarray(cfg.home_m, dtype=float)
+    d = p[:2] - home[:2]
+    if cfg.geofence_shape == "cylinder":
+        d2, hit = clamp_norm(d, cfg.geofence_radius_m)
+    else:
+        hx, hy = cfg.geofence_half_extent_m
+        d2 = np.array([min(max(d[0], -hx), hx), min(max(d[1], -hy), hy)])
+        hit = bool(np.any(d2 != d))
+    if not hit:
+        return p, False
+    out = p.copy()
+    out[:2] = home[:2] + d2
+    return out, True
+
+
+def inside_geofence(p: np.ndarray, cfg: SafetyConfig, tol: float = 1e-6) -> bool:
+    """Whether `p` is inside the geofence and the altitude band."""
+    home = np.asarray(cfg.home_m, dtype=float)
+    d = p[:2] - home[:2]
+    if cfg.geofence_shape == "cylinder":
+        ok = float(np.linalg.norm(d)) <= cfg.geofence_radius_m + tol
+    else:
+        hx, hy = cfg.geofence_half_extent_m
+        ok = abs(d[0]) <= hx + tol and abs(d[1]) <= hy + tol
+    alt = p[2] - home[2]
+    return ok and cfg.altitude_min_m - tol <= alt <= cfg.altitude_max_m + tol
+
+
+def clamp_altitude(p: np.ndarray, cfg: SafetyConfig) -> tuple[np.ndarray, bool]:
+    """Position with z clamped into the altitude band above home."""
+    z0 = cfg.home_m[2]
+    z = min(max(p[2], z0 + cfg.altitude_min_m), z0 + cfg.altitude_max_m)
+    if z == p[2]:
+        return p, False
+    out = p.copy()
+    out[2] = z
+    return out, True
+
+
+def push_from_subject(p: np.ndarray, subject_xy: np.ndarray, min_dist_m: float,
+                      fallback_xy: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+    """Move `p` radially (horizontally) away from the subject to at least `min_dist_m`.
+
+    When `p` sits exactly on the subject the direction comes from `fallback_xy` (e.g. the
+    vehicle's position), else +x.
+    """
+    if min_dist_m <= 0:
+        return p, False
+    d = p[:2] - subject_xy
+    n = float(np.linalg.norm(d))
+    if n >= min_dist_m:
+        return p, False
+    if n < 1e-9:
+        d = (fallback_xy - subject_xy) if fallback_xy is not None else np.array([1.0, 0.0])
+        n = float(np.linalg.norm(d))
+        if n < 1e-9:
+            d, n = np.array([1.0, 0.0]), 1.0
+    out = p.copy()
+    out[:2] = subject_xy + d * (min_dist_m / n)
+    return out, True
+
+
+def subject_centre_xy(subject: M.SubjectState | None) -> np.ndarray | None:
+    """Horizontal centre of the subject's known joints, or None."""
+    if subject is None or subject.joints_m.size == 0:
+        return None
+    j = np.asarray(subject.joints_m, dtype=float)
+    ok = np.all(np.isfinite(j), axis=1)
+    if not ok.any():
+        return None
+    return j[ok, :2].mean(axis=0)
+
+
+def _finite_array(a: np.ndarray) -> bool:
+    return bool(np.all(np.isfinite(np.asarray(a, dtype=float))))
+
+
+@dataclass(frozen=True)
+class SafetyResult:
+    """Outcome of checking one setpoint."""
+
+    setpoint: M.Setpoint | None  #: the safe setpoint, or None if rejected
+    reason: str = ""  #: why it was rejected ('' when accepted)
+    clamps: tuple[str, ...] = ()  #: names of the clamps applied
+
+    @property
+    def accepted(self) -> bool:
+        return self.setpoint is not None
+
+
+@dataclass(frozen=True)
+class MotionCommand:
+    """Position/velocity the backend is told to track this tick (after rate limiting)."""
+
+    position_m: np.ndarray
+    velocity_mps: np.ndarray
+    clamps: tuple[str, ...] = ()
+
+
+class SafetyLayer:
+    """Checks setpoints against `SafetyConfig` and counts every rejection and clamp."""
+
+    def __init__(self, cfg: SafetyConfig) -> None:
+        self.cfg = cfg
+        self.counters: collections.Counter[str] = collections.Counter({k: 0 for k in COUNTER_NAMES})
+
+    def _reject(self, reason: str, counter: str) -> SafetyResult:
+        self.counters[counter] += 1
+        return SafetyResult(None, reason)
+
+    # ------------------------------------------------------------------ per setpoint
+    def check(self, sp: M.Setpoint, *, subject_xy: np.ndarray | None = None,
+              vehicle_xy: np.ndarray | None = None, lens_now: M.LensState | None = None) -> SafetyResult:
+        """Validate and clamp one setpoint (static limits: no time involved).
+
+        `subject_xy`: horizontal centre of the subject (None = unknown: the distance rule is
+        skipped); `vehicle_xy`: where the vehicle is (direction of the push when the setpoint
+        sits on the subject); `lens_now`: lens values used where the setpoint's are NaN.
+        """
+        cfg = self.cfg
+        self.counters["sp_checked"] += 1
+        if sp.mode not in MODES:
+            return self._reject(f"unknown setpoint mode {sp.mode!r}", "sp_rejected_mode")
+        for name in ("position_m", "velocity_mps", "acceleration_mps2", "camera_ypr_rad"):
+            a = getattr(sp, name)
+            if np.shape(a) != (3,) or not _finite_array(a):
+                return self._reject(f"setpoint {name} is not 3 finite numbers: {a!r}", "sp_rejected_nonfinite")
+        for name in ("focal_length_mm", "focus_distance_m", "f_number"):
+            v = getattr(sp.lens, name)
+            if isinstance(v, float) and math.isinf(v):
+                return self._reject(f"setpoint lens.{name} is infinite", "sp_rejected_nonfinite")
+        clamps: list[str] = []
+
+        # -- position: subject distance, then geofence and altitude (the fence wins)
+        p = np.array(sp.position_m, dtype=float)
+        if subject_xy is not None and cfg.min_subject_distance_m > 0:
+            p, hit = push_from_subject(p, np.asarray(subject_xy, float), cfg.min_subject_distance_m, vehicle_xy)
+            if hit:
+                clamps.append("clamp_subject_distance")
+        p, hit = clamp_geofence(p, cfg)
+        if hit:
+            clamps.append("clamp_geofence")
+        p, hit = clamp_altitude(p, cfg)
+        if hit:
+            clamps.append("clamp_altitude")
+        if subject_xy is not None and cfg.min_subject_distance_m > 0:
+            if float(np.linalg.norm(p[:2] - subject_xy)) < cfg.min_subject_distance_m - 1e-6:
+                return self._reject("no point inside the geofence keeps the minimum subject distance",
+                                    "sp_rejected_subject_conflict")
+
+        # -- feed-forward velocity and acceleration
+        v, hit = clamp_norm(np.array(sp.velocity_mps, dtype=float), cfg.max_speed_mps)
+        if hit:
+            clamps.append("clamp_speed")
+        a, hit = clamp_norm(np.array(sp.acceleration_mps2, dtype=float), cfg.max_accel_mps2)
+        if hit:
+            clamps.append("clamp_accel")
+
+        # -- gimbal
+        yaw, pitch, roll = (float(x) for x in sp.camera_ypr_rad)
+        pitch2 = min(max(pitch, cfg.gimbal_pitch_min_rad), cfg.gimbal_pitch_max_rad)
+        roll2 = min(max(roll, -cfg.gimbal_roll_max_rad), cfg.gimbal_roll_max_rad)
+        if pitch2 != pitch or roll2 != roll:
+            clamps.append("clamp_gimbal")
+        ypr = np.array([wrap_angle(yaw), pitch2, roll2])
+
+        # -- lens (NaN = keep the current value)
+        lens, hit = self.clamp_lens(sp.lens, lens_now)
+        if hit:
+            clamps.append("clamp_lens")
+
+        for c in clamps:
+            self.counters[c] += 1
+        self.counters["sp_accepted"] += 1
+        out = dataclasses.replace(sp, position_m=p, velocity_mps=v, acceleration_mps2=a, camera_ypr_rad=ypr,
+                                  lens=lens)
+        return SafetyResult(out, "", tuple(clamps))
+
+    def clamp_lens(self, lens: M.LensState, lens_now: M.LensState | None) -> tuple[M.LensState, bool]:
+        cfg = self.cfg
+        hit = False
+
+        def one(v: float, now: float, lo: float, hi: float) -> float:
+            nonlocal hit
+            if math.isnan(v):
+                v = now
+            if math.isnan(v):
+                return v
+            c = min(max(v, lo), hi)
+            hit = hit or c != v
+            return c
+
+        now = lens_now or M.LensState()
+        out = dataclasses.replace(
+            lens,
+            focal_length_mm=one(lens.focal_length_mm, now.focal_length_mm, cfg.focal_length_min_mm,
+                                cfg.focal_length_max_mm),
+            focus_distance_m=one(lens.focus_distance_m, now.focus_distance_m, cfg.focus_min_m, cfg.focus_max_m),
+            f_number=one(lens.f_number, now.f_number, cfg.f_number_min, cfg.f_number_max),
+        )
+        return out, hit
+
+    # ------------------------------------------------------------------ per tick
+    def limit_motion(self, *, target_pos: np.ndarray, target_vel: np.ndarray, prev_pos: np.ndarray,
+                     prev_vel: np.ndarray, dt_s: float) -> MotionCommand:
+        """Move the commanded position/velocity towards the target within speed/accel limits.
+
+        The commanded position advances by at most `max_speed_mps * dt_s` per tick and the
+        commanded velocity changes by at most `max_accel_mps2 * dt_s`.
+        """
+        cfg = self.cfg
+        dt = max(float(dt_s), 0.0)
+        clamps: list[str] = []
+        step, hit = clamp_norm(np.asarray(target_pos, float) - prev_pos, cfg.max_speed_mps * dt)
+        pos = prev_pos + step
+        if hit:
+            clamps.append("clamp_position_rate")
+        dv, hit_v = clamp_norm(np.asarray(target_vel, float) - prev_vel, cfg.max_accel_mps2 * dt)
+        vel = prev_vel + dv
+        if hit_v:
+            clamps.append("clamp_velocity_rate")
+        for c in clamps:
+            self.counters[c] += 1
+        return MotionCommand(pos, vel, tuple(clamps))

@@ -1,0 +1,269 @@
+"""Parameters of the planner (CineMPC in casadi), as frozen dataclasses validated at start-up.
+
+Three groups, kept apart as STYLE §5 asks:
+
+- `Structure`: what the solver is built from (horizon, step, joints, roll, solver options). A
+  change rebuilds (or loads from cache) the NLP.
+- `Bounds` and `Weights`: runtime parameters. They enter the NLP as bounds / parameter values, so
+  they can change between two solves without a rebuild (`Planner.set_bounds`, `set_weights`).
+- the rest of `PlannerConfig`: timing and the failure policy of the core and the service.
+
+Defaults of `Bounds` are CineMPC's (DESIGN §4) where it gives them; the others are documented.
+Cost weights are per second of horizon (each stage cost is multiplied by the step dt), so the
+same weights work for any horizon length and step.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cinetransfer.shared.camera import COC_MM, SENSOR_HEIGHT_MM, SENSOR_WIDTH_MM
+
+
+class ConfigError(ValueError):
+    """A planner parameter is out of its allowed range (the message names the field)."""
+
+
+def _bad(section: str, name: str, value: Any, allowed: str) -> ConfigError:
+    return ConfigError(f"planner config: {section}{name}={value!r} is invalid; allowed: {allowed}")
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """Limits of the vehicle, gimbal and lens (runtime parameters: no rebuild when changed).
+
+    Velocity and acceleration are boxes per world axis. The altitude band and the minimum
+    distance to the subject are soft constraints with an exact (L1) penalty: they hold whenever
+    they can, and a vehicle that starts outside them is brought back instead of making the
+    problem infeasible. Every other limit is hard.
+    """
+
+    speed_max_mps: float = 2.0  # |v_x|, |v_y|, |v_z| [m/s], > 0 (CineMPC: 2)
+    accel_max_mps2: float = 1.2  # |a_x|, |a_y|, |a_z| [m/s^2], > 0 (CineMPC: 1.2)
+    altitude_min_m: float = 1.0  # floor for the camera position z [m] (soft)
+    altitude_max_m: float = 120.0  # ceiling [m] (soft), > altitude_min_m
+    min_distance_m: float = 2.0  # minimum horizontal camera-subject distance [m] (soft), >= 0 (CineMPC: 2)
+    pitch_min_rad: float = -math.pi / 2  # camera pitch lower limit [rad] (looking down), >= -pi/2
+    pitch_max_rad: float = math.pi / 6  # camera pitch upper limit [rad], <= pi/2
+    roll_max_rad: float = 0.3  # |roll| [rad] (only with Structure.control_roll)
+    yaw_rate_max_radps: float = 1.5  # |d yaw/dt| [rad/s], > 0
+    pitch_rate_max_radps: float = 1.5  # |d pitch/dt| [rad/s], > 0
+    roll_rate_max_radps: float = 1.0  # |d roll/dt| [rad/s], > 0
+    focal_min_mm: float = 30.0  # focal length range [mm] (CineMPC: 30-500)
+    focal_max_mm: float = 500.0
+    focal_rate_max_mmps: float = 20.0  # |df/dt| [mm/s] (CineMPC: 20)
+    focus_min_m: float = 4.0  # focus distance range [m] (CineMPC: 4-100)
+    focus_max_m: float = 100.0
+    focus_rate_max_mps: float = 15.0  # |ds/dt| [m/s] (CineMPC: 15)
+    fnumber_min: float = 1.0  # f-number range (CineMPC: 1-22)
+    fnumber_max: float = 22.0
+    fnumber_rate_max_ps: float = 3.0  # |dA/dt| [1/s] (CineMPC: 3)
+
+    def validate(self) -> "Bounds":
+        s = "bounds."
+        for name in ("speed_max_mps", "accel_max_mps2", "yaw_rate_max_radps", "pitch_rate_max_radps",
+                     "roll_rate_max_radps", "focal_rate_max_mmps", "focus_rate_max_mps", "fnumber_rate_max_ps"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise _bad(s, name, v, "a finite value > 0")
+        if not (math.isfinite(self.altitude_min_m) and math.isfinite(self.altitude_max_m)
+                and self.altitude_max_m > self.altitude_min_m):
+            raise _bad(s, "altitude_max_m", self.altitude_max_m, "finite and > altitude_min_m")
+        if not (math.isfinite(self.min_distance_m) and self.min_distance_m >= 0):
+            raise _bad(s, "min_distance_m", self.min_distance_m, ">= 0")
+        if not (-math.pi / 2 <= self.pitch_min_rad < self.pitch_max_rad <= math.pi / 2):
+            raise _bad(s, "pitch_min_rad/pitch_max_rad", (self.pitch_min_rad, self.pitch_max_rad),
+                       "-pi/2 <= min < max <= pi/2")
+        if not (0 <= self.roll_max_rad < math.pi / 2):
+            raise _bad(s, "roll_max_rad", self.roll_max_rad, "0 <= value < pi/2")
+        if not (0 < self.focal_min_mm < self.focal_max_mm and math.isfinite(self.focal_max_mm)):
+            raise _bad(s, "focal_min_mm/focal_max_mm", (self.focal_min_mm, self.focal_max_mm), "0 < min < max")
+        if not (self.focal_min_mm / 1000.0 < self.focus_min_m < self.focus_max_m
+                and math.isfinite(self.focus_max_m)):
+            raise _bad(s, "focus_min_m/focus_max_m", (self.focus_min_m, self.focus_max_m),
+                       "focal length < min < max (metres)")
+        if not (1.0 <= self.fnumber_min < self.fnumber_max and math.isfinite(self.fnumber_max)):
+            raise _bad(s, "fnumber_min/fnumber_max", (self.fnumber_min, self.fnumber_max), "1 <= min < max")
+        return self
+
+
+@dataclass(frozen=True)
+class Weights:
+    """Cost weights (runtime parameters). Every stage term is multiplied by dt: units are per s.
+
+    Image errors are in normalised image units (fraction of the width / height); depth-of-field
+    errors are dimensionless (d * (1/D - 1/D*), roughly the relative error of the limit, d the
+    camera-subject distance); input terms use each input divided by its bound.
+    """
+
+    image: float = 200.0  # per joint, per (normalised unit)^2 per s; 0.02 error ~ 0.08/s
+    look: float = 1.0  # keeps the subject centre ahead of the camera: (1 - cos angle) per s
+    dof_near: float = 5.0  # (d (1/D_n - 1/D_n*))^2 per s
+    dof_far: float = 5.0  # (d (1/D_f - 1/D_f*))^2 per s; one-sided when D_f* is infinite
+    accel: float = 0.05  # (a / a_max)^2 per s (per axis)
+    camera_rate: float = 0.05  # (omega / omega_max)^2 per s (per angle)
+    lens_rate: float = 0.05  # (rate / rate_max)^2 per s for focal length, focus, f-number
+    accel_change: float = 0.5  # ((a_k - a_{k-1}) / a_max)^2 per s: jerk smoothness
+    camera_rate_change: float = 0.5  # ((omega_k - omega_{k-1}) / omega_max)^2 per s
+    lens_rate_change: float = 0.2  # ((r_k - r_{k-1}) / r_max)^2 per s
+    velocity: float = 0.01  # (v / v_max)^2 per s: mild preference for a still camera
+    soft_constraint: float = 1000.0  # per (metre of violation) per s, plus the same per m^2: floor, ceiling, distance
+
+    def validate(self) -> "Weights":
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if not (math.isfinite(v) and v >= 0):
+                raise _bad("weights.", f.name, v, "a finite value >= 0")
+        return self
+
+    def as_vector(self) -> list[float]:
+        return [float(getattr(self, f.name)) for f in dataclasses.fields(self)]
+
+
+WEIGHT_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Weights))
+
+SOLVERS = ("ipopt",)
+
+
+def default_cache_dir() -> str:
+    """Where generated solver code is compiled and kept ($CT_CACHE_DIR or ~/.cache/cinetransfer)."""
+    base = os.environ.get("CT_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(str(Path.home()), ".cache"), "cinetransfer")
+    return os.path.join(base, "planner")
+
+
+@dataclass(frozen=True)
+class Structure:
+    """Structural options: changing any of these builds another NLP."""
+
+    horizon_steps: int = 15  # N, stages of the horizon, 1..100
+    dt_s: float = 0.1  # step of the horizon [s], (0, 1]; N * dt = horizon length
+    max_joints: int = 8  # E_max: controlled joints the NLP holds (extra ones are ignored and counted)
+    control_roll: bool = False  # camera roll as a state with a rate input (else fixed at 0)
+    sensor_width_mm: float = SENSOR_WIDTH_MM  # for the projection (CineMPC's 16:9 "Digital Film")
+    sensor_height_mm: float = SENSOR_HEIGHT_MM
+    coc_mm: float = COC_MM  # circle of confusion for the depth of field [mm]
+    solver: str = "ipopt"  # NLP solver plugin
+    expand: bool = True  # expand the MX graph to SX (CineMPC-like baseline: False)
+    codegen: bool = False  # generate C for the NLP functions, compile once, cache under cache_dir
+    cache_dir: str = field(default_factory=default_cache_dir)
+    compiler: str = "gcc"  # C compiler for codegen
+    compile_flags: tuple[str, ...] = ("-O1", "-fPIC", "-shared")
+    max_iter: int = 60  # IPOPT iterations per solve, >= 1
+    tol: float = 1e-5  # IPOPT tolerance
+    warm_start: bool = True  # initial guess from the shifted last solution (baseline: False = cold)
+    far_margin_inv_m: float = 0.01  # 'far limit at infinity' aims at 1/D_f <= -this [1/m] (s a bit past H)
+    near_foreground_m: float = 1.0  # 'foreground in focus' aims at D_n = this [m] (D_n* = 0 is unreachable)
+    depth_eps_m: float = 0.2  # smooths the projection's 1/depth near and behind the camera [m]
+
+    @property
+    def nx(self) -> int:
+        return 12 if self.control_roll else 11
+
+    @property
+    def nu(self) -> int:
+        return 9 if self.control_roll else 8
+
+    def validate(self) -> "Structure":
+        s = "structure."
+        if not (isinstance(self.horizon_steps, int) and 1 <= self.horizon_steps <= 100):
+            raise _bad(s, "horizon_steps", self.horizon_steps, "an integer in 1..100")
+        if not (0 < self.dt_s <= 1.0):
+            raise _bad(s, "dt_s", self.dt_s, "0 < dt <= 1 s")
+        if not (isinstance(self.max_joints, int) and 1 <= self.max_joints <= 33):
+            raise _bad(s, "max_joints", self.max_joints, "an integer in 1..33")
+        for name in ("sensor_width_mm", "sensor_height_mm", "coc_mm"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise _bad(s, name, v, "a finite value > 0")
+        if self.solver not in SOLVERS:
+            raise _bad(s, "solver", self.solver, " | ".join(SOLVERS))
+        if self.codegen and not self.expand:
+            raise _bad(s, "codegen", self.codegen, "False when expand is False")
+        if not (isinstance(self.max_iter, int) and self.max_iter >= 1):
+            raise _bad(s, "max_iter", self.max_iter, "an integer >= 1")
+        if not (0 < self.tol < 1):
+            raise _bad(s, "tol", self.tol, "0 < tol < 1")
+        if not (self.far_margin_inv_m >= 0):
+            raise _bad(s, "far_margin_inv_m", self.far_margin_inv_m, ">= 0")
+        if not (self.near_foreground_m > 0):
+            raise _bad(s, "near_foreground_m", self.near_foreground_m, "> 0")
+        if not (self.depth_eps_m > 0):
+            raise _bad(s, "depth_eps_m", self.depth_eps_m, "> 0")
+        return self
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Everything the planner core and service need."""
+
+    structure: Structure = field(default_factory=Structure)
+    bounds: Bounds = field(default_factory=Bounds)
+    weights: Weights = field(default_factory=Weights)
+    rate_hz: float = 20.0  # setpoints published per second (one solve each), (0, 200]
+    max_solve_time_s: float = 0.04  # IPOPT wall-time budget per solve [s], > 0 (<= 1 / rate_hz is sensible)
+    accept_suboptimal: bool = True  # a solve stopped by max_iter / time with a feasible iterate is used
+    feasibility_tol: float = 1e-4  # constraint violation under which such an iterate counts as feasible
+    tail_max_s: float = 1.0  # after a failure, fly the last good plan at most this long [s], then hold
+    setpoint_lead_s: float = 0.1  # the setpoint is the plan at now + lead [s] (covers tracking lag), >= 0
+    max_input_age_s: float = 0.5  # vehicle/subject state older than this is stale -> hold [s], > 0
+    clamp_tolerance: float = 0.05  # measured state outside a hard bound by <= this fraction of the range is clamped
+    autostart: bool = False  # start the recording when the first instructions arrive (else wait for 'start')
+    mu_default_m: float = 1.0  # DoF margin when the instructions carry none (mu <= 0) [m]
+
+    def validate(self) -> "PlannerConfig":
+        self.structure.validate()
+        self.bounds.validate()
+        self.weights.validate()
+        if not (0 < self.rate_hz <= 200):
+            raise _bad("", "rate_hz", self.rate_hz, "0 < rate <= 200 Hz")
+        for name in ("max_solve_time_s", "max_input_age_s", "mu_default_m"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise _bad("", name, v, "a finite value > 0")
+        for name in ("tail_max_s", "setpoint_lead_s", "clamp_tolerance", "feasibility_tol"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise _bad("", name, v, "a finite value >= 0")
+        return self
+
+
+def replace(cfg: PlannerConfig, **changes: Any) -> PlannerConfig:
+    """A copy with changes; dotted names reach into the groups: replace(c, **{'structure.dt_s': 0.2})."""
+    groups: dict[str, dict[str, Any]] = {}
+    top: dict[str, Any] = {}
+    for k, v in changes.items():
+        if "." in k:
+            g, name = k.split(".", 1)
+            groups.setdefault(g, {})[name] = v
+        else:
+            top[k] = v
+    for g, upd in groups.items():
+        if g not in ("structure", "bounds", "weights"):
+            raise ConfigError(f"planner config: no group {g!r} (structure, bounds, weights)")
+        top[g] = dataclasses.replace(getattr(cfg, g), **upd)
+    return dataclasses.replace(cfg, **top)
+
+
+def from_dict(d: dict[str, Any]) -> PlannerConfig:
+    """Config from a nested dict (e.g. a YAML 'planner' section); unknown keys are errors."""
+    d = dict(d or {})
+    kw: dict[str, Any] = {}
+    for g, cls in (("structure", Structure), ("bounds", Bounds), ("weights", Weights)):
+        sub = dict(d.pop(g, {}) or {})
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(sub) - names
+        if unknown:
+            raise ConfigError(f"planner config: unknown {g} fields {sorted(unknown)}; allowed: {sorted(names)}")
+        if "compile_flags" in sub:
+            sub["compile_flags"] = tuple(sub["compile_flags"])
+        kw[g] = cls(**sub)
+    names = {f.name for f in dataclasses.fields(PlannerConfig)}
+    unknown = set(d) - names
+    if unknown:
+        raise ConfigError(f"planner config: unknown fields {sorted(unknown)}; allowed: {sorted(names)}")
+    return PlannerConfig(**kw, **d).validate()

@@ -1,0 +1,186 @@
+"""Per-frame features: the compact part of a Measurement the smoother needs.
+
+A Measurement carries masks and a focus map; keeping thousands of them in memory is wasteful,
+and everything the optimisation needs can be computed once per frame, at ingestion:
+
+- candidate boxes and confidences (main-subject selection);
+- each person's mask as a coarse occupancy grid over its own box, so that
+  g(m, R) = pixels of mask m inside a box R (DESIGN §1.1 step 2) can be evaluated later for the
+  smoothed box R_f;
+- each skeleton's joints and the count of its joints inside each person's mask
+  (h(p, M) of step 2, independent of R_f);
+- the focused fraction b of each focus region for each choice of subject (step 4): for person m
+  as the subject, (foreground = band below m's feet, subject = m's mask, background = the rest),
+  and for "no subject visible" (background = the whole frame).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from cinetransfer.shared.messages import COCO17_NAMES, Measurement
+
+N_JOINTS = len(COCO17_NAMES)
+GRID = 16  # occupancy grid size (cells per side, at most)
+
+
+@dataclass(frozen=True, eq=False)
+class FrameFeatures:
+    """What the smoother keeps of one Measurement."""
+
+    frame_index: int
+    stamp_ns: int = 0
+    width: int = 0
+    height: int = 0
+    fps: float = float("nan")
+    source: str = ""
+    boxes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (M, 4) x0 y0 x1 y1 [px]
+    conf: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (M,)
+    grid_boxes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (M, 4) box each grid covers [px]
+    grids: tuple[np.ndarray, ...] = ()  # M occupancy grids in [0, 1], (gh, gw)
+    joints: np.ndarray = field(default_factory=lambda: np.zeros((0, N_JOINTS, 2)))  # (P, 17, 2) [px], NaN = missing
+    joint_conf: np.ndarray = field(default_factory=lambda: np.zeros((0, N_JOINTS)))  # (P, 17)
+    inside: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=int))  # (P, M) joints of p in mask m
+    focus: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (M, 3) b per region, m as subject
+    focus_none: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))  # (3,) b with no subject
+    has_focus: bool = False  # a focus map was measured
+    valid: bool = True
+
+    @property
+    def n_people(self) -> int:
+        return int(self.boxes.shape[0])
+
+    def mask_pixels_inside(self, m: int, box: np.ndarray) -> float:
+        """g(m, R): (approximate) pixels of person m's mask inside box R = (x0, y0, x1, y1) [px]."""
+        grid = self.grids[m]
+        gx0, gy0, gx1, gy1 = self.grid_boxes[m]
+        gh, gw = grid.shape
+        if gh == 0 or gw == 0:
+            return 0.0
+        xs = np.linspace(gx0, gx1, gw + 1)
+        ys = np.linspace(gy0, gy1, gh + 1)
+        ovx = np.clip(np.minimum(xs[1:], box[2]) - np.maximum(xs[:-1], box[0]), 0, None)
+        ovy = np.clip(np.minimum(ys[1:], box[3]) - np.maximum(ys[:-1], box[1]), 0, None)
+        return float(ovy @ grid @ ovx)
+
+
+def empty_features(frame_index: int, *, width: int, height: int, fps: float = float("nan"),
+                   stamp_ns: int = 0, source: str = "") -> FrameFeatures:
+    """Features of a frame with no measurement (a gap in the stream): nothing seen."""
+    return FrameFeatures(frame_index=frame_index, stamp_ns=stamp_ns, width=width, height=height, fps=fps,
+                         source=source, inside=np.zeros((0, 0), dtype=int), valid=False)
+
+
+def _full_mask_crop(p, W: int, H: int) -> tuple[np.ndarray, int, int]:
+    """The person's mask (cropped) and its origin; the box itself when the mask is empty."""
+    mask = np.asarray(p.mask, dtype=bool)
+    ox, oy = int(p.mask_origin_xy[0]), int(p.mask_origin_xy[1])
+    if mask.size == 0 or not mask.any():
+        x0, y0, x1, y1 = [float(v) for v in p.box_xyxy]
+        ix0, iy0 = int(np.floor(max(0.0, x0))), int(np.floor(max(0.0, y0)))
+        ix1, iy1 = int(np.ceil(min(float(W), x1))), int(np.ceil(min(float(H), y1)))
+        if ix1 <= ix0 or iy1 <= iy0:
+            return np.zeros((0, 0), dtype=bool), ix0, iy0
+        return np.ones((iy1 - iy0, ix1 - ix0), dtype=bool), ix0, iy0
+    return mask, ox, oy
+
+
+def _region_fractions(infocus: np.ndarray, subj: np.ndarray | None, feet_row: int | None,
+                      min_rows: int) -> np.ndarray:
+    """b (foreground, subject, background) on the focus-map grid; NaN = region absent."""
+    h = infocus.shape[0]
+    out = np.full(3, np.nan)
+    if subj is None:
+        out[2] = float(infocus.mean()) if infocus.size else np.nan
+        return out
+    fg = np.zeros_like(subj)
+    if feet_row is not None and h - feet_row >= max(min_rows, 1):
+        fg[feet_row:, :] = True
+        fg &= ~subj
+    bg = ~(subj | fg)
+    for t, region in enumerate((fg, subj, bg)):
+        n = int(region.sum())
+        if n > 0:
+            out[t] = float(np.count_nonzero(infocus & region)) / n
+    return out
+
+
+def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foreground_min_rows: float = 0.03,
+                   min_person_confidence: float = 0.0) -> FrameFeatures:
+    """Compute the FrameFeatures of one Measurement (pure)."""
+    W, H = int(m.width), int(m.height)
+    people = [p for p in m.people if float(p.confidence) >= min_person_confidence
+              and np.all(np.isfinite(p.box_xyxy)) and p.box_xyxy[2] > p.box_xyxy[0] and p.box_xyxy[3] > p.box_xyxy[1]]
+    keep_idx = [i for i, p in enumerate(m.people) if any(p is q for q in people)]
+    M_ = len(people)
+    boxes = np.array([np.asarray(p.box_xyxy, dtype=float) for p in people]).reshape(M_, 4)
+    conf = np.array([float(p.confidence) for p in people], dtype=float)
+
+    crops = [_full_mask_crop(p, W, H) for p in people]
+    grids, gboxes = [], np.zeros((M_, 4))
+    for k, (mask, ox, oy) in enumerate(crops):
+        h, w = mask.shape
+        if h == 0 or w == 0:
+            grids.append(np.zeros((0, 0)))
+            gboxes[k] = (ox, oy, ox, oy)
+            continue
+        gh, gw = min(GRID, h), min(GRID, w)
+        grids.append(cv2.resize(mask.astype(np.float32), (gw, gh), interpolation=cv2.INTER_AREA).astype(float))
+        gboxes[k] = (ox, oy, ox + w, oy + h)
+
+    # Skeletons (COCO-17 only) and h(p, m) = joints of skeleton p inside mask m.
+    sk = [s for s in m.skeletons if s.keypoint_set == "coco17" and s.keypoints_px.shape == (N_JOINTS, 2)]
+    P = len(sk)
+    joints = np.array([np.asarray(s.keypoints_px, dtype=float) for s in sk]).reshape(P, N_JOINTS, 2)
+    jconf = np.array([np.asarray(s.confidences, dtype=float) for s in sk]).reshape(P, N_JOINTS)
+    jconf = np.where(np.isfinite(jconf), jconf, 0.0)
+    inside = np.zeros((P, M_), dtype=int)
+    for k, (mask, ox, oy) in enumerate(crops):
+        if mask.size == 0:
+            continue
+        for p in range(P):
+            xy = joints[p]
+            ok = np.all(np.isfinite(xy), axis=1)
+            if not ok.any():
+                continue
+            xi = np.floor(xy[ok, 0]).astype(int) - ox
+            yi = np.floor(xy[ok, 1]).astype(int) - oy
+            inb = (xi >= 0) & (yi >= 0) & (xi < mask.shape[1]) & (yi < mask.shape[0])
+            inside[p, k] = int(mask[yi[inb], xi[inb]].sum())
+    # A skeleton that names its person counts as fully inside that person (detectors that give
+    # both from one model know the pairing better than the mask test).
+    for p, s in enumerate(sk):
+        if s.person_index in keep_idx:
+            k = keep_idx.index(s.person_index)
+            inside[p, k] = max(inside[p, k], int(np.all(np.isfinite(joints[p]), axis=1).sum()))
+
+    focus = np.full((M_, 3), np.nan)
+    focus_none = np.full(3, np.nan)
+    has_focus = m.focus_map is not None and m.focus_map.size > 0 and W > 0 and H > 0
+    if has_focus:
+        fm = np.asarray(m.focus_map)
+        infocus = fm >= focus_pixel_threshold * 255.0
+        h, w = fm.shape
+        sx, sy = w / W, h / H
+        min_rows = int(np.ceil(foreground_min_rows * h))
+        focus_none = _region_fractions(infocus, None, None, min_rows)
+        # Frame pixel sampled at the centre of each focus-map pixel.
+        fx = np.minimum(((np.arange(w) + 0.5) / sx).astype(int), W - 1)
+        fy = np.minimum(((np.arange(h) + 0.5) / sy).astype(int), H - 1)
+        for k, (mask, ox, oy) in enumerate(crops):
+            subj = np.zeros((h, w), dtype=bool)
+            if mask.size:
+                cx, cy = fx - ox, fy - oy
+                okx = (cx >= 0) & (cx < mask.shape[1])
+                oky = (cy >= 0) & (cy < mask.shape[0])
+                if okx.any() and oky.any():
+                    subj[np.ix_(oky, okx)] = mask[np.ix_(cy[oky], cx[okx])]
+            rows = np.flatnonzero(subj.any(axis=1))
+            feet_row = int(rows[-1]) + 1 if rows.size else int(np.ceil(boxes[k, 3] * sy))
+            focus[k] = _region_fractions(infocus, subj, feet_row, min_rows)
+    return FrameFeatures(frame_index=int(m.frame_index), stamp_ns=int(m.stamp_ns), width=W, height=H,
+                         fps=float(m.fps), source=m.source, boxes=boxes, conf=conf, grid_boxes=gboxes,
+                         grids=tuple(grids), joints=joints, joint_conf=jconf, inside=inside, focus=focus,
+                         focus_none=focus_none, has_focus=bool(has_focus), valid=bool(m.valid))

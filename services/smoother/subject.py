@@ -1,0 +1,160 @@
+"""Main subject: exact selection by dynamic programming, then the box-constrained box QP.
+
+The paper's step 1 (DESIGN §1.1) mixes a discrete choice (which detection is the subject in
+each frame, the alphas) with a continuous fit (the box R_f), which makes it bilinear and
+non-convex. We split it:
+
+1. Selection. A path picks, in every frame, one detection or "not visible". Its cost is
+
+       sum over frames:  confidence_cost * (1 - c)          at a detection
+                         miss_cost                          where the subject is not visible
+       sum over steps:   move_cost * (|r_j - r_i| / s)^2 / g  between detections g frames apart
+                                                              (g <= 1 + bridge: a dropout)
+                         switch_cost                        re-appearing after a longer absence
+
+   where s is the mean diagonal of the two boxes (so the cost is scale-free), and |.| the norm
+   of the 4-vector of box coordinates. Moving a distance d in g frames at constant speed costs
+   g (d/g)^2 = d^2/g, so a bridged dropout is judged by the implied speed. The path with the
+   fewest invisible frames and the smoothest identity is the person present in most frames,
+   continuously. Minimised exactly by dynamic programming over frames (Viterbi with skip
+   transitions for dropouts of up to `max_bridge_s`).
+
+2. Box. Per box coordinate, min sum lam (R_f - R_{f-1})^2 + c_f (R_f - r_f)^2 over the visible
+   runs, with R_f inside the image: the QP of `qp.smooth` (bridged frames have weight 0).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cinetransfer.services.smoother import qp
+from cinetransfer.services.smoother.features import FrameFeatures
+
+SWITCH_COST_FACTOR = 3.0  # switch_cost = SWITCH_COST_FACTOR * move_cost * 0.5^2 + miss_cost (see below)
+
+
+@dataclass(frozen=True, eq=False)
+class Selection:
+    """Result of the selection step (per frame)."""
+
+    person: np.ndarray  # (F,) index into that frame's people, -1 = none (invisible or bridged)
+    visible: np.ndarray  # (F,) bool: subject visible (detected or bridged dropout)
+    bridged: np.ndarray  # (F,) bool: visible but not detected (a bridged dropout)
+    cost: float  # optimal path cost
+
+
+def selection_costs(*, move_cost: float, miss_cost: float) -> float:
+    """Cost of re-appearing after an absence longer than the bridge (identity not checked)."""
+    return SWITCH_COST_FACTOR * move_cost * 0.25 + miss_cost
+
+
+def select_subject(feats: list[FrameFeatures], *, fps: float, move_cost: float = 10.0, miss_cost: float = 1.0,
+                   confidence_cost: float = 0.5, max_bridge_s: float = 0.5) -> Selection:
+    """Viterbi over each frame's candidates plus 'not visible' (exact minimiser of the cost above)."""
+    F = len(feats)
+    G = 1 + max(0, int(round(max_bridge_s * fps)))  # longest step between detections (frames)
+    switch_cost = selection_costs(move_cost=move_cost, miss_cost=miss_cost)
+    counts = np.array([f.n_people for f in feats], dtype=int)
+    start = np.concatenate([[0], np.cumsum(counts)])
+    N = int(start[-1])
+    if N == 0:
+        return Selection(np.full(F, -1), np.zeros(F, bool), np.zeros(F, bool), F * miss_cost)
+    boxes = np.concatenate([f.boxes for f in feats if f.n_people]).astype(float)
+    conf = np.concatenate([f.conf for f in feats if f.n_people]).astype(float)
+    frame_of = np.repeat(np.arange(F), counts)
+    diag = np.hypot(boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1])
+    emit = confidence_cost * (1.0 - np.clip(conf, 0.0, 1.0))
+
+    D = np.full(N, np.inf)  # best cost of a path ending at detection i (frames up to and incl. its frame)
+    back = np.full(N, -1, dtype=np.int64)  # predecessor detection, or -1 = fresh start, -2 = from 'lost'
+    lost = np.inf  # best cost of a path that was visible and is now not visible, up to frame f-1
+    lost_back = np.full(F, -1, dtype=np.int64)  # for the 'lost' state at frame f: detection it left from, or -1 = stayed lost
+    for f in range(F):
+        a, b = start[f], start[f + 1]
+        if b > a:
+            # Candidates: fresh start (all earlier frames invisible), from 'lost', or a step from a detection.
+            best = np.full(b - a, f * miss_cost)
+            arg = np.full(b - a, -1, dtype=np.int64)
+            if lost + switch_cost < best[0]:
+                best[:] = lost + switch_cost
+                arg[:] = -2
+            pa = start[max(0, f - G)]
+            if a > pa:
+                g = (f - frame_of[pa:a]).astype(float)  # (P,)
+                dr = boxes[pa:a, None, :] - boxes[None, a:b, :]  # (P, C, 4)
+                s = 0.5 * (diag[pa:a, None] + diag[None, a:b])
+                step = (D[pa:a, None] + (g[:, None] - 1.0) * miss_cost
+                        + move_cost * np.einsum("pck,pck->pc", dr, dr) / (np.maximum(s, 1e-9) ** 2 * g[:, None]))
+                k = np.argmin(step, axis=0)
+                v = step[k, np.arange(b - a)]
+                better = v < best
+                best = np.where(better, v, best)
+                arg = np.where(better, pa + k, arg)
+            D[a:b] = best + emit[a:b]
+            back[a:b] = arg
+        # 'lost' at frame f: left a detection of frame f-1, or stayed lost.
+        pa, pb = start[max(0, f - 1)], start[f]
+        cand_leave = np.inf
+        i_leave = -1
+        if f > 0 and pb > pa:
+            i_leave = int(pa + np.argmin(D[pa:pb]))
+            cand_leave = D[i_leave]
+        if cand_leave < lost:
+            lost, lost_back[f] = cand_leave + miss_cost, i_leave
+        else:
+            lost, lost_back[f] = lost + miss_cost, -1
+    # End: never visible, lost at the end, or at a detection (remaining frames invisible).
+    ends = D + (F - 1 - frame_of) * miss_cost
+    i_end = int(np.argmin(ends))
+    total = min(F * miss_cost, lost, float(ends[i_end]))
+    person = np.full(F, -1)
+    visible = np.zeros(F, dtype=bool)
+    bridged = np.zeros(F, dtype=bool)
+    if F * miss_cost <= min(lost, float(ends[i_end])):
+        return Selection(person, visible, bridged, total)
+    # Backtrack.
+    if lost <= ends[i_end]:
+        f = F - 1
+        while lost_back[f] == -1:
+            f -= 1
+        i = int(lost_back[f])
+    else:
+        i = i_end
+    while i >= 0:
+        f = int(frame_of[i])
+        person[f] = i - start[f]
+        visible[f] = True
+        j = int(back[i])
+        if j >= 0:
+            fj = int(frame_of[j])
+            visible[fj + 1:f] = True
+            bridged[fj + 1:f] = True
+            i = j
+        elif j == -2:
+            g = f - 1
+            while lost_back[g] == -1:
+                g -= 1
+            i = int(lost_back[g])
+        else:
+            break
+    return Selection(person, visible, bridged, float(total))
+
+
+def smooth_box(feats: list[FrameFeatures], sel: Selection, *, lam: float, width: int,
+               height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Raw and smoothed main-subject boxes, (F, 4) px each; NaN where not visible / not detected."""
+    F = len(feats)
+    raw = np.full((F, 4), np.nan)
+    w = np.zeros((F, 4))
+    for f, k in enumerate(sel.person):
+        if k >= 0:
+            raw[f] = feats[f].boxes[k]
+            w[f] = max(float(feats[f].conf[k]), 1e-3)
+    if F == 0:
+        return raw, raw.copy()
+    link = sel.visible[:-1] & sel.visible[1:]
+    hi = np.array([width, height, width, height], dtype=float)
+    res = qp.smooth(raw, w, lam, lo=0.0, hi=hi, link=link)
+    out = np.where(sel.visible[:, None], res.x, np.nan)
+    return raw, out
