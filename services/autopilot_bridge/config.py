@@ -145,6 +145,8 @@ class MavlinkConfig:
     gimbal_device_id: int = 0
     #: rate of the SET_POSITION_TARGET_LOCAL_NED stream [Hz] (PX4 OFFBOARD needs > 2 Hz).
     setpoint_rate_hz: float = 20.0
+    #: most lens commands (zoom / focus / aperture) sent per second, per parameter [Hz].
+    lens_command_rate_hz: float = 5.0
     #: rate of our HEARTBEAT [Hz].
     heartbeat_rate_hz: float = 1.0
     #: telemetry rates we ask the vehicle for (MAV_CMD_SET_MESSAGE_INTERVAL) [Hz]; 0 = don't ask.
@@ -188,6 +190,7 @@ class MavlinkConfig:
         if self.setpoint_rate_hz <= 2.0:
             raise ConfigError("setpoint_rate_hz must be > 2 Hz (PX4 leaves OFFBOARD below that)")
         _positive("heartbeat_rate_hz", self.heartbeat_rate_hz)
+        _positive("lens_command_rate_hz", self.lens_command_rate_hz)
         _finite("telemetry_rate_hz", self.telemetry_rate_hz)
         if self.telemetry_rate_hz < 0:
             raise ConfigError("telemetry_rate_hz must be >= 0")

@@ -66,44 +66,59 @@ def select_subject(feats: list[FrameFeatures], *, fps: float, move_cost: float =
     diag = np.hypot(boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1])
     emit = confidence_cost * (1.0 - np.clip(conf, 0.0, 1.0))
 
+    # Every step between detections g = 1..G frames apart, as one (P_f, M_f) cost matrix per
+    # frame f (P_f = detections in frames f-G..f-1, M_f = detections in frame f), built at once.
+    fr = np.arange(F)
+    pa_f = start[np.maximum(0, fr - G)]
+    a_f, b_f = start[:-1], start[1:]
+    P_f, M_f = a_f - pa_f, b_f - a_f
+    n_f = P_f * M_f
+    off = np.concatenate([[0], np.cumsum(n_f)])
+    rep = np.repeat(fr, n_f)
+    local = np.arange(int(off[-1])) - off[rep]
+    msafe = np.maximum(M_f, 1)[rep]
+    src = pa_f[rep] + local // msafe
+    dst = a_f[rep] + local % msafe
+    g = (frame_of[dst] - frame_of[src]).astype(float)
+    d2 = np.zeros(src.size)
+    for k in range(4):
+        d2 += (boxes[src, k] - boxes[dst, k]) ** 2
+    s = 0.5 * (diag[src] + diag[dst])
+    step_cost = (g - 1.0) * miss_cost + move_cost * d2 / (np.maximum(s, 1e-9) ** 2 * g)
+
     D = np.full(N, np.inf)  # best cost of a path ending at detection i (frames up to and incl. its frame)
     back = np.full(N, -1, dtype=np.int64)  # predecessor detection, or -1 = fresh start, -2 = from 'lost'
     lost = np.inf  # best cost of a path that was visible and is now not visible, up to frame f-1
-    lost_back = np.full(F, -1, dtype=np.int64)  # for the 'lost' state at frame f: detection it left from, or -1 = stayed lost
+    lost_back = np.full(F, -1, dtype=np.int64)  # 'lost' at frame f: detection it left from, -1 = stayed lost
     for f in range(F):
-        a, b = start[f], start[f + 1]
-        if b > a:
-            # Candidates: fresh start (all earlier frames invisible), from 'lost', or a step from a detection.
-            best = np.full(b - a, f * miss_cost)
-            arg = np.full(b - a, -1, dtype=np.int64)
-            if lost + switch_cost < best[0]:
-                best[:] = lost + switch_cost
-                arg[:] = -2
-            pa = start[max(0, f - G)]
-            if a > pa:
-                g = (f - frame_of[pa:a]).astype(float)  # (P,)
-                dr = boxes[pa:a, None, :] - boxes[None, a:b, :]  # (P, C, 4)
-                s = 0.5 * (diag[pa:a, None] + diag[None, a:b])
-                step = (D[pa:a, None] + (g[:, None] - 1.0) * miss_cost
-                        + move_cost * np.einsum("pck,pck->pc", dr, dr) / (np.maximum(s, 1e-9) ** 2 * g[:, None]))
-                k = np.argmin(step, axis=0)
-                v = step[k, np.arange(b - a)]
-                better = v < best
-                best = np.where(better, v, best)
-                arg = np.where(better, pa + k, arg)
-            D[a:b] = best + emit[a:b]
-            back[a:b] = arg
+        a, b = int(a_f[f]), int(b_f[f])
+        m = b - a
+        if m:
+            # Fresh start (all earlier frames invisible), from 'lost', or a step from a detection.
+            fresh = f * miss_cost
+            base, arg0 = (lost + switch_cost, -2) if lost + switch_cost < fresh else (fresh, -1)
+            P = int(P_f[f])
+            if P:
+                pa = int(pa_f[f])
+                tot = D[pa:a, None] + step_cost[off[f]:off[f + 1]].reshape(P, m)
+                k = tot.argmin(axis=0)
+                v = tot[k, np.arange(m)]
+                better = v < base
+                D[a:b] = np.where(better, v, base) + emit[a:b]
+                back[a:b] = np.where(better, pa + k, arg0)
+            else:
+                D[a:b] = base + emit[a:b]
+                back[a:b] = arg0
         # 'lost' at frame f: left a detection of frame f-1, or stayed lost.
-        pa, pb = start[max(0, f - 1)], start[f]
-        cand_leave = np.inf
-        i_leave = -1
-        if f > 0 and pb > pa:
-            i_leave = int(pa + np.argmin(D[pa:pb]))
-            cand_leave = D[i_leave]
-        if cand_leave < lost:
-            lost, lost_back[f] = cand_leave + miss_cost, i_leave
+        leave, i_leave = np.inf, -1
+        if f > 0 and M_f[f - 1]:
+            pa, pb = int(a_f[f - 1]), int(b_f[f - 1])
+            i_leave = pa + int(np.argmin(D[pa:pb]))
+            leave = D[i_leave]
+        if leave < lost:
+            lost, lost_back[f] = leave + miss_cost, i_leave
         else:
-            lost, lost_back[f] = lost + miss_cost, -1
+            lost += miss_cost
     # End: never visible, lost at the end, or at a detection (remaining frames invisible).
     ends = D + (F - 1 - frame_of) * miss_cost
     i_end = int(np.argmin(ends))

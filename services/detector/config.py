@@ -1,0 +1,128 @@
+"""Detector parameters: one frozen dataclass with documented defaults, units and ranges."""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+BACKENDS = ("mediapipe", "torchvision")
+RUNNING_MODES = ("video", "image")
+
+
+class ConfigError(ValueError):
+    """A detector parameter is out of its allowed range."""
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Everything that changes what or how fast the detector measures.
+
+    Pose (people, masks, skeletons):
+    """
+
+    backend: str = "mediapipe"  # 'mediapipe' (runs here, no download) or 'torchvision' (user weights)
+    # --- mediapipe backend
+    num_poses: int = 6  # most people reported per frame, 1..20
+    min_detection_confidence: float = 0.3  # person-detector score threshold, [0, 1]
+    min_presence_confidence: float = 0.3  # landmark presence threshold to keep a tracked pose, [0, 1]
+    min_tracking_confidence: float = 0.3  # tracking threshold (video mode), [0, 1]
+    running_mode: str = "video"  # 'video' (temporal tracking; needs increasing stamps) or 'image'
+    upscale_max_side_px: int = 0  # run pose on the frame upscaled so its long side is this (0 = off)
+    tiles: int = 0  # extra pass over N overlapping vertical tiles (small/far people), 0 = off, 0..4
+    mask_threshold: float = 0.5  # segmentation probability that counts as person, (0, 1)
+    min_person_confidence: float = 0.35  # drop people whose derived confidence is below this, [0, 1]
+    dedup_iou: float = 0.5  # two detections whose boxes overlap more than this are one person, (0, 1]
+    min_box_height_px: int = 8  # ignore people smaller than this [px]
+    # --- torchvision backend (user-supplied checkpoints; see torchvision_backend.py)
+    tv_mask_checkpoint: str = ""  # Mask R-CNN state_dict file ('' = none)
+    tv_keypoint_checkpoint: str = ""  # Keypoint R-CNN state_dict file ('' = none)
+    tv_mask_arch: str = "maskrcnn_resnet50_fpn"  # or 'maskrcnn_resnet50_fpn_v2'
+    tv_keypoint_arch: str = "keypointrcnn_resnet50_fpn"
+    tv_person_label: int = 1  # class index of 'person' in the checkpoint (COCO: 1)
+    tv_score_threshold: float = 0.5  # keep detections scoring at least this, [0, 1]
+    tv_min_size_px: int = 800  # torchvision's resize (short side) [px]
+    tv_max_size_px: int = 1333  # torchvision's resize (long side cap) [px]
+    tv_device: str = "cpu"  # torch device ('cpu', 'cuda', 'cuda:1', ...)
+    # --- focus (Zhuo & Sim 2011 edge-based defocus; no weights)
+    focus: bool = True  # compute the focus map
+    focus_work_width_px: int = 640  # width the estimator works at (frames are downscaled to it)
+    focus_map_width_px: int = 160  # width of the published focus map [px] (height keeps the aspect)
+    focus_reblur_sigma_px: float = 1.0  # re-blur Gaussian sigma sigma0 [work px]
+    focus_sigma_threshold_px: float = 1.25  # defocus sigma at which P(in focus) = 0.5 [work px]
+    focus_sigma_softness_px: float = 0.35  # logistic width of that transition [work px]
+    focus_edge_threshold: float = 8.0  # min gradient magnitude for an edge pixel [grey levels/px]
+    focus_propagation_sigma_px: float = 12.0  # spatial scale of sparse-to-dense propagation [work px]
+    focus_no_edge_prior: float = 0.25  # P(in focus) where no edge is near (flat or very blurred areas)
+    # --- execution
+    threads: int = 2  # 1 = sequential; 2 = focus in parallel with pose (uses both cores)
+
+    def validate(self) -> "DetectorConfig":
+        def need(cond: bool, name: str, allowed: str) -> None:
+            if not cond:
+                raise ConfigError(f"detector config: {name}={getattr(self, name)!r} is invalid; allowed: {allowed}")
+
+        need(self.backend in BACKENDS, "backend", " | ".join(BACKENDS))
+        need(self.running_mode in RUNNING_MODES, "running_mode", " | ".join(RUNNING_MODES))
+        need(1 <= self.num_poses <= 20, "num_poses", "1..20")
+        for name in ("min_detection_confidence", "min_presence_confidence", "min_tracking_confidence",
+                     "min_person_confidence", "tv_score_threshold", "focus_no_edge_prior"):
+            need(0.0 <= getattr(self, name) <= 1.0, name, "[0, 1]")
+        need(0.0 < self.mask_threshold < 1.0, "mask_threshold", "(0, 1)")
+        need(0.0 < self.dedup_iou <= 1.0, "dedup_iou", "(0, 1]")
+        need(self.upscale_max_side_px == 0 or 64 <= self.upscale_max_side_px <= 4096, "upscale_max_side_px",
+             "0 or 64..4096")
+        need(0 <= self.tiles <= 4, "tiles", "0..4")
+        need(self.min_box_height_px >= 0, "min_box_height_px", ">= 0")
+        need(self.tv_min_size_px >= 32 and self.tv_max_size_px >= self.tv_min_size_px, "tv_min_size_px",
+             ">= 32 and <= tv_max_size_px")
+        need(self.tv_person_label >= 1, "tv_person_label", ">= 1")
+        need(32 <= self.focus_work_width_px <= 4096, "focus_work_width_px", "32..4096")
+        need(8 <= self.focus_map_width_px <= self.focus_work_width_px, "focus_map_width_px",
+             "8..focus_work_width_px")
+        need(0.3 <= self.focus_reblur_sigma_px <= 5.0, "focus_reblur_sigma_px", "0.3..5")
+        need(0.1 <= self.focus_sigma_threshold_px <= 20.0, "focus_sigma_threshold_px", "0.1..20")
+        need(0.01 <= self.focus_sigma_softness_px <= 10.0, "focus_sigma_softness_px", "0.01..10")
+        need(0.0 < self.focus_edge_threshold <= 255.0, "focus_edge_threshold", "(0, 255]")
+        need(1.0 <= self.focus_propagation_sigma_px <= 200.0, "focus_propagation_sigma_px", "1..200")
+        need(self.threads in (1, 2), "threads", "1 | 2")
+        if self.backend == "torchvision":
+            need(bool(self.tv_mask_checkpoint or self.tv_keypoint_checkpoint), "tv_mask_checkpoint",
+                 "a checkpoint path (or tv_keypoint_checkpoint) when backend='torchvision'")
+        return self
+
+    def replace(self, **changes: Any) -> "DetectorConfig":
+        return dataclasses.replace(self, **changes).validate()
+
+
+def add_config_arguments(parser: Any) -> None:
+    """Flags for the commonly changed parameters (the rest keep their defaults)."""
+    d = DetectorConfig()
+    g = parser.add_argument_group("detector")
+    g.add_argument("--backend", choices=BACKENDS, default=d.backend, help="pose backend (default %(default)s)")
+    g.add_argument("--num-poses", type=int, default=d.num_poses, help="max people per frame (default %(default)s)")
+    g.add_argument("--running-mode", choices=RUNNING_MODES, default=d.running_mode,
+                   help="mediapipe mode: 'video' tracks over frames (default %(default)s)")
+    g.add_argument("--upscale", type=int, default=d.upscale_max_side_px, metavar="PX",
+                   help="run pose on the frame upscaled to this long side, for small people (0 = off)")
+    g.add_argument("--tiles", type=int, default=d.tiles, help="extra pose pass over N tiles (0 = off)")
+    g.add_argument("--no-focus", action="store_true", help="skip the focus map")
+    g.add_argument("--focus-width", type=int, default=d.focus_work_width_px, metavar="PX",
+                   help="focus estimator working width (default %(default)s)")
+    g.add_argument("--threads", type=int, default=d.threads, choices=(1, 2),
+                   help="2 = focus and pose in parallel (default %(default)s)")
+    g.add_argument("--mask-checkpoint", default="", metavar="FILE",
+                   help="torchvision Mask R-CNN state_dict (backend torchvision)")
+    g.add_argument("--keypoint-checkpoint", default="", metavar="FILE",
+                   help="torchvision Keypoint R-CNN state_dict (backend torchvision)")
+    g.add_argument("--device", default=d.tv_device, help="torch device for the torchvision backend")
+
+
+def config_from_args(args: Any, base: DetectorConfig | None = None) -> DetectorConfig:
+    base = base or DetectorConfig()
+    return dataclasses.replace(
+        base, backend=args.backend, num_poses=args.num_poses, running_mode=args.running_mode,
+        upscale_max_side_px=args.upscale, tiles=args.tiles, focus=not args.no_focus,
+        focus_work_width_px=args.focus_width, threads=args.threads,
+        tv_mask_checkpoint=args.mask_checkpoint, tv_keypoint_checkpoint=args.keypoint_checkpoint,
+        tv_device=args.device,
+    ).validate()

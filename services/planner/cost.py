@@ -1,0 +1,114 @@
+"""Cost terms of the MPC, written with casadi operations (they work on SX, MX and plain floats).
+
+Conventions are those of `cinetransfer.shared.camera` (its tests check these against it):
+- camera frame x forward, y left, z up; R = Rz(yaw) Ry(-pitch) Rx(roll) maps camera to world,
+  so a world point P seen from camera position C is p_c = R^T (P - C);
+- normalised image u = 1/2 - f y / (x w_s), v = 1/2 - f z / (x h_s) with f, w_s, h_s in mm;
+- thin lens: H = f^2 / (A c) + f, D_n = s (H - f) / (H + s - 2 f), D_f = s (H - f) / (H - s).
+
+Depth of field in reciprocal form (DESIGN §4 pitfall). With every length in metres,
+    1 / D_n = 1/s + (s - f) / (s (H - f)),   1 / D_f = 1/s - (s - f) / (s (H - f)),
+and H - f = f^2 / (A c). Both are smooth for every s > f: 1/D_f just crosses 0 at s = H (the far
+limit reaches infinity) and is negative beyond (still infinite). So the cost on 1/D_n and 1/D_f
+never blows up, and a far target at infinity is a one-sided term max(0, 1/D_f + margin)^2.
+The errors are scaled by the subject distance d, so d (1/D - 1/D*) is about the relative error.
+"""
+from __future__ import annotations
+
+import casadi as ca
+
+
+def rotation_ypr(yaw, pitch, roll=0.0):  # noqa: ANN001, ANN201 - casadi or float
+    """Camera-to-world rotation R = Rz(yaw) Ry(-pitch) Rx(roll) (as shared.camera.rotation_ypr)."""
+    cy, sy = ca.cos(yaw), ca.sin(yaw)
+    cp, sp = ca.cos(-pitch), ca.sin(-pitch)
+    cr, sr = ca.cos(roll), ca.sin(roll)
+    rz = ca.vertcat(ca.horzcat(cy, -sy, 0), ca.horzcat(sy, cy, 0), ca.horzcat(0, 0, 1))
+    ry = ca.vertcat(ca.horzcat(cp, 0, sp), ca.horzcat(0, 1, 0), ca.horzcat(-sp, 0, cp))
+    rx = ca.vertcat(ca.horzcat(1, 0, 0), ca.horzcat(0, cr, -sr), ca.horzcat(0, sr, cr))
+    return ca.mtimes([rz, ry, rx])
+
+
+def world_to_camera(point_w, cam_pos_w, yaw, pitch, roll=0.0):  # noqa: ANN001, ANN201
+    """A world point (3-vector) in camera coordinates (x forward, y left, z up)."""
+    r = rotation_ypr(yaw, pitch, roll)
+    return ca.mtimes(r.T, point_w - cam_pos_w)
+
+
+def soft_depth(x, eps):  # noqa: ANN001, ANN201
+    """Smooth positive stand-in for the depth x: ~x for x >> eps, ~eps/2 at 0, -> 0+ behind."""
+    return 0.5 * (x + ca.sqrt(x * x + eps * eps))
+
+
+def project(point_c, focal_mm, sensor_w_mm, sensor_h_mm, depth_eps=None):  # noqa: ANN001, ANN201
+    """Normalised image coordinates (u, v) of a camera-frame point (exact pinhole if depth_eps is None).
+
+    With depth_eps the depth is replaced by soft_depth(x, depth_eps), which keeps the cost finite
+    and its gradient pointing the right way while a point is near or behind the camera.
+    """
+    x = point_c[0] if depth_eps is None else soft_depth(point_c[0], depth_eps)
+    u = 0.5 - focal_mm * point_c[1] / (x * sensor_w_mm)
+    v = 0.5 - focal_mm * point_c[2] / (x * sensor_h_mm)
+    return u, v
+
+
+def hyperfocal_m(focal_mm, fnumber, coc_mm):  # noqa: ANN001, ANN201
+    """H = f^2 / (A c) + f [m] for f and c in mm."""
+    return (focal_mm * focal_mm / (fnumber * coc_mm) + focal_mm) / 1000.0
+
+
+def inverse_dof_limits(focal_mm, fnumber, focus_m, coc_mm):  # noqa: ANN001, ANN201
+    """(1/D_n, 1/D_f) [1/m]; smooth for every focus distance above the focal length.
+
+    1/D_f <= 0 means the far limit is at infinity (s >= H).
+    """
+    f_m = focal_mm / 1000.0
+    h_minus_f = focal_mm * focal_mm / (fnumber * coc_mm) / 1000.0
+    spread = (focus_m - f_m) / (focus_m * h_minus_f)
+    return 1.0 / focus_m + spread, 1.0 / focus_m - spread
+
+
+def dof_cost(inv_near, inv_far, distance_m, *, w_near, g_near, w_far, g_far, far_one_sided):  # noqa: ANN001, ANN201
+    """(d (1/D_n - g_n))^2 w_n + (d r_f)^2 w_f with r_f = 1/D_f - g_f, or max(0, that) if one-sided.
+
+    g_* are the reciprocal targets 1/D*; w_* = 0 leaves a limit uncontrolled; far_one_sided in
+    {0, 1} selects 'far limit at or beyond the target' (used for D_f* = infinity with g_f < 0).
+    """
+    e_n = distance_m * (inv_near - g_near)
+    r_f = inv_far - g_far
+    r_f = far_one_sided * ca.fmax(r_f, 0) + (1 - far_one_sided) * r_f
+    e_f = distance_m * r_f
+    return w_near * e_n * e_n + w_far * e_f * e_f
+
+
+def look_cost(point_c):  # noqa: ANN001, ANN201
+    """1 - cos(angle between the optical axis and the point): 0 when centred, 2 when behind."""
+    n = ca.sqrt(point_c[0] ** 2 + point_c[1] ** 2 + point_c[2] ** 2 + 1e-6)
+    return 1.0 - point_c[0] / n
+
+
+def reciprocal_targets(near_m: float, far_m: float, *, near_foreground_m: float,
+                       far_margin_inv_m: float) -> tuple[float, float, float, float, float]:
+    """Map desired limits (D_n*, D_f*) from shared.camera.desired_dof_limits to cost parameters.
+
+    Returns (w_near_mask, g_near, w_far_mask, g_far, far_one_sided):
+    - D_n* = +inf: near uncontrolled (mask 0); D_n* = 0 (foreground in focus) is unreachable and
+      aims at near_foreground_m instead; otherwise g_n = 1 / D_n* (D_n* clamped to >= 0.1 m);
+    - D_f* = -inf: far uncontrolled; D_f* = +inf: one-sided 1/D_f <= -far_margin_inv_m;
+      otherwise g_f = 1 / D_f* (clamped to >= 0.1 m).
+    """
+    import math
+
+    if math.isinf(near_m) and near_m > 0:
+        wn, gn = 0.0, 0.0
+    elif near_m <= 0.0:
+        wn, gn = 1.0, 1.0 / near_foreground_m
+    else:
+        wn, gn = 1.0, 1.0 / max(near_m, 0.1)
+    if math.isinf(far_m) and far_m < 0:
+        wf, gf, one = 0.0, 0.0, 0.0
+    elif math.isinf(far_m):
+        wf, gf, one = 1.0, -far_margin_inv_m, 1.0
+    else:
+        wf, gf, one = 1.0, 1.0 / max(far_m, 0.1), 0.0
+    return wn, gn, wf, gf, one

@@ -1,0 +1,384 @@
+"""The CineMPC nonlinear program, built once with casadi and solved with IPOPT.
+
+Multiple shooting over N stages of dt: decision vector [x_0, (u_k, x_{k+1}, slack_k) k < N],
+x_0 fixed to the measured state through its bounds. Everything that changes between solves is a
+runtime value — the measured state, the previous input, the subject's joints and velocity, the
+image targets and their masks, the depth-of-field targets, the weights, the bounds — so a solve
+never rebuilds anything. With `Structure.expand` the problem is built directly in SX (what
+`expand: True` gives, without building an MX graph first); `expand=False` builds it in MX, as
+a CineMPC-like baseline. `Structure.codegen` generates C for the NLP functions, compiles it
+once and caches the shared library under `cache_dir`, keyed by the structure and this code.
+
+Warm start: the last solution, shifted by the time elapsed since it was computed (states
+interpolated, inputs held piecewise constant, multipliers shifted by whole stages), with the
+new measured state in front.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+import math
+import os
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from cinetransfer.services.planner import constraints as C
+from cinetransfer.services.planner import cost as J
+from cinetransfer.services.planner.config import WEIGHT_NAMES, Bounds, Structure, Weights
+from cinetransfer.services.planner.model import Layout, discrete_matrices, input_bounds
+
+log = logging.getLogger("cinetransfer.planner")
+
+N_DOF = 5  # per stage: w_near mask, g_near, w_far mask, g_far, far_one_sided
+OK_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+BUDGET_STATUSES = ("Maximum_Iterations_Exceeded", "Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded")
+
+
+@dataclass
+class StageData:
+    """The runtime data of one solve (everything but weights and bounds)."""
+
+    x0: np.ndarray  # measured state (nx,)
+    u_prev: np.ndarray  # input applied before (nu,) (for the input-change cost)
+    joints_w: np.ndarray  # (E_max, 3) world positions of the controlled joints now (0 where unused)
+    subject_centre_w: np.ndarray  # (3,) subject centre now (for distance, look and DoF depth)
+    subject_velocity: np.ndarray  # (3,) [m/s], joints predicted at constant velocity
+    targets: np.ndarray  # (N, E_max, 2) normalised image targets at stages 1..N (0 where unused)
+    mask: np.ndarray  # (N, E_max) 1 = controlled joint at that stage, else 0
+    dof: np.ndarray  # (N, 5) see cost.reciprocal_targets
+    distance_ref: np.ndarray  # (N,) subject distance used to scale the DoF errors [m]
+
+
+@dataclass
+class SolveResult:
+    ok: bool
+    status: str
+    x: np.ndarray  # (N+1, nx) planned states, x[0] = measured (possibly clamped) state
+    u: np.ndarray  # (N, nu) planned inputs
+    slack: np.ndarray  # (N, 3) soft-constraint violations (floor, ceiling, distance)
+    cost: float
+    iterations: int
+    wall_s: float
+    violation: float  # max constraint violation of the returned iterate
+    extras: dict = field(default_factory=dict)
+
+
+class ParamLayout:
+    """Offsets of the pieces of the parameter vector p."""
+
+    def __init__(self, s: Structure) -> None:
+        lay = Layout(s.control_roll)
+        e, n = s.max_joints, s.horizon_steps
+        sizes = [("u_prev", lay.nu), ("joints", 3 * e), ("centre", 3), ("subj_vel", 3),
+                 ("targets", n * e * 2), ("mask", n * e), ("dof", n * N_DOF), ("dref", n),
+                 ("weights", len(WEIGHT_NAMES)), ("u_scale", lay.nu), ("v_scale", 1), ("soft", 3)]
+        self.slices: dict[str, slice] = {}
+        off = 0
+        for name, size in sizes:
+            self.slices[name] = slice(off, off + size)
+            off += size
+        self.size = off
+
+
+def _structure_key(s: Structure, max_solve_time_s: float) -> str:
+    """Hash of what the generated code depends on: structure, casadi version, this package's code."""
+    d = dataclasses.asdict(s)
+    for k in ("cache_dir", "codegen", "compiler", "max_iter", "tol", "warm_start"):
+        d.pop(k, None)
+    src = b""
+    here = Path(__file__).resolve().parent
+    for name in ("model.py", "cost.py", "constraints.py", "solver.py"):
+        src += (here / name).read_bytes()
+    h = hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode() + ca.__version__.encode() + src)
+    return h.hexdigest()[:16]
+
+
+class MpcSolver:
+    """Builds the NLP once; `solve(data)` runs IPOPT with the current weights and bounds."""
+
+    def __init__(self, structure: Structure, bounds: Bounds | None = None, weights: Weights | None = None, *,
+                 max_solve_time_s: float = 0.05, feasibility_tol: float = 1e-4,
+                 accept_suboptimal: bool = True) -> None:
+        self.s = structure.validate()
+        self.layout = Layout(structure.control_roll)
+        self.n = structure.horizon_steps
+        self.dt = structure.dt_s
+        self.e = structure.max_joints
+        self.pl = ParamLayout(structure)
+        self.max_solve_time_s = max_solve_time_s
+        self.feasibility_tol = feasibility_tol
+        self.accept_suboptimal = accept_suboptimal
+        self.bounds = (bounds or Bounds()).validate()
+        self.weights = (weights or Weights()).validate()
+        t = time.perf_counter()
+        self._build()
+        self.build_s = time.perf_counter() - t
+        self._guess: np.ndarray | None = None
+        self._lam_x: np.ndarray | None = None
+        self._lam_g: np.ndarray | None = None
+        self._last: SolveResult | None = None
+        self._lbg, self._ubg = C.constraint_bounds(self.layout, self.n)
+
+    # ------------------------------------------------------------------ build
+    @property
+    def nw(self) -> int:
+        return self.layout.nx + self.n * (self.layout.nu + self.layout.nx + C.N_SOFT)
+
+    def _build(self) -> None:
+        s, lay, n, e, dt = self.s, self.layout, self.n, self.e, self.dt
+        sym = ca.SX if s.expand else ca.MX
+        w = sym.sym("w", self.nw)
+        p = sym.sym("p", self.pl.size)
+        sl = self.pl.slices
+        a_mat, b_mat = discrete_matrices(lay, dt)
+        a_dm, b_dm = ca.DM(a_mat), ca.DM(b_mat)
+
+        u_prev = p[sl["u_prev"]]
+        joints0 = ca.reshape(p[sl["joints"]], 3, e)  # column j = joint j
+        centre0 = p[sl["centre"]]
+        vel = p[sl["subj_vel"]]
+        targets = p[sl["targets"]]
+        mask = p[sl["mask"]]
+        dof = p[sl["dof"]]
+        dref = p[sl["dref"]]
+        wts = {name: p[sl["weights"]][i] for i, name in enumerate(WEIGHT_NAMES)}
+        u_scale = p[sl["u_scale"]]
+        v_scale = p[sl["v_scale"]][0]
+        z_min, z_max, d_min = p[sl["soft"]][0], p[sl["soft"]][1], p[sl["soft"]][2]
+
+        nx, nu = lay.nx, lay.nu
+        blk = nu + nx + C.N_SOFT
+        x_prev = w[0:nx]
+        u_last = u_prev
+        cost = 0
+        g = []
+        acc_idx = list(range(0, 3))
+        cam_idx = list(range(3, lay.F_RATE))
+        lens_idx = list(range(lay.F_RATE, nu))
+        for k in range(n):
+            off = nx + k * blk
+            u = w[off:off + nu]
+            x = w[off + nu:off + nu + nx]
+            slack = w[off + nu + nx:off + blk]
+            tk = (k + 1) * dt
+            g.append(x - (ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)))
+            centre = centre0 + vel * tk
+            g.append(C.soft_constraints(x, slack, centre, z_min, z_max, d_min))
+
+            yaw, pitch, roll = lay.angles(x)
+            cam = x[lay.P]
+            r = J.rotation_ypr(yaw, pitch, roll)
+            f_mm = x[lay.F]
+            # image term: predicted joints projected through the planned camera
+            im = 0
+            for j in range(e):
+                pj = joints0[:, j] + vel * tk
+                pc = ca.mtimes(r.T, pj - cam)
+                uu, vv = J.project(pc, f_mm, s.sensor_width_mm, s.sensor_height_mm, s.depth_eps_m)
+                ti = (k * e + j) * 2
+                du = uu - targets[ti]
+                dv = vv - targets[ti + 1]
+                im += mask[k * e + j] * (du * du + dv * dv)
+            cc = ca.mtimes(r.T, centre - cam)
+            inv_n, inv_f = J.inverse_dof_limits(f_mm, x[lay.A], x[lay.S], s.coc_mm)
+            d = dof[k * N_DOF:(k + 1) * N_DOF]
+            jdof = J.dof_cost(inv_n, inv_f, dref[k], w_near=d[0] * wts["dof_near"], g_near=d[1],
+                              w_far=d[2] * wts["dof_far"], g_far=d[3], far_one_sided=d[4])
+            un = u * u_scale
+            du_n = (u - u_last) * u_scale
+            vn = x[lay.V] * v_scale
+            stage = (wts["image"] * im + wts["look"] * J.look_cost(cc) + jdof
+                     + wts["accel"] * ca.sumsqr(un[acc_idx]) + wts["camera_rate"] * ca.sumsqr(un[cam_idx])
+                     + wts["lens_rate"] * ca.sumsqr(un[lens_idx])
+                     + wts["accel_change"] * ca.sumsqr(du_n[acc_idx])
+                     + wts["camera_rate_change"] * ca.sumsqr(du_n[cam_idx])
+                     + wts["lens_rate_change"] * ca.sumsqr(du_n[lens_idx])
+                     + wts["velocity"] * ca.sumsqr(vn)
+                     + wts["soft_constraint"] * (ca.sum1(slack) + ca.sumsqr(slack)))
+            cost += dt * stage
+            x_prev, u_last = x, u
+        gvec = ca.vertcat(*g)
+        nlp = {"x": w, "p": p, "f": cost, "g": gvec}
+        self._gfun = ca.Function("g", [w, p], [gvec])
+        self._ffun = ca.Function("f", [w, p], [cost])
+        opts = self._ipopt_options()
+        if s.codegen:
+            self.solver = self._codegen_solver(nlp, opts)
+        else:
+            if not s.expand:
+                opts["expand"] = False
+            self.solver = ca.nlpsol("cinempc", s.solver, nlp, opts)
+
+    def _ipopt_options(self) -> dict:
+        s = self.s
+        ip = {"print_level": 0, "sb": "yes", "max_iter": s.max_iter, "tol": s.tol,
+              "acceptable_tol": 1e-3, "acceptable_iter": 5, "max_wall_time": float(self.max_solve_time_s),
+              "mu_strategy": "adaptive", "linear_solver": "mumps"}
+        if s.warm_start:
+            ip.update({"warm_start_init_point": "yes", "warm_start_bound_push": 1e-6,
+                       "warm_start_mult_bound_push": 1e-6, "warm_start_slack_bound_push": 1e-6,
+                       "mu_init": 1e-3})
+        return {"ipopt": ip, "print_time": False, "error_on_fail": False}
+
+    def _codegen_solver(self, nlp: dict, opts: dict):  # noqa: ANN202
+        key = _structure_key(self.s, self.max_solve_time_s)
+        cache = Path(self.s.cache_dir)
+        cache.mkdir(parents=True, exist_ok=True)
+        lib = cache / f"cinempc_{key}.so"
+        if not lib.exists():
+            base = ca.nlpsol("cinempc", self.s.solver, nlp, {"ipopt": {"print_level": 0}, "print_time": False})
+            with tempfile.TemporaryDirectory(dir=cache) as tmp:
+                c_name = f"cinempc_{key}.c"
+                cwd = os.getcwd()
+                try:
+                    os.chdir(tmp)
+                    base.generate_dependencies(c_name)
+                finally:
+                    os.chdir(cwd)
+                t = time.perf_counter()
+                out = Path(tmp) / (lib.name + ".part")
+                subprocess.run([self.s.compiler, *self.s.compile_flags, os.path.join(tmp, c_name), "-o", str(out)],
+                               check=True, capture_output=True)
+                os.replace(out, lib)  # atomic: a concurrent process sees the whole library or none
+                log.info("compiled planner NLP in %.1f s -> %s", time.perf_counter() - t, lib)
+        return ca.nlpsol("cinempc", self.s.solver, str(lib), opts)
+
+    # ------------------------------------------------------------------ runtime parameters
+    def set_weights(self, weights: Weights) -> None:
+        self.weights = weights.validate()
+
+    def set_bounds(self, bounds: Bounds) -> None:
+        self.bounds = bounds.validate()
+
+    def reset(self) -> None:
+        """Forget the warm start (after a failure or a jump in the state)."""
+        self._guess = self._lam_x = self._lam_g = None
+        self._last = None
+
+    def pack(self, data: StageData) -> np.ndarray:
+        lay, sl = self.layout, self.pl.slices
+        p = np.zeros(self.pl.size)
+        p[sl["u_prev"]] = data.u_prev
+        p[sl["joints"]] = np.asarray(data.joints_w, dtype=float).reshape(-1)  # (E, 3) row-major = 3 x E columns
+        p[sl["centre"]] = data.subject_centre_w
+        p[sl["subj_vel"]] = data.subject_velocity
+        p[sl["targets"]] = np.asarray(data.targets, dtype=float).reshape(-1)
+        p[sl["mask"]] = np.asarray(data.mask, dtype=float).reshape(-1)
+        p[sl["dof"]] = np.asarray(data.dof, dtype=float).reshape(-1)
+        p[sl["dref"]] = data.distance_ref
+        p[sl["weights"]] = self.weights.as_vector()
+        _, uhi = input_bounds(lay, self.bounds)
+        p[sl["u_scale"]] = 1.0 / uhi
+        p[sl["v_scale"]] = 1.0 / self.bounds.speed_max_mps
+        p[sl["soft"]] = [self.bounds.altitude_min_m, self.bounds.altitude_max_m, self.bounds.min_distance_m]
+        if not np.all(np.isfinite(p)):
+            raise ValueError("non-finite solver parameter")
+        return p
+
+    # ------------------------------------------------------------------ warm start
+    def _split(self, wv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        lay, n = self.layout, self.n
+        nx, nu = lay.nx, lay.nu
+        blk = wv[nx:].reshape(n, nu + nx + C.N_SOFT)
+        x = np.vstack([wv[:nx], blk[:, nu:nu + nx]])
+        return x, blk[:, :nu].copy(), blk[:, nu + nx:].copy()
+
+    def _join(self, x: np.ndarray, u: np.ndarray, sl: np.ndarray) -> np.ndarray:
+        return np.concatenate([x[0], np.hstack([u, x[1:], sl]).reshape(-1)])
+
+    def cold_guess(self, x0: np.ndarray) -> np.ndarray:
+        """x0 held over the horizon (zero velocity), zero inputs: CineMPC's kind of start."""
+        lay = self.layout
+        xs = np.tile(x0, (self.n + 1, 1))
+        xs[1:, lay.V] = 0.0
+        return self._join(xs, np.zeros((self.n, lay.nu)), np.zeros((self.n, C.N_SOFT)))
+
+    def shifted_guess(self, x0: np.ndarray, shift_s: float) -> np.ndarray | None:
+        if self._last is None:
+            return None
+        last = self._last
+        t_old = np.arange(self.n + 1) * self.dt
+        t_new = shift_s + t_old
+        xs = np.empty_like(last.x)
+        for i in range(last.x.shape[1]):
+            xs[:, i] = np.interp(t_new, t_old, last.x[:, i])
+        # beyond the old horizon: continue with the last input through the model
+        a_mat, b_mat = discrete_matrices(self.layout, self.dt)
+        idx = np.minimum((t_new[:-1] / self.dt).astype(int), self.n - 1)
+        us = last.u[idx]
+        ss = last.slack[idx]
+        for k in range(self.n):
+            if t_new[k + 1] > t_old[-1]:
+                xs[k + 1] = a_mat @ xs[k] + b_mat @ us[k]
+        xs[0] = x0
+        return self._join(xs, us, ss)
+
+    def _shift_multipliers(self, shift_steps: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+        if self._lam_x is None or self._lam_g is None:
+            return None, None
+        if shift_steps <= 0:
+            return self._lam_x, self._lam_g
+        nx, blk = self.layout.nx, self.layout.nu + self.layout.nx + C.N_SOFT
+        gblk = self.layout.nx + C.N_SOFT
+        lx = self._lam_x[nx:].reshape(self.n, blk)
+        lg = self._lam_g.reshape(self.n, gblk)
+        m = min(shift_steps, self.n - 1)
+        lx = np.vstack([lx[m:], np.repeat(lx[-1:], m, axis=0)])
+        lg = np.vstack([lg[m:], np.repeat(lg[-1:], m, axis=0)])
+        return np.concatenate([self._lam_x[:nx], lx.reshape(-1)]), lg.reshape(-1)
+
+    # ------------------------------------------------------------------ solve
+    def solve(self, data: StageData, *, shift_s: float = 0.0) -> SolveResult:
+        """Solve once. `shift_s` = time since the last successful solve (for the warm start)."""
+        lay = self.layout
+        x0 = np.asarray(data.x0, dtype=float)
+        p = self.pack(data)
+        lbw, ubw = C.decision_bounds(lay, self.bounds, self.n, x0)
+        guess = self.shifted_guess(x0, shift_s) if self.s.warm_start else None
+        if guess is None:
+            guess = self.cold_guess(x0)
+        guess = np.clip(guess, lbw, ubw)
+        args = {"x0": guess, "p": p, "lbx": lbw, "ubx": ubw, "lbg": self._lbg, "ubg": self._ubg}
+        if self.s.warm_start and self._last is not None:
+            lam_x, lam_g = self._shift_multipliers(int(round(shift_s / self.dt)))
+            if lam_x is not None:
+                args["lam_x0"], args["lam_g0"] = lam_x, lam_g
+        t = time.perf_counter()
+        sol = self.solver(**args)
+        wall = time.perf_counter() - t
+        stats = self.solver.stats()
+        status = str(stats.get("return_status", "unknown"))
+        wv = np.asarray(sol["x"]).reshape(-1)
+        gv = np.asarray(sol["g"]).reshape(-1)
+        viol = float(np.max(np.maximum(self._lbg - gv, 0) + np.maximum(gv - self._ubg, 0))) if gv.size else 0.0
+        viol = max(viol, float(np.max(np.maximum(lbw - wv, 0) + np.maximum(wv - ubw, 0))))
+        finite = bool(np.all(np.isfinite(wv)) and math.isfinite(viol))
+        ok = finite and (status in OK_STATUSES
+                         or (self.accept_suboptimal and status in BUDGET_STATUSES and viol <= self.feasibility_tol))
+        if ok and status not in OK_STATUSES:
+            status = f"suboptimal ({status})"
+        x, u, slack = self._split(wv) if finite else (np.full((self.n + 1, lay.nx), np.nan),
+                                                      np.full((self.n, lay.nu), np.nan),
+                                                      np.full((self.n, C.N_SOFT), np.nan))
+        res = SolveResult(ok=ok, status=status, x=x, u=u, slack=slack,
+                          cost=float(sol["f"]) if finite else math.inf,
+                          iterations=int(stats.get("iter_count", -1)), wall_s=wall, violation=viol)
+        if ok:
+            self._last = res
+            self._guess = wv
+            self._lam_x = np.asarray(sol["lam_x"]).reshape(-1)
+            self._lam_g = np.asarray(sol["lam_g"]).reshape(-1)
+        return res
+
+    def evaluate_cost(self, data: StageData, x: np.ndarray, u: np.ndarray, slack: np.ndarray | None = None) -> float:
+        """The NLP cost of a given trajectory (for comparisons)."""
+        sl = np.zeros((self.n, C.N_SOFT)) if slack is None else slack
+        return float(self._ffun(self._join(x, u, sl), self.pack(data)))

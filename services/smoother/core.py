@@ -1,0 +1,181 @@
+"""The smoother's pure pipeline: measurements -> recording instructions (DESIGN §1.1, §1.2).
+
+    feats = [frame_features(m, ...) for m in measurements]       # compact, once per frame
+    result = smooth_sequence(feats, cfg, source=SourceInfo(...))  # SmoothResult
+    result.instructions                                            # messages.Instructions
+
+Steps: order and de-duplicate frames (gaps become empty frames, bridged), select the main
+subject (`subject.select_subject`, or the paper's bilinear NLP in `baseline`), smooth its box,
+pick its mask and skeleton, smooth the joints (`joints`), compute and smooth the focused
+fraction per region (`focus`), and assemble the Instructions. No Zenoh, no clock, no globals.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Iterable
+
+import numpy as np
+
+from cinetransfer.services.smoother import focus as focus_mod
+from cinetransfer.services.smoother import joints as joints_mod
+from cinetransfer.services.smoother import subject as subject_mod
+from cinetransfer.services.smoother.config import SmootherConfig
+from cinetransfer.services.smoother.features import FrameFeatures, empty_features, frame_features
+from cinetransfer.shared import messages as M
+
+
+class SmootherInputError(ValueError):
+    """The measurements cannot give instructions (empty sequence, no person, bad sizes)."""
+
+
+@dataclass(frozen=True, eq=False)
+class SmoothResult:
+    """Instructions plus the per-frame diagnostics the plots and evaluations need."""
+
+    instructions: M.Instructions
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+
+
+def features_from_measurements(measurements: Iterable[M.Measurement], cfg: SmootherConfig) -> list[FrameFeatures]:
+    return [frame_features(m, focus_pixel_threshold=cfg.focus_pixel_threshold,
+                           foreground_min_rows=cfg.foreground_min_rows,
+                           min_person_confidence=cfg.min_person_confidence) for m in measurements]
+
+
+def order_frames(feats: Iterable[FrameFeatures]) -> tuple[list[FrameFeatures], int, int]:
+    """Sort by frame index, keep the first copy of a duplicate, fill gaps with empty frames.
+
+    Returns (frames, duplicates dropped, gap frames filled)."""
+    by_index: dict[int, FrameFeatures] = {}
+    dups = 0
+    for f in feats:
+        if f.frame_index in by_index:
+            dups += 1
+            continue
+        by_index[f.frame_index] = f
+    if not by_index:
+        return [], dups, 0
+    idx = sorted(by_index)
+    ref = next((by_index[i] for i in idx if by_index[i].width > 0 and by_index[i].height > 0), by_index[idx[0]])
+    out, gaps = [], 0
+    for i in range(idx[0], idx[-1] + 1):
+        f = by_index.get(i)
+        if f is None:
+            f = empty_features(i, width=ref.width, height=ref.height, fps=ref.fps, source=ref.source)
+            gaps += 1
+        out.append(f)
+    return out, dups, gaps
+
+
+def _frame_size(feats: list[FrameFeatures]) -> tuple[int, int]:
+    sizes = {(f.width, f.height) for f in feats if f.width > 0 and f.height > 0}
+    if not sizes:
+        raise SmootherInputError("measurements carry no frame size (width/height are 0)")
+    if len(sizes) > 1:
+        raise SmootherInputError(f"frame size changes within the sequence: {sorted(sizes)}")
+    return sizes.pop()
+
+
+def _fps(feats: list[FrameFeatures], cfg: SmootherConfig) -> float:
+    for f in feats:
+        if math.isfinite(f.fps) and f.fps > 0:
+            return float(f.fps)
+    return float(cfg.default_fps)
+
+
+def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None = None, *,
+                    source: M.SourceInfo | None = None, final: bool = True) -> SmoothResult:
+    """The whole optimisation for one sequence of frames (any order, duplicates allowed)."""
+    cfg = (cfg or SmootherConfig()).validate()
+    frames, dups, gaps = order_frames(feats)
+    if not frames:
+        raise SmootherInputError("no measurements: the sequence is empty")
+    W, H = _frame_size(frames)
+    fps = _fps(frames, cfg)
+    F = len(frames)
+    if not any(f.n_people for f in frames):
+        raise SmootherInputError(f"no person detected in any of the {F} frames: no main subject to follow")
+
+    # 1. Main subject.
+    if cfg.subject_method == "literal":
+        from cinetransfer.services.smoother import baseline  # casadi: imported only when asked for
+
+        sel = baseline.literal_selection(frames, fps=fps, max_bridge_s=cfg.max_bridge_s)
+    else:
+        sel = subject_mod.select_subject(frames, fps=fps, move_cost=cfg.move_cost, miss_cost=cfg.miss_cost,
+                                         confidence_cost=cfg.confidence_cost, max_bridge_s=cfg.max_bridge_s)
+    if not sel.visible.any():
+        raise SmootherInputError(f"no main subject found in {F} frames")
+    raw_box, box = subject_mod.smooth_box(frames, sel, lam=cfg.lam(cfg.box_smoothness, fps), width=W, height=H)
+
+    # 2.-3. Mask, skeleton, joints.
+    mask_idx, skel_idx, raw_joints, joint_conf = joints_mod.raw_subject_joints(frames, box, sel.visible)
+    sm_joints = joints_mod.smooth_joints(raw_joints, joint_conf, sel.visible,
+                                         lam=cfg.lam(cfg.joint_smoothness, fps), width=W, height=H,
+                                         min_confidence=cfg.min_joint_confidence)
+
+    # 4. Focus: b per region (NaN = not measured), which regions exist, then B.
+    b = np.full((F, 3), np.nan)
+    present = np.zeros((F, 3), dtype=bool)
+    for f, feat in enumerate(frames):
+        m = mask_idx[f]
+        if not sel.visible[f]:
+            present[f] = (False, False, True)
+            if feat.has_focus:
+                b[f] = feat.focus_none
+        elif m >= 0:
+            present[f] = np.isfinite(feat.focus[m]) if feat.has_focus else (True, True, True)
+            if feat.has_focus:
+                b[f] = feat.focus[m]
+                present[f] = np.isfinite(feat.focus[m])
+        else:  # visible but not detected (bridged): regions exist, b unknown
+            present[f] = (True, True, True)
+    # A region whose extent is unknown (no focus map) is assumed present where the subject is.
+    B = focus_mod.smooth_focus(b, method=cfg.focus_method, fps=fps, switch_prob_24=cfg.focus_switch_prob,
+                               sigma=cfg.focus_noise, lam_24=cfg.focus_smoothness)
+    any_focus = np.isfinite(b).any(axis=0)  # (3,) region measured at least once
+    B_out = np.where(present & any_focus[None, :] & np.isfinite(B), B, np.nan)
+    focus_in = np.nan_to_num(B_out, nan=0.0) > cfg.theta
+
+    # Instructions.
+    jidx = [M.COCO17_NAMES.index(n) for n in cfg.joints]
+    scale = np.array([W, H], dtype=float)
+    targets = sm_joints[:, jidx, :] / scale
+    box_n = box / np.array([W, H, W, H], dtype=float)
+    first = frames[0].frame_index
+    src = source or M.SourceInfo(path=frames[0].source, width=W, height=H, fps=fps, n_frames=F)
+    stamp = max(f.stamp_ns for f in frames)
+    valid = all(f.valid for f in frames if f.n_people or f.has_focus) and gaps == 0
+    instr = M.Instructions(
+        stamp_ns=int(stamp), valid=bool(valid), source=src, fps=float(fps), frame_duration_s=1.0 / fps,
+        first_frame=int(first), final=bool(final), joint_names=list(cfg.joints),
+        image_targets=targets.astype(np.float32), subject_visible=sel.visible.copy(),
+        subject_box=box_n.astype(np.float32), focus_raw=np.where(present, b, np.nan).astype(np.float32),
+        focus_smoothed=B_out.astype(np.float32), focus_in=focus_in, theta=float(cfg.theta), mu_m=float(cfg.mu_m))
+    diag = {
+        "frame_index": np.array([f.frame_index for f in frames]),
+        "n_people": np.array([f.n_people for f in frames]),
+        "person": sel.person.copy(),
+        "bridged": sel.bridged.copy(),
+        "mask_index": mask_idx,
+        "skeleton_index": skel_idx,
+        "raw_box": raw_box / np.array([W, H, W, H], dtype=float),
+        "raw_joints": raw_joints / scale,
+        "raw_joint_conf": joint_conf,
+        "smoothed_joints": sm_joints / scale,
+        "focus_B_unmasked": B,
+        "selection_cost": float(sel.cost),
+        "duplicates": int(dups),
+        "gaps": int(gaps),
+        "config": dataclasses.asdict(cfg),
+    }
+    return SmoothResult(instr, diag)
+
+
+def smooth_measurements(measurements: Iterable[M.Measurement], cfg: SmootherConfig | None = None, *,
+                        source: M.SourceInfo | None = None) -> SmoothResult:
+    """Convenience: Measurement messages -> SmoothResult."""
+    cfg = (cfg or SmootherConfig()).validate()
+    return smooth_sequence(features_from_measurements(measurements, cfg), cfg, source=source)

@@ -1,0 +1,76 @@
+"""Mask and skeleton of the main subject (DESIGN §1.1 step 2) and the joint QP (step 3).
+
+Step 2: M_f = argmax_m g(m_{f,m}, R_f) with g = pixels of mask m inside the smoothed box R_f;
+p_f = argmax_p h(p_{f,p}, M_f) with h = joints of skeleton p inside M_f (ties: higher summed
+joint confidence). A frame where no skeleton has a joint inside M_f has no skeleton.
+
+Step 3: per joint and axis, min sum_f lam (P_f - P_{f-1})^2 + q_f (P_f - p_f)^2 with P_f inside
+the image: the banded, box-constrained QP of `qp.smooth`, all 17 x 2 coordinates in one solve.
+A joint that is missing (NaN) or below `min_joint_confidence` has weight 0 in that frame and is
+bridged by the smoothness term. Frames where the subject is not visible cut the chain.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from cinetransfer.services.smoother import qp
+from cinetransfer.services.smoother.features import N_JOINTS, FrameFeatures
+
+
+def subject_mask_index(feat: FrameFeatures, box: np.ndarray) -> int:
+    """M_f: the person whose mask has the most pixels inside `box` (px); -1 if none overlaps."""
+    if feat.n_people == 0 or not np.all(np.isfinite(box)):
+        return -1
+    g = np.array([feat.mask_pixels_inside(m, box) for m in range(feat.n_people)])
+    k = int(np.argmax(g))
+    return k if g[k] > 0 else -1
+
+
+def subject_skeleton_index(feat: FrameFeatures, mask_index: int) -> int:
+    """p_f: the skeleton with the most joints inside mask M_f; -1 if none has any."""
+    if mask_index < 0 or feat.inside.shape[0] == 0:
+        return -1
+    h = feat.inside[:, mask_index].astype(float)
+    if h.max() <= 0:
+        return -1
+    # Tie-break by summed confidence (strictly below 1 joint's worth).
+    score = h + 0.5 * feat.joint_conf.sum(axis=1) / (N_JOINTS + 1.0)
+    return int(np.argmax(score))
+
+
+def raw_subject_joints(feats: list[FrameFeatures], boxes_px: np.ndarray, visible: np.ndarray,
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per frame: mask index M_f, skeleton index p_f, joints (F, 17, 2) px and confidences (F, 17)."""
+    F = len(feats)
+    mask_idx = np.full(F, -1)
+    skel_idx = np.full(F, -1)
+    joints = np.full((F, N_JOINTS, 2), np.nan)
+    conf = np.zeros((F, N_JOINTS))
+    for f, feat in enumerate(feats):
+        if not visible[f]:
+            continue
+        mask_idx[f] = m = subject_mask_index(feat, boxes_px[f])
+        skel_idx[f] = p = subject_skeleton_index(feat, m)
+        if p >= 0:
+            joints[f] = feat.joints[p]
+            conf[f] = feat.joint_conf[p]
+    return mask_idx, skel_idx, joints, conf
+
+
+def smooth_joints(joints: np.ndarray, conf: np.ndarray, visible: np.ndarray, *, lam: float, width: int,
+                  height: int, min_confidence: float = 0.1) -> np.ndarray:
+    """Smoothed joints (F, J, 2) px; NaN where the subject is not visible or a joint was never seen
+    in that visible run."""
+    F, J, _ = joints.shape
+    if F == 0:
+        return joints.copy()
+    ok = np.all(np.isfinite(joints), axis=2) & (conf >= min_confidence) & (conf > 0) & visible[:, None]
+    w = np.where(ok, conf, 0.0)  # (F, J)
+    y = joints.reshape(F, J * 2)
+    ww = np.repeat(w, 2, axis=1)
+    hi = np.tile([float(width), float(height)], J)
+    link = visible[:-1] & visible[1:]
+    res = qp.smooth(y, ww, lam, lo=0.0, hi=hi, link=link)
+    out = res.x.reshape(F, J, 2)
+    out[~visible] = np.nan
+    return out

@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Create .venv and install cinetransfer with everything it needs, offline-safe and CPU-only.
+# Idempotent: a second run with an unchanged pyproject.toml only checks and returns.
+#   ./setup.sh            # creates ./.venv (or $CT_VENV)
+set -euo pipefail
+cd "$(dirname "$0")"
+VENV="${CT_VENV:-.venv}"
+PY="${PYTHON:-python3}"
+
+if ! "$PY" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else 1)'; then
+  echo "setup.sh: Python >= 3.11 is required (found $("$PY" --version 2>&1)); set PYTHON=/path/to/python3.11" >&2
+  exit 1
+fi
+if [ ! -x "$VENV/bin/python" ]; then
+  echo "setup.sh: creating $VENV"
+  "$PY" -m venv "$VENV"
+fi
+stamp="$VENV/.cinetransfer-installed"
+want="$(cat pyproject.toml setup.sh | sha256sum | cut -d' ' -f1)"
+if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && "$VENV/bin/python" -c "import cinetransfer, mediapipe" 2>/dev/null; then
+  exit 0
+fi
+export PIP_DISABLE_PIP_VERSION_CHECK=1
+# torch==2.13.0 is pinned in pyproject.toml (a CPU wheel); installing it first keeps pip from
+# ever resolving a newer CUDA build for another package's sake.
+"$VENV/bin/python" -m pip install -q "torch==2.13.0"
+"$VENV/bin/python" -m pip install -q -e ".[test]"
+# mediapipe 0.10.21 is the last release whose wheel ships the pose models. Its declared
+# dependencies would replace opencv-python-headless and force numpy<2, so it goes in without
+# them; its real run-time needs are in pyproject.toml (DESIGN §5).
+"$VENV/bin/python" -m pip install -q --no-deps "mediapipe==0.10.21"
+"$VENV/bin/python" -c "import cinetransfer.cli, mediapipe, torch, zenoh, casadi, cv2; print('setup.sh: ok — torch', torch.__version__, '| opencv', cv2.__version__)"
+echo "$want" > "$stamp"
