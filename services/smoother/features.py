@@ -38,8 +38,9 @@ class FrameFeatures:
     source: str = ""
     boxes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (M, 4) x0 y0 x1 y1 [px]
     conf: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (M,)
-    grid_boxes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (M, 4) box each grid covers [px]
-    grids: tuple[np.ndarray, ...] = ()  # M occupancy grids in [0, 1], (gh, gw)
+    grids: np.ndarray = field(default_factory=lambda: np.zeros((0, GRID, GRID)))  # (M, G, G) mask occupancy in [0, 1]
+    grid_x: np.ndarray = field(default_factory=lambda: np.zeros((0, GRID + 1)))  # (M, G+1) cell edges [px]
+    grid_y: np.ndarray = field(default_factory=lambda: np.zeros((0, GRID + 1)))  # (M, G+1) cell edges [px]
     joints: np.ndarray = field(default_factory=lambda: np.zeros((0, N_JOINTS, 2)))  # (P, 17, 2) [px], NaN = missing
     joint_conf: np.ndarray = field(default_factory=lambda: np.zeros((0, N_JOINTS)))  # (P, 17)
     inside: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=int))  # (P, M) joints of p in mask m
@@ -54,16 +55,15 @@ class FrameFeatures:
 
     def mask_pixels_inside(self, m: int, box: np.ndarray) -> float:
         """g(m, R): (approximate) pixels of person m's mask inside box R = (x0, y0, x1, y1) [px]."""
-        grid = self.grids[m]
-        gx0, gy0, gx1, gy1 = self.grid_boxes[m]
-        gh, gw = grid.shape
-        if gh == 0 or gw == 0:
-            return 0.0
-        xs = np.linspace(gx0, gx1, gw + 1)
-        ys = np.linspace(gy0, gy1, gh + 1)
-        ovx = np.clip(np.minimum(xs[1:], box[2]) - np.maximum(xs[:-1], box[0]), 0, None)
-        ovy = np.clip(np.minimum(ys[1:], box[3]) - np.maximum(ys[:-1], box[1]), 0, None)
-        return float(ovy @ grid @ ovx)
+        return float(mask_pixels_inside(self.grids[m:m + 1], self.grid_x[m:m + 1], self.grid_y[m:m + 1],
+                                        np.asarray(box, dtype=float)[None, :])[0])
+
+
+def mask_pixels_inside(grids: np.ndarray, gx: np.ndarray, gy: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Batched g: grids (N, G, G), cell edges gx, gy (N, G+1), boxes (N, 4) -> (N,) pixels inside."""
+    ovx = np.clip(np.minimum(gx[:, 1:], boxes[:, 2:3]) - np.maximum(gx[:, :-1], boxes[:, 0:1]), 0.0, None)
+    ovy = np.clip(np.minimum(gy[:, 1:], boxes[:, 3:4]) - np.maximum(gy[:, :-1], boxes[:, 1:2]), 0.0, None)
+    return np.einsum("ni,nij,nj->n", ovy, grids, ovx)
 
 
 def empty_features(frame_index: int, *, width: int, height: int, fps: float = float("nan"),
@@ -119,16 +119,19 @@ def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foregr
     conf = np.array([float(p.confidence) for p in people], dtype=float)
 
     crops = [_full_mask_crop(p, W, H) for p in people]
-    grids, gboxes = [], np.zeros((M_, 4))
+    grids = np.zeros((M_, GRID, GRID))
+    gx = np.zeros((M_, GRID + 1))
+    gy = np.zeros((M_, GRID + 1))
     for k, (mask, ox, oy) in enumerate(crops):
         h, w = mask.shape
+        gx[k], gy[k] = ox, oy
         if h == 0 or w == 0:
-            grids.append(np.zeros((0, 0)))
-            gboxes[k] = (ox, oy, ox, oy)
             continue
         gh, gw = min(GRID, h), min(GRID, w)
-        grids.append(cv2.resize(mask.astype(np.float32), (gw, gh), interpolation=cv2.INTER_AREA).astype(float))
-        gboxes[k] = (ox, oy, ox + w, oy + h)
+        grids[k, :gh, :gw] = cv2.resize(mask.astype(np.float32), (gw, gh), interpolation=cv2.INTER_AREA)
+        # Padding cells have zero width/height (edges repeat the last one).
+        gx[k] = ox + w * np.minimum(np.arange(GRID + 1), gw) / gw
+        gy[k] = oy + h * np.minimum(np.arange(GRID + 1), gh) / gh
 
     # Skeletons (COCO-17 only) and h(p, m) = joints of skeleton p inside mask m.
     sk = [s for s in m.skeletons if s.keypoint_set == "coco17" and s.keypoints_px.shape == (N_JOINTS, 2)]
@@ -181,6 +184,5 @@ def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foregr
             feet_row = int(rows[-1]) + 1 if rows.size else int(np.ceil(boxes[k, 3] * sy))
             focus[k] = _region_fractions(infocus, subj, feet_row, min_rows)
     return FrameFeatures(frame_index=int(m.frame_index), stamp_ns=int(m.stamp_ns), width=W, height=H,
-                         fps=float(m.fps), source=m.source, boxes=boxes, conf=conf, grid_boxes=gboxes,
-                         grids=tuple(grids), joints=joints, joint_conf=jconf, inside=inside, focus=focus,
+                         fps=float(m.fps), source=m.source, boxes=boxes, conf=conf, grids=grids, grid_x=gx, grid_y=gy, joints=joints, joint_conf=jconf, inside=inside, focus=focus,
                          focus_none=focus_none, has_focus=bool(has_focus), valid=bool(m.valid))

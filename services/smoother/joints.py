@@ -21,6 +21,8 @@ def subject_mask_index(feat: FrameFeatures, box: np.ndarray) -> int:
     """M_f: the person whose mask has the most pixels inside `box` (px); -1 if none overlaps."""
     if feat.n_people == 0 or not np.all(np.isfinite(box)):
         return -1
+    if feat.n_people == 1:
+        return 0 if feat.mask_pixels_inside(0, box) > 0 else -1
     g = np.array([feat.mask_pixels_inside(m, box) for m in range(feat.n_people)])
     k = int(np.argmax(g))
     return k if g[k] > 0 else -1
@@ -30,6 +32,8 @@ def subject_skeleton_index(feat: FrameFeatures, mask_index: int) -> int:
     """p_f: the skeleton with the most joints inside mask M_f; -1 if none has any."""
     if mask_index < 0 or feat.inside.shape[0] == 0:
         return -1
+    if feat.inside.shape[0] == 1:
+        return 0 if feat.inside[0, mask_index] > 0 else -1
     h = feat.inside[:, mask_index].astype(float)
     if h.max() <= 0:
         return -1

@@ -104,13 +104,12 @@ def clean_plate(frames: list[np.ndarray], masks: list[np.ndarray]) -> np.ndarray
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 med = np.nanmedian(stack, axis=0)
-        bad = np.isnan(med[..., 0])
+        bad = np.isnan(med[..., 0]) | ((~cover).sum(axis=0) < 5)
         med[bad] = 0
         plate[y0:y1] = np.clip(med, 0, 255).astype(np.uint8)
         holes[y0:y1] = bad.astype(np.uint8) * 255
     if holes.any():
         plate = _fill_by_shift(plate, holes > 0)
-        plate = cv2.inpaint(plate, cv2.dilate(holes, np.ones((5, 5), np.uint8)), 7, cv2.INPAINT_TELEA)
     log.info("clean plate: %.2f%% of pixels inpainted", 100.0 * (holes > 0).mean())
     return plate
 
@@ -167,7 +166,9 @@ def make_juggler(data: Path, out: Path) -> np.ndarray:
     segs = [s if s is not None else np.zeros(frames[0].shape[:2], np.float32) for _, s in poses]
     # the ball flies outside the person mask: the median over many frames removes it anyway
     cover = [cv2.dilate((s > 0.1).astype(np.uint8), np.ones((31, 31), np.uint8)) > 0 for s in segs]
-    plate = clean_plate(frames[::2], cover[::2])
+    seen = [i for i, (lm, _) in enumerate(poses) if lm is not None]
+    log.info("juggle: person found in %d/%d frames", len(seen), len(frames))
+    plate = clean_plate([frames[i] for i in seen[::2]], [cover[i] for i in seen[::2]])
 
     # choose a loop: a contiguous run where every COCO joint is confidently seen and the face is
     # frontal (both eyes and ears visible), scored by mean visibility.

@@ -1,0 +1,541 @@
+"""`MavlinkBackend`: the bridge's VehiclePort for a PX4 (OFFBOARD) or ArduPilot (GUIDED) vehicle.
+
+Speaks MAVLink 2 (common dialect) through pymavlink. Everything runs in the caller's thread:
+`step()` reads what arrived, detects link loss, and sends what is due.
+
+Out (to the vehicle):
+- HEARTBEAT (MAV_TYPE_ONBOARD_CONTROLLER) at `heartbeat_rate_hz`;
+- a steady SET_POSITION_TARGET_LOCAL_NED stream (position + velocity + yaw, MAV_FRAME_LOCAL_NED)
+  at `setpoint_rate_hz` — also while holding (the hold target is where the vehicle was), so PX4
+  stays in OFFBOARD and can be switched into it at any time;
+- gimbal: GIMBAL_MANAGER_SET_ATTITUDE, earth-frame quaternion with GIMBAL_MANAGER_FLAGS_YAW_LOCK;
+- lens (DESIGN §5): MAV_CMD_SET_CAMERA_ZOOM (531) ZOOM_TYPE_FOCAL_LENGTH [mm],
+  MAV_CMD_SET_CAMERA_FOCUS (532) FOCUS_TYPE_METERS [m], MAV_CMD_DO_DIGICAM_CONFIGURE (202)
+  param3 = f-stop; each sent when the commanded value changes, at most `lens_command_rate_hz`;
+- mode and arming: MAV_CMD_DO_SET_MODE (PX4 OFFBOARD = main mode 6; ArduCopter GUIDED = 4),
+  MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_NAV_TAKEOFF (ArduPilot, when landed), MAV_CMD_NAV_LAND;
+- MAV_CMD_SET_MESSAGE_INTERVAL for the telemetry below (and REQUEST_DATA_STREAM for ArduPilot).
+
+In (into VehicleState): HEARTBEAT (mode, armed, link), LOCAL_POSITION_NED, ATTITUDE,
+GIMBAL_DEVICE_ATTITUDE_STATUS, CAMERA_FOV_STATUS (focal length from the horizontal field of view
+and the sensor width), COMMAND_ACK (the lens values of an accepted command become the reported
+focus distance / f-number: MAVLink has no message that reports them in metres / f-stops).
+
+Frames: world ENU z-up <-> local NED (see enu_ned.py). The vehicle's yaw is set to the camera's
+yaw (the multirotor faces the shot); the gimbal gets the full earth-frame attitude.
+
+Link loss: no vehicle HEARTBEAT for `link_timeout_s` -> `connected` is False (the service holds
+and marks its state invalid); while lost, the connection is reopened every `reopen_period_s`.
+After a link loss the backend does not re-enter OFFBOARD/GUIDED by itself unless
+`reengage_after_link_loss`; if the vehicle leaves that mode while engaged (pilot or failsafe),
+the backend never takes control back on its own.
+"""
+from __future__ import annotations
+
+import collections
+import logging
+import math
+import os
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from cinetransfer.services.autopilot_bridge import enu_ned as F
+from cinetransfer.services.autopilot_bridge.config import MavlinkConfig
+from cinetransfer.services.autopilot_bridge.port import VehiclePort
+from cinetransfer.shared import messages as M
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil  # noqa: E402
+
+mavutil.set_dialect("common")
+mavlink = mavutil.mavlink
+if mavlink.WIRE_PROTOCOL_VERSION != "2.0":  # pragma: no cover - env forced to v1 before import
+    raise ImportError("cinetransfer's MAVLink code needs MAVLink 2 (unset MAVLINK09 / set MAVLINK20=1)")
+
+#: SET_POSITION_TARGET_LOCAL_NED type mask: use position, velocity and yaw; ignore accel, yaw rate
+TYPEMASK_POS_VEL_YAW = (mavlink.POSITION_TARGET_TYPEMASK_AX_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_AY_IGNORE
+                        | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE
+                        | mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE)
+LENS_COMMANDS = (mavlink.MAV_CMD_SET_CAMERA_ZOOM, mavlink.MAV_CMD_SET_CAMERA_FOCUS,
+                 mavlink.MAV_CMD_DO_DIGICAM_CONFIGURE)
+RESULT_NAMES = {v: k for k, v in vars(mavlink).items() if k.startswith("MAV_RESULT_") and isinstance(v, int)}
+
+
+def connect(url: str, *, source_system: int, source_component: int, baud: int = 921600) -> Any:
+    """A pymavlink connection speaking MAVLink 2 with the common dialect."""
+    conn = mavutil.mavlink_connection(url, baud=baud, source_system=source_system,
+                                      source_component=source_component, dialect="common")
+    conn.mav.WIRE_PROTOCOL_VERSION = "2.0"
+    return conn
+
+
+@dataclass(frozen=True)
+class Ack:
+    """A COMMAND_ACK matched to the command we sent."""
+
+    command: int
+    result: int
+    sent_s: float
+    acked_s: float
+    params: tuple[float, ...]
+
+    @property
+    def accepted(self) -> bool:
+        return self.result == mavlink.MAV_RESULT_ACCEPTED
+
+    @property
+    def rtt_ms(self) -> float:
+        return (self.acked_s - self.sent_s) * 1e3
+
+    @property
+    def result_name(self) -> str:
+        return RESULT_NAMES.get(self.result, str(self.result))
+
+
+class MavlinkBackend(VehiclePort):
+    """PX4 / ArduPilot vehicle over MAVLink (see the module docstring)."""
+
+    name = "mavlink"
+
+    def __init__(self, cfg: MavlinkConfig, *, clock: Callable[[], float] = time.monotonic) -> None:
+        self.cfg = cfg
+        self.clock = clock
+        self.log = logging.getLogger("cinetransfer.autopilot_bridge.mavlink")
+        self.conn: Any = None
+        self.t0 = clock()
+        self.target_system = cfg.target_system
+        self.target_component = cfg.target_component
+        self.autopilot = cfg.autopilot if cfg.autopilot != "auto" else ""
+        self.origin = np.asarray(cfg.local_origin_m, dtype=float)
+        # link
+        self.link_up = False
+        self.last_heartbeat_s: float | None = None
+        self.last_reopen_s = self.t0
+        # vehicle state from telemetry
+        self.mode = ""
+        self.armed = False
+        self.pos_ned: np.ndarray | None = None
+        self.vel_ned = np.zeros(3)
+        self.pos_rx_s: float | None = None
+        self.pos_stamp_ns = 0
+        self.rpy_ned = np.zeros(3)  # roll, pitch, yaw (NED)
+        self.gimbal_ypr: np.ndarray | None = None  # world camera yaw, pitch, roll
+        self.focal_from_fov_mm = math.nan
+        self.lens_acked = {"focal_length_mm": math.nan, "focus_distance_m": math.nan, "f_number": math.nan}
+        # what we command
+        self.sp_pos_ned: np.ndarray | None = None
+        self.sp_vel_ned = np.zeros(3)
+        self.sp_yaw_ned = 0.0
+        self.gimbal_target: np.ndarray | None = None
+        self.gimbal_sent: np.ndarray | None = None
+        self.gimbal_sent_s = -1e9
+        self.lens_sent: dict[str, float] = {}
+        self.lens_sent_s: dict[str, float] = {}
+        self.holding = True
+        self.stream_since_s: float | None = None
+        self.want_engaged = cfg.engage_on_start
+        self.engaged = False
+        self.takeoff_sent = False
+        self._next_hb = self._next_sp = self._next_engage = 0.0
+        # commands and acks
+        self.pending: dict[int, tuple[float, tuple[float, ...]]] = {}
+        self.acks: dict[int, Ack] = {}
+        self.ack_rtts_ms: collections.deque[float] = collections.deque(maxlen=200)
+        self.counters: collections.Counter[str] = collections.Counter(
+            {"mav_setpoints_sent": 0, "mav_commands_sent": 0, "mav_acks_accepted": 0, "mav_acks_failed": 0,
+             "mav_link_losses": 0, "mav_reopens": 0, "mav_mode_lost": 0, "mav_heartbeats_rx": 0})
+
+    # ------------------------------------------------------------------ lifecycle
+    def _open(self) -> None:
+        if self.conn is not None:
+            try:
+                self.conn.close()
+            except OSError:
+                pass
+        self.conn = connect(self.cfg.url, source_system=self.cfg.source_system,
+                            source_component=self.cfg.source_component, baud=self.cfg.baud_rate)
+
+    def start(self) -> None:
+        self._open()
+        deadline = self.clock() + self.cfg.connect_timeout_s
+        while not self.link_up:
+            now = self.clock()
+            if now > deadline:
+                self.close()
+                raise ConnectionError(f"no autopilot HEARTBEAT on {self.cfg.url} within "
+                                      f"{self.cfg.connect_timeout_s:.1f} s")
+            self._send_heartbeat()
+            t_end = now + 0.2
+            while self.clock() < t_end and not self.link_up:
+                self._poll(self.clock())
+                time.sleep(0.005)
+        self.log.info("connected to %s autopilot sys %d comp %d on %s (mode %s, %s)", self.autopilot,
+                      self.target_system, self.target_component, self.cfg.url, self.mode,
+                      "armed" if self.armed else "disarmed")
+
+    def close(self) -> None:
+        if self.conn is not None:
+            try:
+                self.conn.close()
+            except OSError:
+                pass
+            self.conn = None
+
+    @property
+    def connected(self) -> bool:
+        return self.link_up
+
+    # ------------------------------------------------------------------ receive
+    def _poll(self, now: float) -> int:
+        n = 0
+        if self.conn is None:
+            return 0
+        while n < 1000:
+            try:
+                msg = self.conn.recv_match(blocking=False)
+            except (OSError, ConnectionError) as e:
+                self.log.warning("MAVLink receive failed: %s", e)
+                break
+            if msg is None:
+                break
+            n += 1
+            self._handle(msg, now)
+        return n
+
+    def _handle(self, msg: Any, now: float) -> None:
+        t = msg.get_type()
+        if t == "BAD_DATA":
+            return
+        src = msg.get_srcSystem()
+        if t == "HEARTBEAT":
+            if msg.type in (mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER) or \
+                    msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
+                return  # a ground station, another companion, a gimbal, a camera
+            if self.target_system == 0:
+                self.target_system = src
+                self.target_component = self.target_component or msg.get_srcComponent()
+            if src != self.target_system:
+                return
+            self._on_heartbeat(msg, now)
+            return
+        if self.target_system and src != self.target_system:
+            return
+        if t == "LOCAL_POSITION_NED":
+            self.pos_ned = np.array([msg.x, msg.y, msg.z], dtype=float)
+            self.vel_ned = np.array([msg.vx, msg.vy, msg.vz], dtype=float)
+            self.pos_rx_s = now
+            self.pos_stamp_ns = M.now_ns()
+        elif t == "ATTITUDE":
+            self.rpy_ned = np.array([msg.roll, msg.pitch, msg.yaw], dtype=float)
+        elif t == "GIMBAL_DEVICE_ATTITUDE_STATUS":
+            self._on_gimbal_status(msg)
+        elif t == "CAMERA_FOV_STATUS":
+            hfov = float(msg.hfov)
+            if math.isfinite(hfov) and 0.0 < hfov < 180.0:
+                self.focal_from_fov_mm = self.cfg.sensor_width_mm / (2.0 * math.tan(math.radians(hfov) / 2.0))
+        elif t == "COMMAND_ACK":
+            self._on_ack(msg, now)
+        elif t == "STATUSTEXT":
+            self.log.info("vehicle: %s", msg.text)
+
+    def _on_heartbeat(self, msg: Any, now: float) -> None:
+        self.counters["mav_heartbeats_rx"] += 1
+        if not self.autopilot:
+            if msg.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
+                self.autopilot = "ardupilot"
+            else:
+                if msg.autopilot != mavlink.MAV_AUTOPILOT_PX4:
+                    self.log.warning("autopilot type %d: treating it as PX4", msg.autopilot)
+                self.autopilot = "px4"
+        self.last_heartbeat_s = now
+        self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+        if msg.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            self.mode = (F.px4_mode_name(msg.custom_mode) if self.autopilot == "px4"
+                         else F.acm_mode_name(msg.custom_mode))
+        else:
+            self.mode = "UNKNOWN"
+        if not self.link_up:
+            self.link_up = True
+            self.log.info("link up (mode %s, %s)", self.mode, "armed" if self.armed else "disarmed")
+            self._request_telemetry()
+        ext = self.external_mode
+        if self.engaged and (self.mode != ext or not self.armed):
+            self.engaged = False
+            self.want_engaged = False
+            self.counters["mav_mode_lost"] += 1
+            self.log.warning("vehicle left %s (now %s, %s): not taking control back", ext, self.mode,
+                             "armed" if self.armed else "disarmed")
+        elif not self.engaged and self.mode == ext and self.armed:
+            self.engaged = True
+            self.log.info("engaged: %s, armed", ext)
+
+    def _on_gimbal_status(self, msg: Any) -> None:
+        try:
+            roll, pitch, yaw = F.quat_to_euler(msg.q)
+        except ValueError:
+            return
+        flags = int(msg.flags)
+        earth = bool(flags & mavlink.GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME) or (
+            bool(flags & mavlink.GIMBAL_DEVICE_FLAGS_YAW_LOCK)
+            and not flags & mavlink.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME)
+        if not earth:
+            yaw += float(self.rpy_ned[2])
+        self.gimbal_ypr = np.array([F.yaw_ned_to_enu(yaw), pitch, roll])
+
+    def _on_ack(self, msg: Any, now: float) -> None:
+        cmd, result = int(msg.command), int(msg.result)
+        if result == mavlink.MAV_RESULT_IN_PROGRESS:
+            return
+        sent = self.pending.pop(cmd, None)
+        if sent is None:
+            return
+        ack = Ack(cmd, result, sent[0], now, sent[1])
+        self.acks[cmd] = ack
+        self.ack_rtts_ms.append(ack.rtt_ms)
+        if ack.accepted:
+            self.counters["mav_acks_accepted"] += 1
+            p = sent[1]
+            if cmd == mavlink.MAV_CMD_SET_CAMERA_ZOOM:
+                self.lens_acked["focal_length_mm"] = p[1]
+            elif cmd == mavlink.MAV_CMD_SET_CAMERA_FOCUS:
+                self.lens_acked["focus_distance_m"] = p[1]
+            elif cmd == mavlink.MAV_CMD_DO_DIGICAM_CONFIGURE:
+                self.lens_acked["f_number"] = p[2]
+        else:
+            self.counters["mav_acks_failed"] += 1
+            self.log.warning("command %d refused: %s", cmd, ack.result_name)
+
+    # ------------------------------------------------------------------ send
+    def _ms(self) -> int:
+        return int((self.clock() - self.t0) * 1000) & 0xFFFFFFFF
+
+    def _send_heartbeat(self) -> None:
+        self.conn.mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
+                                     mavlink.MAV_STATE_ACTIVE)
+
+    def send_command(self, command: int, *params: float, component: int | None = None) -> None:
+        """COMMAND_LONG to the vehicle (7 params; missing ones are 0); the ack is matched later."""
+        p = tuple(float(x) for x in params) + (0.0,) * (7 - len(params))
+        comp = self.target_component if component is None else component
+        self.conn.mav.command_long_send(self.target_system, comp, command, 0, *p)
+        self.pending[command] = (self.clock(), p)
+        self.counters["mav_commands_sent"] += 1
+
+    def wait_ack(self, command: int, timeout_s: float = 2.0) -> Ack | None:
+        """Poll until the COMMAND_ACK of `command` arrives (tests, benchmarks, start-up)."""
+        deadline = self.clock() + timeout_s
+        while self.clock() < deadline:
+            self._poll(self.clock())
+            if command not in self.pending and command in self.acks:
+                return self.acks[command]
+            time.sleep(0.0002)
+        return None
+
+    def _request_telemetry(self) -> None:
+        hz = self.cfg.telemetry_rate_hz
+        if hz <= 0 or self.conn is None:
+            return
+        for msg_id, rate in ((mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, hz), (mavlink.MAVLINK_MSG_ID_ATTITUDE, hz),
+                             (mavlink.MAVLINK_MSG_ID_GIMBAL_DEVICE_ATTITUDE_STATUS, min(hz, 20.0)),
+                             (mavlink.MAVLINK_MSG_ID_CAMERA_FOV_STATUS, min(hz, 5.0))):
+            # several SET_MESSAGE_INTERVALs share one command id: don't track their acks
+            self.conn.mav.command_long_send(self.target_system, self.target_component,
+                                            mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, 1e6 / rate,
+                                            0, 0, 0, 0, 0)
+        if self.autopilot == "ardupilot":
+            self.conn.mav.request_data_stream_send(self.target_system, self.target_component,
+                                                   mavlink.MAV_DATA_STREAM_ALL, int(hz), 1)
+
+    def _send_setpoint(self) -> None:
+        assert self.sp_pos_ned is not None
+        p, v = self.sp_pos_ned, self.sp_vel_ned
+        self.conn.mav.set_position_target_local_ned_send(
+            self._ms(), self.target_system, self.target_component, mavlink.MAV_FRAME_LOCAL_NED,
+            TYPEMASK_POS_VEL_YAW, float(p[0]), float(p[1]), float(p[2]), float(v[0]), float(v[1]), float(v[2]),
+            0.0, 0.0, 0.0, float(self.sp_yaw_ned), 0.0)
+        self.counters["mav_setpoints_sent"] += 1
+
+    def _send_gimbal(self, now: float) -> None:
+        assert self.gimbal_target is not None
+        q = F.camera_ypr_to_quat_ned(self.gimbal_target)
+        nan = float("nan")
+        self.conn.mav.gimbal_manager_set_attitude_send(
+            self.target_system, self.target_component, mavlink.GIMBAL_MANAGER_FLAGS_YAW_LOCK,
+            self.cfg.gimbal_device_id, q, nan, nan, nan)
+        self.gimbal_sent = self.gimbal_target.copy()
+        self.gimbal_sent_s = now
+
+    def _send_lens(self, name: str, value: float, now: float) -> None:
+        comp = self.cfg.camera_component or self.target_component
+        if name == "focal_length_mm":
+            self.send_command(mavlink.MAV_CMD_SET_CAMERA_ZOOM, mavlink.ZOOM_TYPE_FOCAL_LENGTH, value, component=comp)
+        elif name == "focus_distance_m":
+            self.send_command(mavlink.MAV_CMD_SET_CAMERA_FOCUS, mavlink.FOCUS_TYPE_METERS, value, component=comp)
+        else:
+            # DO_DIGICAM_CONFIGURE: param1 mode, param2 shutter, param3 aperture (f-stop); 0 = unchanged
+            self.send_command(mavlink.MAV_CMD_DO_DIGICAM_CONFIGURE, 0, 0, value, component=comp)
+        self.lens_sent[name] = value
+        self.lens_sent_s[name] = now
+
+    @property
+    def external_mode(self) -> str:
+        return "GUIDED" if self.autopilot == "ardupilot" else "OFFBOARD"
+
+    def _engage_step(self, now: float) -> None:
+        if now < self._next_engage:
+            return
+        self._next_engage = now + 1.0
+        if self.engaged:
+            return
+        if self.autopilot == "ardupilot":
+            if self.mode != "GUIDED":
+                self.send_command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                                  F.ACM_MODES["GUIDED"])
+            elif not self.armed:
+                self.send_command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+            elif self._landed() and not self.takeoff_sent:
+                self.send_command(mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, 0, 0, self.cfg.takeoff_altitude_m)
+                self.takeoff_sent = True
+            return
+        # PX4 refuses OFFBOARD unless setpoints already stream (> 2 Hz): stream first, then switch
+        if self.mode != "OFFBOARD":
+            if self.stream_since_s is not None and now - self.stream_since_s >= 0.5:
+                self.send_command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                                  F.PX4_MAIN["OFFBOARD"], 0)
+            else:
+                self._next_engage = now + 0.1
+        if not self.armed:
+            self.send_command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+
+    def _landed(self) -> bool:
+        return self.pos_ned is None or -self.pos_ned[2] < 0.3
+
+    # ------------------------------------------------------------------ VehiclePort
+    def apply(self, setpoint: M.Setpoint) -> None:
+        self.holding = False
+        self.sp_pos_ned = F.enu_to_ned(np.asarray(setpoint.position_m, float) - self.origin)
+        self.sp_vel_ned = F.enu_to_ned(setpoint.velocity_mps)
+        ypr = np.asarray(setpoint.camera_ypr_rad, float)
+        self.sp_yaw_ned = F.yaw_enu_to_ned(float(ypr[0]))
+        self.gimbal_target = ypr.copy()
+        now = self.clock()
+        min_gap = 1.0 / self.cfg.lens_command_rate_hz
+        lens = setpoint.lens
+        for name, eps in (("focal_length_mm", 0.5), ("focus_distance_m", 0.02), ("f_number", 0.05)):
+            v = float(getattr(lens, name))
+            if not math.isfinite(v):
+                continue
+            last = self.lens_sent.get(name)
+            if last is not None and abs(v - last) <= eps * (1.0 if name != "focus_distance_m" else max(1.0, last)):
+                continue
+            if now - self.lens_sent_s.get(name, -1e9) < min_gap:
+                continue  # rate limit: the next apply() sends the newest value
+            self._send_lens(name, v, now)
+
+    def hold(self) -> None:
+        self.holding = True
+        if self.pos_ned is not None:
+            self.sp_pos_ned = self.pos_ned.copy()
+            self.sp_yaw_ned = float(self.rpy_ned[2])
+        self.sp_vel_ned = np.zeros(3)
+
+    def command(self, action: str, args: dict) -> bool:
+        if self.conn is None:
+            return False
+        if action == "engage":
+            self.want_engaged = True
+            self.takeoff_sent = False
+            self._next_engage = 0.0
+        elif action == "arm":
+            self.send_command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        elif action == "disarm":
+            self.want_engaged = False
+            self.send_command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0)
+        elif action == "takeoff":
+            alt = float(args.get("altitude_m", self.cfg.takeoff_altitude_m))
+            self.send_command(mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, 0, 0, alt)
+        elif action == "land":
+            self.want_engaged = False
+            self.engaged = False
+            self.send_command(mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan, 0, 0, 0)
+        else:
+            return False
+        return True
+
+    def step(self, now_s: float) -> None:
+        now = now_s
+        if self.conn is None:
+            self._open()
+        self._poll(now)
+        # link loss and reopen
+        if self.link_up and (self.last_heartbeat_s is None or now - self.last_heartbeat_s > self.cfg.link_timeout_s):
+            self.link_up = False
+            self.counters["mav_link_losses"] += 1
+            self.engaged = False
+            self.want_engaged = self.want_engaged and self.cfg.reengage_after_link_loss
+            self.stream_since_s = None
+            self.last_reopen_s = now
+            self.log.warning("link lost: no HEARTBEAT for %.1f s", self.cfg.link_timeout_s)
+        if not self.link_up and now - self.last_reopen_s > self.cfg.reopen_period_s:
+            self.last_reopen_s = now
+            self.counters["mav_reopens"] += 1
+            self.log.info("reopening %s", self.cfg.url)
+            try:
+                self._open()
+            except (OSError, ConnectionError) as e:
+                self.log.warning("reopen failed: %s", e)
+                self.conn = None
+                return
+        if self.conn is None:
+            return
+        if now >= self._next_hb:
+            self._next_hb = now + 1.0 / self.cfg.heartbeat_rate_hz
+            self._send_heartbeat()
+        if not self.link_up:
+            return
+        if self.sp_pos_ned is None and self.pos_ned is not None:
+            self.hold()  # stream 'stay here' from the start
+        if self.sp_pos_ned is not None and now >= self._next_sp:
+            self._next_sp = max(self._next_sp + 1.0 / self.cfg.setpoint_rate_hz, now - 0.5 / self.cfg.setpoint_rate_hz)
+            self._send_setpoint()
+            if self.stream_since_s is None:
+                self.stream_since_s = now
+        if self.gimbal_target is not None and (
+                self.gimbal_sent is None or now - self.gimbal_sent_s > 1.0
+                or (np.max(np.abs(self.gimbal_target - self.gimbal_sent)) > 1e-3 and now - self.gimbal_sent_s > 0.05)):
+            self._send_gimbal(now)
+        # retry lens commands that were never acked
+        for name in list(self.lens_sent):
+            cmd = {"focal_length_mm": mavlink.MAV_CMD_SET_CAMERA_ZOOM, "focus_distance_m": mavlink.MAV_CMD_SET_CAMERA_FOCUS,
+                   "f_number": mavlink.MAV_CMD_DO_DIGICAM_CONFIGURE}[name]
+            if cmd in self.pending and now - self.pending[cmd][0] > 1.0:
+                self._send_lens(name, self.lens_sent[name], now)
+        if self.want_engaged:
+            self._engage_step(now)
+
+    def vehicle_state(self) -> M.VehicleState:
+        now = self.clock()
+        fresh = self.pos_rx_s is not None and now - self.pos_rx_s < self.cfg.link_timeout_s
+        pos = self.origin + F.ned_to_enu(self.pos_ned) if self.pos_ned is not None else self.origin.copy()
+        vel = F.ned_to_enu(self.vel_ned)
+        roll, pitch, yaw = (float(x) for x in self.rpy_ned)
+        att = np.array([F.yaw_ned_to_enu(yaw), pitch, roll])
+        cam = self.gimbal_ypr if self.gimbal_ypr is not None else np.array([att[0], 0.0, 0.0])
+        focal = self.focal_from_fov_mm if math.isfinite(self.focal_from_fov_mm) else self.lens_acked["focal_length_mm"]
+        lens = M.LensState(focal_length_mm=focal, focus_distance_m=self.lens_acked["focus_distance_m"],
+                           f_number=self.lens_acked["f_number"], sensor_width_mm=self.cfg.sensor_width_mm,
+                           sensor_height_mm=self.cfg.sensor_height_mm, coc_mm=self.cfg.coc_mm)
+        return M.VehicleState(stamp_ns=self.pos_stamp_ns or M.now_ns(), valid=bool(self.link_up and fresh),
+                              position_m=pos, velocity_mps=vel, attitude_ypr_rad=att, camera_ypr_rad=cam.copy(),
+                              lens=lens, mode=self.mode, armed=self.armed, holding=self.holding, backend="mavlink")
+
+    def health_counters(self) -> dict[str, Any]:
+        out: dict[str, Any] = dict(self.counters)
+        out.update(mav_link=self.link_up, mav_mode=self.mode, mav_armed=self.armed, mav_engaged=self.engaged,
+                   mav_autopilot=self.autopilot)
+        if self.ack_rtts_ms:
+            out["mav_ack_rtt_ms_median"] = float(np.median(self.ack_rtts_ms))
+        return out

@@ -1,0 +1,408 @@
+"""`cinetransfer sim-vehicle`: a simulated multirotor behind a real MAVLink 2 endpoint.
+
+    cinetransfer sim-vehicle --mavlink udpin:127.0.0.1:14550          # wait for the bridge to call
+    cinetransfer sim-vehicle --mavlink udpout:127.0.0.1:14540         # send to it (like PX4 SITL)
+    cinetransfer sim-vehicle --autopilot ardupilot --start 0,0,0
+
+It emulates just enough of PX4 (or ArduCopter with --autopilot ardupilot) for the bridge's
+`mavlink` backend and independent ground stations (MAVProxy, MAVSDK) to fly it:
+
+- sends HEARTBEAT (1 Hz; MAV_AUTOPILOT_PX4 / ARDUPILOTMEGA, custom mode, armed flag),
+  LOCAL_POSITION_NED and ATTITUDE (50 Hz), GIMBAL_DEVICE_ATTITUDE_STATUS (20 Hz, earth-frame
+  yaw), CAMERA_FOV_STATUS (5 Hz; the field of view of the current focal length), COMMAND_ACK;
+  rates can be changed with MAV_CMD_SET_MESSAGE_INTERVAL;
+- accepts SET_MODE and MAV_CMD_DO_SET_MODE, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_NAV_TAKEOFF,
+  MAV_CMD_NAV_LAND, SET_POSITION_TARGET_LOCAL_NED (position / velocity / yaw),
+  GIMBAL_MANAGER_SET_ATTITUDE and MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, MAV_CMD_SET_CAMERA_ZOOM
+  (ZOOM_TYPE_FOCAL_LENGTH), MAV_CMD_SET_CAMERA_FOCUS (FOCUS_TYPE_METERS),
+  MAV_CMD_DO_DIGICAM_CONFIGURE (param3 = f-stop); other commands get MAV_RESULT_UNSUPPORTED;
+- PX4 OFFBOARD semantics: switching into OFFBOARD is refused (TEMPORARILY_REJECTED) unless
+  setpoints are streaming; in OFFBOARD, a stream that stops for `--offboard-timeout` (0.5 s,
+  i.e. below 2 Hz) makes the vehicle leave OFFBOARD and hold (AUTO.LOITER);
+- ArduCopter GUIDED semantics: position targets move it once it is flying (take-off first when
+  landed); a velocity-only target stops after 3 s without update; no stream is required.
+
+Dynamics: `vehicle_model.VehicleModel` (point mass, first-order velocity lag, speed/acceleration
+and gimbal/lens rate limits) — a small model of its own, not the built-in simulator's.
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import logging
+import math
+import signal
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from cinetransfer.services.autopilot_bridge import enu_ned as F
+from cinetransfer.services.autopilot_bridge.mavlink import connect, mavlink
+from cinetransfer.services.autopilot_bridge.vehicle_model import ModelParams, VehicleModel
+
+log = logging.getLogger("cinetransfer.sim_vehicle")
+
+R = mavlink  # short alias for constants
+CAMERA_COMPONENTS = (0, R.MAV_COMP_ID_AUTOPILOT1, R.MAV_COMP_ID_CAMERA, R.MAV_COMP_ID_GIMBAL)
+
+
+class SimVehicle:
+    """The simulated vehicle and its MAVLink endpoint. Drive it with `run()` or `step()`."""
+
+    def __init__(self, url: str, *, autopilot: str = "px4", system_id: int = 1, start_enu=(0.0, 0.0, 0.0),
+                 rate_hz: float = 100.0, telemetry_hz: float = 50.0, offboard_timeout_s: float = 0.5,
+                 params: ModelParams | None = None, sensor_width_mm: float = 23.76,
+                 sensor_height_mm: float = 13.365) -> None:
+        if autopilot not in ("px4", "ardupilot"):
+            raise ValueError(f"autopilot {autopilot!r} must be 'px4' or 'ardupilot'")
+        self.url, self.autopilot = url, autopilot
+        self.rate_hz = rate_hz
+        self.offboard_timeout_s = offboard_timeout_s
+        self.sensor_w, self.sensor_h = sensor_width_mm, sensor_height_mm
+        self.conn = connect(url, source_system=system_id, source_component=R.MAV_COMP_ID_AUTOPILOT1)
+        self.model = VehicleModel(params=params or ModelParams())
+        self.model.position_m = np.asarray(start_enu, dtype=float).copy()
+        self.model.camera_ypr_rad = np.zeros(3)
+        self.model.hold_here()
+        self.mode = "LOITER"  # PX4 AUTO.LOITER ('Hold') / ArduCopter LOITER
+        self.t0 = time.monotonic()
+        self.last_t: float | None = None
+        self.last_sp_s: float | None = None  # last SET_POSITION_TARGET_LOCAL_NED
+        self.sp_velocity_only = False
+        self.taking_off = False
+        self.last_gcs_heartbeat_s: float | None = None
+        # message intervals [s] by name
+        self.intervals: dict[str, float] = {"HEARTBEAT": 1.0, "LOCAL_POSITION_NED": 1.0 / telemetry_hz,
+                                            "ATTITUDE": 1.0 / telemetry_hz, "GIMBAL_DEVICE_ATTITUDE_STATUS": 0.05,
+                                            "CAMERA_FOV_STATUS": 0.2}
+        self.next_send: dict[str, float] = {k: 0.0 for k in self.intervals}
+        self.stats: collections.Counter[str] = collections.Counter()
+        self.sp_times: collections.deque[float] = collections.deque(maxlen=2000)
+        self.events: collections.deque[str] = collections.deque(maxlen=200)
+        self.paused_link = False  # tests: drop all traffic in both directions
+
+    # ------------------------------------------------------------------ helpers
+    def _ms(self, now: float) -> int:
+        return int((now - self.t0) * 1000) & 0xFFFFFFFF
+
+    def _event(self, text: str) -> None:
+        self.events.append(text)
+        log.info("%s", text)
+
+    @property
+    def external_mode(self) -> str:
+        return "OFFBOARD" if self.autopilot == "px4" else "GUIDED"
+
+    def _custom_mode(self) -> int:
+        if self.autopilot == "px4":
+            if self.mode in F.PX4_AUTO_SUB:
+                return F.px4_custom_mode(F.PX4_MAIN["AUTO"], F.PX4_AUTO_SUB[self.mode])
+            return F.px4_custom_mode(F.PX4_MAIN.get(self.mode, F.PX4_MAIN["POSCTL"]))
+        return F.ACM_MODES.get(self.mode, F.ACM_MODES["LOITER"])
+
+    def _set_mode(self, name: str, now: float) -> int:
+        """Switch mode; returns a MAV_RESULT."""
+        if name == self.mode:
+            return R.MAV_RESULT_ACCEPTED
+        if self.autopilot == "px4" and name == "OFFBOARD":
+            if self.last_sp_s is None or now - self.last_sp_s > self.offboard_timeout_s:
+                self._event("OFFBOARD refused: no setpoint stream")
+                return R.MAV_RESULT_TEMPORARILY_REJECTED
+        allowed = (("OFFBOARD", "LOITER", "POSCTL", "LAND", "TAKEOFF", "RTL") if self.autopilot == "px4"
+                   else ("GUIDED", "LOITER", "LAND", "RTL", "BRAKE", "STABILIZE"))
+        if name not in allowed:
+            return R.MAV_RESULT_UNSUPPORTED
+        self._event(f"mode {self.mode} -> {name}")
+        self.mode = name
+        if name in ("LOITER", "BRAKE", "POSCTL"):
+            self.model.hold_here()
+        elif name == "LAND":
+            self.model.target_position_m = np.array([*self.model.position_m[:2], self.model.params.ground_z_m])
+            self.model.target_velocity_mps = np.zeros(3)
+        return R.MAV_RESULT_ACCEPTED
+
+    def _mode_from_custom(self, base_mode: int, main: int, sub: int) -> str | None:
+        if not base_mode & R.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            return None
+        if self.autopilot == "px4":
+            return F.px4_mode_name(F.px4_custom_mode(main, sub))
+        return F.acm_mode_name(main)
+
+    # ------------------------------------------------------------------ receive
+    def _handle(self, msg: Any, now: float) -> None:
+        t = msg.get_type()
+        if t == "BAD_DATA":
+            return
+        self.stats[f"rx_{t}"] += 1
+        if t == "HEARTBEAT":
+            if msg.get_srcSystem() != self.conn.mav.srcSystem:
+                self.last_gcs_heartbeat_s = now
+        elif t == "SET_MODE":
+            if msg.target_system == self.conn.mav.srcSystem:
+                cm = int(msg.custom_mode)
+                name = self._mode_from_custom(msg.base_mode, (cm >> 16) & 0xFF if self.autopilot == "px4" else cm,
+                                              (cm >> 24) & 0xFF)
+                if name:
+                    self._set_mode(name, now)
+        elif t == "COMMAND_LONG":
+            if msg.target_system in (0, self.conn.mav.srcSystem) and msg.target_component in CAMERA_COMPONENTS:
+                result = self._command(int(msg.command), [msg.param1, msg.param2, msg.param3, msg.param4,
+                                                          msg.param5, msg.param6, msg.param7], now)
+                self.conn.mav.command_ack_send(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
+                self.stats["acks_sent"] += 1
+        elif t == "SET_POSITION_TARGET_LOCAL_NED":
+            if msg.target_system == self.conn.mav.srcSystem:
+                self._setpoint(msg, now)
+        elif t == "GIMBAL_MANAGER_SET_ATTITUDE":
+            if msg.target_system == self.conn.mav.srcSystem:
+                q = list(msg.q)
+                if all(math.isfinite(c) for c in q):
+                    roll, pitch, yaw = F.quat_to_euler(q)
+                    if not msg.flags & R.GIMBAL_MANAGER_FLAGS_YAW_LOCK:
+                        yaw += F.yaw_enu_to_ned(self.model.yaw_rad)  # vehicle-relative yaw
+                    self.model.target_camera_ypr_rad = np.array([F.yaw_ned_to_enu(yaw), pitch, roll])
+
+    def _setpoint(self, msg: Any, now: float) -> None:
+        if msg.coordinate_frame != R.MAV_FRAME_LOCAL_NED:
+            self.stats["sp_bad_frame"] += 1
+            return
+        self.last_sp_s = now
+        self.sp_times.append(now)
+        mask = int(msg.type_mask)
+        if self.mode != self.external_mode:
+            return
+        if self.autopilot == "ardupilot" and self.model.landed and not self.taking_off:
+            return  # ArduCopter: take off first
+        pos_ok = not mask & (R.POSITION_TARGET_TYPEMASK_X_IGNORE | R.POSITION_TARGET_TYPEMASK_Y_IGNORE
+                             | R.POSITION_TARGET_TYPEMASK_Z_IGNORE)
+        vel_ok = not mask & (R.POSITION_TARGET_TYPEMASK_VX_IGNORE | R.POSITION_TARGET_TYPEMASK_VY_IGNORE
+                             | R.POSITION_TARGET_TYPEMASK_VZ_IGNORE)
+        m = self.model
+        vel = F.ned_to_enu([msg.vx, msg.vy, msg.vz]) if vel_ok else np.zeros(3)
+        if pos_ok:
+            m.target_position_m = F.ned_to_enu([msg.x, msg.y, msg.z])
+            self.sp_velocity_only = False
+        elif vel_ok:
+            m.target_position_m = None
+            self.sp_velocity_only = True
+        m.target_velocity_mps = vel
+        if not mask & R.POSITION_TARGET_TYPEMASK_YAW_IGNORE and math.isfinite(msg.yaw):
+            m.target_yaw_rad = F.yaw_ned_to_enu(msg.yaw)
+
+    def _command(self, cmd: int, p: list[float], now: float) -> int:
+        m = self.model
+        if cmd == R.MAV_CMD_DO_SET_MODE:
+            name = self._mode_from_custom(int(p[0]), int(p[1]), int(p[2]))
+            return R.MAV_RESULT_DENIED if name is None else self._set_mode(name, now)
+        if cmd == R.MAV_CMD_COMPONENT_ARM_DISARM:
+            if p[0] >= 0.5:
+                if not m.armed:
+                    m.armed = True
+                    m.hold_here()
+                    self._event("armed")
+                return R.MAV_RESULT_ACCEPTED
+            if not m.landed and int(p[1]) != 21196:
+                return R.MAV_RESULT_DENIED  # no disarm in flight unless forced
+            m.armed = False
+            self.taking_off = False
+            self._event("disarmed")
+            return R.MAV_RESULT_ACCEPTED
+        if cmd == R.MAV_CMD_NAV_TAKEOFF:
+            if not m.armed:
+                return R.MAV_RESULT_DENIED
+            alt = float(p[6]) if math.isfinite(p[6]) and p[6] > 0 else 2.5
+            m.target_position_m = np.array([m.position_m[0], m.position_m[1], m.params.ground_z_m + alt])
+            m.target_velocity_mps = np.zeros(3)
+            self.taking_off = True
+            if self.autopilot == "px4":
+                self.mode = "TAKEOFF"
+            self._event(f"take-off to {alt:.1f} m")
+            return R.MAV_RESULT_ACCEPTED
+        if cmd == R.MAV_CMD_NAV_LAND:
+            return self._set_mode("LAND", now) if self.mode != "LAND" else R.MAV_RESULT_ACCEPTED
+        if cmd == R.MAV_CMD_SET_MESSAGE_INTERVAL:
+            name = {R.MAVLINK_MSG_ID_LOCAL_POSITION_NED: "LOCAL_POSITION_NED", R.MAVLINK_MSG_ID_ATTITUDE: "ATTITUDE",
+                    R.MAVLINK_MSG_ID_GIMBAL_DEVICE_ATTITUDE_STATUS: "GIMBAL_DEVICE_ATTITUDE_STATUS",
+                    R.MAVLINK_MSG_ID_CAMERA_FOV_STATUS: "CAMERA_FOV_STATUS",
+                    R.MAVLINK_MSG_ID_HEARTBEAT: "HEARTBEAT"}.get(int(p[0]))
+            if name is None:
+                return R.MAV_RESULT_UNSUPPORTED
+            if p[1] > 0:
+                self.intervals[name] = max(p[1] * 1e-6, 0.005)
+            return R.MAV_RESULT_ACCEPTED
+        if cmd == R.MAV_CMD_SET_CAMERA_ZOOM:
+            if int(p[0]) != R.ZOOM_TYPE_FOCAL_LENGTH:
+                return R.MAV_RESULT_UNSUPPORTED
+            lo, hi = m.params.focal_range_mm
+            if not (math.isfinite(p[1]) and lo <= p[1] <= hi):
+                return R.MAV_RESULT_DENIED
+            m.target_focal_length_mm = float(p[1])
+            return R.MAV_RESULT_ACCEPTED
+        if cmd == R.MAV_CMD_SET_CAMERA_FOCUS:
+            if int(p[0]) != R.FOCUS_TYPE_METERS:
+                return R.MAV_RESULT_UNSUPPORTED
+            lo, hi = m.params.focus_range_m
+            if not (math.isfinite(p[1]) and lo <= p[1] <= hi):
+                return R.MAV_RESULT_DENIED
+            m.target_focus_distance_m = float(p[1])
+            return R.MAV_RESULT_ACCEPTED
+        if cmd == R.MAV_CMD_DO_DIGICAM_CONFIGURE:
+            if p[2] > 0:
+                lo, hi = m.params.f_number_range
+                if not (math.isfinite(p[2]) and lo <= p[2] <= hi):
+                    return R.MAV_RESULT_DENIED
+                m.target_f_number = float(p[2])
+            return R.MAV_RESULT_ACCEPTED
+        if cmd == R.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW:
+            pitch, yaw = math.radians(p[0]), math.radians(p[1])
+            if not (math.isfinite(pitch) and math.isfinite(yaw)):
+                return R.MAV_RESULT_DENIED
+            flags = int(p[4])
+            yaw_ned = yaw if flags & R.GIMBAL_MANAGER_FLAGS_YAW_LOCK else yaw + F.yaw_enu_to_ned(m.yaw_rad)
+            m.target_camera_ypr_rad = np.array([F.yaw_ned_to_enu(yaw_ned), pitch, 0.0])
+            return R.MAV_RESULT_ACCEPTED
+        return R.MAV_RESULT_UNSUPPORTED
+
+    # ------------------------------------------------------------------ send
+    def _send_due(self, now: float) -> None:
+        m, mav = self.model, self.conn.mav
+        ms = self._ms(now)
+        for name, interval in self.intervals.items():
+            if now < self.next_send[name]:
+                continue
+            self.next_send[name] = max(self.next_send[name] + interval, now - interval)
+            if name == "HEARTBEAT":
+                base = R.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (R.MAV_MODE_FLAG_SAFETY_ARMED if m.armed else 0)
+                ap = R.MAV_AUTOPILOT_PX4 if self.autopilot == "px4" else R.MAV_AUTOPILOT_ARDUPILOTMEGA
+                state = R.MAV_STATE_ACTIVE if m.armed else R.MAV_STATE_STANDBY
+                mav.heartbeat_send(R.MAV_TYPE_QUADROTOR, ap, base, self._custom_mode(), state)
+            elif name == "LOCAL_POSITION_NED":
+                p, v = F.enu_to_ned(m.position_m), F.enu_to_ned(m.velocity_mps)
+                mav.local_position_ned_send(ms, *(float(x) for x in p), *(float(x) for x in v))
+            elif name == "ATTITUDE":
+                mav.attitude_send(ms, m.roll_rad, m.pitch_rad, F.yaw_enu_to_ned(m.yaw_rad), 0.0, 0.0, 0.0)
+            elif name == "GIMBAL_DEVICE_ATTITUDE_STATUS":
+                q = F.camera_ypr_to_quat_ned(m.camera_ypr_rad)
+                flags = R.GIMBAL_DEVICE_FLAGS_YAW_LOCK | R.GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME
+                mav.gimbal_device_attitude_status_send(0, 0, ms, flags, q, math.nan, math.nan, math.nan, 0)
+            elif name == "CAMERA_FOV_STATUS":
+                hfov = math.degrees(2 * math.atan(self.sensor_w / (2 * m.focal_length_mm)))
+                vfov = math.degrees(2 * math.atan(self.sensor_h / (2 * m.focal_length_mm)))
+                q = F.camera_ypr_to_quat_ned(m.camera_ypr_rad)
+                mav.camera_fov_status_send(ms, 0, 0, 0, 0, 0, 0, q, hfov, vfov)
+            self.stats[f"tx_{name}"] += 1
+
+    # ------------------------------------------------------------------ loop
+    def _failsafes(self, now: float) -> None:
+        m = self.model
+        if self.mode == self.external_mode and self.autopilot == "px4":
+            if self.last_sp_s is None or now - self.last_sp_s > self.offboard_timeout_s:
+                self._event("offboard setpoint stream lost: holding (AUTO.LOITER)")
+                self.mode = "LOITER"
+                m.hold_here()
+        if self.autopilot == "ardupilot" and self.mode == "GUIDED" and self.sp_velocity_only:
+            if self.last_sp_s is not None and now - self.last_sp_s > 3.0:
+                m.hold_here()
+                self.sp_velocity_only = False
+        if self.taking_off and m.target_position_m is not None and abs(m.position_m[2] - m.target_position_m[2]) < 0.1:
+            self.taking_off = False
+            if self.autopilot == "px4" and self.mode == "TAKEOFF":
+                self.mode = "LOITER"
+                m.hold_here()
+        if self.mode == "LAND" and m.landed and m.armed:
+            m.armed = False
+            self._event("landed: disarmed")
+
+    def step(self, now: float | None = None) -> None:
+        now = time.monotonic() if now is None else now
+        for _ in range(2000):
+            try:
+                msg = self.conn.recv_match(blocking=False)
+            except OSError as e:
+                log.warning("receive failed: %s", e)
+                break
+            if msg is None:
+                break
+            if not self.paused_link:
+                self._handle(msg, now)
+        dt = 0.0 if self.last_t is None else min(now - self.last_t, 0.1)
+        self.last_t = now
+        self._failsafes(now)
+        self.model.step(dt)
+        if not self.paused_link:
+            self._send_due(now)
+
+    def run(self, stop: threading.Event) -> None:
+        period = 1.0 / self.rate_hz
+        nxt = time.monotonic()
+        while not stop.is_set():
+            self.step()
+            nxt += period
+            delay = nxt - time.monotonic()
+            if delay < -0.5:
+                nxt = time.monotonic()
+                delay = 0.0
+            stop.wait(max(delay, 0.0))
+
+    def setpoint_rate_hz(self, window_s: float = 2.0) -> float:
+        """Rate of SET_POSITION_TARGET_LOCAL_NED over the last `window_s` seconds."""
+        if len(self.sp_times) < 2:
+            return 0.0
+        t_end = self.sp_times[-1]
+        ts = [t for t in self.sp_times if t >= t_end - window_s]
+        return (len(ts) - 1) / (ts[-1] - ts[0]) if len(ts) > 1 and ts[-1] > ts[0] else 0.0
+
+    def close(self) -> None:
+        self.conn.close()
+
+
+def _vec3(text: str) -> tuple[float, float, float]:
+    parts = [float(x) for x in text.split(",")]
+    if len(parts) != 3 or not all(math.isfinite(x) for x in parts):
+        raise argparse.ArgumentTypeError(f"expected x,y,z (3 finite numbers), got {text!r}")
+    return parts[0], parts[1], parts[2]
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="cinetransfer sim-vehicle", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--mavlink", default="udpout:127.0.0.1:14540", metavar="URL",
+                    help="pymavlink endpoint (default %(default)s; e.g. udpin:127.0.0.1:14550)")
+    ap.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4")
+    ap.add_argument("--system-id", type=int, default=1)
+    ap.add_argument("--start", type=_vec3, default=(0.0, 0.0, 0.0), metavar="X,Y,Z",
+                    help="start position [m], world ENU z-up (default on the ground at home)")
+    ap.add_argument("--rate", type=float, default=100.0, help="physics rate [Hz] (default %(default)s)")
+    ap.add_argument("--telemetry-rate", type=float, default=50.0,
+                    help="LOCAL_POSITION_NED / ATTITUDE rate [Hz] (default %(default)s)")
+    ap.add_argument("--offboard-timeout", type=float, default=0.5,
+                    help="PX4: leave OFFBOARD when no setpoint for this long [s] (default %(default)s)")
+    ap.add_argument("--max-speed", type=float, default=5.0, help="vehicle speed limit [m/s]")
+    ap.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=getattr(logging, args.log_level),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    for name in ("rate", "telemetry_rate", "offboard_timeout", "max_speed"):
+        v = getattr(args, name)
+        if not (math.isfinite(v) and v > 0):
+            ap.error(f"--{name.replace('_', '-')} must be > 0")
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        log.info("received %s, stopping", signal.Signals(signum).name)
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    veh = SimVehicle(args.mavlink, autopilot=args.autopilot, system_id=args.system_id, start_enu=args.start,
+                     rate_hz=args.rate, telemetry_hz=args.telemetry_rate, offboard_timeout_s=args.offboard_timeout,
+                     params=ModelParams(max_speed_mps=args.max_speed))
+    log.info("sim-vehicle (%s) on %s, start %s", args.autopilot, args.mavlink, args.start)
+    try:
+        veh.run(stop)
+    finally:
+        veh.close()
+        log.info("stopped (rx setpoints %d, acks sent %d)", veh.stats["rx_SET_POSITION_TARGET_LOCAL_NED"],
+                 veh.stats["acks_sent"])
+    return 0

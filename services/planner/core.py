@@ -1,0 +1,392 @@
+"""The planner's pure logic: instructions + states + time in, a Setpoint out (no Zenoh, no clock).
+
+    planner = Planner(PlannerConfig())
+    planner.command(Command(action="start"), now_ns)
+    sp = planner.step(now_ns, instructions, vehicle_state, subject_state)
+
+Recording timing: instruction frame k follows the time elapsed since the recording started,
+k = start_frame + floor(elapsed * fps). Commands (Command.action):
+- 'start' (args: start_frame=int, optional): elapsed := 0, recording;
+- 'pause': the instruction time stops (the camera keeps framing the current frame);
+- 'resume': the instruction time goes on;
+- 'hold': hover in place (like pause, but the vehicle holds instead of framing);
+- 'stop': hold and forget the recording (a new 'start' begins at frame start_frame again).
+Before 'start' (unless config.autostart) the planner commands a hold. After the last frame of a
+final instruction set it keeps the last frame's targets (counters: finished=True).
+
+Failure policy (STYLE §7): every solve's status is checked. On failure the last good plan is
+flown for at most tail_max_s (mode 'track', solver_status says so), then a hold is commanded
+(valid=False), the warm start is reset, and failures are counted. A Setpoint never holds NaN.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cinetransfer.services.planner import constraints as C
+from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
+from cinetransfer.services.planner.cost import reciprocal_targets
+from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
+from cinetransfer.services.planner.solver import MpcSolver, SolveResult, StageData
+from cinetransfer.shared import camera as cam
+from cinetransfer.shared import messages as M
+
+log = logging.getLogger("cinetransfer.planner")
+
+CENTRE_JOINTS = ("left_shoulder", "right_shoulder", "left_hip", "right_hip")
+STATES = ("idle", "recording", "paused", "holding", "stopped")
+
+
+@dataclass
+class Plan:
+    """A good solution and when it was computed."""
+
+    t0_ns: int
+    x: np.ndarray  # (N+1, nx)
+    u: np.ndarray  # (N, nu)
+    dt: float
+    status: str
+    instruction_frame: int
+
+    def at(self, tau_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """State (interpolated) and input (piecewise constant) at tau_s after t0 (clamped to the plan)."""
+        n = self.u.shape[0]
+        t = np.arange(n + 1) * self.dt
+        tau = float(np.clip(tau_s, 0.0, t[-1]))
+        x = np.array([np.interp(tau, t, self.x[:, i]) for i in range(self.x.shape[1])])
+        k = min(int(tau / self.dt), n - 1)
+        return x, self.u[k].copy()
+
+    @property
+    def length_s(self) -> float:
+        return self.u.shape[0] * self.dt
+
+
+def _finite_lens(lens: M.LensState | None, fallback: np.ndarray) -> np.ndarray:
+    if lens is None:
+        return fallback.copy()
+    v = np.array([lens.focal_length_mm, lens.focus_distance_m, lens.f_number], dtype=float)
+    return np.where(np.isfinite(v), v, fallback)
+
+
+class Planner:
+    """CineMPC receding-horizon planner (DESIGN §1.3)."""
+
+    def __init__(self, config: PlannerConfig | None = None, solver: MpcSolver | None = None) -> None:
+        self.cfg = (config or PlannerConfig()).validate()
+        st = self.cfg.structure
+        self.layout = Layout(st.control_roll)
+        self.solver = solver or MpcSolver(st, self.cfg.bounds, self.cfg.weights,
+                                          max_solve_time_s=self.cfg.max_solve_time_s,
+                                          feasibility_tol=self.cfg.feasibility_tol,
+                                          accept_suboptimal=self.cfg.accept_suboptimal)
+        self.state = "idle"
+        self._elapsed_s = 0.0  # recording time accumulated before the current run
+        self._run_from_ns: int | None = None  # when the current (unpaused) run began
+        self.start_frame = 0
+        self._plan: Plan | None = None
+        self._last_good_ns: int | None = None
+        self._hold_pose: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._u_prev = np.zeros(self.layout.nu)
+        self._last_lens = np.array([50.0, 10.0, 4.0])
+        self.counters: dict[str, object] = {
+            "state": self.state, "instruction_frame": -1, "finished": False, "solves": 0, "failures": 0,
+            "consecutive_failures": 0, "holds": 0, "tail": False, "solver_status": "", "solve_ms": float("nan"),
+            "iterations": -1, "joints_ignored": 0, "commands": 0, "bad_commands": 0, "mode": "hold",
+        }
+        self.last_result: SolveResult | None = None
+
+    # ------------------------------------------------------------------ runtime parameters
+    def set_weights(self, weights: Weights) -> None:
+        self.solver.set_weights(weights)
+
+    def set_bounds(self, bounds: Bounds) -> None:
+        self.solver.set_bounds(bounds)
+
+    # ------------------------------------------------------------------ commands and timing
+    def command(self, cmd: M.Command, now_ns: int) -> bool:
+        """Apply a start/pause/resume/hold/stop command; False (and counted) if not understood."""
+        a = cmd.action
+        self.counters["commands"] = int(self.counters["commands"]) + 1
+        if a == "start":
+            sf = cmd.args.get("start_frame", 0)
+            if isinstance(sf, bool) or not isinstance(sf, int) or sf < 0:
+                self.counters["bad_commands"] = int(self.counters["bad_commands"]) + 1
+                return False
+            self.start_frame = sf
+            self._elapsed_s = 0.0
+            self._run_from_ns = now_ns
+            self.state = "recording"
+        elif a in ("pause", "hold"):
+            if self._run_from_ns is not None:
+                self._elapsed_s += max(0.0, (now_ns - self._run_from_ns) * 1e-9)
+                self._run_from_ns = None
+            if self.state != "idle" and self.state != "stopped" or a == "hold":
+                self.state = "paused" if a == "pause" else "holding"
+        elif a == "resume":
+            if self.state in ("paused", "holding"):
+                self._run_from_ns = now_ns
+                self.state = "recording"
+            else:
+                self.counters["bad_commands"] = int(self.counters["bad_commands"]) + 1
+                return False
+        elif a == "stop":
+            self._elapsed_s, self._run_from_ns = 0.0, None
+            self.state = "stopped"
+        else:
+            self.counters["bad_commands"] = int(self.counters["bad_commands"]) + 1
+            return False
+        self.counters["state"] = self.state
+        log.info("command %r -> state %s", a, self.state)
+        return True
+
+    def recording_time_s(self, now_ns: int) -> float:
+        run = 0.0 if self._run_from_ns is None else max(0.0, (now_ns - self._run_from_ns) * 1e-9)
+        return self._elapsed_s + run
+
+    # ------------------------------------------------------------------ step
+    def step(self, now_ns: int, instructions: M.Instructions | None, vehicle: M.VehicleState | None,
+             subject: M.SubjectState | None) -> M.Setpoint:
+        """One control step: solve (or fall back) and return the setpoint to publish now."""
+        cfg = self.cfg
+        if self.state == "idle" and cfg.autostart and instructions is not None and instructions.image_targets.shape[0]:
+            self.command(M.Command(action="start"), now_ns)
+        if vehicle is None:
+            return self._no_vehicle(now_ns, "no vehicle state")
+        stale = max(0.0, (now_ns - vehicle.stamp_ns) * 1e-9) > cfg.max_input_age_s
+        if not vehicle.valid or stale:
+            return self._hold(now_ns, vehicle, "vehicle state stale or invalid", valid=False)
+        if self.state in ("idle", "stopped", "holding"):
+            return self._hold(now_ns, vehicle, self.state, valid=True)
+        if instructions is None or instructions.image_targets.shape[0] == 0:
+            return self._hold(now_ns, vehicle, "no instructions", valid=False)
+        if subject is None or not subject.valid or (now_ns - subject.stamp_ns) * 1e-9 > cfg.max_input_age_s:
+            return self._hold(now_ns, vehicle, "subject state missing, stale or invalid", valid=False)
+        try:
+            data, frame = self._stage_data(now_ns, instructions, vehicle, subject)
+        except ValueError as e:  # e.g. no finite joint of the subject
+            return self._hold(now_ns, vehicle, f"bad input: {e}", valid=False)
+        shift = 0.0 if self._plan is None else (now_ns - self._plan.t0_ns) * 1e-9
+        res = self.solver.solve(data, shift_s=shift)
+        self.last_result = res
+        self.counters.update(solves=int(self.counters["solves"]) + 1, solver_status=res.status,
+                             solve_ms=round(res.wall_s * 1e3, 3), iterations=res.iterations, instruction_frame=frame)
+        if res.ok and np.all(np.isfinite(res.x)) and np.all(np.isfinite(res.u)):
+            self._plan = Plan(now_ns, res.x.copy(), res.u.copy(), self.solver.dt, res.status, frame)
+            self._last_good_ns = now_ns
+            self._hold_pose = None
+            self.counters.update(consecutive_failures=0, tail=False)
+            sp = self._from_plan(now_ns, self._plan, res.status, valid=True)
+            if sp is not None:
+                return sp
+        self.counters.update(failures=int(self.counters["failures"]) + 1,
+                             consecutive_failures=int(self.counters["consecutive_failures"]) + 1)
+        return self._fallback(now_ns, vehicle, f"failed: {res.status}")
+
+    # ------------------------------------------------------------------ stage data
+    def _stage_data(self, now_ns: int, ins: M.Instructions, vehicle: M.VehicleState,
+                    subject: M.SubjectState) -> tuple[StageData, int]:
+        st, lay = self.cfg.structure, self.layout
+        n, e_max, dt = st.horizon_steps, st.max_joints, st.dt_s
+        # --- measured state
+        x0 = np.zeros(lay.nx)
+        dt_v = max(0.0, (now_ns - vehicle.stamp_ns) * 1e-9)
+        x0[lay.P] = np.asarray(vehicle.position_m, dtype=float) + np.asarray(vehicle.velocity_mps) * dt_v
+        x0[lay.V] = vehicle.velocity_mps
+        ypr = np.asarray(vehicle.camera_ypr_rad, dtype=float)
+        ref_yaw = float(self._plan.x[0, lay.YAW]) if self._plan is not None else float(ypr[0])
+        x0[lay.YAW] = unwrap_near(float(ypr[0]), ref_yaw)
+        x0[lay.PITCH] = ypr[1]
+        if lay.control_roll:
+            x0[lay.ROLL] = ypr[2]
+        lens = _finite_lens(vehicle.lens, self._last_lens)
+        x0[lay.F], x0[lay.S], x0[lay.A] = lens
+        x0, _ = C.clamp_state(lay, self.solver.bounds, x0, self.cfg.clamp_tolerance)
+        if not np.all(np.isfinite(x0)):
+            raise ValueError("non-finite vehicle state")
+        # --- subject, predicted at constant velocity from `now`
+        names = list(subject.joint_names)
+        joints = np.asarray(subject.joints_m, dtype=float)
+        vel = np.asarray(subject.velocity_mps, dtype=float)
+        if joints.shape[0] != len(names):
+            raise ValueError("subject joints and names differ in length")
+        joints = joints + vel * max(0.0, (now_ns - subject.stamp_ns) * 1e-9)
+        finite = np.all(np.isfinite(joints), axis=1)
+        if not finite.any():
+            raise ValueError("no finite subject joint")
+        ci = [names.index(j) for j in CENTRE_JOINTS if j in names and finite[names.index(j)]]
+        centre = joints[ci].mean(axis=0) if ci else joints[finite].mean(axis=0)
+        # --- controlled joints
+        ctrl = list(ins.joint_names)
+        if len(ctrl) > e_max:
+            self.counters["joints_ignored"] = len(ctrl) - e_max
+        ctrl = ctrl[:e_max]
+        jw = np.zeros((e_max, 3))
+        jmask = np.zeros(e_max)
+        for j, name in enumerate(ctrl):
+            if name in names and finite[names.index(name)]:
+                jw[j] = joints[names.index(name)]
+                jmask[j] = 1.0
+        # --- instruction rows of the stages
+        rows, frame = self._rows(now_ns, ins, n, dt)
+        targets = np.zeros((n, e_max, 2))
+        mask = np.zeros((n, e_max))
+        ti = np.asarray(ins.image_targets, dtype=float)
+        ne = min(len(ctrl), ti.shape[1])
+        for k, r in enumerate(rows):
+            t = ti[r, :ne]
+            ok = np.all(np.isfinite(t), axis=1) & (jmask[:ne] > 0)
+            targets[k, :ne][ok] = t[ok]
+            mask[k, :ne] = ok
+        # --- depth-of-field targets from the predicted subject depth along the planned camera
+        mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
+        focus = np.asarray(ins.focus_in, dtype=bool)
+        dof = np.zeros((n, 5))
+        dref = np.zeros(n)
+        for k, r in enumerate(rows):
+            t = (k + 1) * dt
+            if self._plan is not None:
+                xk, _ = self._plan.at((now_ns - self._plan.t0_ns) * 1e-9 + t)
+            else:
+                xk = x0
+            yaw, pitch, roll = lay.angles(xk)
+            depth = float(cam.world_to_camera(centre + vel * t, xk[lay.P], np.array([yaw, pitch, roll]))[0])
+            depth = max(depth, 0.5)
+            dref[k] = depth
+            if focus.shape[0] > r and focus.shape[1] == 3:
+                near, far = cam.desired_dof_limits(bool(focus[r, 0]), bool(focus[r, 1]), bool(focus[r, 2]),
+                                                   depth, mu)
+                dof[k] = reciprocal_targets(near, far, near_foreground_m=st.near_foreground_m,
+                                            far_margin_inv_m=st.far_margin_inv_m)
+        u_prev = self._u_prev
+        if self._plan is not None:
+            _, u_prev = self._plan.at((now_ns - self._plan.t0_ns) * 1e-9)
+        data = StageData(x0=x0, u_prev=u_prev, joints_w=jw, subject_centre_w=centre, subject_velocity=vel,
+                         targets=targets, mask=mask, dof=dof, distance_ref=dref)
+        return data, frame
+
+    def _rows(self, now_ns: int, ins: M.Instructions, n: int, dt: float) -> tuple[list[int], int]:
+        """Instruction rows of stages 1..n and the source frame index followed now."""
+        k_rows = ins.image_targets.shape[0]
+        fps = ins.fps if ins.fps > 0 else (1.0 / ins.frame_duration_s if ins.frame_duration_s > 0 else 24.0)
+        t = self.recording_time_s(now_ns)
+        moving = self.state == "recording"
+
+        def frame_at(tt: float) -> int:
+            return self.start_frame + int(math.floor(tt * fps + 1e-9))
+
+        frame = frame_at(t)
+        rows = []
+        for k in range(1, n + 1):
+            f = frame_at(t + k * dt) if moving else frame
+            rows.append(int(np.clip(f - ins.first_frame, 0, k_rows - 1)))
+        self.counters["finished"] = bool(ins.final and frame - ins.first_frame >= k_rows)
+        return rows, frame
+
+    # ------------------------------------------------------------------ outputs
+    def _from_plan(self, now_ns: int, plan: Plan, status: str, *, valid: bool) -> M.Setpoint | None:
+        lay = self.layout
+        age = (now_ns - plan.t0_ns) * 1e-9
+        x, u = plan.at(age + self.cfg.setpoint_lead_s)
+        _, self._u_prev = plan.at(age)
+        yaw, pitch, roll = lay.angles(x)
+        ypr = np.array([wrap_angle(float(yaw)), float(pitch), float(roll)])
+        hx = plan.x
+        n1 = hx.shape[0]
+        h_ypr = np.zeros((n1, 3))
+        h_ypr[:, 0] = wrap_angle(hx[:, lay.YAW])
+        h_ypr[:, 1] = hx[:, lay.PITCH]
+        if lay.control_roll:
+            h_ypr[:, 2] = hx[:, lay.ROLL]
+        h_lens = np.stack([hx[:, lay.F], hx[:, lay.S], hx[:, lay.A]], axis=1)
+        self._last_lens = np.array([x[lay.F], x[lay.S], x[lay.A]], dtype=float)
+        sp = M.Setpoint(
+            stamp_ns=now_ns, valid=valid, mode="track", position_m=np.asarray(x[lay.P], dtype=float),
+            velocity_mps=np.asarray(x[lay.V], dtype=float), acceleration_mps2=np.asarray(u[lay.ACC], dtype=float),
+            camera_ypr_rad=ypr, lens=self._lens_msg(self._last_lens), instruction_frame=plan.instruction_frame,
+            horizon_t_s=np.arange(n1) * plan.dt - age, horizon_position_m=np.asarray(hx[:, lay.P], dtype=float),
+            horizon_camera_ypr_rad=h_ypr, horizon_lens=h_lens, solver_status=status)
+        if not _setpoint_finite(sp):
+            return None
+        self.counters["mode"] = "track"
+        return sp
+
+    def _lens_msg(self, lens: np.ndarray) -> M.LensState:
+        st = self.cfg.structure
+        return M.LensState(focal_length_mm=float(lens[0]), focus_distance_m=float(lens[1]), f_number=float(lens[2]),
+                           sensor_width_mm=st.sensor_width_mm, sensor_height_mm=st.sensor_height_mm,
+                           coc_mm=st.coc_mm)
+
+    def _fallback(self, now_ns: int, vehicle: M.VehicleState, reason: str) -> M.Setpoint:
+        plan = self._plan
+        if plan is not None and self._last_good_ns is not None:
+            age = (now_ns - self._last_good_ns) * 1e-9
+            if age <= min(self.cfg.tail_max_s, plan.length_s - self.cfg.setpoint_lead_s):
+                sp = self._from_plan(now_ns, plan, f"{reason}; flying last plan ({age:.2f} s old)", valid=True)
+                if sp is not None:
+                    self.counters["tail"] = True
+                    return sp
+        return self._hold(now_ns, vehicle, f"{reason}; holding", valid=False)
+
+    def _hold(self, now_ns: int, vehicle: M.VehicleState, reason: str, *, valid: bool) -> M.Setpoint:
+        if self._hold_pose is None:
+            lens = _finite_lens(vehicle.lens, self._last_lens)
+            ypr = np.asarray(vehicle.camera_ypr_rad, dtype=float)
+            pos = np.asarray(vehicle.position_m, dtype=float)
+            if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(ypr))):
+                return self._no_vehicle(now_ns, reason)
+            self._hold_pose = (pos.copy(), ypr.copy(), lens)
+            self.counters["holds"] = int(self.counters["holds"]) + 1
+            # a hold ends the plan: the next solve starts cold
+            self.solver.reset()
+            self._plan = None
+            self._last_good_ns = None
+            self._u_prev = np.zeros(self.layout.nu)
+            log.info("hold: %s", reason)
+        pos, ypr, lens = self._hold_pose
+        self.counters.update(mode="hold", tail=False)
+        return _hold_setpoint(now_ns, pos, ypr, self._lens_msg(lens), reason, valid,
+                              int(self.counters.get("instruction_frame", -1)))  # type: ignore[arg-type]
+
+    def _no_vehicle(self, now_ns: int, reason: str) -> M.Setpoint:
+        self.counters.update(mode="hold", tail=False)
+        return M.Setpoint(stamp_ns=now_ns, valid=False, mode="hold", position_m=np.zeros(3),
+                          velocity_mps=np.zeros(3), acceleration_mps2=np.zeros(3), camera_ypr_rad=np.zeros(3),
+                          lens=self._lens_msg(self._last_lens), horizon_t_s=np.zeros(1),
+                          horizon_position_m=np.zeros((1, 3)), horizon_camera_ypr_rad=np.zeros((1, 3)),
+                          horizon_lens=self._last_lens.reshape(1, 3).copy(), solver_status=reason)
+
+
+def _hold_setpoint(now_ns: int, pos: np.ndarray, ypr: np.ndarray, lens: M.LensState, reason: str, valid: bool,
+                   frame: int) -> M.Setpoint:
+    lv = np.array([[lens.focal_length_mm, lens.focus_distance_m, lens.f_number]])
+    return M.Setpoint(stamp_ns=now_ns, valid=valid, mode="hold", position_m=pos.copy(), velocity_mps=np.zeros(3),
+                      acceleration_mps2=np.zeros(3), camera_ypr_rad=ypr.copy(), lens=lens, instruction_frame=frame,
+                      horizon_t_s=np.zeros(1), horizon_position_m=pos.reshape(1, 3).copy(),
+                      horizon_camera_ypr_rad=ypr.reshape(1, 3).copy(), horizon_lens=lv, solver_status=reason)
+
+
+def _setpoint_finite(sp: M.Setpoint) -> bool:
+    arrays = [sp.position_m, sp.velocity_mps, sp.acceleration_mps2, sp.camera_ypr_rad, sp.horizon_t_s,
+              sp.horizon_position_m, sp.horizon_camera_ypr_rad, sp.horizon_lens]
+    lens = [sp.lens.focal_length_mm, sp.lens.focus_distance_m, sp.lens.f_number]
+    return all(np.all(np.isfinite(a)) for a in arrays) and all(math.isfinite(v) for v in lens)
+
+
+def instructions_from_arrays(*, targets: np.ndarray, joint_names: list[str], focus_in: np.ndarray | None = None,
+                             fps: float = 24.0, mu_m: float = 1.0, first_frame: int = 0) -> M.Instructions:
+    """Instructions built from plain arrays (tests, tools)."""
+    targets = np.asarray(targets, dtype=np.float32)
+    k = targets.shape[0]
+    fi = np.zeros((k, 3), dtype=bool) if focus_in is None else np.asarray(focus_in, dtype=bool)
+    return M.Instructions(fps=fps, frame_duration_s=1.0 / fps, first_frame=first_frame, joint_names=list(joint_names),
+                          image_targets=targets, subject_visible=np.ones(k, dtype=bool),
+                          subject_box=np.full((k, 4), np.nan, dtype=np.float32),
+                          focus_raw=fi.astype(np.float32), focus_smoothed=fi.astype(np.float32), focus_in=fi, mu_m=mu_m)
+
+
+__all__ = ["Planner", "Plan", "instructions_from_arrays", "STATES", "dataclasses"]
