@@ -52,11 +52,14 @@ SUBJECT_STATE = Topic("subject", "state", M.SubjectState, "autopilot_bridge | pe
 BRIDGE_COMMAND = Topic("vehicle", "command", M.Command, "operator / transfer", 0.0, "no-drop",
                        "arm / takeoff / hold / land requests to the bridge")
 
+SMOOTHER_COMMAND = Topic("smoother", "command", M.Command, "operator / transfer / detector", 0.0, "no-drop",
+                         "'end' (end of stream: publish the whole-sequence instructions) or 'reset'")
+
 SIM_TRUTH = Topic("sim", "truth", M.GroundTruth, "autopilot_bridge (sim backend)", 24.0, "no-drop",
                   "exact ground truth of each rendered frame")
 
 TOPICS: tuple[Topic, ...] = (FRAME, MEASUREMENT, INSTRUCTIONS, SETPOINT, PLANNER_COMMAND, VEHICLE_STATE,
-                             SUBJECT_STATE, BRIDGE_COMMAND, SIM_TRUTH)
+                             SUBJECT_STATE, BRIDGE_COMMAND, SIM_TRUTH, SMOOTHER_COMMAND)
 
 
 def health(rig: str, node: str) -> str:

@@ -151,7 +151,8 @@ class MavlinkConfig:
     heartbeat_rate_hz: float = 1.0
     #: telemetry rates we ask the vehicle for (MAV_CMD_SET_MESSAGE_INTERVAL) [Hz]; 0 = don't ask.
     telemetry_rate_hz: float = 50.0
-    #: no vehicle HEARTBEAT for this long [s] -> link lost (VehicleState invalid, hold).
+    #: nothing (HEARTBEAT or telemetry) from the vehicle for this long [s] -> link lost
+    #: (VehicleState invalid, hold). The link comes back with the next HEARTBEAT.
     link_timeout_s: float = 1.5
     #: link lost for this long [s] -> close and reopen the connection (then every period).
     reopen_period_s: float = 3.0
@@ -213,7 +214,7 @@ class BridgeConfig:
     #: 'sim' (built-in simulator, the default) or 'mavlink' (flight controller / sim-vehicle).
     backend: str = "sim"
     #: simulator scene: a bundled scene name or a path to a scene file (sim backend only).
-    scene: str = "default"
+    scene: str = "lawn_juggler"
     #: control loop rate [Hz]: setpoints are checked, the backend stepped and state published.
     rate_hz: float = 50.0
     #: publish frames as JPEG of this quality (1..100) for a radio link; 0 = raw (one host).

@@ -60,8 +60,8 @@ class BridgeCore:
         self.last_stamp_ns: int | None = None
         self.plan_hold_reason = ""  # 'hold setpoint' / 'invalid plan' from the newest setpoint
         self.operator_hold = False
-        self.hold_reason = "no setpoint yet"
-        self.holding = True
+        self.hold_reason = ""  # the first tick reports the start-up hold as a change
+        self.holding = False
         self.cmd_pos: np.ndarray | None = None
         self.cmd_vel: np.ndarray | None = None
         self.last_tick_s: float | None = None

@@ -24,8 +24,10 @@ focus distance / f-number: MAVLink has no message that reports them in metres / 
 Frames: world ENU z-up <-> local NED (see enu_ned.py). The vehicle's yaw is set to the camera's
 yaw (the multirotor faces the shot); the gimbal gets the full earth-frame attitude.
 
-Link loss: no vehicle HEARTBEAT for `link_timeout_s` -> `connected` is False (the service holds
-and marks its state invalid); while lost, the connection is reopened every `reopen_period_s`.
+Link loss: no message at all from the vehicle (HEARTBEAT or telemetry) for `link_timeout_s`
+-> `connected` is False (the service holds
+and marks its state invalid); while lost, a TCP or serial connection is reopened every
+`reopen_period_s` (a UDP socket is kept: the link resumes with the next HEARTBEAT).
 After a link loss the backend does not re-enter OFFBOARD/GUIDED by itself unless
 `reengage_after_link_loss`; if the vehicle leaves that mode while engaged (pilot or failsafe),
 the backend never takes control back on its own.
@@ -113,6 +115,7 @@ class MavlinkBackend(VehiclePort):
         # link
         self.link_up = False
         self.last_heartbeat_s: float | None = None
+        self.last_rx_s: float | None = None  # last message of any kind from the vehicle
         self.last_reopen_s = self.t0
         # vehicle state from telemetry
         self.mode = ""
@@ -185,6 +188,12 @@ class MavlinkBackend(VehiclePort):
             self.conn = None
 
     @property
+    def reopens_link(self) -> bool:
+        """Stream links (TCP, serial) are reopened after a loss; a UDP socket has nothing to
+        reopen (reopening would only drop datagrams in flight): it resumes on the next HEARTBEAT."""
+        return not self.cfg.url.startswith(("udpin:", "udpout:", "udp:", "udpbcast:"))
+
+    @property
     def connected(self) -> bool:
         return self.link_up
 
@@ -223,6 +232,8 @@ class MavlinkBackend(VehiclePort):
             return
         if self.target_system and src != self.target_system:
             return
+        if self.link_up:
+            self.last_rx_s = now  # any message from the vehicle keeps the link alive
         if t == "LOCAL_POSITION_NED":
             self.pos_ned = np.array([msg.x, msg.y, msg.z], dtype=float)
             self.vel_ned = np.array([msg.vx, msg.vy, msg.vz], dtype=float)
@@ -250,7 +261,7 @@ class MavlinkBackend(VehiclePort):
                 if msg.autopilot != mavlink.MAV_AUTOPILOT_PX4:
                     self.log.warning("autopilot type %d: treating it as PX4", msg.autopilot)
                 self.autopilot = "px4"
-        self.last_heartbeat_s = now
+        self.last_heartbeat_s = self.last_rx_s = now
         self.armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
         if msg.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
             self.mode = (F.px4_mode_name(msg.custom_mode) if self.autopilot == "px4"
@@ -388,8 +399,6 @@ class MavlinkBackend(VehiclePort):
         if now < self._next_engage:
             return
         self._next_engage = now + 1.0
-        if self.engaged:
-            return
         if self.autopilot == "ardupilot":
             if self.mode != "GUIDED":
                 self.send_command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
@@ -400,6 +409,8 @@ class MavlinkBackend(VehiclePort):
                 self.send_command(mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, 0, 0, self.cfg.takeoff_altitude_m)
                 self.takeoff_sent = True
             return
+        if self.engaged:
+            return
         # PX4 refuses OFFBOARD unless setpoints already stream (> 2 Hz): stream first, then switch
         if self.mode != "OFFBOARD":
             if self.stream_since_s is not None and now - self.stream_since_s >= 0.5:
@@ -409,6 +420,11 @@ class MavlinkBackend(VehiclePort):
                 self._next_engage = now + 0.1
         if not self.armed:
             self.send_command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+
+    def _taking_off_while_holding(self) -> bool:
+        """ArduPilot: a 'stay here' target sent during NAV_TAKEOFF would cancel the climb."""
+        return (self.autopilot == "ardupilot" and self.holding and self.takeoff_sent and self.pos_ned is not None
+                and -self.pos_ned[2] < 0.9 * self.cfg.takeoff_altitude_m)
 
     def _landed(self) -> bool:
         return self.pos_ned is None or -self.pos_ned[2] < 0.3
@@ -471,15 +487,15 @@ class MavlinkBackend(VehiclePort):
             self._open()
         self._poll(now)
         # link loss and reopen
-        if self.link_up and (self.last_heartbeat_s is None or now - self.last_heartbeat_s > self.cfg.link_timeout_s):
+        if self.link_up and (self.last_rx_s is None or now - self.last_rx_s > self.cfg.link_timeout_s):
             self.link_up = False
             self.counters["mav_link_losses"] += 1
             self.engaged = False
             self.want_engaged = self.want_engaged and self.cfg.reengage_after_link_loss
             self.stream_since_s = None
             self.last_reopen_s = now
-            self.log.warning("link lost: no HEARTBEAT for %.1f s", self.cfg.link_timeout_s)
-        if not self.link_up and now - self.last_reopen_s > self.cfg.reopen_period_s:
+            self.log.warning("link lost: nothing from the vehicle for %.1f s", self.cfg.link_timeout_s)
+        if not self.link_up and self.reopens_link and now - self.last_reopen_s > self.cfg.reopen_period_s:
             self.last_reopen_s = now
             self.counters["mav_reopens"] += 1
             self.log.info("reopening %s", self.cfg.url)
@@ -498,7 +514,7 @@ class MavlinkBackend(VehiclePort):
             return
         if self.sp_pos_ned is None and self.pos_ned is not None:
             self.hold()  # stream 'stay here' from the start
-        if self.sp_pos_ned is not None and now >= self._next_sp:
+        if self.sp_pos_ned is not None and now >= self._next_sp and not self._taking_off_while_holding():
             self._next_sp = max(self._next_sp + 1.0 / self.cfg.setpoint_rate_hz, now - 0.5 / self.cfg.setpoint_rate_hz)
             self._send_setpoint()
             if self.stream_since_s is None:

@@ -22,8 +22,10 @@ It emulates just enough of PX4 (or ArduCopter with --autopilot ardupilot) for th
 - ArduCopter GUIDED semantics: position targets move it once it is flying (take-off first when
   landed); a velocity-only target stops after 3 s without update; no stream is required.
 
-Dynamics: `vehicle_model.VehicleModel` (point mass, first-order velocity lag, speed/acceleration
-and gimbal/lens rate limits) — a small model of its own, not the built-in simulator's.
+Dynamics (--dynamics): 'sim' (default) = the built-in simulator's `sim.dynamics.VehicleDynamics`
+(the same model the sim backend flies; arming and the ground added by
+`vehicle_model.SimDynamicsAdapter`), or 'simple' = `vehicle_model.VehicleModel`, a small point
+mass of its own with the same kind of limits, which does not import the simulator.
 """
 from __future__ import annotations
 
@@ -40,7 +42,7 @@ import numpy as np
 
 from cinetransfer.services.autopilot_bridge import enu_ned as F
 from cinetransfer.services.autopilot_bridge.mavlink import connect, mavlink
-from cinetransfer.services.autopilot_bridge.vehicle_model import ModelParams, VehicleModel
+from cinetransfer.services.autopilot_bridge.vehicle_model import ModelParams, SimDynamicsAdapter, VehicleModel
 
 log = logging.getLogger("cinetransfer.sim_vehicle")
 
@@ -54,7 +56,7 @@ class SimVehicle:
     def __init__(self, url: str, *, autopilot: str = "px4", system_id: int = 1, start_enu=(0.0, 0.0, 0.0),
                  rate_hz: float = 100.0, telemetry_hz: float = 50.0, offboard_timeout_s: float = 0.5,
                  params: ModelParams | None = None, sensor_width_mm: float = 23.76,
-                 sensor_height_mm: float = 13.365) -> None:
+                 sensor_height_mm: float = 13.365, dynamics: str = "sim") -> None:
         if autopilot not in ("px4", "ardupilot"):
             raise ValueError(f"autopilot {autopilot!r} must be 'px4' or 'ardupilot'")
         self.url, self.autopilot = url, autopilot
@@ -62,16 +64,21 @@ class SimVehicle:
         self.offboard_timeout_s = offboard_timeout_s
         self.sensor_w, self.sensor_h = sensor_width_mm, sensor_height_mm
         self.conn = connect(url, source_system=system_id, source_component=R.MAV_COMP_ID_AUTOPILOT1)
-        self.model = VehicleModel(params=params or ModelParams())
-        self.model.position_m = np.asarray(start_enu, dtype=float).copy()
-        self.model.camera_ypr_rad = np.zeros(3)
-        self.model.hold_here()
+        if dynamics == "sim":
+            self.model: Any = SimDynamicsAdapter(start_enu)
+        elif dynamics == "simple":
+            self.model = VehicleModel(params=params or ModelParams())
+            self.model.position_m = np.asarray(start_enu, dtype=float).copy()
+            self.model.hold_here()
+        else:
+            raise ValueError(f"dynamics {dynamics!r} must be 'sim' or 'simple'")
         self.mode = "LOITER"  # PX4 AUTO.LOITER ('Hold') / ArduCopter LOITER
         self.t0 = time.monotonic()
         self.last_t: float | None = None
         self.last_sp_s: float | None = None  # last SET_POSITION_TARGET_LOCAL_NED
         self.sp_velocity_only = False
         self.taking_off = False
+        self.takeoff_alt_m: float | None = None
         self.last_gcs_heartbeat_s: float | None = None
         # message intervals [s] by name
         self.intervals: dict[str, float] = {"HEARTBEAT": 1.0, "LOCAL_POSITION_NED": 1.0 / telemetry_hz,
@@ -119,8 +126,7 @@ class SimVehicle:
         if name in ("LOITER", "BRAKE", "POSCTL"):
             self.model.hold_here()
         elif name == "LAND":
-            self.model.target_position_m = np.array([*self.model.position_m[:2], self.model.params.ground_z_m])
-            self.model.target_velocity_mps = np.zeros(3)
+            self.model.track(np.array([*self.model.position_m[:2], self.model.ground_z_m]), np.zeros(3), None)
         return R.MAV_RESULT_ACCEPTED
 
     def _mode_from_custom(self, base_mode: int, main: int, sub: int) -> str | None:
@@ -162,7 +168,7 @@ class SimVehicle:
                     roll, pitch, yaw = F.quat_to_euler(q)
                     if not msg.flags & R.GIMBAL_MANAGER_FLAGS_YAW_LOCK:
                         yaw += F.yaw_enu_to_ned(self.model.yaw_rad)  # vehicle-relative yaw
-                    self.model.target_camera_ypr_rad = np.array([F.yaw_ned_to_enu(yaw), pitch, roll])
+                    self.model.point_camera(np.array([F.yaw_ned_to_enu(yaw), pitch, roll]))
 
     def _setpoint(self, msg: Any, now: float) -> None:
         if msg.coordinate_frame != R.MAV_FRAME_LOCAL_NED:
@@ -179,17 +185,14 @@ class SimVehicle:
                              | R.POSITION_TARGET_TYPEMASK_Z_IGNORE)
         vel_ok = not mask & (R.POSITION_TARGET_TYPEMASK_VX_IGNORE | R.POSITION_TARGET_TYPEMASK_VY_IGNORE
                              | R.POSITION_TARGET_TYPEMASK_VZ_IGNORE)
-        m = self.model
         vel = F.ned_to_enu([msg.vx, msg.vy, msg.vz]) if vel_ok else np.zeros(3)
-        if pos_ok:
-            m.target_position_m = F.ned_to_enu([msg.x, msg.y, msg.z])
-            self.sp_velocity_only = False
-        elif vel_ok:
-            m.target_position_m = None
-            self.sp_velocity_only = True
-        m.target_velocity_mps = vel
+        yaw = None
         if not mask & R.POSITION_TARGET_TYPEMASK_YAW_IGNORE and math.isfinite(msg.yaw):
-            m.target_yaw_rad = F.yaw_ned_to_enu(msg.yaw)
+            yaw = F.yaw_ned_to_enu(msg.yaw)
+        if not (pos_ok or vel_ok):
+            return
+        self.sp_velocity_only = not pos_ok
+        self.model.track(F.ned_to_enu([msg.x, msg.y, msg.z]) if pos_ok else None, vel, yaw)
 
     def _command(self, cmd: int, p: list[float], now: float) -> int:
         m = self.model
@@ -213,9 +216,9 @@ class SimVehicle:
             if not m.armed:
                 return R.MAV_RESULT_DENIED
             alt = float(p[6]) if math.isfinite(p[6]) and p[6] > 0 else 2.5
-            m.target_position_m = np.array([m.position_m[0], m.position_m[1], m.params.ground_z_m + alt])
-            m.target_velocity_mps = np.zeros(3)
+            m.track(np.array([m.position_m[0], m.position_m[1], m.ground_z_m + alt]), np.zeros(3), None)
             self.taking_off = True
+            self.takeoff_alt_m = m.ground_z_m + alt
             if self.autopilot == "px4":
                 self.mode = "TAKEOFF"
             self._event(f"take-off to {alt:.1f} m")
@@ -235,25 +238,25 @@ class SimVehicle:
         if cmd == R.MAV_CMD_SET_CAMERA_ZOOM:
             if int(p[0]) != R.ZOOM_TYPE_FOCAL_LENGTH:
                 return R.MAV_RESULT_UNSUPPORTED
-            lo, hi = m.params.focal_range_mm
+            lo, hi = m.lens_ranges["focal_length_mm"]
             if not (math.isfinite(p[1]) and lo <= p[1] <= hi):
                 return R.MAV_RESULT_DENIED
-            m.target_focal_length_mm = float(p[1])
+            m.set_lens("focal_length_mm", p[1])
             return R.MAV_RESULT_ACCEPTED
         if cmd == R.MAV_CMD_SET_CAMERA_FOCUS:
             if int(p[0]) != R.FOCUS_TYPE_METERS:
                 return R.MAV_RESULT_UNSUPPORTED
-            lo, hi = m.params.focus_range_m
+            lo, hi = m.lens_ranges["focus_distance_m"]
             if not (math.isfinite(p[1]) and lo <= p[1] <= hi):
                 return R.MAV_RESULT_DENIED
-            m.target_focus_distance_m = float(p[1])
+            m.set_lens("focus_distance_m", p[1])
             return R.MAV_RESULT_ACCEPTED
         if cmd == R.MAV_CMD_DO_DIGICAM_CONFIGURE:
             if p[2] > 0:
-                lo, hi = m.params.f_number_range
+                lo, hi = m.lens_ranges["f_number"]
                 if not (math.isfinite(p[2]) and lo <= p[2] <= hi):
                     return R.MAV_RESULT_DENIED
-                m.target_f_number = float(p[2])
+                m.set_lens("f_number", p[2])
             return R.MAV_RESULT_ACCEPTED
         if cmd == R.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW:
             pitch, yaw = math.radians(p[0]), math.radians(p[1])
@@ -261,7 +264,7 @@ class SimVehicle:
                 return R.MAV_RESULT_DENIED
             flags = int(p[4])
             yaw_ned = yaw if flags & R.GIMBAL_MANAGER_FLAGS_YAW_LOCK else yaw + F.yaw_enu_to_ned(m.yaw_rad)
-            m.target_camera_ypr_rad = np.array([F.yaw_ned_to_enu(yaw_ned), pitch, 0.0])
+            m.point_camera(np.array([F.yaw_ned_to_enu(yaw_ned), pitch, 0.0]))
             return R.MAV_RESULT_ACCEPTED
         return R.MAV_RESULT_UNSUPPORTED
 
@@ -306,7 +309,7 @@ class SimVehicle:
             if self.last_sp_s is not None and now - self.last_sp_s > 3.0:
                 m.hold_here()
                 self.sp_velocity_only = False
-        if self.taking_off and m.target_position_m is not None and abs(m.position_m[2] - m.target_position_m[2]) < 0.1:
+        if self.taking_off and self.takeoff_alt_m is not None and abs(m.position_m[2] - self.takeoff_alt_m) < 0.1:
             self.taking_off = False
             if self.autopilot == "px4" and self.mode == "TAKEOFF":
                 self.mode = "LOITER"
@@ -378,7 +381,11 @@ def main(argv: list[str]) -> int:
                     help="LOCAL_POSITION_NED / ATTITUDE rate [Hz] (default %(default)s)")
     ap.add_argument("--offboard-timeout", type=float, default=0.5,
                     help="PX4: leave OFFBOARD when no setpoint for this long [s] (default %(default)s)")
-    ap.add_argument("--max-speed", type=float, default=5.0, help="vehicle speed limit [m/s]")
+    ap.add_argument("--max-speed", type=float, default=5.0,
+                    help="vehicle speed limit [m/s] (--dynamics simple only)")
+    ap.add_argument("--dynamics", choices=("sim", "simple"), default="sim",
+                    help="'sim': the built-in simulator's vehicle dynamics (default); "
+                         "'simple': vehicle_model.VehicleModel, no dependency on the simulator")
     ap.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     args = ap.parse_args(argv)
     logging.basicConfig(level=getattr(logging, args.log_level),
@@ -397,7 +404,7 @@ def main(argv: list[str]) -> int:
     signal.signal(signal.SIGTERM, on_signal)
     veh = SimVehicle(args.mavlink, autopilot=args.autopilot, system_id=args.system_id, start_enu=args.start,
                      rate_hz=args.rate, telemetry_hz=args.telemetry_rate, offboard_timeout_s=args.offboard_timeout,
-                     params=ModelParams(max_speed_mps=args.max_speed))
+                     params=ModelParams(max_speed_mps=args.max_speed), dynamics=args.dynamics)
     log.info("sim-vehicle (%s) on %s, start %s", args.autopilot, args.mavlink, args.start)
     try:
         veh.run(stop)

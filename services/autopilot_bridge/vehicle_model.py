@@ -82,6 +82,30 @@ class VehicleModel:
     target_focus_distance_m: float | None = None
     target_f_number: float | None = None
 
+    # -- the interface SimVehicle uses (also implemented by SimDynamicsAdapter) --------------
+    @property
+    def ground_z_m(self) -> float:
+        return self.params.ground_z_m
+
+    @property
+    def lens_ranges(self) -> dict[str, tuple[float, float]]:
+        p = self.params
+        return {"focal_length_mm": p.focal_range_mm, "focus_distance_m": p.focus_range_m, "f_number": p.f_number_range}
+
+    def track(self, position: np.ndarray | None, velocity: np.ndarray, yaw: float | None) -> None:
+        """Position (+ velocity feed-forward) target; position None = velocity only."""
+        self.target_position_m = None if position is None else np.asarray(position, float).copy()
+        self.target_velocity_mps = np.asarray(velocity, float).copy()
+        if yaw is not None:
+            self.target_yaw_rad = yaw
+
+    def point_camera(self, ypr: np.ndarray) -> None:
+        self.target_camera_ypr_rad = np.asarray(ypr, float).copy()
+
+    def set_lens(self, name: str, value: float) -> None:
+        setattr(self, {"focal_length_mm": "target_focal_length_mm", "focus_distance_m": "target_focus_distance_m",
+                       "f_number": "target_f_number"}[name], float(value))
+
     def hold_here(self) -> None:
         """Position target = where the vehicle is now, zero velocity."""
         self.target_position_m = self.position_m.copy()
@@ -144,3 +168,87 @@ class VehicleModel:
         if self.target_f_number is not None:
             lo, hi = p.f_number_range
             self.f_number = _toward(self.f_number, min(max(self.target_f_number, lo), hi), p.f_number_rate_ps * dt)
+
+
+class SimDynamicsAdapter:
+    """The built-in simulator's `sim.dynamics.VehicleDynamics` behind the interface SimVehicle uses.
+
+    Adds what a MAVLink vehicle has and the simulator does not model: arming (disarmed = no
+    thrust, it stays put) and the ground (z >= ground_z). The simulator's convention that the
+    body yaw follows the camera yaw is kept; a SET_POSITION_TARGET yaw turns the camera when no
+    gimbal command has been received.
+    """
+
+    def __init__(self, start_m=(0.0, 0.0, 0.0), limits=None, ground_z_m: float = 0.0) -> None:
+        from cinetransfer.services.autopilot_bridge.sim.dynamics import DynamicsLimits, VehicleDynamics
+
+        if limits is None:  # a vehicle a little more agile than the paper's run (the bridge limits it)
+            limits = DynamicsLimits(max_speed_xy_mps=5.0, max_speed_z_mps=3.0, max_accel_mps2=3.0,
+                                    yaw_rate_rps=math.radians(90.0), pitch_rate_rps=math.radians(120.0),
+                                    roll_rate_rps=math.radians(120.0), focal_min_mm=10.0, focal_rate_mmps=60.0,
+                                    focus_min_m=0.3, focus_max_m=1000.0)
+        self.dyn = VehicleDynamics(limits=limits, position=np.asarray(start_m, float))
+        self.ground_z_m = ground_z_m
+        self.armed = False
+        self._gimbal_commanded = False
+        self.dyn.hold()
+
+    @property
+    def lens_ranges(self) -> dict[str, tuple[float, float]]:
+        lim = self.dyn.limits
+        return {"focal_length_mm": (lim.focal_min_mm, lim.focal_max_mm),
+                "focus_distance_m": (lim.focus_min_m, lim.focus_max_m),
+                "f_number": (lim.f_number_min, lim.f_number_max)}
+
+    position_m = property(lambda self: self.dyn.position)
+    velocity_mps = property(lambda self: self.dyn.velocity)
+    camera_ypr_rad = property(lambda self: self.dyn.camera_ypr)
+    focal_length_mm = property(lambda self: self.dyn.focal_mm)
+    focus_distance_m = property(lambda self: self.dyn.focus_m)
+    f_number = property(lambda self: self.dyn.f_number)
+    yaw_rad = property(lambda self: float(self.dyn.camera_ypr[0]))
+    pitch_rad = property(lambda self: float(self.dyn.body_attitude_ypr()[1]))
+    roll_rad = property(lambda self: float(self.dyn.body_attitude_ypr()[2]))
+
+    @property
+    def landed(self) -> bool:
+        return self.dyn.position[2] <= self.ground_z_m + 0.05 and abs(self.dyn.velocity[2]) < 0.1
+
+    def track(self, position: np.ndarray | None, velocity: np.ndarray, yaw: float | None) -> None:
+        # velocity only: the position target is where the vehicle is (pure velocity tracking)
+        pos = self.dyn.position.copy() if position is None else np.asarray(position, float)
+        cam = None
+        if yaw is not None and not self._gimbal_commanded:
+            cam = np.array([yaw, np.nan, np.nan])
+        self.dyn.set_target(position=pos, velocity=np.asarray(velocity, float), camera_ypr=cam)
+
+    def point_camera(self, ypr: np.ndarray) -> None:
+        self._gimbal_commanded = True
+        self.dyn.sp_camera_ypr = np.asarray(ypr, float).copy()
+
+    def set_lens(self, name: str, value: float) -> None:
+        f, s, a = self.dyn.sp_lens
+        i = ("focal_length_mm", "focus_distance_m", "f_number").index(name)
+        vals = [f, s, a]
+        vals[i] = float(value)
+        self.dyn.sp_lens = tuple(vals)
+
+    def hold_here(self) -> None:
+        """Stop and hold position; the gimbal and the lens keep their targets (a flight mode
+        change does not touch the payload)."""
+        cam, lens = self.dyn.sp_camera_ypr.copy(), self.dyn.sp_lens
+        self.dyn.holding = False  # re-latch at the current position
+        self.dyn.hold()
+        self.dyn.sp_camera_ypr, self.dyn.sp_lens = cam, lens
+
+    def step(self, dt: float) -> None:
+        if dt <= 0:
+            return
+        if not self.armed and not self.dyn.holding:
+            self.hold_here()
+        if not self.armed and self.landed:
+            self.dyn.velocity = np.zeros(3)
+        self.dyn.advance(dt)
+        if self.dyn.position[2] < self.ground_z_m:
+            self.dyn.position[2] = self.ground_z_m
+            self.dyn.velocity[2] = max(self.dyn.velocity[2], 0.0)

@@ -110,7 +110,8 @@ class Weights:
     accel_change: float = 0.5  # ((a_k - a_{k-1}) / a_max)^2 per s: jerk smoothness
     camera_rate_change: float = 0.5  # ((omega_k - omega_{k-1}) / omega_max)^2 per s
     lens_rate_change: float = 0.2  # ((r_k - r_{k-1}) / r_max)^2 per s
-    velocity: float = 0.01  # (v / v_max)^2 per s: mild preference for a still camera
+    velocity: float = 0.5  # ((v - v_subject) / v_max)^2 per s: keeps the camera from sliding along
+    #                        the dolly/zoom family of equally good framings (and the tracking lag that brings)
     soft_constraint: float = 1000.0  # per (metre of violation) per s, plus the same per m^2: floor, ceiling, distance
 
     def validate(self) -> "Weights":
@@ -158,7 +159,7 @@ class Structure:
     warm_start: bool = True  # initial guess from the shifted last solution (baseline: False = cold)
     far_margin_inv_m: float = 0.01  # 'far limit at infinity' aims at 1/D_f <= -this [1/m] (s a bit past H)
     near_foreground_m: float = 1.0  # 'foreground in focus' aims at D_n = this [m] (D_n* = 0 is unreachable)
-    depth_eps_m: float = 0.2  # smooths the projection's 1/depth near and behind the camera [m]
+    depth_floor_m: float = 1.0  # the cost's projection uses a depth >= this (smoothly; exact beyond ~2 m) [m]
 
     @property
     def nx(self) -> int:
@@ -192,8 +193,8 @@ class Structure:
             raise _bad(s, "far_margin_inv_m", self.far_margin_inv_m, ">= 0")
         if not (self.near_foreground_m > 0):
             raise _bad(s, "near_foreground_m", self.near_foreground_m, "> 0")
-        if not (self.depth_eps_m > 0):
-            raise _bad(s, "depth_eps_m", self.depth_eps_m, "> 0")
+        if not (self.depth_floor_m > 0):
+            raise _bad(s, "depth_floor_m", self.depth_floor_m, "> 0")
         return self
 
 

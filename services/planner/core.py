@@ -20,7 +20,6 @@ flown for at most tail_max_s (mode 'track', solver_status says so), then a hold 
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -125,8 +124,10 @@ class Planner:
             if self._run_from_ns is not None:
                 self._elapsed_s += max(0.0, (now_ns - self._run_from_ns) * 1e-9)
                 self._run_from_ns = None
-            if self.state != "idle" and self.state != "stopped" or a == "hold":
-                self.state = "paused" if a == "pause" else "holding"
+            if a == "hold":
+                self.state = "holding"
+            elif self.state == "recording":
+                self.state = "paused"
         elif a == "resume":
             if self.state in ("paused", "holding"):
                 self._run_from_ns = now_ns
@@ -389,4 +390,4 @@ def instructions_from_arrays(*, targets: np.ndarray, joint_names: list[str], foc
                           focus_raw=fi.astype(np.float32), focus_smoothed=fi.astype(np.float32), focus_in=fi, mu_m=mu_m)
 
 
-__all__ = ["Planner", "Plan", "instructions_from_arrays", "STATES", "dataclasses"]
+__all__ = ["Planner", "Plan", "instructions_from_arrays", "STATES"]

@@ -35,18 +35,24 @@ def world_to_camera(point_w, cam_pos_w, yaw, pitch, roll=0.0):  # noqa: ANN001, 
     return ca.mtimes(r.T, point_w - cam_pos_w)
 
 
-def soft_depth(x, eps):  # noqa: ANN001, ANN201
-    """Smooth positive stand-in for the depth x: ~x for x >> eps, ~eps/2 at 0, -> 0+ behind."""
-    return 0.5 * (x + ca.sqrt(x * x + eps * eps))
+def soft_depth(x, floor_m, smooth_m=0.2):  # noqa: ANN001, ANN201
+    """Smooth stand-in for the depth x that never falls below floor_m: floor + softplus(x - floor).
 
-
-def project(point_c, focal_mm, sensor_w_mm, sensor_h_mm, depth_eps=None):  # noqa: ANN001, ANN201
-    """Normalised image coordinates (u, v) of a camera-frame point (exact pinhole if depth_eps is None).
-
-    With depth_eps the depth is replaced by soft_depth(x, depth_eps), which keeps the cost finite
-    and its gradient pointing the right way while a point is near or behind the camera.
+    Equals x to within 0.1 % once x >= floor + 5 smooth_m (e.g. 2 m for floor 1 m), and tends to
+    floor_m for points near or behind the camera. So the pinhole cost stays bounded there instead
+    of exploding as 1/x (which made the optimiser fly through the subject to get it in front):
+    behind the camera the image term goes flat and the look term turns the camera round.
     """
-    x = point_c[0] if depth_eps is None else soft_depth(point_c[0], depth_eps)
+    z = x - floor_m
+    return floor_m + ca.fmax(z, 0) + smooth_m * ca.log(1 + ca.exp(-ca.fabs(z) / smooth_m))
+
+
+def project(point_c, focal_mm, sensor_w_mm, sensor_h_mm, depth_floor=None):  # noqa: ANN001, ANN201
+    """Normalised image coordinates (u, v) of a camera-frame point (exact pinhole if depth_floor is None).
+
+    With depth_floor the depth is replaced by soft_depth(x, depth_floor) (see there).
+    """
+    x = point_c[0] if depth_floor is None else soft_depth(point_c[0], depth_floor)
     u = 0.5 - focal_mm * point_c[1] / (x * sensor_w_mm)
     v = 0.5 - focal_mm * point_c[2] / (x * sensor_h_mm)
     return u, v

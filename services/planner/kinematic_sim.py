@@ -116,8 +116,14 @@ class KinematicSim:
     """Vehicle (the MPC model + first-order lag) and subject, stepped at a fixed `dt_s`."""
 
     def __init__(self, scene: KinematicScene | None = None, *, bounds: Bounds | None = None, tau_s: float = 0.1,
-                 kp: float = 4.0, kd: float = 3.5, accel_limit_factor: float = 1.5, dt_s: float = 0.01) -> None:
+                 kp: float = 4.0, kd: float = 3.5, accel_limit_factor: float = 1.5, dt_s: float = 0.01,
+                 follow_horizon: bool = False) -> None:
+        """`follow_horizon`: between setpoints, track the published horizon (interpolated, looking
+        tau_s ahead) instead of the single setpoint: what a bridge that flies the planned path does;
+        it matters for planners that publish rarely (CineMPC: 2.5 Hz)."""
         self.scene = scene or KinematicScene()
+        self.follow_horizon = follow_horizon
+        self._t_apply = 0.0
         self.bounds = bounds or Bounds()
         self.tau_s, self.kp, self.kd, self.dt_s = tau_s, kp, kd, dt_s
         self.accel_limit = accel_limit_factor * self.bounds.accel_max_mps2
@@ -139,6 +145,7 @@ class KinematicSim:
             self.hold()
             return
         self._sp = sp
+        self._t_apply = self.t_s
         self.holding = False
 
     def hold(self) -> None:
@@ -159,10 +166,26 @@ class KinematicSim:
             p, ypr, lens = self._hold
             return p, np.zeros(3), np.zeros(3), ypr, lens
         sp = self._sp
+        if self.follow_horizon and sp.horizon_t_s.size >= 2:
+            return self._horizon_targets(sp)
         lens = np.array([sp.lens.focal_length_mm, sp.lens.focus_distance_m, sp.lens.f_number])
         lens = np.where(np.isfinite(lens), lens, self.lens)
         return (np.asarray(sp.position_m), np.asarray(sp.velocity_mps), np.asarray(sp.acceleration_mps2),
                 np.asarray(sp.camera_ypr_rad), lens)
+
+    def _horizon_targets(self, sp: M.Setpoint) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        t = np.asarray(sp.horizon_t_s, dtype=float)
+        tau = float(np.clip(self.t_s - self._t_apply + self.tau_s, t[0], t[-1]))
+        hp = np.asarray(sp.horizon_position_m, dtype=float)
+        pos = np.array([np.interp(tau, t, hp[:, i]) for i in range(3)])
+        k = int(np.clip(np.searchsorted(t, tau, side="right") - 1, 0, len(t) - 2))
+        vel = (hp[k + 1] - hp[k]) / max(t[k + 1] - t[k], 1e-6)
+        ang = np.asarray(sp.horizon_camera_ypr_rad, dtype=float).copy()
+        ang[:, 0] = np.unwrap(ang[:, 0])
+        ypr = np.array([np.interp(tau, t, ang[:, i]) for i in range(3)])
+        hl = np.asarray(sp.horizon_lens, dtype=float)
+        lens = np.array([np.interp(tau, t, hl[:, i]) for i in range(3)])
+        return pos, vel, np.zeros(3), ypr, lens
 
     def _step_once(self, dt: float) -> None:
         b = self.bounds

@@ -88,7 +88,7 @@ class ParamLayout:
         self.size = off
 
 
-def _structure_key(s: Structure, max_solve_time_s: float) -> str:
+def _structure_key(s: Structure) -> str:
     """Hash of what the generated code depends on: structure, casadi version, this package's code."""
     d = dataclasses.asdict(s)
     for k in ("cache_dir", "codegen", "compiler", "max_iter", "tol", "warm_start"):
@@ -182,7 +182,7 @@ class MpcSolver:
             for j in range(e):
                 pj = joints0[:, j] + vel * tk
                 pc = ca.mtimes(r.T, pj - cam)
-                uu, vv = J.project(pc, f_mm, s.sensor_width_mm, s.sensor_height_mm, s.depth_eps_m)
+                uu, vv = J.project(pc, f_mm, s.sensor_width_mm, s.sensor_height_mm, s.depth_floor_m)
                 ti = (k * e + j) * 2
                 du = uu - targets[ti]
                 dv = vv - targets[ti + 1]
@@ -194,7 +194,7 @@ class MpcSolver:
                               w_far=d[2] * wts["dof_far"], g_far=d[3], far_one_sided=d[4])
             un = u * u_scale
             du_n = (u - u_last) * u_scale
-            vn = x[lay.V] * v_scale
+            vn = (x[lay.V] - vel) * v_scale  # relative to the subject: follow, don't wander
             stage = (wts["image"] * im + wts["look"] * J.look_cost(cc) + jdof
                      + wts["accel"] * ca.sumsqr(un[acc_idx]) + wts["camera_rate"] * ca.sumsqr(un[cam_idx])
                      + wts["lens_rate"] * ca.sumsqr(un[lens_idx])
@@ -229,7 +229,7 @@ class MpcSolver:
         return {"ipopt": ip, "print_time": False, "error_on_fail": False}
 
     def _codegen_solver(self, nlp: dict, opts: dict):  # noqa: ANN202
-        key = _structure_key(self.s, self.max_solve_time_s)
+        key = _structure_key(self.s)
         cache = Path(self.s.cache_dir)
         cache.mkdir(parents=True, exist_ok=True)
         lib = cache / f"cinempc_{key}.so"

@@ -34,9 +34,11 @@ class SmootherConfig:
     miss_cost: float = 1.0  # cost of a frame where the subject is not visible, > 0
     confidence_cost: float = 0.5  # cost of a detection of confidence c is confidence_cost * (1 - c), >= 0
     max_bridge_s: float = 0.5  # longest detector dropout bridged as 'visible' [s], >= 0
-    box_smoothness: float = 4.0  # lambda of the box QP at 24 fps (weights are confidences), > 0
+    box_smoothness: float = 0.1  # lambda of the box QP's first-difference term at 24 fps (data weights: confidences), > 0
+    box_accel_smoothness: float = 3.0  # lambda2 of the box QP's second-difference term at 24 fps, >= 0
     # --- joints (DESIGN §1.1 step 3)
-    joint_smoothness: float = 6.0  # lambda of the joint QP at 24 fps, > 0
+    joint_smoothness: float = 0.1  # lambda of the joint QP's first-difference (paper's) term at 24 fps, > 0
+    joint_accel_smoothness: float = 3.0  # lambda2 of our added second-difference term at 24 fps, >= 0
     min_joint_confidence: float = 0.1  # joints below this confidence count as missing, [0, 1)
     # --- focus (DESIGN §1.1 step 4)
     focus_method: str = "hmm"  # 'hmm' (ours, default), 'viterbi', 'l2' (quadratic + threshold), 'literal'
@@ -63,7 +65,7 @@ class SmootherConfig:
             raise bad("joints", "a non-empty list of COCO-17 names")
         for j in self.joints:
             if j not in COCO17_NAMES:
-                raise ConfigError(f"smoother config: joint {j!r} is not a COCO-17 name; allowed: "
+                raise ConfigError(f"smoother config: joints contains {j!r}, not a COCO-17 name; allowed: "
                                   + ", ".join(COCO17_NAMES))
         if len(set(self.joints)) != len(self.joints):
             raise bad("joints", "distinct names")
@@ -74,7 +76,7 @@ class SmootherConfig:
         for name in ("min_person_confidence", "min_joint_confidence"):
             if not 0.0 <= getattr(self, name) < 1.0:
                 raise bad(name, "0 <= value < 1")
-        for name in ("move_cost", "confidence_cost", "max_bridge_s"):
+        for name in ("move_cost", "confidence_cost", "max_bridge_s", "joint_accel_smoothness", "box_accel_smoothness"):
             if not getattr(self, name) >= 0.0:
                 raise bad(name, ">= 0")
         for name in ("miss_cost", "box_smoothness", "joint_smoothness", "focus_noise", "focus_smoothness",
@@ -99,6 +101,7 @@ class SmootherConfig:
     def replace(self, **changes: object) -> "SmootherConfig":
         return dataclasses.replace(self, **changes).validate()
 
-    def lam(self, value: float, fps: float) -> float:
-        """A smoothness weight given at 24 fps, scaled to `fps`."""
-        return float(value) * (float(fps) / REFERENCE_FPS) ** 2
+    def lam(self, value: float, fps: float, order: int = 1) -> float:
+        """A smoothness weight given at 24 fps, scaled to `fps` (differences of `order` shrink as
+        1/fps^order, so their squares as 1/fps^(2 order))."""
+        return float(value) * (float(fps) / REFERENCE_FPS) ** (2 * order)

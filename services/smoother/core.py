@@ -108,13 +108,15 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
                                          confidence_cost=cfg.confidence_cost, max_bridge_s=cfg.max_bridge_s)
     if not sel.visible.any():
         raise SmootherInputError(f"no main subject found in {F} frames")
-    raw_box, box = subject_mod.smooth_box(frames, sel, lam=cfg.lam(cfg.box_smoothness, fps), width=W, height=H)
+    raw_box, box = subject_mod.smooth_box(frames, sel, lam=cfg.lam(cfg.box_smoothness, fps), width=W, height=H,
+                                          lam2=cfg.lam(cfg.box_accel_smoothness, fps, order=2))
 
     # 2.-3. Mask, skeleton, joints.
     mask_idx, skel_idx, raw_joints, joint_conf = joints_mod.raw_subject_joints(frames, box, sel.visible)
     sm_joints = joints_mod.smooth_joints(raw_joints, joint_conf, sel.visible,
                                          lam=cfg.lam(cfg.joint_smoothness, fps), width=W, height=H,
-                                         min_confidence=cfg.min_joint_confidence)
+                                         min_confidence=cfg.min_joint_confidence,
+                                         lam2=cfg.lam(cfg.joint_accel_smoothness, fps, order=2))
 
     # 4. Focus: b per region (NaN = not measured), which regions exist, then B.
     b = np.full((F, 3), np.nan)

@@ -49,9 +49,10 @@ class FrameFeatures:
     has_focus: bool = False  # a focus map was measured
     valid: bool = True
 
-    @property
-    def n_people(self) -> int:
-        return int(self.boxes.shape[0])
+    n_people: int = -1  # set from boxes
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "n_people", int(self.boxes.shape[0]))
 
     def mask_pixels_inside(self, m: int, box: np.ndarray) -> float:
         """g(m, R): (approximate) pixels of person m's mask inside box R = (x0, y0, x1, y1) [px]."""
@@ -184,5 +185,6 @@ def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foregr
             feet_row = int(rows[-1]) + 1 if rows.size else int(np.ceil(boxes[k, 3] * sy))
             focus[k] = _region_fractions(infocus, subj, feet_row, min_rows)
     return FrameFeatures(frame_index=int(m.frame_index), stamp_ns=int(m.stamp_ns), width=W, height=H,
-                         fps=float(m.fps), source=m.source, boxes=boxes, conf=conf, grids=grids, grid_x=gx, grid_y=gy, joints=joints, joint_conf=jconf, inside=inside, focus=focus,
+                         fps=float(m.fps), source=m.source, boxes=boxes, conf=conf, grids=grids, grid_x=gx, grid_y=gy,
+                         joints=joints, joint_conf=jconf, inside=inside, focus=focus,
                          focus_none=focus_none, has_focus=bool(has_focus), valid=bool(m.valid))

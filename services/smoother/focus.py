@@ -35,40 +35,83 @@ def switch_probability(p_at_24: float, fps: float) -> float:
     return 1.0 - (1.0 - p_at_24) ** (24.0 / float(fps))
 
 
-def _llr(b: np.ndarray, sigma: float) -> np.ndarray:
-    """Log-likelihood ratio log p(b | in) / p(b | out) for b ~ N(state, sigma^2); 0 where b is NaN."""
-    llr = (2.0 * b - 1.0) / (2.0 * sigma * sigma)
+def _llr(b: np.ndarray, sigma: float | np.ndarray, mu0: float | np.ndarray = 0.0,
+         mu1: float | np.ndarray = 1.0) -> np.ndarray:
+    """Log-likelihood ratio log p(b | in) / p(b | out) for b ~ N(mu_state, sigma^2); 0 where b is NaN."""
+    llr = ((b - mu0) ** 2 - (b - mu1) ** 2) / (2.0 * np.asarray(sigma) ** 2)
     return np.where(np.isfinite(b), llr, 0.0)
 
 
-def _logit(p: float) -> float:
-    return math.log(p / (1.0 - p))
+def fit_levels(b: np.ndarray, *, min_separation: float = 0.2, min_share: float = 0.05,
+               fisher: float = 3.0, min_sigma: float = 0.05) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per column, the levels of b in and out of focus, from the sequence itself (1-D 2-means).
+
+    A focus estimator rarely gives exactly 0 or 1: a blurred region next to sharp ones can read
+    0.6 where a sharp one reads 1.0. When a column clearly has two levels (means at least
+    `min_separation` apart, each level in at least `min_share` of the frames, separation at least
+    `fisher` pooled within-level deviations) its levels are used; otherwise the nominal 0 / 1.
+    Returns mu0, mu1, sigma (within-level deviation, >= min_sigma; NaN when not fitted) and a
+    'fitted' flag, each (C,)."""
+    b = np.asarray(b, dtype=float)
+    C = b.shape[1]
+    mu0, mu1 = np.zeros(C), np.ones(C)
+    sig = np.full(C, np.nan)
+    fitted = np.zeros(C, dtype=bool)
+    for c in range(C):
+        v = b[np.isfinite(b[:, c]), c]
+        if v.size < 10:
+            continue
+        lo, hi = np.quantile(v, [0.1, 0.9])
+        if hi - lo < min_separation:
+            continue
+        for _ in range(20):
+            mid = 0.5 * (lo + hi)
+            a, z = v[v > mid], v[v <= mid]
+            if a.size == 0 or z.size == 0:
+                break
+            nlo, nhi = float(z.mean()), float(a.mean())
+            if nlo == lo and nhi == hi:
+                break
+            lo, hi = nlo, nhi
+        a, z = v[v > 0.5 * (lo + hi)], v[v <= 0.5 * (lo + hi)]
+        if min(a.size, z.size) < min_share * v.size:
+            continue
+        pooled = float(np.sqrt((np.sum((a - hi) ** 2) + np.sum((z - lo) ** 2)) / v.size))
+        if hi - lo >= min_separation and hi - lo >= fisher * pooled:
+            mu0[c], mu1[c], sig[c], fitted[c] = lo, hi, max(pooled, min_sigma), True
+    return mu0, mu1, sig, fitted
 
 
-def _sigmoid(x: float) -> float:
-    if x >= 0:
-        return 1.0 / (1.0 + math.exp(-x))
-    e = math.exp(x)
-    return e / (1.0 + e)
+def hmm_posterior(b: np.ndarray, *, switch_prob: float, sigma: float, adaptive: bool = False) -> np.ndarray:
+    """P(in focus | all b), per frame and column: b (F, C) -> (F, C). Forward-backward in log-odds.
 
-
-def hmm_posterior(b: np.ndarray, *, switch_prob: float, sigma: float) -> np.ndarray:
-    """P(in focus | all b), per frame and column: b (F, C) -> (F, C). Forward-backward in log-odds."""
+    adaptive: use the levels `fit_levels` finds in each column instead of the nominal 0 / 1."""
     b = np.asarray(b, dtype=float)
     one_d = b.ndim == 1
     if one_d:
         b = b[:, None]
     F, C = b.shape
-    llr = _llr(b, sigma)
+    if adaptive:
+        mu0, mu1, sig, fitted = fit_levels(b)
+        llr = _llr(b, np.where(fitted, sig, sigma), mu0, mu1)
+    else:
+        llr = _llr(b, sigma)
     p = float(switch_prob)
     out = np.empty((F, C))
+    exp, log = math.exp, math.log
     for c in range(C):
         e = llr[:, c].tolist()
         fwd = [0.0] * F  # log-odds of the state given b_0..b_f
         L = 0.0  # prior 1/2
         for f in range(F):
             if f:
-                L = _logit(p + (1.0 - 2.0 * p) * _sigmoid(L))
+                # prior log-odds after a transition: logit(p + (1 - 2p) sigmoid(L))
+                if L >= 0:
+                    z = exp(-L)  # sigmoid = 1 / (1 + z)
+                    L = log((1.0 - p) + p * z) - log(p + (1.0 - p) * z)
+                else:
+                    z = exp(L)  # sigmoid = z / (1 + z)
+                    L = log(p + (1.0 - p) * z) - log((1.0 - p) + p * z)
             L += e[f]
             fwd[f] = L
         post = [0.0] * F
@@ -78,13 +121,14 @@ def hmm_posterior(b: np.ndarray, *, switch_prob: float, sigma: float) -> np.ndar
             q = e[f + 1] + Lb
             # beta_f(1)/beta_f(0) = ((1-p) Q + p) / (p Q + 1 - p), Q = exp(q), in log form
             if q > 0:
-                eq = math.exp(-q)
-                Lb = math.log((1.0 - p) + p * eq) - math.log(p + (1.0 - p) * eq)
+                z = exp(-q)
+                Lb = log((1.0 - p) + p * z) - log(p + (1.0 - p) * z)
             else:
-                eq = math.exp(q)
-                Lb = math.log((1.0 - p) * eq + p) - math.log(p * eq + 1.0 - p)
+                z = exp(q)
+                Lb = log((1.0 - p) * z + p) - log(p * z + 1.0 - p)
             post[f] = fwd[f] + Lb
-        out[:, c] = [_sigmoid(x) for x in post]
+        out[:, c] = post
+    out = 1.0 / (1.0 + np.exp(-np.clip(out, -700, 700)))
     return out[:, 0] if one_d else out
 
 
@@ -142,13 +186,13 @@ def literal(b: np.ndarray) -> np.ndarray:
 
 
 def smooth_focus(b: np.ndarray, *, method: str = "hmm", fps: float = 24.0, switch_prob_24: float = 0.02,
-                 sigma: float = 0.25, lam_24: float = 4.0) -> np.ndarray:
+                 sigma: float = 0.25, lam_24: float = 4.0, adaptive: bool = True) -> np.ndarray:
     """B (F, C) from b (F, C) with the chosen method; NaN b (no measurement) bridged where possible."""
     b = np.asarray(b, dtype=float)
     if b.shape[0] == 0:
         return b.copy()
     if method == "hmm":
-        return hmm_posterior(b, switch_prob=switch_probability(switch_prob_24, fps), sigma=sigma)
+        return hmm_posterior(b, switch_prob=switch_probability(switch_prob_24, fps), sigma=sigma, adaptive=adaptive)
     if method == "viterbi":
         return hmm_viterbi(b, switch_prob=switch_probability(switch_prob_24, fps), sigma=sigma)
     if method == "l2":

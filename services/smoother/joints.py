@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from cinetransfer.services.smoother import qp
-from cinetransfer.services.smoother.features import N_JOINTS, FrameFeatures
+from cinetransfer.services.smoother.features import N_JOINTS, FrameFeatures, mask_pixels_inside
 
 
 def subject_mask_index(feat: FrameFeatures, box: np.ndarray) -> int:
@@ -42,19 +42,41 @@ def subject_skeleton_index(feat: FrameFeatures, mask_index: int) -> int:
     return int(np.argmax(score))
 
 
+def subject_mask_indices(feats: list[FrameFeatures], boxes_px: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    """M_f for every frame at once (batched g over all people of the visible frames); -1 = none."""
+    F = len(feats)
+    out = np.full(F, -1)
+    counts_all = np.fromiter((f.n_people for f in feats), dtype=int, count=F)
+    fr = np.flatnonzero(visible & (counts_all > 0) & np.isfinite(boxes_px).all(axis=1)).tolist()
+    if not fr:
+        return out
+    counts = np.array([feats[f].n_people for f in fr])
+    grids = np.concatenate([feats[f].grids for f in fr])
+    gx = np.concatenate([feats[f].grid_x for f in fr])
+    gy = np.concatenate([feats[f].grid_y for f in fr])
+    owner = np.repeat(np.arange(len(fr)), counts)
+    g = mask_pixels_inside(grids, gx, gy, boxes_px[np.asarray(fr)][owner])
+    start = np.concatenate([[0], np.cumsum(counts)])
+    # First maximum of g within each frame's group.
+    order = np.lexsort((np.arange(g.size), -g, owner))
+    first = order[start[:-1]]
+    best = first - start[:-1]
+    ok = g[first] > 0
+    out[np.asarray(fr)[ok]] = best[ok]
+    return out
+
+
 def raw_subject_joints(feats: list[FrameFeatures], boxes_px: np.ndarray, visible: np.ndarray,
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per frame: mask index M_f, skeleton index p_f, joints (F, 17, 2) px and confidences (F, 17)."""
     F = len(feats)
-    mask_idx = np.full(F, -1)
+    mask_idx = subject_mask_indices(feats, boxes_px, visible)
     skel_idx = np.full(F, -1)
     joints = np.full((F, N_JOINTS, 2), np.nan)
     conf = np.zeros((F, N_JOINTS))
-    for f, feat in enumerate(feats):
-        if not visible[f]:
-            continue
-        mask_idx[f] = m = subject_mask_index(feat, boxes_px[f])
-        skel_idx[f] = p = subject_skeleton_index(feat, m)
+    for f in np.flatnonzero(mask_idx >= 0):
+        feat = feats[f]
+        skel_idx[f] = p = subject_skeleton_index(feat, int(mask_idx[f]))
         if p >= 0:
             joints[f] = feat.joints[p]
             conf[f] = feat.joint_conf[p]
@@ -62,7 +84,7 @@ def raw_subject_joints(feats: list[FrameFeatures], boxes_px: np.ndarray, visible
 
 
 def smooth_joints(joints: np.ndarray, conf: np.ndarray, visible: np.ndarray, *, lam: float, width: int,
-                  height: int, min_confidence: float = 0.1) -> np.ndarray:
+                  height: int, min_confidence: float = 0.1, lam2: float = 0.0) -> np.ndarray:
     """Smoothed joints (F, J, 2) px; NaN where the subject is not visible or a joint was never seen
     in that visible run."""
     F, J, _ = joints.shape
@@ -74,7 +96,7 @@ def smooth_joints(joints: np.ndarray, conf: np.ndarray, visible: np.ndarray, *, 
     ww = np.repeat(w, 2, axis=1)
     hi = np.tile([float(width), float(height)], J)
     link = visible[:-1] & visible[1:]
-    res = qp.smooth(y, ww, lam, lo=0.0, hi=hi, link=link)
+    res = qp.smooth(y, ww, lam, lo=0.0, hi=hi, link=link, lam2=lam2)
     out = res.x.reshape(F, J, 2)
     out[~visible] = np.nan
     return out

@@ -24,6 +24,7 @@ non-convex. We split it:
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -88,19 +89,28 @@ def select_subject(feats: list[FrameFeatures], *, fps: float, move_cost: float =
 
     D = np.full(N, np.inf)  # best cost of a path ending at detection i (frames up to and incl. its frame)
     back = np.full(N, -1, dtype=np.int64)  # predecessor detection, or -1 = fresh start, -2 = from 'lost'
-    lost = np.inf  # best cost of a path that was visible and is now not visible, up to frame f-1
+    lost = math.inf  # best cost of a path that was visible and is now not visible, up to frame f-1
     lost_back = np.full(F, -1, dtype=np.int64)  # 'lost' at frame f: detection it left from, -1 = stayed lost
+    a_l, b_l, pa_l, off_l = a_f.tolist(), b_f.tolist(), pa_f.tolist(), off.tolist()
+    emit_l = emit.tolist()
     for f in range(F):
-        a, b = int(a_f[f]), int(b_f[f])
+        a, b = a_l[f], b_l[f]
         m = b - a
         if m:
             # Fresh start (all earlier frames invisible), from 'lost', or a step from a detection.
             fresh = f * miss_cost
             base, arg0 = (lost + switch_cost, -2) if lost + switch_cost < fresh else (fresh, -1)
-            P = int(P_f[f])
-            if P:
-                pa = int(pa_f[f])
-                tot = D[pa:a, None] + step_cost[off[f]:off[f + 1]].reshape(P, m)
+            pa = pa_l[f]
+            if a > pa and m == 1:
+                tot = D[pa:a] + step_cost[off_l[f]:off_l[f + 1]]
+                k = int(tot.argmin())
+                v = float(tot[k])
+                if v < base:
+                    D[a], back[a] = v + emit_l[a], pa + k
+                else:
+                    D[a], back[a] = base + emit_l[a], arg0
+            elif a > pa:
+                tot = D[pa:a, None] + step_cost[off_l[f]:off_l[f + 1]].reshape(a - pa, m)
                 k = tot.argmin(axis=0)
                 v = tot[k, np.arange(m)]
                 better = v < base
@@ -110,15 +120,15 @@ def select_subject(feats: list[FrameFeatures], *, fps: float, move_cost: float =
                 D[a:b] = base + emit[a:b]
                 back[a:b] = arg0
         # 'lost' at frame f: left a detection of frame f-1, or stayed lost.
-        leave, i_leave = np.inf, -1
-        if f > 0 and M_f[f - 1]:
-            pa, pb = int(a_f[f - 1]), int(b_f[f - 1])
-            i_leave = pa + int(np.argmin(D[pa:pb]))
-            leave = D[i_leave]
-        if leave < lost:
-            lost, lost_back[f] = leave + miss_cost, i_leave
-        else:
-            lost += miss_cost
+        if f > 0 and b_l[f - 1] > a_l[f - 1]:
+            pa, pb = a_l[f - 1], b_l[f - 1]
+            i_leave = pa if pb - pa == 1 else pa + int(np.argmin(D[pa:pb]))
+            leave = float(D[i_leave])
+            if leave < lost:
+                lost = leave + miss_cost
+                lost_back[f] = i_leave
+                continue
+        lost += miss_cost
     # End: never visible, lost at the end, or at a detection (remaining frames invisible).
     ends = D + (F - 1 - frame_of) * miss_cost
     i_end = int(np.argmin(ends))
@@ -157,7 +167,7 @@ def select_subject(feats: list[FrameFeatures], *, fps: float, move_cost: float =
 
 
 def smooth_box(feats: list[FrameFeatures], sel: Selection, *, lam: float, width: int,
-               height: int) -> tuple[np.ndarray, np.ndarray]:
+               height: int, lam2: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Raw and smoothed main-subject boxes, (F, 4) px each; NaN where not visible / not detected."""
     F = len(feats)
     raw = np.full((F, 4), np.nan)
@@ -170,6 +180,6 @@ def smooth_box(feats: list[FrameFeatures], sel: Selection, *, lam: float, width:
         return raw, raw.copy()
     link = sel.visible[:-1] & sel.visible[1:]
     hi = np.array([width, height, width, height], dtype=float)
-    res = qp.smooth(raw, w, lam, lo=0.0, hi=hi, link=link)
+    res = qp.smooth(raw, w, lam, lo=0.0, hi=hi, link=link, lam2=lam2)
     out = np.where(sel.visible[:, None], res.x, np.nan)
     return raw, out

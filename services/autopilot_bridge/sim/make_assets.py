@@ -14,10 +14,11 @@ What it makes (all from real footage, see assets/CREDITS.md):
   far lawn) — the person removed by a temporal median over frames where he is elsewhere, the
   rest inpainted — extended upwards by reflection and sky.
 - `lawn_tile.jpg`: a top-down (rectified) patch of the same lawn, tiled by reflection.
-- `forest_backdrop.png`: a forest edge from davis_parkour frame 72 (sky keyed out, tree tops
+- `forest_backdrop.png`: a forest edge from davis_parkour frame 99 (mirror-tiled, tree tops
   given an irregular silhouette), for the open-country scene.
-- `sky.jpg`: a vertical sky gradient sampled from the parkour sky.
-- `hedge.png`: a shrub from davis_parkour frame 72 with an irregular top silhouette, used as a
+- `sky.jpg`: a vertical sky gradient sampled from the parkour sky (frame 0); `sky_lawn.jpg`
+  the same from the juggle clip's bright sky.
+- `hedge.png`: shrubs from davis_parkour frame 99 with an irregular top silhouette, used as a
   foreground object.
 
 Needs mediapipe (legacy `solutions.pose`, models ship in the 0.10.21 wheel). Deterministic.
@@ -240,14 +241,20 @@ def make_lawn(plate: np.ndarray, out: Path) -> None:
     top = (top * (1 - fade) + sky * fade)[::-1]  # far top = sky, reflected canopy below it
     backdrop = np.vstack([np.clip(top, 0, 255).astype(np.uint8), back])
     cv2.imwrite(str(out / "lawn_backdrop.jpg"), backdrop, [cv2.IMWRITE_JPEG_QUALITY, 88])
+    # sky above it: the same colour as the backdrop's faded top, a little deeper upwards
+    g = np.linspace(0, 1, 256)[:, None, None]
+    zenith = sky * np.array([1.0, 0.93, 0.85], np.float32)
+    grad = (zenith * (1 - g) + sky * g) * np.ones((256, 64, 1), np.float32)
+    cv2.imwrite(str(out / "sky_lawn.jpg"), np.clip(grad, 0, 255).astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 90])
     meta = {"backdrop_distance_m": LAWN_BACKDROP_M,
             "backdrop_m_per_px": LAWN_BACKDROP_M / f,
             "backdrop_bottom_row": backdrop.shape[0] - 2,
             "backdrop_size_px": [backdrop.shape[1], backdrop.shape[0]]}
-    # lawn tile: rectify ground x (forward) 2.9..5.4 m, y (left) -2.0..2.0 m at 160 px/m
+    # lawn tile: rectify ground x (forward) 2.9..5.4 m, y (left) -1.3..1.3 m at 160 px/m (inside
+    # the plate's view at every depth of the patch)
     ppm = 160.0
     xs = (2.9, 5.4)
-    ys = (-2.0, 2.0)
+    ys = (-1.3, 1.3)
     tw, th = int((ys[1] - ys[0]) * ppm), int((xs[1] - xs[0]) * ppm)
     # tile pixel (c, r): world y = ys[1] - c/ppm (left at c=0 ... image right = -y), x = xs[1] - r/ppm
     src = []
@@ -279,44 +286,42 @@ def _silhouette(width: int, height: int, rng: np.random.Generator, base: float, 
     return np.clip(rows - top[None, :] + 0.5, 0, 1).astype(np.float32)
 
 
-def make_parkour(data: Path, out: Path) -> None:
+def _parkour_frame(data: Path, index: int) -> np.ndarray:
     cap = cv2.VideoCapture(str(data / "davis_parkour_854x480.mp4"))
-    cap.set(cv2.CAP_PROP_POS_FRAMES, 72)
+    cap.set(cv2.CAP_PROP_POS_FRAMES, index)
     ok, fr = cap.read()
     cap.release()
     if not ok:
-        raise FileNotFoundError("davis_parkour_854x480.mp4 frame 72")
+        raise FileNotFoundError(f"davis_parkour_854x480.mp4 frame {index}")
+    return fr
+
+
+def make_parkour(data: Path, out: Path) -> None:
+    fr = _parkour_frame(data, 99)
     rng = np.random.default_rng(7)
-    # forest edge: x 0..232, y 0..150 (dense conifers, grass below)
-    forest = fr[0:150, 0:232].copy()
-    hsv = cv2.cvtColor(forest, cv2.COLOR_BGR2HSV)
-    skyish = ((hsv[..., 2] > 170) & (hsv[..., 1] < 90)).astype(np.uint8)
-    skyish = cv2.morphologyEx(skyish, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    alpha = 1.0 - skyish.astype(np.float32)
-    # mirror-extend to a long strip, then give the tree tops an irregular silhouette
+    # forest edge: frame 99, x 80..375, y 0..92 (dense deciduous woods above a shrub line)
+    forest = fr[0:92, 80:375].copy()
     strip = np.hstack([forest, forest[:, ::-1], forest, forest[:, ::-1]])
-    a = np.hstack([alpha, alpha[:, ::-1], alpha, alpha[:, ::-1]])
     strip = cv2.resize(strip, None, fx=2, fy=2, interpolation=cv2.INTER_CUBIC)
-    a = cv2.resize(a, None, fx=2, fy=2, interpolation=cv2.INTER_LINEAR)
-    sil = _silhouette(strip.shape[1], strip.shape[0], rng, base=0.12, amp=0.10, scale_px=18)
-    a = cv2.GaussianBlur(a * sil, (3, 3), 0.7)
+    sil = _silhouette(strip.shape[1], strip.shape[0], rng, base=0.10, amp=0.08, scale_px=22)
+    a = cv2.GaussianBlur(sil, (3, 3), 0.7)
     cv2.imwrite(str(out / "forest_backdrop.png"),
                 np.dstack([strip, np.clip(a * 255, 0, 255).astype(np.uint8)]),
                 [cv2.IMWRITE_PNG_COMPRESSION, 9])
-    # sky gradient from the clip's sky (top right of frame 72)
-    sky_px = fr[0:25, 240:420].reshape(-1, 3).astype(np.float32)
-    top_c = sky_px.mean(0)
-    horizon_c = np.clip(top_c * 0.8 + 255 * 0.2, 0, 255)
+    # sky gradient from the clip's blue sky (frame 0, top right)
+    f0 = _parkour_frame(data, 0)
+    top_c = f0[0:20, 420:640].reshape(-1, 3).astype(np.float32).mean(0)
+    horizon_c = f0[70:90, 420:520].reshape(-1, 3).astype(np.float32).mean(0)
     g = np.linspace(0, 1, 256)[:, None, None]
     sky = (top_c * (1 - g) + horizon_c * g) * np.ones((256, 64, 1))
-    noise = rng.normal(0, 1.5, sky.shape)
+    noise = rng.normal(0, 1.0, sky.shape)
     cv2.imwrite(str(out / "sky.jpg"), np.clip(sky + noise, 0, 255).astype(np.uint8),
                 [cv2.IMWRITE_JPEG_QUALITY, 90])
-    # shrub: bottom-left of frame 72 (bushes in front of the lawn)
-    shrub = fr[270:420, 0:175].copy()
-    shrub = np.hstack([shrub, shrub[:, ::-1], shrub])
-    shrub = cv2.resize(shrub, None, fx=2, fy=2, interpolation=cv2.INTER_CUBIC)
-    sa = _silhouette(shrub.shape[1], shrub.shape[0], rng, base=0.25, amp=0.12, scale_px=40)
+    # shrubs: frame 99, x 0..290, y 230..400 (bushes on a lawn), given an irregular top
+    shrub = fr[232:400, 0:290].copy()
+    shrub = np.hstack([shrub, shrub[:, ::-1]])
+    shrub = cv2.resize(shrub, None, fx=1.6, fy=1.6, interpolation=cv2.INTER_CUBIC)
+    sa = _silhouette(shrub.shape[1], shrub.shape[0], rng, base=0.22, amp=0.12, scale_px=45)
     sa = cv2.GaussianBlur(sa, (5, 5), 1.2)
     cv2.imwrite(str(out / "hedge.png"), np.dstack([shrub, np.clip(sa * 255, 0, 255).astype(np.uint8)]),
                 [cv2.IMWRITE_PNG_COMPRESSION, 9])

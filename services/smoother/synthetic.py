@@ -1,4 +1,4 @@
-"""Synthetic Measurements for the smoother tests and benchmarks (no detector needed)."""
+"""Synthetic Measurements (no detector needed): used by the smoother tests, benchmarks and docs."""
 from __future__ import annotations
 
 import numpy as np
@@ -46,7 +46,9 @@ def walking_sequence(n=120, *, fps=24.0, seed=0, focus=True, flicker=True):
     rng = np.random.default_rng(seed)
     out = []
     for i in range(n):
-        a = np.array([100 + 1.5 * i, 120, 200 + 1.5 * i, 400.0]) + rng.normal(0, 2, 4)
+        u = (1.5 * i) % 600.0
+        dx = u if u <= 300.0 else 600.0 - u  # walks right, then back (stays in the image)
+        a = np.array([100 + dx, 120, 200 + dx, 400.0]) + rng.normal(0, 2, 4)
         people = [person(a, 0.7)]
         sks = [skeleton_in(a, person_index=0, rng=rng, noise=3.0)]
         if flicker and i % 3 == 0:

@@ -1,0 +1,82 @@
+"""Shared helpers of the detector evaluation scripts (data paths, ground truth, result files)."""
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "benchmarks" / "results"
+
+
+def data_dir() -> Path:
+    """The real clips: $CT_DATA_DIR, else ../shared/data beside the repository."""
+    env = os.environ.get("CT_DATA_DIR")
+    d = Path(env) if env else REPO.parent / "shared" / "data"
+    if not d.is_dir():
+        raise SystemExit(f"data folder {d} not found: set CT_DATA_DIR")
+    return d
+
+
+def davis_masks(name: str) -> list[np.ndarray]:
+    """Boolean ground-truth masks of a DAVIS clip ('dance-twirl' or 'parkour'), frame order."""
+    d = data_dir() / f"davis_{name}_masks"
+    files = sorted(d.glob("*.png"))
+    return [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) > 127 for f in files]
+
+
+def mask_box(mask: np.ndarray) -> np.ndarray | None:
+    ys = np.flatnonzero(mask.any(axis=1))
+    xs = np.flatnonzero(mask.any(axis=0))
+    if len(xs) == 0:
+        return None
+    return np.array([xs[0], ys[0], xs[-1] + 1, ys[-1] + 1], dtype=np.float64)
+
+
+def tud_ground_truth() -> dict[int, list[np.ndarray]]:
+    """TUD-Stadtmitte boxes (x0, y0, x1, y1) per 0-based frame index."""
+    gt: dict[int, list[np.ndarray]] = {}
+    for line in open(data_dir() / "tud_stadtmitte_gt.txt"):
+        parts = line.strip().split(",")
+        if len(parts) < 6:
+            continue
+        f, _, x, y, w, h = (float(v) for v in parts[:6])
+        gt.setdefault(int(f) - 1, []).append(np.array([x, y, x + w, y + h]))
+    return gt
+
+
+def box_iou(a: np.ndarray, b: np.ndarray) -> float:
+    iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = iw * ih
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return float(inter / union) if union > 0 else 0.0
+
+
+def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
+    u = np.logical_or(a, b).sum()
+    return float(np.logical_and(a, b).sum() / u) if u else 0.0
+
+
+def git_commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True,
+                              timeout=5).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return ""
+
+
+def write_result(name: str, payload: dict[str, Any]) -> Path:
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    out = RESULTS / f"{name}.json"
+    meta = {"commit": git_commit(), "machine": platform.node(), "cpus": os.cpu_count(),
+            "load_avg_1min": os.getloadavg()[0], "time": time.strftime("%Y-%m-%dT%H:%M:%S")}
+    out.write_text(json.dumps({"meta": meta, **payload}, indent=2, default=float))
+    return out

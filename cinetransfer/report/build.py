@@ -1,0 +1,120 @@
+"""build_report: numbers (report.json), figures (fig_*.png) and the page (report.html) of one run."""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from cinetransfer.report import fidelity as F
+from cinetransfer.report import figures as figs
+from cinetransfer.report.html import write_html
+from cinetransfer.report.style import StyleLike, StyleLoadError, load_style_any
+from cinetransfer.shared import messages as M
+
+log = logging.getLogger("cinetransfer.report")
+
+REPORT_FORMAT = "cinetransfer-report"
+REPORT_VERSION = 1
+
+
+def jsonable(v: Any) -> Any:
+    """numpy and paths -> JSON values; NaN/inf -> None (report.json is strict JSON)."""
+    if isinstance(v, dict):
+        return {str(k): jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [jsonable(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return jsonable(v.tolist())
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v) if math.isfinite(float(v)) else None
+    if v is None or isinstance(v, str):
+        return v
+    if isinstance(v, os.PathLike):
+        return os.fspath(v)
+    return str(v)
+
+
+def _round_list(a: np.ndarray, digits: int = 5) -> list[float | None]:
+    return [None if not math.isfinite(float(x)) else round(float(x), digits) for x in np.asarray(a, float)]
+
+
+def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLike | None,
+                 truths: Sequence[M.GroundTruth], source_video: Path | str | None,
+                 output_video: Path | str | None, meta: dict[str, Any] | None = None,
+                 embed_images: bool = True) -> dict[str, Any]:
+    """Compare a recorded run with its source style; write outdir/report.html, report.json and
+    fig_*.png. Returns the summary (the content of report.json; its "headline" is a short digest).
+
+    source_style / output_style: a style.json path or an `Instructions` message. output_style
+    None (or unreadable) means the extraction on the output failed: the report says so and
+    the ground-truth half is still computed. truths: the simulator's GroundTruth, one per
+    recorded frame (may be empty). Raises ValueError when the source style cannot be loaded.
+    """
+    t0 = time.monotonic()
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    meta = dict(meta or {})
+    source, _ = load_style_any(source_style)
+
+    output: M.Instructions | None = None
+    reason = ""
+    if output_style is None:
+        reason = "no output style: extraction on the output video failed or was not run"
+    else:
+        try:
+            output, _ = load_style_any(output_style)
+        except (StyleLoadError, OSError) as e:
+            reason = f"output style could not be read: {e}"
+            log.warning("%s", reason)
+
+    vinfo = figs.video_info(output_video)
+    output_fps = meta.get("output_fps")
+    if not (isinstance(output_fps, (int, float)) and output_fps > 0):
+        output_fps = vinfo.get("fps") if vinfo.get("fps", 0) > 0 else None
+    output_frames = vinfo.get("frames") if vinfo.get("frames", 0) > 0 else None
+
+    fid = F.compute_fidelity(source, output, truths, output_fps=output_fps, output_frames=output_frames,
+                             output_missing_reason=reason)
+    credit = str(meta.get("credit") or figs.credit_for(source_video))
+    figures, fig_errors = figs.make_figures(outdir, fid.series, source_video=source_video,
+                                            output_video=output_video, credit=credit)
+
+    s = fid.series
+    summary: dict[str, Any] = {
+        "format": REPORT_FORMAT, "version": REPORT_VERSION,
+        "generated": time.strftime("%Y-%m-%d %H:%M:%S"),
+        **fid.summary,
+        "inputs": {"source_style": source_style if isinstance(source_style, (str, os.PathLike)) else "<Instructions>",
+                   "output_style": (output_style if isinstance(output_style, (str, os.PathLike))
+                                    else None if output_style is None else "<Instructions>"),
+                   "source_video": source_video, "output_video": output_video,
+                   "output_video_info": vinfo, "source": {"path": source.source.path, "fps": source.fps,
+                                                          "frames": int(source.image_targets.shape[0])}},
+        "credit": credit,
+        "figures": sorted(figures),
+        "figure_errors": fig_errors,
+        "per_frame": {"t_s": _round_list(s["t_s"], 4), "source_row": [int(x) for x in s["k"]],
+                      "joint_error_extraction": _round_list(s["error_extraction"]),
+                      "joint_error_truth": _round_list(s["error_truth"])},
+        "meta": meta,
+    }
+    summary = jsonable(summary)
+    write_html(outdir / "report.html", summary, figures, meta=summary["meta"], figure_errors=fig_errors,
+               credit=credit, embed=embed_images)
+    summary["report_s"] = round(time.monotonic() - t0, 3)
+    tmp = outdir / "report.json.tmp"
+    tmp.write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n", encoding="utf-8")
+    tmp.replace(outdir / "report.json")
+    log.info("report written to %s (%s goals met, %.1f s)", outdir / "report.html",
+             summary["headline"]["goals_met"], summary["report_s"])
+    return summary

@@ -1,0 +1,275 @@
+"""The report as one self-contained HTML file (inline CSS, figures embedded as base64 PNG).
+
+It opens offline in any browser, and still works when copied alone; the PNGs beside it are
+linked too ("full size") for when the folder travels together.
+"""
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from cinetransfer.report import fidelity as F
+
+CSS = """
+* { box-sizing: border-box; }
+body { font-family: -apple-system, "Segoe UI", Roboto, "DejaVu Sans", Arial, sans-serif; margin: 0;
+       background: #f4f5f7; color: #1d2430; font-size: 14px; line-height: 1.45; }
+main { max-width: 1240px; margin: 0 auto; padding: 20px 24px 40px; }
+h1 { font-size: 22px; margin: 4px 0 2px; }
+h2 { font-size: 17px; margin: 28px 0 8px; border-bottom: 1px solid #d5d9e0; padding-bottom: 4px; }
+.sub { color: #5a6475; margin: 0 0 14px; }
+.card { background: #fff; border: 1px solid #dde1e7; border-radius: 6px; padding: 12px 14px; margin: 10px 0;
+        overflow-x: auto; }
+.warn { background: #fff6e0; border-color: #f0c36d; }
+table { border-collapse: collapse; width: 100%; font-size: 13px; font-variant-numeric: tabular-nums; }
+th, td { border: 1px solid #e1e4ea; padding: 4px 8px; text-align: right; white-space: nowrap; }
+th { background: #eef1f5; font-weight: 600; }
+td.l, th.l { text-align: left; }
+td.met { background: #d9f2dd; color: #135a1e; font-weight: 600; }
+td.missed { background: #fadcdc; color: #8a1616; font-weight: 600; }
+td.na { background: #eeeeee; color: #666; }
+tr.group td { background: #e4e9f1; font-weight: 600; color: #2a3a55; }
+tr.total td { font-weight: 600; }
+.badge { display: inline-block; padding: 2px 10px; border-radius: 12px; font-weight: 600; margin-right: 8px; }
+.badge.met { background: #d9f2dd; color: #135a1e; }
+.badge.missed { background: #fadcdc; color: #8a1616; }
+.badge.na { background: #eeeeee; color: #555; }
+figure { margin: 0; }
+figure img { width: 100%; height: auto; display: block; border: 1px solid #e1e4ea; background: #fff; }
+figcaption { color: #5a6475; font-size: 12.5px; margin-top: 6px; }
+.credit { font-size: 12px; color: #444; margin-top: 4px; font-style: italic; }
+pre { margin: 0; font-size: 12px; white-space: pre-wrap; word-break: break-word; text-align: left; }
+.meta td { text-align: left; white-space: normal; vertical-align: top; }
+.meta td:first-child { white-space: nowrap; font-weight: 600; width: 1%; }
+.small { font-size: 12px; color: #5a6475; }
+summary { cursor: pointer; color: #2a3a55; }
+"""
+
+CAPTIONS = {
+    "fig_frames.png": "Source frames (top) and recorded output frames (bottom) at evenly spaced times. "
+                      "Rings: the source's joint targets (also drawn on the output, where they should land); "
+                      "dots: the joints the extraction found on the output; white crosses: the simulator's "
+                      "exact joints.",
+    "fig_joints.png": "Normalised image position of each controlled joint over time; source light, output "
+                      "(extraction on the recorded video) dark, ground truth dashed.",
+    "fig_focus.png": "Per region, the fraction of focused pixels (b raw, B smoothed) over time, and the "
+                     "in-focus booleans of the source, the output extraction and the truth as strips.",
+    "fig_error.png": "Mean error of the controlled joints per frame, with the goal lines, and per region "
+                     "where the focus label agrees with the source.",
+}
+
+
+def _e(x: Any) -> str:
+    return html.escape(str(x), quote=True)
+
+
+def _num(x: Any, digits: int = 4) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "–"
+    if isinstance(x, float):
+        return f"{x:.{digits}f}"
+    return _e(x)
+
+
+def _pct(x: Any) -> str:
+    return "–" if x is None else f"{100.0 * float(x):.1f} %"
+
+
+def _ms(s: dict[str, Any] | None) -> str:
+    if not s or s.get("mean") is None:
+        return "–"
+    return f"{s['mean']:.4f} ± {s['std']:.4f}"
+
+
+def _status_cls(status: str) -> str:
+    return {"met": "met", "missed": "missed"}.get(status, "na")
+
+
+def _goal_index(summary: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    return {g["id"]: g for g in summary.get("goals", [])}
+
+
+def _goals_table(summary: dict[str, Any]) -> str:
+    rows = []
+    for g in summary.get("goals", []):
+        v = g["value"]
+        val = _pct(v) if "focus" in g["id"] else _num(v)
+        thr = _pct(g["threshold"]) if "focus" in g["id"] else _num(g["threshold"], 3)
+        op = {"<=": "≤", ">=": "≥"}.get(g["op"], g["op"])
+        rows.append(f"<tr><td class='l'>{_e(g['label'])}</td><td>{val}</td><td>{_e(op)} {thr}</td>"
+                    f"<td class='{_status_cls(g['status'])}'>{_e(g['status'])}</td></tr>")
+    return ("<table><tr><th class='l'>goal (issue 8)</th><th>reached</th><th>target</th><th>status</th></tr>"
+            + "".join(rows) + "</table>")
+
+
+_MEASURES = (("extraction", "by extraction on the output video"), ("truth", "by the simulator's ground truth"))
+
+
+def _group_row(label: str, ncols: int) -> str:
+    return f"<tr class='group'><td class='l' colspan='{ncols}'>{_e(label)}</td></tr>"
+
+
+def _joint_table(summary: dict[str, Any]) -> str:
+    names = summary.get("joint_names", [])
+    goals = _goal_index(summary)
+    rows = ["<tr><th class='l'>joint</th><th>|dx| mean ± std</th><th>|dy| mean ± std</th>"
+            "<th>euclidean mean ± std</th><th>max</th><th>joint-frames</th></tr>"]
+    for measure, heading in _MEASURES:
+        rows.append(_group_row(heading, 6))
+        js = (summary.get(measure) or {}).get("joints")
+        if not js:
+            rows.append("<tr><td class='l'></td><td colspan='5' class='na'>not available</td></tr>")
+            continue
+        for label, key in [(n, n) for n in names] + [("all controlled joints", None)]:
+            st = js["overall"] if key is None else js["per_joint"].get(key, {})
+            eu = st.get("euclidean") or {}
+            cls, style = "", ""
+            if key is None:
+                cls = f" class='{_status_cls(goals.get(f'{measure}_joint_error', {}).get('status', 'n/a'))}'"
+                style = " class='total'"
+            rows.append(f"<tr{style}><td class='l'>{_e(label)}</td><td>{_ms(st.get('x'))}</td><td>{_ms(st.get('y'))}</td>"
+                        f"<td{cls}>{_ms(eu)}</td><td>{_num(eu.get('max'))}</td><td>{eu.get('n', 0)}</td></tr>")
+    return "<table>" + "".join(rows) + "</table>"
+
+
+def _focus_table(summary: dict[str, Any]) -> str:
+    goals = _goal_index(summary)
+    rows = ["<tr><th class='l'>region</th><th>label agreement</th><th>frames (present on both sides)</th>"
+            "<th>frames in focus: source / output</th><th>presence agreement</th><th>|b| error mean</th></tr>"]
+    for measure, heading in _MEASURES:
+        rows.append(_group_row(heading, 6))
+        focus = (summary.get(measure) or {}).get("focus")
+        if not focus:
+            rows.append("<tr><td class='l'></td><td colspan='5' class='na'>not available</td></tr>")
+            continue
+        for region in F.REGIONS:
+            fo = focus.get(region) or {}
+            st = goals.get(f"{measure}_focus_{region}", {}).get("status", "n/a")
+            fe = (fo.get("fraction_error") or {}).get("mean")
+            rows.append(f"<tr><td class='l'>{_e(region)}</td><td class='{_status_cls(st)}'>{_pct(fo.get('agreement'))}</td>"
+                        f"<td>{fo.get('n_frames', 0)}</td>"
+                        f"<td>{fo.get('in_focus_reference', 0)} / {fo.get('in_focus_compared', 0)}</td>"
+                        f"<td>{_pct(fo.get('presence_agreement'))}</td><td>{_num(fe)}</td></tr>")
+    return "<table>" + "".join(rows) + "</table>"
+
+
+def _kv_table(d: dict[str, Any]) -> str:
+    rows = []
+    for k, v in d.items():
+        if isinstance(v, (dict, list)):
+            text = json.dumps(v, indent=1, default=str)
+            val = f"<pre>{_e(text)}</pre>"
+            if text.count("\n") > 12:  # long: folded, one click away
+                what = f"{len(v)} {'entries' if isinstance(v, dict) else 'items'}"
+                val = f"<details><summary>{what}</summary>{val}</details>"
+        elif isinstance(v, float):
+            val = _num(v, 3)
+        else:
+            val = _e(v)
+        rows.append(f"<tr><td>{_e(k)}</td><td>{val}</td></tr>")
+    return "<table class='meta'>" + "".join(rows) + "</table>"
+
+
+def _img(path: Path, embed: bool) -> str:
+    if embed:
+        data = base64.b64encode(path.read_bytes()).decode("ascii")
+        return f"<img alt='{_e(path.name)}' src='data:image/png;base64,{data}'>"
+    return f"<img alt='{_e(path.name)}' src='{_e(path.name)}'>"
+
+
+def render_html(summary: dict[str, Any], figures: dict[str, Path], *, meta: dict[str, Any],
+                figure_errors: dict[str, str] | None = None, credit: str = "", embed: bool = True) -> str:
+    """The whole report page as a string."""
+    from cinetransfer.report.figures import FIGURES
+
+    figure_errors = figure_errors or {}
+    goals = summary.get("goals", [])
+    n_met = sum(g["status"] == "met" for g in goals)
+    n_missed = sum(g["status"] == "missed" for g in goals)
+    n_na = sum(g["status"] == "n/a" for g in goals)
+    title = "Style fidelity report"
+    sub = " · ".join(_e(x) for x in (
+        f"scene {meta['scene']}" if meta.get("scene") else "",
+        f"source {Path(str(meta['source'])).name}" if meta.get("source") else "",
+        meta.get("started", "")) if x)
+    warn = []
+    for measure, what in (("extraction", "Extraction on the output"), ("truth", "Ground truth")):
+        m = summary.get(measure) or {}
+        if not m.get("available"):
+            warn.append(f"<div class='card warn'><b>{what}: not available.</b> {_e(m.get('reason') or '')}</div>")
+    al = summary.get("alignment", {})
+    al_rows = {"source frames (instructions)": al.get("source_frames"),
+               "output frames": al.get("output_frames"),
+               "compared frames (common length)": al.get("compared_frames"),
+               "compared duration [s]": al.get("compared_duration_s"),
+               "source fps": al.get("source_fps"), "output fps": al.get("output_fps"),
+               "alignment": ("output frame i follows instruction row i" if al.get("mode") == "index"
+                             else "by time: row k = round(t · source fps)"),
+               "output extraction rows": al.get("output_extraction_frames"),
+               "truth records": al.get("truth_frames")}
+    figs = []
+    for name, heading in FIGURES:
+        if name in figures and Path(figures[name]).is_file():
+            body = (f"<figure>{_img(Path(figures[name]), embed)}<figcaption>{_e(CAPTIONS.get(name, ''))} "
+                    f"<a href='{_e(name)}'>full size</a></figcaption>")
+            if name == "fig_frames.png" and credit:
+                body += f"<div class='credit'>Source footage: {_e(credit)}</div>"
+            body += "</figure>"
+        else:
+            body = f"<div class='warn'>figure not made: {_e(figure_errors.get(name, 'unknown error'))}</div>"
+        figs.append(f"<h2>{_e(heading)}</h2><div class='card'>{body}</div>")
+    version = ""
+    try:
+        from cinetransfer import __version__ as version
+    except ImportError:  # pragma: no cover
+        pass
+    joints = ", ".join(summary.get("joint_names", []))
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<title>{_e(title)}{' — ' + _e(meta.get('scene')) if meta.get('scene') else ''}</title>
+<style>{CSS}</style></head>
+<body><main>
+<h1>{_e(title)}</h1>
+<p class="sub">{sub}</p>
+<div class="card">
+<span class="badge met">{n_met} met</span><span class="badge missed">{n_missed} missed</span>
+<span class="badge na">{n_na} not measurable</span>
+<span class="small">Goals of issue 8: by extraction on the output, mean joint error ≤ {F.EXTRACTION_JOINT_ERROR_MAX}
+and focus agreement ≥ {F.EXTRACTION_FOCUS_AGREEMENT_MIN:.0%} per region; by ground truth ≤ {F.TRUTH_JOINT_ERROR_MAX}
+and ≥ {F.TRUTH_FOCUS_AGREEMENT_MIN:.0%}.</span>
+</div>
+{''.join(warn)}
+<h2>Goals</h2>
+<div class="card">{_goals_table(summary)}</div>
+<h2>Controlled-joint error (normalised image units)</h2>
+<div class="card">{_joint_table(summary)}
+<p class="small">Controlled joints: {_e(joints)}. Error = |output − source target| per axis and Euclidean,
+over frames where both sides see the joint; std is the population standard deviation.</p></div>
+<h2>Focus-label agreement per region</h2>
+<div class="card">{_focus_table(summary)}
+<p class="small">Agreement = fraction of frames whose in-focus boolean equals the source's, over frames where
+the region is present on both sides. Presence agreement = fraction of frames where both sides agree the region
+exists. |b| error = mean absolute difference of the fraction of focused pixels.</p></div>
+<h2>Alignment</h2>
+<div class="card">{_kv_table(al_rows)}</div>
+{''.join(figs)}
+<h2>Run</h2>
+<div class="card">{_kv_table(meta) if meta else '<span class="small">no metadata</span>'}</div>
+<p class="small">Numbers for scripts: <a href="report.json">report.json</a>. Generated by cinetransfer
+{_e(version)}.</p>
+</main></body></html>
+"""
+
+
+def write_html(path: Path, summary: dict[str, Any], figures: dict[str, Path], *, meta: dict[str, Any],
+               figure_errors: dict[str, str] | None = None, credit: str = "", embed: bool = True) -> Path:
+    text = render_html(summary, figures, meta=meta, figure_errors=figure_errors, credit=credit, embed=embed)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text, encoding="utf-8")
+    tmp.replace(path)
+    return path

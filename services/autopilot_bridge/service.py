@@ -1,0 +1,257 @@
+"""`cinetransfer autopilot_bridge`: where setpoints meet a vehicle.
+
+    cinetransfer autopilot_bridge --backend sim --scene NAME               # built-in simulator
+    cinetransfer autopilot_bridge --backend mavlink --mavlink udpin:0.0.0.0:14540 --engage
+
+A thin shell around `core.BridgeCore` (safety layer + watchdog) and a `VehiclePort` backend.
+Every tick (--rate, 50 Hz by default): drain bridge commands, check the newest setpoints,
+decide track/hold, drive the backend, publish VehicleState (and SubjectState, Frames and
+GroundTruth when the backend has them). Health carries every safety counter.
+
+Keys in:  SETPOINT (drop-oldest), BRIDGE_COMMAND (no-drop), SUBJECT_STATE (drop-oldest; only
+          with backends that do not know the subject themselves, i.e. mavlink)
+Keys out: VEHICLE_STATE, SUBJECT_STATE, FRAME (raw, or JPEG with --jpeg Q), SIM_TRUTH (sim only)
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from cinetransfer.services.autopilot_bridge.config import (
+    AUTOPILOTS, BACKENDS, GEOFENCE_SHAPES, BridgeConfig, ConfigError, MavlinkConfig, SafetyConfig)
+from cinetransfer.services.autopilot_bridge.core import BridgeCore
+from cinetransfer.services.autopilot_bridge.port import VehiclePort
+from cinetransfer.shared import keys
+from cinetransfer.shared import messages as M
+from cinetransfer.shared.node import add_node_arguments, call_periodically, node_from_args
+
+log = logging.getLogger("cinetransfer.autopilot_bridge")
+NODE_NAME = "autopilot_bridge"
+SIM_MAX_FRAME_LAG_S = 0.2
+
+
+# ----------------------------------------------------------------------------- config
+def _floats(n: int):
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            vals = tuple(float(x) for x in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {n} comma-separated numbers, got {text!r}") from None
+        if len(vals) != n:
+            raise argparse.ArgumentTypeError(f"expected {n} comma-separated numbers, got {text!r}")
+        return vals
+    return parse
+
+
+#: flag dest -> (config section, field)
+_FLAG_FIELDS = {
+    "backend": ("bridge", "backend"), "scene": ("bridge", "scene"), "rate": ("bridge", "rate_hz"),
+    "jpeg": ("bridge", "jpeg_quality"),
+    "home": ("safety", "home_m"), "geofence": ("safety", "geofence_shape"),
+    "geofence_radius": ("safety", "geofence_radius_m"), "geofence_half_extent": ("safety", "geofence_half_extent_m"),
+    "alt_min": ("safety", "altitude_min_m"), "alt_max": ("safety", "altitude_max_m"),
+    "max_speed": ("safety", "max_speed_mps"), "max_accel": ("safety", "max_accel_mps2"),
+    "min_subject_distance": ("safety", "min_subject_distance_m"), "watchdog": ("safety", "watchdog_timeout_s"),
+    "mavlink": ("mavlink", "url"), "autopilot": ("mavlink", "autopilot"), "engage": ("mavlink", "engage_on_start"),
+    "reengage": ("mavlink", "reengage_after_link_loss"), "link_timeout": ("mavlink", "link_timeout_s"),
+    "setpoint_rate": ("mavlink", "setpoint_rate_hz"), "target_system": ("mavlink", "target_system"),
+    "connect_timeout": ("mavlink", "connect_timeout_s"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="cinetransfer autopilot_bridge",
+                                 description="vehicle bridge: safety layer + built-in simulator or MAVLink")
+    ap.add_argument("--config", metavar="YAML", default=None,
+                    help="config file with sections bridge:, safety:, mavlink: (flags override it)")
+    g = ap.add_argument_group("bridge")
+    g.add_argument("--backend", choices=BACKENDS, default=None, help="vehicle backend (default sim)")
+    g.add_argument("--scene", default=None, help="simulator scene name or file (sim backend)")
+    g.add_argument("--rate", type=float, default=None, metavar="HZ", help="control loop rate (default 50)")
+    g.add_argument("--jpeg", type=int, default=None, metavar="QUALITY",
+                   help="publish frames as JPEG of this quality (for radio links); default raw")
+    s = ap.add_argument_group("safety")
+    s.add_argument("--home", type=_floats(3), default=None, metavar="X,Y,Z", help="geofence centre [m], world")
+    s.add_argument("--geofence", choices=GEOFENCE_SHAPES, default=None, help="geofence shape (default cylinder)")
+    s.add_argument("--geofence-radius", type=float, default=None, metavar="M")
+    s.add_argument("--geofence-half-extent", type=_floats(2), default=None, metavar="X,Y")
+    s.add_argument("--alt-min", type=float, default=None, metavar="M", help="altitude band above home")
+    s.add_argument("--alt-max", type=float, default=None, metavar="M")
+    s.add_argument("--max-speed", type=float, default=None, metavar="M/S")
+    s.add_argument("--max-accel", type=float, default=None, metavar="M/S2")
+    s.add_argument("--min-subject-distance", type=float, default=None, metavar="M")
+    s.add_argument("--watchdog", type=float, default=None, metavar="S",
+                   help="hold when no fresh setpoint for this long (default 0.5)")
+    m = ap.add_argument_group("mavlink")
+    m.add_argument("--mavlink", default=None, metavar="URL", help="pymavlink connection string")
+    m.add_argument("--autopilot", choices=AUTOPILOTS, default=None)
+    m.add_argument("--engage", action="store_true", default=None,
+                   help="arm and enter OFFBOARD/GUIDED at start (else wait for an 'engage' command)")
+    m.add_argument("--reengage", action="store_true", default=None,
+                   help="re-enter OFFBOARD/GUIDED by itself after a link loss")
+    m.add_argument("--link-timeout", type=float, default=None, metavar="S")
+    m.add_argument("--setpoint-rate", type=float, default=None, metavar="HZ")
+    m.add_argument("--target-system", type=int, default=None)
+    m.add_argument("--connect-timeout", type=float, default=None, metavar="S")
+    add_node_arguments(ap)
+    return ap
+
+
+def _tuplify(d: dict[str, Any]) -> dict[str, Any]:
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
+
+
+def config_from_args(args: argparse.Namespace) -> BridgeConfig:
+    """Defaults, then the --config file, then flags. Raises ConfigError naming the field."""
+    sections: dict[str, dict[str, Any]] = {"bridge": {}, "safety": {}, "mavlink": {}}
+    if args.config:
+        import yaml
+
+        data = yaml.safe_load(Path(args.config).read_text()) or {}
+        if not isinstance(data, dict):
+            raise ConfigError(f"{args.config}: expected a mapping with sections bridge/safety/mavlink")
+        for sec, vals in data.items():
+            if sec not in sections or not isinstance(vals, dict):
+                raise ConfigError(f"{args.config}: unknown section {sec!r} (allowed: bridge, safety, mavlink)")
+            sections[sec].update(_tuplify(vals))
+    for dest, (sec, fld) in _FLAG_FIELDS.items():
+        v = getattr(args, dest, None)
+        if v is not None:
+            sections[sec][fld] = v
+    try:
+        safety = SafetyConfig(**sections["safety"])
+        mav = MavlinkConfig(**sections["mavlink"])
+        return BridgeConfig(safety=safety, mavlink=mav, **sections["bridge"])
+    except TypeError as e:  # unknown field name in the file
+        raise ConfigError(str(e)) from None
+
+
+# ----------------------------------------------------------------------------- backends
+def make_backend(cfg: BridgeConfig) -> VehiclePort:
+    if cfg.backend == "mavlink":
+        from cinetransfer.services.autopilot_bridge.mavlink import MavlinkBackend
+
+        return MavlinkBackend(cfg.mavlink)
+    # The built-in simulator is imported lazily (renderer, assets: heavier imports).
+    from cinetransfer.services.autopilot_bridge.sim.backend import SimBackend, load_scene
+
+    # Real time: a frame that is already late by more than a few frame periods is skipped, not
+    # rendered, so that a slow renderer never stalls the control loop for long.
+    return SimBackend(load_scene(cfg.scene), max_frame_lag_s=SIM_MAX_FRAME_LAG_S)
+
+
+# ----------------------------------------------------------------------------- service
+class Bridge:
+    """The loop body, kept apart from main() so that it can be driven in-process."""
+
+    def __init__(self, node: Any, cfg: BridgeConfig, backend: VehiclePort) -> None:
+        self.node, self.cfg, self.backend = node, cfg, backend
+        self.core = BridgeCore(cfg.safety)
+        self.sp_in = node.subscribe(keys.SETPOINT, maxlen=8)
+        self.cmd_in = node.subscribe(keys.BRIDGE_COMMAND)
+        self.subject_in = node.subscribe(keys.SUBJECT_STATE, maxlen=2) if cfg.backend == "mavlink" else None
+        self.state_pub = node.publisher(keys.VEHICLE_STATE)
+        self.subject_pub = node.publisher(keys.SUBJECT_STATE) if cfg.backend != "mavlink" else None
+        self.frame_pub = node.publisher(keys.FRAME, jpeg_quality=cfg.jpeg_quality or None)
+        self.truth_pub = node.publisher(keys.SIM_TRUTH) if cfg.backend == "sim" else None
+        self.vehicle: M.VehicleState | None = None
+        self.subject: M.SubjectState | None = None
+        self.subject_rx_s = -1e9
+        self.ticks = 0
+
+    def _subject(self, now: float) -> M.SubjectState | None:
+        s = self.backend.subject_state()
+        if s is not None:
+            return s
+        if self.subject_in is not None:
+            newest = self.subject_in.latest()
+            if newest is not None and newest.valid:
+                self.subject, self.subject_rx_s = newest, now
+        if self.subject is not None and now - self.subject_rx_s <= self.cfg.safety.subject_timeout_s:
+            return self.subject
+        return None
+
+    def tick(self) -> None:
+        node, core, backend = self.node, self.core, self.backend
+        now = time.monotonic()
+        with node.timed():
+            for cmd in self.cmd_in.drain():
+                action = core.on_command(cmd)
+                log.info("command %s %s", cmd.action, cmd.args or "")
+                if action and action != "hold" and not backend.command(action, dict(cmd.args)):
+                    node.error(f"backend {backend.name} does not support command {action!r}", "command")
+                elif action is None and cmd.action not in ("hold", "resume"):
+                    node.reject(f"unknown bridge command {cmd.action!r}")
+            subject = self._subject(now)
+            for sp in self.sp_in.drain():
+                res = core.on_setpoint(sp, now, vehicle=self.vehicle, subject=subject)
+                if res is not None and not res.accepted:
+                    node.reject(f"setpoint #{sp.seq}: {res.reason}")
+            connected = backend.connected
+            dec = core.tick(now, vehicle=self.vehicle, connected=connected)
+            if dec.hold:
+                if dec.changed:
+                    log.info("holding: %s", dec.reason)
+                    backend.hold()
+            else:
+                if dec.changed:
+                    log.info("tracking setpoints")
+                backend.apply(dec.setpoint)
+            backend.step(now)
+            vs = backend.vehicle_state()
+            vs = dataclasses.replace(vs, holding=dec.hold, valid=bool(vs.valid and connected))
+            self.vehicle = vs
+            if self.ticks % self.cfg.state_every_n == 0:
+                self.state_pub.put(vs)
+            if self.subject_pub is not None:
+                subj = backend.subject_state()
+                if subj is not None:
+                    self.subject_pub.put(subj)
+            for frame in backend.frames():
+                self.frame_pub.put(frame)
+            if self.truth_pub is not None:
+                for truth in backend.truths():
+                    self.truth_pub.put(truth)
+        self.ticks += 1
+        counters = core.all_counters()
+        extra = getattr(backend, "health_counters", None)
+        if callable(extra):
+            counters.update(extra())
+        counters["connected"] = connected
+        node.counters.update(counters)
+        node.healthy = bool(connected and vs.valid)
+
+
+def main(argv: list[str]) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    try:
+        cfg = config_from_args(args)
+    except ConfigError as e:
+        print(f"cinetransfer autopilot_bridge: invalid configuration: {e}", file=sys.stderr)
+        return 2
+    node = node_from_args(NODE_NAME, args, config=cfg)
+    try:
+        backend = make_backend(cfg)
+    except ModuleNotFoundError as e:
+        log.error("backend %r is not available in this build: %s", cfg.backend, e)
+        return 2
+    with node:
+        try:
+            backend.start()
+        except (ConnectionError, OSError) as e:
+            log.error("backend %s failed to start: %s", cfg.backend, e)
+            return 1
+        try:
+            bridge = Bridge(node, cfg, backend)
+            node.ready()
+            call_periodically(1.0 / cfg.rate_hz, node, bridge.tick)
+        finally:
+            backend.hold()
+            backend.close()
+    return 0

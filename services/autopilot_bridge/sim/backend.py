@@ -1,0 +1,350 @@
+"""`SimBackend`: the built-in simulator behind the VehiclePort interface.
+
+Usable in-process without Zenoh, faster than real time on a simulated clock:
+
+    from cinetransfer.services.autopilot_bridge.sim.backend import SimBackend, load_scene
+    sim = SimBackend(load_scene("lawn_juggler"), epoch_ns=0)
+    sim.start()
+    for k in range(48):
+        sim.apply(setpoint)            # or sim.hold()
+        sim.step(k / 24)               # seconds of simulated time (any monotonic clock)
+        frames, truths = sim.frames(), sim.truths()
+
+`step(now_s)` integrates the dynamics to `now_s` (the first call sets time zero) and renders
+every frame due at the camera's rate on the way (frame k at k / fps). A frame is rendered with
+the state at its own time. Deterministic: same scene + same calls = same frames.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+
+import cv2
+import numpy as np
+
+from cinetransfer.services.autopilot_bridge.port import VehiclePort
+from cinetransfer.services.autopilot_bridge.sim.dynamics import VehicleDynamics
+from cinetransfer.services.autopilot_bridge.sim.renderer import (MIN_SIGMA_PX, NEAR_M, SIGMA_PER_DIAMETER,
+                                                                 DrawInfo, Plane, Texture, View, draw_plane,
+                                                                 ground_bands, label_pass)
+from cinetransfer.services.autopilot_bridge.sim.scene import LayerSpec, Scene, SceneError, load_scene
+from cinetransfer.services.autopilot_bridge.sim.subject import Subject
+from cinetransfer.shared import camera as cam
+from cinetransfer.shared import messages as M
+
+__all__ = ["SimBackend", "SceneRenderer", "load_scene", "SceneError"]
+
+log = logging.getLogger("autopilot_bridge.sim")
+
+#: a region counts as present when it covers at least this fraction of the image.
+REGION_MIN_FRACTION = 0.002
+#: a region is "in focus" when at least this fraction of its pixels lies inside the DoF.
+REGION_IN_FOCUS_FRACTION = 0.5
+#: ground bands are drawn a little nearer than their own start, under the next band (no seams).
+BAND_OVERLAP = 1.25
+
+
+def _read_texture(path, wrap: str) -> Texture:
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise SceneError(f"cannot read texture {path}")
+    if img.ndim == 2:
+        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    return Texture.from_bgra(img, wrap=wrap)
+
+
+def _vertical_plane_a(base_m: np.ndarray, right: np.ndarray, m_per_px: float,
+                      anchor_px: tuple[float, float]) -> np.ndarray:
+    up = np.array([0.0, 0.0, 1.0])
+    au, av = anchor_px
+    return np.column_stack([m_per_px * right, -m_per_px * up, base_m - au * m_per_px * right + av * m_per_px * up])
+
+
+def _right_axis(facing_yaw: float) -> np.ndarray:
+    return np.array([-math.sin(facing_yaw), math.cos(facing_yaw), 0.0])
+
+
+class SceneRenderer:
+    """Builds the planes of a scene for one camera view and time, draws them, computes the truth."""
+
+    def __init__(self, scene: Scene, width: int | None = None, height: int | None = None):
+        self.scene = scene
+        self.width = int(width or scene.camera.width)
+        self.height = int(height or scene.camera.height)
+        self.sensor = cam.Sensor(scene.camera.sensor_width_mm, scene.camera.sensor_height_mm, scene.camera.coc_mm)
+        gz = scene.ground.z_m if scene.ground else 0.0
+        self.subject = Subject(scene.subject, ground_z_m=gz)
+        self._layer_tex = [_read_texture(l.texture, l.wrap) for l in scene.layers]
+        self._ground_tex = _read_texture(scene.ground.texture, "reflect") if scene.ground else None
+        self._clip_tex = {id(f): Texture.from_bgra(f.texture, premultiplied=True)
+                          for f in self.subject.clip.frames + self.subject.clip.sit_frames}
+        self.last_draw: list[DrawInfo] = []
+
+    # -- geometry --------------------------------------------------------------------------
+    def _layer_plane(self, spec: LayerSpec, tex: Texture, view: View) -> Plane:
+        w, h = tex.size
+        cpos = view.position_m
+        if spec.facing == "camera":
+            if spec.distance_m is not None:
+                yaw = float(view.ypr_rad[0])
+                xy = cpos[:2] + spec.distance_m * np.array([math.cos(yaw), math.sin(yaw)])
+            else:
+                xy = np.array(spec.position_m)
+            d = cpos[:2] - xy
+            phi = math.atan2(d[1], d[0])
+        else:
+            xy = np.array(spec.position_m)
+            phi = spec.facing_yaw_rad
+        right = _right_axis(phi)
+        base = np.array([xy[0], xy[1], spec.bottom_z_m])
+        anchor = spec.anchor_px if spec.anchor_px is not None else (w / 2.0, float(h))
+        a = _vertical_plane_a(base, right, spec.m_per_px, anchor)
+        if spec.extent_m is not None:
+            ew, eh = spec.extent_m
+            up = np.array([0.0, 0.0, 1.0])
+            corners = np.array([base - ew / 2 * right, base + ew / 2 * right,
+                                base + ew / 2 * right + eh * up, base - ew / 2 * right + eh * up])
+        else:
+            st = np.array([[0, h, 1], [w, h, 1], [w, 0, 1], [0, 0, 1]], float)
+            corners = st @ a.T
+        depth = float(view.to_camera(base)[0])
+        region = spec.region
+        return Plane(spec.name, tex, a, corners, region, depth_key=math.inf if region == "sky" else depth)
+
+    def planes(self, view: View, t_s: float) -> tuple[list[Plane], dict]:
+        """Planes in draw order (far to near) and the subject's geometry at time t_s."""
+        pose = self.subject.script.pose_at(t_s)
+        frame = self.subject.frame_at(t_s, pose.action)
+        root = pose.position_m
+        joints = self.subject.joints_world(frame, root, view.position_m)
+        right, _ = self.subject.facing_axes(root, view.position_m)
+        a = _vertical_plane_a(root, right, self.subject.m_per_px, frame.anchor_px)
+        h, w = frame.texture.shape[:2]
+        st = np.array([[0, h, 1], [w, h, 1], [w, 0, 1], [0, 0, 1]], float)
+        root_depth = float(view.to_camera(root)[0])
+        joints_c = view.to_camera(joints)
+        subj_depth = float(np.mean(joints_c[:, 0]))
+        planes = [Plane("subject", self._clip_tex[id(frame)], a, st @ a.T, "subject", depth_key=root_depth,
+                        blur_depth_m=subj_depth)]
+        cuts = [root_depth]
+        for spec, tex in zip(self.scene.layers, self._layer_tex):
+            p = self._layer_plane(spec, tex, view)
+            planes.append(p)
+            if spec.region != "sky" and p.depth_key > NEAR_M:
+                cuts.append(p.depth_key)
+        g = self.scene.ground
+        if g is not None:
+            m = g.m_per_px
+            ga = np.array([[0.0, m, 0.0], [m, 0.0, 0.0], [0.0, 0.0, g.z_m]])
+            c = view.position_m
+            e = g.extent_m
+            sq = np.array([[c[0] - e, c[1] - e, g.z_m], [c[0] + e, c[1] - e, g.z_m],
+                           [c[0] + e, c[1] + e, g.z_m], [c[0] - e, c[1] + e, g.z_m]])
+            bands = ground_bands(view, g.z_m, e, cuts)
+            # merge neighbouring sharp bands that share a mip level (one warp instead of several)
+            merged: list[list[float]] = []
+            for lo, hi in bands:
+                mid = math.sqrt(lo * hi) if math.isfinite(hi) else 2.0 * lo
+                sharp = view.coc_px(mid) * SIGMA_PER_DIAMETER < MIN_SIGMA_PX
+                lvl = int(math.log2(max(mid * view.sensor.width_mm / (view.focal_mm * view.width) / m, 1.0)))
+                if merged and sharp and merged[-1][2] and merged[-1][3] == lvl and lo not in cuts:
+                    merged[-1][1] = hi
+                else:
+                    merged.append([lo, hi, sharp, lvl])
+            for i, (lo, hi, sharp, _) in enumerate(merged):
+                lo_draw = NEAR_M if i == 0 else lo / (1.02 if sharp else BAND_OVERLAP)
+                mid = math.sqrt(lo * hi) if math.isfinite(hi) else 2.0 * lo
+                planes.append(Plane(f"ground{i}", self._ground_tex, ga, sq, "ground", depth_key=mid,
+                                    blur_depth_m=mid, clip_x=(lo_draw, hi)))
+        planes.sort(key=lambda p: -p.depth_key)
+        geo = {"pose": pose, "joints_w": joints, "subject_depth_m": subj_depth, "root_depth_m": root_depth}
+        return planes, geo
+
+    # -- drawing ---------------------------------------------------------------------------
+    def render(self, view: View, t_s: float, *, truth: bool = True) -> tuple[np.ndarray, dict]:
+        planes, geo = self.planes(view, t_s)
+        canvas = np.zeros((view.height, view.width, 3), np.float32)
+        self.last_draw = [draw_plane(canvas, view, p) for p in planes]
+        img = np.empty((view.height, view.width, 3), np.uint8)
+        np.clip(canvas, 0, 255, out=canvas)
+        img[...] = canvas + 0.5
+        if truth:
+            geo.update(self.truth(view, planes, geo))
+        return img, geo
+
+    def truth(self, view: View, planes: list[Plane], geo: dict) -> dict:
+        jn = cam.project_world(geo["joints_w"], view.position_m, view.ypr_rad, view.focal_mm, view.sensor)
+        vis = np.isfinite(jn).all(axis=1) & (jn >= 0).all(axis=1) & (jn <= 1).all(axis=1)
+        near, far = cam.dof_limits_m(view.focal_mm, view.f_number, view.focus_m, view.sensor.coc_mm)
+        depth, subj = label_pass(view, planes)
+        d_s = geo["subject_depth_m"]
+        fg = (~subj) & (depth < d_s)
+        bg = (~subj) & (depth >= d_s)
+        infocus = (depth >= near) & (depth <= far)
+        present, frac = [], []
+        for region in (fg, subj, bg):
+            n = int(region.sum())
+            ok = n >= REGION_MIN_FRACTION * region.size
+            present.append(ok)
+            frac.append(float((infocus & region).sum()) / n if ok else math.nan)
+        frac_a = np.array(frac, np.float32)
+        in_focus = np.array([p and f >= REGION_IN_FOCUS_FRACTION for p, f in zip(present, frac)], bool)
+        return {"joints_norm": jn, "joints_visible": vis, "dof_near_m": near,
+                "dof_far_m": far if math.isfinite(far) else math.nan, "region_present": np.array(present, bool),
+                "region_in_focus": in_focus, "region_focus_fraction": frac_a}
+
+
+class SimBackend(VehiclePort):
+    """Simulated multirotor + gimbal + zoom lens filming a scripted subject in a rendered scene."""
+
+    name = "sim"
+
+    def __init__(self, scene: Scene | str, *, width: int | None = None, height: int | None = None,
+                 fps: float | None = None, render: bool = True, truth: bool = True,
+                 epoch_ns: int | None = None, seed: int | None = None,
+                 max_frame_lag_s: float | None = None):
+        self.scene = load_scene(scene) if isinstance(scene, str) else scene
+        self.seed = self.scene.seed if seed is None else seed
+        self.fps = float(fps or self.scene.camera.fps)
+        if not self.fps > 0:
+            raise ValueError("fps must be > 0")
+        self.renderer = SceneRenderer(self.scene, width, height)
+        self.render_enabled = render
+        self.truth_enabled = truth
+        v = self.scene.vehicle
+        self.dyn = VehicleDynamics(limits=self.scene.limits, position=np.array(v.position_m),
+                                   camera_ypr=np.array(v.camera_ypr_rad), focal_mm=v.focal_length_mm,
+                                   focus_m=v.focus_distance_m, f_number=v.f_number)
+        self._epoch_ns = epoch_ns
+        self._t0: float | None = None
+        self._t = 0.0
+        self._next_frame = 0
+        self._frames: list[M.Frame] = []
+        self._truths: list[M.GroundTruth] = []
+        self._seq = 0
+        #: when set (real-time use), frames more than this behind `now_s` are skipped, not rendered
+        self.max_frame_lag_s = max_frame_lag_s
+        self.frames_skipped = 0
+        self.render_ms: list[float] = []
+        self.started = False
+
+    # -- VehiclePort -----------------------------------------------------------------------
+    def start(self) -> None:
+        self.started = True
+        if self._epoch_ns is None:
+            self._epoch_ns = time.time_ns()
+
+    def apply(self, setpoint: M.Setpoint) -> None:
+        if setpoint.mode == "hold" or not setpoint.valid:
+            self.hold()
+            return
+        ln = setpoint.lens
+        self.dyn.set_target(position=setpoint.position_m, velocity=setpoint.velocity_mps,
+                            acceleration=setpoint.acceleration_mps2, camera_ypr=setpoint.camera_ypr_rad,
+                            lens=(ln.focal_length_mm, ln.focus_distance_m, ln.f_number))
+
+    def hold(self) -> None:
+        self.dyn.hold()
+
+    def step(self, now_s: float) -> None:
+        if self._epoch_ns is None:
+            self._epoch_ns = time.time_ns()
+        if self._t0 is None:
+            self._t0 = float(now_s)
+        t_new = float(now_s) - self._t0
+        if t_new < self._t:
+            return  # clocks never go back
+        while True:
+            t_f = self._next_frame / self.fps
+            if t_f > t_new + 1e-9:
+                break
+            self.dyn.advance(max(t_f - self._t, 0.0))
+            self._t = max(self._t, t_f)
+            if self.max_frame_lag_s is not None and t_new - t_f > self.max_frame_lag_s:
+                self.frames_skipped += 1
+            else:
+                self._emit_frame(self._next_frame, t_f)
+            self._next_frame += 1
+        self.dyn.advance(t_new - self._t)
+        self._t = t_new
+
+    def vehicle_state(self) -> M.VehicleState:
+        d = self.dyn
+        return M.VehicleState(stamp_ns=self._stamp(self._t), seq=self._seq, valid=True,
+                              position_m=d.position.copy(), velocity_mps=d.velocity.copy(),
+                              attitude_ypr_rad=d.body_attitude_ypr(), camera_ypr_rad=d.camera_ypr.copy(),
+                              lens=self.lens_state(), mode="HOLD" if d.holding else "sim", armed=True,
+                              holding=d.holding, backend="sim")
+
+    def subject_state(self) -> M.SubjectState:
+        sub = self.renderer.subject
+        pose = sub.script.pose_at(self._t)
+        frame = sub.frame_at(self._t, pose.action)
+        joints = sub.joints_world(frame, pose.position_m, self.dyn.position)
+        return M.SubjectState(stamp_ns=self._stamp(self._t), seq=self._seq, valid=True,
+                              subject_id=self.scene.subject.subject_id, joints_m=joints,
+                              velocity_mps=pose.velocity_mps.copy())
+
+    def frames(self) -> list[M.Frame]:
+        out, self._frames = self._frames, []
+        return out
+
+    def truths(self) -> list[M.GroundTruth]:
+        out, self._truths = self._truths, []
+        return out
+
+    def close(self) -> None:
+        self.started = False
+
+    # -- helpers ---------------------------------------------------------------------------
+    @property
+    def sim_time_s(self) -> float:
+        return self._t
+
+    def _stamp(self, t_s: float) -> int:
+        return int(self._epoch_ns or 0) + int(round(t_s * 1e9))
+
+    def lens_state(self) -> M.LensState:
+        s = self.renderer.sensor
+        return M.LensState(focal_length_mm=self.dyn.focal_mm, focus_distance_m=self.dyn.focus_m,
+                           f_number=self.dyn.f_number, sensor_width_mm=s.width_mm, sensor_height_mm=s.height_mm,
+                           coc_mm=s.coc_mm)
+
+    def view(self) -> View:
+        d = self.dyn
+        return View(position_m=d.position.copy(), ypr_rad=d.camera_ypr.copy(), focal_mm=d.focal_mm,
+                    focus_m=d.focus_m, f_number=d.f_number, width=self.renderer.width,
+                    height=self.renderer.height, sensor=self.renderer.sensor)
+
+    def render_at(self, t_s: float | None = None) -> tuple[np.ndarray, dict]:
+        """Render the current state (at sim time `t_s`, default now) without queuing a frame."""
+        return self.renderer.render(self.view(), self._t if t_s is None else t_s, truth=self.truth_enabled)
+
+    def _emit_frame(self, index: int, t_s: float) -> None:
+        stamp = self._stamp(t_s)
+        lens = self.lens_state()
+        if self.render_enabled:
+            t0 = time.perf_counter()
+            img, geo = self.render_at(t_s)
+            self.render_ms.append((time.perf_counter() - t0) * 1e3)
+            del self.render_ms[:-200]
+        else:
+            img = np.zeros((0, 0, 3), np.uint8)
+            geo = {}
+        self._frames.append(M.Frame(stamp_ns=stamp, seq=index, valid=True, source=f"sim:{self.scene.name}",
+                                    index=index, fps=self.fps, image=img, lens=lens))
+        if self.truth_enabled:
+            if not geo:
+                view = self.view()
+                planes, geo = self.renderer.planes(view, t_s)
+                geo.update(self.renderer.truth(view, planes, geo))
+            self._truths.append(M.GroundTruth(
+                stamp_ns=stamp, seq=index, valid=True, frame_index=index,
+                joints_norm=np.asarray(geo["joints_norm"], np.float32),
+                joints_visible=np.asarray(geo["joints_visible"], bool),
+                subject_distance_m=float(geo["subject_depth_m"]), dof_near_m=float(geo["dof_near_m"]),
+                dof_far_m=float(geo["dof_far_m"]), region_present=geo["region_present"],
+                region_in_focus=geo["region_in_focus"],
+                region_focus_fraction=np.asarray(geo["region_focus_fraction"], np.float32)))
+        self._seq += 1

@@ -1,0 +1,222 @@
+"""Vehicle, gimbal and lens dynamics of the built-in simulator (pure numpy, no clock).
+
+Multirotor: the autopilot is modelled as a velocity loop with a first-order lag and a position
+loop on top, both saturated:
+
+    v_cmd = v_sp + k_p (p_sp - p),            |v_cmd| <= v_max (horizontal and vertical apart)
+    a     = a_ff + (v_cmd - v) / tau,          |a| <= a_max
+    v    += a dt  (then |v| clamped again),    p += v dt
+
+With k_p tau = 1/4 the position loop is critically damped. A constant velocity setpoint is
+reached with time constant tau (63 % after tau) when the acceleration limit is not hit.
+
+Gimbal: yaw/pitch/roll move towards their targets at no more than their rate limits (yaw
+along the shortest way round), pitch and roll stay within their mechanical range.
+Lens: focal length, focus distance and f-number move towards their targets at their rate limits,
+within their ranges. Integration uses fixed sub-steps so that results do not depend on how
+often `advance` is called.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class DynamicsLimits:
+    """Limits and time constants of the simulated vehicle (defaults: CineMPC's paper run, DESIGN §4)."""
+
+    max_speed_xy_mps: float = 2.0
+    max_speed_z_mps: float = 1.0
+    max_accel_mps2: float = 1.2
+    lag_tau_s: float = 0.25
+    position_gain_per_s: float = 1.0
+    yaw_rate_rps: float = math.radians(60.0)
+    pitch_rate_rps: float = math.radians(45.0)
+    roll_rate_rps: float = math.radians(30.0)
+    pitch_min_rad: float = math.radians(-90.0)
+    pitch_max_rad: float = math.radians(30.0)
+    roll_max_rad: float = math.radians(30.0)
+    focal_min_mm: float = 30.0
+    focal_max_mm: float = 500.0
+    focal_rate_mmps: float = 20.0
+    focus_min_m: float = 0.5
+    focus_max_m: float = 100.0
+    focus_rate_mps: float = 15.0
+    f_number_min: float = 1.0
+    f_number_max: float = 22.0
+    f_number_rate_ps: float = 3.0
+    substep_s: float = 0.005
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v)):
+                raise ValueError(f"limits.{f.name}: must be a finite number, got {v!r}")
+            if f.name not in ("pitch_min_rad",) and v <= 0:
+                raise ValueError(f"limits.{f.name}: must be > 0, got {v!r}")
+        if not self.pitch_min_rad < self.pitch_max_rad:
+            raise ValueError("limits: pitch_min_rad must be < pitch_max_rad")
+        for lo, hi in (("focal_min_mm", "focal_max_mm"), ("focus_min_m", "focus_max_m"),
+                       ("f_number_min", "f_number_max")):
+            if not getattr(self, lo) < getattr(self, hi):
+                raise ValueError(f"limits: {lo} must be < {hi}")
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> "DynamicsLimits":
+        d = dict(d or {})
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ValueError(f"limits: unknown field(s) {unknown}; allowed: {sorted(names)}")
+        return cls(**{k: float(v) for k, v in d.items()})
+
+
+def wrap_pi(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _toward(x: float, target: float, max_step: float) -> float:
+    d = target - x
+    if d > max_step:
+        return x + max_step
+    if d < -max_step:
+        return x - max_step
+    return target
+
+
+def _clamp_xy_z(v: np.ndarray, vmax_xy: float, vmax_z: float) -> np.ndarray:
+    out = v.copy()
+    n = math.hypot(out[0], out[1])
+    if n > vmax_xy:
+        out[:2] *= vmax_xy / n
+    out[2] = min(max(out[2], -vmax_z), vmax_z)
+    return out
+
+
+@dataclass
+class VehicleDynamics:
+    """State and integrator of the multirotor + gimbal + lens."""
+
+    limits: DynamicsLimits = field(default_factory=DynamicsLimits)
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    acceleration: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    camera_ypr: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    focal_mm: float = 35.0
+    focus_m: float = 10.0
+    f_number: float = 4.0
+    # targets
+    sp_position: np.ndarray | None = None
+    sp_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    sp_accel: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    sp_camera_ypr: np.ndarray | None = None
+    sp_lens: tuple[float, float, float] | None = None
+    holding: bool = False
+    _hold_latched: bool = False
+    _rem_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        self.position = np.asarray(self.position, float).copy()
+        self.camera_ypr = np.asarray(self.camera_ypr, float).copy()
+        self.clamp_lens()
+        if self.sp_position is None:
+            self.sp_position = self.position.copy()
+        if self.sp_camera_ypr is None:
+            self.sp_camera_ypr = self.camera_ypr.copy()
+        if self.sp_lens is None:
+            self.sp_lens = (self.focal_mm, self.focus_m, self.f_number)
+
+    def clamp_lens(self) -> None:
+        lim = self.limits
+        self.focal_mm = min(max(self.focal_mm, lim.focal_min_mm), lim.focal_max_mm)
+        self.focus_m = min(max(self.focus_m, lim.focus_min_m), lim.focus_max_m)
+        self.f_number = min(max(self.f_number, lim.f_number_min), lim.f_number_max)
+
+    # -- commands ---------------------------------------------------------------------------
+    def set_target(self, *, position: np.ndarray, velocity: np.ndarray | None = None,
+                   acceleration: np.ndarray | None = None, camera_ypr: np.ndarray | None = None,
+                   lens: tuple[float, float, float] | None = None) -> None:
+        """Track this target. NaN in `lens` components or `camera_ypr` keeps that target."""
+        self.holding = False
+        self._hold_latched = False
+        self.sp_position = np.asarray(position, float).copy()
+        self.sp_velocity = np.zeros(3) if velocity is None else np.asarray(velocity, float).copy()
+        self.sp_accel = np.zeros(3) if acceleration is None else np.asarray(acceleration, float).copy()
+        if camera_ypr is not None:
+            c = np.asarray(camera_ypr, float)
+            self.sp_camera_ypr = np.where(np.isfinite(c), c, self.sp_camera_ypr)
+        if lens is not None:
+            old = self.sp_lens
+            self.sp_lens = tuple(n if math.isfinite(n) else o for n, o in zip(lens, old))
+
+    def hold(self) -> None:
+        """Decelerate to a stop (at the acceleration limit), then hold that position.
+
+        Gimbal and lens stop where they are."""
+        if not self.holding:
+            self.holding = True
+            self._hold_latched = False
+            self.sp_velocity = np.zeros(3)
+            self.sp_accel = np.zeros(3)
+            self.sp_camera_ypr = self.camera_ypr.copy()
+            self.sp_lens = (self.focal_mm, self.focus_m, self.f_number)
+
+    # -- integration ------------------------------------------------------------------------
+    def advance(self, dt: float) -> None:
+        """Integrate `dt` seconds in fixed sub-steps (a remainder is carried to the next call)."""
+        if dt < 0:
+            raise ValueError("dt must be >= 0")
+        self._rem_s += dt
+        h = self.limits.substep_s
+        while self._rem_s >= h - 1e-12:
+            self._substep(h)
+            self._rem_s -= h
+
+    def _substep(self, h: float) -> None:
+        lim = self.limits
+        if self.holding and not self._hold_latched:
+            v_cmd = np.zeros(3)
+            if float(np.linalg.norm(self.velocity)) < 0.02:
+                self._hold_latched = True
+                self.sp_position = self.position.copy()
+        else:
+            v_cmd = self.sp_velocity + lim.position_gain_per_s * (self.sp_position - self.position)
+        v_cmd = _clamp_xy_z(v_cmd, lim.max_speed_xy_mps, lim.max_speed_z_mps)
+        a = self.sp_accel + (v_cmd - self.velocity) / lim.lag_tau_s
+        n = float(np.linalg.norm(a))
+        if n > lim.max_accel_mps2:
+            a *= lim.max_accel_mps2 / n
+        self.acceleration = a
+        v_new = _clamp_xy_z(self.velocity + a * h, lim.max_speed_xy_mps, lim.max_speed_z_mps)
+        self.position = self.position + 0.5 * (self.velocity + v_new) * h
+        self.velocity = v_new
+        # gimbal
+        y, p, r = self.camera_ypr
+        ty, tp, tr = self.sp_camera_ypr
+        dy = wrap_pi(ty - y)
+        y = wrap_pi(y + max(-lim.yaw_rate_rps * h, min(lim.yaw_rate_rps * h, dy)))
+        tp = min(max(tp, lim.pitch_min_rad), lim.pitch_max_rad)
+        tr = min(max(tr, -lim.roll_max_rad), lim.roll_max_rad)
+        p = _toward(p, tp, lim.pitch_rate_rps * h)
+        r = _toward(r, tr, lim.roll_rate_rps * h)
+        self.camera_ypr = np.array([y, p, r])
+        # lens
+        fl, fs, fa = self.sp_lens
+        self.focal_mm = _toward(self.focal_mm, min(max(fl, lim.focal_min_mm), lim.focal_max_mm),
+                                lim.focal_rate_mmps * h)
+        self.focus_m = _toward(self.focus_m, min(max(fs, lim.focus_min_m), lim.focus_max_m),
+                               lim.focus_rate_mps * h)
+        self.f_number = _toward(self.f_number, min(max(fa, lim.f_number_min), lim.f_number_max),
+                                lim.f_number_rate_ps * h)
+
+    def body_attitude_ypr(self) -> np.ndarray:
+        """Body yaw follows the camera yaw; pitch/roll tilt with the horizontal acceleration."""
+        yaw = float(self.camera_ypr[0])
+        g = 9.81
+        ax, ay = self.acceleration[0], self.acceleration[1]
+        fwd = math.cos(yaw) * ax + math.sin(yaw) * ay
+        left = -math.sin(yaw) * ax + math.cos(yaw) * ay
+        return np.array([yaw, -math.atan2(fwd, g), -math.atan2(left, g)])

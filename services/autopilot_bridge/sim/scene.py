@@ -1,0 +1,330 @@
+"""Scene files of the built-in simulator: YAML → validated, frozen dataclasses.
+
+A scene names its camera (resolution, frame rate, sensor), the vehicle's initial pose and lens,
+optional dynamics limits, a ground plane, planar layers (backdrops, foreground objects, sky),
+and the subject (which cut-out clip, how tall, and a script of actions). Bundled scenes live in
+`scenes/`; `load_scene("lawn_juggler")` finds one by name, `load_scene("path/to/x.yaml")` reads
+a file. Every error names the offending field and what is allowed. See docs/simulator.md.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from cinetransfer.services.autopilot_bridge.sim.dynamics import DynamicsLimits
+
+SCENES_DIR = Path(__file__).resolve().parent / "scenes"
+ASSETS_DIR = Path(__file__).resolve().parent / "assets"
+
+ACTIONS = ("stand", "walk", "sit")
+REGIONS = ("foreground", "background", "sky")
+WRAPS = ("none", "reflect", "replicate")
+
+
+class SceneError(ValueError):
+    """A scene file is missing, malformed or inconsistent (the message names the field)."""
+
+
+def _num(d: dict, key: str, where: str, default: Any = None, *, lo: float | None = None,
+         hi: float | None = None, positive: bool = False) -> float:
+    if key not in d:
+        if default is None:
+            raise SceneError(f"{where}.{key}: required (a number)")
+        return float(default)
+    v = d[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+        raise SceneError(f"{where}.{key}: must be a finite number, got {v!r}")
+    v = float(v)
+    if positive and v <= 0:
+        raise SceneError(f"{where}.{key}: must be > 0, got {v}")
+    if lo is not None and v < lo:
+        raise SceneError(f"{where}.{key}: must be >= {lo}, got {v}")
+    if hi is not None and v > hi:
+        raise SceneError(f"{where}.{key}: must be <= {hi}, got {v}")
+    return v
+
+
+def _vec(d: dict, key: str, where: str, n: int, default: Any = None) -> tuple[float, ...]:
+    if key not in d:
+        if default is None:
+            raise SceneError(f"{where}.{key}: required (a list of {n} numbers)")
+        return tuple(float(x) for x in default)
+    v = d[key]
+    if not isinstance(v, (list, tuple)) or len(v) != n or not all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(float(x)) for x in v):
+        raise SceneError(f"{where}.{key}: must be a list of {n} finite numbers, got {v!r}")
+    return tuple(float(x) for x in v)
+
+
+def _str(d: dict, key: str, where: str, default: str | None = None, choices: tuple[str, ...] | None = None) -> str:
+    if key not in d:
+        if default is None:
+            raise SceneError(f"{where}.{key}: required (a string)")
+        return default
+    v = d[key]
+    if not isinstance(v, str) or not v:
+        raise SceneError(f"{where}.{key}: must be a non-empty string, got {v!r}")
+    if choices is not None and v not in choices:
+        raise SceneError(f"{where}.{key}: must be one of {list(choices)}, got {v!r}")
+    return v
+
+
+def _dict(d: dict, key: str, where: str, required: bool = False) -> dict:
+    if key not in d:
+        if required:
+            raise SceneError(f"{where}.{key}: required (a mapping)")
+        return {}
+    v = d[key]
+    if not isinstance(v, dict):
+        raise SceneError(f"{where}.{key}: must be a mapping, got {type(v).__name__}")
+    return v
+
+
+def _known(d: dict, where: str, allowed: set[str]) -> None:
+    unknown = sorted(set(d) - allowed)
+    if unknown:
+        raise SceneError(f"{where}: unknown field(s) {unknown}; allowed: {sorted(allowed)}")
+
+
+def _asset(name: str, where: str) -> Path:
+    p = Path(name)
+    if not p.is_absolute():
+        p = ASSETS_DIR / name
+    if not p.is_file():
+        raise SceneError(f"{where}: asset file {p} not found (assets are made by sim/make_assets.py)")
+    return p
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    width: int = 960
+    height: int = 540
+    fps: float = 24.0
+    sensor_width_mm: float = 23.76
+    sensor_height_mm: float = 13.365
+    coc_mm: float = 0.05
+
+
+@dataclass(frozen=True)
+class VehicleSpec:
+    position_m: tuple[float, float, float]
+    camera_ypr_rad: tuple[float, float, float]
+    focal_length_mm: float
+    focus_distance_m: float
+    f_number: float
+
+
+@dataclass(frozen=True)
+class GroundSpec:
+    texture: Path
+    m_per_px: float
+    z_m: float = 0.0
+    extent_m: float = 400.0
+
+
+@dataclass(frozen=True)
+class LayerSpec:
+    """A planar textured layer standing on the ground (or floating, `bottom_z_m`)."""
+
+    name: str
+    region: str  # 'foreground' | 'background' | 'sky' (sky: infinitely far, never blurred by depth)
+    texture: Path
+    position_m: tuple[float, float]  # world (x, y) of the texture's anchor
+    bottom_z_m: float
+    m_per_px: float
+    anchor_px: tuple[float, float] | None  # texture pixel at (position, bottom_z); None = bottom centre
+    facing: str  # 'camera' or 'fixed'
+    facing_yaw_rad: float  # direction the front faces (fixed layers)
+    wrap: str
+    extent_m: tuple[float, float] | None  # quad size (width, height) for wrapping layers
+    distance_m: float | None = None  # camera-facing layers: kept at this distance from the camera
+
+
+@dataclass(frozen=True)
+class ScriptStep:
+    action: str
+    duration_s: float
+    at_m: tuple[float, float] | None = None
+    path_m: tuple[tuple[float, float], ...] = ()
+    speed_mps: float = 1.2
+
+
+@dataclass(frozen=True)
+class SubjectSpec:
+    clip: str
+    height_m: float
+    script: tuple[ScriptStep, ...]
+    loop: bool = True
+    start_m: tuple[float, float] = (0.0, 0.0)
+    subject_id: str = "subject"
+    clip_fps: float = 12.0
+
+
+@dataclass(frozen=True)
+class Scene:
+    name: str
+    description: str
+    seed: int
+    camera: CameraSpec
+    vehicle: VehicleSpec
+    limits: DynamicsLimits
+    ground: GroundSpec | None
+    layers: tuple[LayerSpec, ...]
+    subject: SubjectSpec
+    path: Path | None = field(default=None, compare=False)
+
+
+def _parse_camera(d: dict) -> CameraSpec:
+    w = "camera"
+    _known(d, w, {"width", "height", "fps", "sensor_width_mm", "sensor_height_mm", "coc_mm"})
+    width = int(_num(d, "width", w, 960, lo=32, hi=7680))
+    height = int(_num(d, "height", w, 540, lo=32, hi=4320))
+    return CameraSpec(width=width, height=height, fps=_num(d, "fps", w, 24.0, lo=1, hi=240),
+                      sensor_width_mm=_num(d, "sensor_width_mm", w, 23.76, positive=True),
+                      sensor_height_mm=_num(d, "sensor_height_mm", w, 13.365, positive=True),
+                      coc_mm=_num(d, "coc_mm", w, 0.05, positive=True))
+
+
+def _parse_vehicle(d: dict) -> VehicleSpec:
+    w = "vehicle"
+    _known(d, w, {"position_m", "camera_ypr_deg", "lens"})
+    lens = _dict(d, "lens", w, required=True)
+    _known(lens, w + ".lens", {"focal_length_mm", "focus_distance_m", "f_number"})
+    ypr = _vec(d, "camera_ypr_deg", w, 3, (0.0, 0.0, 0.0))
+    return VehicleSpec(position_m=_vec(d, "position_m", w, 3),
+                       camera_ypr_rad=tuple(math.radians(a) for a in ypr),
+                       focal_length_mm=_num(lens, "focal_length_mm", w + ".lens", positive=True),
+                       focus_distance_m=_num(lens, "focus_distance_m", w + ".lens", positive=True),
+                       f_number=_num(lens, "f_number", w + ".lens", lo=0.5))
+
+
+def _parse_layer(d: dict, i: int) -> LayerSpec:
+    w = f"layers[{i}]"
+    if not isinstance(d, dict):
+        raise SceneError(f"{w}: must be a mapping")
+    _known(d, w, {"name", "region", "texture", "position_m", "bottom_z_m", "m_per_px", "height_m",
+                  "anchor_px", "facing", "facing_deg", "wrap", "extent_m", "distance_m"})
+    tex = _asset(_str(d, "texture", w), w + ".texture")
+    facing = _str(d, "facing", w, "fixed", ("fixed", "camera"))
+    if "m_per_px" in d and "height_m" in d:
+        raise SceneError(f"{w}: give either m_per_px or height_m, not both")
+    m_per_px = _num(d, "m_per_px", w, positive=True) if "m_per_px" in d else None
+    if m_per_px is None:
+        import cv2
+
+        img = cv2.imread(str(tex), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise SceneError(f"{w}.texture: {tex} is not a readable image")
+        m_per_px = _num(d, "height_m", w, positive=True) / img.shape[0]
+    anchor = _vec(d, "anchor_px", w, 2) if "anchor_px" in d else None
+    wrap = _str(d, "wrap", w, "none", WRAPS)
+    extent = _vec(d, "extent_m", w, 2) if "extent_m" in d else None
+    if wrap != "none" and extent is None:
+        raise SceneError(f"{w}.extent_m: required when wrap is {wrap!r} (the quad's width and height [m])")
+    distance = _num(d, "distance_m", w, positive=True) if "distance_m" in d else None
+    if facing == "camera" and distance is None and "position_m" not in d:
+        raise SceneError(f"{w}: a camera-facing layer needs position_m or distance_m")
+    return LayerSpec(name=_str(d, "name", w, f"layer{i}"), region=_str(d, "region", w, "background", REGIONS),
+                     texture=tex, position_m=_vec(d, "position_m", w, 2, (0.0, 0.0)),
+                     bottom_z_m=_num(d, "bottom_z_m", w, 0.0), m_per_px=m_per_px, anchor_px=anchor,
+                     facing=facing, facing_yaw_rad=math.radians(_num(d, "facing_deg", w, 180.0)),
+                     wrap=wrap, extent_m=extent, distance_m=distance)
+
+
+def _parse_step(d: dict, i: int) -> ScriptStep:
+    w = f"subject.script[{i}]"
+    if not isinstance(d, dict):
+        raise SceneError(f"{w}: must be a mapping")
+    _known(d, w, {"action", "duration_s", "at_m", "path_m", "speed_mps"})
+    action = _str(d, "action", w, choices=ACTIONS)
+    at = _vec(d, "at_m", w, 2) if "at_m" in d else None
+    if action == "walk":
+        path = d.get("path_m")
+        if not isinstance(path, list) or not path:
+            raise SceneError(f"{w}.path_m: a walk needs a non-empty list of [x, y] waypoints")
+        pts = tuple(_vec({"p": p}, "p", f"{w}.path_m[{k}]", 2) for k, p in enumerate(path))
+        speed = _num(d, "speed_mps", w, 1.2, positive=True, hi=10.0)
+        return ScriptStep(action=action, duration_s=_num(d, "duration_s", w, 0.0, lo=0.0), at_m=at,
+                          path_m=pts, speed_mps=speed)
+    if "path_m" in d:
+        raise SceneError(f"{w}.path_m: only a 'walk' has a path")
+    return ScriptStep(action=action, duration_s=_num(d, "duration_s", w, positive=True), at_m=at)
+
+
+def _parse_subject(d: dict) -> SubjectSpec:
+    w = "subject"
+    _known(d, w, {"clip", "height_m", "script", "loop", "start_m", "id", "clip_fps"})
+    clip = _str(d, "clip", w)
+    _asset(f"{clip}.json", w + ".clip")
+    script = d.get("script")
+    if not isinstance(script, list) or not script:
+        raise SceneError(f"{w}.script: required, a non-empty list of steps "
+                         f"(each with action in {list(ACTIONS)})")
+    loop = d.get("loop", True)
+    if not isinstance(loop, bool):
+        raise SceneError(f"{w}.loop: must be true or false")
+    return SubjectSpec(clip=clip, height_m=_num(d, "height_m", w, 1.78, lo=0.5, hi=2.5),
+                       script=tuple(_parse_step(s, i) for i, s in enumerate(script)), loop=loop,
+                       start_m=_vec(d, "start_m", w, 2, (0.0, 0.0)), subject_id=_str(d, "id", w, "subject"),
+                       clip_fps=_num(d, "clip_fps", w, 12.0, positive=True, hi=120))
+
+
+def parse_scene(doc: Any, path: Path | None = None) -> Scene:
+    """Validate a scene document (the YAML's mapping)."""
+    if not isinstance(doc, dict):
+        raise SceneError("scene: the file must contain a mapping at the top level")
+    _known(doc, "scene", {"name", "description", "seed", "camera", "vehicle", "limits", "ground", "layers",
+                          "subject"})
+    name = _str(doc, "name", "scene", path.stem if path else "scene")
+    seed = doc.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise SceneError(f"scene.seed: must be an integer, got {seed!r}")
+    try:
+        limits = DynamicsLimits.from_dict(_dict(doc, "limits", "scene"))
+    except (TypeError, ValueError) as e:
+        raise SceneError(str(e)) from None
+    g = _dict(doc, "ground", "scene")
+    ground = None
+    if g:
+        _known(g, "ground", {"texture", "m_per_px", "z_m", "extent_m"})
+        ground = GroundSpec(texture=_asset(_str(g, "texture", "ground"), "ground.texture"),
+                            m_per_px=_num(g, "m_per_px", "ground", positive=True), z_m=_num(g, "z_m", "ground", 0.0),
+                            extent_m=_num(g, "extent_m", "ground", 400.0, positive=True))
+    layers = doc.get("layers", [])
+    if not isinstance(layers, list):
+        raise SceneError("scene.layers: must be a list")
+    return Scene(name=name, description=str(doc.get("description", "")), seed=seed,
+                 camera=_parse_camera(_dict(doc, "camera", "scene")),
+                 vehicle=_parse_vehicle(_dict(doc, "vehicle", "scene", required=True)),
+                 limits=limits, ground=ground,
+                 layers=tuple(_parse_layer(d, i) for i, d in enumerate(layers)),
+                 subject=_parse_subject(_dict(doc, "subject", "scene", required=True)), path=path)
+
+
+def scene_names() -> list[str]:
+    """Names of the bundled scenes."""
+    return sorted(p.stem for p in SCENES_DIR.glob("*.yaml"))
+
+
+def load_scene(name_or_path: str | Path) -> Scene:
+    """A bundled scene by name ('lawn_juggler') or a scene file by path."""
+    p = Path(name_or_path)
+    if not p.suffix:
+        cand = SCENES_DIR / f"{name_or_path}.yaml"
+        if not cand.is_file():
+            raise SceneError(f"scene {name_or_path!r} not found; bundled scenes: {scene_names()}")
+        p = cand
+    if not p.is_file():
+        raise SceneError(f"scene file {p} not found")
+    try:
+        doc = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as e:
+        raise SceneError(f"{p}: not valid YAML: {e}") from None
+    try:
+        return parse_scene(doc, p)
+    except SceneError as e:
+        raise SceneError(f"{p.name}: {e}") from None

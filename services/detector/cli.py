@@ -1,0 +1,118 @@
+"""`cinetransfer detect VIDEO -o measurements.msgpack [--overlay out.mp4]`: measure a whole video.
+
+Writes a measurements file (see measurements_file.py / docs/detector.md), one Measurement per
+decoded frame, streamed as it goes (an interrupted run leaves a readable file). Exit codes:
+0 = done; 1 = the source cannot be read (message says why) or the detector cannot start;
+2 = bad arguments; 130 = interrupted (what was measured so far is kept).
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+
+from cinetransfer.services.detector.config import ConfigError, add_config_arguments, config_from_args
+
+log = logging.getLogger("cinetransfer.detector")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="cinetransfer detect", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("source", help="video file (anything OpenCV decodes) or a folder of images")
+    ap.add_argument("-o", "--output", required=True, help="measurements file to write (.msgpack)")
+    ap.add_argument("--overlay", metavar="VIDEO", default=None,
+                    help="also write a video with boxes, masks, skeletons and the focus map drawn (.mp4/.avi)")
+    ap.add_argument("--start", type=int, default=0, help="first frame index (default 0)")
+    ap.add_argument("--stop", type=int, default=None, help="stop before this frame index")
+    ap.add_argument("--fps", type=float, default=None, help="override the source frame rate (image folders: 24)")
+    ap.add_argument("--hash", action="store_true", help="record the source file's sha256 in the header")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    ap.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    add_config_arguments(ap)
+    return ap
+
+
+def main(argv: list[str]) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=getattr(logging, args.log_level), format="%(levelname)s %(name)s: %(message)s")
+    try:
+        cfg = config_from_args(args)
+    except ConfigError as e:
+        log.error("%s", e)
+        return 2
+    if args.start < 0 or (args.stop is not None and args.stop <= args.start):
+        log.error("--start/--stop: need 0 <= start < stop")
+        return 2
+
+    from cinetransfer.services.detector.core import Detector, DetectorError
+    from cinetransfer.services.detector.measurements_file import MeasurementsWriter
+    from cinetransfer.services.detector.sources import FrameSourceError, iter_frames, probe
+
+    try:
+        info = probe(args.source, hash_file=args.hash, fps=args.fps)
+    except FrameSourceError as e:
+        log.error("cannot read the source: %s", e)
+        return 1
+    out = Path(args.output)
+    if out.parent and not out.parent.exists():
+        log.error("output folder %s does not exist", out.parent)
+        return 1
+    try:
+        det = Detector(cfg)
+    except (DetectorError, OSError, RuntimeError) as e:
+        log.error("detector cannot start: %s", e)
+        return 1
+
+    total = info.n_frames
+    if total:
+        total = max(0, min(total, args.stop if args.stop is not None else total) - args.start)
+    overlay = None
+    n = 0
+    people = 0
+    t0 = time.perf_counter()
+    rc = 0
+    try:
+        from tqdm import tqdm
+
+        with MeasurementsWriter(out, source=info, detector=det.name, config=cfg,
+                                focus_map_scale=det.focus_map_scale(info.width, info.height)) as writer, \
+                tqdm(total=total or None, unit="frame", disable=args.no_progress, dynamic_ncols=True,
+                     desc=Path(args.source).name) as bar:
+            for f in iter_frames(args.source, start=args.start, stop=args.stop, fps=args.fps):
+                m = det.process(f.image, f.index, f.stamp_ns, source=info.path, fps=f.fps)
+                writer.write(m)
+                if args.overlay:
+                    if overlay is None:
+                        from cinetransfer.services.detector.overlay import OverlayWriter
+
+                        overlay = OverlayWriter(args.overlay, f.fps, f.image.shape[1], f.image.shape[0])
+                    overlay.write(f.image, m)
+                n += 1
+                people += len(m.people)
+                bar.update(1)
+                bar.set_postfix(fps=f"{n / max(1e-9, time.perf_counter() - t0):.1f}", people=len(m.people), refresh=False)
+    except FrameSourceError as e:
+        log.error("cannot read the source: %s", e)
+        rc = 1
+    except KeyboardInterrupt:
+        log.warning("interrupted: kept %d measurements", n)
+        rc = 130
+    except OSError as e:
+        log.error("%s", e)
+        rc = 1
+    finally:
+        det.close()
+        if overlay is not None:
+            overlay.close()
+    dt = time.perf_counter() - t0
+    if n:
+        log.info("%d frames in %.1f s (%.1f frames/s), %.2f people/frame -> %s%s", n, dt, n / dt, people / n, out,
+                 f", overlay {args.overlay}" if overlay is not None else "")
+    return rc
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

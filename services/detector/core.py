@@ -1,0 +1,141 @@
+"""The detector's core: one frame in, one Measurement out (no Zenoh, no clock, no globals).
+
+    det = Detector(DetectorConfig())
+    m = det.process(image_bgr, frame_index=0, stamp_ns=0, source="clip.mp4", fps=24.0)
+    det.close()
+
+    for m in det.process_source("clip.mp4"):      # every frame of a file or image folder
+        ...
+
+Parallelism (2 cores): the focus estimator's expensive stage (edges and their defocus, pure
+OpenCV/numpy that releases the GIL) runs in a worker thread while the pose backend (MediaPipe
+C++, also GIL-free) runs in the caller's thread; the cheap second focus stage then uses the
+people's masks so that the in-focus map does not bleed between a person and what is behind.
+`process_source` also decodes the next frames in a background thread.
+"""
+from __future__ import annotations
+
+import concurrent.futures as cf
+import logging
+import math
+from typing import Iterator
+
+import numpy as np
+
+from cinetransfer.services.detector.config import DetectorConfig
+from cinetransfer.services.detector.focus import FocusEstimator, FocusResult
+from cinetransfer.services.detector.sources import iter_frames
+from cinetransfer.shared.messages import LensState, Measurement, PersonDetection, Skeleton
+
+log = logging.getLogger("cinetransfer.detector")
+
+
+class DetectorError(RuntimeError):
+    """The detector cannot run (backend missing, bad checkpoint, ...)."""
+
+
+def make_backend(cfg: DetectorConfig):
+    """The pose backend named by the config."""
+    if cfg.backend == "mediapipe":
+        from cinetransfer.services.detector.pose_mediapipe import MediaPipePose
+
+        try:
+            return MediaPipePose(cfg)
+        except ImportError as e:
+            raise DetectorError(f"mediapipe backend unavailable: {e}") from e
+    if cfg.backend == "torchvision":
+        from cinetransfer.services.detector.torchvision_backend import TorchvisionPose
+
+        return TorchvisionPose(cfg)
+    raise DetectorError(f"unknown backend {cfg.backend!r}")
+
+
+def people_mask(people: list[PersonDetection], width: int, height: int) -> np.ndarray | None:
+    """Union of the people's masks (None when nobody has a mask pixel)."""
+    if not people:
+        return None
+    out = np.zeros((height, width), dtype=bool)
+    for p in people:
+        out |= p.full_mask(width, height)
+    return out if out.any() else None
+
+
+class Detector:
+    """People, skeletons and an in-focus map per frame. Not thread-safe: one caller at a time."""
+
+    def __init__(self, cfg: DetectorConfig | None = None, *, backend=None) -> None:
+        self.cfg = (cfg or DetectorConfig()).validate()
+        self.backend = backend if backend is not None else make_backend(self.cfg)
+        self.focus = FocusEstimator(self.cfg) if self.cfg.focus else None
+        self._pool = (cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="focus")
+                      if self.cfg.threads > 1 and self.focus is not None else None)
+
+    @property
+    def name(self) -> str:
+        return getattr(self.backend, "name", "?")
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+        close = getattr(self.backend, "close", None)
+        if close is not None:
+            close()
+
+    def __enter__(self) -> "Detector":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def reset(self) -> None:
+        """Forget temporal state (tracking) before an unrelated sequence."""
+        reset = getattr(self.backend, "reset", None)
+        if reset is not None:
+            reset()
+
+    # ------------------------------------------------------------------ one frame
+    def analyse(self, image_bgr: np.ndarray, stamp_ns: int) -> tuple[list[PersonDetection], list[Skeleton],
+                                                                    FocusResult | None]:
+        """People, skeletons and focus of one BGR frame."""
+        if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or image_bgr.dtype != np.uint8:
+            raise ValueError(f"expected a BGR uint8 image (H, W, 3), got {image_bgr.dtype} {image_bgr.shape}")
+        h, w = image_bgr.shape[:2]
+        fut = None
+        ev = None
+        if self.focus is not None:
+            if self._pool is not None:
+                fut = self._pool.submit(self.focus.measure_edges, image_bgr)
+            else:
+                ev = self.focus.measure_edges(image_bgr)
+        try:
+            people, skeletons = self.backend.detect(image_bgr, stamp_ns)
+        finally:
+            if fut is not None:
+                ev = fut.result()
+        focus = None
+        if self.focus is not None and ev is not None:
+            focus = self.focus.propagate(ev, people_mask(people, w, h))
+        return people, skeletons, focus
+
+    def process(self, image_bgr: np.ndarray, frame_index: int = 0, stamp_ns: int = 0, *, source: str = "",
+                fps: float = float("nan"), lens: LensState | None = None, valid: bool = True) -> Measurement:
+        """One Measurement for one BGR frame (an empty one, not an error, when nobody is there)."""
+        people, skeletons, focus = self.analyse(image_bgr, stamp_ns)
+        h, w = image_bgr.shape[:2]
+        return Measurement(stamp_ns=int(stamp_ns), valid=valid, source=source, frame_index=int(frame_index),
+                           fps=float(fps) if fps is not None and math.isfinite(fps) else float("nan"),
+                           width=w, height=h, people=people, skeletons=skeletons,
+                           focus_map=focus.as_uint8() if focus is not None else None, lens=lens,
+                           detector=self.name)
+
+    def process_source(self, path: str, *, start: int = 0, stop: int | None = None,
+                       fps: float | None = None) -> Iterator[Measurement]:
+        """Measurements of every frame of a video file or image folder (FrameSourceError if unreadable)."""
+        for f in iter_frames(path, start=start, stop=stop, fps=fps):
+            yield self.process(f.image, f.index, f.stamp_ns, source=str(path), fps=f.fps)
+
+    def focus_map_scale(self, width: int, height: int) -> float:
+        if self.focus is None:
+            return float("nan")
+        return self.focus.map_size(width, height)[0] / width

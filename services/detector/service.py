@@ -1,0 +1,180 @@
+"""`cinetransfer detector --rig R`: the detector node.
+
+Input: Frames on `ct/{rig}/camera/frame` (default), or a file given with `--video PATH` /
+`--images DIR`, whose frames it then also publishes on `ct/{rig}/camera/frame` for the
+monitor and other nodes (no subscription to frames in that mode).
+Output: one Measurement per processed frame on `ct/{rig}/detector/measurement`.
+
+Keeping up: frames arrive in a small drop-oldest queue (`--queue`, default 2); when processing
+is slower than the camera, the node takes the newest frame and skips the older ones. Every
+skipped frame is counted (`frames_skipped` in the Health counters, and queue overflows in
+Health.dropped), so the backlog never grows and the loss is visible.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+
+from cinetransfer.services.detector.config import ConfigError, add_config_arguments, config_from_args
+from cinetransfer.shared import keys
+from cinetransfer.shared import messages as M
+from cinetransfer.shared.node import add_node_arguments, node_from_args
+
+NAME = "detector"
+log = logging.getLogger(f"cinetransfer.{NAME}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="cinetransfer detector", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_node_arguments(ap)
+    src = ap.add_mutually_exclusive_group()
+    src.add_argument("--video", metavar="PATH", help="process this video file instead of subscribing to frames")
+    src.add_argument("--images", metavar="DIR", help="process this folder of images instead of subscribing")
+    ap.add_argument("--stop", type=int, default=None, help="(--video/--images) stop before this frame index")
+    ap.add_argument("--realtime", action="store_true",
+                    help="(--video/--images) pace frames at the source rate, skipping when behind")
+    ap.add_argument("--no-publish-frames", action="store_true",
+                    help="(--video/--images) do not publish the file's frames on the frame key")
+    ap.add_argument("--wait-subscriber", type=float, default=3.0, metavar="S",
+                    help="(--video/--images) wait up to S seconds for a measurement subscriber before "
+                         "starting (default %(default)s)")
+    ap.add_argument("--queue", type=int, default=2, help="frame queue length (drop-oldest, default %(default)s)")
+    add_config_arguments(ap)
+    return ap
+
+
+class _Stats:
+    def __init__(self) -> None:
+        self.processed = 0
+        self.skipped = 0
+        self.errors = 0
+        self.people = 0
+        self.t0 = time.monotonic()
+        self.win: list[float] = []
+
+    def fps(self) -> float:
+        now = time.monotonic()
+        self.win = [t for t in self.win if now - t < 5.0]
+        span = (now - self.win[0]) if len(self.win) > 1 else 0.0
+        return (len(self.win) - 1) / span if span > 0 else 0.0
+
+
+def _process(node, det, pub, stats: _Stats, frame: M.Frame) -> None:
+    """Measure one frame and publish; a failure is counted and logged, never fatal."""
+    t = time.perf_counter()
+    try:
+        m = det.process(frame.image, frame.index, frame.stamp_ns, source=frame.source, fps=frame.fps,
+                        lens=frame.lens, valid=frame.valid)
+    except (ValueError, RuntimeError, OSError) as e:
+        stats.errors += 1
+        node.counters["errors"] = stats.errors
+        node.error(f"frame #{frame.index}: {type(e).__name__}: {e}", "process")
+        return
+    node.record_latency_ms((time.perf_counter() - t) * 1e3)
+    pub.put(m)
+    stats.processed += 1
+    stats.people += len(m.people)
+    stats.win.append(time.monotonic())
+    node.counters.update(frames_processed=stats.processed, frames_skipped=stats.skipped,
+                         people_last=len(m.people), fps=round(stats.fps(), 2), last_frame=frame.index)
+
+
+def _wait_matching(node, pub, timeout_s: float) -> None:
+    if timeout_s <= 0:
+        return
+    deadline = time.monotonic() + timeout_s
+    while node.running and time.monotonic() < deadline:
+        try:
+            if pub._pub.matching_status.matching:
+                return
+        except AttributeError:  # older zenoh without matching status: just proceed
+            return
+        node.sleep(0.02)
+    log.info("no measurement subscriber after %.1f s; publishing anyway", timeout_s)
+
+
+def run_file(node, det, args, stats: _Stats) -> int:
+    from cinetransfer.services.detector.sources import FrameSourceError, iter_frames
+
+    path = args.video or args.images
+    pub = node.publisher(keys.MEASUREMENT)
+    fpub = None if args.no_publish_frames else node.publisher(keys.FRAME)
+    node.ready()
+    _wait_matching(node, pub, args.wait_subscriber)
+    t_start = None
+    try:
+        for f in iter_frames(path, stop=args.stop):
+            if not node.running:
+                break
+            if args.realtime:
+                now = time.monotonic()
+                if t_start is None:
+                    t_start = now - f.stamp_ns * 1e-9
+                lag = now - (t_start + f.stamp_ns * 1e-9)
+                if lag > 1.5 / f.fps:  # behind by more than a frame: skip (counted)
+                    stats.skipped += 1
+                    node.counters["frames_skipped"] = stats.skipped
+                    continue
+                if lag < 0:
+                    node.sleep(-lag)
+            frame = M.Frame(stamp_ns=f.stamp_ns, source=str(path), index=f.index, fps=f.fps, image=f.image)
+            if fpub is not None:
+                fpub.put(frame)
+            _process(node, det, pub, stats, frame)
+    except FrameSourceError as e:
+        log.error("cannot read %s: %s", path, e)
+        return 1
+    log.info("%s: processed %d frames (%d skipped, %d errors)", path, stats.processed, stats.skipped, stats.errors)
+    return 0
+
+
+def run_subscriber(node, det, args, stats: _Stats) -> int:
+    inbox = node.subscribe(keys.FRAME, maxlen=max(1, args.queue), policy="drop-oldest")
+    pub = node.publisher(keys.MEASUREMENT)
+    node.ready()
+    while node.running:
+        node.wait(0.2)
+        frames = inbox.drain()
+        if not frames:
+            continue
+        # newest wins: older queued frames are skipped (and counted) so we never fall behind
+        stats.skipped += len(frames) - 1
+        _process(node, det, pub, stats, frames[-1])
+        node.counters["frames_skipped"] = stats.skipped
+    return 0
+
+
+def main(argv: list[str]) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    try:
+        cfg = config_from_args(args)
+    except ConfigError as e:
+        print(f"cinetransfer detector: {e}", file=sys.stderr)
+        return 2
+    if args.queue < 1:
+        ap.error("--queue must be >= 1")
+    node = node_from_args(NAME, args, config=cfg)
+    from cinetransfer.services.detector.core import Detector, DetectorError
+
+    try:
+        det = Detector(cfg)  # slow set-up (bundle, models) before announcing readiness
+    except (DetectorError, OSError, RuntimeError) as e:
+        log.error("detector cannot start: %s", e)
+        return 1
+    stats = _Stats()
+    try:
+        with node:
+            node.counters.update(backend=det.name, frames_processed=0, frames_skipped=0, errors=0)
+            if args.video or args.images:
+                return run_file(node, det, args, stats)
+            return run_subscriber(node, det, args, stats)
+    finally:
+        det.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,159 @@
+"""Command-line tools of the smoother:
+
+    cinetransfer smooth measurements.msgpack -o style.json [--plot style.png]
+    cinetransfer extract VIDEO -o style.json [--measurements m.msgpack] [--plot style.png]
+    cinetransfer plot style.json -o style.png
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+from typing import Any, Iterable
+
+from cinetransfer.services.smoother.config import FOCUS_METHODS, SUBJECT_METHODS, ConfigError, SmootherConfig
+
+log = logging.getLogger("cinetransfer.smoother")
+
+
+def add_config_arguments(ap: argparse.ArgumentParser) -> None:
+    d = SmootherConfig()
+    g = ap.add_argument_group("smoother")
+    g.add_argument("--joints", default=",".join(d.joints),
+                   help="comma-separated COCO-17 joints to control (default %(default)s)")
+    g.add_argument("--subject-method", choices=SUBJECT_METHODS, default=d.subject_method,
+                   help="main-subject selection (default %(default)s; 'literal' = paper's NLP via IPOPT)")
+    g.add_argument("--focus-method", choices=FOCUS_METHODS, default=d.focus_method,
+                   help="focus smoothing (default %(default)s; see docs/smoother.md)")
+    g.add_argument("--box-smoothness", type=float, default=d.box_smoothness,
+                   help="box QP first-difference weight at 24 fps (default %(default)s)")
+    g.add_argument("--box-accel-smoothness", type=float, default=d.box_accel_smoothness,
+                   help="box QP second-difference weight at 24 fps (default %(default)s)")
+    g.add_argument("--joint-smoothness", type=float, default=d.joint_smoothness,
+                   help="joint QP first-difference weight at 24 fps (default %(default)s)")
+    g.add_argument("--joint-accel-smoothness", type=float, default=d.joint_accel_smoothness,
+                   help="joint QP second-difference weight at 24 fps; 0 = the paper's QP (default %(default)s)")
+    g.add_argument("--theta", type=float, default=d.theta, help="focus threshold on B (default %(default)s)")
+    g.add_argument("--mu", type=float, default=d.mu_m, help="depth-of-field margin mu [m] (default %(default)s)")
+    g.add_argument("--max-bridge", type=float, default=d.max_bridge_s,
+                   help="longest detector dropout bridged [s] (default %(default)s)")
+
+
+def config_from_args(args: argparse.Namespace, base: SmootherConfig | None = None) -> SmootherConfig:
+    base = base or SmootherConfig()
+    joints = tuple(j.strip() for j in str(args.joints).split(",") if j.strip())
+    return base.replace(joints=joints, subject_method=args.subject_method, focus_method=args.focus_method,
+                        box_smoothness=args.box_smoothness, joint_smoothness=args.joint_smoothness,
+                        box_accel_smoothness=args.box_accel_smoothness,
+                        joint_accel_smoothness=args.joint_accel_smoothness,
+                        theta=args.theta, mu_m=args.mu, max_bridge_s=args.max_bridge)
+
+
+def _progress(it: Iterable[Any], total: int | None, desc: str, enabled: bool) -> Iterable[Any]:
+    if not enabled:
+        return it
+    from tqdm import tqdm
+
+    return tqdm(it, total=total, desc=desc, unit="frame", file=sys.stderr, dynamic_ncols=True)
+
+
+def _finish(result: Any, out: Path, plot: Path | None, *, diagnostics: bool) -> None:
+    from cinetransfer.services.smoother import instructions as I
+
+    I.save_style(out, result.instructions, result.diagnostics if diagnostics else None)
+    ins = result.instructions
+    print(f"wrote {out}: {ins.image_targets.shape[0]} frames at {ins.fps:g} fps, subject visible in "
+          f"{100.0 * ins.subject_visible.mean():.0f}% of frames, joints {', '.join(ins.joint_names)}")
+    if plot is not None:
+        from cinetransfer.services.smoother.plot import plot_style
+
+        plot_style(I.load_style_file(out), plot)
+        print(f"wrote {plot}")
+
+
+def smooth_main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="cinetransfer smooth", description="measurements file -> style.json")
+    ap.add_argument("measurements", type=Path, help="measurements file written by 'cinetransfer detect'")
+    ap.add_argument("-o", "--output", type=Path, default=Path("style.json"), help="style file to write")
+    ap.add_argument("--plot", type=Path, default=None, help="also draw the style to this image")
+    ap.add_argument("--no-diagnostics", action="store_true", help="leave the raw per-frame measures out")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_config_arguments(ap)
+    args = ap.parse_args(argv)
+    try:
+        cfg = config_from_args(args)
+    except ConfigError as e:
+        print(f"cinetransfer smooth: {e}", file=sys.stderr)
+        return 2
+    from cinetransfer.services.detector.measurements_file import (MeasurementsFileError, iter_measurements,
+                                                                  read_header)
+    from cinetransfer.services.smoother.core import SmootherInputError, features_from_measurements, smooth_sequence
+
+    try:
+        header = read_header(args.measurements)
+        total = header.source.n_frames or None
+        ms = _progress(iter_measurements(args.measurements), total, "reading", not args.quiet)
+        feats = features_from_measurements(ms, cfg)
+        t0 = time.perf_counter()
+        result = smooth_sequence(feats, cfg, source=header.source if header.source.path else None)
+        log.info("smoothed %d frames in %.1f ms", len(feats), 1e3 * (time.perf_counter() - t0))
+    except (MeasurementsFileError, SmootherInputError) as e:
+        print(f"cinetransfer smooth: {e}", file=sys.stderr)
+        return 1
+    _finish(result, args.output, args.plot, diagnostics=not args.no_diagnostics)
+    return 0
+
+
+def extract_main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="cinetransfer extract",
+                                 description="video -> style.json (detector and smoother in one process)")
+    ap.add_argument("video", help="source video file (or image folder)")
+    ap.add_argument("-o", "--output", type=Path, default=Path("style.json"), help="style file to write")
+    ap.add_argument("--measurements", type=Path, default=None, help="also keep the measurements in this file")
+    ap.add_argument("--plot", type=Path, default=None, help="also draw the style to this image")
+    ap.add_argument("--no-diagnostics", action="store_true", help="leave the raw per-frame measures out")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    ap.add_argument("--stop", type=int, default=None, help="stop after this many frames")
+    add_config_arguments(ap)
+    args = ap.parse_args(argv)
+    try:
+        cfg = config_from_args(args)
+    except ConfigError as e:
+        print(f"cinetransfer extract: {e}", file=sys.stderr)
+        return 2
+    from cinetransfer.services.smoother.core import SmootherInputError, smooth_sequence
+    from cinetransfer.services.smoother.extract import ExtractError, extract_features
+
+    try:
+        feats, source = extract_features(args.video, cfg, measurements_path=args.measurements, stop=args.stop,
+                                         progress=not args.quiet)
+        result = smooth_sequence(feats, cfg, source=source)
+    except (ExtractError, SmootherInputError) as e:
+        print(f"cinetransfer extract: {e}", file=sys.stderr)
+        return 1
+    _finish(result, args.output, args.plot, diagnostics=not args.no_diagnostics)
+    return 0
+
+
+def plot_main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="cinetransfer plot", description="draw a style.json (Figs 3c/4b/5c style)")
+    ap.add_argument("style", type=Path, help="style file")
+    ap.add_argument("-o", "--output", type=Path, default=None, help="image to write (default: STYLE.png)")
+    ap.add_argument("--joint", default="chest", help="joint to plot: 'chest' or a COCO-17 name")
+    ap.add_argument("--title", default=None)
+    args = ap.parse_args(argv)
+    from cinetransfer.services.smoother.instructions import StyleFileError, load_style_file
+    from cinetransfer.services.smoother.plot import plot_style, summary
+
+    out = args.output or args.style.with_suffix(".png")
+    try:
+        style = load_style_file(args.style)
+        plot_style(style, out, joint=args.joint, title=args.title)
+    except (StyleFileError, ValueError) as e:
+        print(f"cinetransfer plot: {e}", file=sys.stderr)
+        return 1
+    print(f"wrote {out}: {json.dumps(summary(style))}")
+    return 0

@@ -1,0 +1,159 @@
+"""Planner core: commands and timing, input checks, the failure policy (tail, then hold), no NaN."""
+import math
+
+import numpy as np
+import pytest
+
+from cinetransfer.services.planner import config as pc
+from cinetransfer.services.planner.core import Planner, instructions_from_arrays
+from cinetransfer.services.planner.kinematic_sim import KinematicSim
+from cinetransfer.services.planner.scenarios import reference_instructions, standing_shot, wrong_start_scene
+from cinetransfer.shared import codec
+from cinetransfer.shared import messages as M
+
+T0 = 1_700_000_000_000_000_000
+S = 1_000_000_000
+
+
+@pytest.fixture(scope="module")
+def planner_cfg():
+    return pc.PlannerConfig(max_solve_time_s=0.5)
+
+
+@pytest.fixture(scope="module")
+def shared_solver(planner_cfg):
+    from cinetransfer.services.planner.solver import MpcSolver
+    return MpcSolver(planner_cfg.structure, planner_cfg.bounds, planner_cfg.weights, max_solve_time_s=0.5)
+
+
+@pytest.fixture
+def planner(planner_cfg, shared_solver):
+    shared_solver.set_bounds(planner_cfg.bounds)
+    shared_solver.reset()
+    return Planner(planner_cfg, solver=shared_solver)
+
+
+@pytest.fixture(scope="module")
+def instructions():
+    return reference_instructions(wrong_start_scene(), standing_shot(), duration_s=20.0)
+
+
+def assert_finite(sp: M.Setpoint):
+    codec.decode(codec.encode(sp), M.Setpoint)  # the codec rejects non-finite values where not allowed
+    lens = (sp.lens.focal_length_mm, sp.lens.focus_distance_m, sp.lens.f_number)
+    assert all(math.isfinite(v) for v in lens), lens
+
+
+def test_commands_drive_the_recording_clock(planner):
+    # given a planner, 'start' starts the clock, 'pause' freezes it, 'resume' continues it
+    assert planner.state == "idle" and planner.recording_time_s(T0) == 0.0
+    assert planner.command(M.Command(action="start", args={"start_frame": 10}), T0)
+    assert planner.recording_time_s(T0 + 2 * S) == pytest.approx(2.0)
+    planner.command(M.Command(action="pause"), T0 + 2 * S)
+    assert planner.state == "paused" and planner.recording_time_s(T0 + 5 * S) == pytest.approx(2.0)
+    planner.command(M.Command(action="resume"), T0 + 5 * S)
+    assert planner.recording_time_s(T0 + 6 * S) == pytest.approx(3.0)
+    # and instruction frame k = start_frame + floor(t * fps)
+    ins = instructions_from_arrays(targets=np.full((100, 1, 2), 0.5), joint_names=["nose"], fps=24.0)
+    rows, frame = planner._rows(T0 + 6 * S, ins, 3, 0.1)
+    assert frame == 10 + 72 and rows == [min(10 + int(24 * (3.0 + 0.1 * k)), 99) for k in (1, 2, 3)]
+    # and 'stop' resets, unknown actions are refused and counted
+    planner.command(M.Command(action="stop"), T0 + 7 * S)
+    assert planner.state == "stopped" and planner.recording_time_s(T0 + 8 * S) == 0.0
+    assert not planner.command(M.Command(action="fly-away"), T0)
+    assert not planner.command(M.Command(action="start", args={"start_frame": -3}), T0)
+    assert planner.counters["bad_commands"] == 2 and planner.counters["state"] == "stopped"
+
+
+def test_holds_until_started_and_without_inputs(planner, instructions):
+    sim = KinematicSim(wrong_start_scene())
+    # given no 'start': a valid hold at the current pose
+    sp = planner.step(T0, instructions, sim.vehicle_state(T0), sim.subject_state(T0))
+    assert sp.mode == "hold" and sp.valid and np.allclose(sp.position_m, sim.p)
+    assert_finite(sp)
+    planner.command(M.Command(action="start"), T0)
+    # when the vehicle state is stale, or the subject is missing: an invalid hold, never NaN
+    sp = planner.step(T0 + 2 * S, instructions, sim.vehicle_state(T0), sim.subject_state(T0 + 2 * S))
+    assert sp.mode == "hold" and not sp.valid
+    sp = planner.step(T0, instructions, sim.vehicle_state(T0), None)
+    assert sp.mode == "hold" and not sp.valid and "subject" in sp.solver_status
+    sp = planner.step(T0, None, None, None)
+    assert sp.mode == "hold" and not sp.valid
+    assert_finite(sp)
+    # and a subject whose joints are all unknown is bad input, not a crash
+    ss = sim.subject_state(T0)
+    bad = M.SubjectState(stamp_ns=T0, joints_m=np.full_like(ss.joints_m, np.nan), joint_names=ss.joint_names)
+    sp = planner.step(T0, instructions, sim.vehicle_state(T0), bad)
+    assert sp.mode == "hold" and not sp.valid and "bad input" in sp.solver_status
+    # then with everything present, it tracks
+    sp = planner.step(T0, instructions, sim.vehicle_state(T0), sim.subject_state(T0))
+    assert sp.mode == "track" and sp.valid and sp.horizon_position_m.shape == (16, 3)
+    assert_finite(sp)
+
+
+def test_infeasible_config_yields_hold_not_crash(planner_cfg, instructions):
+    # given a configuration the vehicle cannot satisfy (focal length >= 200 mm while the lens is at
+    # 40 mm and zooms at most 20 mm/s): the solver fails, and the planner holds
+    cfg = pc.replace(planner_cfg, **{"bounds.focal_min_mm": 200.0})
+    planner = Planner(cfg)
+    sim = KinematicSim(wrong_start_scene())
+    planner.command(M.Command(action="start"), T0)
+    for i in range(3):
+        now = T0 + i * S // 20
+        sp = planner.step(now, instructions, sim.vehicle_state(now), sim.subject_state(now))
+        assert sp.mode == "hold" and not sp.valid and "failed" in sp.solver_status
+        assert np.allclose(sp.position_m, sim.p) and np.allclose(sp.velocity_mps, 0)
+        assert_finite(sp)
+    assert planner.counters["failures"] == 3 and planner.counters["holds"] == 1
+
+
+def test_failure_flies_the_tail_then_holds(planner, planner_cfg, instructions):
+    # given a planner tracking well
+    sim = KinematicSim(wrong_start_scene())
+    planner.command(M.Command(action="start"), T0)
+    now = T0
+    for _ in range(20):
+        sp = planner.step(now, instructions, sim.vehicle_state(now), sim.subject_state(now))
+        sim.apply(sp)
+        sim.step(0.05)
+        now += S // 20
+    assert sp.mode == "track" and planner.counters["failures"] == 0
+    good = planner._plan
+    # when the bounds change at run time to something infeasible (no rebuild)
+    planner.set_bounds(pc.Bounds(focal_min_mm=400.0))
+    modes = []
+    for _ in range(30):
+        sp = planner.step(now, instructions, sim.vehicle_state(now), sim.subject_state(now))
+        assert_finite(sp)
+        modes.append(sp.mode)
+        if sp.mode == "track":
+            # then it keeps flying the last good plan (not a new one) ...
+            assert "flying last plan" in sp.solver_status and sp.valid
+            x, _ = good.at((now - good.t0_ns) * 1e-9 + planner_cfg.setpoint_lead_s)
+            np.testing.assert_allclose(sp.position_m, x[0:3])
+        sim.apply(sp)
+        sim.step(0.05)
+        now += S // 20
+    # ... for at most tail_max_s, then holds (invalid), and stays in hold
+    n_tail = modes.index("hold")
+    assert 1 <= n_tail <= planner_cfg.tail_max_s * 20 + 1
+    assert all(m == "hold" for m in modes[n_tail:])
+    assert planner.counters["consecutive_failures"] == 30 and planner.counters["holds"] == 1
+    # and when the bounds are sane again it recovers from a cold start
+    planner.set_bounds(pc.Bounds())
+    sp = planner.step(now, instructions, sim.vehicle_state(now), sim.subject_state(now))
+    assert sp.mode == "track" and sp.valid and planner.counters["consecutive_failures"] == 0
+
+
+def test_weights_change_without_rebuild(planner, instructions):
+    # given a running planner, new weights take effect at the next solve with the same solver object
+    sim = KinematicSim(wrong_start_scene())
+    planner.command(M.Command(action="start"), T0)
+    solver = planner.solver
+    planner.step(T0, instructions, sim.vehicle_state(T0), sim.subject_state(T0))
+    c1 = planner.last_result.cost
+    planner.solver.reset()
+    planner._plan = None
+    planner.set_weights(pc.Weights(image=2000.0))
+    planner.step(T0, instructions, sim.vehicle_state(T0), sim.subject_state(T0))
+    assert planner.solver is solver and planner.last_result.cost > 2 * c1

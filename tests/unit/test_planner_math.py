@@ -1,0 +1,213 @@
+"""The planner's symbolic projection, depth of field and model against hand-computed numbers and
+against cinetransfer.shared.camera (the independent numpy implementation)."""
+import math
+
+import casadi as ca
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from cinetransfer.services.planner import config as pc
+from cinetransfer.services.planner import cost as J
+from cinetransfer.services.planner import model
+from cinetransfer.services.planner.constraints import clamp_state
+from cinetransfer.shared import camera as cam
+
+
+def project_sym(point_w, cam_pos, ypr, f_mm, depth_floor=None):
+    pc_ = J.world_to_camera(ca.DM(point_w), ca.DM(cam_pos), *ypr)
+    u, v = J.project(pc_, f_mm, cam.SENSOR_WIDTH_MM, cam.SENSOR_HEIGHT_MM, depth_floor)
+    return float(u), float(v)
+
+
+# ----------------------------------------------------------------------------- projection
+@pytest.mark.parametrize("point, cam_pos, ypr, f, expected", [
+    # given a camera at the origin looking along +x: u = 0.5 - f y / (x ws), v = 0.5 - f z / (x hs)
+    ((10.0, 1.0, 0.5), (0, 0, 0), (0, 0, 0), 50.0, (0.5 - 50 / (10 * 23.76), 0.5 - 25 / (10 * 13.365))),
+    # yaw +90 deg looks along +y: a point on +y is centred; one further left (-x) appears left (u < 0.5)
+    ((0.0, 10.0, 0.0), (0, 0, 0), (math.pi / 2, 0, 0), 35.0, (0.5, 0.5)),
+    ((-1.0, 10.0, 0.0), (0, 0, 0), (math.pi / 2, 0, 0), 35.0, (0.5 - 35 / (10 * 23.76), 0.5)),
+    # pitch up 30 deg: a point on that ray is centred
+    ((math.cos(math.radians(30)) * 8, 0.0, 2 + math.sin(math.radians(30)) * 8), (0, 0, 2),
+     (0, math.radians(30), 0), 80.0, (0.5, 0.5)),
+    # roll 90 deg (camera z axis = world -y): a point at world y = -1 (z = 0) is "up" in the image
+    ((10.0, -1.0, 0.0), (0, 0, 0), (0, 0, math.pi / 2), 50.0, (0.5, 0.5 - 50 / (10 * 13.365))),
+])
+def test_projection_hand_computed(point, cam_pos, ypr, f, expected):
+    # when projected symbolically and with shared.camera, then both give the hand-computed numbers
+    u, v = project_sym(point, cam_pos, ypr, f)
+    assert (u, v) == pytest.approx(expected, abs=1e-12)
+    ref = cam.project_world(np.array(point), np.array(cam_pos), np.array(ypr), f)
+    assert tuple(ref) == pytest.approx(expected, abs=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-20, 20), min_size=3, max_size=3), st.lists(st.floats(-20, 20), min_size=3, max_size=3),
+       st.floats(-math.pi, math.pi), st.floats(-1.4, 1.4), st.floats(-0.5, 0.5), st.floats(20, 500))
+def test_projection_matches_shared_camera(point, cam_pos, yaw, pitch, roll, f):
+    # given any pose and point in front of the camera, the casadi projection equals shared.camera
+    point, cam_pos = np.array(point), np.array(cam_pos)
+    pc_ = cam.world_to_camera(point, cam_pos, np.array([yaw, pitch, roll]))
+    if pc_[0] < 0.5:
+        return
+    ref = cam.project_world(point, cam_pos, np.array([yaw, pitch, roll]), f)
+    got = project_sym(point, cam_pos, (yaw, pitch, roll), f)
+    assert got == pytest.approx(tuple(ref), rel=1e-9, abs=1e-9)
+    sym_c = np.asarray(J.world_to_camera(ca.DM(point), ca.DM(cam_pos), yaw, pitch, roll)).ravel()
+    np.testing.assert_allclose(sym_c, pc_, atol=1e-9)
+    # and the floored depth used in the cost changes the offset from the centre by < 0.1 % for
+    # points >= 2 m away (floor 1 m)
+    if pc_[0] >= 2.0:
+        soft = np.array(project_sym(point, cam_pos, (yaw, pitch, roll), f, depth_floor=1.0))
+        assert np.all(np.abs(soft - ref) <= 1e-3 * np.abs(ref - 0.5) + 1e-12)
+
+
+def test_soft_depth_keeps_the_cost_bounded_behind_the_camera():
+    # given points near or behind the camera, the floored projection is finite, bounded by its
+    # value at the floor, and its gradient is finite
+    x = ca.SX.sym("x", 3)
+    u, v = J.project(x, 50.0, 23.76, 13.365, depth_floor=1.0)
+    f = ca.Function("f", [x], [u, v, ca.jacobian(ca.vertcat(u, v), x)])
+    for p in ([-300.0, 0.4, 0.2], [-3.0, 0.4, 0.2], [0.0, 0.4, 0.2], [5.0, 0.0, 0.0]):
+        out = [np.asarray(o) for o in f(p)]
+        assert all(np.all(np.isfinite(o)) for o in out)
+        if p[0] <= 0:
+            assert abs(float(out[0]) - 0.5) <= 50.0 * 0.4 / 23.76 + 1e-9  # |u - 1/2| <= f |y| / (floor ws)
+    assert float(J.soft_depth(-1e3, 1.0)) == pytest.approx(1.0) and float(J.soft_depth(30.0, 1.0)) == 30.0
+
+
+# ----------------------------------------------------------------------------- depth of field
+def test_dof_hand_computed():
+    # given f = 50 mm, A = 4, c = 0.05 mm: H = 2500 / 0.2 + 50 = 12550 mm
+    h = 12.55
+    assert float(J.hyperfocal_m(50.0, 4.0, 0.05)) == pytest.approx(h)
+    assert cam.hyperfocal_m(50.0, 4.0) == pytest.approx(h)
+    # when focused at 5 m: D_n = 5 (12.55 - 0.05) / (12.55 + 5 - 0.1) = 62.5 / 17.45, D_f = 62.5 / 7.55
+    inv_n, inv_f = (float(v) for v in J.inverse_dof_limits(50.0, 4.0, 5.0, 0.05))
+    assert 1 / inv_n == pytest.approx(62.5 / 17.45, rel=1e-12)
+    assert 1 / inv_f == pytest.approx(62.5 / 7.55, rel=1e-12)
+    near, far = cam.dof_limits_m(50.0, 4.0, 5.0)
+    assert (near, far) == pytest.approx((62.5 / 17.45, 62.5 / 7.55), rel=1e-12)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.floats(20, 500), st.floats(1, 22), st.floats(0.6, 200))
+def test_reciprocal_dof_matches_shared_camera(f, a, s):
+    # given any lens state, 1/D_n and 1/D_f equal the reciprocals of shared.camera's limits,
+    # with 1/D_f <= 0 exactly where the far limit is infinite (s >= H)
+    inv_n, inv_f = (float(v) for v in J.inverse_dof_limits(f, a, s, cam.COC_MM))
+    near, far = cam.dof_limits_m(f, a, s)
+    assert inv_n == pytest.approx(1.0 / near, rel=1e-9)
+    if math.isinf(far):
+        assert inv_f <= 1e-12
+    else:
+        assert inv_f == pytest.approx(1.0 / far, rel=1e-7, abs=1e-12)
+
+
+def test_dof_cost_is_smooth_across_the_hyperfocal_distance():
+    # given the far limit at infinity as target (one-sided), the cost and its gradient stay finite
+    # and continuous as the focus distance crosses H, where D_f itself jumps to infinity
+    s = ca.SX.sym("s")
+    inv_n, inv_f = J.inverse_dof_limits(50.0, 4.0, s, 0.05)
+    c2 = J.dof_cost(inv_n, inv_f, 6.0, w_near=1.0, g_near=1 / 7.0, w_far=1.0, g_far=1 / 9.0, far_one_sided=0)
+    fun = ca.Function("c", [s], [c2, ca.gradient(c2, s)])
+    h = 12.55
+    vals = [[float(v) for v in fun(x)] for x in (h - 1e-6, h, h + 1e-6)]
+    assert all(math.isfinite(v) for row in vals for v in row)
+    assert vals[0][0] == pytest.approx(vals[2][0], rel=1e-5) and vals[0][1] == pytest.approx(vals[2][1], rel=1e-4)
+    one = J.dof_cost(inv_n, inv_f, 6.0, w_near=0.0, g_near=0.0, w_far=1.0, g_far=-0.01, far_one_sided=1)
+    f1 = ca.Function("c", [s], [one])
+    # and the one-sided far term is zero once 1/D_f <= -0.01 (s a bit past H), positive before
+    assert float(f1(h * 1.3)) == 0.0
+    assert float(f1(h * 0.5)) > 0.0
+
+
+@pytest.mark.parametrize("focus, d, mu, expected", [
+    # (fg, subject, bg) -> (w_near, g_near, w_far, g_far, one_sided)  [DESIGN §1.2]
+    ((False, True, False), 6.0, 1.0, (1, 1 / 5.0, 1, 1 / 7.0, 0)),  # subject: D_n* = d - mu, D_f* = d + mu
+    ((False, False, True), 6.0, 1.0, (1, 1 / 7.0, 1, -0.01, 1)),  # background: D_n* = d + mu, D_f* = inf
+    ((True, False, False), 6.0, 1.0, (1, 1 / 1.0, 1, 1 / 5.0, 0)),  # foreground: D_n* = 0 -> 1 m, D_f* = d - mu
+    ((False, False, False), 6.0, 1.0, (0, 0, 0, 0, 0)),  # nothing controlled
+    ((True, True, True), 6.0, 1.0, (1, 1.0, 1, -0.01, 1)),  # everything: D_n* = 0, D_f* = inf
+])
+def test_reciprocal_targets(focus, d, mu, expected):
+    near, far = cam.desired_dof_limits(*focus, d, mu)
+    got = J.reciprocal_targets(near, far, near_foreground_m=1.0, far_margin_inv_m=0.01)
+    assert got == pytest.approx(expected)
+
+
+# ----------------------------------------------------------------------------- model
+@pytest.mark.parametrize("roll", [False, True])
+def test_model_step_is_exact_for_constant_inputs(roll):
+    # given a state and constant inputs, one step of dt equals the closed-form integration
+    lay = model.Layout(roll)
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=lay.nx)
+    u = rng.normal(size=lay.nu)
+    dt = 0.3
+    xn = model.step(lay, x, u, dt)
+    np.testing.assert_allclose(xn[lay.P], x[lay.P] + x[lay.V] * dt + 0.5 * u[lay.ACC] * dt * dt)
+    np.testing.assert_allclose(xn[lay.V], x[lay.V] + u[lay.ACC] * dt)
+    assert xn[lay.YAW] == pytest.approx(x[lay.YAW] + u[lay.YAW_RATE] * dt)
+    assert xn[lay.PITCH] == pytest.approx(x[lay.PITCH] + u[lay.PITCH_RATE] * dt)
+    if roll:
+        assert xn[lay.ROLL] == pytest.approx(x[lay.ROLL] + u[lay.ROLL_RATE] * dt)
+    for si, ui in ((lay.F, lay.F_RATE), (lay.S, lay.S_RATE), (lay.A, lay.A_RATE)):
+        assert xn[si] == pytest.approx(x[si] + u[ui] * dt)
+    # and two half steps equal one full step (exact discretisation)
+    np.testing.assert_allclose(model.step(lay, model.step(lay, x, u, dt / 2), u, dt / 2), xn, atol=1e-12)
+
+
+def test_bounds_vectors_follow_the_config():
+    b = pc.Bounds()
+    lay = model.Layout(False)
+    lo, hi = model.state_bounds(lay, b)
+    assert (lo[lay.F], hi[lay.F]) == (30.0, 500.0) and (lo[lay.S], hi[lay.S]) == (4.0, 100.0)
+    assert (lo[lay.A], hi[lay.A]) == (1.0, 22.0) and np.all(hi[lay.V] == 2.0)
+    assert np.all(np.isinf(lo[lay.P])) and math.isinf(lo[lay.YAW])
+    ulo, uhi = model.input_bounds(lay, b)
+    assert np.all(uhi[lay.ACC] == 1.2) and uhi[lay.F_RATE] == 20.0 and uhi[lay.S_RATE] == 15.0
+    assert uhi[lay.A_RATE] == 3.0 and np.all(ulo == -uhi)
+
+
+def test_clamp_state_small_vs_large_violations():
+    lay = model.Layout(False)
+    b = pc.Bounds()
+    x = np.zeros(lay.nx)
+    x[lay.F], x[lay.S], x[lay.A] = 50.0, 10.0, 4.0
+    x[3] = 2.05  # 0.05 over |v| <= 2 (range 4): clamped
+    xc, ok = clamp_state(lay, b, x, 0.05)
+    assert ok and xc[3] == 2.0
+    x[lay.F] = 10.0  # 20 mm under 30 (range 470 -> tolerance 23.5 mm): clamped
+    xc, ok = clamp_state(lay, b, x, 0.05)
+    assert ok and xc[lay.F] == 30.0
+    x[lay.F] = 35.0
+    xc, ok = clamp_state(lay, pc.Bounds(focal_min_mm=200.0), x, 0.05)
+    assert not ok and xc[lay.F] == 35.0  # far out: left as is, the solve will fail on purpose
+
+
+def test_unwrap_and_wrap():
+    assert model.unwrap_near(-3.1, 3.1) == pytest.approx(-3.1 + 2 * math.pi)
+    assert model.wrap_angle(3 * math.pi / 2) == pytest.approx(-math.pi / 2)
+
+
+@pytest.mark.parametrize("changes, field", [
+    ({"bounds.focal_min_mm": 600.0}, "focal_min_mm"),
+    ({"bounds.speed_max_mps": 0.0}, "speed_max_mps"),
+    ({"weights.image": -1.0}, "image"),
+    ({"structure.horizon_steps": 0}, "horizon_steps"),
+    ({"structure.dt_s": 2.0}, "dt_s"),
+    ({"rate_hz": 0.0}, "rate_hz"),
+    ({"bounds.altitude_max_m": 0.5}, "altitude_max_m"),
+])
+def test_config_validation_names_the_field(changes, field):
+    with pytest.raises(pc.ConfigError, match=field):
+        pc.replace(pc.PlannerConfig(), **changes).validate()
+
+
+def test_config_from_dict_rejects_unknown_fields():
+    cfg = pc.from_dict({"rate_hz": 50, "structure": {"horizon_steps": 10}, "weights": {"image": 10}})
+    assert cfg.rate_hz == 50 and cfg.structure.horizon_steps == 10 and cfg.weights.image == 10
+    with pytest.raises(pc.ConfigError, match="bogus"):
+        pc.from_dict({"weights": {"bogus": 1}})

@@ -1,0 +1,123 @@
+"""Built-in simulator: vehicle, gimbal and lens dynamics (services/autopilot_bridge/sim/dynamics.py)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from cinetransfer.services.autopilot_bridge.sim.dynamics import DynamicsLimits, VehicleDynamics
+
+LIM = DynamicsLimits()
+
+
+def run(dyn: VehicleDynamics, seconds: float, dt: float = 0.005) -> dict[str, np.ndarray]:
+    """Advance in steps of dt and record position, velocity, acceleration."""
+    rec: dict[str, list] = {"p": [], "v": [], "a": [], "ypr": [], "lens": []}
+    for _ in range(int(round(seconds / dt))):
+        dyn.advance(dt)
+        rec["p"].append(dyn.position.copy())
+        rec["v"].append(dyn.velocity.copy())
+        rec["a"].append(dyn.acceleration.copy())
+        rec["ypr"].append(dyn.camera_ypr.copy())
+        rec["lens"].append((dyn.focal_mm, dyn.focus_m, dyn.f_number))
+    return {k: np.array(v) for k, v in rec.items()}
+
+
+def test_position_step_respects_speed_and_acceleration_limits_and_converges():
+    # given a vehicle at rest and a target 30 m away, diagonal and up
+    dyn = VehicleDynamics(limits=LIM)
+    dyn.set_target(position=np.array([20.0, 20.0, 5.0]))
+    # when it flies there
+    r = run(dyn, 60.0)
+    # then horizontal/vertical speed and acceleration stay within the limits...
+    assert np.hypot(r["v"][:, 0], r["v"][:, 1]).max() <= LIM.max_speed_xy_mps + 1e-9
+    assert np.abs(r["v"][:, 2]).max() <= LIM.max_speed_z_mps + 1e-9
+    assert np.linalg.norm(r["a"], axis=1).max() <= LIM.max_accel_mps2 + 1e-9
+    dv = np.diff(r["v"], axis=0) / 0.005  # achieved acceleration
+    assert np.linalg.norm(dv, axis=1).max() <= LIM.max_accel_mps2 + 1e-6
+    # ...it cruised at the speed limit, and it arrives without overshooting much
+    assert np.hypot(r["v"][:, 0], r["v"][:, 1]).max() > 0.99 * LIM.max_speed_xy_mps
+    np.testing.assert_allclose(dyn.position, [20, 20, 5], atol=0.02)
+    assert r["p"][:, 0].max() < 20.0 + 0.05
+
+
+def test_velocity_follows_a_first_order_lag():
+    # given a small velocity step (below the acceleration limit: 0.2/0.25 = 0.8 m/s^2)
+    dyn = VehicleDynamics(limits=LIM)
+    v_sp = np.array([0.2, 0.0, 0.0])
+    t, dt, vs = 0.0, 0.005, []
+    while t < 1.0:
+        # position setpoint moves with the vehicle: only the velocity term acts
+        dyn.set_target(position=dyn.position.copy(), velocity=v_sp)
+        dyn.advance(dt)
+        t += dt
+        vs.append(dyn.velocity[0])
+    vs = np.array(vs)
+    tau = LIM.lag_tau_s
+    # then v(tau) = 63 % and v(3 tau) = 95 % of the step (first-order response)
+    i_tau = int(round(tau / dt)) - 1
+    assert vs[i_tau] == pytest.approx(0.2 * (1 - math.exp(-1)), rel=0.03)
+    assert vs[3 * (i_tau + 1) - 1] == pytest.approx(0.2 * (1 - math.exp(-3)), rel=0.03)
+    assert np.all(np.diff(vs) >= -1e-12) and vs.max() <= 0.2 + 1e-9
+
+
+def test_gimbal_rates_and_ranges_are_limited_and_yaw_takes_the_short_way():
+    dyn = VehicleDynamics(limits=LIM, camera_ypr=np.array([math.radians(170), 0.0, 0.0]))
+    dyn.set_target(position=dyn.position, camera_ypr=np.array([math.radians(-170), math.radians(-120),
+                                                               math.radians(80)]))
+    r = run(dyn, 0.2)
+    # yaw went up through 180 deg (20 deg the short way), at <= 60 deg/s
+    yaw_deg = math.degrees(dyn.camera_ypr[0]) % 360
+    assert yaw_deg == pytest.approx(170 + 60 * 0.2, abs=0.1)
+    # pitch and roll moved at their own rate limits
+    assert dyn.camera_ypr[1] == pytest.approx(-LIM.pitch_rate_rps * 0.2, abs=1e-6)
+    assert dyn.camera_ypr[2] == pytest.approx(LIM.roll_rate_rps * 0.2, abs=1e-6)
+    run(dyn, 5.0)
+    assert math.degrees(dyn.camera_ypr[0]) == pytest.approx(-170, abs=1e-6)
+    assert dyn.camera_ypr[1] == pytest.approx(LIM.pitch_min_rad)  # clamped to the mechanical range
+    assert dyn.camera_ypr[2] == pytest.approx(LIM.roll_max_rad)
+    steps = np.abs(np.diff(np.unwrap(r["ypr"][:, 0])))
+    assert steps.max() <= LIM.yaw_rate_rps * 0.005 + 1e-9
+
+
+def test_lens_rates_and_ranges_are_limited_and_nan_keeps_a_target():
+    dyn = VehicleDynamics(limits=LIM, focal_mm=30.0, focus_m=5.0, f_number=4.0)
+    dyn.set_target(position=dyn.position, lens=(100.0, 50.0, 1.0))
+    run(dyn, 1.0)
+    assert dyn.focal_mm == pytest.approx(30 + 20 * 1.0, abs=1e-6)
+    assert dyn.focus_m == pytest.approx(5 + 15 * 1.0, abs=1e-6)
+    assert dyn.f_number == pytest.approx(1.0, abs=1e-6)  # 3/s: reached after 1 s
+    dyn.set_target(position=dyn.position, lens=(1000.0, float("nan"), 50.0))
+    run(dyn, 60.0)
+    assert dyn.focal_mm == pytest.approx(LIM.focal_max_mm)
+    assert dyn.focus_m == pytest.approx(50.0)  # NaN kept the previous target
+    assert dyn.f_number == pytest.approx(LIM.f_number_max)
+
+
+def test_hold_decelerates_within_limits_and_stays_put():
+    dyn = VehicleDynamics(limits=LIM)
+    dyn.set_target(position=np.array([100.0, 0.0, 0.0]))
+    run(dyn, 8.0)
+    assert dyn.velocity[0] == pytest.approx(2.0, abs=0.01)
+    p_hold = dyn.position.copy()
+    dyn.hold()
+    r = run(dyn, 6.0)
+    # decelerates at the limit: stopping distance about v^2 / (2 a) plus the lag
+    travelled = dyn.position[0] - p_hold[0]
+    assert 2.0 ** 2 / (2 * LIM.max_accel_mps2) * 0.9 < travelled < 2.0 ** 2 / (2 * LIM.max_accel_mps2) + 1.0
+    assert np.linalg.norm(r["a"], axis=1).max() <= LIM.max_accel_mps2 + 1e-9
+    assert np.linalg.norm(dyn.velocity) < 0.01
+    p_stop = dyn.position.copy()
+    run(dyn, 3.0)
+    assert np.linalg.norm(dyn.position - p_stop) < 0.01
+    assert dyn.holding
+
+
+def test_limits_validate_with_clear_errors():
+    with pytest.raises(ValueError, match="max_speed_xy_mps"):
+        DynamicsLimits(max_speed_xy_mps=-1.0)
+    with pytest.raises(ValueError, match="focal_min_mm must be < focal_max_mm"):
+        DynamicsLimits(focal_min_mm=100.0, focal_max_mm=50.0)
+    with pytest.raises(ValueError, match="unknown field"):
+        DynamicsLimits.from_dict({"max_sped": 3})

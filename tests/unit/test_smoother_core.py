@@ -1,0 +1,208 @@
+"""Smoother core: main subject, bridging, bad input, ordering, mask/skeleton, focus formulation."""
+from __future__ import annotations
+
+import random
+
+import numpy as np
+import pytest
+
+from cinetransfer.services.smoother import focus as F
+from cinetransfer.services.smoother.config import ConfigError, SmootherConfig
+from cinetransfer.services.smoother.core import (SmootherInputError, features_from_measurements, smooth_measurements,
+                                                 smooth_sequence)
+from cinetransfer.services.smoother.synthetic import H, W, measurement, person, skeleton_in, walking_sequence
+from cinetransfer.shared import messages as M
+
+
+def subject_x0(result):
+    return result.diagnostics["raw_box"][:, 0] * W
+
+
+def test_viterbi_picks_the_continuous_subject_over_a_flickering_one():
+    # Given a subject walking in every frame (conf 0.7) and a bystander of higher confidence (0.98)
+    # present in every third frame, far away
+    ms = walking_sequence(90, flicker=True)
+    # When smoothed
+    r = smooth_measurements(ms)
+    # Then every frame follows the walking subject, never the bystander at x0 = 480
+    assert r.instructions.subject_visible.all()
+    x0 = subject_x0(r)
+    assert np.nanmax(x0) < 300
+    assert np.all(r.diagnostics["person"] == 0)
+
+
+def test_person_present_in_most_frames_wins_over_a_confident_short_one():
+    # Given A in all 60 frames (conf 0.6) and B (conf 0.99) only in the first 20, both static
+    ms = []
+    for i in range(60):
+        ppl = [person([100, 100, 200, 400], 0.6)]
+        if i < 20:
+            ppl.insert(0, person([400, 100, 500, 400], 0.99))
+        ms.append(measurement(i, ppl))
+    r = smooth_measurements(ms)
+    # Then A is the subject throughout (no switch from B to A mid-way)
+    np.testing.assert_allclose(subject_x0(r), 100, atol=1e-3)
+
+
+def test_dropout_is_bridged_and_long_absence_is_not_visible():
+    ms = walking_sequence(120, flicker=False, focus=False)
+    # short dropout (6 frames = 0.25 s at 24 fps) and a long absence (40 frames)
+    for i in list(range(30, 36)) + list(range(60, 100)):
+        ms[i] = measurement(i, [], [])
+    r = smooth_measurements(ms)
+    ins = r.instructions
+    assert ins.subject_visible[30:36].all() and r.diagnostics["bridged"][30:36].all()
+    assert not ins.subject_visible[60:100].any()
+    assert ins.subject_visible[100:].all()
+    # bridged targets are finite and lie between the neighbours; invisible ones are NaN
+    assert np.isfinite(ins.image_targets[30:36]).all()
+    x = ins.image_targets[:, 0, 0]
+    assert x[29] < x[33] < x[36]
+    assert np.isnan(ins.image_targets[60:100]).all() and np.isnan(ins.subject_box[60:100]).all()
+
+
+def test_missing_frames_are_gaps_bridged():
+    ms = walking_sequence(60, flicker=False)
+    ms = [m for m in ms if not 20 <= m.frame_index < 24]  # the measurements never arrived
+    r = smooth_measurements(ms)
+    assert r.instructions.image_targets.shape[0] == 60
+    assert r.instructions.subject_visible.all() and r.diagnostics["gaps"] == 4
+    assert not r.instructions.valid  # gaps mark the output as degraded
+
+
+def test_out_of_order_and_duplicates_give_the_same_result():
+    ms = walking_sequence(80)
+    ref = smooth_measurements(ms).instructions
+    shuffled = ms + ms[10:20]
+    random.Random(1).shuffle(shuffled)
+    r = smooth_measurements(shuffled)
+    assert r.diagnostics["duplicates"] == 10
+    np.testing.assert_array_equal(r.instructions.image_targets, ref.image_targets)
+    np.testing.assert_array_equal(r.instructions.focus_in, ref.focus_in)
+
+
+@pytest.mark.parametrize("ms, needle", [
+    ([], "empty"),
+    ([measurement(i) for i in range(10)], "no person"),
+])
+def test_no_person_or_empty_is_a_clear_error(ms, needle):
+    with pytest.raises(SmootherInputError, match=needle):
+        smooth_measurements(ms)
+
+
+def test_boxes_and_joints_stay_inside_the_image():
+    # Given a subject leaving the image on the right (raw box and joints beyond the border)
+    ms = []
+    rng = np.random.default_rng(0)
+    for i in range(50):
+        b = np.array([500 + 4 * i, 100, 620 + 4 * i, 400.0])
+        ms.append(measurement(i, [person(b, 0.9)], [skeleton_in(b, rng=rng, noise=20)]))
+    ins = smooth_measurements(ms).instructions
+    vis = ins.subject_visible
+    assert vis.all()
+    assert np.nanmax(ins.subject_box) <= 1.0 + 1e-9 and np.nanmin(ins.subject_box) >= -1e-9
+    t = ins.image_targets[np.isfinite(ins.image_targets)]
+    assert t.max() <= 1.0 + 1e-9 and t.min() >= -1e-9
+
+
+def test_smoothing_reduces_joint_noise():
+    rng = np.random.default_rng(5)
+    ms, truth = [], []
+    for i in range(200):
+        b = np.array([100 + 1.0 * i, 100, 220 + 1.0 * i, 420.0])
+        truth.append(skeleton_in(b).keypoints_px)
+        ms.append(measurement(i, [person(b, 0.9)], [skeleton_in(b, rng=rng, noise=6.0)]))
+    r = smooth_measurements(ms)
+    truth = np.array(truth) / [W, H]
+    raw_err = np.nanmean(np.abs(r.diagnostics["raw_joints"] - truth))
+    sm_err = np.nanmean(np.abs(r.diagnostics["smoothed_joints"] - truth))
+    assert sm_err < 0.6 * raw_err
+
+
+def test_mask_and_skeleton_of_the_main_subject_are_picked_by_overlap():
+    # Given two overlapping people; the main subject's skeleton is listed second
+    a = np.array([100, 100, 220, 420.0])
+    b = np.array([180, 120, 300, 440.0])
+    ms = []
+    for i in range(30):
+        ppl = [person(a, 0.9), person(b, 0.5 if i % 2 else 0.0)]
+        ms.append(measurement(i, ppl, [skeleton_in(b), skeleton_in(a)]))
+    r = smooth_measurements(ms)
+    assert np.all(r.diagnostics["mask_index"] == 0)
+    assert np.all(r.diagnostics["skeleton_index"] == 1)  # the skeleton inside a's mask
+
+
+def test_focus_regions_fractions_from_mask():
+    # Subject sharp, everything else blurred; the feet end above the bottom: foreground present.
+    b = np.array([200, 40, 300, 360.0])
+    fm = np.zeros((H // 2, W // 2), np.uint8)
+    m = person(b, 0.9)
+    full = m.full_mask(W, H)[::2, ::2]
+    fm[full] = 255
+    feats = features_from_measurements([measurement(0, [m], [skeleton_in(b)], fm)], SmootherConfig())
+    fg, subj, bg = feats[0].focus[0]
+    assert subj > 0.97 and bg < 0.02 and fg == pytest.approx(0.0, abs=0.01)
+    assert feats[0].focus_none[2] == pytest.approx(full.mean(), abs=0.01)
+
+
+def focus_schedule(n=240, seed=0):
+    """Ground truth in/out per region switching every 40-80 frames, b = truth with realistic noise."""
+    rng = np.random.default_rng(seed)
+    truth = np.zeros((n, 3))
+    for c in range(3):
+        s, i = rng.integers(0, 2), 0
+        while i < n:
+            L = int(rng.integers(40, 80))
+            truth[i:i + L, c] = s
+            s, i = 1 - s, i + L
+    b = np.clip(np.where(truth > 0, 0.8, 0.15) + rng.normal(0, 0.15, truth.shape), 0, 1)
+    b[rng.uniform(size=n) < 0.05] = np.nan  # frames without a measurement
+    return truth, b
+
+
+def test_our_focus_formulation_beats_the_literal_one():
+    truth, b = focus_schedule()
+    ours = F.smooth_focus(b, method="hmm")
+    lit = F.smooth_focus(b, method="literal")
+    err_ours = np.mean(np.abs(ours - truth))
+    err_lit = np.mean(np.abs(lit - truth))
+    err_raw = np.nanmean(np.abs(b - truth))
+    # The printed formula drives B to 0 whatever b says.
+    assert np.nanmax(lit) < 0.05
+    assert err_ours < 0.05 < err_lit
+    assert err_ours < err_raw
+    assert np.mean((ours > 0.5) == (truth > 0.5)) > 0.97
+
+
+def test_focus_viterbi_and_l2_are_sane():
+    truth, b = focus_schedule(seed=2)
+    for method in ("viterbi", "l2"):
+        B = F.smooth_focus(b, method=method)
+        assert np.all((B >= -1e-9) & (B <= 1 + 1e-9))
+        assert np.mean((B > 0.5) == (truth > 0.5)) > 0.95, method
+
+
+def test_literal_subject_baseline_agrees_on_an_easy_case():
+    pytest.importorskip("casadi")
+    ms = walking_sequence(40, flicker=True, focus=False)
+    cfg = SmootherConfig(subject_method="literal")
+    r = smooth_sequence(features_from_measurements(ms, cfg), cfg)
+    assert r.instructions.subject_visible.all()
+    assert np.nanmax(subject_x0(r)) < 300
+
+
+def test_config_validation_names_the_field():
+    with pytest.raises(ConfigError, match="joints"):
+        SmootherConfig(joints=("chest",)).validate()
+    with pytest.raises(ConfigError, match="theta"):
+        SmootherConfig(theta=1.5).validate()
+
+
+def test_instructions_are_a_valid_message():
+    from cinetransfer.shared import codec
+
+    ins = smooth_measurements(walking_sequence(30)).instructions
+    back = codec.decode(codec.encode(ins), M.Instructions)
+    assert back.image_targets.shape == (30, 4, 2)
+    assert back.joint_names == ["left_shoulder", "right_shoulder", "left_hip", "right_hip"]
+    assert back.frame_duration_s == pytest.approx(1 / 24)
