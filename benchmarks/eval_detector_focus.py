@@ -61,8 +61,16 @@ def blur_frame(img: np.ndarray, reg: dict[str, np.ndarray], cond: str, sigma: fl
     return (alpha * blurred + (1.0 - alpha) * img).round().astype(np.uint8)
 
 
-def evaluate(cfg: DetectorConfig, clips: list[str], stride: int = 1, verbose: bool = True) -> dict:
+def evaluate(cfg: DetectorConfig, clips: list[str], stride: int = 1, verbose: bool = True,
+             masks_from: str = "detector") -> dict:
+    """`masks_from`: which person masks guide the propagation: 'detector' (the full pipeline, as
+    deployed), 'gt' (ground-truth masks: the estimator's ceiling), 'none' (no masks)."""
     est = FocusEstimator(cfg)
+    det = None
+    if masks_from == "detector":
+        from cinetransfer.services.detector.core import Detector
+
+        det = Detector(cfg.replace(running_mode="image"))
     errs: dict[str, list[float]] = {r: [] for r in REGIONS}
     by_cond: dict[str, list[float]] = {c: [] for c in CONDITIONS}
     acc, ious, times = [], [], []
@@ -76,9 +84,14 @@ def evaluate(cfg: DetectorConfig, clips: list[str], stride: int = 1, verbose: bo
             cond, sigma = CONDITIONS[k % len(CONDITIONS)], SIGMAS[(k // len(CONDITIONS)) % len(SIGMAS)]
             k += 1
             img = blur_frame(f.image, reg, cond, sigma)
-            t = time.perf_counter()
-            res = est.estimate(img)
-            times.append(time.perf_counter() - t)
+            if det is not None:
+                t = time.perf_counter()
+                _, _, res = det.analyse(img, 0)
+                times.append(time.perf_counter() - t)
+            else:
+                t = time.perf_counter()
+                res = est.estimate(img, masks[f.index] if masks_from == "gt" else None)
+                times.append(time.perf_counter() - t)
             h, w = img.shape[:2]
             prob = cv2.resize(res.prob, (w, h), interpolation=cv2.INTER_LINEAR)
             focused = prob > 0.5
@@ -107,13 +120,14 @@ def evaluate(cfg: DetectorConfig, clips: list[str], stride: int = 1, verbose: bo
         "ms_p95": 1e3 * float(np.percentile(times, 95)),
     }
     if verbose:
-        print(f"focus on {', '.join(clips)}: {k} frames (stride {stride})")
+        print(f"focus on {', '.join(clips)}: {k} frames (stride {stride}), person masks from {masks_from}")
         for r in REGIONS:
             print(f"  region {r:<10} mean |b - b_true| = {out['mean_abs_error'][r]:.3f}   (goal <= 0.12)")
         for c, v in out["error_by_condition"].items():
             print(f"  condition {c:<10} mean error {v:.3f}")
         print(f"  pixel accuracy {out['pixel_accuracy']:.3f}, in-focus IoU {out['in_focus_iou']:.3f}")
-        print(f"  estimator time median {out['ms_median']:.1f} ms, p95 {out['ms_p95']:.1f} ms (854x480 input)")
+        what = "pose + focus" if det is not None else "focus"
+        print(f"  {what} time median {out['ms_median']:.1f} ms, p95 {out['ms_p95']:.1f} ms (854x480 input)")
     return out
 
 
@@ -121,12 +135,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--clips", nargs="+", default=["dance-twirl", "parkour"])
     ap.add_argument("--stride", type=int, default=1)
+    ap.add_argument("--masks", choices=("detector", "gt", "none"), default="detector",
+                    help="person masks guiding the propagation (default: the detector's own)")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="DetectorConfig overrides")
     a = ap.parse_args()
     over = {kv.split("=", 1)[0]: ast.literal_eval(kv.split("=", 1)[1]) for kv in a.set}
     cfg = DetectorConfig(**over).validate()
-    res = evaluate(cfg, a.clips, a.stride)
-    p = write_result("eval_detector_focus", {"config": over, **res})
+    res = evaluate(cfg, a.clips, a.stride, masks_from=a.masks)
+    p = write_result(f"eval_detector_focus_{a.masks}", {"config": over, **res})
     print(f"wrote {p}")
 
 

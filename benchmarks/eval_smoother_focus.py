@@ -7,7 +7,8 @@ forwards and backwards to the requested length. For each region — foreground (
 the subject's feet), subject (the mask), background (the rest) — a random schedule says in or
 out of focus for runs of 20-70 frames; out-of-focus regions are replaced by a Gaussian blur of
 the frame (sigma in px). The detector's focus estimator (Zhuo & Sim, services/detector/focus.py)
-gives the focus map; the person is the ground-truth mask (so only the focus chain is measured).
+gives the focus map (told the person mask, as Detector.analyse does); the person is the ground-truth
+mask (so only the focus chain is measured).
 Error: |value - truth| per region over the frames where the region exists (truth 1 = in focus),
 mean and std, for the raw fraction b and for B from every focus method; also the share of frames
 where B > theta agrees with the truth. Goal (issue 5): optimised error <= the paper's Table II
@@ -98,7 +99,7 @@ def run_clip(name: str, n: int, sigma: float, seed: int, est: FocusEstimator, cf
         for t, reg in enumerate((fg, subj, bg)):
             if not truth[f, t]:
                 out[reg] = blurred[reg]
-        fm = est.estimate(out).as_uint8()
+        fm = est.estimate(out, person_mask=mask).as_uint8()  # as the detector does (no bleeding)
         ys, xs = np.nonzero(mask)
         people = []
         if xs.size:

@@ -53,9 +53,14 @@ def run(name: str, cfg: pc.PlannerConfig, duration_s: float) -> dict:
     build_s = time.perf_counter() - t
     sim = KinematicSim(scene, bounds=cfg.bounds, follow_horizon=True)
     iters: list[int] = []
-    log = run_closed_loop(planner, sim, ins, duration_s=duration_s,
-                          on_step=lambda i, sp: iters.append(int(planner.counters["iterations"])))
+    cpu: list[float] = []
+
+    def on_step(i: int, sp: object) -> None:
+        iters.append(int(planner.counters["iterations"]))
+        cpu.append(planner.last_result.cpu_s * 1e3 if planner.last_result is not None else float("nan"))
+    log = run_closed_loop(planner, sim, ins, duration_s=duration_s, on_step=on_step)
     ms = np.asarray(log.solve_ms, dtype=float)[WARMUP:]
+    cpu_ms = np.asarray(cpu, dtype=float)[WARMUP:]
     err = np.asarray(log.image_error)
     t_s = np.asarray(log.t_s)
     st = cfg.structure
@@ -64,7 +69,8 @@ def run(name: str, cfg: pc.PlannerConfig, duration_s: float) -> dict:
         "warm_start": st.warm_start, "codegen": st.codegen, "build_s": build_s, "solves": len(log.solve_ms),
         "first_solve_ms": float(log.solve_ms[0]),
         "solve_ms_median": float(np.median(ms)), "solve_ms_p95": float(np.percentile(ms, 95)),
-        "solve_ms_max": float(np.max(ms)), "iterations_median": float(np.median(iters[WARMUP:])),
+        "solve_ms_max": float(np.max(ms)), "cpu_ms_median": float(np.median(cpu_ms)),
+        "cpu_ms_p95": float(np.percentile(cpu_ms, 95)), "cpu_ms_max": float(np.max(cpu_ms)), "iterations_median": float(np.median(iters[WARMUP:])),
         "failures": int(planner.counters["failures"]), "holds": int(sum(m == "hold" for m in log.mode)),
         "tracking_cost": log.tracking_cost(),
         "image_error_median_after_3s": float(np.median(err[t_s >= 3.0])),
@@ -112,20 +118,29 @@ def main(argv: list[str] | None = None) -> int:
     for name, cfg in configs(args):
         r = run(name, cfg, args.duration)
         results.append(r)
-        print(f"{name:<52} median {r['solve_ms_median']:7.2f} ms  p95 {r['solve_ms_p95']:7.2f} ms  "
-              f"max {r['solve_ms_max']:7.2f} ms  it {r['iterations_median']:4.0f}  cost {r['tracking_cost']:.4f}  "
+        print(f"{name:<46} wall med {r['solve_ms_median']:6.2f} p95 {r['solve_ms_p95']:6.2f} max {r['solve_ms_max']:6.2f}"
+              f" | cpu med {r['cpu_ms_median']:6.2f} p95 {r['cpu_ms_p95']:6.2f} ms | it {r['iterations_median']:3.0f}"
+              f"  cost {r['tracking_cost']:.3f}  "
               f"err>3s med {r['image_error_median_after_3s']:.4f} max {r['image_error_max_after_3s']:.4f}  "
               f"fail {r['failures']}", flush=True)
     base = results[0]
     print("\nratios vs the CineMPC-like baseline (baseline / ours: > 1 = ours faster / better):")
     for r in results[1:]:
-        print(f"  {r['name']:<50} solve median x{base['solve_ms_median'] / r['solve_ms_median']:6.1f}  "
-              f"p95 x{base['solve_ms_p95'] / r['solve_ms_p95']:6.1f}  "
-              f"tracking cost x{base['tracking_cost'] / max(r['tracking_cost'], 1e-12):5.2f}")
-    goal = [r for r in results[1:] if r["N"] >= 15 and r["solve_ms_p95"] < 10.0
-            and r["tracking_cost"] <= base["tracking_cost"]]
-    print("\ngoal (N >= 15, p95 < 10 ms, tracking cost <= baseline): "
-          + ("MET by " + "; ".join(r["name"] for r in goal) if goal else "NOT met"))
+        print(f"  {r['name']:<46} wall median x{base['solve_ms_median'] / r['solve_ms_median']:5.1f} "
+              f"p95 x{base['solve_ms_p95'] / r['solve_ms_p95']:5.1f} | cpu median "
+              f"x{base['cpu_ms_median'] / r['cpu_ms_median']:5.1f} p95 x{base['cpu_ms_p95'] / r['cpu_ms_p95']:5.1f}"
+              f" | tracking cost x{base['tracking_cost'] / max(r['tracking_cost'], 1e-12):5.2f}")
+    load = os.getloadavg()[0]
+    goal = {}
+    for clock in ("solve", "cpu"):
+        ok = [r for r in results[1:] if r["N"] >= 15 and r[f"{clock}_ms_p95"] < 10.0
+              and r["tracking_cost"] <= base["tracking_cost"]]
+        goal[clock] = [r["name"] for r in ok]
+        print(f"goal (N >= 15, {'wall' if clock == 'solve' else 'CPU'} p95 < 10 ms, tracking cost <= baseline): "
+              + ("MET by " + "; ".join(goal[clock]) if ok else "NOT met"))
+    if load > 0.8 * (os.cpu_count() or 1):
+        print(f"note: load average {load:.1f} on {os.cpu_count()} CPUs: wall times are inflated; CPU times are the "
+              "better guide on a busy machine")
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
                                 cwd=Path(__file__).resolve().parent, timeout=10).stdout.strip()
@@ -137,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
             "config_default": dataclasses.asdict(pc.PlannerConfig())}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     with open(args.out, "w", encoding="utf-8") as fh:
-        json.dump({"meta": meta, "results": results, "goal_met": bool(goal)}, fh, indent=1, default=str)
+        json.dump({"meta": meta, "results": results, "goal_met_by": goal}, fh, indent=1, default=str)
     print(f"wrote {args.out}")
     return 0
 

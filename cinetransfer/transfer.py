@@ -198,7 +198,7 @@ def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: fl
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="cinetransfer transfer", description=__doc__.splitlines()[0])
     p.add_argument("source", help="source video (anything OpenCV decodes)")
-    p.add_argument("--scene", default="park", help="simulator scene name or YAML file (default %(default)s)")
+    p.add_argument("--scene", default="open_country", help="simulator scene name or YAML file (default %(default)s)")
     p.add_argument("-o", "--outdir", required=True, help="output folder")
     p.add_argument("--rig", default="transfer", help="rig name (default %(default)s)")
     p.add_argument("--preroll", type=float, default=3.0, help="seconds to settle on frame 0 before recording")

@@ -66,8 +66,18 @@ LENS_COMMANDS = (mavlink.MAV_CMD_SET_CAMERA_ZOOM, mavlink.MAV_CMD_SET_CAMERA_FOC
 RESULT_NAMES = {v: k for k, v in vars(mavlink).items() if k.startswith("MAV_RESULT_") and isinstance(v, int)}
 
 
+def parse_url(url: str, baud: int) -> tuple[str, int]:
+    """pymavlink device string and baud rate; also accepts 'serial:/dev/ttyX[:BAUD]'."""
+    if url.startswith("serial:"):
+        rest = url[len("serial:"):]
+        path, _, b = rest.rpartition(":") if rest.rsplit(":", 1)[-1].isdigit() else (rest, "", "")
+        return path, int(b) if b else baud
+    return url, baud
+
+
 def connect(url: str, *, source_system: int, source_component: int, baud: int = 921600) -> Any:
     """A pymavlink connection speaking MAVLink 2 with the common dialect."""
+    url, baud = parse_url(url, baud)
     conn = mavutil.mavlink_connection(url, baud=baud, source_system=source_system,
                                       source_component=source_component, dialect="common")
     conn.mav.WIRE_PROTOCOL_VERSION = "2.0"
@@ -142,7 +152,7 @@ class MavlinkBackend(VehiclePort):
         self.want_engaged = cfg.engage_on_start
         self.engaged = False
         self.takeoff_sent = False
-        self._next_hb = self._next_sp = self._next_engage = 0.0
+        self._next_hb = self._next_sp = self._next_engage = self._next_arm = 0.0
         # commands and acks
         self.pending: dict[int, tuple[float, tuple[float, ...]]] = {}
         self.acks: dict[int, Ack] = {}
@@ -303,7 +313,7 @@ class MavlinkBackend(VehiclePort):
         sent = self.pending.pop(cmd, None)
         if sent is None:
             return
-        ack = Ack(cmd, result, sent[0], now, sent[1])
+        ack = Ack(cmd, result, sent[0], self.clock(), sent[1])  # the receive time, not the poll's start
         self.acks[cmd] = ack
         self.ack_rtts_ms.append(ack.rtt_ms)
         if ack.accepted:
@@ -315,6 +325,13 @@ class MavlinkBackend(VehiclePort):
                 self.lens_acked["focus_distance_m"] = p[1]
             elif cmd == mavlink.MAV_CMD_DO_DIGICAM_CONFIGURE:
                 self.lens_acked["f_number"] = p[2]
+            # provisional until the next HEARTBEAT confirms it (saves a second when engaging)
+            elif cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+                self.armed = p[0] >= 0.5
+            elif cmd == mavlink.MAV_CMD_DO_SET_MODE and self.autopilot == "px4":
+                self.mode = F.px4_mode_name(F.px4_custom_mode(int(p[1]), int(p[2])))
+            elif cmd == mavlink.MAV_CMD_DO_SET_MODE:
+                self.mode = F.acm_mode_name(int(p[1]))
         else:
             self.counters["mav_acks_failed"] += 1
             self.log.warning("command %d refused: %s", cmd, ack.result_name)
@@ -418,7 +435,8 @@ class MavlinkBackend(VehiclePort):
                                   F.PX4_MAIN["OFFBOARD"], 0)
             else:
                 self._next_engage = now + 0.1
-        if not self.armed:
+        if not self.armed and now >= self._next_arm:
+            self._next_arm = now + 1.0
             self.send_command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
 
     def _taking_off_while_holding(self) -> bool:

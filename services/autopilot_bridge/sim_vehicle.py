@@ -15,7 +15,8 @@ It emulates just enough of PX4 (or ArduCopter with --autopilot ardupilot) for th
   MAV_CMD_NAV_LAND, SET_POSITION_TARGET_LOCAL_NED (position / velocity / yaw),
   GIMBAL_MANAGER_SET_ATTITUDE and MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, MAV_CMD_SET_CAMERA_ZOOM
   (ZOOM_TYPE_FOCAL_LENGTH), MAV_CMD_SET_CAMERA_FOCUS (FOCUS_TYPE_METERS),
-  MAV_CMD_DO_DIGICAM_CONFIGURE (param3 = f-stop); other commands get MAV_RESULT_UNSUPPORTED;
+  MAV_CMD_DO_DIGICAM_CONFIGURE (param3 = f-stop), MAV_CMD_GET_HOME_POSITION (-> HOME_POSITION);
+  other commands get MAV_RESULT_UNSUPPORTED;
 - PX4 OFFBOARD semantics: switching into OFFBOARD is refused (TEMPORARILY_REJECTED) unless
   setpoints are streaming; in OFFBOARD, a stream that stops for `--offboard-timeout` (0.5 s,
   i.e. below 2 Hz) makes the vehicle leave OFFBOARD and hold (AUTO.LOITER);
@@ -33,6 +34,7 @@ import argparse
 import collections
 import logging
 import math
+import select
 import signal
 import threading
 import time
@@ -72,6 +74,7 @@ class SimVehicle:
             self.model.hold_here()
         else:
             raise ValueError(f"dynamics {dynamics!r} must be 'sim' or 'simple'")
+        self.home_enu = np.array([start_enu[0], start_enu[1], 0.0])
         self.mode = "LOITER"  # PX4 AUTO.LOITER ('Hold') / ArduCopter LOITER
         self.t0 = time.monotonic()
         self.last_t: float | None = None
@@ -225,6 +228,9 @@ class SimVehicle:
             return R.MAV_RESULT_ACCEPTED
         if cmd == R.MAV_CMD_NAV_LAND:
             return self._set_mode("LAND", now) if self.mode != "LAND" else R.MAV_RESULT_ACCEPTED
+        if cmd == R.MAV_CMD_GET_HOME_POSITION:
+            self._send_home(now)
+            return R.MAV_RESULT_ACCEPTED
         if cmd == R.MAV_CMD_SET_MESSAGE_INTERVAL:
             name = {R.MAVLINK_MSG_ID_LOCAL_POSITION_NED: "LOCAL_POSITION_NED", R.MAVLINK_MSG_ID_ATTITUDE: "ATTITUDE",
                     R.MAVLINK_MSG_ID_GIMBAL_DEVICE_ATTITUDE_STATUS: "GIMBAL_DEVICE_ATTITUDE_STATUS",
@@ -269,6 +275,12 @@ class SimVehicle:
         return R.MAV_RESULT_UNSUPPORTED
 
     # ------------------------------------------------------------------ send
+    def _send_home(self, now: float) -> None:
+        """HOME_POSITION: local NED of the start point (no GPS: lat/lon/alt 0)."""
+        x, y, z = (float(v) for v in F.enu_to_ned(self.home_enu))
+        self.conn.mav.home_position_send(0, 0, 0, x, y, z, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0,
+                                         int(time.time() * 1e6))
+
     def _send_due(self, now: float) -> None:
         m, mav = self.model, self.conn.mav
         ms = self._ms(now)
@@ -338,16 +350,26 @@ class SimVehicle:
             self._send_due(now)
 
     def run(self, stop: threading.Event) -> None:
+        """Step at `rate_hz`, and at once whenever bytes arrive (commands are answered without
+        waiting for the next physics tick)."""
         period = 1.0 / self.rate_hz
         nxt = time.monotonic()
+        fd = getattr(self.conn, "fd", None)
         while not stop.is_set():
             self.step()
-            nxt += period
-            delay = nxt - time.monotonic()
-            if delay < -0.5:
-                nxt = time.monotonic()
-                delay = 0.0
-            stop.wait(max(delay, 0.0))
+            now = time.monotonic()
+            if now >= nxt:
+                nxt += period
+                if nxt < now - 0.5:
+                    nxt = now + period
+            delay = max(nxt - time.monotonic(), 0.0)
+            if fd is not None:
+                try:
+                    select.select([fd], [], [], min(delay, 0.1))
+                except (OSError, ValueError):
+                    stop.wait(delay)
+            else:
+                stop.wait(delay)
 
     def setpoint_rate_hz(self, window_s: float = 2.0) -> float:
         """Rate of SET_POSITION_TARGET_LOCAL_NED over the last `window_s` seconds."""

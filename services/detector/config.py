@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from typing import Any
 
 BACKENDS = ("mediapipe", "torchvision")
+FALLBACKS = ("none", "hog")
 RUNNING_MODES = ("video", "image")
 
 
@@ -33,6 +34,13 @@ class DetectorConfig:
     min_person_confidence: float = 0.35  # drop people whose derived confidence is below this, [0, 1]
     dedup_iou: float = 0.5  # two detections whose boxes overlap more than this are one person, (0, 1]
     min_box_height_px: int = 8  # ignore people smaller than this [px]
+    # --- fallback person detector (any backend): finds people the pose model misses (back views,
+    #     crowds) as box-only detections; costs ~50-90 ms/frame on one core, so off by default
+    person_fallback: str = "none"  # 'none' or 'hog' (OpenCV's built-in HOG pedestrian detector)
+    hog_work_height_px: int = 384  # frames are downscaled to this height for HOG [px]
+    hog_min_score: float = 0.0  # HOG SVM margin threshold (higher = fewer, surer boxes)
+    hog_box_shrink_xy: tuple[float, float] = (0.5, 0.8)  # HOG window -> person box, about its centre
+    fallback_overlap: float = 0.3  # a fallback box overlapping a pose person this much (IoU) is dropped
     # --- torchvision backend (user-supplied checkpoints; see torchvision_backend.py)
     tv_mask_checkpoint: str = ""  # Mask R-CNN state_dict file ('' = none)
     tv_keypoint_checkpoint: str = ""  # Keypoint R-CNN state_dict file ('' = none)
@@ -48,11 +56,11 @@ class DetectorConfig:
     focus_work_width_px: int = 640  # width the estimator works at (frames are downscaled to it)
     focus_map_width_px: int = 160  # width of the published focus map [px] (height keeps the aspect)
     focus_reblur_sigma_px: float = 1.0  # re-blur Gaussian sigma sigma0 [work px]
-    focus_sigma_threshold_px: float = 1.25  # defocus sigma at which P(in focus) = 0.5 [work px]
+    focus_sigma_threshold_px: float = 1.0  # defocus sigma at which P(in focus) = 0.5 [work px]
     focus_sigma_softness_px: float = 0.35  # logistic width of that transition [work px]
     focus_edge_threshold: float = 8.0  # min gradient magnitude for an edge pixel [grey levels/px]
-    focus_propagation_sigma_px: float = 12.0  # spatial scale of sparse-to-dense propagation [work px]
-    focus_no_edge_prior: float = 0.25  # P(in focus) where no edge is near (flat or very blurred areas)
+    focus_propagation_sigma_px: float = 10.0  # spatial scale of sparse-to-dense propagation [work px]
+    focus_no_edge_prior: float = 0.3  # P(in focus) where no edge is near (flat or very blurred areas)
     # --- execution
     threads: int = 2  # 1 = sequential; 2 = focus in parallel with pose (uses both cores)
 
@@ -62,6 +70,11 @@ class DetectorConfig:
                 raise ConfigError(f"detector config: {name}={getattr(self, name)!r} is invalid; allowed: {allowed}")
 
         need(self.backend in BACKENDS, "backend", " | ".join(BACKENDS))
+        need(self.person_fallback in FALLBACKS, "person_fallback", " | ".join(FALLBACKS))
+        need(64 <= self.hog_work_height_px <= 2160, "hog_work_height_px", "64..2160")
+        need(len(self.hog_box_shrink_xy) == 2 and all(0.1 <= v <= 1.0 for v in self.hog_box_shrink_xy),
+             "hog_box_shrink_xy", "two values in 0.1..1")
+        need(0.0 <= self.fallback_overlap <= 1.0, "fallback_overlap", "[0, 1]")
         need(self.running_mode in RUNNING_MODES, "running_mode", " | ".join(RUNNING_MODES))
         need(1 <= self.num_poses <= 20, "num_poses", "1..20")
         for name in ("min_detection_confidence", "min_presence_confidence", "min_tracking_confidence",
@@ -105,6 +118,8 @@ def add_config_arguments(parser: Any) -> None:
     g.add_argument("--upscale", type=int, default=d.upscale_max_side_px, metavar="PX",
                    help="run pose on the frame upscaled to this long side, for small people (0 = off)")
     g.add_argument("--tiles", type=int, default=d.tiles, help="extra pose pass over N tiles (0 = off)")
+    g.add_argument("--fallback", choices=FALLBACKS, default=d.person_fallback,
+                   help="extra person detector for people the pose model misses (default %(default)s)")
     g.add_argument("--no-focus", action="store_true", help="skip the focus map")
     g.add_argument("--focus-width", type=int, default=d.focus_work_width_px, metavar="PX",
                    help="focus estimator working width (default %(default)s)")
@@ -122,6 +137,7 @@ def config_from_args(args: Any, base: DetectorConfig | None = None) -> DetectorC
     return dataclasses.replace(
         base, backend=args.backend, num_poses=args.num_poses, running_mode=args.running_mode,
         upscale_max_side_px=args.upscale, tiles=args.tiles, focus=not args.no_focus,
+        person_fallback=args.fallback,
         focus_work_width_px=args.focus_width, threads=args.threads,
         tv_mask_checkpoint=args.mask_checkpoint, tv_keypoint_checkpoint=args.keypoint_checkpoint,
         tv_device=args.device,

@@ -60,6 +60,12 @@ def people_mask(people: list[PersonDetection], width: int, height: int) -> np.nd
     return out if out.any() else None
 
 
+def _centre_inside(a: PersonDetection, b: PersonDetection) -> bool:
+    """Is the centre of box a inside box b?"""
+    cx, cy = (a.box_xyxy[0] + a.box_xyxy[2]) / 2, (a.box_xyxy[1] + a.box_xyxy[3]) / 2
+    return bool(b.box_xyxy[0] <= cx <= b.box_xyxy[2] and b.box_xyxy[1] <= cy <= b.box_xyxy[3])
+
+
 class Detector:
     """People, skeletons and an in-focus map per frame. Not thread-safe: one caller at a time."""
 
@@ -67,8 +73,13 @@ class Detector:
         self.cfg = (cfg or DetectorConfig()).validate()
         self.backend = backend if backend is not None else make_backend(self.cfg)
         self.focus = FocusEstimator(self.cfg) if self.cfg.focus else None
+        self.fallback = None
+        if self.cfg.person_fallback == "hog":
+            from cinetransfer.services.detector.hog_people import HogPeople
+
+            self.fallback = HogPeople(self.cfg)
         self._pool = (cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="focus")
-                      if self.cfg.threads > 1 and self.focus is not None else None)
+                      if self.cfg.threads > 1 and (self.focus is not None or self.fallback is not None) else None)
 
     @property
     def name(self) -> str:
@@ -101,22 +112,37 @@ class Detector:
         if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or image_bgr.dtype != np.uint8:
             raise ValueError(f"expected a BGR uint8 image (H, W, 3), got {image_bgr.dtype} {image_bgr.shape}")
         h, w = image_bgr.shape[:2]
-        fut = None
-        ev = None
-        if self.focus is not None:
-            if self._pool is not None:
-                fut = self._pool.submit(self.focus.measure_edges, image_bgr)
-            else:
-                ev = self.focus.measure_edges(image_bgr)
+
+        def side_work():  # everything that does not need the pose result (runs on the other core)
+            ev = self.focus.measure_edges(image_bgr) if self.focus is not None else None
+            extra = self.fallback.detect(image_bgr) if self.fallback is not None else []
+            return ev, extra
+
+        fut = self._pool.submit(side_work) if self._pool is not None else None
         try:
             people, skeletons = self.backend.detect(image_bgr, stamp_ns)
         finally:
-            if fut is not None:
-                ev = fut.result()
+            ev, extra = fut.result() if fut is not None else side_work()
+        if extra:
+            people = self._merge_fallback(people, extra)
         focus = None
         if self.focus is not None and ev is not None:
             focus = self.focus.propagate(ev, people_mask(people, w, h))
         return people, skeletons, focus
+
+    def _merge_fallback(self, people: list[PersonDetection], extra: list[PersonDetection]) -> list[PersonDetection]:
+        """Add fallback (box-only) people that no pose person already covers; skeleton indices stay valid
+        because the additions go after the pose people."""
+        from cinetransfer.services.detector.pose_mediapipe import box_iou
+
+        out = list(people)
+        for e in sorted(extra, key=lambda p: -p.confidence):
+            if e.confidence < self.cfg.min_person_confidence:
+                continue
+            if all(box_iou(e.box_xyxy, p.box_xyxy) < self.cfg.fallback_overlap and not _centre_inside(p, e)
+                   for p in out):
+                out.append(e)
+        return out
 
     def process(self, image_bgr: np.ndarray, frame_index: int = 0, stamp_ns: int = 0, *, source: str = "",
                 fps: float = float("nan"), lens: LensState | None = None, valid: bool = True) -> Measurement:

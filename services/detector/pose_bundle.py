@@ -15,10 +15,12 @@ about a second; the write is atomic (temp file + rename) so concurrent first use
 """
 from __future__ import annotations
 
+import gc
 import hashlib
 import logging
 import os
 import tempfile
+import warnings
 from pathlib import Path
 
 log = logging.getLogger("cinetransfer.detector")
@@ -60,10 +62,16 @@ def source_models() -> tuple[Path, Path]:
 def _with_image_metadata(model: bytes, name: str, mean: float, std: float) -> bytes:
     from mediapipe.tasks.python.metadata.metadata_writers import metadata_writer
 
-    writer = metadata_writer.MetadataWriter.create(bytearray(model))
-    writer.add_general_info(name, f"{name} (built offline by cinetransfer from the mediapipe wheel)")
-    writer.add_image_input(norm_mean=[mean], norm_std=[std])
-    content, _ = writer.populate()
+    # mediapipe's metadata populator leaves temporary files open; let them be collected here,
+    # quietly, rather than as ResourceWarnings at some later garbage collection.
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ResourceWarning)
+        writer = metadata_writer.MetadataWriter.create(bytearray(model))
+        writer.add_general_info(name, f"{name} (built offline by cinetransfer from the mediapipe wheel)")
+        writer.add_image_input(norm_mean=[mean], norm_std=[std])
+        content, _ = writer.populate()
+        del writer
+        gc.collect()
     return bytes(content)
 
 

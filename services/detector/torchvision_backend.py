@@ -29,6 +29,7 @@ from __future__ import annotations
 import importlib.util
 import logging
 import os
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -200,7 +201,7 @@ class TorchvisionPose:
         skels: list[Skeleton] = []
         with self._torch.inference_mode():
             if self.mask_model is not None:
-                out = self.mask_model([x])[0]
+                out = self._run(self.mask_model, x)
                 keep = (out["labels"] == cfg.tv_person_label) & (out["scores"] >= cfg.tv_score_threshold)
                 boxes = out["boxes"][keep].cpu().numpy()
                 scores = out["scores"][keep].cpu().numpy()
@@ -210,7 +211,7 @@ class TorchvisionPose:
                     if p is not None:
                         people.append(p)
             if self.kp_model is not None:
-                out = self.kp_model([x])[0]
+                out = self._run(self.kp_model, x)
                 keep = (out["labels"] == cfg.tv_person_label) & (out["scores"] >= cfg.tv_score_threshold)
                 kps = out["keypoints"][keep].cpu().numpy()
                 ksc = out["keypoints_scores"][keep].cpu().numpy()
@@ -234,6 +235,14 @@ class TorchvisionPose:
                                           keypoint_set="coco17" if len(xy) == 17 else f"keypoints{len(xy)}",
                                           person_index=idx))
         return people, skels
+
+    @staticmethod
+    def _run(model, x) -> dict:
+        # The first call torch.compiles torchvision's Python RoIAlign (when its compiled operators are
+        # unavailable); torch's compile machinery emits DeprecationWarnings of its own on the way.
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            return model([x])[0]
 
     @staticmethod
     def _person(box: np.ndarray, score: float, mask: np.ndarray | None, w: int, h: int) -> PersonDetection | None:

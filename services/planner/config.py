@@ -159,7 +159,8 @@ class Structure:
     warm_start: bool = True  # initial guess from the shifted last solution (baseline: False = cold)
     far_margin_inv_m: float = 0.01  # 'far limit at infinity' aims at 1/D_f <= -this [1/m] (s a bit past H)
     near_foreground_m: float = 1.0  # 'foreground in focus' aims at D_n = this [m] (D_n* = 0 is unreachable)
-    depth_floor_m: float = 1.0  # the cost's projection uses a depth >= this (smoothly; exact beyond ~2 m) [m]
+    pinhole_half_angle_deg: float = 60.0  # J_im is the exact pinhole error within this angle of the axis,
+    #                                       extended monotonically beyond (cost.project_extended), (30, 80)
 
     @property
     def nx(self) -> int:
@@ -193,8 +194,8 @@ class Structure:
             raise _bad(s, "far_margin_inv_m", self.far_margin_inv_m, ">= 0")
         if not (self.near_foreground_m > 0):
             raise _bad(s, "near_foreground_m", self.near_foreground_m, "> 0")
-        if not (self.depth_floor_m > 0):
-            raise _bad(s, "depth_floor_m", self.depth_floor_m, "> 0")
+        if not (30.0 < self.pinhole_half_angle_deg < 80.0):
+            raise _bad(s, "pinhole_half_angle_deg", self.pinhole_half_angle_deg, "30 < value < 80")
         return self
 
 

@@ -15,6 +15,8 @@ The errors are scaled by the subject distance d, so d (1/D - 1/D*) is about the 
 """
 from __future__ import annotations
 
+import math
+
 import casadi as ca
 
 
@@ -56,6 +58,41 @@ def project(point_c, focal_mm, sensor_w_mm, sensor_h_mm, depth_floor=None):  # n
     u = 0.5 - focal_mm * point_c[1] / (x * sensor_w_mm)
     v = 0.5 - focal_mm * point_c[2] / (x * sensor_h_mm)
     return u, v
+
+
+def project_extended(point_c, focal_mm, sensor_w_mm, sensor_h_mm, theta0_rad=math.pi / 3):  # noqa: ANN001, ANN201
+    """Pinhole projection within theta0 of the optical axis, extended monotonically beyond.
+
+    A point at angle theta from the axis and azimuth phi (in the image plane) lies at image
+    radius (in units of f/w_s, f/h_s) h(theta) along phi. The pinhole has h = tan(theta), which
+    explodes at 90 deg and is undefined behind the camera: a cost built on it either blows up
+    (and the cheapest 'fix' is to fly through the subject) or, with a bounded depth, maps a joint
+    straight behind the camera near the centre, so the mirrored target becomes a false minimum.
+    Here h(theta) = tan(theta) up to theta0 (exact pinhole: every point of the image is inside,
+    the widest diagonal half-angle at f >= 20 mm is < 40 deg) and continues linearly (C1) to
+    theta = pi. The map from directions to the image plane is then one-to-one and bounded, so
+    the image error of a joint has a single minimum, at its target, wherever the camera points.
+    """
+    x, y, z = point_c[0], point_c[1], point_c[2]
+    rho = ca.sqrt(y * y + z * z + 1e-12)
+    n = ca.sqrt(x * x + rho * rho)
+    c0 = math.cos(theta0_rad)
+    inside = x >= c0 * n
+    x_safe = ca.fmax(x, 0.5 * c0 * n)  # inactive where this branch is used (x >= c0 n)
+    theta = ca.atan2(rho, x)
+    g_out = (math.tan(theta0_rad) + (theta - theta0_rad) / (c0 * c0)) / rho  # rho >= 1e-6
+    g = ca.if_else(inside, 1 / x_safe, g_out)
+    return 0.5 - focal_mm * y * g / sensor_w_mm, 0.5 - focal_mm * z * g / sensor_h_mm
+
+
+def joint_image_error(point_c, u_t, v_t, focal_mm, sensor_w_mm, sensor_h_mm, *,  # noqa: ANN001, ANN201
+                      theta0_rad=math.pi / 3):
+    """Squared normalised image error (u - u*)^2 + (v - v*)^2 of one joint (J_im term).
+
+    Exactly the pinhole error for joints within theta0 of the optical axis (project_extended).
+    """
+    u, v = project_extended(point_c, focal_mm, sensor_w_mm, sensor_h_mm, theta0_rad)
+    return (u - u_t) ** 2 + (v - v_t) ** 2
 
 
 def hyperfocal_m(focal_mm, fnumber, coc_mm):  # noqa: ANN001, ANN201

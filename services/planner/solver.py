@@ -68,6 +68,7 @@ class SolveResult:
     iterations: int
     wall_s: float
     violation: float  # max constraint violation of the returned iterate
+    cpu_s: float = float("nan")  # CPU time of this thread in the solve (robust to a loaded machine)
     extras: dict = field(default_factory=dict)
 
 
@@ -182,11 +183,10 @@ class MpcSolver:
             for j in range(e):
                 pj = joints0[:, j] + vel * tk
                 pc = ca.mtimes(r.T, pj - cam)
-                uu, vv = J.project(pc, f_mm, s.sensor_width_mm, s.sensor_height_mm, s.depth_floor_m)
                 ti = (k * e + j) * 2
-                du = uu - targets[ti]
-                dv = vv - targets[ti + 1]
-                im += mask[k * e + j] * (du * du + dv * dv)
+                err2 = J.joint_image_error(pc, targets[ti], targets[ti + 1], f_mm, s.sensor_width_mm,
+                                           s.sensor_height_mm, theta0_rad=math.radians(s.pinhole_half_angle_deg))
+                im += mask[k * e + j] * err2
             cc = ca.mtimes(r.T, centre - cam)
             inv_n, inv_f = J.inverse_dof_limits(f_mm, x[lay.A], x[lay.S], s.coc_mm)
             d = dof[k * N_DOF:(k + 1) * N_DOF]
@@ -351,9 +351,9 @@ class MpcSolver:
             lam_x, lam_g = self._shift_multipliers(int(round(shift_s / self.dt)))
             if lam_x is not None:
                 args["lam_x0"], args["lam_g0"] = lam_x, lam_g
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.thread_time()
         sol = self.solver(**args)
-        wall = time.perf_counter() - t
+        wall, cpu = time.perf_counter() - t, time.thread_time() - c
         stats = self.solver.stats()
         status = str(stats.get("return_status", "unknown"))
         wv = np.asarray(sol["x"]).reshape(-1)
@@ -370,7 +370,7 @@ class MpcSolver:
                                                       np.full((self.n, C.N_SOFT), np.nan))
         res = SolveResult(ok=ok, status=status, x=x, u=u, slack=slack,
                           cost=float(sol["f"]) if finite else math.inf,
-                          iterations=int(stats.get("iter_count", -1)), wall_s=wall, violation=viol)
+                          iterations=int(stats.get("iter_count", -1)), wall_s=wall, violation=viol, cpu_s=cpu)
         if ok:
             self._last = res
             self._guess = wv

@@ -30,9 +30,12 @@ class SmootherConfig:
     # --- main subject (DESIGN §1.1 step 1)
     subject_method: str = "viterbi"  # 'viterbi' (exact DP + box QP) or 'literal' (paper's bilinear NLP, IPOPT)
     min_person_confidence: float = 0.05  # detections below this are ignored, [0, 1)
-    move_cost: float = 10.0  # continuity: cost per (box change / box size)^2 per frame, >= 0
+    move_cost: float = 100.0  # continuity: cost per (box change / box size - free_move)^2 per frame, >= 0
+    free_move: float = 0.0  # box change per frame (at 24 fps, relative to the box diagonal) that costs nothing, >= 0
     miss_cost: float = 1.0  # cost of a frame where the subject is not visible, > 0
-    confidence_cost: float = 0.5  # cost of a detection of confidence c is confidence_cost * (1 - c), >= 0
+    reentry_cost: float = 2.0  # cost of re-appearing after an absence longer than max_bridge_s, >= 0
+    continuity: str = "box"  # continuity measure: 'box' (|box change| / box size) or 'iou' (1 - IoU)
+    confidence_cost: float = 0.2  # cost of a detection of confidence c is confidence_cost * (1 - c), >= 0
     max_bridge_s: float = 0.5  # longest detector dropout bridged as 'visible' [s], >= 0
     box_smoothness: float = 0.1  # lambda of the box QP's first-difference term at 24 fps (data weights: confidences), > 0
     box_accel_smoothness: float = 3.0  # lambda2 of the box QP's second-difference term at 24 fps, >= 0
@@ -43,11 +46,13 @@ class SmootherConfig:
     # --- focus (DESIGN §1.1 step 4)
     focus_method: str = "hmm"  # 'hmm' (ours, default), 'viterbi', 'l2' (quadratic + threshold), 'literal'
     focus_pixel_threshold: float = 0.5  # focus-map probability above which a pixel counts as in focus, (0, 1)
+    focus_adaptive_levels: bool = False  # HMM: fit the in/out levels of b per region from the sequence (see focus.fit_levels)
     focus_switch_prob: float = 0.02  # HMM: probability per frame (at 24 fps) that a region changes state, (0, 0.5)
     focus_noise: float = 0.25  # HMM: std of the measured fraction b around its state (0 or 1), > 0
     focus_smoothness: float = 4.0  # 'l2' method: lambda at 24 fps, > 0
     theta: float = 0.5  # region in focus when B > theta, (0, 1)
     foreground_min_rows: float = 0.03  # foreground band (below the feet) exists when >= this fraction of the height
+    focus_region_margin: float = 0.015  # b ignores a border band of each region this wide (fraction of the map width), [0, 0.2]
     mu_m: float = 1.0  # depth-of-field margin mu [m] written into the instructions, > 0
     # --- timing
     default_fps: float = 24.0  # used when the measurements carry no frame rate [Hz], > 0
@@ -76,7 +81,9 @@ class SmootherConfig:
         for name in ("min_person_confidence", "min_joint_confidence"):
             if not 0.0 <= getattr(self, name) < 1.0:
                 raise bad(name, "0 <= value < 1")
-        for name in ("move_cost", "confidence_cost", "max_bridge_s", "joint_accel_smoothness", "box_accel_smoothness"):
+        if self.continuity not in ("box", "iou"):
+            raise bad("continuity", "box | iou")
+        for name in ("move_cost", "free_move", "reentry_cost", "confidence_cost", "max_bridge_s", "joint_accel_smoothness", "box_accel_smoothness"):
             if not getattr(self, name) >= 0.0:
                 raise bad(name, ">= 0")
         for name in ("miss_cost", "box_smoothness", "joint_smoothness", "focus_noise", "focus_smoothness",
@@ -88,6 +95,8 @@ class SmootherConfig:
                 raise bad(name, "0 < value < 1")
         if not 0.0 < self.focus_switch_prob < 0.5:
             raise bad("focus_switch_prob", "0 < value < 0.5")
+        if not 0.0 <= self.focus_region_margin <= 0.2:
+            raise bad("focus_region_margin", "0 <= value <= 0.2")
         if not 0.0 <= self.foreground_min_rows < 1.0:
             raise bad("foreground_min_rows", "0 <= value < 1")
         if not self.history_s >= self.window_s:

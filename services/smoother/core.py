@@ -38,10 +38,15 @@ class SmoothResult:
     diagnostics: dict[str, Any] = field(default_factory=dict)
 
 
+def feature_options(cfg: SmootherConfig) -> dict[str, float]:
+    """The config values `frame_features` takes."""
+    return {"focus_pixel_threshold": cfg.focus_pixel_threshold, "foreground_min_rows": cfg.foreground_min_rows,
+            "min_person_confidence": cfg.min_person_confidence, "focus_margin": cfg.focus_region_margin}
+
+
 def features_from_measurements(measurements: Iterable[M.Measurement], cfg: SmootherConfig) -> list[FrameFeatures]:
-    return [frame_features(m, focus_pixel_threshold=cfg.focus_pixel_threshold,
-                           foreground_min_rows=cfg.foreground_min_rows,
-                           min_person_confidence=cfg.min_person_confidence) for m in measurements]
+    opts = feature_options(cfg)
+    return [frame_features(m, **opts) for m in measurements]
 
 
 def order_frames(feats: Iterable[FrameFeatures]) -> tuple[list[FrameFeatures], int, int]:
@@ -105,7 +110,9 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
         sel = baseline.literal_selection(frames, fps=fps, max_bridge_s=cfg.max_bridge_s)
     else:
         sel = subject_mod.select_subject(frames, fps=fps, move_cost=cfg.move_cost, miss_cost=cfg.miss_cost,
-                                         confidence_cost=cfg.confidence_cost, max_bridge_s=cfg.max_bridge_s)
+                                         confidence_cost=cfg.confidence_cost, max_bridge_s=cfg.max_bridge_s,
+                                         free_move=cfg.free_move * 24.0 / fps, continuity=cfg.continuity,
+                                         reentry_cost=cfg.reentry_cost)
     if not sel.visible.any():
         raise SmootherInputError(f"no main subject found in {F} frames")
     raw_box, box = subject_mod.smooth_box(frames, sel, lam=cfg.lam(cfg.box_smoothness, fps), width=W, height=H,
@@ -136,7 +143,8 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
             present[f] = (True, True, True)
     # A region whose extent is unknown (no focus map) is assumed present where the subject is.
     B = focus_mod.smooth_focus(b, method=cfg.focus_method, fps=fps, switch_prob_24=cfg.focus_switch_prob,
-                               sigma=cfg.focus_noise, lam_24=cfg.focus_smoothness)
+                               sigma=cfg.focus_noise, lam_24=cfg.focus_smoothness,
+                               adaptive=cfg.focus_adaptive_levels)
     any_focus = np.isfinite(b).any(axis=0)  # (3,) region measured at least once
     B_out = np.where(present & any_focus[None, :] & np.isfinite(B), B, np.nan)
     focus_in = np.nan_to_num(B_out, nan=0.0) > cfg.theta

@@ -88,8 +88,18 @@ def _full_mask_crop(p, W: int, H: int) -> tuple[np.ndarray, int, int]:
     return mask, ox, oy
 
 
+def _core(region: np.ndarray, margin: int, keep: float = 0.25) -> np.ndarray:
+    """The region without a band of `margin` px along its border (where a focus map blurs
+    across region boundaries), unless that leaves less than `keep` of it."""
+    if margin <= 0 or not region.any():
+        return region
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
+    core = cv2.erode(region.astype(np.uint8), k, borderType=cv2.BORDER_REPLICATE).astype(bool)
+    return core if core.sum() >= keep * region.sum() else region
+
+
 def _region_fractions(infocus: np.ndarray, subj: np.ndarray | None, feet_row: int | None,
-                      min_rows: int) -> np.ndarray:
+                      min_rows: int, margin: int = 0) -> np.ndarray:
     """b (foreground, subject, background) on the focus-map grid; NaN = region absent."""
     h = infocus.shape[0]
     out = np.full(3, np.nan)
@@ -102,6 +112,7 @@ def _region_fractions(infocus: np.ndarray, subj: np.ndarray | None, feet_row: in
         fg &= ~subj
     bg = ~(subj | fg)
     for t, region in enumerate((fg, subj, bg)):
+        region = _core(region, margin)
         n = int(region.sum())
         if n > 0:
             out[t] = float(np.count_nonzero(infocus & region)) / n
@@ -109,7 +120,7 @@ def _region_fractions(infocus: np.ndarray, subj: np.ndarray | None, feet_row: in
 
 
 def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foreground_min_rows: float = 0.03,
-                   min_person_confidence: float = 0.0) -> FrameFeatures:
+                   min_person_confidence: float = 0.0, focus_margin: float = 0.0) -> FrameFeatures:
     """Compute the FrameFeatures of one Measurement (pure)."""
     W, H = int(m.width), int(m.height)
     people = [p for p in m.people if float(p.confidence) >= min_person_confidence
@@ -183,7 +194,7 @@ def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foregr
                     subj[np.ix_(oky, okx)] = mask[np.ix_(cy[oky], cx[okx])]
             rows = np.flatnonzero(subj.any(axis=1))
             feet_row = int(rows[-1]) + 1 if rows.size else int(np.ceil(boxes[k, 3] * sy))
-            focus[k] = _region_fractions(infocus, subj, feet_row, min_rows)
+            focus[k] = _region_fractions(infocus, subj, feet_row, min_rows, int(round(focus_margin * w)))
     return FrameFeatures(frame_index=int(m.frame_index), stamp_ns=int(m.stamp_ns), width=W, height=H,
                          fps=float(m.fps), source=m.source, boxes=boxes, conf=conf, grids=grids, grid_x=gx, grid_y=gy,
                          joints=joints, joint_conf=jconf, inside=inside, focus=focus,

@@ -186,7 +186,7 @@ def literal(b: np.ndarray) -> np.ndarray:
 
 
 def smooth_focus(b: np.ndarray, *, method: str = "hmm", fps: float = 24.0, switch_prob_24: float = 0.02,
-                 sigma: float = 0.25, lam_24: float = 4.0, adaptive: bool = True) -> np.ndarray:
+                 sigma: float = 0.25, lam_24: float = 4.0, adaptive: bool = False) -> np.ndarray:
     """B (F, C) from b (F, C) with the chosen method; NaN b (no measurement) bridged where possible."""
     b = np.asarray(b, dtype=float)
     if b.shape[0] == 0:

@@ -3,15 +3,18 @@
 For every column c (a joint coordinate, a box component, a focus region) and frames f:
 
     min_x  sum_f w[f,c] (x[f,c] - y[f,c])^2  +  lam * sum_{f linked} (x[f+1,c] - x[f,c])^2
+                                             + lam2 * sum_{f linked} (x[f+1,c] - 2 x[f,c] + x[f-1,c])^2
     s.t.   lo[c] <= x[f,c] <= hi[c]
 
-The Hessian is tridiagonal per column. All columns are stacked into one block-tridiagonal
+The Hessian is tridiagonal per column (pentadiagonal with lam2 > 0). All columns are stacked into one block-tridiagonal
 system (no coupling between columns, none across unlinked frame pairs) and solved with one
 call to `scipy.linalg.solveh_banded` (banded Cholesky, O(F C)).
 
-Bounds are handled by a primal-dual active-set loop (Hintermüller, Ito & Kunisch 2002): the
-Hessian is a Stieltjes matrix (positive definite, non-positive off-diagonals), for which the
-loop terminates after finitely many banded solves at the exact minimiser. When no bound is
+Bounds are handled by a primal-dual active-set loop (Hintermüller, Ito & Kunisch 2002): with
+first differences only the Hessian is a Stieltjes matrix (positive definite, non-positive
+off-diagonals), for which the loop terminates after finitely many banded solves at the exact
+minimiser. With the second-difference term it may cycle; then the primal active-set method
+(finite for any positive definite Hessian) finishes from where it stopped. When no bound is
 active at the unconstrained solution, one solve is all it costs.
 
 Frames with weight 0 (missing or low-confidence measurements) are bridged by the smoothness

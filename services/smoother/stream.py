@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 
 from cinetransfer.services.smoother.config import SmootherConfig
-from cinetransfer.services.smoother.core import SmootherInputError, smooth_sequence
+from cinetransfer.services.smoother.core import SmootherInputError, feature_options, smooth_sequence
 from cinetransfer.services.smoother.features import FrameFeatures, frame_features
 from cinetransfer.services.smoother.instructions import slice_instructions
 from cinetransfer.shared import messages as M
@@ -63,10 +63,7 @@ class StreamState:
         if i in self.frames:
             self.counters.duplicates += 1
             return "duplicate"
-        c = self.cfg
-        self.frames[i] = frame_features(m, focus_pixel_threshold=c.focus_pixel_threshold,
-                                        foreground_min_rows=c.foreground_min_rows,
-                                        min_person_confidence=c.min_person_confidence)
+        self.frames[i] = frame_features(m, **feature_options(self.cfg))
         if not self.source:
             self.source = m.source
         self.counters.frames += 1

@@ -8,19 +8,24 @@ non-convex. We split it:
 
        sum over frames:  confidence_cost * (1 - c)          at a detection
                          miss_cost                          where the subject is not visible
-       sum over steps:   move_cost * (|r_j - r_i| / s)^2 / g  between detections g frames apart
-                                                              (g <= 1 + bridge: a dropout)
-                         switch_cost                        re-appearing after a longer absence
+       sum over steps:   move_cost * max(0, d - free_move g)^2 / g
+                                                            between detections g <= G frames apart
+                                                            (g > 1: a bridged dropout)
+                         reentry_cost                       re-appearing after an absence of more
+                                                            than G - 1 frames (identity not checked)
 
-   where s is the mean diagonal of the two boxes (so the cost is scale-free), and |.| the norm
-   of the 4-vector of box coordinates. Moving a distance d in g frames at constant speed costs
-   g (d/g)^2 = d^2/g, so a bridged dropout is judged by the implied speed. The path with the
-   fewest invisible frames and the smoothest identity is the person present in most frames,
-   continuously. Minimised exactly by dynamic programming over frames (Viterbi with skip
-   transitions for dropouts of up to `max_bridge_s`).
+   where d = |r_j - r_i| / s is the change of the box 4-vector relative to the mean diagonal s
+   of the two boxes (scale-free), or 1 - IoU with continuity='iou'. Moving a distance d in g
+   frames at constant speed costs g (d/g)^2 = d^2/g, so a dropout is judged by the implied
+   speed. The path with the fewest invisible frames and the smoothest identity is the person
+   present in most frames, continuously. Minimised exactly by dynamic programming over frames
+   (Viterbi with skip transitions for dropouts of up to `max_bridge_s`, G = 1 + that in frames,
+   and an 'absent' chain for longer absences); tests/unit/test_smoother_core.py checks it against
+   brute-force enumeration.
 
-2. Box. Per box coordinate, min sum lam (R_f - R_{f-1})^2 + c_f (R_f - r_f)^2 over the visible
-   runs, with R_f inside the image: the QP of `qp.smooth` (bridged frames have weight 0).
+2. Box. Per box coordinate, min sum c_f (R_f - r_f)^2 + lam (R_f - R_{f-1})^2
+   + lam2 (R_{f+1} - 2 R_f + R_{f-1})^2 over the visible runs, with R_f inside the image: the QP
+   of `qp.smooth` (bridged frames have weight 0; lam2 = 0 is the paper's form).
 """
 from __future__ import annotations
 
@@ -32,7 +37,6 @@ import numpy as np
 from cinetransfer.services.smoother import qp
 from cinetransfer.services.smoother.features import FrameFeatures
 
-SWITCH_COST_FACTOR = 3.0  # switch_cost = SWITCH_COST_FACTOR * move_cost * 0.5^2 + miss_cost (see below)
 
 
 @dataclass(frozen=True, eq=False)
@@ -45,17 +49,12 @@ class Selection:
     cost: float  # optimal path cost
 
 
-def selection_costs(*, move_cost: float, miss_cost: float) -> float:
-    """Cost of re-appearing after an absence longer than the bridge (identity not checked)."""
-    return SWITCH_COST_FACTOR * move_cost * 0.25 + miss_cost
-
-
-def select_subject(feats: list[FrameFeatures], *, fps: float, move_cost: float = 10.0, miss_cost: float = 1.0,
-                   confidence_cost: float = 0.5, max_bridge_s: float = 0.5) -> Selection:
+def select_subject(feats: list[FrameFeatures], *, fps: float, move_cost: float = 100.0, miss_cost: float = 1.0,
+                   confidence_cost: float = 0.2, max_bridge_s: float = 0.5, free_move: float = 0.0,
+                   continuity: str = "box", reentry_cost: float = 2.0) -> Selection:
     """Viterbi over each frame's candidates plus 'not visible' (exact minimiser of the cost above)."""
     F = len(feats)
     G = 1 + max(0, int(round(max_bridge_s * fps)))  # longest step between detections (frames)
-    switch_cost = selection_costs(move_cost=move_cost, miss_cost=miss_cost)
     counts = np.array([f.n_people for f in feats], dtype=int)
     start = np.concatenate([[0], np.cumsum(counts)])
     N = int(start[-1])
@@ -85,67 +84,72 @@ def select_subject(feats: list[FrameFeatures], *, fps: float, move_cost: float =
     for k in range(4):
         d2 += (boxes[src, k] - boxes[dst, k]) ** 2
     s = 0.5 * (diag[src] + diag[dst])
-    step_cost = (g - 1.0) * miss_cost + move_cost * d2 / (np.maximum(s, 1e-9) ** 2 * g)
+    if continuity == "iou":
+        bs, bd = boxes[src], boxes[dst]
+        iw = np.clip(np.minimum(bs[:, 2], bd[:, 2]) - np.maximum(bs[:, 0], bd[:, 0]), 0, None)
+        ih = np.clip(np.minimum(bs[:, 3], bd[:, 3]) - np.maximum(bs[:, 1], bd[:, 1]), 0, None)
+        inter = iw * ih
+        area = lambda b: (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])  # noqa: E731
+        d = 1.0 - inter / np.maximum(area(bs) + area(bd) - inter, 1e-9)
+    else:
+        d = np.sqrt(d2) / np.maximum(s, 1e-9)  # box change relative to the box size
+    excess = np.maximum(d - free_move * g, 0.0)  # ordinary motion and jitter are free
+    step_cost = (g - 1.0) * miss_cost + move_cost * excess ** 2 / g
 
     D = np.full(N, np.inf)  # best cost of a path ending at detection i (frames up to and incl. its frame)
-    back = np.full(N, -1, dtype=np.int64)  # predecessor detection, or -1 = fresh start, -2 = from 'lost'
-    lost = math.inf  # best cost of a path that was visible and is now not visible, up to frame f-1
-    lost_back = np.full(F, -1, dtype=np.int64)  # 'lost' at frame f: detection it left from, -1 = stayed lost
+    back = np.full(N, -1, dtype=np.int64)  # predecessor detection, or -1 = fresh start, -2 = re-entry
+    # R: best cost of a path that was visible and has been invisible for at least G frames up to
+    # frame f-1 (longer than any bridge), so that it may re-appear at f without a continuity check.
+    R = math.inf
+    r_back = np.full(F + 1, -1, dtype=np.int64)  # detection the absence at frame f started from; -1 = continued
     a_l, b_l, pa_l, off_l = a_f.tolist(), b_f.tolist(), pa_f.tolist(), off.tolist()
     emit_l = emit.tolist()
     for f in range(F):
+        # Update R for frame f: the absence continues, or began after a detection of frame f-G-1.
+        R += miss_cost
+        f0 = f - G - 1
+        if f0 >= 0 and b_l[f0] > a_l[f0]:
+            p0, p1 = a_l[f0], b_l[f0]
+            i0 = p0 if p1 - p0 == 1 else p0 + int(np.argmin(D[p0:p1]))
+            cand = float(D[i0]) + G * miss_cost
+            if cand < R:
+                R, r_back[f] = cand, i0
         a, b = a_l[f], b_l[f]
         m = b - a
-        if m:
-            # Fresh start (all earlier frames invisible), from 'lost', or a step from a detection.
-            fresh = f * miss_cost
-            base, arg0 = (lost + switch_cost, -2) if lost + switch_cost < fresh else (fresh, -1)
-            pa = pa_l[f]
-            if a > pa and m == 1:
-                tot = D[pa:a] + step_cost[off_l[f]:off_l[f + 1]]
-                k = int(tot.argmin())
-                v = float(tot[k])
-                if v < base:
-                    D[a], back[a] = v + emit_l[a], pa + k
-                else:
-                    D[a], back[a] = base + emit_l[a], arg0
-            elif a > pa:
-                tot = D[pa:a, None] + step_cost[off_l[f]:off_l[f + 1]].reshape(a - pa, m)
-                k = tot.argmin(axis=0)
-                v = tot[k, np.arange(m)]
-                better = v < base
-                D[a:b] = np.where(better, v, base) + emit[a:b]
-                back[a:b] = np.where(better, pa + k, arg0)
+        if not m:
+            continue
+        # Fresh start (all earlier frames invisible), re-entry after an absence, or a step.
+        fresh = f * miss_cost
+        base, arg0 = (R + reentry_cost, -2) if R + reentry_cost < fresh else (fresh, -1)
+        pa = pa_l[f]
+        if a > pa and m == 1:
+            tot = D[pa:a] + step_cost[off_l[f]:off_l[f + 1]]
+            k = int(tot.argmin())
+            v = float(tot[k])
+            if v < base:
+                D[a], back[a] = v + emit_l[a], pa + k
             else:
-                D[a:b] = base + emit[a:b]
-                back[a:b] = arg0
-        # 'lost' at frame f: left a detection of frame f-1, or stayed lost.
-        if f > 0 and b_l[f - 1] > a_l[f - 1]:
-            pa, pb = a_l[f - 1], b_l[f - 1]
-            i_leave = pa if pb - pa == 1 else pa + int(np.argmin(D[pa:pb]))
-            leave = float(D[i_leave])
-            if leave < lost:
-                lost = leave + miss_cost
-                lost_back[f] = i_leave
-                continue
-        lost += miss_cost
-    # End: never visible, lost at the end, or at a detection (remaining frames invisible).
+                D[a], back[a] = base + emit_l[a], arg0
+        elif a > pa:
+            tot = D[pa:a, None] + step_cost[off_l[f]:off_l[f + 1]].reshape(a - pa, m)
+            k = tot.argmin(axis=0)
+            v = tot[k, np.arange(m)]
+            better = v < base
+            D[a:b] = np.where(better, v, base) + emit[a:b]
+            back[a:b] = np.where(better, pa + k, arg0)
+        else:
+            D[a:b] = base + emit[a:b]
+            back[a:b] = arg0
+    # End: never visible, or at a detection with the remaining frames invisible.
     ends = D + (F - 1 - frame_of) * miss_cost
     i_end = int(np.argmin(ends))
-    total = min(F * miss_cost, lost, float(ends[i_end]))
+    total = min(F * miss_cost, float(ends[i_end]))
     person = np.full(F, -1)
     visible = np.zeros(F, dtype=bool)
     bridged = np.zeros(F, dtype=bool)
-    if F * miss_cost <= min(lost, float(ends[i_end])):
+    if F * miss_cost <= float(ends[i_end]):
         return Selection(person, visible, bridged, total)
-    # Backtrack.
-    if lost <= ends[i_end]:
-        f = F - 1
-        while lost_back[f] == -1:
-            f -= 1
-        i = int(lost_back[f])
-    else:
-        i = i_end
+    i = i_end
     while i >= 0:
         f = int(frame_of[i])
         person[f] = i - start[f]
@@ -157,10 +161,10 @@ def select_subject(feats: list[FrameFeatures], *, fps: float, move_cost: float =
             bridged[fj + 1:f] = True
             i = j
         elif j == -2:
-            g = f - 1
-            while lost_back[g] == -1:
+            g = f
+            while r_back[g] == -1:
                 g -= 1
-            i = int(lost_back[g])
+            i = int(r_back[g])
         else:
             break
     return Selection(person, visible, bridged, float(total))

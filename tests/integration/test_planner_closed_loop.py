@@ -116,3 +116,29 @@ def test_dolly_zoom_with_a_focus_change(planner_factory):
     assert math.isinf(log.far_m[-1]) and log.depth_m[-1] < log.near_m[-1]
     # (distance and zoom are not both pinned down by four nearly coplanar joints: the planner may
     # frame the shot with less dolly and less zoom, so the lens path itself is not asserted)
+
+
+def test_subject_behind_the_camera_turns_round_without_flying_through(planner_factory):
+    # given the camera facing straight away from the subject, zoomed in (120 mm), pitched up
+    from cinetransfer.services.planner.kinematic_sim import KinematicScene
+    scene = KinematicScene(vehicle_position_m=(-6.0, 1.0, 2.0), camera_ypr_rad=(math.pi, 0.3, 0.0),
+                           lens=(120.0, 20.0, 10.0))
+    ins = reference_instructions(scene, standing_shot(), duration_s=12.0)
+    planner = planner_factory()
+    sim = KinematicSim(scene)
+    dist = []
+
+    def on_step(i, sp):
+        dist.append(float(np.hypot(*(sim.p[:2] - sim.subject.centre()[:2]))))
+    log = run_closed_loop(planner, sim, ins, duration_s=10.0, on_step=on_step)
+    err = np.asarray(log.image_error)
+    t = np.asarray(log.t_s)
+    # then it turns to the subject within 3 s (no false minimum with the subject behind) and
+    # keeps closing in on the shot (the rest is an orbit to the reference's side of the subject,
+    # at most 2 m/s: slow by nature)
+    assert err[0] > 1.0
+    assert np.max(err[t >= 3.0]) < 0.2, np.max(err[t >= 3.0])
+    assert np.max(err[t >= 9.0]) < 0.05, np.max(err[t >= 9.0])
+    # and it never flies through (or closer than the minimum distance to) the subject
+    assert min(dist) > CFG.bounds.min_distance_m - 0.05
+    assert set(log.mode) == {"track"}

@@ -88,3 +88,14 @@ def test_setpoint_and_lens_messages_round_trip_through_real_mavlink2_bytes():
                                     12.5, 0, 0, 0, 0, 0)
     out = dec.parse_char(focus.pack(enc))
     assert out.command == 532 and out.param1 == 3 and out.param2 == 12.5
+
+
+@pytest.mark.parametrize("url,baud,expect", [
+    ("serial:/dev/ttyTHS1:921600", 57600, ("/dev/ttyTHS1", 921600)),
+    ("serial:/dev/ttyACM0", 57600, ("/dev/ttyACM0", 57600)),
+    ("udpin:0.0.0.0:14540", 57600, ("udpin:0.0.0.0:14540", 57600)),
+    ("tcp:127.0.0.1:5760", 57600, ("tcp:127.0.0.1:5760", 57600)),
+])
+def test_connection_strings(url, baud, expect):
+    from cinetransfer.services.autopilot_bridge.mavlink import parse_url
+    assert parse_url(url, baud) == expect

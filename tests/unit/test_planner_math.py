@@ -63,17 +63,42 @@ def test_projection_matches_shared_camera(point, cam_pos, yaw, pitch, roll, f):
         assert np.all(np.abs(soft - ref) <= 1e-3 * np.abs(ref - 0.5) + 1e-12)
 
 
-def test_soft_depth_keeps_the_cost_bounded_behind_the_camera():
-    # given points near or behind the camera, the floored projection is finite, bounded by its
-    # value at the floor, and its gradient is finite
+def test_extended_projection_is_the_pinhole_in_view_and_has_no_false_minimum():
     x = ca.SX.sym("x", 3)
-    u, v = J.project(x, 50.0, 23.76, 13.365, depth_floor=1.0)
-    f = ca.Function("f", [x], [u, v, ca.jacobian(ca.vertcat(u, v), x)])
-    for p in ([-300.0, 0.4, 0.2], [-3.0, 0.4, 0.2], [0.0, 0.4, 0.2], [5.0, 0.0, 0.0]):
-        out = [np.asarray(o) for o in f(p)]
-        assert all(np.all(np.isfinite(o)) for o in out)
-        if p[0] <= 0:
-            assert abs(float(out[0]) - 0.5) <= 50.0 * 0.4 / 23.76 + 1e-9  # |u - 1/2| <= f |y| / (floor ws)
+    f_mm = 50.0
+    u, v = J.project_extended(x, f_mm, cam.SENSOR_WIDTH_MM, cam.SENSOR_HEIGHT_MM)
+    proj = ca.Function("p", [x], [ca.vertcat(u, v)])
+    err = ca.Function("e", [x], [J.joint_image_error(x, 0.55, 0.45, f_mm, cam.SENSOR_WIDTH_MM, cam.SENSOR_HEIGHT_MM)])
+    rng = np.random.default_rng(3)
+    # given points within 60 deg of the optical axis: exactly shared.camera's pinhole
+    for _ in range(200):
+        th, ph, r = rng.uniform(0, math.radians(59.9)), rng.uniform(-math.pi, math.pi), rng.uniform(0.5, 50)
+        p = r * np.array([math.cos(th), math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph)])
+        np.testing.assert_allclose(np.asarray(proj(p)).ravel(), cam.project_normalised(p, f_mm), rtol=1e-12,
+                                   atol=1e-12)
+    # and any direction, behind the camera included, maps to a bounded image point
+    h_max = math.tan(math.pi / 3) + (2 * math.pi / 3) * 4  # h(pi) in units of f / sensor size
+    for _ in range(200):
+        p = rng.normal(size=3) * 10
+        uv = np.asarray(proj(p)).ravel()
+        assert np.all(np.isfinite(uv))
+        assert abs(uv[0] - 0.5) <= h_max * f_mm / cam.SENSOR_WIDTH_MM + 1e-9
+    # and a camera that only turns (yaw, pitch) reaches the target from any start, behind
+    # included: the error has no false minimum (IPOPT from 24 starts, pitch kept in +-80 deg)
+    yp = ca.SX.sym("yp", 2)
+    joint = np.array([6.0, 2.0, 1.5])
+    pc_ = J.world_to_camera(ca.DM(joint), ca.DM.zeros(3), yp[0], yp[1])
+    obj = J.joint_image_error(pc_, 0.55, 0.45, f_mm, cam.SENSOR_WIDTH_MM, cam.SENSOR_HEIGHT_MM)
+    solver = ca.nlpsol("s", "ipopt", {"x": yp, "f": obj}, {"ipopt": {"print_level": 0, "sb": "yes"},
+                                                             "print_time": False})
+    starts = [(math.atan2(2, 6) + math.pi, 0.0), (math.atan2(2, 6) + math.pi + 0.01, -0.2)]
+    starts += [(rng.uniform(-math.pi, math.pi), rng.uniform(-1.2, 1.2)) for _ in range(22)]
+    for y0 in starts:
+        r = solver(x0=y0, lbx=[-10, -1.4], ubx=[10, 1.4])
+        assert float(r["f"]) < 1e-10, (y0, float(r["f"]))
+        got = cam.project_world(joint, np.zeros(3), np.array([float(r["x"][0]), float(r["x"][1]), 0.0]), f_mm)
+        np.testing.assert_allclose(got, [0.55, 0.45], atol=1e-5)
+    # and the (optional) floored depth of `project` keeps it finite behind the camera too
     assert float(J.soft_depth(-1e3, 1.0)) == pytest.approx(1.0) and float(J.soft_depth(30.0, 1.0)) == 30.0
 
 

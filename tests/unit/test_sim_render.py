@@ -45,13 +45,13 @@ def test_a_plane_is_blurred_by_the_circle_of_confusion_the_lens_model_predicts(d
     tex = np.zeros((400, 400, 3), np.uint8)
     tex[:, 200:] = 255
     v = view()
-    canvas = np.zeros((540, 960, 3), np.float32)
+    canvas = np.zeros((540, 960, 3), np.uint8)
     # (one texel = one pixel at any distance: 50 mm on a 960 px wide 23.76 mm sensor)
     info = draw_plane(canvas, v, facing_plane(tex, distance_m, m_per_px=distance_m / 2020.0))
     # when measuring the edge's rise width across the image centre
     c_px = cam.blur_diameter_mm(distance_m, 50.0, 2.0, 10.0) / cam.SENSOR_WIDTH_MM * 960
     assert info.coc_px == pytest.approx(c_px, rel=1e-9)
-    row = canvas[270, 380:580, 1]
+    row = canvas[270, 380:580, 1].astype(float)
     width = edge_width_10_90(row)
     # then a Gaussian with sigma = c/4 (the blur disc's second moment): 10-90 % width 2.563 sigma
     expected = 2.563 * c_px / 4
@@ -66,7 +66,7 @@ def test_blur_grows_with_the_circle_of_confusion_laplacian_variance():
     v = view(focus_m=4.0, f_number=2.8)
     sharpness = []
     for d in (4.0, 6.0, 10.0, 30.0):
-        canvas = np.zeros((540, 960, 3), np.float32)
+        canvas = np.zeros((540, 960, 3), np.uint8)
         draw_plane(canvas, v, facing_plane(tex, d, m_per_px=d / 2020.0))
         crop = canvas[200:340, 400:560].astype(np.float32)
         sharpness.append(cv2.Laplacian(crop, cv2.CV_32F).var())
@@ -81,9 +81,9 @@ def test_homography_puts_a_texel_where_project_world_puts_its_world_point():
     # a camera somewhere else, with yaw, pitch and roll
     v = view(position_m=np.array([0.5, 0.3, -0.2]), ypr_rad=np.array([0.05, -0.03, 0.1]), focal_mm=80.0,
              focus_m=7.5, f_number=16.0)
-    canvas = np.zeros((540, 960, 3), np.float32)
+    canvas = np.zeros((540, 960, 3), np.uint8)
     draw_plane(canvas, v, plane)
-    g = canvas[..., 0]
+    g = canvas[..., 0].astype(float)
     ys, xs = np.nonzero(g > 1)
     w = g[ys, xs]
     centroid = np.array([(xs * w).sum() / w.sum(), (ys * w).sum() / w.sum()])

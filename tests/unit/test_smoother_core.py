@@ -206,3 +206,46 @@ def test_instructions_are_a_valid_message():
     assert back.image_targets.shape == (30, 4, 2)
     assert back.joint_names == ["left_shoulder", "right_shoulder", "left_hip", "right_hip"]
     assert back.frame_duration_s == pytest.approx(1 / 24)
+
+
+def test_viterbi_is_exact_against_brute_force():
+    """Every assignment (a detection or 'not visible' per frame) enumerated on tiny problems."""
+    import itertools
+
+    from cinetransfer.services.smoother.features import FrameFeatures
+    from cinetransfer.services.smoother.subject import select_subject
+
+    rng = np.random.default_rng(4)
+    kw = dict(move_cost=7.0, miss_cost=1.0, confidence_cost=0.5, reentry_cost=1.5)
+    G = 2  # fps 1, max_bridge_s 1 -> steps of up to 2 frames
+    for trial in range(25):
+        F_ = 6
+        feats = []
+        for f in range(F_):
+            m = int(rng.integers(0, 3))
+            bx = rng.uniform(0, 300, (m, 2))
+            boxes = np.concatenate([bx, bx + rng.uniform(50, 150, (m, 2))], axis=1)
+            feats.append(FrameFeatures(frame_index=f, width=640, height=480, boxes=boxes,
+                                       conf=rng.uniform(0.2, 1.0, m)))
+
+        def cost(path):
+            chosen = [(f, k) for f, k in enumerate(path) if k >= 0]
+            if not chosen:
+                return F_ * kw["miss_cost"]
+            c = chosen[0][0] * kw["miss_cost"] + (F_ - 1 - chosen[-1][0]) * kw["miss_cost"]
+            for f, k in chosen:
+                c += kw["confidence_cost"] * (1 - feats[f].conf[k])
+            for (f1, k1), (f2, k2) in zip(chosen[:-1], chosen[1:]):
+                g = f2 - f1
+                if g <= G:
+                    a, b = feats[f1].boxes[k1], feats[f2].boxes[k2]
+                    s = 0.5 * (np.hypot(*(a[2:] - a[:2])) + np.hypot(*(b[2:] - b[:2])))
+                    c += (g - 1) * kw["miss_cost"] + kw["move_cost"] * (np.linalg.norm(a - b) / s) ** 2 / g
+                else:
+                    c += (g - 1) * kw["miss_cost"] + kw["reentry_cost"]
+            return c
+
+        best = min(cost(p) for p in itertools.product(*[range(-1, f.n_people) for f in feats]))
+        sel = select_subject(feats, fps=1.0, max_bridge_s=1.0, **kw)
+        assert sel.cost == pytest.approx(best, abs=1e-9), trial
+        assert cost(list(sel.person)) == pytest.approx(best, abs=1e-9), trial

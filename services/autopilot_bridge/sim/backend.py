@@ -76,7 +76,18 @@ class SceneRenderer:
         gz = scene.ground.z_m if scene.ground else 0.0
         self.subject = Subject(scene.subject, ground_z_m=gz)
         self._layer_tex = [_read_texture(l.texture, l.wrap) for l in scene.layers]
-        self._ground_tex = _read_texture(scene.ground.texture, "reflect") if scene.ground else None
+        self._ground_tex = None
+        self._ground_period_m = (0.0, 0.0)
+        if scene.ground:
+            g = cv2.imread(str(scene.ground.texture), cv2.IMREAD_COLOR)
+            if g is None:
+                raise SceneError(f"cannot read texture {scene.ground.texture}")
+            # mirror-tiled 2x2 = one period of the reflected tiling; BORDER_WRAP repeats it, and the
+            # texture origin follows the camera (by whole periods) so near ground samples in range
+            row = np.hstack([g, g[:, ::-1]])
+            tiled = np.vstack([row, row[::-1]])
+            self._ground_tex = Texture.from_bgra(tiled, wrap="wrap")
+            self._ground_period_m = (tiled.shape[1] * scene.ground.m_per_px, tiled.shape[0] * scene.ground.m_per_px)
         self._clip_tex = {id(f): Texture.from_bgra(f.texture, premultiplied=True)
                           for f in self.subject.clip.frames + self.subject.clip.sit_frames}
         self.last_draw: list[DrawInfo] = []
@@ -136,8 +147,12 @@ class SceneRenderer:
         g = self.scene.ground
         if g is not None:
             m = g.m_per_px
-            ga = np.array([[0.0, m, 0.0], [m, 0.0, 0.0], [0.0, 0.0, g.z_m]])
             c = view.position_m
+            # texture s runs along world y, t along world x; shift the origin by whole periods
+            py, px_ = self._ground_period_m[0], self._ground_period_m[1]
+            ox = math.floor((c[0] - px_ / 2) / px_) * px_
+            oy = math.floor((c[1] - py / 2) / py) * py
+            ga = np.array([[0.0, m, ox], [m, 0.0, oy], [0.0, 0.0, g.z_m]])
             e = g.extent_m
             sq = np.array([[c[0] - e, c[1] - e, g.z_m], [c[0] + e, c[1] - e, g.z_m],
                            [c[0] + e, c[1] + e, g.z_m], [c[0] - e, c[1] + e, g.z_m]])
@@ -164,11 +179,8 @@ class SceneRenderer:
     # -- drawing ---------------------------------------------------------------------------
     def render(self, view: View, t_s: float, *, truth: bool = True) -> tuple[np.ndarray, dict]:
         planes, geo = self.planes(view, t_s)
-        canvas = np.zeros((view.height, view.width, 3), np.float32)
-        self.last_draw = [draw_plane(canvas, view, p) for p in planes]
-        img = np.empty((view.height, view.width, 3), np.uint8)
-        np.clip(canvas, 0, 255, out=canvas)
-        img[...] = canvas + 0.5
+        img = np.zeros((view.height, view.width, 3), np.uint8)
+        self.last_draw = [draw_plane(img, view, p) for p in planes]
         if truth:
             geo.update(self.truth(view, planes, geo))
         return img, geo
@@ -177,7 +189,18 @@ class SceneRenderer:
         jn = cam.project_world(geo["joints_w"], view.position_m, view.ypr_rad, view.focal_mm, view.sensor)
         vis = np.isfinite(jn).all(axis=1) & (jn >= 0).all(axis=1) & (jn <= 1).all(axis=1)
         near, far = cam.dof_limits_m(view.focal_mm, view.f_number, view.focus_m, view.sensor.coc_mm)
-        depth, subj = label_pass(view, planes)
+        # the ground's depth is the same plane whatever the band: one pass over it is enough
+        first_ground = True
+        lab_planes = []
+        for p in planes:
+            if p.region == "ground":
+                if not first_ground:
+                    continue
+                first_ground = False
+                p = Plane(p.name, p.texture, p.a, p.corners_w, p.region, p.depth_key, p.blur_depth_m,
+                          (NEAR_M, math.inf))
+            lab_planes.append(p)
+        depth, subj = label_pass(view, lab_planes)
         d_s = geo["subject_depth_m"]
         fg = (~subj) & (depth < d_s)
         bg = (~subj) & (depth >= d_s)

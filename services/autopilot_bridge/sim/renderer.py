@@ -57,7 +57,7 @@ class Texture:
         while len(levels) < max_levels and min(levels[-1].shape[:2]) >= 16:
             levels.append(cv2.pyrDown(levels[-1]))
         border = {"none": cv2.BORDER_CONSTANT, "reflect": cv2.BORDER_REFLECT_101,
-                  "replicate": cv2.BORDER_REPLICATE}[wrap]
+                  "replicate": cv2.BORDER_REPLICATE, "wrap": cv2.BORDER_WRAP}[wrap]
         return cls(levels=levels, border=border)
 
     @property
@@ -191,7 +191,7 @@ class DrawInfo:
 
 
 def draw_plane(canvas: np.ndarray, view: View, plane: Plane) -> DrawInfo:
-    """Warp, blur and composite one plane onto a float32 BGR canvas (in place)."""
+    """Warp, blur and composite one plane onto a uint8 BGR canvas (in place)."""
     info = DrawInfo(plane.name, plane.region, False)
     pc = view.to_camera(plane.corners_w)
     poly = _clip_polygon(pc, plane.clip_x[0], plane.clip_x[1])
@@ -241,12 +241,13 @@ def draw_plane(canvas: np.ndarray, view: View, plane: Plane) -> DrawInfo:
         warped = cv2.resize(warped, (lw * k, lh * k), interpolation=cv2.INTER_LINEAR)[:roi_h, :roi_w]
     region = canvas[y0:y1, x0:x1]
     alpha8 = warped[..., 3]
+    col = warped[..., :3]
     if alpha8.min() == 255:
-        region[...] = warped[..., :3]
+        region[...] = col
     else:
-        alpha = alpha8[..., None].astype(np.float32) * (1.0 / 255)
-        region *= 1.0 - alpha
-        region += warped[..., :3]
+        # premultiplied "over" in uint8 with OpenCV's saturating SIMD arithmetic
+        inv = cv2.cvtColor(cv2.bitwise_not(alpha8), cv2.COLOR_GRAY2BGR)
+        cv2.add(cv2.multiply(region, inv, scale=1.0 / 255), col, dst=region)
     info.drawn = True
     info.depth_m = depth
     info.coc_px = coc

@@ -1,0 +1,79 @@
+"""Detector + smoother features in one process: a video file in, per-frame features out.
+
+Used by `cinetransfer extract` and the evaluation scripts. The detector (services/detector) is
+imported only here, lazily, so the rest of the smoother runs without MediaPipe installed.
+"""
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+from typing import Any, Iterator
+
+from cinetransfer.services.smoother.config import SmootherConfig
+from cinetransfer.services.smoother.core import feature_options
+from cinetransfer.services.smoother.features import FrameFeatures, frame_features
+from cinetransfer.shared.messages import Measurement, SourceInfo
+
+
+class ExtractError(RuntimeError):
+    """The video cannot be read or the detector cannot run."""
+
+
+def measure_video(video: str | os.PathLike, *, detector_config: Any = None, stop: int | None = None,
+                  progress: bool = False) -> tuple[Iterator[Measurement], SourceInfo, Any]:
+    """(measurement iterator, source info, detector) for a video; close the detector when done."""
+    try:
+        from cinetransfer.services.detector.config import DetectorConfig
+        from cinetransfer.services.detector.core import Detector, DetectorError
+        from cinetransfer.services.detector.sources import FrameSourceError, probe
+    except ImportError as e:  # pragma: no cover - a build without the detector
+        raise ExtractError(f"the detector is not available in this build ({e})") from None
+    try:
+        source = probe(video, hash_file=True)
+        det = Detector(detector_config or DetectorConfig())
+    except (FrameSourceError, DetectorError, OSError) as e:
+        raise ExtractError(str(e)) from None
+    total = source.n_frames if stop is None else min(source.n_frames or stop, stop)
+    it: Iterator[Measurement] = det.process_source(str(video), stop=stop)
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, total=total or None, desc=f"extract {Path(video).name}", unit="frame", file=sys.stderr,
+                  dynamic_ncols=True)
+
+    def guarded() -> Iterator[Measurement]:
+        try:
+            yield from it
+        except FrameSourceError as e:
+            raise ExtractError(str(e)) from None
+
+    return guarded(), source, det
+
+
+def extract_features(video: str | os.PathLike, cfg: SmootherConfig, *, measurements_path: str | os.PathLike | None = None,
+                     stop: int | None = None, progress: bool = False,
+                     detector_config: Any = None) -> tuple[list[FrameFeatures], SourceInfo]:
+    """Run the detector over a video and keep the smoother's features of every frame (optionally
+    also writing the measurements file)."""
+    ms, source, det = measure_video(video, detector_config=detector_config, stop=stop, progress=progress)
+    opts = feature_options(cfg)
+    feats: list[FrameFeatures] = []
+    writer = None
+    try:
+        if measurements_path is not None:
+            from cinetransfer.services.detector.measurements_file import MeasurementsWriter
+
+            writer = MeasurementsWriter(measurements_path, source=source, detector=det.name, config=det.cfg,
+                                        focus_map_scale=det.focus_map_scale(source.width, source.height))
+        for m in ms:
+            if writer is not None:
+                writer.write(m)
+            feats.append(frame_features(m, **opts))
+    finally:
+        if writer is not None:
+            writer.close()
+        det.close()
+    if not feats:
+        raise ExtractError(f"{video}: no frame could be read")
+    return feats, source

@@ -1,0 +1,224 @@
+"""Detector core on short real excerpts: people, joints, masks, empty frames, focus, sources."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from cinetransfer.services.detector import pose_bundle
+from cinetransfer.services.detector.config import ConfigError, DetectorConfig
+from cinetransfer.services.detector.core import Detector, people_mask
+from cinetransfer.services.detector.focus import FocusEstimator
+from cinetransfer.services.detector.overlay import draw
+from cinetransfer.services.detector.pose_mediapipe import BLAZEPOSE_TO_COCO17
+from cinetransfer.services.detector.sources import FrameSourceError, iter_frames, probe
+from cinetransfer.shared import codec
+from cinetransfer.shared.messages import Measurement
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def data_dir() -> Path:
+    """The real clips: $CT_DATA_DIR, else ../shared/data beside the repository."""
+    env = os.environ.get("CT_DATA_DIR")
+    d = Path(env) if env else REPO.parent / "shared" / "data"
+    if not d.is_dir():
+        pytest.fail(f"real data folder {d} is missing (set CT_DATA_DIR)")
+    return d
+
+
+@pytest.fixture(scope="module")
+def detector():
+    det = Detector(DetectorConfig())
+    yield det
+    det.close()
+
+
+@pytest.fixture(scope="module")
+def juggle_frames():
+    path = data_dir() / "sam2_juggle_1280x720.mp4"
+    return [f for f in iter_frames(path, stop=24) if f.index % 3 == 0]
+
+
+def test_bundle_builds_offline_into_cache_dir(tmp_path, monkeypatch):
+    # given an empty cache dir
+    monkeypatch.setenv("CT_CACHE_DIR", str(tmp_path))
+    # when the bundle is asked for
+    p = pose_bundle.bundle_path()
+    # then it was built there from the wheel's two models, with the entries the Tasks API wants
+    import zipfile
+
+    assert p.parent == tmp_path and p.suffix == ".task"
+    with zipfile.ZipFile(p) as z:
+        assert sorted(z.namelist()) == ["pose_detector.tflite", "pose_landmarks_detector.tflite"]
+    mtime = p.stat().st_mtime_ns
+    assert pose_bundle.bundle_path() == p and p.stat().st_mtime_ns == mtime  # cached, not rebuilt
+
+
+def test_juggler_found_with_joints_inside_his_mask(detector, juggle_frames):
+    detector.reset()
+    for f in juggle_frames:
+        m = detector.process(f.image, f.index, f.stamp_ns, source="juggle", fps=f.fps)
+        # then one person, confident, a sensible box
+        assert len(m.people) >= 1, f"frame {f.index}: juggler not found"
+        p = m.people[0]
+        assert p.confidence > 0.8
+        x0, y0, x1, y1 = p.box_xyxy
+        assert 500 < x0 < x1 < 1000 and y1 - y0 > 400  # he stands mid-frame, ~600 px tall
+        sk = [s for s in m.skeletons if s.person_index == 0][0]
+        assert sk.keypoints_px.shape == (17, 2) and sk.confidences.shape == (17,)
+        conf = sk.confidences >= 0.5
+        assert conf.sum() >= 12, f"frame {f.index}: only {conf.sum()} confident joints"
+        # the confident joints land inside his (slightly dilated) mask
+        mask = cv2.dilate(p.full_mask(m.width, m.height).astype(np.uint8), np.ones((15, 15), np.uint8)) > 0
+        pts = np.round(sk.keypoints_px[conf]).astype(int)
+        inside = mask[pts[:, 1].clip(0, m.height - 1), pts[:, 0].clip(0, m.width - 1)]
+        assert inside.mean() >= 0.9, f"frame {f.index}: {inside.mean():.2f} of joints in mask"
+        # and the message survives the codec
+        assert isinstance(codec.decode(codec.encode(m), Measurement), Measurement)
+
+
+def test_no_person_frame_gives_an_empty_measurement(detector, juggle_frames):
+    # given real footage without anybody (the lawn/trees left of the juggler) and a flat grey frame
+    crop = np.ascontiguousarray(juggle_frames[0].image[:, :500])
+    for img in (crop, np.full((240, 320, 3), 127, np.uint8)):
+        detector.reset()
+        m = detector.process(img, 0, 0)
+        assert m.people == [] and m.skeletons == []
+        assert m.focus_map is not None and m.focus_map.dtype == np.uint8
+        assert m.width == img.shape[1] and m.height == img.shape[0]
+
+
+def test_measurement_fields_and_overlay(detector, juggle_frames):
+    detector.reset()
+    f = juggle_frames[0]
+    m = detector.process(f.image, 7, 123, source="x.mp4", fps=24.0)
+    assert (m.frame_index, m.stamp_ns, m.source, m.fps, m.detector) == (7, 123, "x.mp4", 24.0, "mediapipe")
+    assert m.focus_map.shape == (90, 160)
+    p = m.people[0]
+    assert p.mask.shape == (int(p.box_xyxy[3] - p.box_xyxy[1]), int(p.box_xyxy[2] - p.box_xyxy[0]))
+    assert tuple(p.mask_origin_xy) == (int(p.box_xyxy[0]), int(p.box_xyxy[1]))
+    out = draw(f.image, m)
+    assert out.shape == f.image.shape and not np.array_equal(out, f.image)
+
+
+def test_blazepose_to_coco_mapping():
+    assert BLAZEPOSE_TO_COCO17 == (0, 2, 5, 7, 8, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28)
+
+
+def test_sequential_and_parallel_give_the_same_result(juggle_frames):
+    f = juggle_frames[1]
+    res = []
+    for threads in (1, 2):
+        with Detector(DetectorConfig(threads=threads, running_mode="image")) as det:
+            res.append(det.process(f.image, f.index, f.stamp_ns))
+    a, b = res
+    assert len(a.people) == len(b.people) == 1
+    assert np.allclose(a.people[0].box_xyxy, b.people[0].box_xyxy, atol=2)
+    assert np.abs(a.focus_map.astype(int) - b.focus_map.astype(int)).mean() < 2
+
+
+# ---------------------------------------------------------------------------- focus
+def _davis(name: str, index: int):
+    d = data_dir()
+    f = next(iter(iter_frames(d / f"davis_{name}_854x480.mp4", start=index, stop=index + 1, prefetch=0)))
+    mask = cv2.imread(str(d / f"davis_{name}_masks" / f"{index:05d}.png"), cv2.IMREAD_GRAYSCALE) > 127
+    return f.image, mask
+
+
+@pytest.mark.parametrize("name,index", [("parkour", 30), ("dance-twirl", 40)])
+def test_blurred_background_is_reported_out_of_focus(name, index):
+    img, mask = _davis(name, index)
+    blurred = cv2.GaussianBlur(img, (0, 0), 3.0)
+    bg_blur = img.copy()
+    bg_blur[~mask] = blurred[~mask]
+    est = FocusEstimator(DetectorConfig())
+    for person_mask in (None, mask):
+        prob = cv2.resize(est.estimate(bg_blur, person_mask).prob, (img.shape[1], img.shape[0])) > 0.5
+        assert prob[~mask].mean() < 0.2, "blurred background reported in focus"
+        assert prob[mask].mean() > 0.6, "sharp subject reported out of focus"
+
+
+@pytest.mark.parametrize("name,index", [("parkour", 60)])
+def test_blurred_subject_is_reported_out_of_focus(name, index):
+    img, mask = _davis(name, index)
+    blurred = cv2.GaussianBlur(img, (0, 0), 4.0)
+    alpha = np.maximum(cv2.GaussianBlur(mask.astype(np.float32), (0, 0), 4.0), mask)[..., None]
+    subj_blur = (alpha * blurred + (1 - alpha) * img).astype(np.uint8)
+    prob = FocusEstimator(DetectorConfig()).estimate(subj_blur, mask).prob
+    prob = cv2.resize(prob, (img.shape[1], img.shape[0])) > 0.5
+    assert prob[mask].mean() < 0.3
+    assert prob[~mask].mean() > 0.7
+
+
+def test_all_sharp_and_all_blurred_frames(juggle_frames):
+    est = FocusEstimator(DetectorConfig())
+    img = juggle_frames[0].image
+    sharp = est.estimate(img).prob
+    blurred = est.estimate(cv2.GaussianBlur(img, (0, 0), 6.0)).prob
+    assert (sharp > 0.5).mean() > 0.9
+    assert (blurred > 0.5).mean() < 0.1
+    flat = est.estimate(np.full((100, 200, 3), 90, np.uint8))
+    assert flat.prob.shape == (80, 160) and np.allclose(flat.prob, DetectorConfig().focus_no_edge_prior, atol=0.01)
+
+
+def test_focus_map_resolution_is_stated():
+    est = FocusEstimator(DetectorConfig(focus_map_width_px=160))
+    r = est.estimate(np.zeros((720, 1280, 3), np.uint8))
+    assert r.prob.shape == (90, 160) and r.scale == pytest.approx(0.125)
+    small = est.estimate(np.zeros((60, 100, 3), np.uint8))  # narrower than the map: kept as is
+    assert small.prob.shape == (60, 100)
+
+
+def test_people_mask_union():
+    assert people_mask([], 10, 10) is None
+
+
+# ---------------------------------------------------------------------------- sources
+def test_image_folder_source(tmp_path, juggle_frames):
+    for i, f in enumerate(juggle_frames[:3]):
+        cv2.imwrite(str(tmp_path / f"img_{i + 8}.png"), cv2.resize(f.image, (320, 180)))
+    (tmp_path / "notes.txt").write_text("ignored")
+    (tmp_path / "img_99.png").write_bytes(b"not a png")  # unreadable: skipped with a warning
+    frames = list(iter_frames(tmp_path, fps=10.0))
+    assert [f.index for f in frames] == [0, 1, 2]
+    assert frames[1].stamp_ns == 100_000_000 and frames[0].image.shape == (180, 320, 3)
+    assert probe(tmp_path).n_frames == 4
+
+
+def test_truncated_video_keeps_what_was_decoded(tmp_path, juggle_frames):
+    p = tmp_path / "clip.avi"
+    vw = cv2.VideoWriter(str(p), cv2.VideoWriter_fourcc(*"MJPG"), 24.0, (320, 180))
+    for _ in range(5):
+        for f in juggle_frames:
+            vw.write(cv2.resize(f.image, (320, 180)))
+    vw.release()
+    n_full = len(list(iter_frames(p)))
+    assert n_full == 5 * len(juggle_frames)
+    data = p.read_bytes()
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(data[: len(data) // 2])
+    n_cut = len(list(iter_frames(cut)))
+    assert 0 < n_cut < n_full
+
+
+@pytest.mark.parametrize("content", [b"", b"garbage" * 100])
+def test_corrupt_or_missing_file_is_a_clear_error(tmp_path, content):
+    p = tmp_path / "bad.mp4"
+    p.write_bytes(content)
+    with pytest.raises(FrameSourceError, match="bad.mp4"):
+        list(iter_frames(p))
+    with pytest.raises(FrameSourceError, match="no such"):
+        list(iter_frames(tmp_path / "missing.mp4"))
+    with pytest.raises(FrameSourceError, match="no images"):
+        list(iter_frames(tmp_path))
+
+
+def test_config_validation_names_the_field():
+    with pytest.raises(ConfigError, match="num_poses"):
+        DetectorConfig(num_poses=0).validate()
+    with pytest.raises(ConfigError, match="tv_mask_checkpoint"):
+        DetectorConfig(backend="torchvision").validate()
