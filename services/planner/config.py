@@ -154,7 +154,8 @@ class Structure:
     cache_dir: str = field(default_factory=default_cache_dir)
     compiler: str = "gcc"  # C compiler for codegen
     compile_flags: tuple[str, ...] = ("-O1", "-fPIC", "-shared")
-    max_iter: int = 60  # IPOPT iterations per solve, >= 1
+    max_iter: int = 60  # IPOPT iterations per warm-started solve, >= 1
+    max_iter_cold: int = 200  # IPOPT iterations of a cold solve, >= 1
     tol: float = 1e-5  # IPOPT tolerance
     warm_start: bool = True  # initial guess from the shifted last solution (baseline: False = cold)
     far_margin_inv_m: float = 0.01  # 'far limit at infinity' aims at 1/D_f <= -this [1/m] (s a bit past H)
@@ -186,8 +187,9 @@ class Structure:
             raise _bad(s, "solver", self.solver, " | ".join(SOLVERS))
         if self.codegen and not self.expand:
             raise _bad(s, "codegen", self.codegen, "False when expand is False")
-        if not (isinstance(self.max_iter, int) and self.max_iter >= 1):
-            raise _bad(s, "max_iter", self.max_iter, "an integer >= 1")
+        for name in ("max_iter", "max_iter_cold"):
+            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
+                raise _bad(s, name, getattr(self, name), "an integer >= 1")
         if not (0 < self.tol < 1):
             raise _bad(s, "tol", self.tol, "0 < tol < 1")
         if not (self.far_margin_inv_m >= 0):
@@ -207,7 +209,8 @@ class PlannerConfig:
     bounds: Bounds = field(default_factory=Bounds)
     weights: Weights = field(default_factory=Weights)
     rate_hz: float = 20.0  # setpoints published per second (one solve each), (0, 200]
-    max_solve_time_s: float = 0.04  # IPOPT wall-time budget per solve [s], > 0 (<= 1 / rate_hz is sensible)
+    max_solve_time_s: float = 0.04  # IPOPT wall-time budget per warm-started solve [s], > 0 (<= 1 / rate_hz)
+    max_cold_solve_time_s: float = 0.25  # budget of a cold solve (first one, after a hold) [s], >= the above
     accept_suboptimal: bool = True  # a solve stopped by max_iter / time with a feasible iterate is used
     feasibility_tol: float = 1e-4  # constraint violation under which such an iterate counts as feasible
     tail_max_s: float = 1.0  # after a failure, fly the last good plan at most this long [s], then hold
@@ -223,7 +226,7 @@ class PlannerConfig:
         self.weights.validate()
         if not (0 < self.rate_hz <= 200):
             raise _bad("", "rate_hz", self.rate_hz, "0 < rate <= 200 Hz")
-        for name in ("max_solve_time_s", "max_input_age_s", "mu_default_m"):
+        for name in ("max_solve_time_s", "max_cold_solve_time_s", "max_input_age_s", "mu_default_m"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise _bad("", name, v, "a finite value > 0")

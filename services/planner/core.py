@@ -81,6 +81,7 @@ class Planner:
         self.layout = Layout(st.control_roll)
         self.solver = solver or MpcSolver(st, self.cfg.bounds, self.cfg.weights,
                                           max_solve_time_s=self.cfg.max_solve_time_s,
+                                          max_cold_solve_time_s=self.cfg.max_cold_solve_time_s,
                                           feasibility_tol=self.cfg.feasibility_tol,
                                           accept_suboptimal=self.cfg.accept_suboptimal)
         self.state = "idle"

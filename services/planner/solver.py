@@ -92,7 +92,7 @@ class ParamLayout:
 def _structure_key(s: Structure) -> str:
     """Hash of what the generated code depends on: structure, casadi version, this package's code."""
     d = dataclasses.asdict(s)
-    for k in ("cache_dir", "codegen", "compiler", "max_iter", "tol", "warm_start"):
+    for k in ("cache_dir", "codegen", "compiler", "max_iter", "max_iter_cold", "tol", "warm_start"):
         d.pop(k, None)
     src = b""
     here = Path(__file__).resolve().parent
@@ -106,8 +106,8 @@ class MpcSolver:
     """Builds the NLP once; `solve(data)` runs IPOPT with the current weights and bounds."""
 
     def __init__(self, structure: Structure, bounds: Bounds | None = None, weights: Weights | None = None, *,
-                 max_solve_time_s: float = 0.05, feasibility_tol: float = 1e-4,
-                 accept_suboptimal: bool = True) -> None:
+                 max_solve_time_s: float = 0.05, max_cold_solve_time_s: float | None = None,
+                 feasibility_tol: float = 1e-4, accept_suboptimal: bool = True) -> None:
         self.s = structure.validate()
         self.layout = Layout(structure.control_roll)
         self.n = structure.horizon_steps
@@ -115,6 +115,7 @@ class MpcSolver:
         self.e = structure.max_joints
         self.pl = ParamLayout(structure)
         self.max_solve_time_s = max_solve_time_s
+        self.max_cold_solve_time_s = max(max_solve_time_s, max_cold_solve_time_s or 0.0)
         self.feasibility_tol = feasibility_tol
         self.accept_suboptimal = accept_suboptimal
         self.bounds = (bounds or Bounds()).validate()
@@ -209,23 +210,32 @@ class MpcSolver:
         nlp = {"x": w, "p": p, "f": cost, "g": gvec}
         self._gfun = ca.Function("g", [w, p], [gvec])
         self._ffun = ca.Function("f", [w, p], [cost])
-        opts = self._ipopt_options()
-        if s.codegen:
-            self.solver = self._codegen_solver(nlp, opts)
-        else:
-            if not s.expand:
-                opts["expand"] = False
-            self.solver = ca.nlpsol("cinempc", s.solver, nlp, opts)
+        # two instances of one NLP: warm-started solves (multipliers in, small barrier, the per-step
+        # budget) and cold ones (IPOPT's default start, a larger budget: first solve, after a hold)
+        variants = {"cold": self._ipopt_options(warm=False, budget_s=self.max_cold_solve_time_s)}
+        if s.warm_start:
+            variants["warm"] = self._ipopt_options(warm=True, budget_s=self.max_solve_time_s)
+        self._solvers = {}
+        for name, opts in variants.items():
+            if s.codegen:
+                self._solvers[name] = self._codegen_solver(nlp, opts)
+            else:
+                if not s.expand:
+                    opts["expand"] = False
+                self._solvers[name] = ca.nlpsol(f"cinempc_{name}", s.solver, nlp, opts)
+        self.last_stats: dict = {}
 
-    def _ipopt_options(self) -> dict:
+    def _ipopt_options(self, *, warm: bool, budget_s: float) -> dict:
         s = self.s
         ip = {"print_level": 0, "sb": "yes", "max_iter": s.max_iter, "tol": s.tol,
-              "acceptable_tol": 1e-3, "acceptable_iter": 5, "max_wall_time": float(self.max_solve_time_s),
+              "acceptable_tol": 1e-3, "acceptable_iter": 5, "max_wall_time": float(budget_s),
               "mu_strategy": "adaptive", "linear_solver": "mumps"}
-        if s.warm_start:
+        if warm:
             ip.update({"warm_start_init_point": "yes", "warm_start_bound_push": 1e-6,
                        "warm_start_mult_bound_push": 1e-6, "warm_start_slack_bound_push": 1e-6,
                        "mu_init": 1e-3})
+        else:
+            ip["max_iter"] = s.max_iter_cold
         return {"ipopt": ip, "print_time": False, "error_on_fail": False}
 
     def _codegen_solver(self, nlp: dict, opts: dict):  # noqa: ANN202
@@ -347,14 +357,17 @@ class MpcSolver:
             guess = self.cold_guess(x0)
         guess = np.clip(guess, lbw, ubw)
         args = {"x0": guess, "p": p, "lbx": lbw, "ubx": ubw, "lbg": self._lbg, "ubg": self._ubg}
+        solver = self._solvers["cold"]
         if self.s.warm_start and self._last is not None:
             lam_x, lam_g = self._shift_multipliers(int(round(shift_s / self.dt)))
             if lam_x is not None:
                 args["lam_x0"], args["lam_g0"] = lam_x, lam_g
+                solver = self._solvers["warm"]
         t, c = time.perf_counter(), time.thread_time()
-        sol = self.solver(**args)
+        sol = solver(**args)
         wall, cpu = time.perf_counter() - t, time.thread_time() - c
-        stats = self.solver.stats()
+        stats = solver.stats()
+        self.last_stats = stats
         status = str(stats.get("return_status", "unknown"))
         wv = np.asarray(sol["x"]).reshape(-1)
         gv = np.asarray(sol["g"]).reshape(-1)

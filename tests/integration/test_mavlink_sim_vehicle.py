@@ -214,3 +214,42 @@ def test_link_loss_holds_then_reconnects_and_reengages_on_command():
         rc, out = stop_vehicle(proc)
     assert rc == 0, out
     assert "offboard setpoint stream lost" in out
+
+
+def test_tcp_link_is_reopened_after_the_vehicle_restarts():
+    """A stream link (TCP) dies with its peer: the backend reopens it and the link comes back."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+
+    def tcp_vehicle():
+        return subprocess.Popen([sys.executable, "-m", "cinetransfer", "sim-vehicle", "--mavlink",
+                                 f"tcpin:127.0.0.1:{port}", "--start", "0,0,3"],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+
+    proc = tcp_vehicle()
+    backend = MavlinkBackend(MavlinkConfig(url=f"tcp:127.0.0.1:{port}", connect_timeout_s=20.0, link_timeout_s=0.5,
+                                           reopen_period_s=0.5))
+    try:
+        deadline = time.monotonic() + 20
+        while True:  # the vehicle process needs a moment before it listens
+            try:
+                backend.start()
+                break
+            except (ConnectionError, OSError):
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.2)
+        assert backend.connected
+        rc, _ = stop_vehicle(proc)
+        assert rc == 0
+        proc = tcp_vehicle()  # the vehicle 'reboots' on the same port
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 20 and not (backend.counters["mav_link_losses"] and backend.connected):
+            backend.step(time.monotonic())
+            time.sleep(0.02)
+        assert backend.connected and backend.counters["mav_link_losses"] == 1
+        assert backend.counters["mav_reopens"] >= 1 and backend.vehicle_state().valid
+    finally:
+        backend.close()
+        stop_vehicle(proc)

@@ -65,7 +65,7 @@ def test_mx_baseline_and_sx_agree():
 def test_budget_exceeded_is_reported():
     # given a budget of one iteration, the solve stops early; without accepting suboptimal
     # iterates this is a failure (the planner then flies its tail / holds)
-    cfg = pc.replace(pc.PlannerConfig(), **{"structure.max_iter": 1})
+    cfg = pc.replace(pc.PlannerConfig(), **{"structure.max_iter": 1, "structure.max_iter_cold": 1})
     data = stage_data(cfg)
     r = MpcSolver(cfg.structure, accept_suboptimal=False).solve(data)
     assert not r.ok and "Maximum_Iterations_Exceeded" in r.status

@@ -68,23 +68,29 @@ def test_matches_brute_force_on_small_problems():
             np.testing.assert_allclose(r.x[:, c], ref.x, atol=1e-4)
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=80, deadline=None)
 @given(F=st.integers(2, 40), seed=st.integers(0, 10_000), lam=st.floats(0.01, 50.0),
-       hi=st.floats(-1.0, 3.0))
-def test_kkt_conditions_hold(F, seed, lam, hi):
-    """Property: the result satisfies the KKT conditions of the box-constrained QP."""
+       hi=st.floats(-1.0, 3.0), lam2=st.sampled_from([0.0, 0.5, 30.0]))
+def test_kkt_conditions_hold(F, seed, lam, hi, lam2):
+    """Property: the result satisfies the KKT conditions of the box-constrained QP (first and
+    second differences)."""
     rng = np.random.default_rng(seed)
     y = rng.normal(0, 2, (F, 1))
     w = rng.uniform(0, 1, (F, 1)) * (rng.uniform(size=(F, 1)) > 0.3)
     w[0, 0] = max(w[0, 0], 0.05)
     lo = hi - 2.0
-    x = smooth(y, w, lam, lo=lo, hi=hi).x[:, 0]
+    x = smooth(y, w, lam, lo=lo, hi=hi, lam2=lam2).x[:, 0]
     assert np.all(x >= lo - 1e-9) and np.all(x <= hi + 1e-9)
     y0 = np.where(w[:, 0] > 0, y[:, 0], 0.0)
     grad = 2 * w[:, 0] * (x - y0)
     d = np.diff(x)
     grad[:-1] -= 2 * lam * d
     grad[1:] += 2 * lam * d
+    if F >= 3:
+        a = x[2:] - 2 * x[1:-1] + x[:-2]
+        grad[:-2] += 2 * lam2 * a
+        grad[1:-1] -= 4 * lam2 * a
+        grad[2:] += 2 * lam2 * a
     scale = 1.0 + np.abs(grad).max()
     free = (x > lo + 1e-9) & (x < hi - 1e-9)
     assert np.all(np.abs(grad[free]) <= 1e-7 * scale)

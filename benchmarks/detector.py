@@ -1,0 +1,97 @@
+"""Detector throughput: frames/s of the full detector at 640x360 and 1280x720 on this machine.
+
+Frames: the sam2_juggle clip (one person, full body), resized to each resolution and held in
+memory (decoding is excluded here; in `cinetransfer detect` it runs in its own thread, ~3 ms per
+720p frame). For each resolution it times, over a fixed number of frames after a warm-up:
+- the stages alone: pose (MediaPipe), focus (edge stage + propagation), HOG fallback;
+- the full detector sequentially (threads=1) and with both cores (threads=2), without and with
+  the HOG fallback.
+Prints median / p95 / max latency per frame, throughput (frames/s) and CPU use (process CPU
+time / wall time: 2.0 = both cores busy) and CPU time per frame (independent of other load:
+on an idle 2-core machine frames/s can reach at most 2000 / CPU-ms).
+                                                       goal: >= 15 frames/s at 1280x720
+
+    python benchmarks/detector.py [--frames 100] [--warmup 10]
+
+Writes benchmarks/results/detector.json.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import cv2
+import numpy as np
+
+from eval_detector_common import data_dir, write_result
+from cinetransfer.services.detector.config import DetectorConfig
+from cinetransfer.services.detector.core import Detector
+from cinetransfer.services.detector.focus import FocusEstimator
+from cinetransfer.services.detector.hog_people import HogPeople
+from cinetransfer.services.detector.sources import iter_frames
+
+RESOLUTIONS = ((640, 360), (1280, 720))
+
+
+def _time(fn, frames, warmup: int) -> dict:
+    for i in range(warmup):
+        fn(frames[i % len(frames)], i)
+    lat = []
+    c0, t0 = time.process_time(), time.perf_counter()
+    for i, f in enumerate(frames):
+        t = time.perf_counter()
+        fn(f, warmup + i)
+        lat.append(time.perf_counter() - t)
+    wall = time.perf_counter() - t0
+    cpu = time.process_time() - c0
+    lat_ms = 1e3 * np.asarray(lat)
+    return {"fps": len(frames) / wall, "ms_median": float(np.median(lat_ms)), "ms_p95": float(np.percentile(lat_ms, 95)),
+            "ms_max": float(lat_ms.max()), "cpu_cores_used": cpu / wall, "cpu_ms_per_frame": 1e3 * cpu / len(frames)}
+
+
+def _line(name: str, r: dict) -> str:
+    return (f"  {name:<34} {r['fps']:6.1f} frames/s   median {r['ms_median']:6.1f} ms   p95 {r['ms_p95']:6.1f} ms   "
+            f"max {r['ms_max']:6.1f} ms   cores {r['cpu_cores_used']:.2f}   CPU {r['cpu_ms_per_frame']:5.1f} ms/frame")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("--warmup", type=int, default=10)
+    a = ap.parse_args()
+    src = [f.image for f in iter_frames(data_dir() / "sam2_juggle_1280x720.mp4", stop=a.frames)]
+    load = os.getloadavg()[0]
+    print(f"load average before: {load:.2f} on {os.cpu_count()} CPUs "
+          f"({'quiet' if load < 0.5 else 'UNDER LOAD: numbers are pessimistic'})")
+    results: dict = {}
+    for w, h in RESOLUTIONS:
+        frames = [cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA) for img in src]
+        print(f"{w}x{h}, {len(frames)} frames:")
+        res: dict = {}
+        base = DetectorConfig()
+        with Detector(base.replace(focus=False, threads=1)) as det:
+            res["pose only"] = _time(lambda f, i: det.backend.detect(f, i * 41_666_667), frames, a.warmup)
+        est = FocusEstimator(base)
+        res["focus only"] = _time(lambda f, i: est.estimate(f), frames, a.warmup)
+        hog = HogPeople(base)
+        res["HOG fallback only"] = _time(lambda f, i: hog.detect(f), frames, a.warmup)
+        for name, cfg in (("full, 1 thread", base.replace(threads=1)),
+                          ("full, 2 threads (default)", base.replace(threads=2)),
+                          ("full + HOG fallback, 2 threads", base.replace(threads=2, person_fallback="hog"))):
+            with Detector(cfg) as det:
+                res[name] = _time(lambda f, i: det.process(f, i, i * 41_666_667), frames, a.warmup)
+        for k, r in res.items():
+            print(_line(k, r))
+        results[f"{w}x{h}"] = res
+    r = results["1280x720"]["full, 2 threads (default)"]
+    goal = r["fps"]
+    print(f"goal: >= 15 frames/s at 1280x720 -> {goal:.1f} frames/s measured ({'met' if goal >= 15 else 'NOT met'}); "
+          f"CPU cost {r['cpu_ms_per_frame']:.1f} ms/frame -> at most {2000 / r['cpu_ms_per_frame']:.1f} frames/s "
+          f"on 2 idle cores")
+    results["load_avg_before"] = load
+    print(f"wrote {write_result('detector', results)}")
+
+
+if __name__ == "__main__":
+    main()
