@@ -133,7 +133,7 @@ def _deploy_config(outdir: Path, port: int, rig: str, scene: str, fps: float, ex
         "defaults": {"zenoh": {"mode": "client", "connect": [f"tcp/127.0.0.1:{port}"], "shm": True}},
         "nodes": [
             {"name": "autopilot_bridge", "command": "autopilot_bridge",
-             "args": ["--backend", "sim", "--scene", scene, "--fps", f"{fps:g}", *extra_bridge]},
+             "args": ["--backend", "sim", "--scene", scene, *extra_bridge]},
             {"name": "planner", "command": "planner", "args": [*extra_planner]},
         ],
         "restart": {"backoff_initial_s": 0.5, "stop_grace_s": 10, "startup_timeout_s": 180},
@@ -166,14 +166,23 @@ def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: fl
     cmd_pub = session.declare_publisher(keys.PLANNER_COMMAND.key(rig))
     instr_pub.put(codec.encode(replace(style, stamp_ns=M.now_ns(), final=True)))
     time.sleep(0.5)
-    t0 = M.now_ns() + int(preroll_s * 1e9)
+
+    def command(action: str, **args) -> None:
+        cmd_pub.put(codec.encode(M.Command(stamp_ns=M.now_ns(), action=action, args=args)))
+
+    # Pre-roll: 'start' then 'pause' makes the planner frame instruction 0 without the clock
+    # running, so the drone settles on the first frame's framing before the take begins.
+    command("start", start_frame=0)
+    command("pause")
+    log.info("pre-roll: settling on frame 0 for %.1f s", preroll_s)
+    time.sleep(preroll_s)
+    t0 = M.now_ns()
     rec.start_window(t0, duration, style.fps)
-    cmd_pub.put(codec.encode(M.Command(stamp_ns=M.now_ns(), action="start",
-                                       args={"t0_ns": t0, "preroll_s": preroll_s})))
+    command("resume")
     interrupted = False
     try:
         with tqdm(total=k, desc="recording", unit="frame") as bar:
-            end = time.monotonic() + preroll_s + duration + margin_s
+            end = time.monotonic() + duration + margin_s
             while time.monotonic() < end:
                 time.sleep(0.1)
                 bar.n = min(rec.n_video, k)
