@@ -35,7 +35,7 @@ class BridgeSimAdapter:
         self.backend = backend
         self.t_s = 0.0
         backend.start()
-        backend.step(self.t_s)
+        backend.step(0.0)
 
     def apply(self, sp: M.Setpoint) -> None:
         if sp.mode == "hold" or not sp.valid:
@@ -45,7 +45,9 @@ class BridgeSimAdapter:
 
     def step(self, duration_s: float) -> None:
         self.t_s += duration_s
-        self.backend.step(self.t_s)
+        # on a microsecond grid, nudged by 2 ns: summed float periods can otherwise land a hair
+        # before a frame time that the backend then renders "ahead of now"
+        self.backend.step(round(self.t_s, 6) + 2e-9)
         self.backend.frames()  # the renderer's output is not needed here
         self.backend.truths()
 
@@ -98,9 +100,13 @@ def make_sim(scene: str | None, bounds: pc.Bounds) -> tuple[Any, str]:
         from pathlib import Path
 
         if scene is None and names:
-            scene = "park" if "park" in names else names[0]
+            scene = "lawn_juggler" if "lawn_juggler" in names else names[0]
         if scene is not None and (scene in names or Path(scene).suffix in (".yaml", ".yml")):
-            return BridgeSimAdapter(sb.SimBackend(sb.load_scene(scene))), f"bridge simulator:{scene}"
+            try:
+                backend = sb.SimBackend(sb.load_scene(scene), render=False, truth=False)
+            except TypeError:  # an older simulator without these options
+                backend = sb.SimBackend(sb.load_scene(scene))
+            return BridgeSimAdapter(backend), f"bridge simulator:{scene}"
     scene = scene or "standing"
     if scene in SCENES:
         return KinematicSim(SCENES[scene], bounds=bounds), f"kinematic:{scene}"
@@ -136,7 +142,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--scene", default=None,
                    help="simulator scene: a bridge-simulator scene name/file, or a kinematic scene "
                         f"({', '.join(sorted(SCENES))}; 'kinematic:NAME' forces it). Default: the bridge "
-                        "simulator's 'park' if installed, else kinematic 'standing'")
+                        "simulator's 'lawn_juggler' if installed, else kinematic 'standing'")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="seconds to fly (default: the style)")
     p.add_argument("--config", metavar="YAML", default=None, help="planner parameters (as for 'cinetransfer planner')")
     p.add_argument("--rate", type=float, default=None, metavar="HZ", help="replanning rate (default 20)")

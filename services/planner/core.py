@@ -173,7 +173,14 @@ class Planner:
         except ValueError as e:  # e.g. no finite joint of the subject
             return self._hold(now_ns, vehicle, f"bad input: {e}", valid=False)
         shift = 0.0 if self._plan is None else (now_ns - self._plan.t0_ns) * 1e-9
-        res = self.solver.solve(data, shift_s=shift)
+        try:
+            res = self.solver.solve(data, shift_s=shift)
+        except (ValueError, RuntimeError) as e:  # non-finite parameters, an exception inside casadi
+            log.warning("solve raised: %s", e)
+            self.counters.update(failures=int(self.counters["failures"]) + 1,
+                                 consecutive_failures=int(self.counters["consecutive_failures"]) + 1,
+                                 solver_status=f"error: {e}"[:200])
+            return self._fallback(now_ns, vehicle, f"solver error: {e}"[:200])
         self.last_result = res
         self.counters.update(solves=int(self.counters["solves"]) + 1, solver_status=res.status,
                              solve_ms=round(res.wall_s * 1e3, 3), iterations=res.iterations, instruction_frame=frame)

@@ -36,9 +36,10 @@ class SmootherConfig:
     reentry_cost: float = 2.0  # cost of re-appearing after an absence longer than max_bridge_s, >= 0
     continuity: str = "box"  # continuity measure: 'box' (|box change| / box size) or 'iou' (1 - IoU)
     confidence_cost: float = 0.2  # cost of a detection of confidence c is confidence_cost * (1 - c), >= 0
+    extend_min_iou: float = 0.5  # after selection, re-admit a left-out detection overlapping the chosen box this much (1 = off)
     max_bridge_s: float = 0.5  # longest detector dropout bridged as 'visible' [s], >= 0
-    box_smoothness: float = 0.1  # lambda of the box QP's first-difference term at 24 fps (data weights: confidences), > 0
-    box_accel_smoothness: float = 3.0  # lambda2 of the box QP's second-difference term at 24 fps, >= 0
+    box_smoothness: float = 0.02  # lambda of the box QP's first-difference term at 24 fps (data weights: confidences), > 0
+    box_accel_smoothness: float = 0.1  # lambda2 of the box QP's second-difference term at 24 fps, >= 0
     # --- joints (DESIGN §1.1 step 3)
     joint_smoothness: float = 0.1  # lambda of the joint QP's first-difference (paper's) term at 24 fps, > 0
     joint_accel_smoothness: float = 3.0  # lambda2 of our added second-difference term at 24 fps, >= 0
@@ -81,6 +82,8 @@ class SmootherConfig:
         for name in ("min_person_confidence", "min_joint_confidence"):
             if not 0.0 <= getattr(self, name) < 1.0:
                 raise bad(name, "0 <= value < 1")
+        if not 0.0 < self.extend_min_iou <= 1.0:
+            raise bad("extend_min_iou", "0 < value <= 1")
         if self.continuity not in ("box", "iou"):
             raise bad("continuity", "box | iou")
         for name in ("move_cost", "free_move", "reentry_cost", "confidence_cost", "max_bridge_s", "joint_accel_smoothness", "box_accel_smoothness"):

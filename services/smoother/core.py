@@ -113,6 +113,7 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
                                          confidence_cost=cfg.confidence_cost, max_bridge_s=cfg.max_bridge_s,
                                          free_move=cfg.free_move * 24.0 / fps, continuity=cfg.continuity,
                                          reentry_cost=cfg.reentry_cost)
+        sel = subject_mod.extend_runs(frames, sel, min_iou=cfg.extend_min_iou) if cfg.extend_min_iou < 1 else sel
     if not sel.visible.any():
         raise SmootherInputError(f"no main subject found in {F} frames")
     raw_box, box = subject_mod.smooth_box(frames, sel, lam=cfg.lam(cfg.box_smoothness, fps), width=W, height=H,

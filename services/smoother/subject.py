@@ -170,6 +170,44 @@ def select_subject(feats: list[FrameFeatures], *, fps: float, move_cost: float =
     return Selection(person, visible, bridged, float(total))
 
 
+def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """IoU of boxes b (M, 4) with box a (4,)."""
+    iw = np.clip(np.minimum(a[2], b[:, 2]) - np.maximum(a[0], b[:, 0]), 0, None)
+    ih = np.clip(np.minimum(a[3], b[:, 3]) - np.maximum(a[1], b[:, 1]), 0, None)
+    inter = iw * ih
+    ua = (a[2] - a[0]) * (a[3] - a[1]) + (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1]) - inter
+    return inter / np.maximum(ua, 1e-9)
+
+
+def extend_runs(feats: list[FrameFeatures], sel: Selection, *, min_iou: float = 0.5) -> Selection:
+    """Give frames the path left out (fast motion or a shape change made them costlier than a
+    miss) the detection that overlaps the neighbouring chosen box by at least `min_iou`, when
+    it is the only such detection: forwards, then backwards. Identity is kept: a detection of
+    another person rarely overlaps the subject's previous box that much, and never uniquely in
+    a crowd."""
+    person = sel.person.copy()
+    F = len(feats)
+
+    def grow(order: range, prev_of: int) -> None:
+        for f in order:
+            p = f + prev_of
+            if person[f] >= 0 or not 0 <= p < F or person[p] < 0 or feats[f].n_people == 0:
+                continue
+            ov = _iou(feats[p].boxes[person[p]], feats[f].boxes)
+            ok = np.flatnonzero(ov >= min_iou)
+            if ok.size == 1:
+                person[f] = int(ok[0])
+
+    grow(range(1, F), -1)
+    grow(range(F - 2, -1, -1), +1)
+    if np.array_equal(person, sel.person):
+        return sel
+    det = person >= 0
+    visible = sel.visible | det
+    # Re-bridge: short gaps between detections stay visible, as in the selection.
+    return Selection(person, visible, visible & ~det, sel.cost)
+
+
 def smooth_box(feats: list[FrameFeatures], sel: Selection, *, lam: float, width: int,
                height: int, lam2: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Raw and smoothed main-subject boxes, (F, 4) px each; NaN where not visible / not detected."""

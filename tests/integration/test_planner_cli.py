@@ -36,3 +36,25 @@ def test_plan_refuses_unknown_scene_and_bad_file(tmp_path):
     r = subprocess.run([sys.executable, "-m", "cinetransfer", "plan", str(style), "--scene", "kinematic:moon"],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "moon" in r.stderr
+
+
+def test_plan_runs_against_the_bridge_simulator(tmp_path):
+    # given the autopilot bridge's built-in simulator (when this build has it) and a style file
+    import pytest
+
+    pytest.importorskip("cinetransfer.services.autopilot_bridge.sim.backend")
+    from cinetransfer.services.autopilot_bridge.sim.scene import scene_names
+
+    names = scene_names()
+    if not names:
+        pytest.skip("the bridge simulator ships no scenes")
+    style = tmp_path / "style.json"
+    save_style(style, reference_instructions(SCENES["standing"], dolly_zoom_shot(3.0), duration_s=3.0))
+    out = tmp_path / "run.json"
+    r = subprocess.run([sys.executable, "-m", "cinetransfer", "plan", str(style), "--scene", names[0],
+                        "--json", str(out)], capture_output=True, text=True, timeout=240)
+    # then the planner flies it in-process: exit 0, tracking (no holds), the subject kept in view
+    assert r.returncode == 0, r.stderr
+    res = json.loads(out.read_text())
+    assert res["scene"] == f"bridge simulator:{names[0]}" and res["summary"]["holds"] == 0
+    assert res["summary"]["image_error_median"] < 0.1

@@ -222,3 +222,23 @@ def test_config_validation_names_the_field():
         DetectorConfig(num_poses=0).validate()
     with pytest.raises(ConfigError, match="tv_mask_checkpoint"):
         DetectorConfig(backend="torchvision").validate()
+
+
+def test_hog_fallback_adds_back_view_pedestrians_without_duplicates():
+    # given a TUD-Stadtmitte frame (pedestrians, several seen from the back or side)
+    f = next(iter(iter_frames(data_dir() / "tud_stadtmitte_640x480.mp4", start=20, stop=21, prefetch=0)))
+    with Detector(DetectorConfig(running_mode="image", focus=False)) as plain, \
+            Detector(DetectorConfig(running_mode="image", focus=False, person_fallback="hog")) as fb:
+        a = plain.process(f.image, f.index, f.stamp_ns)
+        b = fb.process(f.image, f.index, f.stamp_ns)
+    # then the fallback adds people, keeps the pose people first (skeleton indices stay valid)
+    assert len(b.people) > len(a.people)
+    for pa, pb in zip(a.people, b.people):
+        assert np.allclose(pa.box_xyxy, pb.box_xyxy)
+    extra = b.people[len(a.people):]
+    assert all(not p.mask.any() for p in extra)  # box-only: mask unknown
+    assert all(s.person_index < len(a.people) for s in b.skeletons)
+    # and no added box duplicates a pose person
+    from cinetransfer.services.detector.pose_mediapipe import box_iou
+
+    assert all(box_iou(e.box_xyxy, p.box_xyxy) < 0.3 for e in extra for p in a.people)

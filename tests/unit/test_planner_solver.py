@@ -75,7 +75,8 @@ def test_budget_exceeded_is_reported():
 def test_generated_code_is_compiled_once_and_cached(tmp_path):
     # given codegen on and an empty cache: the first build compiles a shared library
     cfg = pc.replace(pc.PlannerConfig(max_solve_time_s=2.0),
-                     **{"structure.codegen": True, "structure.cache_dir": str(tmp_path)})
+                     **{"structure.codegen": True, "structure.cache_dir": str(tmp_path),
+                        "structure.compile_flags": ("-O0", "-fPIC", "-shared"), "structure.horizon_steps": 8})
     data = stage_data(cfg)
     s1 = MpcSolver(cfg.structure, max_solve_time_s=2.0)
     libs = list(tmp_path.glob("cinempc_*.so"))
