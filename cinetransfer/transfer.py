@@ -74,8 +74,10 @@ class Recorder:
         self.frame_key = keys.FRAME.key(rig)
         self.truth_key = keys.SIM_TRUTH.key(rig)
         self._video = None
-        self._video_size = None
+        self._last_img: np.ndarray | None = None
         self.n_video = 0
+        self.repeated = 0
+        self.late = 0
         self.undecodable = 0
         self._sub = session.declare_subscriber(keys.everything(rig), self._on)
 
@@ -94,21 +96,43 @@ class Recorder:
                 if isinstance(msg, M.Health):
                     self.health[msg.node] = msg
                 elif self.window is not None and self.window[0] <= msg.stamp_ns < self.window[1]:
+                    slot = int(round((msg.stamp_ns - self.window[0]) * 1e-9 * self.fps))
                     if isinstance(msg, M.Frame):
-                        self._write_frame(np.array(msg.image))
+                        self._write_frame(slot, np.array(msg.image))
                     elif isinstance(msg, M.GroundTruth):
-                        self.truths.append(msg)
+                        self._add_truth(slot, msg)
 
-    def _write_frame(self, img: np.ndarray) -> None:
+    def _write_frame(self, slot: int, img: np.ndarray) -> None:
+        """Write the frame at its time slot; a slot the simulator skipped (it renders in real
+        time and drops late frames) repeats the previous frame, as a constant-rate recorder
+        would, so that video frame k is exactly instruction frame k. Repeats are counted."""
         import cv2
 
         if self._video is None:
             h, w = img.shape[:2]
-            self._video_size = (w, h)
             self._video = cv2.VideoWriter(str(self.outdir / "output.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
                                           self.fps, (w, h))
+        if slot < self.n_video:  # two frames in one slot (clock jitter): keep the first
+            self.late += 1
+            return
+        if self._last_img is None:
+            self._last_img = img  # a take that starts between two renders opens on the first one
+        while self.n_video < slot:
+            self._video.write(self._last_img)
+            self.n_video += 1
+            self.repeated += 1
         self._video.write(img)
+        self._last_img = img
         self.n_video += 1
+
+    def _add_truth(self, slot: int, truth: M.GroundTruth) -> None:
+        """Truth of each video frame: a repeated frame shows the previous render, so it gets that
+        render's truth."""
+        if slot < len(self.truths):
+            return
+        while len(self.truths) < slot:
+            self.truths.append(replace(self.truths[-1] if self.truths else truth, frame_index=len(self.truths)))
+        self.truths.append(replace(truth, frame_index=slot))
 
     def start_window(self, t0_ns: int, duration_s: float, fps: float) -> None:
         with self.lock:
@@ -234,7 +258,7 @@ def main(argv: list[str]) -> int:
         if args.style:
             shutil.copyfile(args.style, style_path)
         else:
-            extra = ["--max-frames", str(args.max_frames)] if args.max_frames else []
+            extra = ["--stop", str(args.max_frames)] if args.max_frames else []
             run_cli(["extract", str(src), "-o", str(style_path), *extra], "style extraction")
         from cinetransfer.services.smoother.instructions import load_style
 
@@ -265,7 +289,8 @@ def main(argv: list[str]) -> int:
         finally:
             if cfg_path is not None:
                 run_cli(["deploy", "down", str(cfg_path), "--run-dir", str(deploy_dir)], "stopping nodes")
-        meta.update(recorded_frames=rec.n_video, truth_frames=len(rec.truths), logged_messages=rec.log.count,
+        meta.update(recorded_frames=rec.n_video, repeated_frames=rec.repeated, truth_frames=len(rec.truths),
+                    logged_messages=rec.log.count, output_fps=style.fps,
                     instruction_frames=int(style.image_targets.shape[0]), fps=style.fps,
                     interrupted=getattr(rec, "interrupted", False))
         from cinetransfer.report.truthfile import write_truths
