@@ -8,7 +8,8 @@ Output: one Measurement per processed frame on `ct/{rig}/detector/measurement`.
 Keeping up: frames arrive in a small drop-oldest queue (`--queue`, default 2); when processing
 is slower than the camera, the node takes the newest frame and skips the older ones. Every
 skipped frame is counted (`frames_skipped` in the Health counters, and queue overflows in
-Health.dropped), so the backlog never grows and the loss is visible.
+Health.dropped), so the backlog never grows and the loss is visible. Gaps in the incoming frame indices (frames
+lost before they reached the node) are counted as `frames_missing_upstream`.
 """
 from __future__ import annotations
 
@@ -52,8 +53,18 @@ class _Stats:
         self.skipped = 0
         self.errors = 0
         self.people = 0
+        self.index_gaps = 0  # frames missing from the index sequence of one source
+        self._last: dict[str, int] = {}
         self.t0 = time.monotonic()
         self.win: list[float] = []
+
+    def note_frames(self, frames: list[M.Frame]) -> None:
+        """Count index gaps per source: frames lost upstream (camera, network) are visible too."""
+        for f in frames:
+            last = self._last.get(f.source)
+            if last is not None and f.index > last + 1:
+                self.index_gaps += f.index - last - 1
+            self._last[f.source] = f.index
 
     def fps(self) -> float:
         now = time.monotonic()
@@ -141,7 +152,10 @@ def run_subscriber(node, det, args, stats: _Stats) -> int:
         if not frames:
             continue
         # newest wins: older queued frames are skipped (and counted) so we never fall behind
+        stats.note_frames(frames)
         stats.skipped += len(frames) - 1
+        # gaps not explained by our own queue's drops were lost before reaching us
+        node.counters["frames_missing_upstream"] = max(0, stats.index_gaps - inbox.dropped)
         _process(node, det, pub, stats, frames[-1])
         node.counters["frames_skipped"] = stats.skipped
     return 0
@@ -168,7 +182,8 @@ def main(argv: list[str]) -> int:
     stats = _Stats()
     try:
         with node:
-            node.counters.update(backend=det.name, frames_processed=0, frames_skipped=0, errors=0)
+            node.counters.update(backend=det.name, frames_processed=0, frames_skipped=0, errors=0,
+                                 frames_missing_upstream=0)
             if args.video or args.images:
                 return run_file(node, det, args, stats)
             return run_subscriber(node, det, args, stats)

@@ -28,7 +28,9 @@ class Bus:
             self.session.declare_subscriber(keys.health(rig, "detector"), self._on_h),
             self.session.liveliness().declare_subscriber(keys.all_alive(rig), self._on_alive, history=True),
         ]
-        self.frame_pub = self.session.declare_publisher(keys.FRAME.key(rig))
+        # BLOCK: no frame is lost in transport, so the node's own accounting can be checked exactly
+        self.frame_pub = self.session.declare_publisher(keys.FRAME.key(rig),
+                                                        congestion_control=zenoh.CongestionControl.BLOCK)
 
     def _on_m(self, s: zenoh.Sample) -> None:
         with self.lock:
@@ -104,6 +106,7 @@ def test_service_measures_frames_and_drops_visibly(tmp_path, data, port, listene
         assert measured < len(burst), "a 36-frame burst of 720p cannot all be measured in real time here"
         assert h.counters["frames_skipped"] + h.dropped > 0
         assert h.counters["backend"] == "mediapipe"
+        assert h.counters["frames_missing_upstream"] == 0  # indices were consecutive
     finally:
         rc = stop(proc)
         bus.close()
