@@ -289,8 +289,9 @@ class SimBackend(VehiclePort):
             else:
                 self._emit_frame(self._next_frame, t_f)
             self._next_frame += 1
-        self.dyn.advance(t_new - self._t)
-        self._t = t_new
+        # A frame due within 1e-9 s after t_new was already taken: never step backwards.
+        self.dyn.advance(max(0.0, t_new - self._t))
+        self._t = max(self._t, t_new)
 
     def vehicle_state(self) -> M.VehicleState:
         d = self.dyn
