@@ -97,6 +97,8 @@ class Recorder:
                     self.health[msg.node] = msg
                 elif self.window is not None and self.window[0] <= msg.stamp_ns < self.window[1]:
                     slot = int(round((msg.stamp_ns - self.window[0]) * 1e-9 * self.fps))
+                    if slot >= self.n_slots:
+                        return
                     if isinstance(msg, M.Frame):
                         self._write_frame(slot, np.array(msg.image))
                     elif isinstance(msg, M.GroundTruth):
@@ -137,6 +139,7 @@ class Recorder:
     def start_window(self, t0_ns: int, duration_s: float, fps: float) -> None:
         with self.lock:
             self.fps = fps
+            self.n_slots = int(round(duration_s * fps))
             self.window = (t0_ns, t0_ns + int(duration_s * 1e9))
 
     def close(self) -> None:
@@ -234,7 +237,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--scene", default="open_country", help="simulator scene name or YAML file (default %(default)s)")
     p.add_argument("-o", "--outdir", required=True, help="output folder")
     p.add_argument("--rig", default="transfer", help="rig name (default %(default)s)")
-    p.add_argument("--preroll", type=float, default=3.0, help="seconds to settle on frame 0 before recording")
+    p.add_argument("--preroll", type=float, default=5.0, help="seconds to settle on frame 0 before recording")
     p.add_argument("--max-frames", type=int, default=0, help="use only the first N frames of the source (0 = all)")
     p.add_argument("--style", help="use this style.json instead of extracting one")
     p.add_argument("--no-eval", action="store_true", help="skip extraction on the output and the report")

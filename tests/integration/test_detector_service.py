@@ -69,14 +69,15 @@ def test_service_measures_frames_and_drops_visibly(tmp_path, data, port, listene
         wait_for(lambda: "detector" in bus.alive, 60, what="detector liveliness")
         frames = [f for f in iter_frames(data / "sam2_juggle_1280x720.mp4", stop=40)]
         # one frame at a time, waiting for its measurement: every frame is measured
-        for k, f in enumerate(frames[:4]):
+        # (frames 3-5 never reach the node: a gap upstream, which it must count)
+        for k, f in enumerate(frames[:3] + frames[6:7]):
             frame = M.Frame(stamp_ns=f.stamp_ns, seq=k, source="cam", index=f.index, fps=24.0, image=f.image,
                             lens=M.LensState(focal_length_mm=35.0))
             bus.frame_pub.put(codec.encode(frame))
             wait_for(lambda: len(bus.measurements) > k, 30, what=f"measurement of frame {f.index}")
         with bus.lock:
             ms = list(bus.measurements)
-        assert [m.frame_index for m in ms] == [0, 1, 2, 3]
+        assert [m.frame_index for m in ms] == [0, 1, 2, 6]
         for m in ms:
             assert m.width == 1280 and m.height == 720 and m.source == "cam"
             assert len(m.people) == 1 and m.people[0].confidence > 0.8  # the juggler
@@ -87,7 +88,7 @@ def test_service_measures_frames_and_drops_visibly(tmp_path, data, port, listene
         wait_for(lambda: any(h.rejected >= 1 for h in bus.health), 10, what="rejection in Health")
         # a burst faster than it can measure: the backlog stays bounded, the skipped frames are counted
         n0 = len(bus.measurements)
-        burst = frames[4:40]
+        burst = frames[7:40]
         for f in burst:
             bus.frame_pub.put(codec.encode(M.Frame(stamp_ns=f.stamp_ns, index=f.index, fps=24.0, image=f.image)))
         last = burst[-1].index
@@ -103,10 +104,10 @@ def test_service_measures_frames_and_drops_visibly(tmp_path, data, port, listene
             return done + skipped + h.dropped >= len(burst) and h
         h = wait_for(accounted, 10, what="burst accounted for in Health")
         measured = len(bus.measurements) - n0
-        assert measured < len(burst), "a 36-frame burst of 720p cannot all be measured in real time here"
+        assert measured < len(burst), "a 33-frame burst of 720p cannot all be measured in real time here"
         assert h.counters["frames_skipped"] + h.dropped > 0
         assert h.counters["backend"] == "mediapipe"
-        assert h.counters["frames_missing_upstream"] == 0  # indices were consecutive
+        assert h.counters["frames_missing_upstream"] == 3  # frames 3, 4, 5; queue drops are not counted here
     finally:
         rc = stop(proc)
         bus.close()
