@@ -29,5 +29,9 @@ export PIP_DISABLE_PIP_VERSION_CHECK=1
 # dependencies would replace opencv-python-headless and force numpy<2, so it goes in without
 # them; its real run-time needs are in pyproject.toml (DESIGN §5).
 "$VENV/bin/python" -m pip install -q --no-deps "mediapipe==0.10.21"
+# torchvision (optional: user-supplied Mask R-CNN / Keypoint R-CNN checkpoints) also goes in
+# without dependencies: it would otherwise re-resolve torch. Its compiled ops are CUDA builds;
+# the detector's loader supplies the one op it needs on CPU (docs/detector.md).
+"$VENV/bin/python" -m pip install -q --no-deps "torchvision==0.28.0"
 "$VENV/bin/python" -c "import cinetransfer.cli, mediapipe, torch, zenoh, casadi, cv2; print('setup.sh: ok — torch', torch.__version__, '| opencv', cv2.__version__)"
 echo "$want" > "$stamp"

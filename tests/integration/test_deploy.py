@@ -77,3 +77,12 @@ def run_supervised(config: Path, port: int, tmp_path: Path, kill_node: str):
 
 def test_deploy_relays_restart_and_down(port, tmp_path):
     run_supervised(RELAYS, port, tmp_path, "relay_a")
+
+
+@pytest.mark.slow
+def test_deploy_local_real_nodes_restart_and_down(port, tmp_path):
+    """The shipped local config: router + bridge(sim) + detector + smoother + planner."""
+    from cinetransfer.deploy.supervisor import resolve_config_path
+
+    restart_s = run_supervised(resolve_config_path("local"), port, tmp_path, "smoother")
+    assert restart_s < 5.0
