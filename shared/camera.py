@@ -116,11 +116,16 @@ def in_focus(distance_m: np.ndarray | float, focal_length_mm: float, f_number: f
 
 
 def desired_dof_limits(b_fg: bool, b_subject: bool, b_bg: bool, distance_m: float,
-                       mu_m: float) -> tuple[float, float]:
+                       mu_m: float, *, defocus_when_none: bool = False) -> tuple[float, float]:
     """Target (D_n*, D_f*) from the focus booleans (DESIGN §1.2).
 
-    +inf for D_n* / -inf for D_f* means "not controlled".
+    +inf for D_n* / -inf for D_f* means "not controlled". DESIGN's table leaves everything
+    uncontrolled when no region is in focus; with `defocus_when_none` that case instead asks
+    for the depth of field to end mu in front of the subject (D_f* = d - mu), so that a
+    source shot where nothing is sharp is imitated rather than ignored.
     """
+    if defocus_when_none and not (b_fg or b_subject or b_bg):
+        return math.inf, distance_m - mu_m
     if b_fg:
         near = 0.0
     elif b_subject:

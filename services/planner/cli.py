@@ -183,7 +183,8 @@ def main(argv: list[str]) -> int:
                           truth=None if isinstance(sim, KinematicSim) else state_truth)
     for i in range(0, len(log.t_s), every):
         fi = log.focus_in[i]
-        dn, df = cam.desired_dof_limits(*fi, log.depth_m[i], ins.mu_m)
+        dn, df = cam.desired_dof_limits(*fi, log.depth_m[i], ins.mu_m,
+                                        defocus_when_none=cfg.structure.defocus_when_none)
         j = log.plan_index[i]
         sp = log.setpoints[j]
 

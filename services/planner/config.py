@@ -160,6 +160,7 @@ class Structure:
     warm_start: bool = True  # initial guess from the shifted last solution (baseline: False = cold)
     far_margin_inv_m: float = 0.01  # 'far limit at infinity' aims at 1/D_f <= -this [1/m] (s a bit past H)
     near_foreground_m: float = 1.0  # 'foreground in focus' aims at D_n = this [m] (D_n* = 0 is unreachable)
+    defocus_when_none: bool = True  # no region in focus -> D_f* = d - mu (DESIGN's table: uncontrolled)
     pinhole_half_angle_deg: float = 60.0  # J_im is the exact pinhole error within this angle of the axis,
     #                                       extended monotonically beyond (cost.project_extended), (30, 80)
 

@@ -268,7 +268,7 @@ class Planner:
             dref[k] = depth
             if focus.shape[0] > r and focus.shape[1] == 3:
                 near, far = cam.desired_dof_limits(bool(focus[r, 0]), bool(focus[r, 1]), bool(focus[r, 2]),
-                                                   depth, mu)
+                                                   depth, mu, defocus_when_none=st.defocus_when_none)
                 dof[k] = reciprocal_targets(near, far, near_foreground_m=st.near_foreground_m,
                                             far_margin_inv_m=st.far_margin_inv_m)
         u_prev = self._u_prev

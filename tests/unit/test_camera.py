@@ -84,3 +84,9 @@ def test_rotation_is_orthonormal():
 ])
 def test_desired_dof_limits_table(flags, expect):
     assert C.desired_dof_limits(*flags, distance_m=5.0, mu_m=1.0) == expect
+
+
+def test_nothing_in_focus_can_ask_for_defocus():
+    # DESIGN's table leaves it uncontrolled; the option puts the far limit mu before the subject
+    assert C.desired_dof_limits(False, False, False, 5.0, 1.0, defocus_when_none=True) == (math.inf, 4.0)
+    assert C.desired_dof_limits(False, True, False, 5.0, 1.0, defocus_when_none=True) == (4.0, 6.0)
