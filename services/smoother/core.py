@@ -124,7 +124,8 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
     sm_joints = joints_mod.smooth_joints(raw_joints, joint_conf, sel.visible,
                                          lam=cfg.lam(cfg.joint_smoothness, fps), width=W, height=H,
                                          min_confidence=cfg.min_joint_confidence,
-                                         lam2=cfg.lam(cfg.joint_accel_smoothness, fps, order=2))
+                                         lam2=cfg.lam(cfg.joint_accel_smoothness, fps, order=2),
+                                         max_gap=int(round(cfg.max_bridge_s * fps)))
 
     # 4. Focus: b per region (NaN = not measured), which regions exist, then B.
     b = np.full((F, 3), np.nan)

@@ -83,10 +83,24 @@ def raw_subject_joints(feats: list[FrameFeatures], boxes_px: np.ndarray, visible
     return mask_idx, skel_idx, joints, conf
 
 
+def frames_from_observation(ok: np.ndarray) -> np.ndarray:
+    """Per frame and joint (F, J): frames to the nearest frame where the joint was observed
+    (0 where observed; a large number where it never was)."""
+    F = ok.shape[0]
+    idx = np.arange(F)[:, None].astype(float)
+    big = float(10 * F + 10)
+    last = np.maximum.accumulate(np.where(ok, idx, -big), axis=0)
+    nxt = np.minimum.accumulate(np.where(ok, idx, 2 * big)[::-1], axis=0)[::-1]
+    return np.minimum(idx - last, nxt - idx)
+
+
 def smooth_joints(joints: np.ndarray, conf: np.ndarray, visible: np.ndarray, *, lam: float, width: int,
-                  height: int, min_confidence: float = 0.1, lam2: float = 0.0) -> np.ndarray:
-    """Smoothed joints (F, J, 2) px; NaN where the subject is not visible or a joint was never seen
-    in that visible run."""
+                  height: int, min_confidence: float = 0.1, lam2: float = 0.0,
+                  max_gap: int | None = None) -> np.ndarray:
+    """Smoothed joints (F, J, 2) px; NaN where the subject is not visible, and (with `max_gap`)
+    where a joint is more than `max_gap` frames from any frame it was observed in — a joint
+    that is out of the picture for a whole shot (hips in a close-up) is not controlled there,
+    rather than bridged by a straight line or extrapolated."""
     F, J, _ = joints.shape
     if F == 0:
         return joints.copy()
@@ -99,4 +113,6 @@ def smooth_joints(joints: np.ndarray, conf: np.ndarray, visible: np.ndarray, *, 
     res = qp.smooth(y, ww, lam, lo=0.0, hi=hi, link=link, lam2=lam2)
     out = res.x.reshape(F, J, 2)
     out[~visible] = np.nan
+    if max_gap is not None:
+        out[frames_from_observation(ok) > max_gap] = np.nan
     return out

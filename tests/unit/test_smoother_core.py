@@ -249,3 +249,22 @@ def test_viterbi_is_exact_against_brute_force():
         sel = select_subject(feats, fps=1.0, max_bridge_s=1.0, **kw)
         assert sel.cost == pytest.approx(best, abs=1e-9), trial
         assert cost(list(sel.person)) == pytest.approx(best, abs=1e-9), trial
+
+
+def test_joint_unseen_for_longer_than_max_bridge_is_not_controlled():
+    # given a joint observed in frames 0-9 and 40-49 only (a close-up hides it for 30 frames)
+    from cinetransfer.services.smoother.joints import frames_from_observation, smooth_joints
+
+    F = 50
+    joints = np.full((F, 1, 2), np.nan)
+    conf = np.zeros((F, 1))
+    seen = np.r_[0:10, 40:50]
+    joints[seen, 0] = [100.0, 200.0]
+    conf[seen] = 0.9
+    assert frames_from_observation(conf > 0)[:, 0].tolist()[8:14] == [0, 0, 1, 2, 3, 4]
+    out = smooth_joints(joints, conf, np.ones(F, bool), lam=1.0, width=640, height=360, max_gap=12)
+    # then frames within 12 of an observation are bridged, the middle of the gap is NaN
+    assert np.isfinite(out[:22, 0]).all() and np.isfinite(out[28:, 0]).all()
+    assert np.isnan(out[22:28, 0]).all()
+    # and without max_gap everything visible is bridged (the paper's formulation)
+    assert np.isfinite(smooth_joints(joints, conf, np.ones(F, bool), lam=1.0, width=640, height=360)).all()
