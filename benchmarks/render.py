@@ -1,13 +1,13 @@
 """Simulator render benchmark: frames rendered per second at 960x540 and 1280x720.
 
-    python benchmarks/sim.py [--samples 72] [--warmup 6] [--scenes lawn_juggler open_country focus_hedge]
+    python benchmarks/render.py [--samples 72] [--warmup 6] [--scenes lawn_juggler open_country focus_hedge]
 
 For each scene and resolution the camera flies a slow sideways arc while zooming and pulling
 focus (so that nothing can be cached between frames) and SimBackend.step renders every frame
 at 24 fps of simulated time, ground truth included (label pass) and without it. Reports the
 median, p95 and max time per frame and the resulting frames/s. Goal (issue 7): >= 30 fps at
 960x540. Wall time is what counts; CPU time (both OpenCV threads) is printed too, because on a
-shared machine it is less disturbed by other load. Writes benchmarks/results/sim.json (commit, machine, config, figures).
+shared machine it is less disturbed by other load. Writes benchmarks/results/render.json (commit, machine, config, figures).
 """
 from __future__ import annotations
 
@@ -75,7 +75,7 @@ def main() -> int:
     p.add_argument("--samples", type=int, default=72)
     p.add_argument("--warmup", type=int, default=6)
     p.add_argument("--scenes", nargs="+", default=["lawn_juggler", "open_country", "focus_hedge"])
-    p.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "sim.json")
+    p.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "render.json")
     args = p.parse_args()
     rows = []
     for scene in args.scenes:
