@@ -16,8 +16,12 @@ vertical strips, each seen larger by the detector; results are merged by box ove
 """
 from __future__ import annotations
 
+import contextlib
 import logging
-from typing import Any
+import os
+import sys
+import tempfile
+from typing import Any, Iterator
 
 import cv2
 import numpy as np
@@ -71,6 +75,40 @@ def make_person(mask_full: np.ndarray | None, kp_px: np.ndarray, kp_conf: np.nda
                            mask_origin_xy=np.asarray(box[:2], dtype=np.int32), mask=crop)
 
 
+#: Start-up chatter that MediaPipe's C++ side writes straight to fd 2 (before absl logging is
+#: initialised, so no flag or environment variable silences it). Harmless on a CPU-only host.
+_NATIVE_NOISE = ("All log messages before absl::InitializeLog", "Created TensorFlow Lite XNNPACK delegate",
+                 "inference_feedback_manager.cc", "GPU suport is not available", "gl_context_egl.cc",
+                 "landmark_projection_calculator.cc")
+
+
+@contextlib.contextmanager
+def _filtered_native_stderr() -> Iterator[None]:
+    """Capture fd 2 while MediaPipe starts, then write back every line that is not known
+    start-up noise (so a real native error is still seen, just after the call)."""
+    try:
+        fd = sys.stderr.fileno()
+    except (AttributeError, OSError, ValueError):  # no real stderr (e.g. captured by a test runner)
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(fd)
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), fd)
+        try:
+            yield
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, fd)
+            os.close(saved)
+            tmp.seek(0)
+            keep = [ln for ln in tmp.read().decode(errors="replace").splitlines(keepends=True)
+                    if ln.strip() and not any(n in ln for n in _NATIVE_NOISE)]
+            if keep:
+                sys.stderr.write("".join(keep))
+                sys.stderr.flush()
+
+
 class MediaPipePose:
     """Pose backend: `detect(image_bgr, stamp_ns) -> (people, skeletons)`."""
 
@@ -84,7 +122,9 @@ class MediaPipePose:
         self._base = BaseOptions
         self._task = str(bundle_path())
         self._video = cfg.running_mode == "video"
-        self._lm = self._make(self._video, cfg.num_poses)
+        self._quiet_next_run = True  # inference prints start-up noise too, until a pose is first found
+        with _filtered_native_stderr():
+            self._lm = self._make(self._video, cfg.num_poses)
         self._tile_lm: Any = None
         self._last_ts_ms = -1
 
@@ -119,7 +159,12 @@ class MediaPipePose:
         import mediapipe as mp
 
         img = mp.Image(image_format=mp.ImageFormat.SRGB, data=np.ascontiguousarray(rgb))
-        res = lm.detect_for_video(img, ts_ms) if video else lm.detect(img)
+        if self._quiet_next_run:
+            with _filtered_native_stderr():
+                res = lm.detect_for_video(img, ts_ms) if video else lm.detect(img)
+            self._quiet_next_run = not res.pose_landmarks  # the landmark stage speaks once, when it first runs
+        else:
+            res = lm.detect_for_video(img, ts_ms) if video else lm.detect(img)
         out = []
         masks = res.segmentation_masks or []
         for i, pose in enumerate(res.pose_landmarks):
@@ -182,7 +227,8 @@ class MediaPipePose:
     def _tiles(self, image_bgr: np.ndarray) -> list[tuple[PersonDetection, np.ndarray, np.ndarray]]:
         """Overlapping vertical strips, each shown to the (IMAGE-mode) landmarker on its own."""
         if self._tile_lm is None:
-            self._tile_lm = self._make(False, max(2, self.cfg.num_poses // 2))
+            with _filtered_native_stderr():
+                self._tile_lm = self._make(False, max(2, self.cfg.num_poses // 2))
         height, width = image_bgr.shape[:2]
         n = self.cfg.tiles + 1  # strips
         tw = min(width, int(np.ceil(width / n * 1.5)))  # 50 % overlap

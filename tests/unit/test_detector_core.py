@@ -242,3 +242,15 @@ def test_hog_fallback_adds_back_view_pedestrians_without_duplicates():
     from cinetransfer.services.detector.pose_mediapipe import box_iou
 
     assert all(box_iou(e.box_xyxy, p.box_xyxy) < 0.3 for e in extra for p in a.people)
+
+
+def test_native_startup_noise_is_filtered_but_real_errors_pass(capfd):
+    import os
+
+    from cinetransfer.services.detector.pose_mediapipe import _filtered_native_stderr
+
+    with _filtered_native_stderr():
+        os.write(2, b"W0000 inference_feedback_manager.cc:114] Feedback manager requires ...\n")
+        os.write(2, b"E0000 something real went wrong\n")
+    err = capfd.readouterr().err
+    assert "something real went wrong" in err and "inference_feedback_manager" not in err
