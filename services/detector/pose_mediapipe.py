@@ -86,13 +86,13 @@ _NATIVE_NOISE = ("All log messages before absl::InitializeLog", "Created TensorF
 def _filtered_native_stderr() -> Iterator[None]:
     """Capture fd 2 while MediaPipe starts, then write back every line that is not known
     start-up noise (so a real native error is still seen, just after the call)."""
+    fd = 2  # native code writes to the descriptor, whatever Python's sys.stderr is
     try:
-        fd = sys.stderr.fileno()
-    except (AttributeError, OSError, ValueError):  # no real stderr (e.g. captured by a test runner)
+        sys.stderr.flush()
+        saved = os.dup(fd)
+    except OSError:  # no descriptor 2 at all: nothing to filter
         yield
         return
-    sys.stderr.flush()
-    saved = os.dup(fd)
     with tempfile.TemporaryFile() as tmp:
         os.dup2(tmp.fileno(), fd)
         try:
@@ -105,8 +105,7 @@ def _filtered_native_stderr() -> Iterator[None]:
             keep = [ln for ln in tmp.read().decode(errors="replace").splitlines(keepends=True)
                     if ln.strip() and not any(n in ln for n in _NATIVE_NOISE)]
             if keep:
-                sys.stderr.write("".join(keep))
-                sys.stderr.flush()
+                os.write(fd, "".join(keep).encode())
 
 
 class MediaPipePose:
