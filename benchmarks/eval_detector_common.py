@@ -12,17 +12,18 @@ from typing import Any
 import cv2
 import numpy as np
 
+from cinetransfer.shared.boxes import box_iou  # noqa: F401 - used by the evaluation scripts
+from cinetransfer.shared.data import data_dir as shared_data_dir
+
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
 
 
 def data_dir() -> Path:
-    """The real clips: $CT_DATA_DIR, else ../shared/data beside the repository."""
-    env = os.environ.get("CT_DATA_DIR")
-    d = Path(env) if env else REPO.parent / "shared" / "data"
-    if not d.is_dir():
-        raise SystemExit(f"data folder {d} not found: set CT_DATA_DIR")
-    return d
+    try:
+        return shared_data_dir()
+    except FileNotFoundError as e:
+        raise SystemExit(str(e)) from None
 
 
 def davis_masks(name: str) -> list[np.ndarray]:
@@ -50,14 +51,6 @@ def tud_ground_truth() -> dict[int, list[np.ndarray]]:
         f, _, x, y, w, h = (float(v) for v in parts[:6])
         gt.setdefault(int(f) - 1, []).append(np.array([x, y, x + w, y + h]))
     return gt
-
-
-def box_iou(a: np.ndarray, b: np.ndarray) -> float:
-    iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = iw * ih
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
-    return float(inter / union) if union > 0 else 0.0
 
 
 def mask_iou(a: np.ndarray, b: np.ndarray) -> float:

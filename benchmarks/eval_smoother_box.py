@@ -26,6 +26,7 @@ from cinetransfer.services.smoother.config import SmootherConfig
 from cinetransfer.services.smoother.core import features_from_measurements, smooth_sequence
 from cinetransfer.services.smoother.synthetic import person
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.boxes import box_iou
 
 try:
     from smoother_common import CACHE, data_dir, mean_std, write_result
@@ -60,14 +61,6 @@ def mask_box(mask: np.ndarray) -> np.ndarray | None:
     if len(xs) == 0:
         return None
     return np.array([xs[0], ys[0], xs[-1] + 1, ys[-1] + 1], dtype=float)
-
-
-def iou(a: np.ndarray, b: np.ndarray) -> float:
-    iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = iw * ih
-    u = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
-    return inter / u if u > 0 else 0.0
 
 
 def davis(name: str, cfg: SmootherConfig, literal: bool) -> dict:
@@ -110,7 +103,7 @@ def identity_metrics(boxes: np.ndarray, gt: dict, n: int) -> dict:
         b = boxes[f]
         if not np.isfinite(b).all():
             continue
-        best = max(((iou(b, g), tid) for tid, g in gt.get(f, [])), default=(0.0, -1))
+        best = max(((box_iou(b, g), tid) for tid, g in gt.get(f, [])), default=(0.0, -1))
         if best[0] >= 0.3:
             ids.append(best[1])
     if not ids:

@@ -11,17 +11,18 @@ from typing import Any
 
 import numpy as np
 
+from cinetransfer.shared.data import data_dir as shared_data_dir
+
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
 CACHE = RESULTS / "cache"
 
 
 def data_dir() -> Path:
-    env = os.environ.get("CT_DATA_DIR")
-    d = Path(env) if env else REPO.parent / "shared" / "data"
-    if not d.is_dir():
-        raise SystemExit(f"data folder {d} not found: set CT_DATA_DIR")
-    return d
+    try:
+        return shared_data_dir()
+    except FileNotFoundError as e:
+        raise SystemExit(str(e)) from None
 
 
 def stats_ms(samples_s: list[float]) -> dict[str, float]:

@@ -11,15 +11,10 @@ from pathlib import Path
 
 import pytest
 
+from cinetransfer.shared.data import data_dir
 from cinetransfer.shared.zenoh_config import ZenohOptions
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def data_dir() -> Path:
-    """The real clips: $CT_DATA_DIR, else ../shared/data beside the repository."""
-    env = os.environ.get("CT_DATA_DIR")
-    return Path(env) if env else REPO.parent / "shared" / "data"
 
 
 def free_port() -> int:
@@ -35,10 +30,10 @@ def port() -> int:
 
 @pytest.fixture
 def data() -> Path:
-    d = data_dir()
-    if not d.is_dir():
-        pytest.fail(f"real data folder {d} is missing (set CT_DATA_DIR)")
-    return d
+    try:
+        return data_dir()
+    except FileNotFoundError as e:
+        pytest.fail(str(e))
 
 
 @pytest.fixture

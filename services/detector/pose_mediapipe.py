@@ -28,6 +28,7 @@ import numpy as np
 
 from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.services.detector.pose_bundle import bundle_path
+from cinetransfer.shared.boxes import box_iou  # noqa: F401 - re-exported for the other backends
 from cinetransfer.shared.messages import PersonDetection, Skeleton
 
 log = logging.getLogger("cinetransfer.detector")
@@ -35,15 +36,6 @@ log = logging.getLogger("cinetransfer.detector")
 #: BlazePose landmark index of each COCO-17 joint (COCO17_NAMES order).
 BLAZEPOSE_TO_COCO17: tuple[int, ...] = (0, 2, 5, 7, 8, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28)
 _COCO = np.asarray(BLAZEPOSE_TO_COCO17)
-
-
-def box_iou(a: np.ndarray, b: np.ndarray) -> float:
-    """IoU of two (x0, y0, x1, y1) boxes."""
-    iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = iw * ih
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
-    return float(inter / union) if union > 0 else 0.0
 
 
 def make_person(mask_full: np.ndarray | None, kp_px: np.ndarray, kp_conf: np.ndarray, confidence: float,

@@ -8,6 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
+from cinetransfer.shared.data import data_dir as shared_data_dir
+
 from cinetransfer.services.detector import pose_bundle
 from cinetransfer.services.detector.config import ConfigError, DetectorConfig
 from cinetransfer.services.detector.core import Detector, people_mask
@@ -22,12 +24,10 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def data_dir() -> Path:
-    """The real clips: $CT_DATA_DIR, else ../shared/data beside the repository."""
-    env = os.environ.get("CT_DATA_DIR")
-    d = Path(env) if env else REPO.parent / "shared" / "data"
-    if not d.is_dir():
-        pytest.fail(f"real data folder {d} is missing (set CT_DATA_DIR)")
-    return d
+    try:
+        return shared_data_dir()
+    except FileNotFoundError as e:
+        pytest.fail(str(e))
 
 
 @pytest.fixture(scope="module")
