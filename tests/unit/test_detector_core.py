@@ -20,7 +20,6 @@ from cinetransfer.services.detector.sources import FrameSourceError, iter_frames
 from cinetransfer.shared import codec
 from cinetransfer.shared.messages import Measurement
 
-REPO = Path(__file__).resolve().parents[2]
 
 
 def data_dir() -> Path:
