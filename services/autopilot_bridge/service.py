@@ -140,9 +140,10 @@ def make_backend(cfg: BridgeConfig) -> VehiclePort:
     # The built-in simulator is imported lazily (renderer, assets: heavier imports).
     from cinetransfer.services.autopilot_bridge.sim.backend import SimBackend, load_scene
 
-    # Real time: a frame that is already late by more than a few frame periods is skipped, not
-    # rendered, so that a slow renderer never stalls the control loop for long.
-    return SimBackend(load_scene(cfg.scene), max_frame_lag_s=SIM_MAX_FRAME_LAG_S)
+    # Real time: frames render on a worker thread, so the control loop (safety layer, watchdog,
+    # state at `rate_hz`) never waits for the renderer; a frame that is already late by more than
+    # a few frame periods, or due while two are still rendering, is skipped (counted).
+    return SimBackend(load_scene(cfg.scene), max_frame_lag_s=SIM_MAX_FRAME_LAG_S, async_render=True)
 
 
 # ----------------------------------------------------------------------------- service

@@ -16,9 +16,11 @@ the state at its own time. Deterministic: same scene + same calls = same frames.
 """
 from __future__ import annotations
 
+import collections
 import logging
 import math
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import cv2
 import numpy as np
@@ -226,7 +228,7 @@ class SimBackend(VehiclePort):
     def __init__(self, scene: Scene | str, *, width: int | None = None, height: int | None = None,
                  fps: float | None = None, render: bool = True, truth: bool = True,
                  epoch_ns: int | None = None, seed: int | None = None,
-                 max_frame_lag_s: float | None = None):
+                 max_frame_lag_s: float | None = None, async_render: bool = False):
         self.scene = load_scene(scene) if isinstance(scene, str) else scene
         self.seed = self.scene.seed if seed is None else seed
         self.fps = float(fps or self.scene.camera.fps)
@@ -251,6 +253,10 @@ class SimBackend(VehiclePort):
         self.frames_skipped = 0
         self.render_ms: list[float] = []
         self.started = False
+        #: render on a worker thread so that `step` (the bridge's control loop) never waits for a
+        #: frame; frames come out of `frames()` in order once rendered. OpenCV releases the GIL.
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-render") if async_render else None
+        self._pending: collections.deque[tuple[Future, int, float, M.LensState]] = collections.deque()
 
     # -- VehiclePort -----------------------------------------------------------------------
     def start(self) -> None:
@@ -311,15 +317,19 @@ class SimBackend(VehiclePort):
                               velocity_mps=pose.velocity_mps.copy())
 
     def frames(self) -> list[M.Frame]:
+        self._collect()
         out, self._frames = self._frames, []
         return out
 
     def truths(self) -> list[M.GroundTruth]:
+        self._collect()
         out, self._truths = self._truths, []
         return out
 
     def close(self) -> None:
         self.started = False
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
 
     # -- helpers ---------------------------------------------------------------------------
     @property
@@ -345,22 +355,46 @@ class SimBackend(VehiclePort):
         """Render the current state (at sim time `t_s`, default now) without queuing a frame."""
         return self.renderer.render(self.view(), self._t if t_s is None else t_s, truth=self.truth_enabled)
 
+    #: async rendering: a frame due while this many are still being rendered is skipped (counted)
+    MAX_PENDING_RENDERS = 2
+
+    def _render_timed(self, view: View, t_s: float) -> tuple[np.ndarray, dict]:
+        t0 = time.perf_counter()
+        out = self.renderer.render(view, t_s, truth=self.truth_enabled)
+        self.render_ms.append((time.perf_counter() - t0) * 1e3)
+        del self.render_ms[:-200]
+        return out
+
     def _emit_frame(self, index: int, t_s: float) -> None:
-        stamp = self._stamp(t_s)
         lens = self.lens_state()
+        if self.render_enabled and self._pool is not None:
+            self._collect()
+            if len(self._pending) >= self.MAX_PENDING_RENDERS:
+                self.frames_skipped += 1
+                return
+            self._pending.append((self._pool.submit(self._render_timed, self.view(), t_s), index, t_s, lens))
+            return
         if self.render_enabled:
-            t0 = time.perf_counter()
-            img, geo = self.render_at(t_s)
-            self.render_ms.append((time.perf_counter() - t0) * 1e3)
-            del self.render_ms[:-200]
+            img, geo = self._render_timed(self.view(), t_s)
         else:
-            img = np.zeros((0, 0, 3), np.uint8)
-            geo = {}
+            img, geo = np.zeros((0, 0, 3), np.uint8), {}
+        self._finish_frame(index, t_s, lens, img, geo, self.view())
+
+    def _collect(self) -> None:
+        """Move finished asynchronous renders, in order, to the frame and truth outboxes."""
+        while self._pending and self._pending[0][0].done():
+            fut, index, t_s, lens = self._pending.popleft()
+            img, geo = fut.result()
+            self._finish_frame(index, t_s, lens, img, geo, None)
+
+    def _finish_frame(self, index: int, t_s: float, lens: M.LensState, img: np.ndarray, geo: dict,
+                      view: View | None) -> None:
+        stamp = self._stamp(t_s)
         self._frames.append(M.Frame(stamp_ns=stamp, seq=index, valid=True, source=f"sim:{self.scene.name}",
                                     index=index, fps=self.fps, image=img, lens=lens))
         if self.truth_enabled:
             if not geo:
-                view = self.view()
+                view = view or self.view()
                 planes, geo = self.renderer.planes(view, t_s)
                 geo.update(self.renderer.truth(view, planes, geo))
             self._truths.append(M.GroundTruth(
