@@ -326,6 +326,14 @@ class SimBackend(VehiclePort):
         out, self._truths = self._truths, []
         return out
 
+    def health_counters(self) -> dict[str, float | int]:
+        """Renderer figures for the bridge's Health: frames skipped, render time, renders in flight."""
+        ms = sorted(self.render_ms)
+        out: dict[str, float | int] = {"frames_skipped": self.frames_skipped, "renders_pending": len(self._pending)}
+        if ms:
+            out["render_ms_p50"] = round(ms[len(ms) // 2], 2)
+        return out
+
     def close(self) -> None:
         self.started = False
         if self._pool is not None:
