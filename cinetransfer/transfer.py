@@ -79,6 +79,7 @@ class Recorder:
         self.repeated = 0
         self.late = 0
         self.undecodable = 0
+        self.interrupted = False
         self._sub = session.declare_subscriber(keys.everything(rig), self._on)
 
     def _on(self, sample) -> None:  # Zenoh thread: decode only what is needed, write the log
@@ -197,17 +198,16 @@ def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: fl
     def command(action: str, **args) -> None:
         cmd_pub.put(codec.encode(M.Command(stamp_ns=M.now_ns(), action=action, args=args)))
 
-    # Pre-roll: 'start' then 'pause' makes the planner frame instruction 0 without the clock
-    # running, so the drone settles on the first frame's framing before the take begins.
-    command("start", start_frame=0)
-    command("pause")
-    log.info("pre-roll: settling on frame 0 for %.1f s", preroll_s)
-    time.sleep(preroll_s)
-    t0 = M.now_ns()
-    rec.start_window(t0, duration, style.fps)
-    command("resume")
-    interrupted = False
     try:
+        # Pre-roll: 'start' then 'pause' makes the planner frame instruction 0 without the clock
+        # running, so the drone settles on the first frame's framing before the take begins.
+        command("start", start_frame=0)
+        command("pause")
+        log.info("pre-roll: settling on frame 0 for %.1f s", preroll_s)
+        time.sleep(preroll_s)
+        t0 = M.now_ns()
+        rec.start_window(t0, duration, style.fps)
+        command("resume")
         with tqdm(total=k, desc="recording", unit="frame") as bar:
             end = time.monotonic() + duration + margin_s
             while time.monotonic() < end:
@@ -217,17 +217,18 @@ def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: fl
                 if rec.n_video >= k:
                     break
     except KeyboardInterrupt:
-        interrupted = True
+        rec.interrupted = True
         log.warning("interrupted: stopping the vehicle and keeping what was recorded")
     finally:
-        cmd_pub.put(codec.encode(M.Command(stamp_ns=M.now_ns(), action="stop")))
+        # Whatever happened: the planner stops (it then commands a hold) and the bridge is told
+        # to hold too, before the recording is closed.
+        command("stop")
         session.declare_publisher(keys.BRIDGE_COMMAND.key(rig)).put(
             codec.encode(M.Command(stamp_ns=M.now_ns(), action="hold")))
         time.sleep(0.3)
         rec.close()
         instr_pub.undeclare()
         cmd_pub.undeclare()
-    rec.interrupted = interrupted
     return rec
 
 
@@ -295,7 +296,7 @@ def main(argv: list[str]) -> int:
         meta.update(recorded_frames=rec.n_video, repeated_frames=rec.repeated, truth_frames=len(rec.truths),
                     logged_messages=rec.log.count, output_fps=style.fps,
                     instruction_frames=int(style.image_targets.shape[0]), fps=style.fps,
-                    interrupted=getattr(rec, "interrupted", False))
+                    interrupted=rec.interrupted)
         from cinetransfer.report.truthfile import write_truths
 
         write_truths(out / "truth.msgpack", rec.truths)
@@ -325,6 +326,9 @@ def main(argv: list[str]) -> int:
     except (TransferError, ValueError, OSError) as e:
         print(f"cinetransfer transfer: {e}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:  # outside the flight (extraction, start-up): nothing is flying yet
+        print(f"cinetransfer transfer: interrupted; what was written is in {out}", file=sys.stderr)
+        return 130
     print(json.dumps(summary.get("headline", summary), indent=2, default=str)[:3000])
     print(f"\nreport: {(out / 'report.html').resolve()}  ({timings['total_s']:.0f} s in all)")
     return 0

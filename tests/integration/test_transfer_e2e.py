@@ -63,3 +63,44 @@ def test_transfer_through_zenoh_processes(data, tmp_path):
     report = json.loads((out / "report.json").read_text())
     assert report["headline"]["truth"]["joint_error_mean"] == pytest.approx(float(np.mean(errs)), rel=1e-3)
     assert report["headline"]["extraction"]["available"] is True
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_the_vehicle_and_keeps_the_recording(data, tmp_path):
+    import signal
+    import time
+
+    from cinetransfer.deploy.supervisor import _pid_alive
+
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
+                             "--scene", "lawn_juggler", "-o", str(out), "--max-frames", "240", "--preroll", "1",
+                             "--rig", "ctrlc"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        # when the take is being recorded (the output video exists and grows) ...
+        while not ((out / "output.mp4").is_file() and (out / "output.mp4").stat().st_size > 50_000):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.stdout.read()[-3000:]
+            time.sleep(0.1)
+        state = json.loads((out / "deploy" / "state.json").read_text())
+        pids = [state["supervisor_pid"], *(v["pid"] for v in state["procs"].values())]
+        proc.send_signal(signal.SIGINT)  # ... Ctrl-C
+        rc = proc.wait(120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    log = proc.stdout.read()
+    assert rc == 130, log[-3000:]
+    # then the planner was told to stop and the bridge to hold, after the take had started
+    actions = [(key, codec.decode(p, M.Command).action) for _, key, p in read_log(out / "run.ctlog")
+               if key in (keys.PLANNER_COMMAND.key("ctrlc"), keys.BRIDGE_COMMAND.key("ctrlc"))]
+    assert actions[-2:] == [(keys.PLANNER_COMMAND.key("ctrlc"), "stop"), (keys.BRIDGE_COMMAND.key("ctrlc"), "hold")]
+    assert (keys.PLANNER_COMMAND.key("ctrlc"), "resume") in actions
+    # what was recorded is kept, and said to be partial
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["interrupted"] is True and 0 < meta["recorded_frames"] < 240
+    # (a frame and its truth travel separately: the last one's truth may miss the cut)
+    assert abs(len(read_truths(out / "truth.msgpack")) - meta["recorded_frames"]) <= 1
+    assert meta["truth_frames"] == len(read_truths(out / "truth.msgpack"))
+    # and no node is left running
+    assert not [p for p in pids if _pid_alive(p)]
