@@ -89,7 +89,9 @@ def test_ctrl_c_stops_the_vehicle_and_keeps_the_recording(data, tmp_path):
     finally:
         if proc.poll() is None:
             proc.kill()
-    log = proc.stdout.read()
+            proc.wait()
+        log = proc.stdout.read()
+        proc.stdout.close()
     assert rc == 130, log[-3000:]
     # then the planner was told to stop and the bridge to hold, after the take had started
     actions = [(key, codec.decode(p, M.Command).action) for _, key, p in read_log(out / "run.ctlog")
