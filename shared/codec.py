@@ -13,7 +13,9 @@ the payload (zero-copy). Boolean arrays are bit-packed; a Frame image may be sen
 
 `decode` validates everything (type tag, schema version, field types, dtypes, shapes, finiteness)
 and raises `DecodeError` — one error type for every malformed or unsupported payload.
-Unknown fields are ignored (a newer sender may add fields); missing fields are an error.
+Unknown fields are ignored (a newer sender may add fields); missing fields are an error, except
+fields added by a later schema version than the payload's (`since` in the field's metadata), which
+take their defaults — a class reads every version from its MIN_SCHEMA_VERSION up.
 """
 from __future__ import annotations
 
@@ -275,10 +277,12 @@ def _decode_value(obj: Any, tp: Any, where: str, f: dataclasses.Field | None, bl
     return _scalar(obj, tp, where, f, DecodeError)
 
 
-def _decode_fields(cls: type, body: dict, blob: memoryview, where: str) -> Any:
+def _decode_fields(cls: type, body: dict, blob: memoryview, where: str, version: int | None = None) -> Any:
     kwargs = {}
     for f, tp in _fields(cls):
         if f.name not in body:
+            if version is not None and f.metadata.get("since", 1) > version:
+                continue  # added after the payload's version: the dataclass default stands
             raise DecodeError(f"{where}.{f.name}: missing field")
         kwargs[f.name] = _decode_value(body[f.name], tp, f"{where}.{f.name}", f, blob)
     return cls(**kwargs)
@@ -324,12 +328,14 @@ def decode(payload: bytes | bytearray | memoryview, expected: type | None = None
         raise DecodeError(f"unknown message type {name!r}")
     if expected is not None and cls is not expected:
         raise DecodeError(f"expected a {expected.__name__} message, got {name}")
-    if version != cls.SCHEMA_VERSION:
-        raise DecodeError(f"{name} schema version {version!r} is not supported "
-                          f"(this build reads version {cls.SCHEMA_VERSION})")
+    oldest = getattr(cls, "MIN_SCHEMA_VERSION", cls.SCHEMA_VERSION)
+    if isinstance(version, bool) or not isinstance(version, int) or not oldest <= version <= cls.SCHEMA_VERSION:
+        reads = (f"version {cls.SCHEMA_VERSION}" if oldest == cls.SCHEMA_VERSION
+                 else f"versions {oldest} to {cls.SCHEMA_VERSION}")
+        raise DecodeError(f"{name} schema version {version!r} is not supported (this build reads {reads})")
     if not isinstance(body, dict):
         raise DecodeError(f"{name}: body is not a map")
-    return _decode_fields(cls, body, blob, name)
+    return _decode_fields(cls, body, blob, name, version)
 
 
 def summary(msg: Any) -> str:

@@ -43,11 +43,14 @@ def render() -> str:
         out += [f"## {group}", ""]
         for name, cls in types.items():
             ver = f" (schema version {cls.SCHEMA_VERSION})" if hasattr(cls, "SCHEMA_VERSION") else ""
+            if getattr(cls, "MIN_SCHEMA_VERSION", getattr(cls, "SCHEMA_VERSION", 0)) < getattr(cls, "SCHEMA_VERSION", 0):
+                ver = f" (schema version {cls.SCHEMA_VERSION}; reads {cls.MIN_SCHEMA_VERSION} to {cls.SCHEMA_VERSION})"
             out += [f"### {name}{ver}", "", (cls.__doc__ or "").strip(), "", "| field | type | meaning |",
                     "|---|---|---|"]
             hints = _hints(cls)
             for f in dataclasses.fields(cls):
-                out.append(f"| `{f.name}` | {_type_name(hints[f.name], f)} | {f.metadata.get('doc', '')} |")
+                since = f" (since schema version {f.metadata['since']})" if f.metadata.get("since", 1) > 1 else ""
+                out.append(f"| `{f.name}` | {_type_name(hints[f.name], f)} | {f.metadata.get('doc', '')}{since} |")
             out.append("")
     return "\n".join(out)
 

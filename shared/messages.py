@@ -54,12 +54,15 @@ def array(dtype: str, shape: tuple[int | None, ...], *, allow_nan: bool = False,
                  metadata=meta)
 
 
-def doc(text: str, default: Any = dataclasses.MISSING, *, default_factory: Any = dataclasses.MISSING) -> Any:
+def doc(text: str, default: Any = dataclasses.MISSING, *, default_factory: Any = dataclasses.MISSING,
+        since: int = 1) -> Any:
     """A scalar field carrying its documentation (unit, frame, range, 'not set' value).
 
     A float field may hold NaN only when its doc says what NaN means ("NaN = ...").
+    `since`: the schema version that added the field; a payload of an older version (down to
+    the class's MIN_SCHEMA_VERSION) decodes with the field's default.
     """
-    return field(default=default, default_factory=default_factory, metadata={"doc": text})
+    return field(default=default, default_factory=default_factory, metadata={"doc": text, "since": since})
 
 
 @dataclass(frozen=True, eq=False)
@@ -128,7 +131,8 @@ class Skeleton:
 class Measurement:
     """Everything the detector measured in one frame (DESIGN §1.1 'for every frame')."""
 
-    SCHEMA_VERSION: ClassVar[int] = 1
+    SCHEMA_VERSION: ClassVar[int] = 2  # 2: shot_change
+    MIN_SCHEMA_VERSION: ClassVar[int] = 1
     stamp_ns: int = doc("capture time of the frame [ns]", 0)
     seq: int = doc("sequence number", 0)
     valid: bool = doc("detector healthy", True)
@@ -144,6 +148,9 @@ class Measurement:
                                       "resolution that may be lower than the frame's; None = not computed")
     lens: LensState | None = doc("lens state of the frame, if known", None)
     detector: str = doc("backend that produced this ('mediapipe', 'torchvision', ...)", "")
+    shot_change: float = doc("colour-histogram distance to the previous frame of the source in [0, 1] "
+                             "(a hard cut scores near 1); NaN = first frame or not computed",
+                             float("nan"), since=2)
 
 
 @dataclass(frozen=True, eq=False)

@@ -22,6 +22,7 @@ from typing import Iterator
 
 import numpy as np
 
+from cinetransfer.services.detector import shots
 from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.services.detector.focus import FocusEstimator, FocusResult
 from cinetransfer.services.detector.sources import iter_frames
@@ -78,6 +79,7 @@ class Detector:
             from cinetransfer.services.detector.hog_people import HogPeople
 
             self.fallback = HogPeople(self.cfg)
+        self._prev_shot: tuple[str, int, np.ndarray] | None = None  # (source, frame index, signature)
         self._pool = (cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="focus")
                       if self.cfg.threads > 1 and (self.focus is not None or self.fallback is not None) else None)
 
@@ -101,6 +103,7 @@ class Detector:
 
     def reset(self) -> None:
         """Forget temporal state (tracking) before an unrelated sequence."""
+        self._prev_shot = None
         reset = getattr(self.backend, "reset", None)
         if reset is not None:
             reset()
@@ -149,7 +152,13 @@ class Detector:
         """One Measurement for one BGR frame (an empty one, not an error, when nobody is there)."""
         people, skeletons, focus = self.analyse(image_bgr, stamp_ns)
         h, w = image_bgr.shape[:2]
-        return Measurement(stamp_ns=int(stamp_ns), valid=valid, source=source, frame_index=int(frame_index),
+        sig = shots.colour_signature(image_bgr)
+        prev = self._prev_shot
+        # Only consecutive frames of one source are compared: after a gap nothing is known.
+        change = (shots.shot_change(prev[2], sig) if prev is not None and prev[0] == source
+                  and prev[1] == int(frame_index) - 1 else float("nan"))
+        self._prev_shot = (source, int(frame_index), sig)
+        return Measurement(shot_change=change, stamp_ns=int(stamp_ns), valid=valid, source=source, frame_index=int(frame_index),
                            fps=float(fps) if fps is not None and math.isfinite(fps) else float("nan"),
                            width=w, height=h, people=people, skeletons=skeletons,
                            focus_map=focus.as_uint8() if focus is not None else None, lens=lens,

@@ -38,6 +38,8 @@ class SmootherConfig:
     confidence_cost: float = 0.2  # cost of a detection of confidence c is confidence_cost * (1 - c), >= 0
     extend_min_iou: float = 0.5  # after selection, re-admit a left-out detection overlapping the chosen box this much (1 = off)
     max_bridge_s: float = 0.5  # longest detector dropout bridged as 'visible' [s], >= 0
+    cut_threshold: float = 0.25  # shot-change score that can start a new shot, (0, 1]; 1 = never cut
+    cut_ratio: float = 3.0  # ... if also this many times the median score of its +-5 neighbours, >= 1
     box_smoothness: float = 0.02  # lambda of the box QP's first-difference term at 24 fps (data weights: confidences), > 0
     box_accel_smoothness: float = 0.1  # lambda2 of the box QP's second-difference term at 24 fps, >= 0
     # --- joints (DESIGN §1.1 step 3)
@@ -96,6 +98,10 @@ class SmootherConfig:
         for name in ("focus_pixel_threshold", "theta"):
             if not 0.0 < getattr(self, name) < 1.0:
                 raise bad(name, "0 < value < 1")
+        if not 0.0 < self.cut_threshold <= 1.0:
+            raise bad("cut_threshold", "0 < value <= 1 (1 = never cut)")
+        if not self.cut_ratio >= 1.0:
+            raise bad("cut_ratio", ">= 1")
         if not 0.0 < self.focus_switch_prob < 0.5:
             raise bad("focus_switch_prob", "0 < value < 0.5")
         if not 0.0 <= self.focus_region_margin <= 0.2:

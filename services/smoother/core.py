@@ -19,6 +19,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from cinetransfer.services.smoother import focus as focus_mod
+from cinetransfer.services.smoother import shots as shots_mod
 from cinetransfer.services.smoother import joints as joints_mod
 from cinetransfer.services.smoother import subject as subject_mod
 from cinetransfer.services.smoother.config import SmootherConfig
@@ -103,6 +104,11 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
     if not any(f.n_people for f in frames):
         raise SmootherInputError(f"no person detected in any of the {F} frames: no main subject to follow")
 
+    # 0. Shots: chains of smoothing never cross a cut.
+    scores = np.array([f.shot_change for f in frames], dtype=float)
+    cuts = shots_mod.find_cuts(scores, threshold=cfg.cut_threshold, ratio=cfg.cut_ratio) \
+        if cfg.cut_threshold < 1.0 else np.zeros(F, dtype=bool)
+
     # 1. Main subject.
     if cfg.subject_method == "literal":
         from cinetransfer.services.smoother import baseline  # casadi: imported only when asked for
@@ -112,12 +118,12 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
         sel = subject_mod.select_subject(frames, fps=fps, move_cost=cfg.move_cost, miss_cost=cfg.miss_cost,
                                          confidence_cost=cfg.confidence_cost, max_bridge_s=cfg.max_bridge_s,
                                          free_move=cfg.free_move * 24.0 / fps, continuity=cfg.continuity,
-                                         reentry_cost=cfg.reentry_cost)
+                                         reentry_cost=cfg.reentry_cost, cuts=cuts)
         sel = subject_mod.extend_runs(frames, sel, min_iou=cfg.extend_min_iou) if cfg.extend_min_iou < 1 else sel
     if not sel.visible.any():
         raise SmootherInputError(f"no main subject found in {F} frames")
     raw_box, box = subject_mod.smooth_box(frames, sel, lam=cfg.lam(cfg.box_smoothness, fps), width=W, height=H,
-                                          lam2=cfg.lam(cfg.box_accel_smoothness, fps, order=2))
+                                          lam2=cfg.lam(cfg.box_accel_smoothness, fps, order=2), cuts=cuts)
 
     # 2.-3. Mask, skeleton, joints.
     mask_idx, skel_idx, raw_joints, joint_conf = joints_mod.raw_subject_joints(frames, box, sel.visible)
@@ -125,7 +131,7 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
                                          lam=cfg.lam(cfg.joint_smoothness, fps), width=W, height=H,
                                          min_confidence=cfg.min_joint_confidence,
                                          lam2=cfg.lam(cfg.joint_accel_smoothness, fps, order=2),
-                                         max_gap=int(round(cfg.max_bridge_s * fps)))
+                                         max_gap=int(round(cfg.max_bridge_s * fps)), cuts=cuts)
 
     # 4. Focus: b per region (NaN = not measured), which regions exist, then B.
     b = np.full((F, 3), np.nan)
@@ -144,9 +150,11 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
         else:  # visible but not detected (bridged): regions exist, b unknown
             present[f] = (True, True, True)
     # A region whose extent is unknown (no focus map) is assumed present where the subject is.
-    B = focus_mod.smooth_focus(b, method=cfg.focus_method, fps=fps, switch_prob_24=cfg.focus_switch_prob,
-                               sigma=cfg.focus_noise, lam_24=cfg.focus_smoothness,
-                               adaptive=cfg.focus_adaptive_levels)
+    B = np.full_like(b, np.nan)
+    for seg in shots_mod.segments(cuts):  # each shot's focus on its own: a cut may change it at once
+        B[seg] = focus_mod.smooth_focus(b[seg], method=cfg.focus_method, fps=fps,
+                                        switch_prob_24=cfg.focus_switch_prob, sigma=cfg.focus_noise,
+                                        lam_24=cfg.focus_smoothness, adaptive=cfg.focus_adaptive_levels)
     any_focus = np.isfinite(b).any(axis=0)  # (3,) region measured at least once
     B_out = np.where(present & any_focus[None, :] & np.isfinite(B), B, np.nan)
     focus_in = np.nan_to_num(B_out, nan=0.0) > cfg.theta
@@ -167,6 +175,8 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
         subject_box=box_n.astype(np.float32), focus_raw=np.where(present, b, np.nan).astype(np.float32),
         focus_smoothed=B_out.astype(np.float32), focus_in=focus_in, theta=float(cfg.theta), mu_m=float(cfg.mu_m))
     diag = {
+        "shot_change": scores,
+        "cut": cuts,
         "frame_index": np.array([f.frame_index for f in frames]),
         "n_people": np.array([f.n_people for f in frames]),
         "person": sel.person.copy(),

@@ -48,6 +48,7 @@ class FrameFeatures:
     focus_none: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))  # (3,) b with no subject
     has_focus: bool = False  # a focus map was measured
     valid: bool = True
+    shot_change: float = float("nan")  # detector's colour distance to the previous frame; NaN = unknown
 
     n_people: int = -1  # set from boxes
 
@@ -198,4 +199,5 @@ def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foregr
     return FrameFeatures(frame_index=int(m.frame_index), stamp_ns=int(m.stamp_ns), width=W, height=H,
                          fps=float(m.fps), source=m.source, boxes=boxes, conf=conf, grids=grids, grid_x=gx, grid_y=gy,
                          joints=joints, joint_conf=jconf, inside=inside, focus=focus,
-                         focus_none=focus_none, has_focus=bool(has_focus), valid=bool(m.valid))
+                         focus_none=focus_none, has_focus=bool(has_focus), valid=bool(m.valid),
+                         shot_change=float(m.shot_change))

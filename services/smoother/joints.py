@@ -96,7 +96,7 @@ def frames_from_observation(ok: np.ndarray) -> np.ndarray:
 
 def smooth_joints(joints: np.ndarray, conf: np.ndarray, visible: np.ndarray, *, lam: float, width: int,
                   height: int, min_confidence: float = 0.1, lam2: float = 0.0,
-                  max_gap: int | None = None) -> np.ndarray:
+                  max_gap: int | None = None, cuts: np.ndarray | None = None) -> np.ndarray:
     """Smoothed joints (F, J, 2) px; NaN where the subject is not visible, and (with `max_gap`)
     where a joint is more than `max_gap` frames from any frame it was observed in — a joint
     that is out of the picture for a whole shot (hips in a close-up) is not controlled there,
@@ -110,9 +110,15 @@ def smooth_joints(joints: np.ndarray, conf: np.ndarray, visible: np.ndarray, *, 
     ww = np.repeat(w, 2, axis=1)
     hi = np.tile([float(width), float(height)], J)
     link = visible[:-1] & visible[1:]
+    if cuts is not None:
+        link &= ~np.asarray(cuts, dtype=bool)[1:]  # never smooth from one shot into the next
     res = qp.smooth(y, ww, lam, lo=0.0, hi=hi, link=link, lam2=lam2)
     out = res.x.reshape(F, J, 2)
     out[~visible] = np.nan
     if max_gap is not None:
-        out[frames_from_observation(ok) > max_gap] = np.nan
+        # Distances are counted within a shot: an observation in the next shot bridges nothing.
+        from cinetransfer.services.smoother.shots import segments
+
+        for seg in segments(np.zeros(F, bool) if cuts is None else np.asarray(cuts, dtype=bool)):
+            out[seg][frames_from_observation(ok[seg]) > max_gap] = np.nan
     return out

@@ -51,7 +51,7 @@ class Selection:
 
 def select_subject(feats: list[FrameFeatures], *, fps: float, move_cost: float = 100.0, miss_cost: float = 1.0,
                    confidence_cost: float = 0.2, max_bridge_s: float = 0.5, free_move: float = 0.0,
-                   continuity: str = "box", reentry_cost: float = 2.0) -> Selection:
+                   continuity: str = "box", reentry_cost: float = 2.0, cuts: np.ndarray | None = None) -> Selection:
     """Viterbi over each frame's candidates plus 'not visible' (exact minimiser of the cost above)."""
     F = len(feats)
     G = 1 + max(0, int(round(max_bridge_s * fps)))  # longest step between detections (frames)
@@ -94,6 +94,10 @@ def select_subject(feats: list[FrameFeatures], *, fps: float, move_cost: float =
     else:
         d = np.sqrt(d2) / np.maximum(s, 1e-9)  # box change relative to the box size
     excess = np.maximum(d - free_move * g, 0.0)  # ordinary motion and jitter are free
+    if cuts is not None and np.any(cuts):
+        # Across a cut the subject may appear anywhere in the new shot: no continuity cost.
+        shot = np.cumsum(np.asarray(cuts, dtype=int))
+        excess = np.where(shot[frame_of[dst]] != shot[frame_of[src]], 0.0, excess)
     step_cost = (g - 1.0) * miss_cost + move_cost * excess ** 2 / g
 
     D = np.full(N, np.inf)  # best cost of a path ending at detection i (frames up to and incl. its frame)
@@ -209,7 +213,7 @@ def extend_runs(feats: list[FrameFeatures], sel: Selection, *, min_iou: float = 
 
 
 def smooth_box(feats: list[FrameFeatures], sel: Selection, *, lam: float, width: int,
-               height: int, lam2: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+               height: int, lam2: float = 0.0, cuts: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Raw and smoothed main-subject boxes, (F, 4) px each; NaN where not visible / not detected."""
     F = len(feats)
     raw = np.full((F, 4), np.nan)
@@ -221,6 +225,8 @@ def smooth_box(feats: list[FrameFeatures], sel: Selection, *, lam: float, width:
     if F == 0:
         return raw, raw.copy()
     link = sel.visible[:-1] & sel.visible[1:]
+    if cuts is not None:
+        link &= ~np.asarray(cuts, dtype=bool)[1:]  # never smooth from one shot into the next
     hi = np.array([width, height, width, height], dtype=float)
     res = qp.smooth(raw, w, lam, lo=0.0, hi=hi, link=link, lam2=lam2)
     out = np.where(sel.visible[:, None], res.x, np.nan)

@@ -170,3 +170,28 @@ def test_summaries_are_one_line():
     for msg in sample_messages():
         s = codec.summary(msg)
         assert s and "\n" not in s
+
+
+def test_older_schema_version_decodes_with_defaults_for_later_fields():
+    # given a Measurement payload of version 1 (before shot_change existed)
+    payload = codec.encode(M.Measurement(frame_index=4, shot_change=0.7))
+    _, header, blob = codec._split(payload)
+    header["v"] = 1
+    del header["d"]["shot_change"]
+    h = msgpack.packb(header, use_bin_type=True)
+    head = codec._PREFIX.pack(codec.MAGIC, codec.FORMAT, len(h)) + h
+    old = head + b"\0" * ((-len(head)) % codec._ALIGN) + bytes(blob)
+    # then it decodes, the new field taking its default
+    m = codec.decode(old)
+    assert m.frame_index == 4 and np.isnan(m.shot_change)
+    # but a version-2 payload without the field is malformed
+    header["v"] = 2
+    h = msgpack.packb(header, use_bin_type=True)
+    head = codec._PREFIX.pack(codec.MAGIC, codec.FORMAT, len(h)) + h
+    with pytest.raises(codec.DecodeError, match="shot_change: missing field"):
+        codec.decode(head + b"\0" * ((-len(head)) % codec._ALIGN) + bytes(blob))
+    # and versions outside the readable range are refused, naming the range
+    header["v"] = 3
+    h = msgpack.packb(header, use_bin_type=True)
+    with pytest.raises(codec.DecodeError, match="reads versions 1 to 2"):
+        codec.decode(codec._PREFIX.pack(codec.MAGIC, codec.FORMAT, len(h)) + h)

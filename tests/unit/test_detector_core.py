@@ -1,6 +1,7 @@
 """Detector core on short real excerpts: people, joints, masks, empty frames, focus, sources."""
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -253,3 +254,21 @@ def test_native_startup_noise_is_filtered_but_real_errors_pass(capfd):
         os.write(2, b"E0000 something real went wrong\n")
     err = capfd.readouterr().err
     assert "something real went wrong" in err and "inference_feedback_manager" not in err
+
+
+def test_shot_change_scores_find_the_cuts_of_a_film_clip(detector):
+    # given frames 58-72 of tos_clip01 (a cut from the actor on the bridge to the two-shot at 65)
+    from cinetransfer.services.smoother.shots import find_cuts
+
+    detector.reset()
+    scores = {}
+    for f in iter_frames(data_dir() / "tos_clip01_640x360.mp4", start=58, stop=73):
+        scores[f.index] = detector.process(f.image, f.index, f.stamp_ns, source="tos").shot_change
+    # then the first frame has no score, the cut scores high and the rest of each shot low
+    assert math.isnan(scores[58])
+    assert scores[65] > 0.6 and max(v for k, v in scores.items() if k not in (58, 65)) < 0.2
+    s = np.array([scores[k] for k in sorted(scores)])
+    assert (np.flatnonzero(find_cuts(s)) + 58).tolist() == [65]
+    # and a frame that does not follow the previous one (a gap) is not scored
+    f = next(iter_frames(data_dir() / "tos_clip01_640x360.mp4", start=100, stop=101))
+    assert math.isnan(detector.process(f.image, f.index, f.stamp_ns, source="tos").shot_change)

@@ -268,3 +268,42 @@ def test_joint_unseen_for_longer_than_max_bridge_is_not_controlled():
     assert np.isnan(out[22:28, 0]).all()
     # and without max_gap everything visible is bridged (the paper's formulation)
     assert np.isfinite(smooth_joints(joints, conf, np.ones(F, bool), lam=1.0, width=640, height=360)).all()
+
+
+@pytest.mark.parametrize("scores,expect", [
+    ([np.nan, .05, .06, .9, .05, .07], [3]),                  # a hard cut
+    ([np.nan, .07, .06, .37, .08, .07, .06], [3]),            # a cut between similar palettes
+    ([np.nan, .15, .18, .17, .2, .16, .19], []),              # a fast pan: high but not an outlier
+    ([.9, .05, .05, .05], []),                                # frame 0 never starts a shot
+    ([np.nan, .05, .6, .05, .6, .05, .6, .05], [2, 4, 6]),    # a flickering transition: every jump
+    ([np.nan, np.nan, np.nan], []),                           # no scores (older measurements)
+])
+def test_find_cuts_table(scores, expect):
+    from cinetransfer.services.smoother.shots import find_cuts, segments
+
+    cut = find_cuts(np.array(scores))
+    assert np.flatnonzero(cut).tolist() == expect
+    assert sum(s.stop - s.start for s in segments(cut)) == len(scores)
+
+
+def test_targets_jump_at_a_cut_instead_of_gliding():
+    # given two shots: the subject on the left for 24 frames, then (cut) on the right
+    from dataclasses import replace
+
+    from cinetransfer.services.smoother import synthetic as syn
+    from cinetransfer.services.smoother.core import smooth_measurements
+
+    ms = []
+    for i in range(48):
+        box = np.array([60, 100, 160, 400.0]) if i < 24 else np.array([440, 100, 540, 400.0])
+        m = syn.measurement(i, [syn.person(box)], [syn.skeleton_in(box, person_index=0)])
+        ms.append(replace(m, shot_change=0.9 if i == 24 else 0.05))
+    res = smooth_measurements(ms)
+    x = res.instructions.image_targets[:, 0, 0]  # left shoulder x, normalised
+    # then both shots keep their own framing up to the cut (no ramp across it) ...
+    assert abs(x[23] - x[0]) < 0.01 and abs(x[24] - x[47]) < 0.01 and x[24] - x[23] > 0.5
+    assert res.diagnostics["cut"].nonzero()[0].tolist() == [24]
+    # ... where without shot information the smoothing glides over several frames
+    flat = smooth_measurements([replace(m, shot_change=float("nan")) for m in ms])
+    xf = flat.instructions.image_targets[:, 0, 0]
+    assert abs(xf[23] - xf[0]) > 0.01 or abs(xf[24] - xf[47]) > 0.01
