@@ -34,16 +34,18 @@ except ImportError:
     from benchmarks.smoother_common import CACHE, data_dir, mean_std, write_result
 
 
-def cached_measurements(video: str) -> list[M.Measurement]:
+def cached_measurements(video: str, fallback: str = "none") -> list[M.Measurement]:
     from cinetransfer.services.detector.measurements_file import read_measurements
     from cinetransfer.services.smoother.extract import measure_video
 
     CACHE.mkdir(parents=True, exist_ok=True)
-    path = CACHE / (os.path.basename(video) + ".msgpack")
+    path = CACHE / (os.path.basename(video) + ("" if fallback == "none" else f".{fallback}") + ".msgpack")
     if not path.exists():
+        from cinetransfer.services.detector.config import DetectorConfig
         from cinetransfer.services.detector.measurements_file import MeasurementsWriter
 
-        ms, source, det = measure_video(video, progress=True)
+        ms, source, det = measure_video(video, progress=True,
+                                        detector_config=DetectorConfig(person_fallback=fallback))
         tmp = path.with_suffix(".tmp")
         try:
             with MeasurementsWriter(tmp, source=source, detector=det.name, config=det.cfg) as w:
@@ -122,7 +124,7 @@ def chosen_boxes(feats, person_idx) -> np.ndarray:
     return out
 
 
-def tud(cfg: SmootherConfig, literal: bool, oracle: bool, seed: int = 0) -> dict:
+def tud(cfg: SmootherConfig, literal: bool, oracle: bool, seed: int = 0, fallback: str = "none") -> dict:
     gt = tud_gt()
     d = data_dir()
     if oracle:
@@ -141,7 +143,7 @@ def tud(cfg: SmootherConfig, literal: bool, oracle: bool, seed: int = 0) -> dict
                 ppl.append(person(np.array([x, y, x + 50, y + 150]), float(rng.uniform(0.3, 0.9))))
             ms.append(M.Measurement(frame_index=f, fps=25.0, width=640, height=480, people=ppl, source="tud-oracle"))
     else:
-        ms = cached_measurements(str(d / "tud_stadtmitte_640x480.mp4"))
+        ms = cached_measurements(str(d / "tud_stadtmitte_640x480.mp4"), fallback)
         n = len(ms)
     feats = features_from_measurements(ms, cfg)
     r = smooth_sequence(feats, cfg)
@@ -169,8 +171,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {name:12s} detected {r['detected']}/{r['frames']}  raw {f(r['raw'])}   optimised {f(r['optimised'])}"
               + (f"   literal NLP {f(r['literal'])}" if lit else ""))
     print("identity on TUD-Stadtmitte (switches of the chosen track; purity = share on its main identity)")
-    for label, oracle in (("detector", False), ("oracle", True)):
-        r = tud(cfg, lit, oracle)
+    for label, oracle, fb in (("detector", False, "none"), ("detector+hog", False, "hog"), ("oracle", True, "none")):
+        r = tud(cfg, lit, oracle, fallback=fb)
         res["tud"][label] = r
         o = r["ours"]
         line = (f"  {label:8s} ({r['detections_per_frame']:.1f} detections/frame) ours: {o['switches']} switches, purity "
