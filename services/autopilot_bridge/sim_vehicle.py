@@ -244,26 +244,14 @@ class SimVehicle:
         if cmd == R.MAV_CMD_SET_CAMERA_ZOOM:
             if int(p[0]) != R.ZOOM_TYPE_FOCAL_LENGTH:
                 return R.MAV_RESULT_UNSUPPORTED
-            lo, hi = m.lens_ranges["focal_length_mm"]
-            if not (math.isfinite(p[1]) and lo <= p[1] <= hi):
-                return R.MAV_RESULT_DENIED
-            m.set_lens("focal_length_mm", p[1])
-            return R.MAV_RESULT_ACCEPTED
+            return _set_lens_in_range(m, "focal_length_mm", p[1])
         if cmd == R.MAV_CMD_SET_CAMERA_FOCUS:
             if int(p[0]) != R.FOCUS_TYPE_METERS:
                 return R.MAV_RESULT_UNSUPPORTED
-            lo, hi = m.lens_ranges["focus_distance_m"]
-            if not (math.isfinite(p[1]) and lo <= p[1] <= hi):
-                return R.MAV_RESULT_DENIED
-            m.set_lens("focus_distance_m", p[1])
-            return R.MAV_RESULT_ACCEPTED
+            return _set_lens_in_range(m, "focus_distance_m", p[1])
         if cmd == R.MAV_CMD_DO_DIGICAM_CONFIGURE:
-            if p[2] > 0:
-                lo, hi = m.lens_ranges["f_number"]
-                if not (math.isfinite(p[2]) and lo <= p[2] <= hi):
-                    return R.MAV_RESULT_DENIED
-                m.set_lens("f_number", p[2])
-            return R.MAV_RESULT_ACCEPTED
+            # param3 = f-stop; 0 (or less) leaves the aperture alone, as the command's other fields are
+            return _set_lens_in_range(m, "f_number", p[2]) if p[2] > 0 else R.MAV_RESULT_ACCEPTED
         if cmd == R.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW:
             pitch, yaw = math.radians(p[0]), math.radians(p[1])
             if not (math.isfinite(pitch) and math.isfinite(yaw)):
@@ -381,6 +369,15 @@ class SimVehicle:
 
     def close(self) -> None:
         self.conn.close()
+
+
+def _set_lens_in_range(model, name: str, value: float) -> int:
+    """Apply a lens command if the value is inside the lens's range: ACCEPTED, else DENIED."""
+    lo, hi = model.lens_ranges[name]
+    if not (math.isfinite(value) and lo <= value <= hi):
+        return R.MAV_RESULT_DENIED
+    model.set_lens(name, value)
+    return R.MAV_RESULT_ACCEPTED
 
 
 def _vec3(text: str) -> tuple[float, float, float]:
