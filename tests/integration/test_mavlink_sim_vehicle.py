@@ -4,7 +4,6 @@ reflected in VehicleState, gimbal attitude, and link loss -> hold -> reconnect t
 that the test cuts and restores."""
 from __future__ import annotations
 
-import math
 import select
 import socket
 import subprocess

@@ -68,7 +68,6 @@ def test_extended_projection_is_the_pinhole_in_view_and_has_no_false_minimum():
     f_mm = 50.0
     u, v = J.project_extended(x, f_mm, cam.SENSOR_WIDTH_MM, cam.SENSOR_HEIGHT_MM)
     proj = ca.Function("p", [x], [ca.vertcat(u, v)])
-    err = ca.Function("e", [x], [J.joint_image_error(x, 0.55, 0.45, f_mm, cam.SENSOR_WIDTH_MM, cam.SENSOR_HEIGHT_MM)])
     rng = np.random.default_rng(3)
     # given points within 60 deg of the optical axis: exactly shared.camera's pinhole
     for _ in range(200):

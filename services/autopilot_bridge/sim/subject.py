@@ -23,7 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from cinetransfer.services.autopilot_bridge.sim.scene import ASSETS_DIR, ScriptStep, SubjectSpec
+from cinetransfer.services.autopilot_bridge.sim.scene import ASSETS_DIR, SubjectSpec
 
 L_HIP, R_HIP, L_KNEE, R_KNEE = 11, 12, 13, 14
 #: seated: how much of the hip-to-knee band remains (foreshortened thighs).
