@@ -10,6 +10,7 @@ import argparse
 import collections
 import dataclasses
 import json
+import os
 import signal
 import sys
 import threading
@@ -22,6 +23,7 @@ import zenoh
 from cinetransfer.shared import codec, keys, zenoh_config
 
 RATE_WINDOW_S = 5.0
+DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 
 
 def to_jsonable(obj: Any, max_array: int = 64) -> Any:
@@ -135,8 +137,12 @@ def main(argv: list[str]) -> int:
     zenoh_config.add_arguments(p)
     args = p.parse_args(argv)
     try:
-        # The monitor joins as a client of the local router by default, so it sees every node.
-        opts = zenoh_config.options_from_args(args)
+        # With no endpoint or config file given, join the local deployment's router
+        # (`deploy up local` listens on tcp/127.0.0.1:7447); a peer keeps retrying until it is up.
+        defaults = {}
+        if not (args.connect or args.listen or args.zenoh_config or os.environ.get(zenoh_config.ENV_CONFIG)):
+            defaults["connect"] = (DEFAULT_ROUTER,)
+        opts = zenoh_config.options_from_args(args, **defaults)
     except ValueError as e:
         p.error(str(e))
     stop = threading.Event()

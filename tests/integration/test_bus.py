@@ -142,3 +142,45 @@ def test_monitor_once_and_json(port, listener, relay):
         done.set()
         t.join()
         pub.undeclare()
+
+
+def test_monitor_joins_the_local_router_by_default(tmp_path):
+    """`cinetransfer monitor` with no flags sees a `deploy up local` deployment (router on 7447)."""
+    import socket
+
+    with socket.socket() as s:
+        if s.connect_ex(("127.0.0.1", 7447)) == 0:
+            pytest.skip("something already listens on 127.0.0.1:7447 (a running deployment?)")
+    router = spawn("router", log=tmp_path / "router.log")  # default: tcp/127.0.0.1:7447
+    try:
+        opts = zenoh_config.ZenohOptions(mode="client", connect=("tcp/127.0.0.1:7447",))
+        session = wait_for(lambda: _try_open(opts), what="router up")
+        pub = session.declare_publisher("ct/dflt/vehicle/state")
+        done = threading.Event()
+
+        def feed():
+            while not done.is_set():
+                pub.put(codec.encode(M.VehicleState(backend="sim")))
+                done.wait(0.05)
+
+        t = threading.Thread(target=feed)
+        t.start()
+        try:
+            r = subprocess.run([sys.executable, "-m", "cinetransfer", "monitor", "--once", "--duration", "2"],
+                               capture_output=True, text=True, timeout=60)
+        finally:
+            done.set()
+            t.join()
+            pub.undeclare()
+            session.close()
+        assert r.returncode == 0, r.stderr
+        assert "ct/dflt/vehicle/state" in r.stdout and "VehicleState sim" in r.stdout
+    finally:
+        assert stop(router) == 0
+
+
+def _try_open(opts):
+    try:
+        return zenoh_config.open_session(opts)
+    except Exception:  # the router is not listening yet
+        return None
