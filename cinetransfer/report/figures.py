@@ -177,8 +177,9 @@ def fig_frames(path: Path, series: dict[str, Any], *, source_video: str | Path |
         _show(a_out, out_imgs.get(int(i)), "no output video" if not output_video else "output frame\nnot readable")
         a_src.set_title(f"t = {t[i]:.2f} s  (k = {int(k[i])})", fontsize=8)
         a_src.set_xlabel(_in_focus_text(src, i), fontsize=7, labelpad=2)
+        # Two lines: one line per caption overflows into the next panel at six panels a row.
         a_out.set_xlabel(_in_focus_text(tru if tru.available[i] else ext, i)
-                         + (" (truth)" if tru.available[i] else " (extraction)"), fontsize=7, labelpad=2)
+                         + ("\n(simulator truth)" if tru.available[i] else "\n(extraction)"), fontsize=7, labelpad=2)
         for e in range(E):
             col = _colour(e)
             if src.ok[i, e]:
