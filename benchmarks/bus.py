@@ -15,7 +15,6 @@ import argparse
 import json
 import os
 import platform
-import socket
 import subprocess
 import sys
 import threading
@@ -27,12 +26,6 @@ import zenoh
 
 from cinetransfer.shared import codec, zenoh_config
 from cinetransfer.shared import messages as M
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def receiver(port: int, kind: str, n: int, shm: bool) -> None:
@@ -74,7 +67,7 @@ def receiver(port: int, kind: str, n: int, shm: bool) -> None:
 
 
 def run(kind: str, n: int, shm: bool) -> dict:
-    port = free_port()
+    port = zenoh_config.free_tcp_port()
     child = subprocess.Popen([sys.executable, __file__, "--role", "rx", "--port", str(port), "--kind", kind,
                               "--n", str(n)] + (["--shm"] if shm else []), stdout=subprocess.PIPE, text=True)
     opts = zenoh_config.ZenohOptions(connect=(f"tcp/127.0.0.1:{port}",), shared_memory=shm)

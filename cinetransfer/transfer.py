@@ -41,14 +41,6 @@ class TransferError(RuntimeError):
     """A step of the transfer failed; the message says which and where its log is."""
 
 
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def run_cli(args: list[str], what: str, log_path: Path | None = None) -> None:
     """Run `cinetransfer ARGS` as a child process (progress bars go to the terminal)."""
     cmd = [sys.executable, "-m", "cinetransfer", *args]
@@ -274,7 +266,7 @@ def main(argv: list[str]) -> int:
             opts = zenoh_config.options_from_args(args, mode="client")
             cfg_path = None
         else:
-            port = _free_port()
+            port = zenoh_config.free_tcp_port()
             cfg_path = _deploy_config(out, port, args.rig, args.scene)
             run_cli(["deploy", "up", str(cfg_path), "--run-dir", str(deploy_dir)], "starting nodes")
             opts = zenoh_config.ZenohOptions(mode="client", connect=(f"tcp/127.0.0.1:{port}",), shared_memory=True)

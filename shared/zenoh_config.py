@@ -124,6 +124,15 @@ def build_config(opts: ZenohOptions) -> zenoh.Config:
     return conf
 
 
+def free_tcp_port() -> int:
+    """A TCP port on 127.0.0.1 that is free right now (for a router or peer started next)."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 def open_session(opts: ZenohOptions) -> zenoh.Session:
     """Open a session; the caller must close it (use `with`)."""
     return zenoh.open(build_config(opts))

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -12,15 +11,12 @@ from pathlib import Path
 import pytest
 
 from cinetransfer.shared.data import data_dir
-from cinetransfer.shared.zenoh_config import ZenohOptions
+from cinetransfer.shared.zenoh_config import ZenohOptions, free_tcp_port
 
 REPO = Path(__file__).resolve().parents[1]
 
 
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+free_port = free_tcp_port  # tests use the same helper as the transfer command
 
 
 @pytest.fixture
