@@ -4,9 +4,13 @@
 2. bring up the flying half as separate processes over Zenoh   → OUTDIR/deploy/*.log
    (a router, the autopilot bridge with the simulator, the planner) — or use a running
    deployment with `--connect tcp/HOST:PORT` (e.g. after `cinetransfer deploy up local`)
-3. publish the instructions, start the recording after a pre-roll, let the planner fly it,
+3. publish the instructions and fly the take in simulation time: the simulation restarts at a
+   fresh time zero, the planner starts exactly then (pre-roll on frame 0, then the
+   instructions), and the bridge steps only when the planner's setpoint for the step has
+   arrived, so every camera frame exists and machine load cannot change the result
+   (`--realtime`: the wall clock instead; skipped frames are repeated, counted, reported)
    and record every message                                    → OUTDIR/run.ctlog
-   and the camera's frames                                     → OUTDIR/output.mp4
+   and the camera's frames, frame k = instruction frame k      → OUTDIR/output.mp4
 4. stop: the planner stops, the bridge holds; Ctrl-C at any time does the same and keeps
    what was recorded
 5. evaluate: the same extraction on the output video           → OUTDIR/output_style.json
@@ -17,22 +21,23 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import shutil
+import signal
 import subprocess
 import sys
-import threading
 import time
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 import yaml
 from tqdm import tqdm
 
 from cinetransfer.shared import codec, keys, zenoh_config
 from cinetransfer.shared import messages as M
+from cinetransfer.recorder import Recorder, Window
 from cinetransfer.shared.node import setup_logging
-from cinetransfer.shared.recording import LogWriter
+from cinetransfer.take import MissingFramesError, TakeSummary, require_complete
 
 log = logging.getLogger("cinetransfer.transfer")
 
@@ -50,100 +55,7 @@ def run_cli(args: list[str], what: str, log_path: Path | None = None) -> None:
         raise TransferError(f"{what} failed (exit {rc}): cinetransfer {' '.join(args)}")
 
 
-class Recorder:
-    """Subscribes to everything of the rig: logs every message; writes the output video and truth."""
-
-    def __init__(self, session, rig: str, outdir: Path, meta: dict) -> None:
-        self.rig, self.outdir = rig, outdir
-        self.log = LogWriter(outdir / "run.ctlog", meta)
-        self.lock = threading.Lock()
-        self.window: tuple[int, int] | None = None  # [t0_ns, t1_ns) of the recording, by frame stamp
-        self.frames: list[tuple[int, np.ndarray]] = []  # (stamp, image) of frames in the window, in order
-        self.truths: list[M.GroundTruth] = []
-        self.latest: dict[str, object] = {}
-        self.health: dict[str, M.Health] = {}
-        self.frame_key = keys.FRAME.key(rig)
-        self.truth_key = keys.SIM_TRUTH.key(rig)
-        self._video = None
-        self._last_img: np.ndarray | None = None
-        self.n_video = 0
-        self.repeated = 0
-        self.late = 0
-        self.undecodable = 0
-        self.interrupted = False
-        self._sub = session.declare_subscriber(keys.everything(rig), self._on)
-
-    def _on(self, sample) -> None:  # Zenoh thread: decode only what is needed, write the log
-        key, payload = str(sample.key_expr), sample.payload.to_bytes()
-        self.log.write(key, payload)
-        if key == self.frame_key or key == self.truth_key or "/health/" in key or key.endswith("/state") \
-                or key.endswith("/setpoint"):
-            try:
-                msg = codec.decode(payload)
-            except codec.DecodeError:
-                self.undecodable += 1
-                return
-            with self.lock:
-                self.latest[key] = msg
-                if isinstance(msg, M.Health):
-                    self.health[msg.node] = msg
-                elif self.window is not None and self.window[0] <= msg.stamp_ns < self.window[1]:
-                    slot = int(round((msg.stamp_ns - self.window[0]) * 1e-9 * self.fps))
-                    if slot >= self.n_slots:
-                        return
-                    if isinstance(msg, M.Frame):
-                        self._write_frame(slot, np.array(msg.image))
-                    elif isinstance(msg, M.GroundTruth):
-                        self._add_truth(slot, msg)
-
-    def _write_frame(self, slot: int, img: np.ndarray) -> None:
-        """Write the frame at its time slot; a slot the simulator skipped (it renders in real
-        time and drops late frames) repeats the previous frame, as a constant-rate recorder
-        would, so that video frame k is exactly instruction frame k. Repeats are counted."""
-        import cv2
-
-        if self._video is None:
-            h, w = img.shape[:2]
-            self._video = cv2.VideoWriter(str(self.outdir / "output.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
-                                          self.fps, (w, h))
-        if slot < self.n_video:  # two frames in one slot (clock jitter): keep the first
-            self.late += 1
-            return
-        if self._last_img is None:
-            self._last_img = img  # a take that starts between two renders opens on the first one
-        while self.n_video < slot:
-            self._video.write(self._last_img)
-            self.n_video += 1
-            self.repeated += 1
-        self._video.write(img)
-        self._last_img = img
-        self.n_video += 1
-
-    def _add_truth(self, slot: int, truth: M.GroundTruth) -> None:
-        """Truth of each video frame: a repeated frame shows the previous render, so it gets that
-        render's truth."""
-        if slot < len(self.truths):
-            return
-        while len(self.truths) < slot:
-            self.truths.append(replace(self.truths[-1] if self.truths else truth, frame_index=len(self.truths)))
-        self.truths.append(replace(truth, frame_index=slot))
-
-    def start_window(self, t0_ns: int, duration_s: float, fps: float) -> None:
-        with self.lock:
-            self.fps = fps
-            self.n_slots = int(round(duration_s * fps))
-            self.window = (t0_ns, t0_ns + int(duration_s * 1e9))
-
-    def close(self) -> None:
-        self._sub.undeclare()
-        with self.lock:
-            if self._video is not None:
-                self._video.release()
-            self.window = None
-        self.log.close()
-
-
-def _deploy_config(outdir: Path, port: int, rig: str, scene: str) -> Path:
+def _deploy_config(outdir: Path, port: int, rig: str, scene: str, *, realtime: bool = False) -> Path:
     """A deploy config for this run: a router on `port`, the simulator bridge and the planner."""
     cfg = {
         "description": "generated by cinetransfer transfer",
@@ -152,7 +64,7 @@ def _deploy_config(outdir: Path, port: int, rig: str, scene: str) -> Path:
         "defaults": {"zenoh": {"mode": "client", "connect": [f"tcp/127.0.0.1:{port}"], "shm": True}},
         "nodes": [
             {"name": "autopilot_bridge", "command": "autopilot_bridge",
-             "args": ["--backend", "sim", "--scene", scene]},
+             "args": ["--backend", "sim", "--scene", scene, *(["--realtime"] if realtime else [])]},
             {"name": "planner", "command": "planner", "args": []},
         ],
         "restart": {"backoff_initial_s": 0.5, "stop_grace_s": 10, "startup_timeout_s": 180},
@@ -175,146 +87,265 @@ def _wait_alive(session, rig: str, names: set[str], timeout: float) -> None:
     raise TransferError(f"nodes not alive after {timeout:.0f}s: {', '.join(sorted(names - seen))}")
 
 
-def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: float, margin_s: float,
-        meta: dict) -> Recorder:
-    """Publish the instructions, start after the pre-roll, record the take, stop."""
-    rec = Recorder(session, rig, outdir, meta)
+class Conductor:
+    """Sends the take's commands to the planner and the bridge of a rig."""
+
+    def __init__(self, session, rig: str) -> None:
+        self.planner = session.declare_publisher(keys.PLANNER_COMMAND.key(rig))
+        self.bridge = session.declare_publisher(keys.BRIDGE_COMMAND.key(rig))
+        self.instructions = session.declare_publisher(keys.INSTRUCTIONS.key(rig))
+
+    def to_planner(self, action: str, **args) -> None:
+        self.planner.put(codec.encode(M.Command(stamp_ns=M.now_ns(), action=action, args=args)))
+
+    def to_bridge(self, action: str, **args) -> None:
+        self.bridge.put(codec.encode(M.Command(stamp_ns=M.now_ns(), action=action, args=args)))
+
+    def stop(self, sim_time: bool) -> None:
+        """Whatever happened: the planner stops (it then commands a hold), the bridge holds, and a
+        simulation goes back to real-time pace."""
+        self.to_planner("stop")
+        self.to_bridge("hold")
+        if sim_time:
+            self.to_bridge("clock", pace=1.0)
+
+    def undeclare(self) -> None:
+        for p in (self.planner, self.bridge, self.instructions):
+            p.undeclare()
+
+
+def _progress(rec: Recorder, k: int, stall_s: float, *, what: str) -> None:
+    """Wait until the take's k frames are recorded, with a progress bar; TransferError if no
+    frame arrives for `stall_s` wall seconds (a node died or hangs)."""
+    with tqdm(total=k, desc="recording", unit="frame", disable=None) as bar:
+        while rec.frames_written < k:
+            n = rec.frames_written
+            if not rec.wait(lambda: rec.frames_written != n, stall_s):
+                raise TransferError(f"{what}: no frame for {stall_s:.0f} s after {n} of {k} "
+                                    "(see OUTDIR/deploy/*.log)")
+            bar.n = min(rec.frames_written, k)
+            bar.refresh()
+
+
+def fly_sim_time(style: M.Instructions, rec: Recorder, cond: Conductor, *, preroll_s: float,
+                 stall_s: float) -> dict:
+    """The take in simulation time: reset the simulation to a fresh time zero, let the planner
+    start exactly then (pre-roll on frame 0, then the instructions), record every frame."""
     k = style.image_targets.shape[0]
-    duration = k / style.fps
-    instr_pub = session.declare_publisher(keys.INSTRUCTIONS.key(rig))
-    cmd_pub = session.declare_publisher(keys.PLANNER_COMMAND.key(rig))
-    instr_pub.put(codec.encode(replace(style, stamp_ns=M.now_ns(), final=True)))
-    time.sleep(0.5)
+    fps = float(style.fps)
+    if not rec.wait(lambda: rec.last_clock is not None, 30.0):
+        raise TransferError("the bridge publishes no simulation clock (is it a --realtime bridge? "
+                            "then run transfer with --realtime)")
+    # time zero of the take: far ahead of the running clock, so it is never reached before the reset
+    epoch = max(M.now_ns(), rec.last_clock.stamp_ns) + 600 * 10**9
+    pre_frames = int(round(preroll_s * fps))
+    cond.to_planner("stop")
+    cond.to_planner("start", start_frame=0, preroll_s=pre_frames / fps, at_ns=epoch)
 
-    def command(action: str, **args) -> None:
-        cmd_pub.put(codec.encode(M.Command(stamp_ns=M.now_ns(), action=action, args=args)))
+    def acknowledged() -> bool:
+        h = rec.health.get("planner")
+        return h is not None and h.counters.get("scheduled_at_ns") == epoch and h.counters.get("sim_time") is True
 
+    if not rec.wait(acknowledged, 60.0):
+        raise TransferError("the planner did not acknowledge the scheduled start (is it following the "
+                            "simulation clock? see OUTDIR/deploy/planner.log)")
+    rec.arm(Window(exact=True, n_slots=k, fps=fps, epoch_ns=epoch, first_index=pre_frames))
+    log.info("simulation time: pre-roll %d frames, then %d instruction frames at %.3g fps", pre_frames, k, fps)
+    cond.to_bridge("reset", epoch_ns=epoch, fps=fps, pace=0.0)
+    _progress(rec, k, stall_s, what="simulation")
+    return {"clock": "simulation (lockstep)", "epoch_ns": epoch, "preroll_frames": pre_frames}
+
+
+def fly_realtime(style: M.Instructions, rec: Recorder, cond: Conductor, *, preroll_s: float,
+                 stall_s: float) -> dict:
+    """The take on the wall clock (a --realtime simulator or a real vehicle): frames are slotted
+    by their stamp; a slot the camera skipped repeats the previous frame (counted, reported)."""
+    k = style.image_targets.shape[0]
+    # 'start' then 'pause' makes the planner frame instruction 0 without the clock running
+    cond.to_planner("start", start_frame=0)
+    cond.to_planner("pause")
+    log.info("pre-roll: settling on frame 0 for %.1f s (wall clock)", preroll_s)
+    time.sleep(preroll_s)
+    rec.arm(Window(exact=False, n_slots=k, fps=float(style.fps), t0_ns=M.now_ns()))
+    cond.to_planner("resume")
     try:
-        # Pre-roll: 'start' then 'pause' makes the planner frame instruction 0 without the clock
-        # running, so the drone settles on the first frame's framing before the take begins.
-        command("start", start_frame=0)
-        command("pause")
-        log.info("pre-roll: settling on frame 0 for %.1f s", preroll_s)
-        time.sleep(preroll_s)
-        t0 = M.now_ns()
-        rec.start_window(t0, duration, style.fps)
-        command("resume")
-        with tqdm(total=k, desc="recording", unit="frame") as bar:
-            end = time.monotonic() + duration + margin_s
-            while time.monotonic() < end:
-                time.sleep(0.1)
-                bar.n = min(rec.n_video, k)
-                bar.refresh()
-                if rec.n_video >= k:
-                    break
+        _progress(rec, k, min(stall_s, k / style.fps + 5.0), what="real-time take")
+    except TransferError as e:
+        log.error("%s", e)  # judged with the take below: a short take exits non-zero
+    return {"clock": "wall (real time)"}
+
+
+def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: float, realtime: bool,
+        stall_s: float, meta: dict) -> Recorder:
+    """Publish the instructions, fly and record the take, stop. Ctrl-C stops the vehicle too."""
+    rec = Recorder(session, rig, outdir, meta)
+    cond = Conductor(session, rig)
+    cond.instructions.put(codec.encode(replace(style, stamp_ns=M.now_ns(), final=True)))
+    time.sleep(0.3)
+    try:
+        how = (fly_realtime if realtime else fly_sim_time)(style, rec, cond, preroll_s=preroll_s, stall_s=stall_s)
+        meta.update(how)
     except KeyboardInterrupt:
         rec.interrupted = True
         log.warning("interrupted: stopping the vehicle and keeping what was recorded")
     finally:
-        # Whatever happened: the planner stops (it then commands a hold) and the bridge is told
-        # to hold too, before the recording is closed.
-        command("stop")
-        session.declare_publisher(keys.BRIDGE_COMMAND.key(rig)).put(
-            codec.encode(M.Command(stamp_ns=M.now_ns(), action="hold")))
-        time.sleep(0.3)
-        rec.close()
-        instr_pub.undeclare()
-        cmd_pub.undeclare()
+        # a second Ctrl-C must not cut the stop short: the vehicle is told to hold first
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            cond.stop(sim_time=not realtime)
+            time.sleep(0.3)
+            rec.summaries = rec.close()
+            cond.undeclare()
+        finally:
+            signal.signal(signal.SIGINT, old)
     return rec
 
 
-def main(argv: list[str]) -> int:
+def take_meta(rec: Recorder, style: M.Instructions, realtime: bool) -> dict:
+    """What the recording holds, stated plainly (repeats, missing frames), for meta.json and the report."""
+    frames, truths = rec.summaries
+    k = int(style.image_targets.shape[0])
+    fs = frames or TakeSummary(k)
+    return {"recorded_frames": fs.written, "instruction_frames": k, "fps": style.fps, "output_fps": style.fps,
+            "repeated_frames": len(fs.repeated_slots), "repeated_slots": fs.repeated_slots,
+            "repeated_share": round(len(fs.repeated_slots) / k, 4) if k else 0.0,
+            "missing_frames": len(fs.missing_slots), "duplicate_frames": fs.duplicates, "late_frames": fs.late,
+            "truth_frames": 0 if truths is None else truths.written, "logged_messages": rec.log.count,
+            "clock_mode": "realtime" if realtime else "lockstep", "interrupted": rec.interrupted}
+
+
+def check_take(meta: dict, rec: Recorder, realtime: bool) -> None:
+    """A take that is not the instructions' length is an error (never a silent partial result)."""
+    frames, truths = rec.summaries
+    if frames is None:
+        raise TransferError("the take never started (see OUTDIR/deploy/*.log)")
+    if not realtime:
+        require_complete(frames, "frames")
+        require_complete(truths, "ground-truth records")
+    elif frames.written < frames.n_slots:
+        raise TransferError(f"the real-time take is short: {frames.written} of {frames.n_slots} instruction "
+                            f"frames were recorded ({meta['repeated_frames']} of them repeats); "
+                            "output.mp4 and the truth are kept in OUTDIR")
+
+
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="cinetransfer transfer", description=__doc__.splitlines()[0])
     p.add_argument("source", help="source video (anything OpenCV decodes)")
     p.add_argument("--scene", default="open_country", help="simulator scene name or YAML file (default %(default)s)")
     p.add_argument("-o", "--outdir", required=True, help="output folder")
     p.add_argument("--rig", default="transfer", help="rig name (default %(default)s)")
-    p.add_argument("--preroll", type=float, default=5.0, help="seconds to settle on frame 0 before recording")
+    p.add_argument("--preroll", type=float, default=5.0,
+                   help="seconds (simulated) to settle on frame 0 before recording (default %(default)s)")
     p.add_argument("--max-frames", type=int, default=0, help="use only the first N frames of the source (0 = all)")
     p.add_argument("--style", help="use this style.json instead of extracting one")
+    p.add_argument("--realtime", action="store_true",
+                   help="fly on the wall clock (simulator skips late frames; repeats are counted and reported) "
+                        "instead of simulation time in lockstep")
+    p.add_argument("--stall-timeout", type=float, default=300.0, metavar="S",
+                   help="fail when no frame arrives for this many wall seconds (default %(default)s)")
     p.add_argument("--no-eval", action="store_true", help="skip extraction on the output and the report")
     p.add_argument("--log-level", default="INFO")
     zenoh_config.add_arguments(p)
-    args = p.parse_args(argv)
+    return p
+
+
+def write_json(path: Path, data: dict) -> None:
+    """Temp file then rename: a reader (or a crash) never sees half a file."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=str))
+    os.replace(tmp, path)
+
+
+def _style(args, src: Path, out: Path) -> tuple[Path, M.Instructions]:
+    style_path = out / "style.json"
+    if args.style:
+        shutil.copyfile(args.style, style_path)
+    else:
+        extra = ["--stop", str(args.max_frames)] if args.max_frames else []
+        run_cli(["extract", str(src), "-o", str(style_path), *extra], "style extraction")
+    from cinetransfer.services.smoother.instructions import load_style
+
+    return style_path, load_style(style_path)
+
+
+def _flight(args, style: M.Instructions, out: Path, meta: dict, timings: dict) -> Recorder:
+    """Bring up (or join) the flying half, fly the take, bring it down."""
+    t = time.monotonic()
+    deploy_dir = out / "deploy"
+    if args.connect:
+        opts = zenoh_config.options_from_args(args, mode="client")
+        cfg_path = None
+    else:
+        port = zenoh_config.free_tcp_port()
+        cfg_path = _deploy_config(out, port, args.rig, args.scene, realtime=args.realtime)
+        run_cli(["deploy", "up", str(cfg_path), "--run-dir", str(deploy_dir)], "starting nodes")
+        opts = zenoh_config.ZenohOptions(mode="client", connect=(f"tcp/127.0.0.1:{port}",), shared_memory=True)
+    try:
+        with zenoh_config.open_session(opts) as session:
+            _wait_alive(session, args.rig, {"planner", "autopilot_bridge"}, 180)
+            timings["start_nodes_s"] = time.monotonic() - t
+            t = time.monotonic()
+            rec = fly(style, outdir=out, session=session, rig=args.rig, preroll_s=args.preroll,
+                      realtime=args.realtime, stall_s=args.stall_timeout, meta=meta)
+            timings["flight_s"] = time.monotonic() - t
+            meta["health"] = {n: {"received": h.received, "rejected": h.rejected, "dropped": h.dropped,
+                                  "published": h.published, "counters": h.counters}
+                              for n, h in rec.health.items()}
+    finally:
+        if cfg_path is not None:
+            run_cli(["deploy", "down", str(cfg_path), "--run-dir", str(deploy_dir)], "stopping nodes")
+    return rec
+
+
+def _evaluate(out: Path, src: Path, style_path: Path, rec: Recorder, meta: dict) -> dict:
+    out_style = out / "output_style.json"
+    try:
+        run_cli(["extract", str(out / "output.mp4"), "-o", str(out_style)], "extraction on the output")
+    except TransferError as e:
+        log.error("%s", e)
+        out_style = None
+    from cinetransfer.report import build_report
+
+    return build_report(out, source_style=style_path, output_style=out_style, truths=rec.truths,
+                        source_video=src, output_video=out / "output.mp4", meta=meta)
+
+
+def main(argv: list[str]) -> int:
+    args = build_parser().parse_args(argv)
     setup_logging(args.log_level)
-    src = Path(args.source)
-    out = Path(args.outdir)
+    src, out = Path(args.source), Path(args.outdir)
     if not src.is_file():
         print(f"cinetransfer transfer: source video {src} does not exist", file=sys.stderr)
         return 2
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.monotonic()
     timings: dict[str, float] = {}
-    meta: dict = {"source": str(src), "scene": args.scene, "rig": args.rig, "started": time.strftime("%Y-%m-%d %H:%M:%S")}
+    meta: dict = {"source": str(src), "scene": args.scene, "rig": args.rig,
+                  "started": time.strftime("%Y-%m-%d %H:%M:%S")}
     try:
-        # 1. style
         t = time.monotonic()
-        style_path = out / "style.json"
-        if args.style:
-            shutil.copyfile(args.style, style_path)
-        else:
-            extra = ["--stop", str(args.max_frames)] if args.max_frames else []
-            run_cli(["extract", str(src), "-o", str(style_path), *extra], "style extraction")
-        from cinetransfer.services.smoother.instructions import load_style
-
-        style = load_style(style_path)
+        style_path, style = _style(args, src, out)
         timings["extract_source_s"] = time.monotonic() - t
-        # 2. processes
-        t = time.monotonic()
-        deploy_dir = out / "deploy"
-        if args.connect:
-            opts = zenoh_config.options_from_args(args, mode="client")
-            cfg_path = None
-        else:
-            port = zenoh_config.free_tcp_port()
-            cfg_path = _deploy_config(out, port, args.rig, args.scene)
-            run_cli(["deploy", "up", str(cfg_path), "--run-dir", str(deploy_dir)], "starting nodes")
-            opts = zenoh_config.ZenohOptions(mode="client", connect=(f"tcp/127.0.0.1:{port}",), shared_memory=True)
-        try:
-            with zenoh_config.open_session(opts) as session:
-                _wait_alive(session, args.rig, {"planner", "autopilot_bridge"}, 180)
-                timings["start_nodes_s"] = time.monotonic() - t
-                t = time.monotonic()
-                rec = fly(style, outdir=out, session=session, rig=args.rig, preroll_s=args.preroll, margin_s=5.0,
-                          meta=meta)
-                timings["flight_s"] = time.monotonic() - t
-                meta["health"] = {n: {"received": h.received, "rejected": h.rejected, "dropped": h.dropped,
-                                      "published": h.published, "counters": h.counters}
-                                  for n, h in rec.health.items()}
-        finally:
-            if cfg_path is not None:
-                run_cli(["deploy", "down", str(cfg_path), "--run-dir", str(deploy_dir)], "stopping nodes")
-        meta.update(recorded_frames=rec.n_video, repeated_frames=rec.repeated, truth_frames=len(rec.truths),
-                    logged_messages=rec.log.count, output_fps=style.fps,
-                    instruction_frames=int(style.image_targets.shape[0]), fps=style.fps,
-                    interrupted=rec.interrupted)
+        rec = _flight(args, style, out, meta, timings)
+        meta.update(take_meta(rec, style, args.realtime))
         from cinetransfer.report.truthfile import write_truths
 
         write_truths(out / "truth.msgpack", rec.truths)
-        if rec.n_video == 0:
-            raise TransferError("no frames were recorded (see OUTDIR/deploy/*.log)")
-        if meta["interrupted"] or args.no_eval:
-            (out / "meta.json").write_text(json.dumps(meta, indent=2, default=str))
-            print(f"recorded {rec.n_video} frames to {out / 'output.mp4'} (no evaluation)")
-            return 130 if meta["interrupted"] else 0
-        # 5. evaluation
+        write_json(out / "meta.json", meta)
+        if meta["interrupted"]:
+            print(f"recorded {meta['recorded_frames']} frames to {out / 'output.mp4'} (interrupted)")
+            return 130
+        check_take(meta, rec, args.realtime)
+        if args.no_eval:
+            print(f"recorded {meta['recorded_frames']} frames to {out / 'output.mp4'} (no evaluation)")
+            return 0
         t = time.monotonic()
-        out_style = out / "output_style.json"
-        try:
-            run_cli(["extract", str(out / "output.mp4"), "-o", str(out_style)], "extraction on the output")
-        except TransferError as e:
-            log.error("%s", e)
-            out_style = None
+        summary = _evaluate(out, src, style_path, rec, meta)
         timings["extract_output_s"] = time.monotonic() - t
         timings["total_s"] = time.monotonic() - t_start
-        meta["timings"] = timings
-        meta["credit"] = _credit(src)
-        (out / "meta.json").write_text(json.dumps(meta, indent=2, default=str))
-        from cinetransfer.report import build_report
-
-        summary = build_report(out, source_style=style_path, output_style=out_style, truths=rec.truths,
-                               source_video=src, output_video=out / "output.mp4", meta=meta)
-    except (TransferError, ValueError, OSError) as e:
+        meta.update(timings=timings, credit=_credit(src))
+        write_json(out / "meta.json", meta)
+    except (TransferError, MissingFramesError, ValueError, OSError) as e:
         print(f"cinetransfer transfer: {e}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:  # outside the flight (extraction, start-up): nothing is flying yet

@@ -58,8 +58,11 @@ SMOOTHER_COMMAND = Topic("smoother", "command", M.Command, "operator / transfer 
 SIM_TRUTH = Topic("sim", "truth", M.GroundTruth, "autopilot_bridge (sim backend)", 24.0, "no-drop",
                   "exact ground truth of each rendered frame")
 
+SIM_CLOCK = Topic("sim", "clock", M.SimClock, "autopilot_bridge (sim backend)", 20.0, "no-drop",
+                  "simulation time: one tick per control step; nodes that see it take 'now' from it")
+
 TOPICS: tuple[Topic, ...] = (FRAME, MEASUREMENT, INSTRUCTIONS, SETPOINT, PLANNER_COMMAND, VEHICLE_STATE,
-                             SUBJECT_STATE, BRIDGE_COMMAND, SIM_TRUTH, SMOOTHER_COMMAND)
+                             SUBJECT_STATE, BRIDGE_COMMAND, SIM_TRUTH, SMOOTHER_COMMAND, SIM_CLOCK)
 
 
 def health(rig: str, node: str) -> str:

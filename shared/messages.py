@@ -289,6 +289,26 @@ class Health:
 
 
 @dataclass(frozen=True, eq=False)
+class SimClock:
+    """One step of the simulation clock (published by the simulator bridge, lockstep mode).
+
+    In simulation the bridge owns time: it publishes the vehicle and subject state for time
+    `stamp_ns`, then this tick, and (when a planner is alive) completes the step only once the
+    planner's Setpoint stamped `stamp_ns` has arrived. Nodes that see ticks take "now" from them.
+    """
+
+    SCHEMA_VERSION: ClassVar[int] = 1
+    stamp_ns: int = doc("simulation time of this step [ns] (epoch_ns + step * period)", 0)
+    seq: int = doc("sequence number", 0)
+    valid: bool = doc("simulator healthy", True)
+    epoch_ns: int = doc("simulation time of step 0 since the last reset [ns]", 0)
+    step: int = doc("steps since the last reset", 0)
+    period_s: float = doc("simulated seconds per step (the control period)", 0.05)
+    lockstep: bool = doc("True: the step waits for the planner's setpoint; False: free-running", True)
+    pace: float = doc("simulated seconds per wall second the bridge aims at; 0 = as fast as possible", 1.0)
+
+
+@dataclass(frozen=True, eq=False)
 class GroundTruth:
     """Exact truth of one simulated camera frame (published by the simulator only).
 
@@ -318,7 +338,7 @@ class GroundTruth:
 MESSAGE_TYPES: dict[str, type] = {
     cls.__name__: cls
     for cls in (Frame, Measurement, Instructions, Setpoint, VehicleState, SubjectState, Command, Health,
-                GroundTruth)
+                GroundTruth, SimClock)
 }
 
 #: Types that appear only inside other messages.

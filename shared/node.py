@@ -193,10 +193,13 @@ class Node:
         self.session: zenoh.Session | None = None
         self._stop = threading.Event()
         self._cond = threading.Condition()
+        self._health_lock = threading.Lock()
         self._received = self._rejected = self._dropped = self._published = 0
         self._latencies: collections.deque[float] = collections.deque(maxlen=1000)
         self.last_error = ""
         self.counters: dict[str, Any] = {}
+        #: simulation time of the newest clock tick this node has seen (None: no clock, wall time)
+        self.clock_ns: int | None = None
         self.healthy = True
         self._inboxes: list[Inbox] = []
         self._publishers: list[Publisher] = []
@@ -281,9 +284,12 @@ class Node:
         self._inboxes.append(inbox)
         return inbox
 
-    def publisher(self, topic: keys.Topic | str, *, jpeg_quality: int | None = None) -> Publisher:
+    def publisher(self, topic: keys.Topic | str, *, jpeg_quality: int | None = None,
+                  block: bool | None = None) -> Publisher:
+        """`block`: congestion control (default: drop for drop-oldest topics, block otherwise)."""
         key, _, pol = self._resolve(topic)
-        pub = Publisher(self, key, jpeg_quality, drop=(pol == "drop-oldest"))
+        drop = (pol == "drop-oldest") if block is None else not block
+        pub = Publisher(self, key, jpeg_quality, drop=drop)
         self._publishers.append(pub)
         return pub
 
@@ -312,6 +318,11 @@ class Node:
         self.last_error = reason
         self.rl.warning(kind, reason)
 
+    # ------------------------------------------------------------------ time
+    def now_ns(self) -> int:
+        """'Now' for stamps: the simulation clock when the node follows one, else the wall clock."""
+        return M.now_ns() if self.clock_ns is None else self.clock_ns
+
     # ------------------------------------------------------------------ health
     @contextlib.contextmanager
     def timed(self) -> Iterator[None]:
@@ -334,16 +345,24 @@ class Node:
         p50 = lat[len(lat) // 2] if lat else float("nan")
         mx = lat[-1] if lat else float("nan")
         counters = {k: v for k, v in self.counters.items() if isinstance(v, (str, int, float, bool))}
-        return M.Health(stamp_ns=M.now_ns(), valid=self.healthy, node=self.name,
+        return M.Health(stamp_ns=self.now_ns(), valid=self.healthy, node=self.name,
                         uptime_s=time.monotonic() - self._t0, latency_ms_p50=p50, latency_ms_max=mx,
                         last_error=self.last_error[:500], counters=counters, **self.stats())
 
+    def publish_health_now(self) -> None:
+        """Publish Health at once (e.g. to acknowledge a command) instead of at the next period."""
+        try:
+            self._publish_health()
+        except (zenoh.ZError, codec.CodecError) as e:
+            self.error(f"health publish failed: {e}", "health")
+
     def _publish_health(self) -> None:
         assert self._health_pub is not None
-        h = self.health()
-        self._health_pub.put(h)
-        # Health messages themselves are not part of the node's published count.
-        self._published -= 1
+        with self._health_lock:  # the periodic thread and publish_health_now() may meet
+            h = self.health()
+            self._health_pub.put(h)
+            # Health messages themselves are not part of the node's published count.
+            self._published -= 1
 
     def _health_loop(self) -> None:
         while not self._stop.wait(self.health_period_s):
@@ -369,10 +388,11 @@ def node_from_args(name: str, args: argparse.Namespace, *, config: Any = None, *
                 health_period_s=args.health_period)
 
 
-def call_periodically(period_s: float, node: Node, fn: Callable[[], None]) -> None:
-    """Run `fn` every `period_s` (drift-free) until the node stops."""
+def call_periodically(period_s: float, node: Node, fn: Callable[[], None], *,
+                      until: Callable[[], bool] | None = None) -> None:
+    """Run `fn` every `period_s` (drift-free) until the node stops (or `until()` is true)."""
     nxt = time.monotonic()
-    while node.running:
+    while node.running and not (until is not None and until()):
         fn()
         nxt += period_s
         delay = nxt - time.monotonic()

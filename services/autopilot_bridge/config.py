@@ -19,6 +19,7 @@ from typing import Any
 GEOFENCE_SHAPES = ("cylinder", "box")
 BACKENDS = ("sim", "mavlink")
 AUTOPILOTS = ("auto", "px4", "ardupilot")
+SIM_CLOCKS = ("lockstep", "realtime")
 
 
 class ConfigError(ValueError):
@@ -221,6 +222,15 @@ class BridgeConfig:
     jpeg_quality: int = 0
     #: publish VehicleState every n-th tick (1 = every tick).
     state_every_n: int = 1
+    #: sim backend: 'lockstep' (the bridge owns simulation time, steps wait for the planner,
+    #: no frame is ever skipped) or 'realtime' (wall clock, late frames skipped and counted).
+    sim_clock: str = "lockstep"
+    #: sim clock: simulated seconds per control step (one planner setpoint per step).
+    step_s: float = 0.05
+    #: sim clock: simulated seconds per wall second to aim at; 0 = as fast as possible.
+    pace: float = 1.0
+    #: sim clock: longest wall wait [s] for the planner's setpoint of a step (counted when hit).
+    setpoint_wait_s: float = 30.0
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
 
@@ -237,6 +247,15 @@ class BridgeConfig:
             raise ConfigError(f"jpeg_quality = {self.jpeg_quality!r}: must be 0 (raw) or 1..100")
         if not isinstance(self.state_every_n, int) or self.state_every_n < 1:
             raise ConfigError("state_every_n must be an integer >= 1")
+        if self.sim_clock not in SIM_CLOCKS:
+            raise ConfigError(f"sim_clock = {self.sim_clock!r}: must be one of {SIM_CLOCKS}")
+        _positive("step_s", self.step_s)
+        if self.step_s > 1.0:
+            raise ConfigError(f"step_s = {self.step_s!r}: must be <= 1 s")
+        _finite("pace", self.pace)
+        if not 0 <= self.pace <= 1000:
+            raise ConfigError(f"pace = {self.pace!r}: must be in 0..1000 (0 = as fast as possible)")
+        _positive("setpoint_wait_s", self.setpoint_wait_s)
 
 
 def replace_nested(cfg: Any, **changes: Any) -> Any:

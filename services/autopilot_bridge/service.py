@@ -8,9 +8,14 @@ Every tick (--rate, 50 Hz by default): drain bridge commands, check the newest s
 decide track/hold, drive the backend, publish VehicleState (and SubjectState, Frames and
 GroundTruth when the backend has them). Health carries every safety counter.
 
+With the simulator the bridge owns time (lockstep.py): it publishes SIM_CLOCK ticks and a step
+completes only once the planner's setpoint for it has arrived; `--realtime` keeps the wall
+clock instead. A real vehicle (mavlink) always runs on the wall clock.
+
 Keys in:  SETPOINT (drop-oldest), BRIDGE_COMMAND (no-drop), SUBJECT_STATE (drop-oldest; only
           with backends that do not know the subject themselves, i.e. mavlink)
-Keys out: VEHICLE_STATE, SUBJECT_STATE, FRAME (raw, or JPEG with --jpeg Q), SIM_TRUTH (sim only)
+Keys out: VEHICLE_STATE, SUBJECT_STATE, FRAME (raw, or JPEG with --jpeg Q), SIM_TRUTH and
+          SIM_CLOCK (sim only)
 """
 from __future__ import annotations
 
@@ -51,7 +56,8 @@ def _floats(n: int):
 #: flag dest -> (config section, field)
 _FLAG_FIELDS = {
     "backend": ("bridge", "backend"), "scene": ("bridge", "scene"), "rate": ("bridge", "rate_hz"),
-    "jpeg": ("bridge", "jpeg_quality"),
+    "jpeg": ("bridge", "jpeg_quality"), "realtime": ("bridge", "sim_clock"), "step": ("bridge", "step_s"),
+    "pace": ("bridge", "pace"), "setpoint_wait": ("bridge", "setpoint_wait_s"),
     "home": ("safety", "home_m"), "geofence": ("safety", "geofence_shape"),
     "geofence_radius": ("safety", "geofence_radius_m"), "geofence_half_extent": ("safety", "geofence_half_extent_m"),
     "alt_min": ("safety", "altitude_min_m"), "alt_max": ("safety", "altitude_max_m"),
@@ -75,6 +81,15 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--rate", type=float, default=None, metavar="HZ", help="control loop rate (default 50)")
     g.add_argument("--jpeg", type=int, default=None, metavar="QUALITY",
                    help="publish frames as JPEG of this quality (for radio links); default raw")
+    g.add_argument("--realtime", action="store_const", const="realtime", default=None,
+                   help="sim backend: run on the wall clock (frames may be skipped) instead of owning "
+                        "simulation time in lockstep with the planner")
+    g.add_argument("--step", type=float, default=None, metavar="S",
+                   help="sim clock: simulated seconds per control step (default 0.05 = the planner's 20 Hz)")
+    g.add_argument("--pace", type=float, default=None, metavar="X",
+                   help="sim clock: simulated seconds per wall second to aim at (default 1; 0 = as fast as possible)")
+    g.add_argument("--setpoint-wait", type=float, default=None, metavar="S",
+                   help="sim clock: longest wall wait for the planner's setpoint of a step (default 30)")
     s = ap.add_argument_group("safety")
     s.add_argument("--home", type=_floats(3), default=None, metavar="X,Y,Z", help="geofence centre [m], world")
     s.add_argument("--geofence", choices=GEOFENCE_SHAPES, default=None, help="geofence shape (default cylinder)")
@@ -140,30 +155,46 @@ def make_backend(cfg: BridgeConfig) -> VehiclePort:
     # The built-in simulator is imported lazily (renderer, assets: heavier imports).
     from cinetransfer.services.autopilot_bridge.sim.backend import SimBackend, load_scene
 
-    # Real time: frames render on a worker thread, so the control loop (safety layer, watchdog,
-    # state at `rate_hz`) never waits for the renderer; a frame that is already late by more than
-    # a few frame periods, or due while two are still rendering, is skipped (counted).
-    return SimBackend(load_scene(cfg.scene), max_frame_lag_s=SIM_MAX_FRAME_LAG_S, async_render=True)
+    # Frames render on a worker thread. In real time the control loop (safety layer, watchdog,
+    # state at `rate_hz`) never waits for the renderer: a frame already late by more than a few
+    # frame periods, or due while two are still rendering, is skipped (counted). In simulation
+    # time nothing is skipped: rendering overlaps the planner's solve, and a step ends with its
+    # frames.
+    lag = SIM_MAX_FRAME_LAG_S if cfg.sim_clock == "realtime" else None
+    return SimBackend(load_scene(cfg.scene), max_frame_lag_s=lag, async_render=True)
 
 
 # ----------------------------------------------------------------------------- service
 class Bridge:
-    """The loop body, kept apart from main() so that it can be driven in-process."""
+    """The loop body, kept apart from main() so that it can be driven in-process.
 
-    def __init__(self, node: Any, cfg: BridgeConfig, backend: VehiclePort) -> None:
+    `tick(now)` is one wall-clock control step (real-time mode). The simulation clock
+    (`lockstep.SimClockLoop`) drives the same pieces: `handle_commands`, `handle_setpoints`,
+    `control`, `publish_state`, `publish_frames`.
+    """
+
+    def __init__(self, node: Any, cfg: BridgeConfig, backend: VehiclePort, *, lossless_frames: bool = False) -> None:
         self.node, self.cfg, self.backend = node, cfg, backend
         self.core = BridgeCore(cfg.safety)
-        self.sp_in = node.subscribe(keys.SETPOINT, maxlen=8)
+        self.sp_in = node.subscribe(keys.SETPOINT, maxlen=64)
         self.cmd_in = node.subscribe(keys.BRIDGE_COMMAND)
         self.subject_in = node.subscribe(keys.SUBJECT_STATE, maxlen=2) if cfg.backend == "mavlink" else None
-        self.state_pub = node.publisher(keys.VEHICLE_STATE)
-        self.subject_pub = node.publisher(keys.SUBJECT_STATE) if cfg.backend != "mavlink" else None
-        self.frame_pub = node.publisher(keys.FRAME, jpeg_quality=cfg.jpeg_quality or None)
-        self.truth_pub = node.publisher(keys.SIM_TRUTH) if cfg.backend == "sim" else None
+        # in simulation time every state and frame must arrive: publishers block, never drop
+        block = True if lossless_frames else None
+        self.state_pub = node.publisher(keys.VEHICLE_STATE, block=block)
+        self.subject_pub = node.publisher(keys.SUBJECT_STATE, block=block) if cfg.backend != "mavlink" else None
+        self.frame_pub = node.publisher(keys.FRAME, jpeg_quality=cfg.jpeg_quality or None, block=block)
+        self.truth_pub = node.publisher(keys.SIM_TRUTH, block=block) if cfg.backend == "sim" else None
         self.vehicle: M.VehicleState | None = None
         self.subject: M.SubjectState | None = None
         self.subject_rx_s = -1e9
         self.ticks = 0
+        self.decision_hold = True
+
+    def reset_core(self) -> None:
+        """Forget setpoints, holds and rate limits (the simulation started over)."""
+        self.core = BridgeCore(self.cfg.safety)
+        self.vehicle = None
 
     def _subject(self, now: float) -> M.SubjectState | None:
         s = self.backend.subject_state()
@@ -177,55 +208,88 @@ class Bridge:
             return self.subject
         return None
 
-    def tick(self) -> None:
-        node, core, backend = self.node, self.core, self.backend
-        now = time.monotonic()
-        with node.timed():
-            for cmd in self.cmd_in.drain():
-                action = core.on_command(cmd)
-                log.info("command %s %s", cmd.action, cmd.args or "")
-                if action and action != "hold" and not backend.command(action, dict(cmd.args)):
-                    node.error(f"backend {backend.name} does not support command {action!r}", "command")
-                elif action is None and cmd.action not in ("hold", "resume"):
-                    node.reject(f"unknown bridge command {cmd.action!r}")
-            subject = self._subject(now)
-            for sp in self.sp_in.drain():
-                res = core.on_setpoint(sp, now, vehicle=self.vehicle, subject=subject)
-                if res is not None and not res.accepted:
-                    node.reject(f"setpoint #{sp.seq}: {res.reason}")
-            connected = backend.connected
-            dec = core.tick(now, vehicle=self.vehicle, connected=connected)
-            if dec.hold:
-                if dec.changed:
-                    log.info("holding: %s", dec.reason)
-                    backend.hold()
-            else:
-                if dec.changed:
-                    log.info("tracking setpoints")
-                backend.apply(dec.setpoint)
-            backend.step(now)
-            vs = backend.vehicle_state()
-            vs = dataclasses.replace(vs, holding=dec.hold, valid=bool(vs.valid and connected))
-            self.vehicle = vs
-            if self.ticks % self.cfg.state_every_n == 0:
-                self.state_pub.put(vs)
-            if self.subject_pub is not None:
-                subj = backend.subject_state()
-                if subj is not None:
-                    self.subject_pub.put(subj)
-            for frame in backend.frames():
-                self.frame_pub.put(frame)
-            if self.truth_pub is not None:
-                for truth in backend.truths():
-                    self.truth_pub.put(truth)
-        self.ticks += 1
-        counters = core.all_counters()
-        extra = getattr(backend, "health_counters", None)
+    def handle_commands(self, cmds: list[M.Command]) -> None:
+        node, backend = self.node, self.backend
+        for cmd in cmds:
+            action = self.core.on_command(cmd)
+            log.info("command %s %s", cmd.action, cmd.args or "")
+            if action and action != "hold" and not backend.command(action, dict(cmd.args)):
+                node.error(f"backend {backend.name} does not support command {action!r}", "command")
+            elif action is None and cmd.action not in ("hold", "resume"):
+                node.reject(f"unknown bridge command {cmd.action!r}")
+
+    def handle_setpoints(self, sps: list[M.Setpoint], now: float) -> None:
+        subject = self._subject(now)
+        for sp in sps:
+            res = self.core.on_setpoint(sp, now, vehicle=self.vehicle, subject=subject)
+            if res is not None and not res.accepted:
+                self.node.reject(f"setpoint #{sp.seq}: {res.reason}")
+
+    def control(self, now: float, step_to: float | None = None) -> None:
+        """Decide track/hold at `now`, drive the backend, advance it to `step_to` (default now)."""
+        backend = self.backend
+        dec = self.core.tick(now, vehicle=self.vehicle, connected=backend.connected)
+        if dec.hold:
+            if dec.changed:
+                log.info("holding: %s", dec.reason)
+                backend.hold()
+        else:
+            if dec.changed:
+                log.info("tracking setpoints")
+            backend.apply(dec.setpoint)
+        self.decision_hold = dec.hold
+        backend.step(now if step_to is None else step_to)
+        self._refresh_vehicle()
+
+    def _refresh_vehicle(self) -> None:
+        vs = self.backend.vehicle_state()
+        self.vehicle = dataclasses.replace(vs, holding=self.decision_hold,
+                                           valid=bool(vs.valid and self.backend.connected))
+
+    def publish_state(self, stamp_ns: int | None = None) -> None:
+        """Vehicle (and simulated subject) state; `stamp_ns` restamps them with the clock tick."""
+        if self.vehicle is None:
+            self._refresh_vehicle()
+        vs = self.vehicle
+        if stamp_ns is not None:
+            vs = dataclasses.replace(vs, stamp_ns=stamp_ns)
+        if stamp_ns is not None or self.ticks % self.cfg.state_every_n == 0:
+            self.state_pub.put(vs)
+        if self.subject_pub is not None:
+            subj = self.backend.subject_state()
+            if subj is not None:
+                self.subject_pub.put(subj if stamp_ns is None else dataclasses.replace(subj, stamp_ns=stamp_ns))
+
+    def publish_frames(self) -> int:
+        n = 0
+        for frame in self.backend.frames():
+            self.frame_pub.put(frame)
+            n += 1
+        if self.truth_pub is not None:
+            for truth in self.backend.truths():
+                self.truth_pub.put(truth)
+        return n
+
+    def update_health(self) -> None:
+        counters = self.core.all_counters()
+        extra = getattr(self.backend, "health_counters", None)
         if callable(extra):
             counters.update(extra())
-        counters["connected"] = connected
-        node.counters.update(counters)
-        node.healthy = bool(connected and vs.valid)
+        counters["connected"] = self.backend.connected
+        self.node.counters.update(counters)
+        self.node.healthy = bool(self.backend.connected and self.vehicle is not None and self.vehicle.valid)
+
+    def tick(self) -> None:
+        """One real-time control step on the monotonic clock."""
+        now = time.monotonic()
+        with self.node.timed():
+            self.handle_commands(self.cmd_in.drain())
+            self.handle_setpoints(self.sp_in.drain(), now)
+            self.control(now)
+            self.publish_state()
+            self.publish_frames()
+        self.ticks += 1
+        self.update_health()
 
 
 def main(argv: list[str]) -> int:
@@ -237,6 +301,7 @@ def main(argv: list[str]) -> int:
         print(f"cinetransfer autopilot_bridge: invalid configuration: {e}", file=sys.stderr)
         return 2
     node = node_from_args(NODE_NAME, args, config=cfg)
+    sim_time = cfg.backend == "sim" and cfg.sim_clock == "lockstep"
     try:
         backend = make_backend(cfg)
     except ModuleNotFoundError as e:
@@ -249,9 +314,16 @@ def main(argv: list[str]) -> int:
             log.error("backend %s failed to start: %s", cfg.backend, e)
             return 1
         try:
-            bridge = Bridge(node, cfg, backend)
-            node.ready()
-            call_periodically(1.0 / cfg.rate_hz, node, bridge.tick)
+            bridge = Bridge(node, cfg, backend, lossless_frames=sim_time)
+            if sim_time:
+                from cinetransfer.services.autopilot_bridge.lockstep import SimClockLoop
+
+                loop = SimClockLoop(node, cfg, bridge)
+                node.ready()
+                loop.run()
+            else:
+                node.ready()
+                call_periodically(1.0 / cfg.rate_hz, node, bridge.tick)
         finally:
             backend.hold()
             backend.close()

@@ -98,6 +98,8 @@ class Planner:
             "consecutive_failures": 0, "holds": 0, "tail": False, "solver_status": "", "solve_ms": float("nan"),
             "iterations": -1, "joints_ignored": 0, "commands": 0, "bad_commands": 0, "mode": "hold",
         }
+        self.counters.update(scheduled=0, over_budget=0)
+        self._scheduled: list[M.Command] = []
         self.last_result: SolveResult | None = None
 
     # ------------------------------------------------------------------ runtime parameters
@@ -109,52 +111,104 @@ class Planner:
 
     # ------------------------------------------------------------------ commands and timing
     def command(self, cmd: M.Command, now_ns: int) -> bool:
-        """Apply a start/pause/resume/hold/stop command; False (and counted) if not understood."""
-        a = cmd.action
+        """Apply a start/pause/resume/hold/stop command; False (and counted) if not understood.
+
+        A command with `args.at_ns` later than `now_ns` is kept and applied, as of exactly that
+        time, by the first `step` whose time has reached it (counter `scheduled`). This is how a
+        conductor starts a take at an exact simulation time whatever the message latency.
+        """
         self.counters["commands"] = int(self.counters["commands"]) + 1
+        at = cmd.args.get("at_ns") if isinstance(cmd.args, dict) else None
+        if at is not None:
+            if isinstance(at, bool) or not isinstance(at, int):
+                return self._bad_command()
+            if at > now_ns:
+                self._scheduled.append(cmd)
+                self._scheduled.sort(key=lambda c: c.args["at_ns"])
+                self.counters["scheduled"] = len(self._scheduled)
+                self.counters["scheduled_at_ns"] = int(self._scheduled[-1].args["at_ns"])
+                return True
+            now_ns = max(now_ns, at) if at > 0 else now_ns
+        return self._apply(cmd, now_ns)
+
+    def _bad_command(self) -> bool:
+        self.counters["bad_commands"] = int(self.counters["bad_commands"]) + 1
+        return False
+
+    def _apply(self, cmd: M.Command, now_ns: int) -> bool:
+        a = cmd.action
         if a == "start":
             sf = cmd.args.get("start_frame", 0)
+            pre = cmd.args.get("preroll_s", 0.0)
             if isinstance(sf, bool) or not isinstance(sf, int) or sf < 0:
-                self.counters["bad_commands"] = int(self.counters["bad_commands"]) + 1
-                return False
+                return self._bad_command()
+            if isinstance(pre, bool) or not isinstance(pre, (int, float)) or not 0 <= pre <= 600:
+                return self._bad_command()
             self.start_frame = sf
             self._elapsed_s = 0.0
-            self._run_from_ns = now_ns
+            # the instruction clock starts after the pre-roll; until then the planner frames the
+            # start frame (with the horizon already looking into the first frames)
+            self._run_from_ns = now_ns + int(round(float(pre) * 1e9))
             self.state = "recording"
+            self._forget_plan()  # a take starts cold: same inputs, same flight
         elif a in ("pause", "hold"):
             if self._run_from_ns is not None:
-                self._elapsed_s += max(0.0, (now_ns - self._run_from_ns) * 1e-9)
+                self._elapsed_s += (now_ns - self._run_from_ns) * 1e-9
                 self._run_from_ns = None
             if a == "hold":
                 self.state = "holding"
             elif self.state == "recording":
                 self.state = "paused"
         elif a == "resume":
-            if self.state in ("paused", "holding"):
-                self._run_from_ns = now_ns
-                self.state = "recording"
-            else:
-                self.counters["bad_commands"] = int(self.counters["bad_commands"]) + 1
-                return False
+            if self.state not in ("paused", "holding"):
+                return self._bad_command()
+            self._run_from_ns = now_ns
+            self.state = "recording"
         elif a == "stop":
             self._elapsed_s, self._run_from_ns = 0.0, None
+            self._scheduled.clear()
             self.state = "stopped"
         else:
-            self.counters["bad_commands"] = int(self.counters["bad_commands"]) + 1
-            return False
+            return self._bad_command()
         self.counters["state"] = self.state
         log.info("command %r -> state %s", a, self.state)
         return True
 
+    def _apply_due(self, now_ns: int) -> None:
+        """Apply scheduled commands whose time has come, each as of its own time."""
+        while self._scheduled and self._scheduled[0].args["at_ns"] <= now_ns:
+            cmd = self._scheduled.pop(0)
+            self._apply(cmd, int(cmd.args["at_ns"]))
+        self.counters["scheduled"] = len(self._scheduled)
+
     def recording_time_s(self, now_ns: int) -> float:
-        run = 0.0 if self._run_from_ns is None else max(0.0, (now_ns - self._run_from_ns) * 1e-9)
+        """Seconds of instruction time elapsed; negative during a pre-roll."""
+        run = 0.0 if self._run_from_ns is None else (now_ns - self._run_from_ns) * 1e-9
         return self._elapsed_s + run
+
+    def use_time_budget(self, max_solve_time_s: float) -> None:
+        """Rebuild the solver with another wall-time budget per solve (simulation time lifts it:
+        the solve is then as long as it needs, and `over_budget` counts what real time would miss)."""
+        cfg = self.cfg
+        self.solver = MpcSolver(cfg.structure, self.solver.bounds, self.solver.weights,
+                                max_solve_time_s=max_solve_time_s,
+                                max_cold_solve_time_s=max(max_solve_time_s, cfg.max_cold_solve_time_s),
+                                feasibility_tol=cfg.feasibility_tol, accept_suboptimal=cfg.accept_suboptimal)
+        self._forget_plan()
+
+    def _forget_plan(self) -> None:
+        self.solver.reset()
+        self._plan = None
+        self._last_good_ns = None
+        self._hold_pose = None
+        self._u_prev = np.zeros(self.layout.nu)
 
     # ------------------------------------------------------------------ step
     def step(self, now_ns: int, instructions: M.Instructions | None, vehicle: M.VehicleState | None,
              subject: M.SubjectState | None) -> M.Setpoint:
         """One control step: solve (or fall back) and return the setpoint to publish now."""
         cfg = self.cfg
+        self._apply_due(now_ns)
         if self.state == "idle" and cfg.autostart and instructions is not None and instructions.image_targets.shape[0]:
             self.command(M.Command(action="start"), now_ns)
         if vehicle is None:
@@ -182,6 +236,8 @@ class Planner:
                                  solver_status=f"error: {e}"[:200])
             return self._fallback(now_ns, vehicle, f"solver error: {e}"[:200])
         self.last_result = res
+        if res.wall_s > cfg.max_solve_time_s:  # what a real-time run would have missed
+            self.counters["over_budget"] = int(self.counters["over_budget"]) + 1
         self.counters.update(solves=int(self.counters["solves"]) + 1, solver_status=res.status,
                              solve_ms=round(res.wall_s * 1e3, 3), iterations=res.iterations, instruction_frame=frame)
         if res.ok and np.all(np.isfinite(res.x)) and np.all(np.isfinite(res.u)):
@@ -288,7 +344,7 @@ class Planner:
         def frame_at(tt: float) -> int:
             return self.start_frame + int(math.floor(tt * fps + 1e-9))
 
-        frame = frame_at(t)
+        frame = max(frame_at(t), self.start_frame)  # (a pre-roll frames the start frame)
         rows = []
         for k in range(1, n + 1):
             f = frame_at(t + k * dt) if moving else frame

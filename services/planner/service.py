@@ -2,9 +2,12 @@
 
 In:  keys.INSTRUCTIONS (Instructions, no-drop; the newest set is followed),
      keys.VEHICLE_STATE, keys.SUBJECT_STATE (latest wins),
-     keys.PLANNER_COMMAND (Command: start / pause / resume / hold / stop, no-drop).
-Out: keys.SETPOINT (Setpoint with the planned horizon) at a fixed rate (config.rate_hz), one
-     solve per setpoint; Health counters: state, instruction_frame, solver_status, solve_ms, ...
+     keys.PLANNER_COMMAND (Command: start / pause / resume / hold / stop, no-drop; `args.at_ns`
+     schedules it at an exact time), keys.SIM_CLOCK (simulation time, when a simulator owns it).
+Out: keys.SETPOINT (Setpoint with the planned horizon): at a fixed wall rate (config.rate_hz),
+     or one per simulation clock tick, stamped with the tick; Health counters: state,
+     instruction_frame, solver_status, solve_ms, over_budget (solves slower than the real-time
+     budget), sim_time, clock_ticks, ...
 
 The solver is built (or its generated code loaded from cache) and warmed up before the node
 declares itself ready.
@@ -68,6 +71,106 @@ def config_from_args(args: argparse.Namespace) -> pc.PlannerConfig:
     return pc.replace(cfg, **upd).validate()
 
 
+#: in simulation time a solve takes as long as it needs; this only bounds a runaway solve [s]
+SIM_SOLVE_BUDGET_S = 30.0
+#: in simulation time, how long to wait for the state of a clock tick before solving without it [s]
+STATE_WAIT_S = 2.0
+
+
+class PlannerShell:
+    """The service loop around `Planner`: inputs in, one setpoint out per tick.
+
+    Without a simulation clock it ticks at `rate_hz` on the wall clock. When the bridge
+    publishes `sim/clock` ticks it follows them from then on: one solve per tick, stamped
+    with the tick's time, using the vehicle and subject state of that very tick.
+    """
+
+    def __init__(self, node: Any, cfg: pc.PlannerConfig, planner: Planner) -> None:
+        self.node, self.cfg, self.planner = node, cfg, planner
+        self.ins_in = node.subscribe(keys.INSTRUCTIONS, maxlen=64)
+        self.veh_in = node.subscribe(keys.VEHICLE_STATE, maxlen=8)
+        self.sub_in = node.subscribe(keys.SUBJECT_STATE, maxlen=8)
+        self.cmd_in = node.subscribe(keys.PLANNER_COMMAND)
+        self.clk_in = node.subscribe(keys.SIM_CLOCK, maxlen=100_000)
+        self.pub = node.publisher(keys.SETPOINT)
+        self.latest: dict[str, Any] = {"ins": None, "veh": None, "sub": None}
+        self.sim_time = False
+        self.counters = {"clock_ticks": 0, "state_waits_timed_out": 0}
+
+    def run(self) -> None:
+        period = 1.0 / self.cfg.rate_hz
+        while self.node.running and not self.sim_time:
+            call_periodically(period, self.node, self._wall_tick, until=lambda: len(self.clk_in) > 0)
+            if len(self.clk_in):
+                self._enter_sim_time()
+        while self.node.running:
+            tick = self.clk_in.get(timeout=0.2)
+            if tick is not None:
+                self._sim_tick(tick)
+
+    def _enter_sim_time(self) -> None:
+        log.info("simulation clock seen: following it (solve budget lifted, over-budget solves counted)")
+        self.planner.use_time_budget(SIM_SOLVE_BUDGET_S)
+        self.sim_time = True
+
+    def _wall_tick(self) -> None:
+        self._inputs(M.now_ns())
+        self._solve(M.now_ns())
+
+    def _sim_tick(self, tick: M.SimClock) -> None:
+        now = int(tick.stamp_ns)
+        self.node.clock_ns = now
+        self.counters["clock_ticks"] += 1
+        self._inputs(now)
+        deadline = time.monotonic() + STATE_WAIT_S
+        while not self._have_state_at(now) and self.node.running and time.monotonic() < deadline:
+            self.node.wait(0.05)
+            self._states()
+        if not self._have_state_at(now) and self.node.running:
+            self.counters["state_waits_timed_out"] += 1
+            v, s = self.latest["veh"], self.latest["sub"]
+            self.node.error(f"no state for clock tick {now} within {STATE_WAIT_S:g} s (vehicle "
+                            f"{None if v is None else v.stamp_ns}, subject {None if s is None else s.stamp_ns})",
+                            "clock")
+        self._solve(now)
+
+    def _have_state_at(self, now: int) -> bool:
+        v, s = self.latest["veh"], self.latest["sub"]
+        return v is not None and s is not None and v.stamp_ns >= now and s.stamp_ns >= now
+
+    def _inputs(self, now: int) -> None:
+        for cmd in self.cmd_in.drain():
+            if not self.planner.command(cmd, now):
+                self.node.reject(f"unknown or malformed planner command {cmd.action!r}")
+            self.node.counters.update(self.planner.counters)
+            self.node.publish_health_now()  # acknowledges the command (e.g. a scheduled start)
+        for ins in self.ins_in.drain():
+            if ins.image_targets.shape[0] == 0:
+                self.node.reject("instructions with no frames")
+                continue
+            self.latest["ins"] = ins
+        self._states()
+
+    def _states(self) -> None:
+        v = self.veh_in.latest()
+        if v is not None:
+            self.latest["veh"] = v
+        s = self.sub_in.latest()
+        if s is not None:
+            self.latest["sub"] = s
+
+    def _solve(self, now: int) -> None:
+        node, planner, latest = self.node, self.planner, self.latest
+        with node.timed():
+            sp = planner.step(now, latest["ins"], latest["veh"], latest["sub"])
+        self.pub.put(sp)
+        node.counters.update(planner.counters)
+        node.counters.update(self.counters, sim_time=self.sim_time)
+        node.healthy = bool(sp.valid)
+        if not sp.valid:
+            node.error(f"setpoint invalid: {sp.solver_status}", "invalid")
+
+
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="cinetransfer planner", description=__doc__.split("\n")[0])
     add_node_arguments(p)
@@ -84,41 +187,11 @@ def main(argv: list[str]) -> int:
         planner = Planner(cfg)
         log.info("solver ready in %.2f s (N=%d, dt=%.3f s, codegen=%s)", time.perf_counter() - t,
                  cfg.structure.horizon_steps, cfg.structure.dt_s, cfg.structure.codegen)
-        ins_in = node.subscribe(keys.INSTRUCTIONS, maxlen=64)
-        veh_in = node.subscribe(keys.VEHICLE_STATE, maxlen=4)
-        sub_in = node.subscribe(keys.SUBJECT_STATE, maxlen=4)
-        cmd_in = node.subscribe(keys.PLANNER_COMMAND)
-        pub = node.publisher(keys.SETPOINT)
-        latest: dict[str, Any] = {"ins": None, "veh": None, "sub": None}
+        shell = PlannerShell(node, cfg, planner)
         node.counters.update(planner.counters)
         node.ready()
-
-        def tick() -> None:
-            now = M.now_ns()
-            for cmd in cmd_in.drain():
-                if not planner.command(cmd, now):
-                    node.reject(f"unknown or malformed planner command {cmd.action!r}")
-            for ins in ins_in.drain():
-                if ins.image_targets.shape[0] == 0:
-                    node.reject("instructions with no frames")
-                    continue
-                latest["ins"] = ins
-            v = veh_in.latest()
-            if v is not None:
-                latest["veh"] = v
-            s = sub_in.latest()
-            if s is not None:
-                latest["sub"] = s
-            with node.timed():
-                sp = planner.step(now, latest["ins"], latest["veh"], latest["sub"])
-            pub.put(sp)
-            node.counters.update(planner.counters)
-            node.healthy = bool(sp.valid)
-            if not sp.valid:
-                node.error(f"setpoint invalid: {sp.solver_status}", "invalid")
-
-        call_periodically(1.0 / cfg.rate_hz, node, tick)
+        shell.run()
     return 0
 
 
-__all__ = ["main", "config_from_args"]
+__all__ = ["main", "config_from_args", "PlannerShell"]

@@ -157,3 +157,52 @@ def test_weights_change_without_rebuild(planner, instructions):
     planner.set_weights(pc.Weights(image=2000.0))
     planner.step(T0, instructions, sim.vehicle_state(T0), sim.subject_state(T0))
     assert planner.solver is solver and planner.last_result.cost > 2 * c1
+
+
+def test_scheduled_start_applies_at_its_exact_time_with_a_preroll(planner):
+    # given a 'start' scheduled at T0 + 1 s with a 0.5 s pre-roll, received at T0
+    cmd = M.Command(action="start", args={"start_frame": 0, "preroll_s": 0.5, "at_ns": T0 + S})
+    assert planner.command(cmd, T0)
+    assert planner.state == "idle" and planner.counters["scheduled"] == 1
+    assert planner.counters["scheduled_at_ns"] == T0 + S
+    # when a step comes after its time (a late tick), it applies as of its own time, not the tick's
+    planner._apply_due(T0 + S + S // 7)
+    assert planner.state == "recording" and planner.counters["scheduled"] == 0
+    # then the instruction clock starts after the pre-roll, exactly: negative during the pre-roll
+    assert planner.recording_time_s(T0 + S) == pytest.approx(-0.5)
+    assert planner.recording_time_s(T0 + S + S // 2) == pytest.approx(0.0)
+    assert planner.recording_time_s(T0 + 2 * S) == pytest.approx(0.5)
+    # and during the pre-roll the planner frames the start frame
+    ins = instructions_from_arrays(targets=np.full((100, 1, 2), 0.5), joint_names=["nose"], fps=24.0)
+    _, frame = planner._rows(T0 + S, ins, 3, 0.1)
+    assert frame == 0
+    # and a malformed schedule is refused and counted
+    assert not planner.command(M.Command(action="start", args={"at_ns": "soon"}), T0)
+    assert not planner.command(M.Command(action="start", args={"preroll_s": -1.0}), T0)
+
+
+def test_same_ticks_give_the_same_setpoints_whatever_came_before(planner_cfg, instructions):
+    # given two planners with different histories before a scheduled start (one has been solving)
+    def run(history_steps: int) -> list[np.ndarray]:
+        p = Planner(planner_cfg)
+        p.use_time_budget(30.0)  # as in simulation time: no wall-clock limit can cut a solve short
+        sim = KinematicSim(wrong_start_scene())
+        p.command(M.Command(action="start"), T0 - 10 * S)
+        for i in range(history_steps):
+            now = T0 - S + i * S // 20
+            p.step(now, instructions, sim.vehicle_state(now), sim.subject_state(now))
+        p.command(M.Command(action="start", args={"start_frame": 0, "preroll_s": 0.2, "at_ns": T0}), T0 - S // 2)
+        sim = KinematicSim(wrong_start_scene())  # the simulation starts over at T0
+        out = []
+        for i in range(12):
+            now = T0 + i * S // 20
+            sp = p.step(now, instructions, sim.vehicle_state(now), sim.subject_state(now))
+            sim.apply(sp)
+            sim.step(0.05)
+            out.append(np.concatenate([sp.position_m, sp.camera_ypr_rad]))
+        return out
+
+    # when both are stepped through the same ticks after the start
+    a, b = run(0), run(8)
+    # then their setpoints agree: a take starts cold, so the flight depends only on its inputs
+    np.testing.assert_allclose(np.array(a), np.array(b), atol=1e-9)

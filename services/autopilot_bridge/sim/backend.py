@@ -237,6 +237,19 @@ class SimBackend(VehiclePort):
         self.renderer = SceneRenderer(self.scene, width, height)
         self.render_enabled = render
         self.truth_enabled = truth
+        self._init_timeline(epoch_ns)
+        #: when set (real-time use), frames more than this behind `now_s` are skipped, not rendered
+        self.max_frame_lag_s = max_frame_lag_s
+        self.frames_skipped = 0
+        self.render_ms: list[float] = []
+        self.started = False
+        #: render on a worker thread so that `step` (the bridge's control loop) never waits for a
+        #: frame; frames come out of `frames()` in order once rendered. OpenCV releases the GIL.
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-render") if async_render else None
+        self._pending: collections.deque[tuple[Future, int, float, M.LensState]] = collections.deque()
+
+    def _init_timeline(self, epoch_ns: int | None) -> None:
+        """The scene's initial vehicle, subject at script time 0, no frame rendered yet."""
         v = self.scene.vehicle
         self.dyn = VehicleDynamics(limits=self.scene.limits, position=np.array(v.position_m),
                                    camera_ypr=np.array(v.camera_ypr_rad), focal_mm=v.focal_length_mm,
@@ -248,15 +261,23 @@ class SimBackend(VehiclePort):
         self._frames: list[M.Frame] = []
         self._truths: list[M.GroundTruth] = []
         self._seq = 0
-        #: when set (real-time use), frames more than this behind `now_s` are skipped, not rendered
-        self.max_frame_lag_s = max_frame_lag_s
-        self.frames_skipped = 0
-        self.render_ms: list[float] = []
-        self.started = False
-        #: render on a worker thread so that `step` (the bridge's control loop) never waits for a
-        #: frame; frames come out of `frames()` in order once rendered. OpenCV releases the GIL.
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-render") if async_render else None
-        self._pending: collections.deque[tuple[Future, int, float, M.LensState]] = collections.deque()
+
+    def reset(self, epoch_ns: int, fps: float | None = None) -> None:
+        """Start the simulation over: scene initial state, time 0 stamped `epoch_ns`, frame 0
+        next (at `fps` if given). Renders still in flight are discarded."""
+        self.flush()
+        self._pending.clear()
+        if fps is not None:
+            if not (math.isfinite(fps) and 0 < fps <= 240):
+                raise ValueError(f"fps must be in (0, 240], got {fps!r}")
+            self.fps = float(fps)
+        self._init_timeline(int(epoch_ns))
+
+    def flush(self) -> None:
+        """Wait for every frame still being rendered (lockstep: a step ends with its frames)."""
+        for fut, *_ in list(self._pending):
+            fut.result()
+        self._collect()
 
     # -- VehiclePort -----------------------------------------------------------------------
     def start(self) -> None:
@@ -378,8 +399,11 @@ class SimBackend(VehiclePort):
         if self.render_enabled and self._pool is not None:
             self._collect()
             if len(self._pending) >= self.MAX_PENDING_RENDERS:
-                self.frames_skipped += 1
-                return
+                if self.max_frame_lag_s is not None:  # real time: a late frame is skipped (counted)
+                    self.frames_skipped += 1
+                    return
+                self._pending[0][0].result()  # simulation time: never skip, wait for the renderer
+                self._collect()
             self._pending.append((self._pool.submit(self._render_timed, self.view(), t_s), index, t_s, lens))
             return
         if self.render_enabled:

@@ -1,0 +1,205 @@
+"""Simulation time: the bridge owns the clock and advances it in lockstep with the planner.
+
+One step of `period` simulated seconds (the control period, 0.05 s by default):
+
+    1. publish the vehicle and subject state at t, then the SimClock tick t
+    2. publish the frames rendered during the previous step (their renders ran while the
+       planner was solving for t: the two cores work in parallel)
+    3. if a planner is alive: wait for its setpoint stamped t (bounded wait, counted when hit)
+    4. safety layer + watchdog at t (in simulation time), drive the simulated vehicle to t + period
+       in sub-ticks at the bridge rate; every camera frame slot crossed is rendered
+    5. pace: sleep so that simulated time runs at `pace` x wall time (0 = as fast as possible)
+
+Machine load changes how long a step takes, never what it computes: the same scene, commands
+and planner give the same flight and the same frames. Bridge commands handled here:
+- 'reset' (args: epoch_ns=int, optional fps=float, pace=float): start the simulation over at
+  time `epoch_ns` (scene's initial state, frame 0 next), forgetting setpoints and holds;
+- 'clock' (args: pace=float): change the pace.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from typing import Any
+
+from cinetransfer.shared import keys
+from cinetransfer.shared import messages as M
+
+log = logging.getLogger("cinetransfer.autopilot_bridge.clock")
+
+CLOCK_ACTIONS = ("reset", "clock")
+
+
+def step_stamp_ns(epoch_ns: int, step: int, period_ns: int) -> int:
+    """Simulation time of a step: exact integer arithmetic, no accumulated rounding."""
+    return epoch_ns + step * period_ns
+
+
+def substeps(period_s: float, rate_hz: float) -> int:
+    """Control sub-ticks per clock step so that the safety layer still runs near `rate_hz`."""
+    return max(1, int(round(period_s * rate_hz)))
+
+
+def parse_reset(args: dict[str, Any]) -> tuple[int, float | None, float | None]:
+    """(epoch_ns, fps or None, pace or None) of a 'reset' command; ValueError naming the bad argument."""
+    epoch = args.get("epoch_ns")
+    if isinstance(epoch, bool) or not isinstance(epoch, int) or epoch < 0:
+        raise ValueError(f"reset: epoch_ns must be an integer >= 0, got {epoch!r}")
+    fps = _opt_number(args, "fps", 1.0, 240.0)
+    pace = _opt_number(args, "pace", 0.0, 1000.0)
+    return epoch, fps, pace
+
+
+def _opt_number(args: dict[str, Any], name: str, lo: float, hi: float) -> float | None:
+    v = args.get(name)
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
+        raise ValueError(f"{name} must be a number in [{lo:g}, {hi:g}], got {v!r}")
+    return float(v)
+
+
+class PlannerPresence:
+    """Whether a planner is alive on the rig (Zenoh liveliness): only then does a step wait."""
+
+    def __init__(self, session: Any, rig: str) -> None:
+        self.alive = False
+        key = keys.alive(rig, "planner")
+        self._sub = session.liveliness().declare_subscriber(key, self._on, history=True)
+
+    def _on(self, sample: Any) -> None:  # Zenoh thread: only flips a flag
+        import zenoh
+
+        self.alive = sample.kind == zenoh.SampleKind.PUT
+
+    def undeclare(self) -> None:
+        self._sub.undeclare()
+
+
+class SimClockLoop:
+    """Runs the bridge on simulation time (see the module doc)."""
+
+    def __init__(self, node: Any, cfg: Any, bridge: Any) -> None:
+        self.node, self.cfg, self.bridge = node, cfg, bridge
+        self.backend = bridge.backend
+        self.period_ns = int(round(cfg.step_s * 1e9))
+        self.n_sub = substeps(cfg.step_s, cfg.rate_hz)
+        self.pace = cfg.pace
+        self.clock_pub = node.publisher(keys.SIM_CLOCK)
+        self.planner = PlannerPresence(node.session, node.rig)
+        self.counters = {"sim_steps": 0, "sim_time_s": 0.0, "setpoint_waits_timed_out": 0, "sp_stale": 0,
+                         "resets": 0, "frames_published": 0, "lockstep": False}
+        self._begin(int(self.backend._epoch_ns or M.now_ns()))
+
+    def _begin(self, epoch_ns: int) -> None:
+        self.epoch_ns = epoch_ns
+        self.step = 0
+        self.backend.step(0.0)  # time zero: frame 0 is rendered from the initial state
+        self._pace_origin = (time.monotonic(), 0)
+
+    def run(self) -> None:
+        try:
+            while self.node.running:
+                self.run_step()
+        finally:
+            self.planner.undeclare()
+
+    def now_ns(self) -> int:
+        return step_stamp_ns(self.epoch_ns, self.step, self.period_ns)
+
+    def run_step(self) -> None:
+        node, bridge = self.node, self.bridge
+        t_ns = self.now_ns()
+        node.clock_ns = t_ns
+        lockstep = self.planner.alive
+        with node.timed():
+            bridge.publish_state(t_ns)
+            self.clock_pub.put(M.SimClock(stamp_ns=t_ns, epoch_ns=self.epoch_ns, step=self.step,
+                                          period_s=self.period_ns * 1e-9, lockstep=lockstep, pace=self.pace))
+            self.counters["frames_published"] += self._frames()
+        sps = self._await_setpoint(t_ns) if lockstep else bridge.sp_in.drain()
+        with node.timed():
+            if self._commands():  # a reset starts this step over at the new time zero
+                return
+            t_s = self._sim_s(t_ns)
+            bridge.handle_setpoints(sps, t_s)
+            h = self.period_ns * 1e-9 / self.n_sub
+            for j in range(self.n_sub):
+                bridge.control(t_s + j * h, step_to=self._sim_s(t_ns) + (j + 1) * h)
+        self.step += 1
+        bridge.ticks += 1
+        self.counters.update(sim_steps=self.counters["sim_steps"] + 1, sim_time_s=round(self._sim_s(t_ns), 3),
+                             lockstep=lockstep)
+        bridge.update_health()
+        node.counters.update(self.counters, pace=self.pace)
+        self._wait_for_pace()
+
+    def _sim_s(self, t_ns: int) -> float:
+        return (t_ns - self.epoch_ns) * 1e-9
+
+    def _frames(self) -> int:
+        self.backend.flush()
+        return self.bridge.publish_frames()
+
+    def _await_setpoint(self, t_ns: int) -> list[M.Setpoint]:
+        """The planner's setpoint for this step (older ones are stale; a wall timeout is counted)."""
+        deadline = time.monotonic() + self.cfg.setpoint_wait_s
+        while self.node.running:
+            sp = self.bridge.sp_in.get(timeout=max(0.0, min(0.2, deadline - time.monotonic())))
+            if sp is not None and sp.stamp_ns == t_ns:
+                return [sp]
+            if sp is not None and sp.stamp_ns < t_ns:
+                self.counters["sp_stale"] += 1
+            elif sp is not None:
+                self.node.reject(f"setpoint stamped {sp.stamp_ns} is ahead of the simulation clock {t_ns}")
+            if time.monotonic() >= deadline or not self.planner.alive:
+                break
+        if self.node.running and self.planner.alive:
+            self.counters["setpoint_waits_timed_out"] += 1
+            self.node.error(f"no setpoint for simulation step {self.step} within {self.cfg.setpoint_wait_s:g} s",
+                            "clock")
+        return []
+
+    def _commands(self) -> bool:
+        """Handle clock commands; pass the rest to the bridge. True if the simulation was reset."""
+        passed, reset = [], False
+        for cmd in self.bridge.cmd_in.drain():
+            if cmd.action not in CLOCK_ACTIONS:
+                passed.append(cmd)
+                continue
+            try:
+                reset = self._clock_command(cmd) or reset
+            except ValueError as e:
+                self.node.reject(str(e))
+        self.bridge.handle_commands(passed)
+        return reset
+
+    def _clock_command(self, cmd: M.Command) -> bool:
+        if cmd.action == "clock":
+            pace = _opt_number(cmd.args, "pace", 0.0, 1000.0)
+            if pace is None:
+                raise ValueError("clock: pace is required")
+            self.pace = pace
+            self._pace_origin = (time.monotonic(), self.step)
+            return False
+        epoch, fps, pace = parse_reset(cmd.args)
+        if pace is not None:
+            self.pace = pace
+        self.backend.reset(epoch, fps)
+        self.bridge.reset_core()
+        self.counters["resets"] += 1
+        log.info("simulation reset: time zero = %d ns, camera %.3g fps, pace %g", epoch, self.backend.fps, self.pace)
+        self._begin(epoch)
+        return True
+
+    def _wait_for_pace(self) -> None:
+        if self.pace <= 0:
+            return
+        wall0, step0 = self._pace_origin
+        due = wall0 + (self.step - step0) * self.period_ns * 1e-9 / self.pace
+        delay = due - time.monotonic()
+        if delay < -1.0:  # far behind (slow renders): don't burst to catch up
+            self._pace_origin = (time.monotonic(), self.step)
+        elif delay > 0:
+            self.node.sleep(delay)
