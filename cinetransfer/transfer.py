@@ -175,6 +175,11 @@ def fly_realtime(style: M.Instructions, rec: Recorder, cond: Conductor, *, prero
     return {"clock": "wall (real time)"}
 
 
+def _already_stopping(_signum, _frame) -> None:
+    print("cinetransfer transfer: already stopping (vehicle told to hold); saving the recording ...",
+          file=sys.stderr)
+
+
 def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: float, realtime: bool,
         stall_s: float, meta: dict) -> Recorder:
     """Publish the instructions, fly and record the take, stop. Ctrl-C stops the vehicle too."""
@@ -187,10 +192,12 @@ def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: fl
         meta.update(how)
     except KeyboardInterrupt:
         rec.interrupted = True
+        # from here on Ctrl-C only says what is happening: the vehicle is told to hold, the nodes
+        # are stopped and the recording saved whatever the user presses
+        signal.signal(signal.SIGINT, _already_stopping)
         log.warning("interrupted: stopping the vehicle and keeping what was recorded")
     finally:
-        # a second Ctrl-C must not cut the stop short: the vehicle is told to hold first
-        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)  # the stop is never cut short
         try:
             cond.stop(sim_time=not realtime)
             time.sleep(0.3)
