@@ -48,6 +48,25 @@ def _round_list(a: np.ndarray, digits: int = 5) -> list[float | None]:
     return [None if not math.isfinite(float(x)) else round(float(x), digits) for x in np.asarray(a, float)]
 
 
+def recording_facts(meta: dict[str, Any]) -> dict[str, Any]:
+    """How the output was recorded, including whatever makes its numbers look better than a
+    user's case would (repeated frames, a short take): stated, never hidden."""
+    k = meta.get("instruction_frames")
+    rep = int(meta.get("repeated_frames") or 0)
+    facts = {"clock": meta.get("clock_mode", "unknown"), "instruction_frames": k,
+             "recorded_frames": meta.get("recorded_frames"), "repeated_frames": rep,
+             "repeated_share": round(rep / k, 4) if k else None, "missing_frames": meta.get("missing_frames", 0)}
+    notes = []
+    if rep:
+        notes.append(f"{rep} of {k} output frames ({rep / k:.1%}) repeat the previous frame (real-time "
+                     "recording: the simulator could not render them in time); the scores include them, "
+                     "shaded on the time plots")
+    if k and (meta.get("recorded_frames") or 0) < k:
+        notes.append(f"the take is short: {meta.get('recorded_frames')} of {k} instruction frames recorded")
+    facts["notes"] = notes
+    return facts
+
+
 def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLike | None,
                  truths: Sequence[M.GroundTruth], source_video: Path | str | None,
                  output_video: Path | str | None, meta: dict[str, Any] | None = None,
@@ -87,7 +106,8 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
                              output_missing_reason=reason)
     credit = str(meta.get("credit") or figs.credit_for(source_video))
     figures, fig_errors = figs.make_figures(outdir, fid.series, source_video=source_video,
-                                            output_video=output_video, credit=credit)
+                                            output_video=output_video, credit=credit,
+                                            repeated_slots=meta.get("repeated_slots") or ())
 
     s = fid.series
     summary: dict[str, Any] = {
@@ -101,6 +121,7 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
                    "output_video_info": vinfo, "source": {"path": source.source.path, "fps": source.fps,
                                                           "frames": int(source.image_targets.shape[0])}},
         "credit": credit,
+        "recording": recording_facts(meta),
         "figures": sorted(figures),
         "figure_errors": fig_errors,
         "per_frame": {"t_s": _round_list(s["t_s"], 4), "source_row": [int(x) for x in s["k"]],

@@ -224,6 +224,7 @@ def fig_joints(path: Path, series: dict[str, Any]) -> Path:
             ax.set_ylabel(f"{name}\n{'x' if a == 0 else 'y (down)'}", fontsize=8)
             ax.tick_params(labelsize=7)
             ax.grid(alpha=0.3)
+            _mark_repeats(ax, series)
             vals = np.concatenate(shown)
             vals = vals[np.isfinite(vals)]
             if vals.size:
@@ -244,6 +245,15 @@ def fig_joints(path: Path, series: dict[str, Any]) -> Path:
 
 
 _STRIP_ABSENT, _STRIP_OUT, _STRIP_IN = 0, 1, 2
+
+
+def _mark_repeats(ax: Any, series: dict[str, Any]) -> None:
+    """Shade the output frames that repeat the previous one (real-time recordings only)."""
+    t = series["t_s"]
+    half = 0.5 * float(t[1] - t[0]) if len(t) > 1 else 0.02
+    for j in series.get("repeated_slots", ()):
+        if 0 <= j < len(t):
+            ax.axvspan(t[j] - half, t[j] + half, color="#f0a000", alpha=0.25, lw=0)
 
 
 def _strip_values(tr: F.Track, r: int) -> np.ndarray:
@@ -292,6 +302,7 @@ def fig_focus(path: Path, series: dict[str, Any]) -> Path:
         ax.set_ylabel(f"{region}\nfocused fraction", fontsize=8)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
+        _mark_repeats(ax, series)
         if r == 0:
             handles, labels = ax.get_legend_handles_labels()
             fig.legend(handles, labels, loc="lower center", bbox_to_anchor=(0.5, 0.915), ncol=5, fontsize=8,
@@ -329,6 +340,7 @@ def fig_error(path: Path, series: dict[str, Any]) -> Path:
     ax.set_ylim(0, max(1.15 * F.EXTRACTION_JOINT_ERROR_MAX, 1.1 * float(errs.max()) if errs.size else 0.0))
     ax.tick_params(labelsize=7)
     ax.grid(alpha=0.3)
+    _mark_repeats(ax, series)
     ax.legend(fontsize=7, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=4, frameon=False)
     sx = fig.add_subplot(gs[1], sharex=ax)
     rows = []
@@ -356,9 +368,12 @@ FIGURES = (("fig_frames.png", "Sampled frames"), ("fig_joints.png", "Controlled 
 
 
 def make_figures(outdir: Path, series: dict[str, Any], *, source_video: str | Path | None,
-                 output_video: str | Path | None, credit: str = "") -> tuple[dict[str, Path], dict[str, str]]:
+                 output_video: str | Path | None, credit: str = "",
+                 repeated_slots: Sequence[int] = ()) -> tuple[dict[str, Path], dict[str, str]]:
     """Every figure into outdir; returns ({file name: path}, {file name: error}). One failing
-    figure is logged and reported, never fatal for the others or the report."""
+    figure is logged and reported, never fatal for the others or the report. Output frames in
+    `repeated_slots` (repeats of the previous frame) are shaded on the time plots."""
+    series = {**series, "repeated_slots": list(repeated_slots)}
     done: dict[str, Path] = {}
     errors: dict[str, str] = {}
     makers = {"fig_frames.png": lambda p: fig_frames(p, series, source_video=source_video,

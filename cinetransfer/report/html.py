@@ -201,6 +201,9 @@ def render_html(summary: dict[str, Any], figures: dict[str, Path], *, meta: dict
         m = summary.get(measure) or {}
         if not m.get("available"):
             warn.append(f"<div class='card warn'><b>{what}: not available.</b> {_e(m.get('reason') or '')}</div>")
+    rec = summary.get("recording") or {}
+    for note in rec.get("notes", []):
+        warn.append(f"<div class='card warn'><b>Recording:</b> {_e(note)}</div>")
     al = summary.get("alignment", {})
     al_rows = {"source frames (instructions)": al.get("source_frames"),
                "output frames": al.get("output_frames"),
@@ -210,7 +213,12 @@ def render_html(summary: dict[str, Any], figures: dict[str, Path], *, meta: dict
                "alignment": ("output frame i follows instruction row i" if al.get("mode") == "index"
                              else "by time: row k = round(t · source fps)"),
                "output extraction rows": al.get("output_extraction_frames"),
-               "truth records": al.get("truth_frames")}
+               "truth records": al.get("truth_frames"),
+               "recording clock": {"lockstep": "simulation time (lockstep): every frame its own render",
+                                   "realtime": "wall clock (real time): late frames repeated"}.get(
+                                       rec.get("clock"), rec.get("clock")),
+               "repeated output frames": (f"{rec.get('repeated_frames')} ({_pct(rec.get('repeated_share'))})"
+                                          if rec else None)}
     figs = []
     for name, heading in FIGURES:
         if name in figures and Path(figures[name]).is_file():

@@ -18,6 +18,7 @@ and planner give the same flight and the same frames. Bridge commands handled he
 """
 from __future__ import annotations
 
+import collections
 import logging
 import math
 import time
@@ -90,6 +91,7 @@ class SimClockLoop:
         self.planner = PlannerPresence(node.session, node.rig)
         self.counters = {"sim_steps": 0, "sim_time_s": 0.0, "setpoint_waits_timed_out": 0, "sp_stale": 0,
                          "resets": 0, "frames_published": 0, "lockstep": False}
+        self._step_ms: collections.deque[float] = collections.deque(maxlen=2000)
         self._begin(int(self.backend._epoch_ns or M.now_ns()))
 
     def _begin(self, epoch_ns: int) -> None:
@@ -111,6 +113,7 @@ class SimClockLoop:
     def run_step(self) -> None:
         node, bridge = self.node, self.bridge
         t_ns = self.now_ns()
+        t_wall = time.perf_counter()
         node.clock_ns = t_ns
         lockstep = self.planner.alive
         with node.timed():
@@ -132,6 +135,9 @@ class SimClockLoop:
         self.counters.update(sim_steps=self.counters["sim_steps"] + 1, sim_time_s=round(self._sim_s(t_ns), 3),
                              lockstep=lockstep)
         bridge.update_health()
+        self._step_ms.append((time.perf_counter() - t_wall) * 1e3)
+        ms = sorted(self._step_ms)
+        self.counters["step_wall_ms_p50"] = round(ms[len(ms) // 2], 2)
         node.counters.update(self.counters, pace=self.pace)
         self._wait_for_pace()
 

@@ -15,6 +15,7 @@ declares itself ready.
 from __future__ import annotations
 
 import argparse
+import collections
 import logging
 import sys
 import time
@@ -95,7 +96,9 @@ class PlannerShell:
         self.pub = node.publisher(keys.SETPOINT)
         self.latest: dict[str, Any] = {"ins": None, "veh": None, "sub": None}
         self.sim_time = False
-        self.counters = {"clock_ticks": 0, "state_waits_timed_out": 0}
+        self.counters: dict[str, Any] = {"clock_ticks": 0, "state_waits_timed_out": 0}
+        self.solve_ms: collections.deque[float] = collections.deque(maxlen=5000)
+        self._solves_seen = 0
 
     def run(self) -> None:
         period = 1.0 / self.cfg.rate_hz
@@ -164,6 +167,12 @@ class PlannerShell:
         with node.timed():
             sp = planner.step(now, latest["ins"], latest["veh"], latest["sub"])
         self.pub.put(sp)
+        if planner.last_result is not None and planner.counters["solves"] != self._solves_seen:
+            self._solves_seen = planner.counters["solves"]
+            self.solve_ms.append(planner.last_result.wall_s * 1e3)
+            ms = sorted(self.solve_ms)
+            self.counters.update(solve_ms_p50=round(ms[len(ms) // 2], 2),
+                                 solve_ms_p95=round(ms[min(len(ms) - 1, int(0.95 * len(ms)))], 2))
         node.counters.update(planner.counters)
         node.counters.update(self.counters, sim_time=self.sim_time)
         node.healthy = bool(sp.valid)

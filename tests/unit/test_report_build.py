@@ -248,3 +248,26 @@ def test_report_command_is_registered(tmp_path):
     html = (tmp_path / "o" / "report.html").read_text(encoding="utf-8")
     assert "src='fig_joints.png'" in html  # linked, not embedded
     assert (tmp_path / "o" / "fig_joints.png").is_file()
+
+
+def test_repeated_frames_are_stated_in_the_report(tmp_path):
+    # given a real-time recording where 3 of the output frames repeat the previous one
+    src, out, truths, sv, ov = _run(tmp_path)
+    meta = {"scene": "park", "fps": 24.0, "clock_mode": "realtime", "instruction_frames": K, "recorded_frames": K,
+            "repeated_frames": 3, "repeated_slots": [4, 5, 20]}
+    summary = build_report(tmp_path / "rep", source_style=src, output_style=out, truths=truths, source_video=sv,
+                           output_video=ov, meta=meta)
+    # then report.json and report.html say so: count, share, clock
+    rec = _strict_json(tmp_path / "rep" / "report.json")["recording"]
+    assert rec["repeated_frames"] == 3 and rec["repeated_share"] == pytest.approx(3 / K, abs=1e-4)
+    assert rec["clock"] == "realtime" and "repeat the previous frame" in rec["notes"][0]
+    html = (tmp_path / "rep" / "report.html").read_text()
+    assert "3 of 36 output frames (8.3%) repeat the previous frame" in html
+    assert "wall clock (real time)" in html
+    assert summary["recording"] == rec
+    # and a lockstep recording carries no such note
+    meta.update(clock_mode="lockstep", repeated_frames=0, repeated_slots=[])
+    s2 = build_report(tmp_path / "rep2", source_style=src, output_style=out, truths=truths, source_video=sv,
+                      output_video=ov, meta=meta)
+    assert s2["recording"]["notes"] == [] and "repeat the previous frame" not in \
+        (tmp_path / "rep2" / "report.html").read_text()
