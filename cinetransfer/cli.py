@@ -17,6 +17,8 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "planner": ("cinetransfer.services.planner.service", "main", "run the planner (MPC) node"),
     "autopilot_bridge": ("cinetransfer.services.autopilot_bridge.service", "main",
                          "run the vehicle bridge node (built-in simulator or MAVLink)"),
+    "source": ("cinetransfer.services.source.service", "main",
+               "play a source clip into the dataflow (frames never dropped)"),
     "camera": ("cinetransfer.services.autopilot_bridge.camera_node", "main",
                "publish frames from a video device, file or RTSP URL"),
     "sim-vehicle": ("cinetransfer.services.autopilot_bridge.sim_vehicle", "main",

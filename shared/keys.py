@@ -58,11 +58,22 @@ SMOOTHER_COMMAND = Topic("smoother", "command", M.Command, "operator / transfer 
 SIM_TRUTH = Topic("sim", "truth", M.GroundTruth, "autopilot_bridge (sim backend)", 24.0, "no-drop",
                   "exact ground truth of each rendered frame")
 
+SOURCE_FRAME = Topic("source", "frame", M.Frame, "source", 24.0, "no-drop",
+                     "frames of the source clip whose style is imitated (never dropped: credit flow control)")
+SOURCE_COMMAND = Topic("source", "command", M.Command, "operator / transfer", 0.0, "no-drop",
+                       "'play' (args: path, stop) or 'stop' the source clip")
+SOURCE_END = Topic("source", "end", M.StreamEnd, "source", 0.0, "no-drop",
+                   "end of the source clip's frames (how many were sent)")
+DETECTOR_END = Topic("detector", "end", M.StreamEnd, "detector", 0.0, "no-drop",
+                     "end of the measurements of one source stream (after its last frame)")
+OUTPUT_MEASUREMENT = Topic("output", "measurement", M.Measurement, "detector --input camera", 24.0, "drop-oldest",
+                           "live measurements of the drone's own camera (output-style view; never feeds the planner)")
 SIM_CLOCK = Topic("sim", "clock", M.SimClock, "autopilot_bridge (sim backend)", 20.0, "no-drop",
                   "simulation time: one tick per control step; nodes that see it take 'now' from it")
 
 TOPICS: tuple[Topic, ...] = (FRAME, MEASUREMENT, INSTRUCTIONS, SETPOINT, PLANNER_COMMAND, VEHICLE_STATE,
-                             SUBJECT_STATE, BRIDGE_COMMAND, SIM_TRUTH, SMOOTHER_COMMAND, SIM_CLOCK)
+                             SUBJECT_STATE, BRIDGE_COMMAND, SIM_TRUTH, SMOOTHER_COMMAND, SIM_CLOCK,
+                             SOURCE_FRAME, SOURCE_COMMAND, SOURCE_END, DETECTOR_END, OUTPUT_MEASUREMENT)
 
 
 def health(rig: str, node: str) -> str:

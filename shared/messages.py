@@ -289,6 +289,20 @@ class Health:
 
 
 @dataclass(frozen=True, eq=False)
+class StreamEnd:
+    """End of a stream (source frames, or the measurements made of them): what was sent and why
+    it ended. Receivers finish the sequence once they hold `frames` items of it."""
+
+    SCHEMA_VERSION: ClassVar[int] = 1
+    stamp_ns: int = doc("time the stream ended [ns]", 0)
+    seq: int = doc("sequence number", 0)
+    valid: bool = doc("False: the stream ended on an error (see reason); what was sent is still good", True)
+    source: SourceInfo = doc("the source the stream came from", default_factory=SourceInfo)
+    frames: int = doc("items sent on the stream (frames or measurements)", 0)
+    reason: str = doc("'end of file', 'stop requested', 'error: ...'", "")
+
+
+@dataclass(frozen=True, eq=False)
 class SimClock:
     """One step of the simulation clock (published by the simulator bridge, lockstep mode).
 
@@ -338,7 +352,7 @@ class GroundTruth:
 MESSAGE_TYPES: dict[str, type] = {
     cls.__name__: cls
     for cls in (Frame, Measurement, Instructions, Setpoint, VehicleState, SubjectState, Command, Health,
-                GroundTruth, SimClock)
+                GroundTruth, SimClock, StreamEnd)
 }
 
 #: Types that appear only inside other messages.

@@ -132,6 +132,11 @@ class Inbox:
             if msg is not None:
                 return msg
 
+    def get_all(self, timeout: float) -> list[Any]:
+        """Wait up to `timeout` for something, then every queued valid message, oldest first."""
+        first = self.get(timeout)
+        return [] if first is None else [first, *self.drain()]
+
     def drain(self) -> list[Any]:
         """Every queued valid message, oldest first."""
         out = []

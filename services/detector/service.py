@@ -1,15 +1,20 @@
 """`cinetransfer detector --rig R`: the detector node.
 
-Input: Frames on `ct/{rig}/camera/frame` (default), or a file given with `--video PATH` /
-`--images DIR`, whose frames it then also publishes on `ct/{rig}/camera/frame` for the
-monitor and other nodes (no subscription to frames in that mode).
-Output: one Measurement per processed frame on `ct/{rig}/detector/measurement`.
-
-Keeping up: frames arrive in a small drop-oldest queue (`--queue`, default 2); when processing
-is slower than the camera, the node takes the newest frame and skips the older ones. Every
-skipped frame is counted (`frames_skipped` in the Health counters, and queue overflows in
-Health.dropped), so the backlog never grows and the loss is visible. Gaps in the incoming frame indices (frames
-lost before they reached the node) are counted as `frames_missing_upstream`.
+Inputs (`--input`):
+- `source` (default): the source clip's frames on `ct/{rig}/source/frame` (from `cinetransfer
+  source`). Every frame is measured, in order: none is skipped (the source only sends as many as
+  the detector has credit for). When the source's StreamEnd arrives on `ct/{rig}/source/end`,
+  the detector finishes the frames it holds and publishes its own StreamEnd on
+  `ct/{rig}/detector/end` (the smoother then publishes the whole-sequence instructions).
+  Output: one Measurement per frame on `ct/{rig}/detector/measurement`.
+- `camera`: the drone's own camera on `ct/{rig}/camera/frame`, for a live view of the output's
+  style; measurements go to `ct/{rig}/output/measurement` and never feed the smoother or the
+  planner. Frames arrive in a small drop-oldest queue (`--queue`, default 2): when processing is
+  slower than the camera the newest frame is taken and the older ones skipped, every skip
+  counted (`frames_skipped`, Health.dropped); gaps in the incoming indices are counted as
+  `frames_missing_upstream`.
+- a file given with `--video PATH` / `--images DIR`: this process plays and measures it (its
+  frames are also published on `ct/{rig}/source/frame` unless `--no-publish-frames`).
 """
 from __future__ import annotations
 
@@ -42,7 +47,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--wait-subscriber", type=float, default=3.0, metavar="S",
                     help="(--video/--images) wait up to S seconds for a measurement subscriber before "
                          "starting (default %(default)s)")
-    ap.add_argument("--queue", type=int, default=2, help="frame queue length (drop-oldest, default %(default)s)")
+    ap.add_argument("--input", choices=("source", "camera"), default="source",
+                    help="frames to measure: the source clip (default) or the drone's camera (live output view)")
+    ap.add_argument("--queue", type=int, default=2,
+                    help="(--input camera) frame queue length (drop-oldest, default %(default)s)")
     add_config_arguments(ap)
     return ap
 
@@ -73,8 +81,8 @@ class _Stats:
         return (len(self.win) - 1) / span if span > 0 else 0.0
 
 
-def _process(node, det, pub, stats: _Stats, frame: M.Frame) -> None:
-    """Measure one frame and publish; a failure is counted and logged, never fatal."""
+def _process(node, det, pub, stats: _Stats, frame: M.Frame) -> bool:
+    """Measure one frame and publish (True); a failure is counted and logged, never fatal."""
     t = time.perf_counter()
     try:
         m = det.process(frame.image, frame.index, frame.stamp_ns, source=frame.source, fps=frame.fps,
@@ -83,7 +91,7 @@ def _process(node, det, pub, stats: _Stats, frame: M.Frame) -> None:
         stats.errors += 1
         node.counters["errors"] = stats.errors
         node.error(f"frame #{frame.index}: {type(e).__name__}: {e}", "process")
-        return
+        return False
     node.record_latency_ms((time.perf_counter() - t) * 1e3)
     pub.put(m)
     stats.processed += 1
@@ -91,6 +99,7 @@ def _process(node, det, pub, stats: _Stats, frame: M.Frame) -> None:
     stats.win.append(time.monotonic())
     node.counters.update(frames_processed=stats.processed, frames_skipped=stats.skipped,
                          people_last=len(m.people), fps=round(stats.fps(), 2), last_frame=frame.index)
+    return True
 
 
 def _wait_matching(node, pub, timeout_s: float) -> None:
@@ -112,7 +121,7 @@ def run_file(node, det, args, stats: _Stats) -> int:
 
     path = args.video or args.images
     pub = node.publisher(keys.MEASUREMENT)
-    fpub = None if args.no_publish_frames else node.publisher(keys.FRAME)
+    fpub = None if args.no_publish_frames else node.publisher(keys.SOURCE_FRAME)
     node.ready()
     _wait_matching(node, pub, args.wait_subscriber)
     t_start = None
@@ -142,9 +151,44 @@ def run_file(node, det, args, stats: _Stats) -> int:
     return 0
 
 
+def run_source(node, det, args, stats: _Stats) -> int:
+    """Measure every source frame in order; close each stream with a StreamEnd of our own."""
+    frames = node.subscribe(keys.SOURCE_FRAME, policy="no-drop")
+    ends = node.subscribe(keys.SOURCE_END)
+    pub = node.publisher(keys.MEASUREMENT, block=True)
+    end_pub = node.publisher(keys.DETECTOR_END)
+    done: dict[str, int] = {}  # measurements published per source path
+    node.ready()
+    while node.running:
+        node.wait(0.2)
+        for frame in frames.drain():
+            stats.note_frames([frame])
+            if _process(node, det, pub, stats, frame):
+                done[frame.source] = done.get(frame.source, 0) + 1
+        for end in ends.drain():
+            _finish_stream(node, frames, pub, end_pub, det, stats, done, end)
+    return 0
+
+
+def _finish_stream(node, frames, pub, end_pub, det, stats: _Stats, done: dict[str, int], end: M.StreamEnd) -> None:
+    """The source ended: measure what is still queued (frames travel ahead of the end but on
+    another key), then say how many measurements this stream produced."""
+    path = end.source.path
+    deadline = time.monotonic() + 5.0
+    while done.get(path, 0) + stats.errors < end.frames and time.monotonic() < deadline and node.running:
+        for frame in frames.get_all(0.1):
+            if _process(node, det, pub, stats, frame):
+                done[frame.source] = done.get(frame.source, 0) + 1
+    n = done.pop(path, 0)
+    end_pub.put(M.StreamEnd(stamp_ns=end.stamp_ns, valid=end.valid and n == end.frames, source=end.source,
+                            frames=n, reason=end.reason if n == end.frames else
+                            f"{end.reason}; {end.frames - n} of {end.frames} frames not measured"))
+    node.log.info("end of %s: %d of %d frames measured (%s)", path, n, end.frames, end.reason)
+
+
 def run_subscriber(node, det, args, stats: _Stats) -> int:
     inbox = node.subscribe(keys.FRAME, maxlen=max(1, args.queue), policy="drop-oldest")
-    pub = node.publisher(keys.MEASUREMENT)
+    pub = node.publisher(keys.OUTPUT_MEASUREMENT)
     node.ready()
     while node.running:
         node.wait(0.2)
@@ -186,6 +230,8 @@ def main(argv: list[str]) -> int:
                                  frames_missing_upstream=0)
             if args.video or args.images:
                 return run_file(node, det, args, stats)
+            if args.input == "source":
+                return run_source(node, det, args, stats)
             return run_subscriber(node, det, args, stats)
     finally:
         det.close()

@@ -2,10 +2,12 @@
 
     cinetransfer smoother --rig R [--window 10] [--publish-period 0.25] [--end-idle 3] [zenoh flags]
 
-Keys: subscribes `ct/{rig}/detector/measurement` (no-drop) and `ct/{rig}/smoother/command`
-(no-drop); publishes `ct/{rig}/smoother/instructions`. End of stream = a Command 'end' on the
-command key, `--end-idle` seconds without measurements, a measurement of another source, or
-SIGINT/SIGTERM (the final result is published before exiting). See README.md.
+Keys: subscribes `ct/{rig}/detector/measurement` (no-drop), `ct/{rig}/detector/end` (the
+detector's StreamEnd after a source's last frame) and `ct/{rig}/smoother/command` (no-drop);
+publishes `ct/{rig}/smoother/instructions`: streaming windows while measurements arrive, then the
+whole sequence (final=True, with the source's SourceInfo). End of stream = the detector's
+StreamEnd, a Command 'end' on the command key, `--end-idle` seconds without measurements, a
+measurement of another source, or SIGINT/SIGTERM (the final result is published before exiting).
 """
 from __future__ import annotations
 
@@ -53,16 +55,17 @@ def main(argv: list[str]) -> int:
     with node:
         inbox = node.subscribe(keys.MEASUREMENT, policy="no-drop")
         commands = node.subscribe(keys.SMOOTHER_COMMAND, policy="no-drop")
+        ends = node.subscribe(keys.DETECTOR_END)
         pub = node.publisher(keys.INSTRUCTIONS)
         node.ready()
         last_pub = 0.0
 
-        def finish(reason: str) -> None:
+        def finish(reason: str, source: M.SourceInfo | None = None) -> None:
             if not len(state):
                 return
             try:
                 with node.timed():
-                    ins = state.final()
+                    ins = state.final(source)
                 pub.put(ins)
                 node.log.info("end of stream (%s): published the whole sequence, %d frames", reason,
                               ins.image_targets.shape[0])
@@ -87,6 +90,9 @@ def main(argv: list[str]) -> int:
                     state.reset()
                 else:
                     node.reject(f"unknown smoother command {cmd.action!r} (use 'end' or 'reset')")
+            for end in ends.drain():
+                _await_stream(node, inbox, state, end, finish)
+                finish(f"end of stream: {end.reason}", source=end.source)
             for m in inbox.drain():
                 _ingest(node, state, m, finish)
             now = time.monotonic()
@@ -102,6 +108,19 @@ def main(argv: list[str]) -> int:
         finish("shutdown")
         update_counters()
     return 0
+
+
+def _await_stream(node, inbox, state: StreamState, end: M.StreamEnd, finish, wait_s: float = 5.0) -> None:
+    """Take the stream's measurements still in flight (they travel on another key than its end)."""
+    deadline = time.monotonic() + wait_s
+    while node.running:
+        for m in inbox.drain():
+            _ingest(node, state, m, finish)
+        if len(state) >= end.frames or time.monotonic() > deadline:
+            break
+        node.wait(0.05)
+    if len(state) < end.frames:
+        node.error(f"end of {end.source.path}: {len(state)} of {end.frames} measurements arrived", "final")
 
 
 def _ingest(node, state: StreamState, m: M.Measurement, finish) -> None:

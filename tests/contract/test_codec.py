@@ -45,6 +45,8 @@ def sample_messages():
                         joints_visible=np.ones(17, bool), subject_distance_m=5.0, dof_near_m=4.0,
                         region_present=np.array([True, True, False]), region_in_focus=np.array([False, True, False]),
                         region_focus_fraction=np.array([0.1, 0.9, np.nan], np.float32))
+    yield M.StreamEnd(source=M.SourceInfo(path="a.mp4", width=640, height=360, fps=24.0, n_frames=5), frames=5,
+                      reason="end of file")
     yield M.SimClock(stamp_ns=5_000_000_050, epoch_ns=5_000_000_000, step=1, period_s=0.05, lockstep=True, pace=0.0)
 
 
