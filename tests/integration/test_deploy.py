@@ -87,3 +87,66 @@ def test_deploy_local_real_nodes_restart_and_down(port, tmp_path):
 
     restart_s = run_supervised(resolve_config_path("local"), port, tmp_path, "smoother")
     assert restart_s < 5.0
+
+
+def test_concurrent_up_runs_one_deployment_and_down_from_elsewhere_stops_it(port, tmp_path, monkeypatch):
+    """Two `up` at once: one wins, the other is refused; the run folder does not depend on the
+    working directory, so `status` and `down` from another folder find every process."""
+    from cinetransfer.deploy.supervisor import resolve_run_dir, running_procs
+
+    state_home = tmp_path / "state"
+    env = {**os.environ, "CT_ROUTER_PORT": str(port), "CT_STATE_DIR": str(state_home)}
+    env.pop("CT_SECRETS", None)
+    here, elsewhere = tmp_path / "a", tmp_path / "b"
+    here.mkdir()
+    elsewhere.mkdir()
+    ups = [subprocess.Popen([sys.executable, "-m", "cinetransfer", "deploy", "up", str(RELAYS)], env=env, cwd=here,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    outs = [p.communicate(timeout=150) for p in ups]
+    try:
+        codes = sorted(p.returncode for p in ups)
+        assert codes == [0, 1], outs
+        refused = next(err for p, (_, err) in zip(ups, outs) if p.returncode == 1)
+        assert "already running" in refused
+        cfg = load_config(str(RELAYS))
+        monkeypatch.setenv("CT_STATE_DIR", str(state_home))
+        run_dir = resolve_run_dir(cfg)
+        assert run_dir.is_relative_to(state_home)
+        procs = running_procs(run_dir)
+        # exactly one set: one supervisor, one router, one of each relay
+        assert sorted(procs.values()) == ["relay_a", "relay_b", "router", "supervisor"]
+        # a third `up`, from another folder, is refused too
+        again = deploy("up", str(RELAYS), env=env, cwd=elsewhere)
+        assert again.returncode == 1 and "already running" in again.stderr
+        st = deploy("status", str(RELAYS), env=env, cwd=elsewhere)
+        assert st.returncode == 0 and "relay_b" in st.stdout, st.stdout + st.stderr
+    finally:
+        down = deploy("down", str(RELAYS), env=env, cwd=elsewhere)
+    assert down.returncode == 0, down.stdout + down.stderr
+    assert "not running" not in down.stdout
+    assert running_procs(run_dir) == {}
+    assert not [p for p in procs if _pid_alive(p)]
+    st = deploy("status", str(RELAYS), env=env, cwd=elsewhere)
+    assert st.returncode == 3 and "not running" in st.stdout
+
+
+def test_down_finds_orphans_without_a_supervisor_or_state_file(port, tmp_path):
+    """If the supervisor dies (SIGKILL) and its state file is lost, `down` still stops the nodes."""
+    from cinetransfer.deploy.supervisor import running_procs
+
+    env = {**os.environ, "CT_ROUTER_PORT": str(port)}
+    run_dir = tmp_path / "run"
+    r = deploy("up", str(RELAYS), "--run-dir", str(run_dir), env=env, cwd=tmp_path)
+    assert r.returncode == 0, r.stdout + r.stderr
+    procs = running_procs(run_dir)
+    sup = next(p for p, n in procs.items() if n == "supervisor")
+    os.kill(sup, signal.SIGKILL)
+    wait_for(lambda: not _pid_alive(sup), timeout=30, what="supervisor gone")
+    (run_dir / "state.json").unlink(missing_ok=True)
+    st = deploy("status", str(RELAYS), "--run-dir", str(run_dir), env=env, cwd=tmp_path)
+    assert st.returncode == 1 and "NO SUPERVISOR" in st.stdout
+    up = deploy("up", str(RELAYS), "--run-dir", str(run_dir), env=env, cwd=tmp_path)
+    assert up.returncode == 1 and "still alive" in up.stderr
+    down = deploy("down", str(RELAYS), "--run-dir", str(run_dir), env=env, cwd=tmp_path)
+    assert down.returncode == 0, down.stdout + down.stderr
+    assert running_procs(run_dir) == {} and not [p for p in procs if _pid_alive(p)]
