@@ -110,6 +110,7 @@ def test_concurrent_up_runs_one_deployment_and_down_from_elsewhere_stops_it(port
         assert "already running" in refused
         cfg = load_config(str(RELAYS))
         monkeypatch.setenv("CT_STATE_DIR", str(state_home))
+        monkeypatch.setenv("CT_ROUTER_PORT", str(port))  # the config names the router by it
         run_dir = resolve_run_dir(cfg)
         assert run_dir.is_relative_to(state_home)
         procs = running_procs(run_dir)
@@ -120,6 +121,18 @@ def test_concurrent_up_runs_one_deployment_and_down_from_elsewhere_stops_it(port
         assert again.returncode == 1 and "already running" in again.stderr
         st = deploy("status", str(RELAYS), env=env, cwd=elsewhere)
         assert st.returncode == 0 and "relay_b" in st.stdout, st.stdout + st.stderr
+        # a tool joins the running deployment as an identity, found from the config alone, and
+        # messages flow through both relays under the deployment's access rules
+        from cinetransfer.shared import codec, messages as M, zenoh_config
+
+        got = []
+        with zenoh_config.open_as(str(RELAYS), "observer") as watcher, \
+                zenoh_config.open_as(str(RELAYS), "operator") as op:
+            sub = watcher.declare_subscriber("ct/t/b/out", lambda s: got.append(codec.decode(s.payload.to_bytes())))
+            wait_for(lambda: op.put("ct/t/a/in", codec.encode(M.Command(action="ping"))) or got, timeout=60,
+                     interval=0.2, what="a message through both relays")
+            sub.undeclare()
+        assert got[0].action == "ping"
     finally:
         down = deploy("down", str(RELAYS), env=env, cwd=elsewhere)
     assert down.returncode == 0, down.stdout + down.stderr
