@@ -510,7 +510,12 @@ def cmd_up(cfg: DeployConfig, run_dir: Path, wait: bool, foreground: bool) -> in
                 "--run-dir", str(run_dir), "--lock-fd", str(lock_fd)]
         env = {**os.environ, ENV_RUN_DIR: str(run_dir), ENV_PROC: "supervisor"}
         if foreground:
-            return subprocess.call(argv, pass_fds=(lock_fd,), env=env)
+            sup = subprocess.Popen(argv, pass_fds=(lock_fd,), env=env)
+            while True:
+                try:
+                    return sup.wait()
+                except KeyboardInterrupt:  # the supervisor got the same Ctrl-C and is stopping the nodes;
+                    continue  # killing it now (what subprocess.call does) would orphan them
         with open(run_dir / "supervisor.log", "ab") as logf:
             # The supervisor inherits the locked file: the lock lives exactly as long as it does.
             sup = subprocess.Popen(argv, stdout=logf, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,

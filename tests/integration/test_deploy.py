@@ -163,3 +163,28 @@ def test_down_finds_orphans_without_a_supervisor_or_state_file(port, tmp_path):
     down = deploy("down", str(RELAYS), "--run-dir", str(run_dir), env=env, cwd=tmp_path)
     assert down.returncode == 0, down.stdout + down.stderr
     assert running_procs(run_dir) == {} and not [p for p in procs if _pid_alive(p)]
+
+
+def test_foreground_ctrl_c_stops_every_process(port, tmp_path):
+    """Ctrl-C reaches `up --foreground` and its supervisor together; nothing may be orphaned."""
+    from cinetransfer.deploy.supervisor import running_procs
+
+    env = {**os.environ, "CT_ROUTER_PORT": str(port)}
+    run_dir = tmp_path / "run"
+    up = subprocess.Popen([sys.executable, "-m", "cinetransfer", "deploy", "up", str(RELAYS), "--run-dir", str(run_dir),
+                           "--foreground"], env=env, cwd=tmp_path, start_new_session=True,
+                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        cfg = load_config(str(RELAYS))
+        wait_for(lambda: {"relay_a", "relay_b"} <= (alive_nodes(f"tcp/127.0.0.1:{port}", cfg.rig, 0.5,
+                                                                secrets=run_dir / "secrets") or set()),
+                 timeout=60, what="relays alive")
+        procs = running_procs(run_dir)
+        assert sorted(procs.values()) == ["relay_a", "relay_b", "router", "supervisor"]
+        os.killpg(up.pid, signal.SIGINT)  # what the terminal does on Ctrl-C
+        assert up.wait(60) == 0
+    finally:
+        if up.poll() is None:
+            up.kill()
+        deploy("down", str(RELAYS), "--run-dir", str(run_dir), env=env, cwd=tmp_path)
+    assert running_procs(run_dir) == {} and not [p for p in procs if _pid_alive(p)]
