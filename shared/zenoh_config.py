@@ -230,4 +230,12 @@ def free_tcp_port() -> int:
 
 def open_session(opts: ZenohOptions) -> zenoh.Session:
     """Open a session; the caller must close it (use `with`)."""
-    return zenoh.open(build_config(opts))
+    conf = build_config(opts)
+    try:
+        return zenoh.open(conf)
+    except zenoh.ZError as e:
+        if opts.connect and not (opts.identity and opts.secrets):
+            raise zenoh.ZError(f"{e} — if this is a secure deployment, its router admits only an identity with "
+                               f"its password: --identity NAME --secrets DIR, or zenoh_config.open_as() "
+                               f"(docs/security.md)") from None
+        raise
