@@ -10,11 +10,26 @@ routers last. `status` prints each process, its pid, restarts and liveness; `log
 
 CONFIG is a path to a YAML file or the name of a shipped config (local, ground, onboard).
 Values may use ${VAR} or ${VAR:-default} environment substitution.
+
+One deployment, one run folder: RUN_DIR is `--run-dir`, else
+$CT_STATE_DIR/deploy/<config> (default $XDG_STATE_HOME/cinetransfer, i.e.
+~/.local/state/cinetransfer), the same wherever the command runs. The supervisor holds an
+exclusive lock on RUN_DIR/lock for its whole life, so a second `up` of a running deployment is
+refused. Every process it starts carries CT_DEPLOY_RUN_DIR in its environment; `status` and
+`down` find processes by that mark and their command line, not by a state file.
+
+Secure by default (docs/security.md): unless the config says `security: {enabled: false}`,
+every process joins the router as an identity with a password, the router enforces the
+access-control rules of shared/access.py, and tls/ links use mutual TLS. The credentials come
+from `security.secrets` ($CT_SECRETS in the shipped configs) or are generated on the first `up`
+into RUN_DIR/secrets (0700). `cinetransfer deploy certs DIR` creates them for a split deployment.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import fcntl
+import hashlib
 import json
 import logging
 import os
@@ -22,6 +37,7 @@ import re
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -43,6 +59,7 @@ class Proc:
     name: str
     kind: str  # 'router' | 'node'
     argv: tuple[str, ...]  # arguments after `python -m cinetransfer`
+    identity: str | None = None  # who it joins the bus as (secure deployments)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,6 +75,10 @@ class DeployConfig:
     backoff_reset_s: float = 30.0
     stop_grace_s: float = 10.0
     startup_timeout_s: float = 90.0
+    secure: bool = True
+    secrets: str | None = None  # explicit secrets folder; None: <run dir>/secrets, generated
+    grants: tuple[tuple[str, tuple[str, ...]], ...] = ()  # extra (identity, keys it may publish)
+    shipped: bool = False
 
     @property
     def procs(self) -> tuple[Proc, ...]:
@@ -105,6 +126,17 @@ def _zenoh_flags(z: dict, where: str) -> list[str]:
     return flags
 
 
+def _check_listeners(listen: list, where: str) -> None:
+    from cinetransfer.shared.zenoh_config import _is_local, endpoint_host
+
+    for ep in listen:
+        proto, host = endpoint_host(str(ep))
+        if proto not in ("tls", "quic") and not _is_local(proto, host):
+            raise ConfigError(f"{where}: listener {ep} would accept unauthenticated connections from the "
+                              f"network; listen on 127.0.0.1, or on tls/{host}:PORT (mutual TLS, see "
+                              f"docs/security.md)")
+
+
 def load_config(name_or_path: str) -> DeployConfig:
     path = resolve_config_path(name_or_path)
     try:
@@ -114,7 +146,8 @@ def load_config(name_or_path: str) -> DeployConfig:
         raise ConfigError(f"{path}: not valid YAML ({e})") from None
     if not isinstance(raw, dict):
         raise ConfigError(f"{path}: top level must be a mapping")
-    unknown = set(raw) - {"rig", "routers", "nodes", "defaults", "restart", "check_endpoint", "description"}
+    unknown = set(raw) - {"rig", "routers", "nodes", "defaults", "restart", "check_endpoint", "description",
+                          "security"}
     if unknown:
         raise ConfigError(f"{path}: unknown top-level keys {sorted(unknown)}")
     rig = str(raw.get("rig", "rig0"))
@@ -124,7 +157,8 @@ def load_config(name_or_path: str) -> DeployConfig:
         if not isinstance(r, dict) or "name" not in r:
             raise ConfigError(f"{path}: routers[{i}] needs a name")
         argv = ["router", *_zenoh_flags({"mode": "router", **(r.get("zenoh") or {})}, f"routers[{i}]")]
-        routers.append(Proc(str(r["name"]), "router", tuple(argv)))
+        _check_listeners((r.get("zenoh") or {}).get("listen") or [], f"{path}: routers[{i}]")
+        routers.append(Proc(str(r["name"]), "router", tuple(argv), r.get("identity")))
     nodes = []
     for i, n in enumerate(raw.get("nodes") or []):
         if not isinstance(n, dict) or "name" not in n or "command" not in n:
@@ -134,7 +168,7 @@ def load_config(name_or_path: str) -> DeployConfig:
             raise ConfigError(f"{path}: nodes[{i}].args must be a list")
         z = {**(defaults.get("zenoh") or {}), **(n.get("zenoh") or {})}
         argv = [str(n["command"]), *map(str, args), "--rig", rig, *_zenoh_flags(z, f"nodes[{i}]")]
-        nodes.append(Proc(str(n["name"]), "node", tuple(argv)))
+        nodes.append(Proc(str(n["name"]), "node", tuple(argv), str(n.get("identity", n["name"]))))
     names = [p.name for p in routers + nodes]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
@@ -142,6 +176,12 @@ def load_config(name_or_path: str) -> DeployConfig:
     if not nodes and not routers:
         raise ConfigError(f"{path}: nothing to run (no routers, no nodes)")
     restart = raw.get("restart") or {}
+    sec = raw.get("security") or {}
+    if not isinstance(sec, dict) or set(sec) - {"enabled", "secrets", "grants"}:
+        raise ConfigError(f"{path}: security must be a mapping with keys enabled, secrets, grants")
+    grants = sec.get("grants") or {}
+    if not isinstance(grants, dict) or not all(isinstance(v, list) for v in grants.values()):
+        raise ConfigError(f"{path}: security.grants must map an identity to a list of key expressions")
     check = raw.get("check_endpoint")
     if check is None and raw.get("routers"):
         listen = ((raw["routers"][0].get("zenoh") or {}).get("listen") or [None])[0]
@@ -150,6 +190,10 @@ def load_config(name_or_path: str) -> DeployConfig:
         check = listen.replace("0.0.0.0", "127.0.0.1") if listen else None
     try:
         return DeployConfig(name=path.stem, path=str(path.resolve()), rig=rig, routers=tuple(routers), nodes=tuple(nodes), check_endpoint=check,
+                            secure=bool(sec.get("enabled", True)), secrets=(str(Path(sec["secrets"]).expanduser().resolve())
+                                                                            if sec.get("secrets") else None),
+                            grants=tuple((str(k), tuple(map(str, v))) for k, v in grants.items()),
+                            shipped=path.resolve().parent == CONFIG_DIR,
                             backoff_initial_s=float(restart.get("backoff_initial_s", 0.5)),
                             backoff_max_s=float(restart.get("backoff_max_s", 10.0)),
                             backoff_reset_s=float(restart.get("backoff_reset_s", 30.0)),
@@ -157,6 +201,145 @@ def load_config(name_or_path: str) -> DeployConfig:
                             startup_timeout_s=float(restart.get("startup_timeout_s", 90.0)))
     except (TypeError, ValueError) as e:
         raise ConfigError(f"{path}: restart: {e}") from None
+
+
+# ----------------------------------------------------------------------------- run folder, lock, security
+ENV_RUN_DIR = "CT_DEPLOY_RUN_DIR"  # marks every process of a deployment (value: its run folder)
+ENV_PROC = "CT_DEPLOY_PROC"  # the process's name in the config ("supervisor" for the supervisor)
+
+
+def state_home() -> Path:
+    """Where run folders live: $CT_STATE_DIR, else $XDG_STATE_HOME/cinetransfer (~/.local/state/...)."""
+    if os.environ.get("CT_STATE_DIR"):
+        return Path(os.environ["CT_STATE_DIR"]).expanduser().resolve()
+    xdg = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(xdg).expanduser().resolve() / "cinetransfer"
+
+
+def resolve_run_dir(cfg: DeployConfig, run_dir: str | os.PathLike | None = None) -> Path:
+    """The one absolute run folder of `cfg`: `run_dir` if given, else under state_home().
+
+    A shipped config is known by its name; any other by its file name and a hash of its absolute
+    path, so two different 'transfer.yaml' files never share a folder.
+    """
+    if run_dir:
+        return Path(run_dir).expanduser().resolve()
+    key = cfg.name if cfg.shipped else f"{cfg.name}-{hashlib.sha256(cfg.path.encode()).hexdigest()[:10]}"
+    return state_home() / "deploy" / key
+
+
+def secrets_dir(cfg: DeployConfig, run_dir: Path) -> Path:
+    return Path(cfg.secrets) if cfg.secrets else run_dir / "secrets"
+
+
+def identities(cfg: DeployConfig) -> list[str]:
+    from cinetransfer.shared import access
+
+    return list(dict.fromkeys([*(p.identity for p in cfg.procs if p.identity), *access.TOOL_IDENTITIES,
+                               *(g for g, _ in cfg.grants)]))
+
+
+def prepare_security(cfg: DeployConfig, run_dir: Path) -> None:
+    """Credentials (generated into RUN_DIR/secrets unless the config names a folder) and ACL files."""
+    if not cfg.secure:
+        return
+    from cinetransfer.deploy import certs
+    from cinetransfer.shared import access
+
+    sec = secrets_dir(cfg, run_dir)
+    from cinetransfer.shared.zenoh_config import endpoint_host
+
+    links = [ep for r in cfg.routers for i, ep in enumerate(r.argv) if i and r.argv[i - 1] in ("--listen", "--connect")
+             and endpoint_host(ep)[0] in ("tls", "quic")]
+    if links and cfg.secrets is None:
+        raise ConfigError(f"this deployment links hosts over TLS ({', '.join(links)}); every host needs the same "
+                          f"credentials: run 'cinetransfer deploy certs DIR --host <drone address>', copy DIR to "
+                          f"each host and set CT_SECRETS=DIR (docs/security.md)")
+    if cfg.secrets is None:
+        certs.ensure(sec, users=identities(cfg))
+    elif not (sec / certs.USERS_FILE).is_file():
+        raise ConfigError(f"security.secrets: {sec} has no {certs.USERS_FILE}; create it with "
+                          f"'cinetransfer deploy certs {sec}'")
+    for ident in identities(cfg):
+        try:
+            access.read_password(sec, ident)
+        except ValueError as e:
+            raise ConfigError(f"security: {e}") from None
+    acl = access.access_control(grants={k: list(v) for k, v in cfg.grants})
+    for r in cfg.routers:
+        _write_atomic(run_dir / f"{r.name}.acl.json", json.dumps(acl, indent=1))
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    """Write via a unique temporary file in the same folder and rename (readers never see half)."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def security_flags(cfg: DeployConfig, run_dir: Path, proc: Proc) -> list[str]:
+    """Flags that make `proc` join as its identity (and a router enforce the rules)."""
+    if not cfg.secure:
+        return []
+    flags = ["--secrets", str(secrets_dir(cfg, run_dir))]
+    if proc.identity:
+        flags += ["--identity", proc.identity]
+    if proc.kind == "router":
+        flags += ["--access-control", str(run_dir / f"{proc.name}.acl.json")]
+    return flags
+
+
+def _try_lock(run_dir: Path) -> int | None:
+    """An fd holding the deployment's exclusive lock, or None if another process holds it."""
+    fd = os.open(run_dir / "lock", os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        return None
+    return fd
+
+
+def _lock_held(run_dir: Path) -> bool:
+    if not (run_dir / "lock").exists():
+        return False
+    fd = _try_lock(run_dir)
+    if fd is None:
+        return True
+    os.close(fd)
+    return False
+
+
+def running_procs(run_dir: Path) -> dict[int, str]:
+    """{pid: process name} of the live processes this deployment started (found in /proc).
+
+    A process belongs to the deployment when its environment carries CT_DEPLOY_RUN_DIR=<run_dir>
+    and its command line runs cinetransfer — a pid reused by another program never matches.
+    """
+    mark = f"{ENV_RUN_DIR}={run_dir}".encode()
+    found: dict[int, str] = {}
+    for entry in os.scandir("/proc"):
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            with open(f"/proc/{entry.name}/environ", "rb") as f:
+                env = f.read().split(b"\0")
+            if mark not in env:
+                continue
+            with open(f"/proc/{entry.name}/cmdline", "rb") as f:
+                cmd = f.read().split(b"\0")
+        except OSError:  # gone, or another user's process
+            continue
+        if b"cinetransfer" not in cmd or not _pid_alive(int(entry.name)):
+            continue
+        name = next((e.split(b"=", 1)[1].decode() for e in env if e.startswith(f"{ENV_PROC}=".encode())), "?")
+        found[int(entry.name)] = name
+    return found
 
 
 # ----------------------------------------------------------------------------- supervisor
@@ -176,8 +359,9 @@ class Supervisor:
         logf = open(self.run_dir / f"{proc.name}.log", "ab")
         logf.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} start: cinetransfer {' '.join(proc.argv)}\n".encode())
         logf.flush()
-        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-        self.children[proc.name] = subprocess.Popen([sys.executable, "-m", "cinetransfer", *proc.argv], stdout=logf,
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", ENV_RUN_DIR: str(self.run_dir), ENV_PROC: proc.name}
+        argv = [*proc.argv, *security_flags(self.cfg, self.run_dir, proc)]
+        self.children[proc.name] = subprocess.Popen([sys.executable, "-m", "cinetransfer", *argv], stdout=logf,
                                                     stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env)
         logf.close()
         self.started_at[proc.name] = time.monotonic()
@@ -191,9 +375,7 @@ class Supervisor:
                                                         self.children[p.name].poll() is None else None),
                                "restarts": self.restarts[p.name], "argv": list(p.argv)} for p in self.cfg.procs},
         }
-        tmp = self.run_dir / "state.json.tmp"
-        tmp.write_text(json.dumps(state, indent=2))
-        tmp.replace(self.run_dir / "state.json")
+        _write_atomic(self.run_dir / "state.json", json.dumps(state, indent=2))
 
     def run(self) -> int:
         signal.signal(signal.SIGTERM, lambda *_: setattr(self, "stopping", True))
@@ -278,13 +460,18 @@ def _pid_alive(pid: int | None) -> bool:
         return False
 
 
-def alive_nodes(endpoint: str | None, rig: str, timeout: float = 2.0) -> set[str] | None:
-    """Names of nodes whose liveliness tokens are present (None if no endpoint to ask)."""
+def alive_nodes(endpoint: str | None, rig: str, timeout: float = 2.0, *, secrets: str | os.PathLike | None = None,
+                identity: str = "observer") -> set[str] | None:
+    """Names of nodes whose liveliness tokens are present (None if no endpoint to ask).
+
+    A secure deployment answers only an authenticated identity: pass its `secrets` folder.
+    """
     if not endpoint:
         return None
     from cinetransfer.shared import keys, zenoh_config
 
-    opts = zenoh_config.ZenohOptions(mode="client", connect=(endpoint,))
+    opts = zenoh_config.ZenohOptions(mode="client", connect=(endpoint,), secrets=str(secrets) if secrets else None,
+                                     identity=identity if secrets else None)
     try:
         with zenoh_config.open_session(opts) as s:
             replies = s.liveliness().get(keys.all_alive(rig), timeout=timeout)
@@ -294,20 +481,47 @@ def alive_nodes(endpoint: str | None, rig: str, timeout: float = 2.0) -> set[str
         return set()
 
 
+def _alive(cfg: DeployConfig, run_dir: Path, endpoint: str | None, rig: str, timeout: float) -> set[str] | None:
+    return alive_nodes(endpoint, rig, timeout, secrets=secrets_dir(cfg, run_dir) if cfg.secure else None)
+
+
 def cmd_up(cfg: DeployConfig, run_dir: Path, wait: bool, foreground: bool) -> int:
-    state = _read_state(run_dir)
-    if state and _pid_alive(state.get("supervisor_pid")):
-        print(f"deploy {cfg.name}: already running (supervisor pid {state['supervisor_pid']}); "
-              f"use 'cinetransfer deploy down {cfg.name}' first", file=sys.stderr)
+    run_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
+    lock_fd = _try_lock(run_dir)
+    if lock_fd is None:
+        state = _read_state(run_dir) or {}
+        print(f"deploy {cfg.name}: already running (supervisor pid {state.get('supervisor_pid', '?')}, run folder "
+              f"{run_dir}); use 'cinetransfer deploy down {cfg.name}' first", file=sys.stderr)
         return 1
-    run_dir.mkdir(parents=True, exist_ok=True)
-    argv = [sys.executable, "-m", "cinetransfer", "deploy", "_supervise", cfg.path,
-            "--run-dir", str(run_dir)]
-    if foreground:
-        return subprocess.call(argv)
-    with open(run_dir / "supervisor.log", "ab") as logf:
-        sup = subprocess.Popen(argv, stdout=logf, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                               start_new_session=True)
+    try:
+        leftovers = running_procs(run_dir)
+        if leftovers:
+            print(f"deploy {cfg.name}: processes of an earlier run are still alive "
+                  f"({', '.join(f'{n} pid {p}' for p, n in sorted(leftovers.items()))}); "
+                  f"use 'cinetransfer deploy down {cfg.name}' first", file=sys.stderr)
+            return 1
+        try:
+            prepare_security(cfg, run_dir)
+        except ConfigError as e:
+            print(f"deploy {cfg.name}: {e}", file=sys.stderr)
+            return 2
+        (run_dir / "state.json").unlink(missing_ok=True)
+        argv = [sys.executable, "-m", "cinetransfer", "deploy", "_supervise", cfg.path,
+                "--run-dir", str(run_dir), "--lock-fd", str(lock_fd)]
+        env = {**os.environ, ENV_RUN_DIR: str(run_dir), ENV_PROC: "supervisor"}
+        if foreground:
+            sup = subprocess.Popen(argv, pass_fds=(lock_fd,), env=env)
+            while True:
+                try:
+                    return sup.wait()
+                except KeyboardInterrupt:  # the supervisor got the same Ctrl-C and is stopping the nodes;
+                    continue  # killing it now (what subprocess.call does) would orphan them
+        with open(run_dir / "supervisor.log", "ab") as logf:
+            # The supervisor inherits the locked file: the lock lives exactly as long as it does.
+            sup = subprocess.Popen(argv, stdout=logf, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                   start_new_session=True, pass_fds=(lock_fd,), env=env)
+    finally:
+        os.close(lock_fd)
     print(f"deploy {cfg.name}: supervisor pid {sup.pid}; logs in {run_dir}/")
     if not wait:
         return 0
@@ -319,7 +533,7 @@ def cmd_up(cfg: DeployConfig, run_dir: Path, wait: bool, foreground: bool) -> in
             print(f"deploy {cfg.name}: supervisor exited ({sup.returncode}); see {run_dir}/supervisor.log",
                   file=sys.stderr)
             return 1
-        seen = alive_nodes(cfg.check_endpoint, cfg.rig, timeout=1.0)
+        seen = _alive(cfg, run_dir, cfg.check_endpoint, cfg.rig, timeout=1.0)
         if seen is None:  # no router to ask: being started is all we can check
             break
         if want <= seen:
@@ -334,43 +548,65 @@ def cmd_up(cfg: DeployConfig, run_dir: Path, wait: bool, foreground: bool) -> in
     return 0
 
 
+def _signal(pid: int, sig: int) -> None:
+    try:
+        os.kill(pid, sig)
+    except ProcessLookupError:
+        pass
+
+
 def cmd_down(cfg: DeployConfig, run_dir: Path, timeout: float) -> int:
-    state = _read_state(run_dir)
-    if not state:
-        print(f"deploy {cfg.name}: not running")
+    procs = running_procs(run_dir)
+    if not procs:
+        (run_dir / "state.json").unlink(missing_ok=True)
+        print(f"deploy {cfg.name}: not running (run folder {run_dir})")
         return 0
-    pids = [v["pid"] for v in state["procs"].values() if v.get("pid")]
-    sup = state.get("supervisor_pid")
-    if _pid_alive(sup):
-        os.kill(sup, signal.SIGTERM)
+    sups = [p for p, n in procs.items() if n == "supervisor"]
+    if sups:  # the supervisor stops its children in order (nodes, then routers)
+        for p in sups:
+            _signal(p, signal.SIGTERM)
+    else:  # orphans (their supervisor was killed): stop them directly
+        for p in procs:
+            _signal(p, signal.SIGINT)
     deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline and (_pid_alive(sup) or any(_pid_alive(p) for p in pids)):
+    while time.monotonic() < deadline and running_procs(run_dir):
         time.sleep(0.1)
-    leftovers = [p for p in [sup, *pids] if _pid_alive(p)]
-    for p in leftovers:
-        with_kill = f"killing leftover pid {p}"
-        print(f"deploy {cfg.name}: {with_kill}", file=sys.stderr)
-        try:
-            os.kill(p, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
+    leftovers = running_procs(run_dir)
+    for p, n in sorted(leftovers.items()):
+        print(f"deploy {cfg.name}: killing leftover {n} (pid {p})", file=sys.stderr)
+        _signal(p, signal.SIGKILL)
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline and running_procs(run_dir):
+        time.sleep(0.1)
+    still = running_procs(run_dir)
+    if still:
+        print(f"deploy {cfg.name}: could not stop pids {sorted(still)}", file=sys.stderr)
+        return 1
     (run_dir / "state.json").unlink(missing_ok=True)
     print(f"deploy {cfg.name}: down")
     return 0
 
 
 def cmd_status(cfg: DeployConfig, run_dir: Path) -> int:
-    state = _read_state(run_dir)
-    if not state or not _pid_alive(state.get("supervisor_pid")):
-        print(f"deploy {cfg.name}: not running")
+    procs = running_procs(run_dir)
+    if not procs:
+        print(f"deploy {cfg.name}: not running (run folder {run_dir})")
         return 3
-    alive = alive_nodes(state.get("check_endpoint"), state["rig"], timeout=1.0)
-    print(f"deploy {cfg.name} (rig {state['rig']}): supervisor pid {state['supervisor_pid']}")
+    by_name = {n: p for p, n in procs.items()}
+    state = _read_state(run_dir) or {}
+    sup = by_name.get("supervisor")
+    if sup is None:
+        print(f"deploy {cfg.name}: NO SUPERVISOR, yet {len(procs)} process(es) of it are alive "
+              f"({', '.join(f'{n} pid {p}' for p, n in sorted(procs.items()))}); "
+              f"'cinetransfer deploy down {cfg.name}' stops them")
+        return 1
+    alive = _alive(cfg, run_dir, cfg.check_endpoint, cfg.rig, timeout=1.0)
+    print(f"deploy {cfg.name} (rig {cfg.rig}): supervisor pid {sup}; run folder {run_dir}")
     print(f"  {'name':<20} {'kind':<7} {'pid':>8} {'restarts':>8}  alive")
-    for name, v in state["procs"].items():
-        live = "-" if v["kind"] == "router" or alive is None else ("yes" if name in alive else "NO")
-        pid = v["pid"] if v["pid"] and _pid_alive(v["pid"]) else "down"
-        print(f"  {name:<20} {v['kind']:<7} {pid!s:>8} {v['restarts']:>8}  {live}")
+    for p in cfg.procs:
+        restarts = (state.get("procs", {}).get(p.name) or {}).get("restarts", "?")
+        live = "-" if p.kind == "router" or alive is None else ("yes" if p.name in alive else "NO")
+        print(f"  {p.name:<20} {p.kind:<7} {by_name.get(p.name, 'down')!s:>8} {restarts!s:>8}  {live}")
     return 0
 
 
@@ -398,12 +634,20 @@ def cmd_logs(cfg: DeployConfig, run_dir: Path, node: str, follow: bool, lines: i
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="cinetransfer deploy", description=__doc__.splitlines()[0])
+    if argv[:1] == ["certs"]:
+        from cinetransfer.deploy import certs
+
+        return certs.main(argv[1:])
+    p = argparse.ArgumentParser(prog="cinetransfer deploy", description=__doc__.splitlines()[0],
+                                epilog="'cinetransfer deploy certs DIR' creates a CA, certificates and passwords "
+                                       "for a secure split deployment (docs/security.md).")
     sub = p.add_subparsers(dest="cmd", required=True)
 
     def common(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("config", help="config name (local, ground, onboard) or path to a YAML file")
-        sp.add_argument("--run-dir", default=None, help="state and logs folder (default runs/deploy/<config>)")
+        sp.add_argument("--run-dir", default=None,
+                        help="state, logs and generated credentials (default $CT_STATE_DIR/deploy/<config>, "
+                             "$CT_STATE_DIR defaulting to $XDG_STATE_HOME/cinetransfer)")
 
     up = sub.add_parser("up", help="start the config's routers and nodes under a supervisor")
     common(up)
@@ -419,8 +663,10 @@ def main(argv: list[str]) -> int:
     lg.add_argument("node")
     lg.add_argument("-f", "--follow", action="store_true")
     lg.add_argument("-n", "--lines", type=int, default=50)
+    sub.add_parser("certs", help="create a CA, per-node certificates and passwords in DIR")
     sv = sub.add_parser("_supervise", help=argparse.SUPPRESS)
     common(sv)
+    sv.add_argument("--lock-fd", type=int, default=None)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
@@ -428,9 +674,12 @@ def main(argv: list[str]) -> int:
     except ConfigError as e:
         print(f"cinetransfer deploy: {e}", file=sys.stderr)
         return 2
-    run_dir = Path(args.run_dir or Path("runs") / "deploy" / cfg.name).resolve()
+    run_dir = resolve_run_dir(cfg, args.run_dir)
     if args.cmd == "_supervise":
-        run_dir.mkdir(parents=True, exist_ok=True)
+        if os.environ.get(ENV_RUN_DIR) != str(run_dir) or args.lock_fd is None:
+            print("cinetransfer deploy _supervise is started by 'deploy up' (use 'up --foreground')", file=sys.stderr)
+            return 2
+        fcntl.flock(args.lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # ours already (inherited); fails otherwise
         return Supervisor(cfg, run_dir).run()
     if args.cmd == "up":
         return cmd_up(cfg, run_dir, wait=not args.no_wait, foreground=args.foreground)

@@ -4,13 +4,22 @@ Precedence (lowest first): safe defaults → a JSON5 config file (`--zenoh-confi
 $CT_ZENOH_CONFIG) → flags. Defaults differ from Zenoh's own on purpose: multicast scouting is
 OFF (a peer would otherwise announce itself on every interface) and a peer listens on
 127.0.0.1 only unless told otherwise.
+
+Security (docs/security.md): with `secrets` (a folder from `cinetransfer deploy certs`) a
+process joins as `identity` with that identity's password, a router checks every joiner against
+the folder's users.txt, and tls/ endpoints use the folder's CA and the identity's certificate
+with mutual authentication. A listener that leaves the host must be tls/ or quic/ with mTLS;
+plain listeners are refused anywhere but on loopback. `deployment_options` is the one way for
+a tool to join a running deployment as a given identity.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import ipaddress
 import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import zenoh
 
@@ -33,6 +42,9 @@ class ZenohOptions:
     tls_cert: str | None = None
     tls_key: str | None = None
     tls_mtls: bool = False
+    identity: str | None = None  # who this process is (user name; certificate = <secrets>/<identity>.pem)
+    secrets: str | None = None  # the deployment's secrets folder (users.txt, ca.pem, certificates)
+    access_control: str | None = None  # JSON file with a Zenoh `access_control` object (routers)
     extra: tuple[tuple[str, str], ...] = field(default=())  # (key, json5 value) pairs
 
     def validate(self) -> None:
@@ -46,6 +58,19 @@ class ZenohOptions:
                 raise ValueError(f"zenoh configuration file {p!r} does not exist")
         if bool(self.tls_cert) != bool(self.tls_key):
             raise ValueError("--tls-cert and --tls-key must be given together")
+        if self.secrets and not os.path.isdir(self.secrets):
+            raise ValueError(f"secrets folder {self.secrets!r} does not exist (cinetransfer deploy certs DIR)")
+        if self.access_control and not os.path.isfile(self.access_control):
+            raise ValueError(f"access-control file {self.access_control!r} does not exist")
+        for ep in self.listen:
+            proto, host = endpoint_host(ep)
+            if proto in ("tls", "quic"):
+                if not (self.tls_mtls or self.secrets):
+                    raise ValueError(f"listener {ep!r}: tls/quic listeners must require client certificates "
+                                     f"(--mtls, or --secrets DIR which implies it)")
+            elif not _is_local(proto, host):
+                raise ValueError(f"listener {ep!r} would accept unauthenticated connections from the network; "
+                                 f"listen on 127.0.0.1 or use tls/{host}:PORT with mTLS (docs/security.md)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -66,6 +91,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--tls-cert", metavar="PEM", default=None, help="this node's certificate (TLS/mTLS)")
     g.add_argument("--tls-key", metavar="PEM", default=None, help="this node's private key (TLS/mTLS)")
     g.add_argument("--mtls", action="store_true", default=None, help="require client certificates")
+    g.add_argument("--identity", default=None, metavar="NAME",
+                   help="join as this identity (its password from --secrets; see docs/security.md)")
+    g.add_argument("--secrets", default=None, metavar="DIR",
+                   help="deployment secrets folder (cinetransfer deploy certs DIR): users, CA, certificates")
+    g.add_argument("--access-control", default=None, metavar="JSON",
+                   help="router: file with the Zenoh access_control rules to enforce")
 
 
 def options_from_args(args: argparse.Namespace, **defaults: object) -> ZenohOptions:
@@ -77,7 +108,8 @@ def options_from_args(args: argparse.Namespace, **defaults: object) -> ZenohOpti
         upd["config_file"] = cfg
     for name, attr in (("mode", "mode"), ("multicast_scouting", "multicast_scouting"),
                        ("shm", "shared_memory"), ("tls_root_ca", "tls_root_ca"), ("tls_cert", "tls_cert"),
-                       ("tls_key", "tls_key"), ("mtls", "tls_mtls")):
+                       ("tls_key", "tls_key"), ("mtls", "tls_mtls"), ("identity", "identity"),
+                       ("secrets", "secrets"), ("access_control", "access_control")):
         v = getattr(args, name, None)
         if v is not None:
             upd[attr] = v
@@ -110,18 +142,81 @@ def build_config(opts: ZenohOptions) -> zenoh.Config:
     put("transport/shared_memory/enabled", bool(opts.shared_memory))
     if opts.shared_memory:
         put("transport/shared_memory/transport_optimization/pool_size", SHM_POOL_BYTES)
-    if opts.tls_root_ca:
-        put("transport/link/tls/root_ca_certificate", opts.tls_root_ca)
-    if opts.tls_cert:
-        put("transport/link/tls/listen_certificate", opts.tls_cert)
-        put("transport/link/tls/listen_private_key", opts.tls_key)
-        put("transport/link/tls/connect_certificate", opts.tls_cert)
-        put("transport/link/tls/connect_private_key", opts.tls_key)
-    if opts.tls_mtls:
+    root_ca, cert, key, mtls = opts.tls_root_ca, opts.tls_cert, opts.tls_key, opts.tls_mtls
+    if opts.secrets:
+        from cinetransfer.shared import access
+
+        sec = Path(opts.secrets)
+        if opts.mode == "router":
+            put("transport/auth/usrpwd/dictionary_file", str(sec / "users.txt"))
+        if opts.identity:
+            put("transport/auth/usrpwd/user", opts.identity)
+            put("transport/auth/usrpwd/password", access.read_password(sec, opts.identity))
+        if any(endpoint_host(ep)[0] in ("tls", "quic") for ep in (*opts.listen, *opts.connect)):
+            root_ca = root_ca or str(sec / "ca.pem")
+            if not cert and opts.identity and (sec / f"{opts.identity}.pem").is_file():
+                cert, key = str(sec / f"{opts.identity}.pem"), str(sec / f"{opts.identity}-key.pem")
+            mtls = True
+    if root_ca:
+        put("transport/link/tls/root_ca_certificate", root_ca)
+    if cert:
+        put("transport/link/tls/listen_certificate", cert)
+        put("transport/link/tls/listen_private_key", key)
+        put("transport/link/tls/connect_certificate", cert)
+        put("transport/link/tls/connect_private_key", key)
+    if mtls:
         put("transport/link/tls/enable_mtls", True)
+    if opts.access_control:
+        conf.insert_json5("access_control", Path(opts.access_control).read_text())
     for key, value in opts.extra:
         conf.insert_json5(key, value)
     return conf
+
+
+def endpoint_host(endpoint: str) -> tuple[str, str]:
+    """('tcp', '127.0.0.1') for 'tcp/127.0.0.1:7447' (IPv6 brackets and ?/# suffixes removed)."""
+    proto, _, rest = endpoint.partition("/")
+    rest = rest.split("?", 1)[0].split("#", 1)[0]
+    host = rest.rsplit(":", 1)[0] if ":" in rest else rest
+    return proto.lower(), host.strip("[]")
+
+
+def _is_local(proto: str, host: str) -> bool:
+    if proto.startswith("unix"):
+        return True
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def deployment_options(config: str | os.PathLike, identity: str = "operator", *,
+                       run_dir: str | os.PathLike | None = None, **overrides: object) -> ZenohOptions:
+    """Options to join the deployment `config` (a shipped name or a YAML path) as `identity`.
+
+    Finds the deployment's router endpoint and secrets folder the way `cinetransfer deploy` does
+    (`run_dir` as given to `deploy up --run-dir`, else the per-config state folder); `overrides`
+    set further ZenohOptions fields, e.g. shared_memory=True. Identities: shared/access.py.
+    """
+    from cinetransfer.deploy import supervisor
+
+    cfg = supervisor.load_config(str(config))
+    rd = supervisor.resolve_run_dir(cfg, run_dir)
+    if not cfg.check_endpoint:
+        raise ValueError(f"deploy config {cfg.path} has no router endpoint to join")
+    base: dict[str, object] = {"mode": "client", "connect": (cfg.check_endpoint,), "identity": identity,
+                               "secrets": str(supervisor.secrets_dir(cfg, rd)) if cfg.secure else None}
+    opts = ZenohOptions(**{**base, **overrides})  # type: ignore[arg-type]
+    opts.validate()
+    return opts
+
+
+def open_as(config: str | os.PathLike, identity: str = "operator", *, run_dir: str | os.PathLike | None = None,
+            **overrides: object) -> zenoh.Session:
+    """Open a session on the deployment `config` as `identity` (see deployment_options)."""
+    return open_session(deployment_options(config, identity, run_dir=run_dir, **overrides))
 
 
 def free_tcp_port() -> int:
@@ -135,4 +230,12 @@ def free_tcp_port() -> int:
 
 def open_session(opts: ZenohOptions) -> zenoh.Session:
     """Open a session; the caller must close it (use `with`)."""
-    return zenoh.open(build_config(opts))
+    conf = build_config(opts)
+    try:
+        return zenoh.open(conf)
+    except zenoh.ZError as e:
+        if opts.connect and not (opts.identity and opts.secrets):
+            raise zenoh.ZError(f"{e} — if this is a secure deployment, its router admits only an identity with "
+                               f"its password: --identity NAME --secrets DIR, or zenoh_config.open_as() "
+                               f"(docs/security.md)") from None
+        raise

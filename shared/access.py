@@ -1,0 +1,125 @@
+"""Who may do what on the bus: identities, their rights, and the Zenoh `access_control` rules.
+
+Every process joins a router as an *identity* (user/password, checked by the router against
+the deployment's `users.txt`); a router joins another router over mutual TLS, identified by its
+certificate's common name. The router enforces, by key expression, with default *deny*:
+
+- every authenticated identity may subscribe to `ct/**`, receive what it subscribed to, and
+  declare its own liveliness token, health key and `config` queryable;
+- only the identities in `PUBLISHERS` may publish a topic (only the planner publishes setpoints;
+  only `operator` sends vehicle and planner commands);
+- only `operator` may query a node's `config` (the safety limits).
+
+A router-to-router link carries every identity of the far side, so a link identity is the
+union of those (`LINKS`): the onboard router lets the ground router forward commands, never
+setpoints. The tables refer to the topic table in `keys`, so a new topic without a publisher
+here fails tests/unit/test_access.py.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from cinetransfer.shared import keys
+
+OPERATOR = "operator"  # the operator's tools: `cinetransfer transfer`, command senders
+OBSERVER = "observer"  # read-only tools: `monitor`, `deploy up/status` liveliness checks
+
+#: topic -> identities that may publish it (everybody authenticated may subscribe)
+PUBLISHERS: dict[keys.Topic, tuple[str, ...]] = {
+    keys.FRAME: ("autopilot_bridge", "camera", "detector"),
+    keys.MEASUREMENT: ("detector",),
+    keys.INSTRUCTIONS: ("smoother", OPERATOR),
+    keys.SETPOINT: ("planner",),
+    keys.PLANNER_COMMAND: (OPERATOR,),
+    keys.VEHICLE_STATE: ("autopilot_bridge",),
+    keys.SUBJECT_STATE: ("autopilot_bridge",),
+    keys.BRIDGE_COMMAND: (OPERATOR,),
+    keys.SIM_TRUTH: ("autopilot_bridge",),
+    keys.SMOOTHER_COMMAND: (OPERATOR, "detector"),
+}
+#: identities that may query `ct/<rig>/<node>/config`
+CONFIG_READERS: tuple[str, ...] = (OPERATOR,)
+
+NODE_IDENTITIES = ("autopilot_bridge", "planner", "detector", "smoother", "camera")
+TOOL_IDENTITIES = (OPERATOR, OBSERVER)
+#: router-to-router links: the link identity (certificate CN) and the identities behind it
+LINKS: dict[str, tuple[str, ...]] = {
+    "ground": ("detector", "smoother", "camera", OPERATOR, OBSERVER),
+    "onboard": ("planner", "autopilot_bridge"),
+}
+#: identities that get a password in users.txt / a certificate from `deploy certs`
+USER_IDENTITIES = (*NODE_IDENTITIES, *TOOL_IDENTITIES, *LINKS)
+CERT_IDENTITIES = (*LINKS, OPERATOR)
+
+_ALL = f"{keys.ROOT}/**"
+_RECEIVE = ["put", "delete", "query"]  # egress: delivered to a subscriber / queryable
+_COMMON = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "reply"]
+
+
+def rights(identity: str, grants: dict[str, list[str]] | None = None) -> dict[str, list[str]]:
+    """The key expressions `identity` may publish (`put`), query and self-declare on."""
+    put = [f"{keys.ROOT}/*/{t.service}/{t.topic}" for t, who in PUBLISHERS.items() if identity in who]
+    put += list((grants or {}).get(identity, []))
+    own = [f"{keys.ROOT}/*/health/{identity}"]
+    return {"put": [*put, *own],
+            "query": [f"{keys.ROOT}/*/*/config"] if identity in CONFIG_READERS else [],
+            "liveliness_token": [f"{keys.ROOT}/*/alive/{identity}"],
+            "declare_queryable": [f"{keys.ROOT}/*/{identity}/config"]}
+
+
+def access_control(*, grants: dict[str, list[str]] | None = None, links: bool = True) -> dict:
+    """The Zenoh `access_control` object for a router: default deny, the rights above.
+
+    `grants` adds keys an identity may publish (e.g. a test relay); with `links`, the rules also
+    admit the router-to-router link identities of LINKS (matched by certificate common name).
+    """
+    grants = grants or {}
+    users = list(dict.fromkeys([*NODE_IDENTITIES, *TOOL_IDENTITIES, *grants]))
+    rules: list[dict] = [
+        {"id": "common", "permission": "allow", "flows": ["ingress", "egress"], "messages": _COMMON,
+         "key_exprs": [_ALL]},
+        {"id": "receive", "permission": "allow", "flows": ["egress"], "messages": _RECEIVE, "key_exprs": [_ALL]},
+        # tokens and queryables travel both ways between routers; anyone may *receive* them
+        {"id": "declarations-out", "permission": "allow", "flows": ["egress"],
+         "messages": ["liveliness_token", "declare_queryable"], "key_exprs": [_ALL]},
+    ]
+    subjects: list[dict] = []
+    policies: list[dict] = []
+
+    def add(subject_id: str, subject: dict, behind: list[str]) -> None:
+        merged: dict[str, list[str]] = {"put": [], "query": [], "liveliness_token": [], "declare_queryable": []}
+        for who in behind:
+            for msg, exprs in rights(who, grants).items():
+                merged[msg] += [e for e in exprs if e not in merged[msg]]
+        ids = ["common", "receive", "declarations-out"]
+        for msg, exprs in merged.items():
+            if exprs:
+                rid = f"{subject_id}:{msg}"
+                rules.append({"id": rid, "permission": "allow", "flows": ["ingress"], "messages": [msg],
+                              "key_exprs": exprs})
+                ids.append(rid)
+        subjects.append({"id": subject_id, **subject})
+        policies.append({"id": f"{subject_id}-policy", "rules": ids, "subjects": [subject_id]})
+
+    for u in users:
+        add(u, {"usernames": [u]}, [u])
+    if links:
+        for link, behind in LINKS.items():
+            add(f"link-{link}", {"cert_common_names": [link]}, list(behind))
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
+            "policies": policies}
+
+
+def read_password(secrets_dir: str | Path, identity: str) -> str:
+    """`identity`'s password from the deployment's users.txt (ValueError naming what is missing)."""
+    path = Path(secrets_dir) / "users.txt"
+    try:
+        lines = path.read_text().splitlines()
+    except FileNotFoundError:
+        raise ValueError(f"no credentials at {path}: run 'cinetransfer deploy certs {secrets_dir}' "
+                         f"(or 'deploy up', which creates them for its run folder)") from None
+    for line in lines:
+        user, sep, pw = line.partition(":")
+        if sep and user == identity:
+            return pw
+    raise ValueError(f"{path} has no password for identity {identity!r}")

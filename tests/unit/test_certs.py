@@ -1,0 +1,38 @@
+"""`cinetransfer deploy certs DIR`: a CA, certificates with the identity as CN, private files."""
+import stat
+
+from cryptography import x509
+from cryptography.x509.oid import NameOID
+
+from cinetransfer.deploy import certs, supervisor
+from cinetransfer.shared import access
+
+
+def test_certs_cli_writes_a_private_ca_and_per_identity_certificates(tmp_path, capsys):
+    out = tmp_path / "sec"
+    assert supervisor.main(["certs", str(out), "--host", "192.0.2.10", "--host", "drone.local"]) == 0
+    assert stat.S_IMODE(out.stat().st_mode) == 0o700
+    for f in out.iterdir():
+        assert stat.S_IMODE(f.stat().st_mode) == 0o600, f
+    ca = x509.load_pem_x509_certificate((out / "ca.pem").read_bytes())
+    for ident in access.CERT_IDENTITIES:
+        cert = x509.load_pem_x509_certificate((out / f"{ident}.pem").read_bytes())
+        assert cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value == ident
+        assert cert.issuer == ca.subject
+        cert.verify_directly_issued_by(ca)
+        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+        assert "drone.local" in san.get_values_for_type(x509.DNSName)
+    users = dict(line.split(":", 1) for line in (out / "users.txt").read_text().splitlines())
+    assert set(access.USER_IDENTITIES) <= set(users) and len(set(users.values())) == len(users)
+    # a second run does not silently replace the credentials
+    before = (out / "users.txt").read_text()
+    assert supervisor.main(["certs", str(out)]) == 1
+    assert "--force" in capsys.readouterr().err and (out / "users.txt").read_text() == before
+
+
+def test_ensure_generates_once_and_adds_missing_users(tmp_path):
+    out = tmp_path / "sec"
+    assert certs.ensure(out, users=["relay_x"]) is True
+    pw = access.read_password(out, "relay_x")
+    assert certs.ensure(out, users=["relay_x", "relay_y"]) is False
+    assert access.read_password(out, "relay_x") == pw and access.read_password(out, "relay_y")
