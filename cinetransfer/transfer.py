@@ -373,7 +373,8 @@ def _job(args, src: Path, out: Path, meta: dict, timings: dict) -> tuple[Path, M
         port = zenoh_config.free_tcp_port()
         cfg_path = _deploy_config(out, port, args.rig, args.scene, realtime=args.realtime)
         run_cli(["deploy", "up", str(cfg_path), "--run-dir", str(deploy_dir)], "starting nodes")
-        opts = zenoh_config.ZenohOptions(mode="client", connect=(f"tcp/127.0.0.1:{port}",), shared_memory=True)
+        # the deployment is secure by default: join as the operator with its generated credentials
+        opts = zenoh_config.deployment_options(cfg_path, "operator", run_dir=deploy_dir, shared_memory=True)
     try:
         with zenoh_config.open_session(opts) as session:
             needed = {"planner", "autopilot_bridge"} if args.style else set(JOB_NODES)
@@ -393,6 +394,8 @@ def _job(args, src: Path, out: Path, meta: dict, timings: dict) -> tuple[Path, M
     finally:
         if cfg_path is not None:
             run_cli(["deploy", "down", str(cfg_path), "--run-dir", str(deploy_dir)], "stopping nodes")
+            # the run's generated credentials are worthless once its router is gone: don't keep them
+            shutil.rmtree(deploy_dir / "secrets", ignore_errors=True)
     return style_path, style, rec
 
 

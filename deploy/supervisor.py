@@ -44,6 +44,8 @@ from typing import Any
 
 import yaml
 
+from cinetransfer.shared import keys
+
 log = logging.getLogger("cinetransfer.deploy")
 CONFIG_DIR = Path(__file__).resolve().parent / "configs"
 _VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
@@ -60,6 +62,7 @@ class Proc:
     kind: str  # 'router' | 'node'
     argv: tuple[str, ...]  # arguments after `python -m cinetransfer`
     identity: str | None = None  # who it joins the bus as (secure deployments)
+    role: str | None = None  # its node in deploy/dataflow.yaml (default: its name)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -168,7 +171,8 @@ def load_config(name_or_path: str) -> DeployConfig:
             raise ConfigError(f"{path}: nodes[{i}].args must be a list")
         z = {**(defaults.get("zenoh") or {}), **(n.get("zenoh") or {})}
         argv = [str(n["command"]), *map(str, args), "--rig", rig, *_zenoh_flags(z, f"nodes[{i}]")]
-        nodes.append(Proc(str(n["name"]), "node", tuple(argv), str(n.get("identity", n["name"]))))
+        nodes.append(Proc(str(n["name"]), "node", tuple(argv), str(n.get("identity", n["name"])),
+                          str(n.get("role", n["name"]))))
     names = [p.name for p in routers + nodes]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
@@ -485,6 +489,43 @@ def _alive(cfg: DeployConfig, run_dir: Path, endpoint: str | None, rig: str, tim
     return alive_nodes(endpoint, rig, timeout, secrets=secrets_dir(cfg, run_dir) if cfg.secure else None)
 
 
+def dataflow_problems(cfgs: list[DeployConfig], *, grants: bool = True) -> list[str]:
+    """What is wrong with these configs (one deployment, e.g. ground + onboard) against the
+    declared dataflow: unknown nodes, keys read but never written, two writers of an exclusive
+    key, and (with `grants`) granted keys outside the topic table."""
+    from cinetransfer.shared import dataflow
+
+    flow = dataflow.load()
+    problems = flow.check({f"{p.name}" if len(cfgs) == 1 else f"{c.name}/{p.name}": p.role or p.name
+                           for c in cfgs for p in c.nodes})
+    if not grants:
+        return problems
+    relays = {p.identity for c in cfgs for p in c.nodes if p.role == "relay"}
+    known = {f"{keys.ROOT}/*/{t.service}/{t.topic}" for t in keys.TOPICS}
+    for c in cfgs:
+        for who, exprs in c.grants:
+            bad = [e for e in exprs if e not in known and who not in relays]
+            problems += [f"{c.name}: security.grants.{who}: unknown key {e!r}" for e in bad]
+    return problems
+
+
+def cmd_check(names: list[str]) -> int:
+    try:
+        cfgs = [load_config(n) for n in names]
+    except ConfigError as e:
+        print(f"cinetransfer deploy check: {e}", file=sys.stderr)
+        return 2
+    problems = dataflow_problems(cfgs)
+    for msg in problems:
+        print(f"cinetransfer deploy check: {msg}", file=sys.stderr)
+    if problems:
+        return 1
+    n = sum(len(c.nodes) for c in cfgs)
+    print(f"deploy check: {' + '.join(c.name for c in cfgs)}: {n} nodes, every key read is written, "
+          f"no exclusive key has two writers")
+    return 0
+
+
 def cmd_up(cfg: DeployConfig, run_dir: Path, wait: bool, foreground: bool) -> int:
     run_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
     lock_fd = _try_lock(run_dir)
@@ -638,6 +679,12 @@ def main(argv: list[str]) -> int:
         from cinetransfer.deploy import certs
 
         return certs.main(argv[1:])
+    if argv[:1] == ["check"]:
+        if len(argv) < 2 or argv[1] in ("-h", "--help"):
+            print("usage: cinetransfer deploy check CONFIG [CONFIG ...]\n\ncheck configs that form one deployment "
+                  "against the declared dataflow (deploy/dataflow.yaml)")
+            return 0 if len(argv) > 1 else 2
+        return cmd_check(argv[1:])
     p = argparse.ArgumentParser(prog="cinetransfer deploy", description=__doc__.splitlines()[0],
                                 epilog="'cinetransfer deploy certs DIR' creates a CA, certificates and passwords "
                                        "for a secure split deployment (docs/security.md).")
@@ -664,6 +711,7 @@ def main(argv: list[str]) -> int:
     lg.add_argument("-f", "--follow", action="store_true")
     lg.add_argument("-n", "--lines", type=int, default=50)
     sub.add_parser("certs", help="create a CA, per-node certificates and passwords in DIR")
+    sub.add_parser("check", help="check configs (one deployment) against the declared dataflow")
     sv = sub.add_parser("_supervise", help=argparse.SUPPRESS)
     common(sv)
     sv.add_argument("--lock-fd", type=int, default=None)
@@ -682,6 +730,13 @@ def main(argv: list[str]) -> int:
         fcntl.flock(args.lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # ours already (inherited); fails otherwise
         return Supervisor(cfg, run_dir).run()
     if args.cmd == "up":
+        problems = dataflow_problems([cfg], grants=False)  # (test rigs may grant keys of their own)
+        if problems:
+            for msg in problems:
+                print(f"cinetransfer deploy up: {msg}", file=sys.stderr)
+            print("cinetransfer deploy up: refused (see deploy/dataflow.yaml; 'cinetransfer deploy check')",
+                  file=sys.stderr)
+            return 2
         return cmd_up(cfg, run_dir, wait=not args.no_wait, foreground=args.foreground)
     if args.cmd == "down":
         return cmd_down(cfg, run_dir, args.timeout)

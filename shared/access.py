@@ -6,8 +6,9 @@ certificate's common name. The router enforces, by key expression, with default 
 
 - every authenticated identity may subscribe to `ct/**`, receive what it subscribed to, and
   declare its own liveliness token, health key and `config` queryable;
-- only the identities in `PUBLISHERS` may publish a topic (only the planner publishes setpoints;
-  only `operator` sends vehicle and planner commands);
+- only the identities in `PUBLISHERS` may publish a topic: the outputs each node declares in
+  deploy/dataflow.yaml (only the planner publishes setpoints; only `operator` sends vehicle and
+  planner commands);
 - only `operator` may query a node's `config` (the safety limits).
 
 A router-to-router link carries every identity of the far side, so a link identity is the
@@ -19,32 +20,29 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from cinetransfer.shared import keys
+from cinetransfer.shared import dataflow, keys
 
 OPERATOR = "operator"  # the operator's tools: `cinetransfer transfer`, command senders
 OBSERVER = "observer"  # read-only tools: `monitor`, `deploy up/status` liveliness checks
 
-#: topic -> identities that may publish it (everybody authenticated may subscribe)
-PUBLISHERS: dict[keys.Topic, tuple[str, ...]] = {
-    keys.FRAME: ("autopilot_bridge", "camera", "detector"),
-    keys.MEASUREMENT: ("detector",),
-    keys.INSTRUCTIONS: ("smoother", OPERATOR),
-    keys.SETPOINT: ("planner",),
-    keys.PLANNER_COMMAND: (OPERATOR,),
-    keys.VEHICLE_STATE: ("autopilot_bridge",),
-    keys.SUBJECT_STATE: ("autopilot_bridge",),
-    keys.BRIDGE_COMMAND: (OPERATOR,),
-    keys.SIM_TRUTH: ("autopilot_bridge",),
-    keys.SMOOTHER_COMMAND: (OPERATOR, "detector"),
-}
+def _publishers() -> dict[keys.Topic, tuple[str, ...]]:
+    flow = dataflow.load()
+    return {t: flow.publishers(t) for t in keys.TOPICS}
+
+
+#: topic -> identities that may publish it (everybody authenticated may subscribe): exactly the
+#: outputs each node declares in deploy/dataflow.yaml
+PUBLISHERS: dict[keys.Topic, tuple[str, ...]] = _publishers()
 #: identities that may query `ct/<rig>/<node>/config`
 CONFIG_READERS: tuple[str, ...] = (OPERATOR,)
 
-NODE_IDENTITIES = ("autopilot_bridge", "planner", "detector", "smoother", "camera")
+#: every node of the dataflow that joins the bus as itself (tools are OPERATOR / OBSERVER)
+NODE_IDENTITIES = tuple(n.name for n in dataflow.load().nodes.values()
+                        if not n.external and (n.inputs or n.outputs))
 TOOL_IDENTITIES = (OPERATOR, OBSERVER)
 #: router-to-router links: the link identity (certificate CN) and the identities behind it
 LINKS: dict[str, tuple[str, ...]] = {
-    "ground": ("detector", "smoother", "camera", OPERATOR, OBSERVER),
+    "ground": ("source", "detector", "smoother", "output_detector", "camera", OPERATOR, OBSERVER),
     "onboard": ("planner", "autopilot_bridge"),
 }
 #: identities that get a password in users.txt / a certificate from `deploy certs`

@@ -188,3 +188,43 @@ def test_foreground_ctrl_c_stops_every_process(port, tmp_path):
             up.kill()
         deploy("down", str(RELAYS), "--run-dir", str(run_dir), env=env, cwd=tmp_path)
     assert running_procs(run_dir) == {} and not [p for p in procs if _pid_alive(p)]
+
+
+def test_deploy_check_passes_the_shipped_configs_and_names_what_is_broken(tmp_path):
+    import subprocess
+    import sys
+
+    def check(*configs):
+        return subprocess.run([sys.executable, "-m", "cinetransfer", "deploy", "check", *configs],
+                              capture_output=True, text=True, timeout=60)
+
+    for configs in (["local"], ["ground"], ["onboard"], ["ground", "onboard"]):
+        r = check(*configs)
+        assert r.returncode == 0, r.stderr
+    local = (REPO / "deploy" / "configs" / "local.yaml").read_text()
+    # a deployment without the detector: the smoother reads a key nobody writes
+    no_detector = tmp_path / "no_detector.yaml"
+    no_detector.write_text(local.replace("  - name: detector\n    command: detector\n    args: [--input, source]\n", ""))
+    r = check(str(no_detector))
+    assert r.returncode == 1 and "smoother reads detector/measurement but no node of the deployment writes it" in r.stderr
+    # two planners on one rig: two writers of the setpoint
+    two = tmp_path / "two_planners.yaml"
+    two.write_text(local.replace("  - name: planner\n    command: planner\n    args: []\n",
+                                 "  - name: planner\n    command: planner\n    args: []\n"
+                                 "  - name: planner2\n    role: planner\n    command: planner\n    args: []\n"))
+    r = check(str(two))
+    assert r.returncode == 1 and "planner/setpoint has 2 writers (planner, planner2)" in r.stderr
+    # an unknown node and an unknown key
+    odd = tmp_path / "odd.yaml"
+    odd.write_text(local.replace("security:\n", "security:\n  grants:\n    planner: [ct/*/planner/setpoints]\n")
+                   + "")
+    odd.write_text(odd.read_text().replace("  - name: planner\n", "  - name: warp_drive\n    command: source\n"
+                                           "    args: []\n  - name: planner\n"))
+    r = check(str(odd))
+    assert r.returncode == 1
+    assert "node 'warp_drive' is not declared in dataflow.yaml" in r.stderr
+    assert "unknown key 'ct/*/planner/setpoints'" in r.stderr
+    # and 'up' refuses a broken config before starting anything
+    r = subprocess.run([sys.executable, "-m", "cinetransfer", "deploy", "up", str(two), "--run-dir", str(tmp_path / "rd")],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "planner/setpoint has 2 writers" in r.stderr

@@ -24,7 +24,8 @@ class Bus:
         self.alive: set[str] = set()
         self._decl = [
             self.session.declare_subscriber(keys.MEASUREMENT.key(rig), self._on_m),
-            self.session.declare_subscriber(keys.FRAME.key(rig), self._on_f),
+            self.session.declare_subscriber(keys.OUTPUT_MEASUREMENT.key(rig), self._on_m),
+            self.session.declare_subscriber(keys.SOURCE_FRAME.key(rig), self._on_f),
             self.session.declare_subscriber(keys.health(rig, "detector"), self._on_h),
             self.session.liveliness().declare_subscriber(keys.all_alive(rig), self._on_alive, history=True),
         ]
@@ -63,7 +64,7 @@ class Bus:
 def test_service_measures_frames_and_drops_visibly(tmp_path, data, port, listener_opts):
     rig = "det1"
     bus = Bus(listener_opts, rig)
-    proc = spawn("detector", "--rig", rig, *connect_flags(port), "--health-period", "0.3",
+    proc = spawn("detector", "--rig", rig, "--input", "camera", *connect_flags(port), "--health-period", "0.3",
                  log=tmp_path / "detector.log")
     try:
         wait_for(lambda: "detector" in bus.alive, 60, what="detector liveliness")

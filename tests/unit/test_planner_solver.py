@@ -32,6 +32,9 @@ class _Dummy:
         self.bounds = cfg.bounds
         self.dt = cfg.structure.dt_s
 
+    def reset(self):  # 'start' forgets the warm start; nothing to forget here
+        pass
+
 
 def test_warm_start_needs_fewer_iterations_than_cold():
     cfg = pc.PlannerConfig(max_solve_time_s=1.0)
