@@ -34,6 +34,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "plot": ("cinetransfer.services.smoother.cli", "plot_main", "plot a style.json"),
     "plan": ("cinetransfer.services.planner.cli", "main", "fly a style.json in the simulator, in-process"),
     "transfer": ("cinetransfer.transfer", "main", "source video -> recorded shot + fidelity report"),
+    "command": ("cinetransfer.command", "main", "send one command (play, start, stop, hold, ...) as the operator"),
     "replay": ("cinetransfer.replay", "main", "republish a recorded run on Zenoh"),
     "report": ("cinetransfer.report.cli", "main", "build a fidelity report from a run folder"),
     "docs": ("cinetransfer.shared.docgen", "main", "generate docs/messages.md from the schemas"),

@@ -2,7 +2,8 @@
 
 1. bring up the dataflow as separate processes over Zenoh      → OUTDIR/deploy/*.log
    (a router, source, detector, smoother, planner, autopilot bridge with the simulator) — or
-   use a running deployment with `--connect tcp/HOST:PORT` (e.g. after `deploy up local`)
+   join a running deployment: `--deployment local` (after `deploy up local`; or `ground` for a
+   ground/onboard split), or `--connect tcp/HOST:PORT` with `--identity operator --secrets DIR`
 2. play the source clip into it: source -> detector -> smoother; the smoother's final
    whole-sequence instructions are the style                   → OUTDIR/style.json
    (`--style FILE` skips this and publishes the file's instructions instead)
@@ -33,6 +34,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import yaml
+import zenoh
 from tqdm import tqdm
 
 from cinetransfer.shared import codec, keys, zenoh_config
@@ -261,6 +263,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "instead of simulation time in lockstep")
     p.add_argument("--stall-timeout", type=float, default=300.0, metavar="S",
                    help="fail when no frame arrives for this many wall seconds (default %(default)s)")
+    p.add_argument("--deployment", metavar="CONFIG", default=None,
+                   help="join this running deployment (config name or file, e.g. local, or ground for a split "
+                        "one) as the operator, with its credentials, instead of starting one")
     p.add_argument("--no-eval", action="store_true", help="skip extraction on the output and the report")
     p.add_argument("--log-level", default="INFO")
     zenoh_config.add_arguments(p)
@@ -366,7 +371,10 @@ def _job(args, src: Path, out: Path, meta: dict, timings: dict) -> tuple[Path, M
     """Bring up (or join) the deployment, extract the style on it, fly the take, bring it down."""
     t = time.monotonic()
     deploy_dir = out / "deploy"
-    if args.connect:
+    if args.deployment:
+        opts = zenoh_config.deployment_options(args.deployment, "operator", shared_memory=True)
+        cfg_path = None
+    elif args.connect:
         opts = zenoh_config.options_from_args(args, mode="client")
         cfg_path = None
     else:
@@ -444,7 +452,7 @@ def main(argv: list[str]) -> int:
         timings["total_s"] = time.monotonic() - t_start
         meta.update(timings=timings, credit=_credit(src))
         write_json(out / "meta.json", meta)
-    except (TransferError, MissingFramesError, ValueError, OSError) as e:
+    except (TransferError, MissingFramesError, ValueError, OSError, zenoh.ZError) as e:
         print(f"cinetransfer transfer: {e}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:  # outside the flight (extraction, start-up): nothing is flying yet

@@ -2,7 +2,8 @@
 
 Every key is ``{root}/{rig}/{service}/{topic}``; `root` is "ct". One rig = one vehicle, so
 several rigs can share a Zenoh network. The topic table gives, for each topic, its message
-type, publisher, expected rate and queue policy; health checks and docs derive from it.
+type, expected rate and queue policy; who writes and reads it is declared in
+deploy/dataflow.yaml (shared/dataflow.py). Health checks and docs derive from both.
 """
 from __future__ import annotations
 
@@ -26,7 +27,6 @@ class Topic:
     service: str
     topic: str
     msg_type: type
-    publisher: str
     rate_hz: float  # expected rate; 0 = event-driven
     policy: str  # 'drop-oldest' (latest wins) or 'no-drop' (commands, whole sequences)
     doc: str
@@ -35,40 +35,40 @@ class Topic:
         return f"{ROOT}/{_check(rig, 'rig name')}/{self.service}/{self.topic}"
 
 
-FRAME = Topic("camera", "frame", M.Frame, "autopilot_bridge | camera node | detector --video", 24.0,
+FRAME = Topic("camera", "frame", M.Frame, 24.0,
               "drop-oldest", "camera frames with the lens state they were taken with")
-MEASUREMENT = Topic("detector", "measurement", M.Measurement, "detector", 24.0, "no-drop",
+MEASUREMENT = Topic("detector", "measurement", M.Measurement, 24.0, "no-drop",
                     "people, skeletons and focus map of one frame")
-INSTRUCTIONS = Topic("smoother", "instructions", M.Instructions, "smoother", 2.0, "no-drop",
+INSTRUCTIONS = Topic("smoother", "instructions", M.Instructions, 2.0, "no-drop",
                      "recording instructions: a streaming window, or the whole sequence (final)")
-SETPOINT = Topic("planner", "setpoint", M.Setpoint, "planner", 20.0, "drop-oldest",
+SETPOINT = Topic("planner", "setpoint", M.Setpoint, 20.0, "drop-oldest",
                  "next state to track and the planned horizon")
-PLANNER_COMMAND = Topic("planner", "command", M.Command, "operator / transfer", 0.0, "no-drop",
+PLANNER_COMMAND = Topic("planner", "command", M.Command, 0.0, "no-drop",
                         "start / pause / resume / stop a recording")
-VEHICLE_STATE = Topic("vehicle", "state", M.VehicleState, "autopilot_bridge", 50.0, "drop-oldest",
+VEHICLE_STATE = Topic("vehicle", "state", M.VehicleState, 50.0, "drop-oldest",
                       "pose, velocity, gimbal, lens, mode")
-SUBJECT_STATE = Topic("subject", "state", M.SubjectState, "autopilot_bridge | perception", 50.0,
+SUBJECT_STATE = Topic("subject", "state", M.SubjectState, 50.0,
                       "drop-oldest", "3-D joints of the filmed subject")
-BRIDGE_COMMAND = Topic("vehicle", "command", M.Command, "operator / transfer", 0.0, "no-drop",
+BRIDGE_COMMAND = Topic("vehicle", "command", M.Command, 0.0, "no-drop",
                        "arm / takeoff / hold / land requests to the bridge")
 
-SMOOTHER_COMMAND = Topic("smoother", "command", M.Command, "operator / transfer / detector", 0.0, "no-drop",
+SMOOTHER_COMMAND = Topic("smoother", "command", M.Command, 0.0, "no-drop",
                          "'end' (end of stream: publish the whole-sequence instructions) or 'reset'")
 
-SIM_TRUTH = Topic("sim", "truth", M.GroundTruth, "autopilot_bridge (sim backend)", 24.0, "no-drop",
+SIM_TRUTH = Topic("sim", "truth", M.GroundTruth, 24.0, "no-drop",
                   "exact ground truth of each rendered frame")
 
-SOURCE_FRAME = Topic("source", "frame", M.Frame, "source", 24.0, "no-drop",
+SOURCE_FRAME = Topic("source", "frame", M.Frame, 24.0, "no-drop",
                      "frames of the source clip whose style is imitated (never dropped: credit flow control)")
-SOURCE_COMMAND = Topic("source", "command", M.Command, "operator / transfer", 0.0, "no-drop",
+SOURCE_COMMAND = Topic("source", "command", M.Command, 0.0, "no-drop",
                        "'play' (args: path, stop) or 'stop' the source clip")
-SOURCE_END = Topic("source", "end", M.StreamEnd, "source", 0.0, "no-drop",
+SOURCE_END = Topic("source", "end", M.StreamEnd, 0.0, "no-drop",
                    "end of the source clip's frames (how many were sent)")
-DETECTOR_END = Topic("detector", "end", M.StreamEnd, "detector", 0.0, "no-drop",
+DETECTOR_END = Topic("detector", "end", M.StreamEnd, 0.0, "no-drop",
                      "end of the measurements of one source stream (after its last frame)")
-OUTPUT_MEASUREMENT = Topic("output", "measurement", M.Measurement, "detector --input camera", 24.0, "drop-oldest",
+OUTPUT_MEASUREMENT = Topic("output", "measurement", M.Measurement, 24.0, "drop-oldest",
                            "live measurements of the drone's own camera (output-style view; never feeds the planner)")
-SIM_CLOCK = Topic("sim", "clock", M.SimClock, "autopilot_bridge (sim backend)", 20.0, "no-drop",
+SIM_CLOCK = Topic("sim", "clock", M.SimClock, 20.0, "no-drop",
                   "simulation time: one tick per control step; nodes that see it take 'now' from it")
 
 TOPICS: tuple[Topic, ...] = (FRAME, MEASUREMENT, INSTRUCTIONS, SETPOINT, PLANNER_COMMAND, VEHICLE_STATE,

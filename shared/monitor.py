@@ -112,11 +112,36 @@ class Monitor:
             lines.append("(no messages yet)")
         lines.append("")
         lines.append("alive: " + (", ".join(k.split("/")[1] + "/" + k.split("/")[-1] for k in alive) or "(none)"))
+        silent = silent_keys(alive, {k for k, _ in rows})
+        if silent:
+            lines.append("SILENT (declared outputs of live nodes, nothing received): " + ", ".join(silent))
         return "\n".join(lines)
 
     def close(self) -> None:
         for s in self._subs:
             s.undeclare()
+
+
+#: outputs that only exist in some modes or on events; their silence is no sign of trouble
+EVENT_ONLY_RATE = 0.0
+
+
+def silent_keys(alive_tokens: list[str] | set[str], seen: set[str]) -> list[str]:
+    """Declared outputs (deploy/dataflow.yaml) of the live nodes that nothing was received on.
+    Event-driven keys (rate 0 in the topic table) are left out: they are quiet by nature."""
+    from cinetransfer.shared import dataflow
+
+    flow = dataflow.load()
+    out = []
+    for token in sorted(alive_tokens):
+        parts = token.split("/")
+        if len(parts) != 4 or parts[3] not in flow.nodes:
+            continue
+        rig = parts[1]
+        for t in flow.nodes[parts[3]].outputs:
+            if t.rate_hz > EVENT_ONLY_RATE and t.key(rig) not in seen:
+                out.append(t.key(rig))
+    return list(dict.fromkeys(out))
 
 
 def _size(n: int) -> str:
@@ -127,6 +152,21 @@ def _size(n: int) -> str:
     return f"{n:.1f} GB"
 
 
+def _options(args: argparse.Namespace) -> zenoh_config.ZenohOptions:
+    """With no endpoint or config file given, join a deployment (`local` by default: `deploy up
+    local` listens on tcp/127.0.0.1:7447) as the read-only observer, with its credentials."""
+    explicit = args.connect or args.listen or args.zenoh_config or os.environ.get(zenoh_config.ENV_CONFIG)
+    if explicit and not args.deployment:
+        return zenoh_config.options_from_args(args)
+    try:
+        return zenoh_config.deployment_options(args.deployment or "local", args.identity or "observer")
+    except ValueError:
+        if args.deployment:
+            raise
+    # the local deployment never made credentials (never started, or not secure): a plain client
+    return zenoh_config.options_from_args(args, connect=(DEFAULT_ROUTER,))
+
+
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="cinetransfer monitor", description=__doc__.splitlines()[0])
     p.add_argument("keyexpr", nargs="?", default=f"{keys.ROOT}/**", help="key expression (default %(default)s)")
@@ -134,15 +174,13 @@ def main(argv: list[str]) -> int:
     p.add_argument("--once", action="store_true", help="print one snapshot after --duration seconds and exit")
     p.add_argument("--duration", type=float, default=2.0, help="collection time for --once (default %(default)s s)")
     p.add_argument("--period", type=float, default=1.0, help="table refresh period (default %(default)s s)")
+    p.add_argument("--deployment", default=None, metavar="CONFIG",
+                   help="join this running deployment (config name or file) as the read-only 'observer' "
+                        "(default, when no endpoint is given: local)")
     zenoh_config.add_arguments(p)
     args = p.parse_args(argv)
     try:
-        # With no endpoint or config file given, join the local deployment's router
-        # (`deploy up local` listens on tcp/127.0.0.1:7447); a peer keeps retrying until it is up.
-        defaults = {}
-        if not (args.connect or args.listen or args.zenoh_config or os.environ.get(zenoh_config.ENV_CONFIG)):
-            defaults["connect"] = (DEFAULT_ROUTER,)
-        opts = zenoh_config.options_from_args(args, **defaults)
+        opts = _options(args)
     except ValueError as e:
         p.error(str(e))
     stop = threading.Event()

@@ -43,3 +43,12 @@ def test_wheel_is_namespaced_and_importable(tmp_path):
                        cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert r.stdout.splitlines()[0].startswith(str(site)) and r.stdout.splitlines()[1] == "local"
+
+
+def test_readme_node_table_is_generated_from_the_dataflow():
+    from cinetransfer.shared import docgen
+
+    text = (REPO / "README.md").read_text()
+    assert text == docgen.readme_with_nodes(text), \
+        "README's node table is stale: run `cinetransfer docs nodes --readme README.md`"
+    assert "`source/frame`" in text  # the table is really there
