@@ -87,6 +87,15 @@ class SafetyConfig:
     f_number_max: float = 22.0
     #: watchdog [s]: no fresh accepted setpoint for this long -> hold position.
     watchdog_timeout_s: float = 0.5
+    #: the measured vehicle counts as outside the envelope (geofence or altitude band) once it is
+    #: more than this [m] beyond it (tracking noise at the fence is not a breach), 0..10.
+    breach_tolerance_m: float = 0.25
+    #: on a breach the bridge commands the nearest point this far [m] inside the envelope and
+    #: ignores the plan until the vehicle is half this far inside (PX4-style geofence return), 0..50.
+    breach_return_margin_m: float = 1.0
+    #: a setpoint stamped more than this [s] after the bridge's clock is rejected (clock skew
+    #: between the planner's machine and the bridge's must stay below it), 0..60.
+    max_stamp_ahead_s: float = 1.0
 
     def __post_init__(self) -> None:
         self.validate()
@@ -122,6 +131,12 @@ class SafetyConfig:
         if self.focal_length_min_mm <= 0 or self.focus_min_m <= 0 or self.f_number_min <= 0:
             raise ConfigError("lens lower limits must be > 0")
         _positive("watchdog_timeout_s", self.watchdog_timeout_s)
+        for name, hi in (("breach_tolerance_m", 10.0), ("breach_return_margin_m", 50.0),
+                         ("max_stamp_ahead_s", 60.0)):
+            v = getattr(self, name)
+            _finite(name, v)
+            if not 0 <= v <= hi:
+                raise ConfigError(f"{name} = {v!r}: must be in [0, {hi}]")
 
 
 @dataclass(frozen=True)

@@ -182,17 +182,24 @@ class Bridge:
         now = time.monotonic()
         with node.timed():
             for cmd in self.cmd_in.drain():
-                action = core.on_command(cmd)
-                log.info("command %s %s", cmd.action, cmd.args or "")
-                if action and action != "hold" and not backend.command(action, dict(cmd.args)):
-                    node.error(f"backend {backend.name} does not support command {action!r}", "command")
-                elif action is None and cmd.action not in ("hold", "resume"):
-                    node.reject(f"unknown bridge command {cmd.action!r}")
+                # guard: whatever one command trips over costs that command, not the loop
+                with node.guard(self.cmd_in.key, "command"):
+                    args, why = core.command_args(cmd)
+                    if args is None:
+                        node.reject(f"bridge command {cmd.action!r}: {why}")
+                        continue
+                    action = core.on_command(cmd)
+                    log.info("command %s %s", cmd.action, cmd.args or "")
+                    if action and action != "hold" and not backend.command(action, args):
+                        node.error(f"backend {backend.name} does not support command {action!r}", "command")
+                    elif action is None and cmd.action not in ("hold", "resume"):
+                        node.reject(f"unknown bridge command {cmd.action!r}")
             subject = self._subject(now)
             for sp in self.sp_in.drain():
-                res = core.on_setpoint(sp, now, vehicle=self.vehicle, subject=subject)
-                if res is not None and not res.accepted:
-                    node.reject(f"setpoint #{sp.seq}: {res.reason}")
+                with node.guard(self.sp_in.key, "setpoint"):
+                    res = core.on_setpoint(sp, now, clock_ns=M.now_ns(), vehicle=self.vehicle, subject=subject)
+                    if res is not None and not res.accepted:
+                        node.reject(f"setpoint #{sp.seq}: {res.reason}")
             connected = backend.connected
             dec = core.tick(now, vehicle=self.vehicle, connected=connected)
             if dec.hold:
@@ -205,7 +212,10 @@ class Bridge:
                 backend.apply(dec.setpoint)
             backend.step(now)
             vs = backend.vehicle_state()
-            vs = dataclasses.replace(vs, holding=dec.hold, valid=bool(vs.valid and connected))
+            vs = dataclasses.replace(vs, holding=dec.hold, valid=bool(vs.valid and connected),
+                                     envelope_breach=dec.breach)
+            if dec.breach and dec.changed:
+                log.warning("envelope breach at %s: flying back inside", vs.position_m)
             self.vehicle = vs
             if self.ticks % self.cfg.state_every_n == 0:
                 self.state_pub.put(vs)
@@ -225,7 +235,7 @@ class Bridge:
             counters.update(extra())
         counters["connected"] = connected
         node.counters.update(counters)
-        node.healthy = bool(connected and vs.valid)
+        node.healthy = bool(connected and vs.valid and not dec.breach)
 
 
 def main(argv: list[str]) -> int:
