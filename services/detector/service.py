@@ -156,7 +156,9 @@ def run_subscriber(node, det, args, stats: _Stats) -> int:
         stats.skipped += len(frames) - 1
         # gaps not explained by our own queue's drops were lost before reaching us
         node.counters["frames_missing_upstream"] = max(0, stats.index_gaps - inbox.dropped)
-        _process(node, det, pub, stats, frames[-1])
+        # guard: _process counts the errors it expects; anything else is a rejected frame, not an exit
+        with node.guard(inbox.key, "frame"):
+            _process(node, det, pub, stats, frames[-1])
         node.counters["frames_skipped"] = stats.skipped
     return 0
 

@@ -96,11 +96,16 @@ def main(argv: list[str]) -> int:
         def tick() -> None:
             now = M.now_ns()
             for cmd in cmd_in.drain():
-                if not planner.command(cmd, now):
-                    node.reject(f"unknown or malformed planner command {cmd.action!r}")
+                with node.guard(cmd_in.key, "command"):  # one bad command never ends the loop
+                    if not planner.command(cmd, now):
+                        node.reject(f"unknown or malformed planner command {cmd.action!r}")
             for ins in ins_in.drain():
                 if ins.image_targets.shape[0] == 0:
                     node.reject("instructions with no frames")
+                    continue
+                why = planner.refuse_instructions(ins)
+                if why:
+                    node.reject(f"instructions refused: {why}")
                     continue
                 latest["ins"] = ins
             v = veh_in.latest()
