@@ -252,6 +252,11 @@ class BridgeConfig:
             raise ConfigError(f"jpeg_quality = {self.jpeg_quality!r}: must be 0 (raw) or 1..100")
         if not isinstance(self.state_every_n, int) or self.state_every_n < 1:
             raise ConfigError("state_every_n must be an integer >= 1")
+        # the take-off altitude is a command argument like any other: inside the same altitude band
+        lo, hi = self.safety.altitude_min_m, self.safety.altitude_max_m
+        if not lo <= self.mavlink.takeoff_altitude_m <= hi:
+            raise ConfigError(f"mavlink.takeoff_altitude_m = {self.mavlink.takeoff_altitude_m!r}: must lie in the "
+                              f"safety altitude band [{lo}, {hi}] m")
 
 
 def replace_nested(cfg: Any, **changes: Any) -> Any:

@@ -203,3 +203,11 @@ def test_a_breach_outranks_an_operator_hold_but_not_a_lost_link(sim):
     assert d.breach and not d.hold and d.setpoint is not None and d.setpoint.position_m[2] <= 40.0
     d = core.tick(0.02, vehicle=vs, connected=False)
     assert d.hold and d.reason == "link lost" and d.breach
+
+
+def test_the_configured_take_off_altitude_must_lie_in_the_same_altitude_band():
+    from cinetransfer.services.autopilot_bridge.config import BridgeConfig, ConfigError, MavlinkConfig
+
+    with pytest.raises(ConfigError, match="takeoff_altitude_m"):
+        BridgeConfig(mavlink=MavlinkConfig(takeoff_altitude_m=100.0))
+    BridgeConfig(mavlink=MavlinkConfig(takeoff_altitude_m=3.0))
