@@ -169,12 +169,19 @@ def clamp_outward_velocity(p: np.ndarray, v: np.ndarray, cfg: SafetyConfig) -> t
 
 
 def envelope_breach(p: np.ndarray, cfg: SafetyConfig, tol_m: float | None = None) -> bool:
-    """Whether the measured position `p` is outside the envelope by more than `tol_m`
-    (default `cfg.breach_tolerance_m`). Non-finite positions count as a breach."""
+    """Whether the measured position `p` is outside the geofence or above the altitude band by
+    more than `tol_m` (default `cfg.breach_tolerance_m`). Non-finite positions count as a breach.
+
+    Below the band is not a breach: a vehicle on the ground, taking off or landing is there
+    legitimately (the floor bounds what may be *commanded*), and "fly back up" is no safe
+    reaction near the ground."""
     p = np.asarray(p, dtype=float)
     if p.shape != (3,) or not np.all(np.isfinite(p)):
         return True
-    return not inside_geofence(p, cfg, cfg.breach_tolerance_m if tol_m is None else tol_m)
+    tol = cfg.breach_tolerance_m if tol_m is None else tol_m
+    q = p.copy()
+    q[2] = max(q[2], cfg.home_m[2] + cfg.altitude_min_m + max(0.0, -tol))  # the floor is not checked
+    return not inside_geofence(q, cfg, tol)
 
 
 def return_point(p: np.ndarray, cfg: SafetyConfig, margin_m: float | None = None) -> np.ndarray:

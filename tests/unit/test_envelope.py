@@ -87,6 +87,8 @@ def test_breach_and_return_point():
     assert envelope_breach(np.array([62.45, 0.0, 20.0]), CFG)
     assert envelope_breach(np.array([0.0, 0.0, 41.73]), CFG)
     assert envelope_breach(np.array([np.nan, 0.0, 5.0]), CFG)
+    assert not envelope_breach(np.array([0.0, 0.0, 0.0]), CFG)  # on the ground (below the band): landed, not a breach
+    assert not envelope_breach(np.array([0.0, 0.0, 0.0]), CFG, tol_m=-0.5)  # and that holds for the exit check
     ret = return_point(np.array([44.16, 44.16, 41.73]), CFG)
     assert math.hypot(ret[0], ret[1]) == pytest.approx(60.0 - CFG.breach_return_margin_m)
     assert ret[2] == pytest.approx(40.0 - CFG.breach_return_margin_m)
