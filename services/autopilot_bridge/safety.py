@@ -12,7 +12,8 @@ What it enforces (limits in `SafetyConfig`):
   acceleration limit, and directionally at the envelope: its outward component (through the
   geofence or the altitude band) is at most what the vehicle can still brake to zero before
   the boundary at the acceleration limit, so zero at or over it (a clamped position with an
-  outward feed-forward used to park the vehicle 2 m outside the fence); `limit_motion` also moves the commanded position towards the requested
+  outward feed-forward used to park the vehicle 2 m outside the fence); likewise no outward
+  acceleration feed-forward within the braking distance of a boundary; `limit_motion` also moves the commanded position towards the requested
   one no faster than the speed limit and changes the commanded velocity no faster than the
   acceleration limit (so a jump in the plan becomes a bounded-speed transfer);
 - clamp gimbal pitch/roll to their band and wrap yaw to (-pi, pi];
@@ -44,7 +45,7 @@ COUNTER_NAMES = (
     "sp_checked", "sp_accepted", "sp_rejected_nonfinite", "sp_rejected_mode",
     "sp_rejected_subject_conflict", "clamp_geofence", "clamp_altitude", "clamp_subject_distance",
     "clamp_speed", "clamp_accel", "clamp_position_rate", "clamp_velocity_rate", "clamp_gimbal",
-    "clamp_lens", "clamp_velocity_outward",
+    "clamp_lens", "clamp_velocity_outward", "clamp_accel_outward",
 )
 
 
@@ -166,6 +167,34 @@ def clamp_outward_velocity(p: np.ndarray, v: np.ndarray, cfg: SafetyConfig) -> t
     elif -v[2] > down_lim:
         v[2], hit = -down_lim, True
     return v, hit
+
+
+def clamp_outward_accel(p: np.ndarray, a: np.ndarray, cfg: SafetyConfig) -> tuple[np.ndarray, bool]:
+    """Acceleration feed-forward `a` at position `p` without an outward component wherever `p` is
+    within the braking distance at full speed (max_speed² / 2·max_accel) of a boundary: near the
+    fence, pushing outward only stores up an overshoot."""
+    a = np.array(a, dtype=float)
+    hit = False
+    reach = cfg.max_speed_mps ** 2 / (2.0 * cfg.max_accel_mps2)
+    home = np.asarray(cfg.home_m, dtype=float)
+    d = np.asarray(p[:2], float) - home[:2]
+    if cfg.geofence_shape == "cylinder":
+        r = float(np.linalg.norm(d))
+        if r > 1e-9 and cfg.geofence_radius_m - r < reach:
+            n = d / r
+            out = float(a[:2] @ n)
+            if out > 0:
+                a[:2] -= out * n
+                hit = True
+    else:
+        for i, half in enumerate(cfg.geofence_half_extent_m):
+            sign = 1.0 if d[i] >= 0 else -1.0
+            if half - abs(d[i]) < reach and sign * a[i] > 0:
+                a[i], hit = 0.0, True
+    alt = float(p[2]) - home[2]
+    if (cfg.altitude_max_m - alt < reach and a[2] > 0) or (alt - cfg.altitude_min_m < reach and a[2] < 0):
+        a[2], hit = 0.0, True
+    return a, hit
 
 
 def envelope_breach(p: np.ndarray, cfg: SafetyConfig, tol_m: float | None = None) -> bool:
@@ -335,6 +364,9 @@ class SafetyLayer:
         a, hit = clamp_norm(np.array(sp.acceleration_mps2, dtype=float), cfg.max_accel_mps2)
         if hit:
             clamps.append("clamp_accel")
+        a, hit = clamp_outward_accel(p, a, cfg)
+        if hit:
+            clamps.append("clamp_accel_outward")
 
         # -- gimbal
         yaw, pitch, roll = (float(x) for x in sp.camera_ypr_rad)

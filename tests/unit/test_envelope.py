@@ -165,10 +165,12 @@ def sim():
     s.close()
 
 
-def test_given_100hz_setpoints_far_outside_with_a_large_feed_forward_then_the_vehicle_stays_inside(sim):
-    """The attack of issue 13: setpoints at (5000, 5000, 10000) with a large velocity feed-forward,
-    100 Hz. Before: the vehicle settled at r = 62.45 m, z = 41.73 m against 60 / 40."""
-    attack = sp(pos=(5000.0, 5000.0, 10000.0), vel=(500.0, 500.0, 500.0))
+@pytest.mark.parametrize("acc", [(0.0, 0.0, 0.0), (500.0, 500.0, 500.0)])
+def test_given_100hz_setpoints_far_outside_with_a_large_feed_forward_then_the_vehicle_stays_inside(sim, acc):
+    """The attack of issue 13: setpoints at (5000, 5000, 10000) with a large velocity (and
+    acceleration) feed-forward, 100 Hz. Before: the vehicle settled at r = 62.45 m, z = 41.73 m
+    against 60 / 40."""
+    attack = sp(pos=(5000.0, 5000.0, 10000.0), vel=(500.0, 500.0, 500.0), acceleration_mps2=np.array(acc))
     core = BridgeCore(CFG)
     states, decisions = fly(core, sim, lambda t: attack, 60.0)
     r, z = horizontal_and_alt(states)
@@ -205,6 +207,20 @@ def test_a_breach_outranks_an_operator_hold_but_not_a_lost_link(sim):
     assert d.breach and not d.hold and d.setpoint is not None and d.setpoint.position_m[2] <= 40.0
     d = core.tick(0.02, vehicle=vs, connected=False)
     assert d.hold and d.reason == "link lost" and d.breach
+
+
+def test_lens_values_reach_the_simulator_only_inside_the_safety_lens_ranges(sim):
+    """Lens values get to a backend only inside setpoints, clamped to SafetyConfig's ranges."""
+    wild = sp(pos=(0.0, 0.0, 5.0))
+    wild = wild.__class__(**{**wild.__dict__, "lens": M.LensState(focal_length_mm=1e6, focus_distance_m=1e-9,
+                                                                  f_number=0.01)})
+    core = BridgeCore(CFG)
+    states, _ = fly(core, sim, lambda t: wild, 10.0)
+    lens = states[-1].lens
+    assert CFG.focal_length_min_mm <= lens.focal_length_mm <= CFG.focal_length_max_mm
+    assert CFG.focus_min_m <= lens.focus_distance_m <= CFG.focus_max_m
+    assert CFG.f_number_min <= lens.f_number <= CFG.f_number_max
+    assert core.safety.counters["clamp_lens"] > 0
 
 
 def test_the_configured_take_off_altitude_must_lie_in_the_same_altitude_band():
