@@ -13,9 +13,10 @@ What it enforces (limits in `SafetyConfig`):
   geofence or the altitude band) is at most what the vehicle can still brake to zero before
   the boundary at the acceleration limit, so zero at or over it (a clamped position with an
   outward feed-forward used to park the vehicle 2 m outside the fence); likewise no outward
-  acceleration feed-forward within the braking distance of a boundary; `limit_motion` also moves the commanded position towards the requested
-  one no faster than the speed limit and changes the commanded velocity no faster than the
-  acceleration limit (so a jump in the plan becomes a bounded-speed transfer);
+  acceleration feed-forward within the braking distance of a boundary; `limit_motion` also
+  moves the commanded position towards the requested one no faster than the speed limit and
+  changes the commanded velocity no faster than the acceleration limit (so a jump in the plan
+  becomes a bounded-speed transfer);
 - clamp gimbal pitch/roll to their band and wrap yaw to (-pi, pi];
 - clamp focal length, focus distance and f-number to the lens ranges;
 - `envelope_breach` / `return_point`: the measured vehicle position against the same envelope,

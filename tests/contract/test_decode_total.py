@@ -59,9 +59,11 @@ def _same_type_extremes(v):
     if isinstance(v, int):
         return st.sampled_from([0, -1, 1, 2**63 - 1, -(2**63), 10**12]) | st.integers(-(2**63), 2**63 - 1)
     if isinstance(v, float):
-        return st.sampled_from([0.0, -0.0, 1e308, -1e308, 1e-308, 5e-324, float("nan")]) | st.floats(allow_infinity=False)
+        return (st.sampled_from([0.0, -0.0, 1e308, -1e308, 1e-308, 5e-324, float("nan")])
+                | st.floats(allow_infinity=False))
     if isinstance(v, str):
-        return st.sampled_from(["", "track", "hold", "start", "takeoff", "x" * 2000, "\x00", "é" * 50]) | st.text(max_size=30)
+        return (st.sampled_from(["", "track", "hold", "start", "takeoff", "x" * 2000, "\x00", "é" * 50])
+                | st.text(max_size=30))
     return None
 
 

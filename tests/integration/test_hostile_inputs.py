@@ -1,7 +1,8 @@
-"""The 576-byte deep-args Command (issue 13) at the other nodes it used to end: the planner and
-the smoother, as real processes over real Zenoh. Each counts it in Health.rejected and keeps
-working (the planner keeps publishing setpoints; the smoother still answers 'end' with the
-final instructions); SIGINT then gives exit code 0."""
+"""Hostile inputs at the planner and the smoother as real processes over real Zenoh (issue 13):
+the 576-byte deep-args Command, which used to end both loops, is counted in Health.rejected and
+each keeps working (the planner keeps publishing setpoints; the smoother still answers 'end' with
+the final instructions); instructions nothing can fly are refused by the planner. SIGINT then
+gives exit code 0."""
 from __future__ import annotations
 
 import threading
@@ -99,6 +100,37 @@ def test_the_smoother_survives_the_deep_command(port, listener_opts, tmp_path):
         assert proc.poll() is None, log.read_text()
         cmd.undeclare()
         meas.undeclare()
+    finally:
+        rc = stop(proc)
+        peer.close()
+    assert rc == 0, log.read_text()
+
+
+def test_the_planner_refuses_instructions_nothing_can_fly(port, listener_opts, tmp_path):
+    """All-NaN or ±1e6 image targets used to be flown in 'track' mode: now each set is a counted
+    rejection (Health.rejected, counter instructions_refused) and never becomes the plan."""
+    import numpy as np
+
+    from cinetransfer.services.planner.core import instructions_from_arrays
+
+    log = tmp_path / "planner.log"
+    peer = Peer(listener_opts, "planner", keys.SETPOINT.key(RIG))
+    proc = spawn("planner", "--rig", RIG, "--health-period", "0.2", "--max-solve-time", "0.2", "--autostart",
+                 *connect_flags(port), log=log)
+    try:
+        wait_for(lambda: "planner" in peer.alive or proc.poll() is not None, timeout=60, what="planner liveliness")
+        wait_for(lambda: peer.rejected() >= 0, 10, what="first Health")
+        pub = peer.session.declare_publisher(keys.INSTRUCTIONS.key(RIG),
+                                             congestion_control=zenoh.CongestionControl.BLOCK)
+        for value in (np.nan, 1e6, -1e6):
+            ins = instructions_from_arrays(targets=np.full((24, 2, 2), value), joint_names=["nose", "left_hip"])
+            pub.put(codec.encode(ins))
+        wait_for(lambda: peer.rejected() >= 3, 10, what="unusable instructions counted as rejected")
+        with peer.lock:
+            counters = dict(peer.health.counters)
+        assert counters["instructions_refused"] == 3
+        assert counters["state"] != "recording"  # --autostart never started on them
+        pub.undeclare()
     finally:
         rc = stop(proc)
         peer.close()
