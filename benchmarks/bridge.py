@@ -58,7 +58,7 @@ def bench_safety(n: int) -> dict:
         sp = M.Setpoint(stamp_ns=k + 1, position_m=np.array([1.0 + 0.01 * k, 2.0, 5.0]),
                         velocity_mps=np.array([0.5, 0.0, 0.0]), lens=M.LensState(focal_length_mm=50.0))
         t = time.perf_counter()
-        core.on_setpoint(sp, k * 0.02, vehicle=vs, subject=subj)
+        core.on_setpoint(sp, k * 0.02, clock_ns=sp.stamp_ns, vehicle=vs, subject=subj)
         core.tick(k * 0.02 + 0.01, vehicle=vs)
         if k >= 50:
             out.append((time.perf_counter() - t) * 1e6)

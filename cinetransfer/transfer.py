@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
 import shutil
 import signal
 import subprocess
@@ -40,6 +39,7 @@ from tqdm import tqdm
 from cinetransfer.shared import codec, keys, zenoh_config
 from cinetransfer.shared import messages as M
 from cinetransfer.recorder import Recorder, Window
+from cinetransfer.shared.atomic import atomic_write
 from cinetransfer.shared.node import setup_logging
 from cinetransfer.take import MissingFramesError, TakeSummary, require_complete
 
@@ -274,9 +274,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def write_json(path: Path, data: dict) -> None:
     """Temp file then rename: a reader (or a crash) never sees half a file."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=str))
-    os.replace(tmp, path)
+    with atomic_write(path) as fh:
+        json.dump(data, fh, indent=2, default=str)
 
 
 class StyleTap:

@@ -12,7 +12,11 @@ the payload (zero-copy). Boolean arrays are bit-packed; a Frame image may be sen
 (`encode(msg, jpeg_quality=90)`) for a radio link.
 
 `decode` validates everything (type tag, schema version, field types, dtypes, shapes, finiteness)
-and raises `DecodeError` — one error type for every malformed or unsupported payload.
+and raises `DecodeError` — one error type for every malformed or unsupported payload. Decoding
+is total: the header is bounded in size (MAX_HEADER_BYTES), nesting depth (MAX_DEPTH) and element
+count (MAX_ELEMENTS) before any field is looked at, arrays in element count (MAX_ARRAY_ELEMENTS),
+and any other exception raised while decoding (a bug, a library's odd error type) is turned
+into a DecodeError too, so a receiver needs to catch exactly one type.
 Unknown fields are ignored (a newer sender may add fields); missing fields are an error, except
 fields added by a later schema version than the payload's (`since` in the field's metadata), which
 take their defaults — a class reads every version from its MIN_SCHEMA_VERSION up.
@@ -37,6 +41,15 @@ FORMAT = 1
 _PREFIX = struct.Struct("<3sBI")
 _ALIGN = 16
 _UNIONS = (typing.Union, types.UnionType)
+
+#: Limits on what one payload may ask of a receiver. Generous for every real message (the biggest
+#: header, a Measurement with dozens of people, is a few kB; arrays are not in the header), tight
+#: enough that no payload can exhaust the stack (a 576-byte Command with args nested 500 lists deep
+#: used to raise RecursionError) or make the receiver allocate gigabytes.
+MAX_HEADER_BYTES = 16 << 20
+MAX_DEPTH = 32  # the deepest real header (Instructions -> source -> ...) nests about 6
+MAX_ELEMENTS = 1_000_000  # scalars, lists and maps in one header, all together
+MAX_ARRAY_ELEMENTS = 1 << 28  # 4K RGB is 2.5e7
 
 
 class CodecError(ValueError):
@@ -222,9 +235,13 @@ def _decode_array(obj: Any, meta: dict, where: str, blob: memoryview) -> np.ndar
         kind, dt, shape, off, n = obj["__nd__"], obj["dt"], [int(s) for s in obj["sh"]], int(obj["o"]), int(obj["n"])
     except (KeyError, TypeError, ValueError) as e:
         raise DecodeError(f"{where}: malformed array reference ({e})") from None
+    if len(shape) > 8:  # before math.prod: a long shape list would make it slow
+        raise DecodeError(f"{where}: array of {len(shape)} dimensions")
     if off < 0 or n < 0 or off + n > len(blob) or any(s < 0 for s in shape):
         raise DecodeError(f"{where}: array bytes out of range")
     count = math.prod(shape)
+    if count > MAX_ARRAY_ELEMENTS:
+        raise DecodeError(f"{where}: shape {shape} exceeds the limit of {MAX_ARRAY_ELEMENTS} elements")
     data = blob[off:off + n]
     if kind == "raw":
         try:
@@ -288,6 +305,23 @@ def _decode_fields(cls: type, body: dict, blob: memoryview, where: str, version:
     return cls(**kwargs)
 
 
+def check_bounds(obj: Any, *, max_depth: int = MAX_DEPTH, max_elements: int = MAX_ELEMENTS) -> None:
+    """Raise DecodeError if `obj` (an unpacked header) nests deeper than `max_depth` or holds more
+    than `max_elements` values. Iterative, so that the check itself cannot overflow the stack."""
+    stack = [(obj, 1)]
+    seen = 0
+    while stack:
+        value, depth = stack.pop()
+        seen += 1
+        if seen > max_elements:
+            raise DecodeError(f"header holds more than {max_elements} values")
+        if isinstance(value, (list, tuple, dict)):
+            if depth > max_depth:
+                raise DecodeError(f"header nests deeper than {max_depth} levels")
+            items = value.values() if isinstance(value, dict) else value
+            stack.extend((v, depth + 1) for v in items)
+
+
 def peek_type(payload: bytes | bytearray | memoryview) -> tuple[str, int]:
     """(type name, schema version) of a payload without decoding its body."""
     _, header, _ = _split(payload)
@@ -304,12 +338,15 @@ def _split(payload: bytes | bytearray | memoryview) -> tuple[int, dict, memoryvi
     if fmt != FORMAT:
         raise DecodeError(f"wire format {fmt} is not supported (this build reads format {FORMAT})")
     end = _PREFIX.size + hlen
+    if hlen > MAX_HEADER_BYTES:
+        raise DecodeError(f"header of {hlen} bytes exceeds the limit of {MAX_HEADER_BYTES}")
     if end > len(view):
         raise DecodeError("truncated payload (header runs past the end)")
     try:
         header = msgpack.unpackb(view[_PREFIX.size:end], raw=False, strict_map_key=True)
     except Exception as e:  # msgpack raises several unrelated types for garbage
         raise DecodeError(f"corrupt message header ({type(e).__name__}: {e})") from None
+    check_bounds(header)
     if not isinstance(header, dict) or not {"t", "v", "d"} <= header.keys():
         raise DecodeError("message header lacks type/version/data")
     start = end + ((-end) % _ALIGN)
@@ -317,10 +354,19 @@ def _split(payload: bytes | bytearray | memoryview) -> tuple[int, dict, memoryvi
 
 
 def decode(payload: bytes | bytearray | memoryview, expected: type | None = None) -> Any:
-    """Decode and validate a payload; raise DecodeError on anything wrong.
+    """Decode and validate a payload; raise DecodeError on anything wrong — and nothing else.
 
     `expected` (a message class) additionally requires that type.
     """
+    try:
+        return _decode(payload, expected)
+    except DecodeError:
+        raise
+    except Exception as e:  # totality: whatever a payload trips over is that payload's fault
+        raise DecodeError(f"undecodable payload ({type(e).__name__}: {str(e)[:200]})") from None
+
+
+def _decode(payload: bytes | bytearray | memoryview, expected: type | None) -> Any:
     _, header, blob = _split(payload)
     name, version, body = header["t"], header["v"], header["d"]
     cls = M.MESSAGE_TYPES.get(name) if isinstance(name, str) else None

@@ -226,7 +226,8 @@ class Setpoint:
 class VehicleState:
     """Where the vehicle, its gimbal and its lens are (world frame)."""
 
-    SCHEMA_VERSION: ClassVar[int] = 1
+    SCHEMA_VERSION: ClassVar[int] = 2  # 2: envelope_breach
+    MIN_SCHEMA_VERSION: ClassVar[int] = 1
     stamp_ns: int = doc("time of the state estimate [ns]", 0)
     seq: int = doc("sequence number", 0)
     valid: bool = doc("state estimate healthy", True)
@@ -239,6 +240,8 @@ class VehicleState:
     armed: bool = doc("motors armed", False)
     holding: bool = doc("the bridge is commanding a hold (watchdog, link loss or 'hold' setpoint)", False)
     backend: str = doc("'sim' or 'mavlink'", "")
+    envelope_breach: bool = doc("the measured position is outside the bridge's geofence or altitude band; "
+                                "the bridge is flying it back inside", False, since=2)
 
 
 @dataclass(frozen=True, eq=False)

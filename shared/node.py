@@ -19,6 +19,8 @@ What it gives a service:
 - subscribers whose callbacks only enqueue raw payloads into bounded queues (drop-oldest for
   frames and states, no-drop for commands); decoding happens in the service thread, and a
   payload that fails to decode is counted as rejected, logged (rate-limited) and skipped;
+- `node.guard(key)`: a block that handles one message, where any exception is counted as a
+  rejection and logged with the key instead of ending the loop;
 - publishers that stamp `seq` and count what they send;
 - a liveliness token `ct/{rig}/alive/{node}` and a Health message every `health_period_s` on
   `ct/{rig}/health/{node}` (received, rejected, dropped, published, latency, last error, and
@@ -310,6 +312,24 @@ class Node:
         except codec.DecodeError as e:
             self.reject(f"{key}: {e}")
             return None
+
+    @contextlib.contextmanager
+    def guard(self, key: str, what: str = "message") -> Iterator[None]:
+        """Handle one input guardedly: any Exception raised in the block is counted as a
+        rejection, logged (rate-limited) with `key`, and swallowed, so the loop carries on.
+
+            for cmd in cmd_in.drain():
+                with node.guard(cmd_in.key, "command"):
+                    handle(cmd)
+
+        A bug in a handler then costs one message, not the service (STYLE §7); the traceback
+        is kept at DEBUG level so it can still be found.
+        """
+        try:
+            yield
+        except Exception as e:
+            self.log.debug("%s on %s", what, key, exc_info=True)
+            self.reject(f"{key}: {what} failed: {type(e).__name__}: {str(e)[:200]}")
 
     def reject(self, reason: str) -> None:
         """Count and log (rate-limited) a rejected input; the node carries on."""

@@ -88,6 +88,15 @@ class SafetyConfig:
     f_number_max: float = 22.0
     #: watchdog [s]: no fresh accepted setpoint for this long -> hold position.
     watchdog_timeout_s: float = 0.5
+    #: the measured vehicle counts as outside the envelope (geofence or altitude band) once it is
+    #: more than this [m] beyond it (tracking noise at the fence is not a breach), 0..10.
+    breach_tolerance_m: float = 0.25
+    #: on a breach the bridge commands the nearest point this far [m] inside the envelope and
+    #: ignores the plan until the vehicle is half this far inside (PX4-style geofence return), 0..50.
+    breach_return_margin_m: float = 1.0
+    #: a setpoint stamped more than this [s] after the bridge's clock is rejected (clock skew
+    #: between the planner's machine and the bridge's must stay below it), 0..60.
+    max_stamp_ahead_s: float = 1.0
 
     def __post_init__(self) -> None:
         self.validate()
@@ -123,6 +132,12 @@ class SafetyConfig:
         if self.focal_length_min_mm <= 0 or self.focus_min_m <= 0 or self.f_number_min <= 0:
             raise ConfigError("lens lower limits must be > 0")
         _positive("watchdog_timeout_s", self.watchdog_timeout_s)
+        for name, hi in (("breach_tolerance_m", 10.0), ("breach_return_margin_m", 50.0),
+                         ("max_stamp_ahead_s", 60.0)):
+            v = getattr(self, name)
+            _finite(name, v)
+            if not 0 <= v <= hi:
+                raise ConfigError(f"{name} = {v!r}: must be in [0, {hi}]")
 
 
 @dataclass(frozen=True)
@@ -256,6 +271,11 @@ class BridgeConfig:
         if not 0 <= self.pace <= 1000:
             raise ConfigError(f"pace = {self.pace!r}: must be in 0..1000 (0 = as fast as possible)")
         _positive("setpoint_wait_s", self.setpoint_wait_s)
+        # the take-off altitude is a command argument like any other: inside the same altitude band
+        lo, hi = self.safety.altitude_min_m, self.safety.altitude_max_m
+        if not lo <= self.mavlink.takeoff_altitude_m <= hi:
+            raise ConfigError(f"mavlink.takeoff_altitude_m = {self.mavlink.takeoff_altitude_m!r}: must lie in the "
+                              f"safety altitude band [{lo}, {hi}] m")
 
 
 def replace_nested(cfg: Any, **changes: Any) -> Any:

@@ -6,6 +6,17 @@ says with the backend (VehiclePort). Nothing here touches Zenoh, a clock or a li
 
 Hold reasons, by priority: link lost > operator 'hold' command > no setpoint yet > the last
 setpoint was 'hold' / invalid > watchdog (no accepted setpoint for `watchdog_timeout_s`).
+
+Envelope breach (PX4's geofence failsafe as the model): every tick the *measured* vehicle
+position is checked against the geofence and altitude band; when it is outside (by more than
+`breach_tolerance_m`), the plan is ignored and the vehicle is sent to the nearest point
+`breach_return_margin_m` inside, until it is back inside by half that margin. Only a lost link
+(nothing can be commanded) ranks above it; an operator hold does not keep it outside.
+
+Time: a setpoint stamped more than `max_stamp_ahead_s` after `clock_ns` (the bridge's "now" on
+the stamp clock, passed in by the service) is rejected, and the ordering check only ever
+remembers a stamp that passed that check — one forged future stamp used to lock out every
+honest setpoint after it.
 When tracking resumes, the commanded position restarts from where the vehicle is and moves
 towards the plan within the speed/acceleration limits (`SafetyLayer.limit_motion`).
 """
@@ -18,7 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from cinetransfer.services.autopilot_bridge.config import SafetyConfig
-from cinetransfer.services.autopilot_bridge.safety import SafetyLayer, SafetyResult, subject_centre_xy
+from cinetransfer.services.autopilot_bridge.safety import (
+    SafetyLayer, SafetyResult, check_command_args, envelope_breach, return_point, subject_centre_xy)
 from cinetransfer.shared import messages as M
 
 #: bridge commands handled here; everything else goes to the backend (VehiclePort.command)
@@ -34,6 +46,7 @@ HOLD_COUNTERS = {
     "invalid plan": "holds_invalid_plan",
     "watchdog": "holds_watchdog",
 }
+BREACH_REASON = "envelope breach"
 
 
 @dataclass(frozen=True)
@@ -44,6 +57,7 @@ class Decision:
     setpoint: M.Setpoint | None = None  #: the safe, rate-limited setpoint to apply (when tracking)
     reason: str = ""  #: why it holds ('' when tracking)
     changed: bool = False  #: the hold/track state or hold reason changed this tick
+    breach: bool = False  #: the measured vehicle is outside the envelope: `setpoint` flies it back
 
 
 class BridgeCore:
@@ -53,7 +67,8 @@ class BridgeCore:
         self.cfg = safety_cfg
         self.safety = SafetyLayer(safety_cfg)
         self.counters: collections.Counter[str] = collections.Counter(
-            {"sp_out_of_order": 0, "sp_invalid": 0, "commands": 0, "commands_unknown": 0,
+            {"sp_out_of_order": 0, "sp_future_stamp": 0, "sp_invalid": 0, "commands": 0, "commands_unknown": 0,
+             "commands_bad_args": 0, "breaches": 0,
              **{v: 0 for v in HOLD_COUNTERS.values()}})
         self.target: M.Setpoint | None = None  # last accepted safe setpoint
         self.last_ok_s: float | None = None  # monotonic time it was accepted
@@ -67,23 +82,36 @@ class BridgeCore:
         self.last_tick_s: float | None = None
         self.last_result: SafetyResult | None = None
         self.lens_cmd: M.LensState | None = None
+        self.breach = False
+        self.breach_target: np.ndarray | None = None
 
     # ------------------------------------------------------------------ inputs
-    def on_setpoint(self, sp: M.Setpoint, now_s: float, *, vehicle: M.VehicleState | None = None,
+    def on_setpoint(self, sp: M.Setpoint, now_s: float, *, clock_ns: int, vehicle: M.VehicleState | None = None,
                     subject: M.SubjectState | None = None) -> SafetyResult | None:
-        """Take one decoded setpoint. Returns the safety result (None if not checked)."""
+        """Take one decoded setpoint. Returns the safety result (None if not checked).
+
+        `clock_ns`: the bridge's "now" on the clock setpoints are stamped with. A rejected
+        result (stamped in the future, out of order, or failing the safety checks) is for the
+        service to count as a rejection.
+        """
+        ahead_ns = sp.stamp_ns - clock_ns
+        if ahead_ns > self.cfg.max_stamp_ahead_s * 1e9:
+            self.counters["sp_future_stamp"] += 1
+            return SafetyResult(None, f"stamped {ahead_ns / 1e9:.3g} s ahead of the bridge clock "
+                                      f"(limit {self.cfg.max_stamp_ahead_s:g} s)")
         if self.last_stamp_ns is not None and sp.stamp_ns < self.last_stamp_ns:
             self.counters["sp_out_of_order"] += 1
-            return None
-        self.last_stamp_ns = sp.stamp_ns
+            return SafetyResult(None, "stamped before the last accepted setpoint (out of order)")
         if not sp.valid:
             self.counters["sp_invalid"] += 1
             self.plan_hold_reason = "invalid plan"
             self.last_ok_s = now_s
+            self.last_stamp_ns = sp.stamp_ns
             return None
         if sp.mode == "hold":
             self.plan_hold_reason = "hold setpoint"
             self.last_ok_s = now_s
+            self.last_stamp_ns = sp.stamp_ns
             return None
         vehicle_xy = None if vehicle is None else np.asarray(vehicle.position_m[:2], float)
         lens_now = self.lens_cmd or (vehicle.lens if vehicle is not None else None)
@@ -91,11 +119,20 @@ class BridgeCore:
                                 lens_now=lens_now)
         self.last_result = res
         if res.accepted:
+            self.last_stamp_ns = sp.stamp_ns  # only a stamp that passed every check orders later ones
             self.target = res.setpoint
             self.last_ok_s = now_s
             self.plan_hold_reason = ""
             self.lens_cmd = res.setpoint.lens
         return res
+
+    def command_args(self, cmd: M.Command) -> tuple[dict | None, str]:
+        """(arguments to pass to the backend, '') or (None, why they are refused), checked
+        against the envelope (`safety.check_command_args`)."""
+        args, why = check_command_args(cmd.action, dict(cmd.args), self.cfg)
+        if args is None:
+            self.counters["commands_bad_args"] += 1
+        return args, why
 
     def on_command(self, cmd: M.Command) -> str | None:
         """Handle 'hold' / 'resume' here; return the action to pass to the backend, or None."""
@@ -128,10 +165,42 @@ class BridgeCore:
             return "no setpoint yet"
         return ""
 
+    def _update_breach(self, vehicle: M.VehicleState | None) -> None:
+        """Enter the breach state when the measured vehicle is outside the envelope; leave it
+        once the vehicle is half the return margin inside (hysteresis: no flapping at the fence)."""
+        if vehicle is None:
+            return
+        pos = np.asarray(vehicle.position_m, float)
+        if not self.breach:
+            if envelope_breach(pos, self.cfg):
+                self.breach = True
+                self.counters["breaches"] += 1
+                self.breach_target = return_point(pos, self.cfg) if np.all(np.isfinite(pos)) else None
+        elif not envelope_breach(pos, self.cfg, tol_m=-0.5 * self.cfg.breach_return_margin_m):
+            self.breach = False
+            self.breach_target = None
+
+    def _breach_setpoint(self, vehicle: M.VehicleState | None) -> M.Setpoint | None:
+        if self.breach_target is None:
+            return None
+        cam = (np.asarray(vehicle.camera_ypr_rad, float).copy() if vehicle is not None
+               else np.zeros(3))
+        return M.Setpoint(stamp_ns=self.last_stamp_ns or 0, mode="track", position_m=self.breach_target.copy(),
+                          velocity_mps=np.zeros(3), acceleration_mps2=np.zeros(3),
+                          camera_ypr_rad=np.where(np.isfinite(cam), cam, 0.0), lens=M.LensState(),
+                          solver_status="envelope breach: return inside")
+
     def tick(self, now_s: float, *, vehicle: M.VehicleState | None, connected: bool = True) -> Decision:
         """Decide for this tick. `vehicle` is the backend's latest state (None if unknown)."""
         dt = 0.0 if self.last_tick_s is None else min(max(now_s - self.last_tick_s, 0.0), 0.2)
         self.last_tick_s = now_s
+        self._update_breach(vehicle)
+        if self.breach and connected:
+            was_breach = self.hold_reason == BREACH_REASON
+            sp = self._breach_setpoint(vehicle)  # None: position unknown, so hold is all that is left
+            self.holding, self.hold_reason = sp is None, BREACH_REASON
+            self.cmd_pos = self.cmd_vel = None  # tracking resumes from the vehicle afterwards
+            return Decision(sp is None, sp, BREACH_REASON, not was_breach, breach=True)
         reason = self._reason(now_s, connected)
         was_holding, old_reason = self.holding, self.hold_reason
         self.holding, self.hold_reason = bool(reason), reason
@@ -140,7 +209,7 @@ class BridgeCore:
             if changed:
                 self.counters[HOLD_COUNTERS[reason]] += 1
             self.cmd_pos = self.cmd_vel = None  # restart from the vehicle when tracking resumes
-            return Decision(True, None, reason, changed)
+            return Decision(True, None, reason, changed, breach=self.breach)
         assert self.target is not None
         if self.cmd_pos is None or self.cmd_vel is None:
             if vehicle is not None:
@@ -160,4 +229,5 @@ class BridgeCore:
         out.update(self.counters)
         out["holding"] = self.holding
         out["hold_reason"] = self.hold_reason
+        out["envelope_breach"] = self.breach
         return out

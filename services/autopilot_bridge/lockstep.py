@@ -126,7 +126,7 @@ class SimClockLoop:
             if self._commands():  # a reset starts this step over at the new time zero
                 return
             t_s = self._sim_s(t_ns)
-            bridge.handle_setpoints(sps, t_s)
+            bridge.handle_setpoints(sps, t_s, t_ns)
             h = self.period_ns * 1e-9 / self.n_sub
             for j in range(self.n_sub):
                 bridge.control(t_s + j * h, step_to=self._sim_s(t_ns) + (j + 1) * h)

@@ -9,11 +9,20 @@ What it enforces (limits in `SafetyConfig`):
 - keep a minimum horizontal distance to the subject: push the position out radially;
   if the geofence then pulls it back inside that distance the setpoint is rejected;
 - clamp the velocity feed-forward to the speed limit and the acceleration feed-forward to the
-  acceleration limit; `limit_motion` also moves the commanded position towards the requested
-  one no faster than the speed limit and changes the commanded velocity no faster than the
-  acceleration limit (so a jump in the plan becomes a bounded-speed transfer);
+  acceleration limit, and directionally at the envelope: its outward component (through the
+  geofence or the altitude band) is at most what the vehicle can still brake to zero before
+  the boundary at the acceleration limit, so zero at or over it (a clamped position with an
+  outward feed-forward used to park the vehicle 2 m outside the fence); likewise no outward
+  acceleration feed-forward within the braking distance of a boundary; `limit_motion` also
+  moves the commanded position towards the requested one no faster than the speed limit and
+  changes the commanded velocity no faster than the acceleration limit (so a jump in the plan
+  becomes a bounded-speed transfer);
 - clamp gimbal pitch/roll to their band and wrap yaw to (-pi, pi];
-- clamp focal length, focus distance and f-number to the lens ranges.
+- clamp focal length, focus distance and f-number to the lens ranges;
+- `envelope_breach` / `return_point`: the measured vehicle position against the same envelope,
+  and where to fly back to when it is outside (the bridge does that every tick);
+- `check_command_args`: every argument of a bridge command (take-off altitude) validated and
+  bounded by the same numbers; a bad one is a rejection, never an exception.
 
 Every rejection and clamp increments a named counter in `SafetyLayer.counters`; the service
 exports them in its Health message.
@@ -37,7 +46,7 @@ COUNTER_NAMES = (
     "sp_checked", "sp_accepted", "sp_rejected_nonfinite", "sp_rejected_mode",
     "sp_rejected_subject_conflict", "clamp_geofence", "clamp_altitude", "clamp_subject_distance",
     "clamp_speed", "clamp_accel", "clamp_position_rate", "clamp_velocity_rate", "clamp_gimbal",
-    "clamp_lens",
+    "clamp_lens", "clamp_velocity_outward", "clamp_accel_outward",
 )
 
 
@@ -118,6 +127,144 @@ def push_from_subject(p: np.ndarray, subject_xy: np.ndarray, min_dist_m: float,
     out = p.copy()
     out[:2] = subject_xy + d * (min_dist_m / n)
     return out, True
+
+
+def _outward_limit(dist_m: float, max_accel: float) -> float:
+    """Largest speed towards a boundary `dist_m` away that can still stop before it."""
+    return math.sqrt(2.0 * max_accel * max(dist_m, 0.0))
+
+
+def clamp_outward_velocity(p: np.ndarray, v: np.ndarray, cfg: SafetyConfig) -> tuple[np.ndarray, bool]:
+    """Velocity `v` at position `p` with its outward component (through the geofence or the
+    altitude band) cut to the braking speed for the distance left: none at or over a boundary.
+    Inward and tangential components are untouched, so tracking along the fence still works."""
+    v = np.array(v, dtype=float)
+    hit = False
+    home = np.asarray(cfg.home_m, dtype=float)
+    d = np.asarray(p[:2], float) - home[:2]
+    a = cfg.max_accel_mps2
+    if cfg.geofence_shape == "cylinder":
+        r = float(np.linalg.norm(d))
+        if r > 1e-9:
+            n = d / r
+            out = float(v[:2] @ n)
+            lim = _outward_limit(cfg.geofence_radius_m - r, a)
+            if out > lim:
+                v[:2] -= (out - lim) * n
+                hit = True
+    else:
+        for i, half in enumerate(cfg.geofence_half_extent_m):
+            sign = 1.0 if d[i] >= 0 else -1.0
+            out = sign * v[i]
+            lim = _outward_limit(half - abs(d[i]), a)
+            if out > lim:
+                v[i] = sign * lim
+                hit = True
+    alt = float(p[2]) - home[2]
+    up_lim = _outward_limit(cfg.altitude_max_m - alt, a)
+    down_lim = _outward_limit(alt - cfg.altitude_min_m, a)
+    if v[2] > up_lim:
+        v[2], hit = up_lim, True
+    elif -v[2] > down_lim:
+        v[2], hit = -down_lim, True
+    return v, hit
+
+
+def clamp_outward_accel(p: np.ndarray, a: np.ndarray, cfg: SafetyConfig) -> tuple[np.ndarray, bool]:
+    """Acceleration feed-forward `a` at position `p` without an outward component wherever `p` is
+    within the braking distance at full speed (max_speed² / 2·max_accel) of a boundary: near the
+    fence, pushing outward only stores up an overshoot."""
+    a = np.array(a, dtype=float)
+    hit = False
+    reach = cfg.max_speed_mps ** 2 / (2.0 * cfg.max_accel_mps2)
+    home = np.asarray(cfg.home_m, dtype=float)
+    d = np.asarray(p[:2], float) - home[:2]
+    if cfg.geofence_shape == "cylinder":
+        r = float(np.linalg.norm(d))
+        if r > 1e-9 and cfg.geofence_radius_m - r < reach:
+            n = d / r
+            out = float(a[:2] @ n)
+            if out > 0:
+                a[:2] -= out * n
+                hit = True
+    else:
+        for i, half in enumerate(cfg.geofence_half_extent_m):
+            sign = 1.0 if d[i] >= 0 else -1.0
+            if half - abs(d[i]) < reach and sign * a[i] > 0:
+                a[i], hit = 0.0, True
+    alt = float(p[2]) - home[2]
+    if (cfg.altitude_max_m - alt < reach and a[2] > 0) or (alt - cfg.altitude_min_m < reach and a[2] < 0):
+        a[2], hit = 0.0, True
+    return a, hit
+
+
+def envelope_breach(p: np.ndarray, cfg: SafetyConfig, tol_m: float | None = None) -> bool:
+    """Whether the measured position `p` is outside the geofence or above the altitude band by
+    more than `tol_m` (default `cfg.breach_tolerance_m`). Non-finite positions count as a breach.
+
+    Below the band is not a breach: a vehicle on the ground, taking off or landing is there
+    legitimately (the floor bounds what may be *commanded*), and "fly back up" is no safe
+    reaction near the ground."""
+    p = np.asarray(p, dtype=float)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        return True
+    tol = cfg.breach_tolerance_m if tol_m is None else tol_m
+    q = p.copy()
+    q[2] = max(q[2], cfg.home_m[2] + cfg.altitude_min_m + max(0.0, -tol))  # the floor is not checked
+    return not inside_geofence(q, cfg, tol)
+
+
+def return_point(p: np.ndarray, cfg: SafetyConfig, margin_m: float | None = None) -> np.ndarray:
+    """The point nearest to `p` that lies `margin_m` (default `cfg.breach_return_margin_m`)
+    inside the envelope; where a band is narrower than twice the margin, its middle."""
+    m = cfg.breach_return_margin_m if margin_m is None else margin_m
+    home = np.asarray(cfg.home_m, dtype=float)
+    out = np.array(p, dtype=float)
+    d = out[:2] - home[:2]
+    if cfg.geofence_shape == "cylinder":
+        d2, _ = clamp_norm(d, max(cfg.geofence_radius_m - m, 0.0))
+    else:
+        d2 = np.array([min(max(d[i], -max(h - m, 0.0)), max(h - m, 0.0))
+                       for i, h in enumerate(cfg.geofence_half_extent_m)])
+    out[:2] = home[:2] + d2
+    lo, hi = cfg.altitude_min_m + m, cfg.altitude_max_m - m
+    if lo > hi:
+        lo = hi = 0.5 * (cfg.altitude_min_m + cfg.altitude_max_m)
+    out[2] = home[2] + min(max(out[2] - home[2], lo), hi)
+    return out
+
+
+def _number(args: dict, name: str) -> float | None:
+    v = args.get(name)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        return None
+    return float(v)
+
+
+#: arguments each bridge command accepts (anything else is a rejection)
+COMMAND_ARGS: dict[str, tuple[str, ...]] = {"takeoff": ("altitude_m",)}
+
+
+def check_command_args(action: str, args: dict, cfg: SafetyConfig) -> tuple[dict | None, str]:
+    """(validated arguments, '') or (None, why) for one bridge command.
+
+    `takeoff altitude_m` [m above home] must be a finite number inside the altitude band
+    (`altitude_min_m`..`altitude_max_m`, the numbers every setpoint is clamped to).
+    """
+    allowed = COMMAND_ARGS.get(action, ())
+    extra = sorted(str(k) for k in args if k not in allowed)
+    if extra:
+        return None, f"command {action!r} takes no argument {', '.join(extra)} (allowed: {allowed or 'none'})"
+    out: dict = {}
+    if action == "takeoff" and "altitude_m" in args:
+        alt = _number(args, "altitude_m")
+        if alt is None:
+            return None, f"takeoff altitude_m = {args['altitude_m']!r:.40}: not a finite number"
+        if not cfg.altitude_min_m <= alt <= cfg.altitude_max_m:
+            return None, (f"takeoff altitude_m = {alt:g} outside the altitude band "
+                          f"[{cfg.altitude_min_m:g}, {cfg.altitude_max_m:g}] m")
+        out["altitude_m"] = alt
+    return out, ""
 
 
 def subject_centre_xy(subject: M.SubjectState | None) -> np.ndarray | None:
@@ -212,9 +359,15 @@ class SafetyLayer:
         v, hit = clamp_norm(np.array(sp.velocity_mps, dtype=float), cfg.max_speed_mps)
         if hit:
             clamps.append("clamp_speed")
+        v, hit = clamp_outward_velocity(p, v, cfg)
+        if hit:
+            clamps.append("clamp_velocity_outward")
         a, hit = clamp_norm(np.array(sp.acceleration_mps2, dtype=float), cfg.max_accel_mps2)
         if hit:
             clamps.append("clamp_accel")
+        a, hit = clamp_outward_accel(p, a, cfg)
+        if hit:
+            clamps.append("clamp_accel_outward")
 
         # -- gimbal
         yaw, pitch, roll = (float(x) for x in sp.camera_ypr_rad)
@@ -279,6 +432,11 @@ class SafetyLayer:
         vel = prev_vel + dv
         if hit_v:
             clamps.append("clamp_velocity_rate")
+        # The target's feed-forward was clamped at the target; here it is again at the commanded
+        # position, which may be nearer the boundary than the target.
+        vel, hit_o = clamp_outward_velocity(pos, vel, cfg)
+        if hit_o:
+            clamps.append("clamp_velocity_outward")
         for c in clamps:
             self.counters[c] += 1
         return MotionCommand(pos, vel, tuple(clamps))

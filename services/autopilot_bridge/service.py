@@ -190,6 +190,7 @@ class Bridge:
         self.subject_rx_s = -1e9
         self.ticks = 0
         self.decision_hold = True
+        self.breach = False
 
     def reset_core(self) -> None:
         """Forget setpoints, holds and rate limits (the simulation started over)."""
@@ -209,21 +210,29 @@ class Bridge:
         return None
 
     def handle_commands(self, cmds: list[M.Command]) -> None:
-        node, backend = self.node, self.backend
+        node, core, backend = self.node, self.core, self.backend
         for cmd in cmds:
-            action = self.core.on_command(cmd)
-            log.info("command %s %s", cmd.action, cmd.args or "")
-            if action and action != "hold" and not backend.command(action, dict(cmd.args)):
-                node.error(f"backend {backend.name} does not support command {action!r}", "command")
-            elif action is None and cmd.action not in ("hold", "resume"):
-                node.reject(f"unknown bridge command {cmd.action!r}")
+            # guard: whatever one command trips over costs that command, not the loop
+            with node.guard(self.cmd_in.key, "command"):
+                args, why = core.command_args(cmd)
+                if args is None:
+                    node.reject(f"bridge command {cmd.action!r}: {why}")
+                    continue
+                action = core.on_command(cmd)
+                log.info("command %s %s", cmd.action, cmd.args or "")
+                if action and action != "hold" and not backend.command(action, args):
+                    node.error(f"backend {backend.name} does not support command {action!r}", "command")
+                elif action is None and cmd.action not in ("hold", "resume"):
+                    node.reject(f"unknown bridge command {cmd.action!r}")
 
-    def handle_setpoints(self, sps: list[M.Setpoint], now: float) -> None:
+    def handle_setpoints(self, sps: list[M.Setpoint], now: float, clock_ns: int) -> None:
+        """`now`: the control clock [s]; `clock_ns`: 'now' on the stamp clock (wall or simulation)."""
         subject = self._subject(now)
         for sp in sps:
-            res = self.core.on_setpoint(sp, now, vehicle=self.vehicle, subject=subject)
-            if res is not None and not res.accepted:
-                self.node.reject(f"setpoint #{sp.seq}: {res.reason}")
+            with self.node.guard(self.sp_in.key, "setpoint"):
+                res = self.core.on_setpoint(sp, now, clock_ns=clock_ns, vehicle=self.vehicle, subject=subject)
+                if res is not None and not res.accepted:
+                    self.node.reject(f"setpoint #{sp.seq}: {res.reason}")
 
     def control(self, now: float, step_to: float | None = None) -> None:
         """Decide track/hold at `now`, drive the backend, advance it to `step_to` (default now)."""
@@ -237,13 +246,16 @@ class Bridge:
             if dec.changed:
                 log.info("tracking setpoints")
             backend.apply(dec.setpoint)
-        self.decision_hold = dec.hold
+        if dec.breach and dec.changed:
+            log.warning("envelope breach at %s: flying back inside",
+                        None if self.vehicle is None else self.vehicle.position_m)
+        self.decision_hold, self.breach = dec.hold, dec.breach
         backend.step(now if step_to is None else step_to)
         self._refresh_vehicle()
 
     def _refresh_vehicle(self) -> None:
         vs = self.backend.vehicle_state()
-        self.vehicle = dataclasses.replace(vs, holding=self.decision_hold,
+        self.vehicle = dataclasses.replace(vs, holding=self.decision_hold, envelope_breach=self.breach,
                                            valid=bool(vs.valid and self.backend.connected))
 
     def publish_state(self, stamp_ns: int | None = None) -> None:
@@ -277,14 +289,15 @@ class Bridge:
             counters.update(extra())
         counters["connected"] = self.backend.connected
         self.node.counters.update(counters)
-        self.node.healthy = bool(self.backend.connected and self.vehicle is not None and self.vehicle.valid)
+        self.node.healthy = bool(self.backend.connected and self.vehicle is not None and self.vehicle.valid
+                                 and not self.breach)
 
     def tick(self) -> None:
         """One real-time control step on the monotonic clock."""
         now = time.monotonic()
         with self.node.timed():
             self.handle_commands(self.cmd_in.drain())
-            self.handle_setpoints(self.sp_in.drain(), now)
+            self.handle_setpoints(self.sp_in.drain(), now, M.now_ns())
             self.control(now)
             self.publish_state()
             self.publish_frames()

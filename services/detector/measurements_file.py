@@ -43,6 +43,7 @@ from typing import Any, BinaryIO, Iterable, Iterator
 import msgpack
 
 from cinetransfer.shared import codec
+from cinetransfer.shared.atomic import AtomicFile
 from cinetransfer.shared.messages import Measurement, SourceInfo
 
 MAGIC = b"CTMEAS\r\n"
@@ -131,15 +132,21 @@ def _plain(v: Any) -> Any:
 
 
 class MeasurementsWriter:
-    """Streams measurements to a file; use as a context manager. Each write is flushed whole."""
+    """Streams measurements to a file; use as a context manager. Each record is written whole;
+    the file appears at `path` on close (temp-then-rename) unless `atomic=False`."""
 
     def __init__(self, path: str | os.PathLike, *, source: SourceInfo | None = None, detector: str = "",
-                 config: Any = None, focus_map_scale: float = float("nan")) -> None:
+                 config: Any = None, focus_map_scale: float = float("nan"), atomic: bool = True) -> None:
         self.path = Path(path)
         self.header = MeasurementsHeader(source=source or SourceInfo(), detector=detector,
                                          config=_plain(config) if config is not None else {},
                                          created_ns=time.time_ns(), focus_map_scale=focus_map_scale)
-        self._f: BinaryIO | None = open(self.path, "wb")
+        # Written under a temporary name and renamed into place on close (STYLE §11): a reader of
+        # `path` never sees a file still being written; the complete records of a run that
+        # ended early (Ctrl-C, an exception) are still renamed into place.
+        # `atomic=False` writes `path` in place, for a reader that follows the file as it grows.
+        self._atomic = AtomicFile(self.path, binary=True) if atomic else None
+        self._f: BinaryIO | None = self._atomic.file if self._atomic is not None else open(self.path, "wb")
         self._f.write(MAGIC)
         self._record(msgpack.packb(self.header.to_dict(), use_bin_type=True))
         self.count = 0
@@ -158,7 +165,10 @@ class MeasurementsWriter:
 
     def close(self) -> None:
         if self._f is not None:
-            self._f.close()
+            if self._atomic is not None:
+                self._atomic.commit()
+            else:
+                self._f.close()
             self._f = None
 
     def __enter__(self) -> "MeasurementsWriter":

@@ -163,10 +163,12 @@ def run_source(node, det, args, stats: _Stats) -> int:
         node.wait(0.2)
         for frame in frames.drain():
             stats.note_frames([frame])
-            if _process(node, det, pub, stats, frame):
-                done[frame.source] = done.get(frame.source, 0) + 1
+            with node.guard(frames.key, "frame"):  # anything unexpected costs the frame, not the loop
+                if _process(node, det, pub, stats, frame):
+                    done[frame.source] = done.get(frame.source, 0) + 1
         for end in ends.drain():
-            _finish_stream(node, frames, pub, end_pub, det, stats, done, end)
+            with node.guard(ends.key, "end of stream"):
+                _finish_stream(node, frames, pub, end_pub, det, stats, done, end)
     return 0
 
 
@@ -200,7 +202,9 @@ def run_subscriber(node, det, args, stats: _Stats) -> int:
         stats.skipped += len(frames) - 1
         # gaps not explained by our own queue's drops were lost before reaching us
         node.counters["frames_missing_upstream"] = max(0, stats.index_gaps - inbox.dropped)
-        _process(node, det, pub, stats, frames[-1])
+        # guard: _process counts the errors it expects; anything else is a rejected frame, not an exit
+        with node.guard(inbox.key, "frame"):
+            _process(node, det, pub, stats, frames[-1])
         node.counters["frames_skipped"] = stats.skipped
     return 0
 

@@ -33,6 +33,7 @@ from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
 from cinetransfer.services.planner.solver import MpcSolver, SolveResult, StageData
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.plausible import unusable_targets
 
 log = logging.getLogger("cinetransfer.planner")
 
@@ -108,6 +109,13 @@ class Planner:
 
     def set_bounds(self, bounds: Bounds) -> None:
         self.solver.set_bounds(bounds)
+
+    def refuse_instructions(self, ins: M.Instructions) -> str:
+        """Why these instructions must not be flown ('' = fine); counted. See `unusable_targets`."""
+        why = unusable_targets(ins)
+        if why:
+            self.counters["instructions_refused"] = int(self.counters.get("instructions_refused", 0)) + 1
+        return why
 
     # ------------------------------------------------------------------ commands and timing
     def command(self, cmd: M.Command, now_ns: int) -> bool:
@@ -220,6 +228,8 @@ class Planner:
             return self._hold(now_ns, vehicle, self.state, valid=True)
         if instructions is None or instructions.image_targets.shape[0] == 0:
             return self._hold(now_ns, vehicle, "no instructions", valid=False)
+        if unusable_targets(instructions):  # all NaN or absurd: "track" would chase nothing sane
+            return self._hold(now_ns, vehicle, "instructions refused", valid=False)
         if subject is None or not subject.valid or (now_ns - subject.stamp_ns) * 1e-9 > cfg.max_input_age_s:
             return self._hold(now_ns, vehicle, "subject state missing, stale or invalid", valid=False)
         try:

@@ -143,13 +143,18 @@ class PlannerShell:
 
     def _inputs(self, now: int) -> None:
         for cmd in self.cmd_in.drain():
-            if not self.planner.command(cmd, now):
-                self.node.reject(f"unknown or malformed planner command {cmd.action!r}")
+            with self.node.guard(self.cmd_in.key, "command"):  # one bad command never ends the loop
+                if not self.planner.command(cmd, now):
+                    self.node.reject(f"unknown or malformed planner command {cmd.action!r}")
             self.node.counters.update(self.planner.counters)
             self.node.publish_health_now()  # acknowledges the command (e.g. a scheduled start)
         for ins in self.ins_in.drain():
             if ins.image_targets.shape[0] == 0:
                 self.node.reject("instructions with no frames")
+                continue
+            why = self.planner.refuse_instructions(ins)
+            if why:
+                self.node.reject(f"instructions refused: {why}")
                 continue
             self.latest["ins"] = ins
         self._states()

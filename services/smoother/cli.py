@@ -63,7 +63,10 @@ def _progress(it: Iterable[Any], total: int | None, desc: str, enabled: bool) ->
 def _finish(result: Any, out: Path, plot: Path | None, *, diagnostics: bool) -> None:
     from cinetransfer.services.smoother import instructions as I
 
-    I.save_style(out, result.instructions, result.diagnostics if diagnostics else None)
+    warnings = tuple(getattr(result, "warnings", ()))
+    for w in warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    I.save_style(out, result.instructions, result.diagnostics if diagnostics else None, warnings)
     ins = result.instructions
     print(f"wrote {out}: {ins.image_targets.shape[0]} frames at {ins.fps:g} fps, subject visible in "
           f"{100.0 * ins.subject_visible.mean():.0f}% of frames, joints {', '.join(ins.joint_names)}")
@@ -81,6 +84,8 @@ def smooth_main(argv: list[str]) -> int:
     ap.add_argument("--plot", type=Path, default=None, help="also draw the style to this image")
     ap.add_argument("--no-diagnostics", action="store_true", help="leave the raw per-frame measures out")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    ap.add_argument("--allow-truncated", action="store_true",
+                    help="smooth the complete records of a file cut short (a warning) instead of refusing it")
     add_config_arguments(ap)
     args = ap.parse_args(argv)
     try:
@@ -89,13 +94,23 @@ def smooth_main(argv: list[str]) -> int:
         print(f"cinetransfer smooth: {e}", file=sys.stderr)
         return 2
     from cinetransfer.services.detector.measurements_file import (MeasurementsFileError, iter_measurements,
-                                                                  read_header)
+                                                                  read_header, read_measurements)
     from cinetransfer.services.smoother.core import SmootherInputError, features_from_measurements, smooth_sequence
 
     try:
         header = read_header(args.measurements)
         total = header.source.n_frames or None
-        ms = _progress(iter_measurements(args.measurements), total, "reading", not args.quiet)
+        # strict: a file cut short (crash, full disk, partial copy) is an error, not a silently
+        # shorter style; --allow-truncated keeps the complete records and says so
+        if args.allow_truncated:
+            mf = read_measurements(args.measurements)
+            if mf.truncated:
+                print(f"warning: {args.measurements} is truncated: using its {len(mf.measurements)} complete "
+                      f"measurements", file=sys.stderr)
+            ms = iter(mf.measurements)
+        else:
+            ms = iter_measurements(args.measurements, strict=True)
+        ms = _progress(ms, total, "reading", not args.quiet)
         feats = features_from_measurements(ms, cfg)
         t0 = time.perf_counter()
         result = smooth_sequence(feats, cfg, source=header.source if header.source.path else None)

@@ -37,6 +37,7 @@ class SmoothResult:
 
     instructions: M.Instructions
     diagnostics: dict[str, Any] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()  #: stored in the style file (e.g. the source was truncated)
 
 
 def feature_options(cfg: SmootherConfig) -> dict[str, float]:
@@ -166,6 +167,7 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
     box_n = box / np.array([W, H, W, H], dtype=float)
     first = frames[0].frame_index
     src = source or M.SourceInfo(path=frames[0].source, width=W, height=H, fps=fps, n_frames=F)
+    src, warnings = reconcile_frame_count(src, first=frames[0].frame_index, rows=F, final=final)
     stamp = max(f.stamp_ns for f in frames)
     valid = all(f.valid for f in frames if f.n_people or f.has_focus) and gaps == 0
     instr = M.Instructions(
@@ -193,7 +195,19 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
         "gaps": int(gaps),
         "config": dataclasses.asdict(cfg),
     }
-    return SmoothResult(instr, diag)
+    return SmoothResult(instr, diag, warnings)
+
+
+def reconcile_frame_count(src: M.SourceInfo, *, first: int, rows: int, final: bool) -> tuple[M.SourceInfo, tuple[str, ...]]:
+    """Source info whose `n_frames` agrees with the rows of a final instruction set, and a warning
+    when the source declared another count (a truncated video: its container promises frames
+    that never decoded; or a run stopped early). A window (not final) is left alone."""
+    have = first + rows
+    if not final or src.n_frames == have:
+        return src, ()
+    msg = (f"source {src.path or '?'} declares {src.n_frames} frames but {have} were measured "
+           f"(truncated video, or stopped early); n_frames set to {have}")
+    return dataclasses.replace(src, n_frames=have), (msg,)
 
 
 def smooth_measurements(measurements: Iterable[M.Measurement], cfg: SmootherConfig | None = None, *,

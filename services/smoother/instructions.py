@@ -30,6 +30,8 @@ import numpy as np
 
 from cinetransfer.shared import codec
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.atomic import atomic_write
+from cinetransfer.shared.plausible import unusable_targets
 
 FORMAT_NAME = "cinetransfer-style"
 FORMAT_VERSION = 1
@@ -46,6 +48,7 @@ class StyleFile:
     instructions: M.Instructions
     diagnostics: dict[str, Any] = field(default_factory=dict)
     version: int = FORMAT_VERSION
+    warnings: tuple[str, ...] = ()  #: e.g. the source was truncated (see `save_style`)
 
 
 # --------------------------------------------------------------------------- JSON helpers
@@ -198,6 +201,8 @@ def json_schema() -> dict[str, Any]:
             "version": {"const": FORMAT_VERSION},
             "instructions": instr,
             "diagnostics": {"type": "object", "description": "raw per-frame measures for plots (free form)"},
+            "warnings": {"type": "array", "items": {"type": "string"},
+                         "description": "how the file was made that a reader should know (e.g. truncated source)"},
         },
     }
 
@@ -211,15 +216,19 @@ def style_to_dict(instr: M.Instructions, diagnostics: dict[str, Any] | None = No
     return d
 
 
-def save_style(path: str | os.PathLike, instr: M.Instructions, diagnostics: dict[str, Any] | None = None) -> None:
-    """Write a style file (atomically: a temporary file renamed into place)."""
+def save_style(path: str | os.PathLike, instr: M.Instructions, diagnostics: dict[str, Any] | None = None,
+               warnings: list[str] | tuple[str, ...] = ()) -> None:
+    """Write a style file (atomically: a unique temporary file renamed into place).
+
+    `warnings`: what a reader should know about how it was made (e.g. a truncated source);
+    stored at the top level, so they survive --no-diagnostics."""
     check_consistent(instr)
-    p = Path(path)
-    tmp = p.with_name(p.name + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        json.dump(style_to_dict(instr, diagnostics), fh, separators=(",", ":"), allow_nan=False)
+    d = style_to_dict(instr, diagnostics)
+    if warnings:
+        d["warnings"] = [str(w) for w in warnings]
+    with atomic_write(path) as fh:
+        json.dump(d, fh, separators=(",", ":"), allow_nan=False)
         fh.write("\n")
-    os.replace(tmp, p)
 
 
 def style_from_dict(d: Any, where: str = "style file") -> StyleFile:
@@ -239,7 +248,7 @@ def style_from_dict(d: Any, where: str = "style file") -> StyleFile:
         raise StyleFileError(f"{where}: does not match the style-file schema at {loc}: {e.message}") from None
     instr = instructions_from_dict(d["instructions"])
     diag = d.get("diagnostics") or {}
-    return StyleFile(instr, diag, int(version))
+    return StyleFile(instr, diag, int(version), tuple(d.get("warnings") or ()))
 
 
 def load_style_file(path: str | os.PathLike) -> StyleFile:
@@ -256,8 +265,13 @@ def load_style_file(path: str | os.PathLike) -> StyleFile:
 
 
 def load_style(path: str | os.PathLike) -> M.Instructions:
-    """The Instructions of a style file (refuses other formats and versions)."""
-    return load_style_file(path).instructions
+    """The Instructions of a style file, to be flown: refuses other formats and versions, and
+    targets nothing can fly (`unusable_targets`; `load_style_file` still reads those, to plot)."""
+    instr = load_style_file(path).instructions
+    why = unusable_targets(instr)
+    if why:
+        raise StyleFileError(f"{path}: {why}")
+    return instr
 
 
 def diag_array(diag: dict[str, Any], name: str) -> np.ndarray | None:

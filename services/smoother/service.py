@@ -84,17 +84,22 @@ def main(argv: list[str]) -> int:
                 if action in END_ACTIONS:
                     # Take every measurement already queued before closing the sequence.
                     for m in inbox.drain():
-                        _ingest(node, state, m, finish)
-                    finish(f"command {action!r}")
+                        with node.guard(inbox.key, "measurement"):
+                            _ingest(node, state, m, finish)
+                    with node.guard(commands.key, "command"):
+                        finish(f"command {action!r}")
                 elif action == "reset":
                     state.reset()
                 else:
                     node.reject(f"unknown smoother command {cmd.action!r} (use 'end' or 'reset')")
             for end in ends.drain():
-                _await_stream(node, inbox, state, end, finish)
-                finish(f"end of stream: {end.reason}", source=end.source)
+                with node.guard(ends.key, "end of stream"):
+                    _await_stream(node, inbox, state, end, finish)
+                    finish(f"end of stream: {end.reason}", source=end.source)
             for m in inbox.drain():
-                _ingest(node, state, m, finish)
+                # guard: a measurement the stream state trips over is rejected, the loop goes on
+                with node.guard(inbox.key, "measurement"):
+                    _ingest(node, state, m, finish)
             now = time.monotonic()
             if state.dirty and now - last_pub >= cfg.publish_period_s:
                 with node.timed():

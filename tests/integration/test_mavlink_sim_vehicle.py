@@ -97,7 +97,8 @@ def fly(backend: MavlinkBackend, core: BridgeCore, sp: M.Setpoint | None, until,
         now = time.monotonic()
         if sp is not None:
             k += 1
-            core.on_setpoint(M.Setpoint(**{**sp.__dict__, "stamp_ns": time.time_ns()}), now, vehicle=state)
+            core.on_setpoint(M.Setpoint(**{**sp.__dict__, "stamp_ns": time.time_ns()}), now,
+                             clock_ns=time.time_ns(), vehicle=state)
         d = core.tick(now, vehicle=state, connected=backend.connected)
         if d.hold:
             if d.changed:

@@ -62,15 +62,29 @@ def test_truncated_file_keeps_complete_records(tmp_path, cut):
         mf.read_measurements(p, strict=True)
 
 
-def test_streaming_writer_file_is_readable_before_close(tmp_path):
+def test_streaming_writer_in_place_file_is_readable_before_close(tmp_path):
     p = tmp_path / "m.msgpack"
-    w = mf.MeasurementsWriter(p, source=SourceInfo(path="x"))
+    w = mf.MeasurementsWriter(p, source=SourceInfo(path="x"), atomic=False)
     w.write(_measurement(0))
     w._f.flush()
     assert len(mf.read_measurements(p)) == 1
     w.close()
     with pytest.raises(ValueError):
         w.write(_measurement(1))
+
+
+def test_given_the_default_writer_when_writing_then_path_appears_only_complete_on_close(tmp_path):
+    """Temp-then-rename (STYLE §11): while writing, `path` holds the previous file (here none);
+    on close the complete file is renamed into place and no temporary file is left."""
+    p = tmp_path / "m.msgpack"
+    p.write_bytes(b"previous run")
+    w = mf.MeasurementsWriter(p, source=SourceInfo(path="x"))
+    w.write(_measurement(0))
+    w._f.flush()
+    assert p.read_bytes() == b"previous run"
+    w.close()
+    assert len(mf.read_measurements(p, strict=True)) == 1
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["m.msgpack"]
 
 
 @pytest.mark.parametrize("content,match", [

@@ -206,3 +206,18 @@ def test_same_ticks_give_the_same_setpoints_whatever_came_before(planner_cfg, in
     a, b = run(0), run(8)
     # then their setpoints agree: a take starts cold, so the flight depends only on its inputs
     np.testing.assert_allclose(np.array(a), np.array(b), atol=1e-9)
+
+@pytest.mark.parametrize("value", [np.nan, 1e6, -1e6])
+def test_instructions_with_no_or_absurd_targets_are_refused_and_held(planner, instructions, value):
+    """Issue 13: a style whose targets are all NaN or at ±1e6 used to fly in 'track' mode."""
+    import dataclasses
+
+    bad = dataclasses.replace(instructions, image_targets=np.full_like(instructions.image_targets, value))
+    assert planner.refuse_instructions(bad)  # the service counts this as a rejection
+    assert planner.counters["instructions_refused"] == 1
+    assert planner.refuse_instructions(instructions) == ""
+    sim = KinematicSim(wrong_start_scene())
+    planner.command(M.Command(action="start"), T0)
+    sp = planner.step(T0, bad, sim.vehicle_state(T0), sim.subject_state(T0))
+    assert sp.mode == "hold" and not sp.valid and "refused" in sp.solver_status
+    assert_finite(sp)
