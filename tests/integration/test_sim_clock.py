@@ -78,7 +78,8 @@ def test_steps_wait_for_the_planner_and_no_frame_is_skipped(tape, port, tmp_path
         ins = instructions_from_arrays(targets=np.full((240, 1, 2), 0.5), joint_names=["nose"], fps=24.0)
         tape.session.put(keys.INSTRUCTIONS.key(RIG), codec.encode(dataclasses.replace(ins, final=True)))
         tape.session.put(keys.PLANNER_COMMAND.key(RIG), codec.encode(M.Command(action="start")))
-        wait_for(lambda: len(tape.of(keys.SIM_CLOCK)) > 60, 120, what="60 clock ticks")
+        wait_for(lambda: len([t for t in tape.of(keys.SIM_CLOCK) if t.lockstep]) > 60, 120,
+                 what="60 lockstep clock ticks")
         # when the planner is frozen (alive, but answering nothing), the clock stops with it
         os.kill(pl.pid, signal.SIGSTOP)
         try:
