@@ -169,3 +169,29 @@ def test_ctrl_c_stops_the_vehicle_and_keeps_the_recording(data, tmp_path):
     assert meta["truth_frames"] == len(read_truths(out / "truth.msgpack"))
     # and no node is left running
     assert not [p for p in pids if _pid_alive(p)]
+
+
+@pytest.mark.slow
+def test_realtime_take_states_its_repeats_or_fails_when_short(data, tmp_path):
+    # given a take flown on the wall clock (as with a real vehicle): the simulator may skip frames
+    out = tmp_path / "rt"
+    r = subprocess.run([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
+                        "--scene", "lawn_juggler", "-o", str(out), "--max-frames", "24", "--preroll", "1",
+                        "--rig", "rt", "--realtime"], capture_output=True, text=True, timeout=600)
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["clock_mode"] == "realtime"
+    if meta["recorded_frames"] < 24:
+        # then a short take is an error that says so, never a silent partial result
+        assert r.returncode == 1 and "the real-time take is short" in r.stderr, r.stderr[-2000:]
+        return
+    assert r.returncode == 0, r.stderr[-3000:]
+    # then whatever was repeated is counted, and stated in the report with its share
+    frames = video_frames(out / "output.mp4")
+    assert meta["repeated_frames"] == len(meta["repeated_slots"])
+    for k in meta["repeated_slots"]:  # a repeated slot shows the frame before it again
+        assert k == 0 or float(np.abs(frames[k].astype(int) - frames[k - 1].astype(int)).mean()) < 1.0
+    report = json.loads((out / "report.json").read_text())
+    assert report["recording"]["repeated_frames"] == meta["repeated_frames"]
+    assert report["recording"]["clock"] == "realtime"
+    if meta["repeated_frames"]:
+        assert "repeat the previous frame" in (out / "report.html").read_text()
