@@ -26,20 +26,35 @@ log = logging.getLogger("cinetransfer.recorder")
 
 
 @dataclasses.dataclass(frozen=True)
+class Take:
+    """One take of simulation time: camera frames first_index.. are instruction rows slot0.."""
+
+    first_index: int
+    slot0: int
+    n: int
+
+
+@dataclasses.dataclass(frozen=True)
 class Window:
-    """Which frames make the take: exact -> by frame index from `first_index` (stamps >= epoch);
-    real time -> by stamp from `t0_ns` at `fps`."""
+    """Which frames make the recording: exact -> by camera frame index within the takes (stamps
+    >= epoch; frames between takes, e.g. settling, are not recorded); real time -> by stamp
+    from `t0_ns` at `fps`."""
 
     exact: bool
     n_slots: int
     fps: float
     epoch_ns: int = 0
-    first_index: int = 0
+    takes: tuple[Take, ...] = ()
     t0_ns: int = 0
 
     def slot(self, stamp_ns: int, index: int) -> int | None:
         if self.exact:
-            return None if stamp_ns < self.epoch_ns else index - self.first_index
+            if stamp_ns < self.epoch_ns:
+                return None
+            for t in self.takes:
+                if t.first_index <= index < t.first_index + t.n:
+                    return t.slot0 + index - t.first_index
+            return None
         if stamp_ns < self.t0_ns:
             return None
         return int(round((stamp_ns - self.t0_ns) * 1e-9 * self.fps))
@@ -56,6 +71,8 @@ class Recorder:
         self.health: dict[str, M.Health] = {}
         self.last_clock: M.SimClock | None = None
         self.truths: list[M.GroundTruth] = []
+        #: simulation time: truth of every camera frame since the reset, by index (settling included)
+        self.timeline_truths: dict[int, M.GroundTruth] = {}
         self.undecodable = 0
         self.interrupted = False
         self._window: Window | None = None
@@ -104,6 +121,8 @@ class Recorder:
             if isinstance(msg, M.Frame):
                 self._place(self._frames, msg.stamp_ns, msg.index, msg, self._write_frame)
             elif isinstance(msg, M.GroundTruth):
+                if self._window.exact and msg.stamp_ns >= self._window.epoch_ns:
+                    self.timeline_truths[int(msg.frame_index)] = msg
                 self._place(self._truth_asm, msg.stamp_ns, msg.frame_index, msg, self._add_truth)
 
     def _place(self, asm: TakeAssembler | None, stamp_ns: int, index: int, msg: Any, sink: Any) -> None:

@@ -38,7 +38,7 @@ from tqdm import tqdm
 
 from cinetransfer.shared import codec, keys, zenoh_config
 from cinetransfer.shared import messages as M
-from cinetransfer.recorder import Recorder, Window
+from cinetransfer.recorder import Recorder, Take, Window
 from cinetransfer.shared.atomic import atomic_write
 from cinetransfer.shared.node import setup_logging
 from cinetransfer.take import MissingFramesError, TakeSummary, require_complete
@@ -138,37 +138,65 @@ def _progress(rec: Recorder, k: int, stall_s: float, *, what: str) -> None:
             bar.refresh()
 
 
-def fly_sim_time(style: M.Instructions, rec: Recorder, cond: Conductor, *, preroll_s: float,
-                 stall_s: float) -> dict:
-    """The take in simulation time: reset the simulation to a fresh time zero, let the planner
-    start exactly then (pre-roll on frame 0, then the instructions), record every frame."""
+def shot_schedule(style: M.Instructions, *, preroll_s: float, settle_s: float, one_take: bool) -> list[dict]:
+    """The takes of the flight, in camera frames since time zero (camera rate = instruction rate):
+    one per shot of the source (one for all with `one_take`), each after a settle phase (the
+    first after the pre-roll) in which the planner frames the shot's first instruction frame."""
+    from cinetransfer.services.smoother.instructions import shot_segments
+
+    fps = float(style.fps)
+    k = style.image_targets.shape[0]
+    shots = [(0, k)] if one_take else shot_segments(style)
+    t, out = 0, []
+    for i, (a, b) in enumerate(shots):
+        settle = int(round((preroll_s if i == 0 else settle_s) * fps))
+        out.append({"shot": i, "first_row": a, "end_row": b, "settle_start_index": t, "first_index": t + settle,
+                    "settle_frames": settle, "settle_limit_s": settle / fps})
+        t += settle + (b - a)
+    return out
+
+
+def fly_sim_time(style: M.Instructions, rec: Recorder, cond: Conductor, *, preroll_s: float, settle_s: float,
+                 one_take: bool, stall_s: float) -> dict:
+    """The flight in simulation time: reset the simulation to a fresh time zero, let the planner
+    start each take exactly on schedule (a settle phase on its first frame, then its frames),
+    record every frame of every take; the edit joins the takes at the source's cuts."""
     k = style.image_targets.shape[0]
     fps = float(style.fps)
     if not rec.wait(lambda: rec.last_clock is not None, 30.0):
         raise TransferError("the bridge publishes no simulation clock (is it a --realtime bridge? "
                             "then run transfer with --realtime)")
-    # time zero of the take: far ahead of the running clock, so it is never reached before the reset
+    # time zero of the flight: far ahead of the running clock, so it is never reached before the reset
     epoch = max(M.now_ns(), rec.last_clock.stamp_ns) + 600 * 10**9
-    pre_frames = int(round(preroll_s * fps))
+    takes = shot_schedule(style, preroll_s=preroll_s, settle_s=settle_s, one_take=one_take)
     cond.to_planner("stop")
-    cond.to_planner("start", start_frame=0, preroll_s=pre_frames / fps, at_ns=epoch)
+    for tk in takes:
+        at = epoch + int(round(tk["settle_start_index"] / fps * 1e9))
+        cond.to_planner("start", start_frame=int(style.first_frame) + tk["first_row"],
+                        preroll_s=tk["settle_frames"] / fps, at_ns=at)
+    last_at = epoch + int(round(takes[-1]["settle_start_index"] / fps * 1e9))
 
     def acknowledged() -> bool:
         h = rec.health.get("planner")
-        return h is not None and h.counters.get("scheduled_at_ns") == epoch and h.counters.get("sim_time") is True
+        return h is not None and h.counters.get("sim_time") is True and \
+            h.counters.get("scheduled") == len(takes) and h.counters.get("scheduled_at_ns") == last_at
 
     if not rec.wait(acknowledged, 60.0):
-        raise TransferError("the planner did not acknowledge the scheduled start (is it following the "
+        raise TransferError("the planner did not acknowledge the scheduled takes (is it following the "
                             "simulation clock? see OUTDIR/deploy/planner.log)")
-    rec.arm(Window(exact=True, n_slots=k, fps=fps, epoch_ns=epoch, first_index=pre_frames))
-    log.info("simulation time: pre-roll %d frames, then %d instruction frames at %.3g fps", pre_frames, k, fps)
+    rec.arm(Window(exact=True, n_slots=k, fps=fps, epoch_ns=epoch,
+                   takes=tuple(Take(t["first_index"], t["first_row"], t["end_row"] - t["first_row"]) for t in takes)))
+    log.info("simulation time: %d take(s) of %s frames at %.3g fps, settling %s frames before each", len(takes),
+             "/".join(str(t["end_row"] - t["first_row"]) for t in takes), fps,
+             "/".join(str(t["settle_frames"]) for t in takes))
     cond.to_bridge("reset", epoch_ns=epoch, fps=fps, pace=0.0)
     _progress(rec, k, stall_s, what="simulation")
-    return {"clock": "simulation (lockstep)", "epoch_ns": epoch, "preroll_frames": pre_frames}
+    return {"clock": "simulation (lockstep)", "epoch_ns": epoch, "preroll_frames": takes[0]["settle_frames"],
+            "takes": takes, "one_take": one_take}
 
 
 def fly_realtime(style: M.Instructions, rec: Recorder, cond: Conductor, *, preroll_s: float,
-                 stall_s: float) -> dict:
+                 stall_s: float, **_unused) -> dict:
     """The take on the wall clock (a --realtime simulator or a real vehicle): frames are slotted
     by their stamp; a slot the camera skipped repeats the previous frame (counted, reported)."""
     k = style.image_targets.shape[0]
@@ -192,7 +220,8 @@ def _already_stopping(_signum, _frame) -> None:
 
 
 def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: float, realtime: bool,
-        stall_s: float, meta: dict, publish_instructions: bool = True) -> Recorder:
+        stall_s: float, meta: dict, publish_instructions: bool = True, settle_s: float = 3.0,
+        one_take: bool = False) -> Recorder:
     """Fly and record the take, stop; Ctrl-C stops the vehicle too. The planner has the smoother's
     instructions already; a style given as a file is published here (`publish_instructions`)."""
     rec = Recorder(session, rig, outdir, meta)
@@ -201,7 +230,8 @@ def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: fl
         cond.instructions.put(codec.encode(replace(style, stamp_ns=M.now_ns(), final=True)))
         time.sleep(0.3)
     try:
-        how = (fly_realtime if realtime else fly_sim_time)(style, rec, cond, preroll_s=preroll_s, stall_s=stall_s)
+        how = (fly_realtime if realtime else fly_sim_time)(style, rec, cond, preroll_s=preroll_s, stall_s=stall_s,
+                                                           settle_s=settle_s, one_take=one_take)
         meta.update(how)
     except KeyboardInterrupt:
         rec.interrupted = True
@@ -258,6 +288,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds (simulated) to settle on frame 0 before recording (default %(default)s)")
     p.add_argument("--max-frames", type=int, default=0, help="use only the first N frames of the source (0 = all)")
     p.add_argument("--style", help="use this style.json instead of extracting one")
+    p.add_argument("--settle", type=float, default=3.0, metavar="S",
+                   help="seconds (simulated) to re-frame between the takes of a multi-shot source (default %(default)s)")
+    p.add_argument("--one-take", action="store_true",
+                   help="fly a multi-shot source as one continuous take (for comparison) instead of one take per shot")
     p.add_argument("--realtime", action="store_true",
                    help="fly on the wall clock (simulator skips late frames; repeats are counted and reported) "
                         "instead of simulation time in lockstep")
@@ -393,7 +427,7 @@ def _job(args, src: Path, out: Path, meta: dict, timings: dict) -> tuple[Path, M
             t = time.monotonic()
             rec = fly(style, outdir=out, session=session, rig=args.rig, preroll_s=args.preroll,
                       realtime=args.realtime, stall_s=args.stall_timeout, meta=meta,
-                      publish_instructions=bool(args.style))
+                      publish_instructions=bool(args.style), settle_s=args.settle, one_take=args.one_take)
             timings["flight_s"] = time.monotonic() - t
             meta["health"] = {n: {"received": h.received, "rejected": h.rejected, "dropped": h.dropped,
                                   "published": h.published, "counters": h.counters}
@@ -434,6 +468,10 @@ def main(argv: list[str]) -> int:
     try:
         style_path, style, rec = _job(args, src, out, meta, timings)
         meta.update(take_meta(rec, style, args.realtime))
+        if meta.get("takes"):
+            from cinetransfer.shots import settle_report
+
+            meta["takes"] = settle_report(style, meta["takes"], rec.timeline_truths)
         from cinetransfer.report.truthfile import write_truths
 
         write_truths(out / "truth.msgpack", rec.truths)

@@ -41,13 +41,14 @@ FOCUS_REGIONS: tuple[str, ...] = ("foreground", "subject", "background")
 
 
 def array(dtype: str, shape: tuple[int | None, ...], *, allow_nan: bool = False, doc: str = "",
-          optional: bool = False) -> Any:
+          optional: bool = False, since: int = 1) -> Any:
     """A numpy-array dataclass field with the dtype/shape/finiteness the codec enforces.
 
     `shape` entries of None match any length. `allow_nan` permits NaN (meaning "not set") but
-    never ±inf. `optional` lets the field be None.
+    never ±inf. `optional` lets the field be None. `since`: as for `doc`.
     """
-    meta = {"dtype": dtype, "shape": shape, "allow_nan": allow_nan, "doc": doc, "optional": optional}
+    meta = {"dtype": dtype, "shape": shape, "allow_nan": allow_nan, "doc": doc, "optional": optional,
+            "since": since}
     if optional:
         return field(default=None, metadata=meta)
     return field(default_factory=lambda: np.zeros([0 if s is None else s for s in shape], dtype=dtype),
@@ -169,10 +170,12 @@ class SourceInfo:
 class Instructions:
     """Recording instructions (DESIGN §1.2): per-frame image targets and focus booleans.
 
-    K frames starting at `first_frame`; frame k lasts `frame_duration_s`.
+    K frames starting at `first_frame`; frame k lasts `frame_duration_s`. An edited source is
+    several shots: `shot_start` marks the rows where each begins (a drone films each as a take).
     """
 
-    SCHEMA_VERSION: ClassVar[int] = 1
+    SCHEMA_VERSION: ClassVar[int] = 2  # 2: shot_start
+    MIN_SCHEMA_VERSION: ClassVar[int] = 1
     stamp_ns: int = doc("time of the newest measurement used [ns]", 0)
     seq: int = doc("sequence number", 0)
     valid: bool = doc("smoother healthy", True)
@@ -197,6 +200,9 @@ class Instructions:
     focus_in: np.ndarray = array("bool", (None, 3), doc="region in focus (B > theta), shape (K, 3)")
     theta: float = doc("focus threshold on B", 0.5)
     mu_m: float = doc("depth-of-field margin mu [m] (DESIGN §1.2)", 1.0)
+    shot_start: np.ndarray | None = array("bool", (None,), optional=True, since=2,
+                                          doc="row k starts a new shot of the source (a cut), shape (K,); "
+                                              "row 0 is always a start; null = one shot")
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,6 +1,7 @@
 """build_report: numbers (report.json), figures (fig_*.png) and the page (report.html) of one run."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -15,6 +16,7 @@ from cinetransfer.report import fidelity as F
 from cinetransfer.report import figures as figs
 from cinetransfer.report.html import write_html
 from cinetransfer.report.style import StyleLike, StyleLoadError, load_style_any
+from cinetransfer.services.smoother.instructions import shot_segments
 from cinetransfer.shared import messages as M
 
 log = logging.getLogger("cinetransfer.report")
@@ -67,6 +69,35 @@ def recording_facts(meta: dict[str, Any]) -> dict[str, Any]:
     return facts
 
 
+def per_shot(source: M.Instructions, output: M.Instructions | None, truths: list, output_fps: float | None,
+             takes: list[dict] | None = None) -> list[dict[str, Any]]:
+    """Goals per shot of a multi-shot source (output frame k follows instruction row k), with the
+    take's settle figures when the recording was made one take per shot."""
+    from cinetransfer.services.smoother.instructions import slice_instructions
+
+    segs = shot_segments(source)
+    if len(segs) < 2:
+        return []
+    by_row = {t.get("first_row"): t for t in (takes or [])}
+    out = []
+    for i, (a, b) in enumerate(segs):
+        src = slice_instructions(source, a, b, final=True)
+        outp = None
+        if output is not None and output.image_targets.shape[0] >= b:
+            outp = dataclasses.replace(slice_instructions(output, a, b, final=True), first_frame=0)
+        tr = [dataclasses.replace(t, frame_index=int(t.frame_index) - a) for t in truths if a <= int(t.frame_index) < b]
+        fid = F.compute_fidelity(dataclasses.replace(src, first_frame=0), outp, tr, output_fps=output_fps,
+                                 output_frames=b - a)
+        h = fid.summary["headline"]
+        take = by_row.get(a, {})
+        out.append({"shot": i, "rows": [a, b], "goals_met": h["goals_met"], "goals": h["goals"],
+                    "joint_error_extraction": h["extraction"].get("joint_error_mean"),
+                    "joint_error_truth": h["truth"].get("joint_error_mean"),
+                    "settle_limit_s": take.get("settle_limit_s"), "settle_s": take.get("settle_s"),
+                    "settled": take.get("settled"), "error_at_take_start": take.get("error_at_take_start")})
+    return out
+
+
 def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLike | None,
                  truths: Sequence[M.GroundTruth], source_video: Path | str | None,
                  output_video: Path | str | None, meta: dict[str, Any] | None = None,
@@ -105,9 +136,10 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
     fid = F.compute_fidelity(source, output, truths, output_fps=output_fps, output_frames=output_frames,
                              output_missing_reason=reason)
     credit = str(meta.get("credit") or figs.credit_for(source_video))
+    shot_rows = [a for a, _ in shot_segments(source)][1:]
     figures, fig_errors = figs.make_figures(outdir, fid.series, source_video=source_video,
                                             output_video=output_video, credit=credit,
-                                            repeated_slots=meta.get("repeated_slots") or ())
+                                            repeated_slots=meta.get("repeated_slots") or (), shot_rows=shot_rows)
 
     s = fid.series
     summary: dict[str, Any] = {
@@ -122,6 +154,7 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
                                                           "frames": int(source.image_targets.shape[0])}},
         "credit": credit,
         "recording": recording_facts(meta),
+        "shots": per_shot(source, output, list(truths), output_fps, meta.get("takes")),
         "figures": sorted(figures),
         "figure_errors": fig_errors,
         "per_frame": {"t_s": _round_list(s["t_s"], 4), "source_row": [int(x) for x in s["k"]],

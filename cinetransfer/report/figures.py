@@ -248,8 +248,13 @@ _STRIP_ABSENT, _STRIP_OUT, _STRIP_IN = 0, 1, 2
 
 
 def _mark_repeats(ax: Any, series: dict[str, Any]) -> None:
-    """Shade the output frames that repeat the previous one (real-time recordings only)."""
+    """Shade the output frames that repeat the previous one (real-time recordings only), and
+    draw the source's cuts (where one take ends and the next begins)."""
     t = series["t_s"]
+    rows = list(series["k"])
+    for r in series.get("shot_rows", ()):
+        if r in rows:
+            ax.axvline(t[rows.index(r)], color="#7b3294", lw=0.9, ls="--", alpha=0.8)
     half = 0.5 * float(t[1] - t[0]) if len(t) > 1 else 0.02
     for j in series.get("repeated_slots", ()):
         if 0 <= j < len(t):
@@ -369,11 +374,12 @@ FIGURES = (("fig_frames.png", "Sampled frames"), ("fig_joints.png", "Controlled 
 
 def make_figures(outdir: Path, series: dict[str, Any], *, source_video: str | Path | None,
                  output_video: str | Path | None, credit: str = "",
-                 repeated_slots: Sequence[int] = ()) -> tuple[dict[str, Path], dict[str, str]]:
+                 repeated_slots: Sequence[int] = (),
+                 shot_rows: Sequence[int] = ()) -> tuple[dict[str, Path], dict[str, str]]:
     """Every figure into outdir; returns ({file name: path}, {file name: error}). One failing
     figure is logged and reported, never fatal for the others or the report. Output frames in
     `repeated_slots` (repeats of the previous frame) are shaded on the time plots."""
-    series = {**series, "repeated_slots": list(repeated_slots)}
+    series = {**series, "repeated_slots": list(repeated_slots), "shot_rows": list(shot_rows)}
     done: dict[str, Path] = {}
     errors: dict[str, str] = {}
     makers = {"fig_frames.png": lambda p: fig_frames(p, series, source_video=source_video,

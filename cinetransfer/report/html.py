@@ -109,6 +109,27 @@ def _goals_table(summary: dict[str, Any]) -> str:
 _MEASURES = (("extraction", "by extraction on the output video"), ("truth", "by the simulator's ground truth"))
 
 
+def _shots_table(summary: dict[str, Any]) -> str:
+    """Goals per shot, and each take's settle phase (limit, time taken, framing error at its start)."""
+    shots = summary.get("shots") or []
+    if not shots:
+        return ""
+    rows = []
+    for s in shots:
+        settle = ("—" if s.get("settle_limit_s") is None else
+                  f"{_num(s['settle_s'], 2)} s of {_num(s['settle_limit_s'], 2)} s" if s.get("settled") else
+                  f"not within {_num(s['settle_limit_s'], 2)} s")
+        rows.append(f"<tr><td>{s['shot'] + 1}</td><td>{s['rows'][0]}–{s['rows'][1] - 1}</td>"
+                    f"<td>{_e(s['goals_met'])}</td><td>{_num(s.get('joint_error_extraction'))}</td>"
+                    f"<td>{_num(s.get('joint_error_truth'))}</td><td>{_e(settle)}</td>"
+                    f"<td>{_num(s.get('error_at_take_start'))}</td></tr>")
+    return ("<h2>Shots</h2><div class='card'><table><tr><th>shot</th><th>instruction frames</th><th>goals met</th>"
+            "<th>joint error (extr.)</th><th>joint error (truth)</th><th>settle</th><th>framing error at take start"
+            "</th></tr>" + "".join(rows) + "</table><p class='small'>Each shot of the source is flown as its own "
+            "take after a settle phase in which the drone re-frames the shot's first frame; the edit joins the "
+            "takes at the source's cuts (dashed lines on the plots).</p></div>")
+
+
 def _group_row(label: str, ncols: int) -> str:
     return f"<tr class='group'><td class='l' colspan='{ncols}'>{_e(label)}</td></tr>"
 
@@ -254,6 +275,7 @@ and ≥ {F.TRUTH_FOCUS_AGREEMENT_MIN:.0%}.</span>
 {''.join(warn)}
 <h2>Goals</h2>
 <div class="card">{_goals_table(summary)}</div>
+{_shots_table(summary)}
 <h2>Controlled-joint error (normalised image units)</h2>
 <div class="card">{_joint_table(summary)}
 <p class="small">Controlled joints: {_e(joints)}. Error = |output − source target| per axis and Euclidean,

@@ -92,6 +92,14 @@ def _fps(feats: list[FrameFeatures], cfg: SmootherConfig) -> float:
     return float(cfg.default_fps)
 
 
+def _shot_start(cuts: np.ndarray | None, n: int) -> np.ndarray:
+    """Row k starts a shot: row 0, and every frame the cut detector marked."""
+    out = np.zeros(n, dtype=bool) if cuts is None else np.asarray(cuts, dtype=bool).copy()
+    if n:
+        out[0] = True
+    return out
+
+
 def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None = None, *,
                     source: M.SourceInfo | None = None, final: bool = True) -> SmoothResult:
     """The whole optimisation for one sequence of frames (any order, duplicates allowed)."""
@@ -175,7 +183,8 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
         first_frame=int(first), final=bool(final), joint_names=list(cfg.joints),
         image_targets=targets.astype(np.float32), subject_visible=sel.visible.copy(),
         subject_box=box_n.astype(np.float32), focus_raw=np.where(present, b, np.nan).astype(np.float32),
-        focus_smoothed=B_out.astype(np.float32), focus_in=focus_in, theta=float(cfg.theta), mu_m=float(cfg.mu_m))
+        focus_smoothed=B_out.astype(np.float32), focus_in=focus_in, theta=float(cfg.theta), mu_m=float(cfg.mu_m),
+        shot_start=_shot_start(cuts, F))
     diag = {
         "shot_change": scores,
         "cut": cuts,

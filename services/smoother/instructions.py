@@ -102,8 +102,13 @@ def instructions_from_dict(d: dict[str, Any]) -> M.Instructions:
     kw: dict[str, Any] = {}
     for f in dataclasses.fields(M.Instructions):
         if f.name not in d:
+            if f.metadata.get("optional") and f.metadata.get("since", 1) > 1:
+                continue  # written before the field existed: its default (e.g. one shot)
             raise StyleFileError(f"instructions.{f.name} is missing")
         v = d[f.name]
+        if v is None and f.metadata.get("optional"):
+            kw[f.name] = None
+            continue
         if f.name == "source":
             v = M.SourceInfo(**v)
         elif f.name in _ARRAY_FIELDS:
@@ -133,6 +138,8 @@ def check_consistent(instr: M.Instructions) -> None:
         n = getattr(instr, name).shape[0]
         if n != K:
             raise StyleFileError(f"{name} has {n} rows where image_targets has {K}")
+    if instr.shot_start is not None and instr.shot_start.shape[0] != K:
+        raise StyleFileError(f"shot_start has {instr.shot_start.shape[0]} rows where image_targets has {K}")
     for j in instr.joint_names:
         if j not in M.COCO17_NAMES:
             raise StyleFileError(f"joint {j!r} is not a COCO-17 name")
@@ -165,9 +172,11 @@ def json_schema() -> dict[str, Any]:
     instr = {
         "type": "object",
         "description": "Same content as the Instructions message (shared/messages.py); NaN is null.",
-        "required": ["schema_version"] + [f.name for f in dataclasses.fields(M.Instructions)],
+        "required": ["schema_version"] + [f.name for f in dataclasses.fields(M.Instructions)
+                                          if not (f.metadata.get("optional") and f.metadata.get("since", 1) > 1)],
         "properties": {
-            "schema_version": {"const": M.Instructions.SCHEMA_VERSION},
+            "schema_version": {"enum": list(range(M.Instructions.MIN_SCHEMA_VERSION,
+                                                  M.Instructions.SCHEMA_VERSION + 1))},
             "stamp_ns": {"type": "integer"},
             "seq": {"type": "integer", "minimum": 0},
             "valid": {"type": "boolean"},
@@ -187,6 +196,8 @@ def json_schema() -> dict[str, Any]:
             "focus_in": {**_rows({"type": "boolean"}, 3), "description": "(K, 3) B > theta"},
             "theta": {"type": "number", "exclusiveMinimum": 0, "exclusiveMaximum": 1},
             "mu_m": {"type": "number", "exclusiveMinimum": 0},
+            "shot_start": {"type": ["array", "null"], "items": {"type": "boolean"},
+                           "description": "(K,) row starts a new shot of the source; null or absent = one shot"},
         },
         "additionalProperties": True,
     }
@@ -291,7 +302,24 @@ def slice_instructions(instr: M.Instructions, start: int, stop: int, *, final: b
         instr, first_frame=instr.first_frame + start, final=final,
         image_targets=instr.image_targets[start:stop].copy(), subject_visible=instr.subject_visible[start:stop].copy(),
         subject_box=instr.subject_box[start:stop].copy(), focus_raw=instr.focus_raw[start:stop].copy(),
-        focus_smoothed=instr.focus_smoothed[start:stop].copy(), focus_in=instr.focus_in[start:stop].copy())
+        focus_smoothed=instr.focus_smoothed[start:stop].copy(), focus_in=instr.focus_in[start:stop].copy(),
+        shot_start=None if instr.shot_start is None else _shot_starts(instr.shot_start[start:stop]))
+
+
+def _shot_starts(starts: np.ndarray) -> np.ndarray:
+    out = np.asarray(starts, dtype=bool).copy()
+    if out.size:
+        out[0] = True  # a window or take always begins a shot
+    return out
+
+
+def shot_segments(instr: M.Instructions) -> list[tuple[int, int]]:
+    """[(first row, end row)) of each shot of the instructions (one segment when unmarked)."""
+    K = instr.image_targets.shape[0]
+    if instr.shot_start is None or K == 0:
+        return [(0, K)] if K else []
+    starts = [0] + [k for k in range(1, K) if instr.shot_start[k]]
+    return list(zip(starts, starts[1:] + [K]))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,7 +1,7 @@
 """The take assembler: slot assignment, gaps, tail, out-of-order and duplicate items."""
 import pytest
 
-from cinetransfer.recorder import Window
+from cinetransfer.recorder import Take, Window
 from cinetransfer.take import MissingFramesError, TakeAssembler, require_complete
 
 
@@ -71,9 +71,14 @@ def test_realtime_take_opening_between_frames_starts_on_the_first():
 
 
 def test_window_slots_by_index_in_simulation_time_and_by_stamp_in_real_time():
-    w = Window(exact=True, n_slots=10, fps=24.0, epoch_ns=1000, first_index=48)
+    w = Window(exact=True, n_slots=10, fps=24.0, epoch_ns=1000, takes=(Take(first_index=48, slot0=0, n=10),))
     assert w.slot(999, 50) is None  # a frame of the timeline before the reset
     assert w.slot(5000, 48) == 0 and w.slot(5000, 57) == 9
+    assert w.slot(5000, 47) is None and w.slot(5000, 58) is None  # the pre-roll, and after the take
+    # two takes (two shots) with a settle phase between them: the edit joins them at the cut
+    two = Window(exact=True, n_slots=10, fps=24.0, epoch_ns=0,
+                 takes=(Take(first_index=24, slot0=0, n=4), Take(first_index=24 + 4 + 12, slot0=4, n=6)))
+    assert [two.slot(1, i) for i in (23, 24, 27, 28, 39, 40, 45, 46)] == [None, 0, 3, None, None, 4, 9, None]
     r = Window(exact=False, n_slots=10, fps=25.0, t0_ns=10**9)
     assert r.slot(10**9 - 1, 0) is None
     assert r.slot(10**9 + 40_000_000, 0) == 1 and r.slot(10**9 + 59_000_000, 0) == 1
