@@ -69,6 +69,7 @@ class SolveResult:
     wall_s: float
     violation: float  # max constraint violation of the returned iterate
     cpu_s: float = float("nan")  # CPU time of this thread in the solve (robust to a loaded machine)
+    over_budget: bool = False  # wall_s exceeded the time budget (never, when the budget is lifted)
     extras: dict = field(default_factory=dict)
 
 
@@ -92,7 +93,8 @@ class ParamLayout:
 def _structure_key(s: Structure) -> str:
     """Hash of what the generated code depends on: structure, casadi version, this package's code."""
     d = dataclasses.asdict(s)
-    for k in ("cache_dir", "codegen", "compiler", "max_iter", "max_iter_cold", "tol", "warm_start"):
+    for k in ("cache_dir", "codegen", "compiler", "max_iter", "max_iter_cold", "tol", "warm_start", "qp_solver",
+              "sqp_iter", "sqp_iter_cold", "sqp_step_tol"):
         d.pop(k, None)
     src = b""
     here = Path(__file__).resolve().parent
@@ -114,8 +116,9 @@ class MpcSolver:
         self.dt = structure.dt_s
         self.e = structure.max_joints
         self.pl = ParamLayout(structure)
-        self.max_solve_time_s = max_solve_time_s
+        self.max_solve_time_s: float | None = max_solve_time_s
         self.max_cold_solve_time_s = max(max_solve_time_s, max_cold_solve_time_s or 0.0)
+        self._nominal_budget = (self.max_solve_time_s, self.max_cold_solve_time_s)  # restored by set_time_budget
         self.feasibility_tol = feasibility_tol
         self.accept_suboptimal = accept_suboptimal
         self.bounds = (bounds or Bounds()).validate()
@@ -128,6 +131,7 @@ class MpcSolver:
         self._lam_g: np.ndarray | None = None
         self._last: SolveResult | None = None
         self._lbg, self._ubg = C.constraint_bounds(self.layout, self.n)
+        self._penalty_mu = 10.0  # exact-penalty weight of the SQP's merit (grows with the multipliers)
 
     # ------------------------------------------------------------------ build
     @property
@@ -160,8 +164,14 @@ class MpcSolver:
         blk = nu + nx + C.N_SOFT
         x_prev = w[0:nx]
         u_last = u_prev
+        sqp = s.solver == "sqp_rti"
+        # for the SQP, the previous input of stage k >= 1 is a copy v_k (= u_{k-1}, a state of the QP), so
+        # the input-change cost stays within one stage of the stage-wise QP
+        v_copy = sym.sym("v", max(n - 1, 0) * lay.nu)
         cost = 0
         g = []
+        g_ocp = []
+        resid = []  # Gauss-Newton residuals: sum of squares ~ the cost (SQP's Hessian model)
         acc_idx = list(range(0, 3))
         cam_idx = list(range(3, lay.F_RATE))
         lens_idx = list(range(lay.F_RATE, nu))
@@ -174,6 +184,10 @@ class MpcSolver:
             g.append(x - (ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)))
             centre = centre0 + vel * tk
             g.append(C.soft_constraints(x, slack, centre, z_min, z_max, d_min))
+            # the same rows in the stage-wise form of the QP (x_{k+1} through the dynamics; equal wherever
+            # the dynamics hold, which every SQP iterate after the first satisfies exactly)
+            x_pred = ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)
+            g_ocp += [x_pred - x, C.soft_constraints(x_pred, slack, centre, z_min, z_max, d_min)]
 
             yaw, pitch, roll = lay.angles(x)
             cam = x[lay.P]
@@ -188,6 +202,12 @@ class MpcSolver:
                 err2 = J.joint_image_error(pc, targets[ti], targets[ti + 1], f_mm, s.sensor_width_mm,
                                            s.sensor_height_mm, theta0_rad=math.radians(s.pinhole_half_angle_deg))
                 im += mask[k * e + j] * err2
+                if s.solver != "ipopt":
+                    ru, rv = J.joint_image_residual(pc, targets[ti], targets[ti + 1], f_mm, s.sensor_width_mm,
+                                                    s.sensor_height_mm,
+                                                    theta0_rad=math.radians(s.pinhole_half_angle_deg))
+                    sw = ca.sqrt(dt * wts["image"] * mask[k * e + j])
+                    resid += [sw * ru, sw * rv]
             cc = ca.mtimes(r.T, centre - cam)
             inv_n, inv_f = J.inverse_dof_limits(f_mm, x[lay.A], x[lay.S], s.coc_mm)
             d = dof[k * N_DOF:(k + 1) * N_DOF]
@@ -205,16 +225,38 @@ class MpcSolver:
                      + wts["velocity"] * ca.sumsqr(vn)
                      + wts["soft_constraint"] * (ca.sum1(slack) + ca.sumsqr(slack)))
             cost += dt * stage
-            x_prev, u_last = x, u
+            if s.solver != "ipopt":
+                e_n, e_f = J.dof_residuals(inv_n, inv_f, dref[k], g_near=d[1], g_far=d[3], far_one_sided=d[4])
+                resid += [ca.sqrt(0.5 * dt * wts["look"]) * J.look_residual(cc),
+                          ca.sqrt(dt * d[0] * wts["dof_near"]) * e_n, ca.sqrt(dt * d[2] * wts["dof_far"]) * e_f]
+                for name, vec in (("accel", un[acc_idx]), ("camera_rate", un[cam_idx]), ("lens_rate", un[lens_idx]),
+                                  ("accel_change", du_n[acc_idx]), ("camera_rate_change", du_n[cam_idx]),
+                                  ("lens_rate_change", du_n[lens_idx]), ("velocity", vn),
+                                  ("soft_constraint", slack)):
+                    resid.append(ca.sqrt(dt * wts[name]) * vec)
+            x_prev, u_last = x, (v_copy[k * nu:(k + 1) * nu] if sqp and k < n - 1 else u)
         gvec = ca.vertcat(*g)
+        cost_v = cost
+        if sqp and n > 1:  # the NLP's own cost: v_k = u_{k-1}
+            blk = nu + nx + C.N_SOFT
+            cost = ca.substitute(cost, v_copy, ca.vertcat(*[w[nx + k * blk:nx + k * blk + nu] for k in range(n - 1)]))
         nlp = {"x": w, "p": p, "f": cost, "g": gvec}
         self._gfun = ca.Function("g", [w, p], [gvec])
         self._ffun = ca.Function("f", [w, p], [cost])
+        self._nlp = nlp
+        self.last_stats: dict = {}
+        if sqp:
+            self._build_sqp(w, v_copy, p, cost_v, ca.vertcat(*g_ocp), ca.vertcat(*resid))
+        else:
+            self._make_ipopt()
+
+    def _make_ipopt(self) -> None:
         # two instances of one NLP: warm-started solves (multipliers in, small barrier, the per-step
         # budget) and cold ones (IPOPT's default start, a larger budget: first solve, after a hold)
-        variants = {"cold": self._ipopt_options(warm=False, budget_s=self.max_cold_solve_time_s)}
+        s, nlp = self.s, self._nlp
+        variants = {"cold": self._ipopt_options(warm=False, budget_s=self._budget_s(cold=True))}
         if s.warm_start:
-            variants["warm"] = self._ipopt_options(warm=True, budget_s=self.max_solve_time_s)
+            variants["warm"] = self._ipopt_options(warm=True, budget_s=self._budget_s(cold=False))
         self._solvers = {}
         for name, opts in variants.items():
             if s.codegen:
@@ -223,12 +265,132 @@ class MpcSolver:
                 if not s.expand:
                     opts["expand"] = False
                 self._solvers[name] = ca.nlpsol(f"cinempc_{name}", s.solver, nlp, opts)
-        self.last_stats: dict = {}
+
+    def _budget_s(self, *, cold: bool) -> float:
+        """Wall-time budget of a solve [s]; inf when lifted (set_time_budget(None))."""
+        if self.max_solve_time_s is None:
+            return math.inf
+        return self.max_cold_solve_time_s if cold else self.max_solve_time_s
+
+    def set_time_budget(self, seconds: float | None, cold_seconds: float | None = None) -> None:
+        """Set the wall-time budget of a warm-started solve (and of a cold one: default max(seconds,
+        the current cold budget)), or lift both with None (simulation lockstep: a solve then never
+        fails for time, and SolveResult.wall_s / over_budget tell whether it would have met real time).
+        IPOPT's instances are rebuilt (its options are fixed at creation; ~0.1 s); the SQP reads it per solve."""
+        if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
+            raise ValueError(f"time budget must be a finite value > 0 or None, got {seconds!r}")
+        if seconds is None:
+            self.max_solve_time_s = None  # the finite pair stays in _nominal_budget
+        else:
+            self.max_solve_time_s = float(seconds)
+            self.max_cold_solve_time_s = max(float(seconds), float(cold_seconds) if cold_seconds is not None
+                                             else self._nominal_budget[1])
+            self._nominal_budget = (self.max_solve_time_s, self.max_cold_solve_time_s)
+        if self.s.solver == "ipopt":
+            self._make_ipopt()
+
+    @property
+    def time_budget_s(self) -> float | None:
+        """The warm-solve wall-time budget [s], None when lifted."""
+        return self.max_solve_time_s
+
+    # ------------------------------------------------------------------ SQP (real-time iteration)
+    def _build_sqp(self, w, v_copy, p, cost_v, g_ocp, resid) -> None:  # noqa: ANN001
+        """QP data of one SQP iteration, in the stage-wise (optimal-control) form structured QP solvers take.
+
+        QP variables z = [(u_k, slack_k, x_{k+1}, v_{k+1}) for k < N], v_{k+1} = u_k a copy of the input (so
+        the input-change cost couples no two stages); x_0 is the measured state, a parameter. Constraints:
+        [(A x_k + B u_k - x_{k+1}, u_k - v_{k+1}, soft_k(A x_k + B u_k, slack_k)) for k < N]. Hessian:
+        Gauss-Newton 2 J_r' J_r of the residuals (positive semi-definite: every QP is convex); gradient:
+        the exact cost's. `cost_v` and `resid` are written with v_k for u_{k-1} (k >= 1)."""
+        s, lay, n = self.s, self.layout, self.n
+        nx, nu, ns = lay.nx, lay.nu, C.N_SOFT
+        bz = nu + ns + nx + nu  # QP variables per stage
+        bw = nu + nx + ns  # NLP variables per stage
+        z = ca.SX.sym("z", n * bz)
+        x0 = ca.SX.sym("x0", nx)
+        w_pieces, v_pieces, g_rows, perm = [x0], [], [], []
+        for k in range(n):
+            zk = z[k * bz:(k + 1) * bz]
+            u, sl, x, v = zk[0:nu], zk[nu:nu + ns], zk[nu + ns:nu + ns + nx], zk[nu + ns + nx:]
+            w_pieces += [u, x, sl]
+            if k < n - 1:
+                v_pieces.append(v)
+            perm += [k * bz + i for i in range(nu)] + [k * bz + nu + ns + i for i in range(nx)] \
+                + [k * bz + nu + i for i in range(ns)]
+        self._perm = np.asarray(perm)  # w[nx:] = z[perm]
+        self._u_in_z = np.concatenate([np.arange(k * bz, k * bz + nu) for k in range(n)])
+        self._v_in_z = np.concatenate([np.arange(k * bz + nu + ns + nx, (k + 1) * bz) for k in range(n)])
+        w_of_z, v_of_z = ca.vertcat(*w_pieces), ca.vertcat(*v_pieces)
+        subst = ca.Function("subst", [w, v_copy, p], [cost_v, g_ocp, resid])
+        cost_z, g_z, r_z = subst(w_of_z, v_of_z, p)
+        gb = nx + ns
+        for k in range(n):
+            zk = z[k * bz:(k + 1) * bz]
+            g_rows += [g_z[k * gb:k * gb + nx], zk[0:nu] - zk[nu + ns + nx:], g_z[k * gb + nx:(k + 1) * gb]]
+        g_z = ca.vertcat(*g_rows)
+        lo = np.concatenate([np.zeros(nx + nu), np.zeros(ns)])
+        hi = np.concatenate([np.zeros(nx + nu), np.full(ns, np.inf)])
+        self._lbgz, self._ubgz = np.tile(lo, n), np.tile(hi, n)
+        pz = ca.vertcat(p, x0)
+        jr = ca.jacobian(r_z, z)
+        hess = 2 * ca.mtimes(jr.T, jr)
+        grad = ca.gradient(cost_z, z)
+        jg = ca.jacobian(g_z, z)
+        self._qpfun = ca.Function("qp_data", [z, pz], [hess, grad, g_z, jg])
+        self._meritfun = ca.Function("merit", [w, p], [self._nlp["f"], self._nlp["g"]])
+        if s.codegen:
+            self._qpfun = self._codegen_function(self._qpfun)
+            self._meritfun = self._codegen_function(self._meritfun)
+        qp = {"h": hess.sparsity(), "a": jg.sparsity()}
+        opts = self._qp_options()
+        if s.qp_solver == "hpipm":
+            opts.update({"N": n, "nx": [0] + [nx + nu] * n, "nu": [nu + ns] * n + [0], "ng": [ns] * n + [0]})
+        self._qp = ca.conic("cinempc_qp", s.qp_solver, qp, opts)
+        self._solvers = {}
+        del bw
+
+    def _w_to_z(self, w: np.ndarray) -> np.ndarray:
+        z = np.empty(self.n * (2 * self.layout.nu + C.N_SOFT + self.layout.nx))
+        z[self._perm] = w[self.layout.nx:]
+        z[self._v_in_z] = z[self._u_in_z]
+        return z
+
+    def _qp_options(self) -> dict:
+        name = self.s.qp_solver
+        if name == "qrqp":
+            return {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False,
+                    "max_iter": 2000}
+        if name == "osqp":
+            return {"osqp": {"verbose": False, "eps_abs": 1e-7, "eps_rel": 1e-7, "polish": True,
+                             "max_iter": 20000}, "error_on_fail": False}
+        if name == "qpoases":
+            return {"printLevel": "none", "sparse": True, "error_on_fail": False}
+        return {"error_on_fail": False}
+
+    def _codegen_function(self, fun: ca.Function) -> ca.Function:
+        """`fun` compiled to a shared library under cache_dir (once), loaded as an external."""
+        key = _structure_key(self.s)
+        cache = Path(self.s.cache_dir)
+        cache.mkdir(parents=True, exist_ok=True)
+        lib = cache / f"cinempc_{fun.name()}_{key}.so"
+        if not lib.exists():
+            with tempfile.TemporaryDirectory(dir=cache) as tmp:
+                c_file = os.path.join(tmp, f"{fun.name()}.c")
+                fun.generate(c_file, {"with_header": False})
+                t = time.perf_counter()
+                out = Path(tmp) / (lib.name + ".part")
+                subprocess.run([self.s.compiler, *self.s.compile_flags, c_file, "-o", str(out)],
+                               check=True, capture_output=True)
+                os.replace(out, lib)
+                log.info("compiled %s in %.1f s -> %s", fun.name(), time.perf_counter() - t, lib)
+        return ca.external(fun.name(), str(lib))
 
     def _ipopt_options(self, *, warm: bool, budget_s: float) -> dict:
         s = self.s
         ip = {"print_level": 0, "sb": "yes", "max_iter": s.max_iter, "tol": s.tol,
-              "acceptable_tol": 1e-3, "acceptable_iter": 5, "max_wall_time": float(budget_s),
+              "acceptable_tol": 1e-3, "acceptable_iter": 5,
+              "max_wall_time": float(budget_s) if math.isfinite(budget_s) else 1e20,
               "mu_strategy": "adaptive", "linear_solver": "mumps"}
         if warm:
             ip.update({"warm_start_init_point": "yes", "warm_start_bound_push": 1e-6,
@@ -356,6 +518,8 @@ class MpcSolver:
         if guess is None:
             guess = self.cold_guess(x0)
         guess = np.clip(guess, lbw, ubw)
+        if self.s.solver == "sqp_rti":
+            return self._solve_sqp(guess, p, lbw, ubw, shift_s)
         args = {"x0": guess, "p": p, "lbx": lbw, "ubx": ubw, "lbg": self._lbg, "ubg": self._ubg}
         solver = self._solvers["cold"]
         if self.s.warm_start and self._last is not None:
@@ -383,13 +547,114 @@ class MpcSolver:
                                                       np.full((self.n, C.N_SOFT), np.nan))
         res = SolveResult(ok=ok, status=status, x=x, u=u, slack=slack,
                           cost=float(sol["f"]) if finite else math.inf,
-                          iterations=int(stats.get("iter_count", -1)), wall_s=wall, violation=viol, cpu_s=cpu)
+                          iterations=int(stats.get("iter_count", -1)), wall_s=wall, violation=viol, cpu_s=cpu,
+                          over_budget=wall > self._budget_s(cold=solver is self._solvers["cold"]))
         if ok:
             self._last = res
             self._guess = wv
             self._lam_x = np.asarray(sol["lam_x"]).reshape(-1)
             self._lam_g = np.asarray(sol["lam_g"]).reshape(-1)
         return res
+
+    def _solve_sqp(self, w: np.ndarray, p: np.ndarray, lbw: np.ndarray, ubw: np.ndarray,
+                   shift_s: float) -> SolveResult:
+        """SQP from the (shifted) guess: a real-time iteration when warm (sqp_iter QPs, 1 = RTI), iterations
+        to convergence (up to sqp_iter_cold) when cold. Each QP is convex (Gauss-Newton Hessian) and
+        keeps the linear dynamics and every hard bound exactly; the soft constraints' slacks are then
+        set to their exact value, so every returned iterate is feasible. A step is shortened (halved,
+        at most 4 times) while it does not decrease the exact-penalty merit f + mu |violation|."""
+        lay, s = self.layout, self.s
+        warm = s.warm_start and self._last is not None
+        max_it = s.sqp_iter if warm else s.sqp_iter_cold
+        budget = self._budget_s(cold=not warm)
+        lam_x = lam_a = None
+        if warm and self._lam_x is not None:
+            m = min(int(round(shift_s / self.dt)), self.n - 1)
+            lx, la = self._lam_x.reshape(self.n, -1), self._lam_g.reshape(self.n, -1)
+            if m > 0:
+                lx = np.vstack([lx[m:], np.repeat(lx[-1:], m, axis=0)])
+                la = np.vstack([la[m:], np.repeat(la[-1:], m, axis=0)])
+            lam_x, lam_a = lx.reshape(-1), la.reshape(-1)
+        perm, nx = self._perm, lay.nx
+        pz = np.concatenate([p, w[:nx]])
+        lbz, ubz = self._w_to_z(lbw), self._w_to_z(ubw)
+        t, c = time.perf_counter(), time.thread_time()
+        status, it, qp_iters, step = "not started", 0, 0, math.inf
+        w = self._fix_slacks(w, p)
+        f0, g0 = self._meritfun(w, p)
+        f0 = float(f0)
+        merit0 = f0 + self._penalty_mu * self._viol(np.asarray(g0).reshape(-1))
+        while it < max_it:
+            z = self._w_to_z(w)
+            hess, grad, gv, jg = self._qpfun(z, pz)
+            gv = np.asarray(gv).reshape(-1)
+            args = {"h": hess, "g": grad, "a": jg, "lba": self._lbgz - gv, "uba": self._ubgz - gv,
+                    "lbx": lbz - z, "ubx": ubz - z, "x0": np.zeros_like(z)}
+            if lam_x is not None:
+                args["lam_x0"], args["lam_a0"] = lam_x, lam_a
+            sol = self._qp(**args)
+            qst = self._qp.stats()
+            qp_iters += int(qst.get("iter_count", 0) or 0)
+            dz = np.asarray(sol["x"]).reshape(-1)
+            dw = np.zeros_like(w)
+            dw[nx:] = dz[perm]
+            if not (qst.get("success", False) and np.all(np.isfinite(dw))):
+                status = f"QP failed ({qst.get('return_status', 'unknown')})"
+                break
+            lam_x = np.asarray(sol["lam_x"]).reshape(-1)
+            lam_a = np.asarray(sol["lam_a"]).reshape(-1)
+            self._penalty_mu = max(self._penalty_mu, 2.0 * float(np.max(np.abs(lam_a), initial=0.0)))
+            alpha, dd = 1.0, float(np.dot(np.asarray(grad).reshape(-1), dz))
+            for _ in range(5):
+                w_try = self._fix_slacks(np.clip(w + alpha * dw, lbw, ubw), p)
+                f1, g1 = self._meritfun(w_try, p)
+                merit1 = float(f1) + self._penalty_mu * self._viol(np.asarray(g1).reshape(-1))
+                if merit1 <= merit0 + 1e-4 * alpha * min(dd, 0.0) or alpha < 0.1:
+                    break
+                alpha *= 0.5
+            w, merit0, f0 = w_try, merit1, float(f1)
+            it += 1
+            step = float(np.max(np.abs(alpha * dw) / (1.0 + np.abs(w))))
+            if step <= s.sqp_step_tol:
+                status = "Solve_Succeeded"
+                break
+            status = "real-time iteration" if warm else "Maximum_Iterations_Exceeded"
+            elapsed = time.perf_counter() - t
+            if elapsed * (it + 1) / it > budget:  # the next iteration would not fit
+                if it < max_it:
+                    status = "Maximum_WallTime_Exceeded"
+                break
+        wall, cpu = time.perf_counter() - t, time.thread_time() - c
+        finite = bool(np.all(np.isfinite(w)) and math.isfinite(f0))
+        gv = np.asarray(self._gfun(w, p)).reshape(-1)
+        viol = max(self._viol(gv), float(np.max(np.maximum(lbw - w, 0) + np.maximum(w - ubw, 0))))
+        ok = finite and it >= 1 and viol <= self.feasibility_tol
+        x, u, slack = self._split(w)
+        res = SolveResult(ok=ok, status=status, x=x, u=u, slack=slack, cost=f0 if finite else math.inf,
+                          iterations=it, wall_s=wall, violation=viol, cpu_s=cpu, over_budget=wall > budget,
+                          extras={"qp_iterations": qp_iters, "step": step, "alpha": alpha if it else 0.0})
+        self.last_stats = {"return_status": status, "iter_count": it, "qp_iter_count": qp_iters}
+        if ok:
+            self._last = res
+            self._guess = w
+            self._lam_x, self._lam_g = lam_x, lam_a
+        return res
+
+    def _viol(self, gv: np.ndarray) -> float:
+        """Sum of the constraint violations of g (L1)."""
+        return float(np.sum(np.maximum(self._lbg - gv, 0) + np.maximum(gv - self._ubg, 0)))
+
+    def _fix_slacks(self, w: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Each soft-constraint slack raised to the least value that satisfies its constraint."""
+        gv = np.asarray(self._gfun(w, p)).reshape(-1)
+        nx, blk, gblk = self.layout.nx, self.layout.nu + self.layout.nx + C.N_SOFT, self.layout.nx + C.N_SOFT
+        short = np.maximum(-gv.reshape(self.n, gblk)[:, nx:], 0.0)  # soft rows are >= 0
+        if not np.any(short > 0):
+            return w
+        w = w.copy()
+        sl = w[nx:].reshape(self.n, blk)[:, blk - C.N_SOFT:]
+        w[nx:].reshape(self.n, blk)[:, blk - C.N_SOFT:] = sl + short
+        return w
 
     def evaluate_cost(self, data: StageData, x: np.ndarray, u: np.ndarray, slack: np.ndarray | None = None) -> float:
         """The NLP cost of a given trajectory (for comparisons)."""
