@@ -150,7 +150,7 @@ class Structure:
     sensor_height_mm: float = SENSOR_HEIGHT_MM
     coc_mm: float = COC_MM  # circle of confusion for the depth of field [mm]
     solver: str = "sqp_rti"  # "sqp_rti": SQP real-time iteration (Gauss-Newton QPs); "ipopt": the reference NLP solver
-    qp_solver: str = "qrqp"  # QP solver of sqp_rti (a casadi conic plugin, QP_SOLVERS)
+    qp_solver: str = "hpipm"  # QP solver of sqp_rti (a casadi conic plugin, QP_SOLVERS)
     sqp_iter: int = 1  # SQP iterations per warm-started solve (1 = real-time iteration), >= 1
     sqp_iter_cold: int = 30  # SQP iterations of a cold solve (stops earlier when converged), >= 1
     sqp_step_tol: float = 1e-6  # an SQP step smaller than this (relative, inf-norm) is converged

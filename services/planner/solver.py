@@ -165,6 +165,7 @@ class MpcSolver:
         x_prev = w[0:nx]
         u_last = u_prev
         sqp = s.solver == "sqp_rti"
+        aug = sqp and s.qp_solver == "hpipm"  # stage-wise QP: input copies (see _build_sqp)
         # for the SQP, the previous input of stage k >= 1 is a copy v_k (= u_{k-1}, a state of the QP), so
         # the input-change cost stays within one stage of the stage-wise QP
         v_copy = sym.sym("v", max(n - 1, 0) * lay.nu)
@@ -234,10 +235,10 @@ class MpcSolver:
                                   ("lens_rate_change", du_n[lens_idx]), ("velocity", vn),
                                   ("soft_constraint", slack)):
                     resid.append(ca.sqrt(dt * wts[name]) * vec)
-            x_prev, u_last = x, (v_copy[k * nu:(k + 1) * nu] if sqp and k < n - 1 else u)
+            x_prev, u_last = x, (v_copy[k * nu:(k + 1) * nu] if aug and k < n - 1 else u)
         gvec = ca.vertcat(*g)
         cost_v = cost
-        if sqp and n > 1:  # the NLP's own cost: v_k = u_{k-1}
+        if aug and n > 1:  # the NLP's own cost: v_k = u_{k-1}
             blk = nu + nx + C.N_SOFT
             cost = ca.substitute(cost, v_copy, ca.vertcat(*[w[nx + k * blk:nx + k * blk + nu] for k in range(n - 1)]))
         nlp = {"x": w, "p": p, "f": cost, "g": gvec}
@@ -305,8 +306,8 @@ class MpcSolver:
         the exact cost's. `cost_v` and `resid` are written with v_k for u_{k-1} (k >= 1)."""
         s, lay, n = self.s, self.layout, self.n
         nx, nu, ns = lay.nx, lay.nu, C.N_SOFT
-        bz = nu + ns + nx + nu  # QP variables per stage
-        bw = nu + nx + ns  # NLP variables per stage
+        nv = nu if s.qp_solver == "hpipm" else 0  # input copies only where the QP solver needs stage-wise form
+        bz = nu + ns + nx + nv  # QP variables per stage
         z = ca.SX.sym("z", n * bz)
         x0 = ca.SX.sym("x0", nx)
         w_pieces, v_pieces, g_rows, perm = [x0], [], [], []
@@ -314,44 +315,58 @@ class MpcSolver:
             zk = z[k * bz:(k + 1) * bz]
             u, sl, x, v = zk[0:nu], zk[nu:nu + ns], zk[nu + ns:nu + ns + nx], zk[nu + ns + nx:]
             w_pieces += [u, x, sl]
-            if k < n - 1:
+            if k < n - 1 and nv:
                 v_pieces.append(v)
             perm += [k * bz + i for i in range(nu)] + [k * bz + nu + ns + i for i in range(nx)] \
                 + [k * bz + nu + i for i in range(ns)]
         self._perm = np.asarray(perm)  # w[nx:] = z[perm]
+        self._nz = n * bz
         self._u_in_z = np.concatenate([np.arange(k * bz, k * bz + nu) for k in range(n)])
-        self._v_in_z = np.concatenate([np.arange(k * bz + nu + ns + nx, (k + 1) * bz) for k in range(n)])
+        self._v_in_z = np.concatenate([np.arange(k * bz + nu + ns + nx, (k + 1) * bz) for k in range(n)]).astype(int)
+        if not nv:
+            self._u_in_z = self._u_in_z[:0]
         w_of_z, v_of_z = ca.vertcat(*w_pieces), ca.vertcat(*v_pieces)
         subst = ca.Function("subst", [w, v_copy, p], [cost_v, g_ocp, resid])
         cost_z, g_z, r_z = subst(w_of_z, v_of_z, p)
         gb = nx + ns
         for k in range(n):
             zk = z[k * bz:(k + 1) * bz]
-            g_rows += [g_z[k * gb:k * gb + nx], zk[0:nu] - zk[nu + ns + nx:], g_z[k * gb + nx:(k + 1) * gb]]
+            g_rows += [g_z[k * gb:k * gb + nx], zk[0:nv] - zk[nu + ns + nx:], g_z[k * gb + nx:(k + 1) * gb]]
         g_z = ca.vertcat(*g_rows)
-        lo = np.concatenate([np.zeros(nx + nu), np.zeros(ns)])
-        hi = np.concatenate([np.zeros(nx + nu), np.full(ns, np.inf)])
+        lo = np.concatenate([np.zeros(nx + nv), np.zeros(ns)])
+        hi = np.concatenate([np.zeros(nx + nv), np.full(ns, np.inf)])
         self._lbgz, self._ubgz = np.tile(lo, n), np.tile(hi, n)
         pz = ca.vertcat(p, x0)
         jr = ca.jacobian(r_z, z)
         hess = 2 * ca.mtimes(jr.T, jr)
         grad = ca.gradient(cost_z, z)
         jg = ca.jacobian(g_z, z)
-        self._qpfun = ca.Function("qp_data", [z, pz], [hess, grad, g_z, jg])
-        self._meritfun = ca.Function("merit", [w, p], [self._nlp["f"], self._nlp["g"]])
+        self._qpfun = ca.Function("qp_data", [z, pz], [hess, grad, g_z, jg, cost_z])
+        # after a step: each soft constraint's slack raised to the least value that satisfies it, then the
+        # cost and constraints there (one call)
+        g_w = self._nlp["g"]
+        gsoft = ca.reshape(g_w, nx + ns, n)[nx:, :]  # (ns, n): soft rows, >= 0
+        raise_by = ca.reshape(ca.fmax(-gsoft, 0), ns * n, 1)
+        sl_idx = [nx + k * (nu + nx + ns) + nu + nx + i for k in range(n) for i in range(ns)]
+        add = ca.SX.zeros(w.shape[0])
+        for j, i in enumerate(sl_idx):
+            add[i] = raise_by[j]
+        w_fix = w + add
+        f_fix, g_fix = ca.Function("fg", [w, p], [self._nlp["f"], g_w])(w_fix, p)
+        self._postfun = ca.Function("post", [w, p], [w_fix, f_fix, g_fix])
         if s.codegen:
             self._qpfun = self._codegen_function(self._qpfun)
-            self._meritfun = self._codegen_function(self._meritfun)
+            self._postfun = self._codegen_function(self._postfun)
         qp = {"h": hess.sparsity(), "a": jg.sparsity()}
         opts = self._qp_options()
         if s.qp_solver == "hpipm":
-            opts.update({"N": n, "nx": [0] + [nx + nu] * n, "nu": [nu + ns] * n + [0], "ng": [ns] * n + [0]})
+            opts.update({"N": n, "nx": [0] + [nx + nu] * n, "nu": [nu + ns] * n + [0], "ng": [ns] * n + [0],
+                         "inf": 1e6})
         self._qp = ca.conic("cinempc_qp", s.qp_solver, qp, opts)
         self._solvers = {}
-        del bw
 
     def _w_to_z(self, w: np.ndarray) -> np.ndarray:
-        z = np.empty(self.n * (2 * self.layout.nu + C.N_SOFT + self.layout.nx))
+        z = np.empty(self._nz)
         z[self._perm] = w[self.layout.nx:]
         z[self._v_in_z] = z[self._u_in_z]
         return z
@@ -361,6 +376,11 @@ class MpcSolver:
         if name == "qrqp":
             return {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False,
                     "max_iter": 2000}
+        if name == "hpipm":
+            return {"hpipm": {"mode": "speed", "iter_max": 100, "res_g_max": 1e-7, "res_b_max": 1e-8,
+                              "res_d_max": 1e-8, "res_m_max": 1e-8}, "error_on_fail": False}
+        if name == "piqp":
+            return {"piqp": {"eps_abs": 1e-7, "eps_rel": 1e-8, "verbose": False}, "error_on_fail": False}
         if name == "osqp":
             return {"osqp": {"verbose": False, "eps_abs": 1e-7, "eps_rel": 1e-7, "polish": True,
                              "max_iter": 20000}, "error_on_fail": False}
@@ -377,7 +397,12 @@ class MpcSolver:
         if not lib.exists():
             with tempfile.TemporaryDirectory(dir=cache) as tmp:
                 c_file = os.path.join(tmp, f"{fun.name()}.c")
-                fun.generate(c_file, {"with_header": False})
+                cwd = os.getcwd()
+                try:
+                    os.chdir(tmp)
+                    fun.generate(f"{fun.name()}.c")
+                finally:
+                    os.chdir(cwd)
                 t = time.perf_counter()
                 out = Path(tmp) / (lib.name + ".part")
                 subprocess.run([self.s.compiler, *self.s.compile_flags, c_file, "-o", str(out)],
@@ -510,6 +535,7 @@ class MpcSolver:
     # ------------------------------------------------------------------ solve
     def solve(self, data: StageData, *, shift_s: float = 0.0) -> SolveResult:
         """Solve once. `shift_s` = time since the last successful solve (for the warm start)."""
+        t, c = time.perf_counter(), time.thread_time()  # the whole solve: packing and warm start included
         lay = self.layout
         x0 = np.asarray(data.x0, dtype=float)
         p = self.pack(data)
@@ -519,7 +545,7 @@ class MpcSolver:
             guess = self.cold_guess(x0)
         guess = np.clip(guess, lbw, ubw)
         if self.s.solver == "sqp_rti":
-            return self._solve_sqp(guess, p, lbw, ubw, shift_s)
+            return self._solve_sqp(guess, p, lbw, ubw, shift_s, t, c)
         args = {"x0": guess, "p": p, "lbx": lbw, "ubx": ubw, "lbg": self._lbg, "ubg": self._ubg}
         solver = self._solvers["cold"]
         if self.s.warm_start and self._last is not None:
@@ -527,7 +553,6 @@ class MpcSolver:
             if lam_x is not None:
                 args["lam_x0"], args["lam_g0"] = lam_x, lam_g
                 solver = self._solvers["warm"]
-        t, c = time.perf_counter(), time.thread_time()
         sol = solver(**args)
         wall, cpu = time.perf_counter() - t, time.thread_time() - c
         stats = solver.stats()
@@ -557,7 +582,7 @@ class MpcSolver:
         return res
 
     def _solve_sqp(self, w: np.ndarray, p: np.ndarray, lbw: np.ndarray, ubw: np.ndarray,
-                   shift_s: float) -> SolveResult:
+                   shift_s: float, t: float, c: float) -> SolveResult:
         """SQP from the (shifted) guess: a real-time iteration when warm (sqp_iter QPs, 1 = RTI), iterations
         to convergence (up to sqp_iter_cold) when cold. Each QP is convex (Gauss-Newton Hessian) and
         keeps the linear dynamics and every hard bound exactly; the soft constraints' slacks are then
@@ -578,16 +603,16 @@ class MpcSolver:
         perm, nx = self._perm, lay.nx
         pz = np.concatenate([p, w[:nx]])
         lbz, ubz = self._w_to_z(lbw), self._w_to_z(ubw)
-        t, c = time.perf_counter(), time.thread_time()
         status, it, qp_iters, step = "not started", 0, 0, math.inf
-        w = self._fix_slacks(w, p)
-        f0, g0 = self._meritfun(w, p)
-        f0 = float(f0)
-        merit0 = f0 + self._penalty_mu * self._viol(np.asarray(g0).reshape(-1))
+        g_w = None
         while it < max_it:
             z = self._w_to_z(w)
-            hess, grad, gv, jg = self._qpfun(z, pz)
+            hess, grad, gv, jg, f0 = self._qpfun(z, pz)
             gv = np.asarray(gv).reshape(-1)
+            if it == 0:
+                f0 = float(f0)
+                merit0 = f0 + self._penalty_mu * float(np.sum(np.maximum(self._lbgz - gv, 0)
+                                                              + np.maximum(gv - self._ubgz, 0)))
             args = {"h": hess, "g": grad, "a": jg, "lba": self._lbgz - gv, "uba": self._ubgz - gv,
                     "lbx": lbz - z, "ubx": ubz - z, "x0": np.zeros_like(z)}
             if lam_x is not None:
@@ -606,13 +631,13 @@ class MpcSolver:
             self._penalty_mu = max(self._penalty_mu, 2.0 * float(np.max(np.abs(lam_a), initial=0.0)))
             alpha, dd = 1.0, float(np.dot(np.asarray(grad).reshape(-1), dz))
             for _ in range(5):
-                w_try = self._fix_slacks(np.clip(w + alpha * dw, lbw, ubw), p)
-                f1, g1 = self._meritfun(w_try, p)
-                merit1 = float(f1) + self._penalty_mu * self._viol(np.asarray(g1).reshape(-1))
+                w_try, f1, g1 = self._postfun(np.clip(w + alpha * dw, lbw, ubw), p)
+                g1 = np.asarray(g1).reshape(-1)
+                merit1 = float(f1) + self._penalty_mu * self._viol(g1)
                 if merit1 <= merit0 + 1e-4 * alpha * min(dd, 0.0) or alpha < 0.1:
                     break
                 alpha *= 0.5
-            w, merit0, f0 = w_try, merit1, float(f1)
+            w, merit0, f0, g_w = np.asarray(w_try).reshape(-1), merit1, float(f1), g1
             it += 1
             step = float(np.max(np.abs(alpha * dw) / (1.0 + np.abs(w))))
             if step <= s.sqp_step_tol:
@@ -624,13 +649,13 @@ class MpcSolver:
                 if it < max_it:
                     status = "Maximum_WallTime_Exceeded"
                 break
+        finite = bool(it >= 1 and np.all(np.isfinite(w)) and math.isfinite(f0))
+        viol = math.inf if g_w is None else max(self._viol(g_w), float(np.max(np.maximum(lbw - w, 0)
+                                                                                + np.maximum(w - ubw, 0))))
         wall, cpu = time.perf_counter() - t, time.thread_time() - c
-        finite = bool(np.all(np.isfinite(w)) and math.isfinite(f0))
-        gv = np.asarray(self._gfun(w, p)).reshape(-1)
-        viol = max(self._viol(gv), float(np.max(np.maximum(lbw - w, 0) + np.maximum(w - ubw, 0))))
-        ok = finite and it >= 1 and viol <= self.feasibility_tol
+        ok = finite and viol <= self.feasibility_tol
         x, u, slack = self._split(w)
-        res = SolveResult(ok=ok, status=status, x=x, u=u, slack=slack, cost=f0 if finite else math.inf,
+        res = SolveResult(ok=ok, status=status, x=x, u=u, slack=slack, cost=float(f0) if finite else math.inf,
                           iterations=it, wall_s=wall, violation=viol, cpu_s=cpu, over_budget=wall > budget,
                           extras={"qp_iterations": qp_iters, "step": step, "alpha": alpha if it else 0.0})
         self.last_stats = {"return_status": status, "iter_count": it, "qp_iter_count": qp_iters}
@@ -643,18 +668,6 @@ class MpcSolver:
     def _viol(self, gv: np.ndarray) -> float:
         """Sum of the constraint violations of g (L1)."""
         return float(np.sum(np.maximum(self._lbg - gv, 0) + np.maximum(gv - self._ubg, 0)))
-
-    def _fix_slacks(self, w: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """Each soft-constraint slack raised to the least value that satisfies its constraint."""
-        gv = np.asarray(self._gfun(w, p)).reshape(-1)
-        nx, blk, gblk = self.layout.nx, self.layout.nu + self.layout.nx + C.N_SOFT, self.layout.nx + C.N_SOFT
-        short = np.maximum(-gv.reshape(self.n, gblk)[:, nx:], 0.0)  # soft rows are >= 0
-        if not np.any(short > 0):
-            return w
-        w = w.copy()
-        sl = w[nx:].reshape(self.n, blk)[:, blk - C.N_SOFT:]
-        w[nx:].reshape(self.n, blk)[:, blk - C.N_SOFT:] = sl + short
-        return w
 
     def evaluate_cost(self, data: StageData, x: np.ndarray, u: np.ndarray, slack: np.ndarray | None = None) -> float:
         """The NLP cost of a given trajectory (for comparisons)."""
