@@ -73,6 +73,25 @@ class SolveResult:
     extras: dict = field(default_factory=dict)
 
 
+class _QpForm:
+    """One QP form of the SQP: its data function, QP solver, and the map between w and z."""
+
+    perm: np.ndarray
+    nz: int
+    u_in_z: np.ndarray
+    v_in_z: np.ndarray
+    lbg: np.ndarray
+    ubg: np.ndarray
+    qpfun: ca.Function
+    qp: ca.Function
+
+    def w_to_z(self, w: np.ndarray, nx: int) -> np.ndarray:
+        z = np.empty(self.nz)
+        z[self.perm] = w[nx:]
+        z[self.v_in_z] = z[self.u_in_z]
+        return z
+
+
 class ParamLayout:
     """Offsets of the pieces of the parameter vector p."""
 
@@ -94,7 +113,7 @@ def _structure_key(s: Structure) -> str:
     """Hash of what the generated code depends on: structure, casadi version, this package's code."""
     d = dataclasses.asdict(s)
     for k in ("cache_dir", "codegen", "compiler", "max_iter", "max_iter_cold", "tol", "warm_start", "qp_solver",
-              "sqp_iter", "sqp_iter_cold", "sqp_step_tol"):
+              "sqp_iter", "sqp_iter_cold", "sqp_step_tol"):  # (sqp_input_copies changes the code: kept)
         d.pop(k, None)
     src = b""
     here = Path(__file__).resolve().parent
@@ -165,10 +184,15 @@ class MpcSolver:
         x_prev = w[0:nx]
         u_last = u_prev
         sqp = s.solver == "sqp_rti"
-        aug = sqp and s.qp_solver == "hpipm"  # stage-wise QP: input copies (see _build_sqp)
-        # for the SQP, the previous input of stage k >= 1 is a copy v_k (= u_{k-1}, a state of the QP), so
-        # the input-change cost stays within one stage of the stage-wise QP
+        # A stage-wise QP (HPIPM) cannot couple u_{k-1} and u_k, which the input-change cost does: either the
+        # QP carries input copies as states (exact Gauss-Newton Hessian, stages of 19 + 11 variables) or the
+        # Hessian of that cost is majorised by a block-diagonal one, (a - b)^2 <= 2 a^2 + 2 b^2 (the gradient
+        # stays exact: same optimum, slower convergence, half the QP time). For the SQP the previous input of
+        # stage k >= 1 is written as v_k (= u_{k-1}); the NLP's cost substitutes it back.
+        aug = sqp
+        majorise = sqp and s.qp_solver == "hpipm"
         v_copy = sym.sym("v", max(n - 1, 0) * lay.nu)
+        du_exact, du_major = [], []  # input-change residuals: exact, majorised (HPIPM's warm iterations)
         cost = 0
         g = []
         g_ocp = []
@@ -230,11 +254,20 @@ class MpcSolver:
                 e_n, e_f = J.dof_residuals(inv_n, inv_f, dref[k], g_near=d[1], g_far=d[3], far_one_sided=d[4])
                 resid += [ca.sqrt(0.5 * dt * wts["look"]) * J.look_residual(cc),
                           ca.sqrt(dt * d[0] * wts["dof_near"]) * e_n, ca.sqrt(dt * d[2] * wts["dof_far"]) * e_f]
-                for name, vec in (("accel", un[acc_idx]), ("camera_rate", un[cam_idx]), ("lens_rate", un[lens_idx]),
-                                  ("accel_change", du_n[acc_idx]), ("camera_rate_change", du_n[cam_idx]),
-                                  ("lens_rate_change", du_n[lens_idx]), ("velocity", vn),
-                                  ("soft_constraint", slack)):
-                    resid.append(ca.sqrt(dt * wts[name]) * vec)
+                terms = [("accel", un[acc_idx]), ("camera_rate", un[cam_idx]), ("lens_rate", un[lens_idx]),
+                         ("velocity", vn), ("soft_constraint", slack)]
+                exact = [("accel_change", du_n[acc_idx]), ("camera_rate_change", du_n[cam_idx]),
+                         ("lens_rate_change", du_n[lens_idx])]
+                major = exact
+                if majorise and k > 0:
+                    a_n, b_n = math.sqrt(2.0) * u * u_scale, math.sqrt(2.0) * u_last * u_scale
+                    major = [(name, vec[idx]) for name, idx in (("accel_change", acc_idx),
+                                                                ("camera_rate_change", cam_idx),
+                                                                ("lens_rate_change", lens_idx))
+                             for vec in (a_n, b_n)]
+                resid += [ca.sqrt(dt * wts[name]) * vec for name, vec in terms]
+                du_exact += [ca.sqrt(dt * wts[name]) * vec for name, vec in exact]
+                du_major += [ca.sqrt(dt * wts[name]) * vec for name, vec in major]
             x_prev, u_last = x, (v_copy[k * nu:(k + 1) * nu] if aug and k < n - 1 else u)
         gvec = ca.vertcat(*g)
         cost_v = cost
@@ -247,7 +280,13 @@ class MpcSolver:
         self._nlp = nlp
         self.last_stats: dict = {}
         if sqp:
-            self._build_sqp(w, v_copy, p, cost_v, ca.vertcat(*g_ocp), ca.vertcat(*resid))
+            g_ocp = ca.vertcat(*g_ocp)
+            exact = self._build_sqp(w, v_copy, p, cost_v, g_ocp, ca.vertcat(*resid, *du_exact),
+                                    copies=s.qp_solver == "hpipm", name="exact")
+            self._sqp = {"cold": exact, "warm": exact}
+            if majorise and not s.sqp_input_copies:
+                self._sqp["warm"] = self._build_sqp(w, v_copy, p, cost_v, g_ocp, ca.vertcat(*resid, *du_major),
+                                                    copies=False, name="major")
         else:
             self._make_ipopt()
 
@@ -296,17 +335,18 @@ class MpcSolver:
         return self.max_solve_time_s
 
     # ------------------------------------------------------------------ SQP (real-time iteration)
-    def _build_sqp(self, w, v_copy, p, cost_v, g_ocp, resid) -> None:  # noqa: ANN001
+    def _build_sqp(self, w, v_copy, p, cost_v, g_ocp, resid, *, copies: bool, name: str) -> "_QpForm":  # noqa: ANN001
         """QP data of one SQP iteration, in the stage-wise (optimal-control) form structured QP solvers take.
 
-        QP variables z = [(u_k, slack_k, x_{k+1}, v_{k+1}) for k < N], v_{k+1} = u_k a copy of the input (so
-        the input-change cost couples no two stages); x_0 is the measured state, a parameter. Constraints:
-        [(A x_k + B u_k - x_{k+1}, u_k - v_{k+1}, soft_k(A x_k + B u_k, slack_k)) for k < N]. Hessian:
-        Gauss-Newton 2 J_r' J_r of the residuals (positive semi-definite: every QP is convex); gradient:
-        the exact cost's. `cost_v` and `resid` are written with v_k for u_{k-1} (k >= 1)."""
+        QP variables z = [(u_k, slack_k, x_{k+1}[, v_{k+1}]) for k < N], with `copies` v_{k+1} = u_k, a copy
+        of the input as a state (so the exact input-change cost couples no two stages); x_0 is the measured
+        state, a parameter. Constraints: [(A x_k + B u_k - x_{k+1}[, u_k - v_{k+1}], soft_k(A x_k + B u_k,
+        slack_k)) for k < N]. Hessian: Gauss-Newton 2 J_r' J_r of the residuals (positive semi-definite:
+        every QP is convex); gradient: the exact cost's. `cost_v` and `resid` are written with v_k for
+        u_{k-1} (k >= 1); without copies v_k is u_{k-1} itself."""
         s, lay, n = self.s, self.layout, self.n
         nx, nu, ns = lay.nx, lay.nu, C.N_SOFT
-        nv = nu if s.qp_solver == "hpipm" else 0  # input copies only where the QP solver needs stage-wise form
+        nv = nu if copies else 0
         bz = nu + ns + nx + nv  # QP variables per stage
         z = ca.SX.sym("z", n * bz)
         x0 = ca.SX.sym("x0", nx)
@@ -315,16 +355,16 @@ class MpcSolver:
             zk = z[k * bz:(k + 1) * bz]
             u, sl, x, v = zk[0:nu], zk[nu:nu + ns], zk[nu + ns:nu + ns + nx], zk[nu + ns + nx:]
             w_pieces += [u, x, sl]
-            if k < n - 1 and nv:
-                v_pieces.append(v)
+            if k < n - 1:
+                v_pieces.append(v if nv else u)
             perm += [k * bz + i for i in range(nu)] + [k * bz + nu + ns + i for i in range(nx)] \
                 + [k * bz + nu + i for i in range(ns)]
-        self._perm = np.asarray(perm)  # w[nx:] = z[perm]
-        self._nz = n * bz
-        self._u_in_z = np.concatenate([np.arange(k * bz, k * bz + nu) for k in range(n)])
-        self._v_in_z = np.concatenate([np.arange(k * bz + nu + ns + nx, (k + 1) * bz) for k in range(n)]).astype(int)
-        if not nv:
-            self._u_in_z = self._u_in_z[:0]
+        form = _QpForm()
+        form.perm = np.asarray(perm)  # w[nx:] = z[perm]
+        form.nz = n * bz
+        form.u_in_z = np.concatenate([np.arange(k * bz, k * bz + nu) for k in range(n)]) if nv else np.zeros(0, int)
+        form.v_in_z = np.concatenate([np.arange(k * bz + nu + ns + nx, (k + 1) * bz) for k in range(n)]) \
+            if nv else np.zeros(0, int)
         w_of_z, v_of_z = ca.vertcat(*w_pieces), ca.vertcat(*v_pieces)
         subst = ca.Function("subst", [w, v_copy, p], [cost_v, g_ocp, resid])
         cost_z, g_z, r_z = subst(w_of_z, v_of_z, p)
@@ -335,41 +375,36 @@ class MpcSolver:
         g_z = ca.vertcat(*g_rows)
         lo = np.concatenate([np.zeros(nx + nv), np.zeros(ns)])
         hi = np.concatenate([np.zeros(nx + nv), np.full(ns, np.inf)])
-        self._lbgz, self._ubgz = np.tile(lo, n), np.tile(hi, n)
+        form.lbg, form.ubg = np.tile(lo, n), np.tile(hi, n)
         pz = ca.vertcat(p, x0)
         jr = ca.jacobian(r_z, z)
         hess = 2 * ca.mtimes(jr.T, jr)
         grad = ca.gradient(cost_z, z)
         jg = ca.jacobian(g_z, z)
-        self._qpfun = ca.Function("qp_data", [z, pz], [hess, grad, g_z, jg, cost_z])
-        # after a step: each soft constraint's slack raised to the least value that satisfies it, then the
-        # cost and constraints there (one call)
-        g_w = self._nlp["g"]
-        gsoft = ca.reshape(g_w, nx + ns, n)[nx:, :]  # (ns, n): soft rows, >= 0
-        raise_by = ca.reshape(ca.fmax(-gsoft, 0), ns * n, 1)
-        sl_idx = [nx + k * (nu + nx + ns) + nu + nx + i for k in range(n) for i in range(ns)]
-        add = ca.SX.zeros(w.shape[0])
-        for j, i in enumerate(sl_idx):
-            add[i] = raise_by[j]
-        w_fix = w + add
-        f_fix, g_fix = ca.Function("fg", [w, p], [self._nlp["f"], g_w])(w_fix, p)
-        self._postfun = ca.Function("post", [w, p], [w_fix, f_fix, g_fix])
+        form.qpfun = ca.Function(f"qp_data_{name}", [z, pz], [hess, grad, g_z, jg, cost_z])
+        if not hasattr(self, "_postfun"):
+            # after a step: each soft constraint's slack raised to the least value that satisfies it, then
+            # the cost and constraints there (one call)
+            g_w = self._nlp["g"]
+            gsoft = ca.reshape(g_w, nx + ns, n)[nx:, :]  # (ns, n): soft rows, >= 0
+            raise_by = ca.reshape(ca.fmax(-gsoft, 0), ns * n, 1)
+            add = ca.SX.zeros(w.shape[0])
+            for j, i in enumerate(nx + k * (nu + nx + ns) + nu + nx + i for k in range(n) for i in range(ns)):
+                add[i] = raise_by[j]
+            f_fix, g_fix = ca.Function("fg", [w, p], [self._nlp["f"], g_w])(w + add, p)
+            self._postfun = ca.Function("post", [w, p], [w + add, f_fix, g_fix])
+            if s.codegen:
+                self._postfun = self._codegen_function(self._postfun)
         if s.codegen:
-            self._qpfun = self._codegen_function(self._qpfun)
-            self._postfun = self._codegen_function(self._postfun)
+            form.qpfun = self._codegen_function(form.qpfun)
         qp = {"h": hess.sparsity(), "a": jg.sparsity()}
         opts = self._qp_options()
         if s.qp_solver == "hpipm":
-            opts.update({"N": n, "nx": [0] + [nx + nu] * n, "nu": [nu + ns] * n + [0], "ng": [ns] * n + [0],
+            opts.update({"N": n, "nx": [0] + [nx + nv] * n, "nu": [nu + ns] * n + [0], "ng": [ns] * n + [0],
                          "inf": 1e6})
-        self._qp = ca.conic("cinempc_qp", s.qp_solver, qp, opts)
+        form.qp = ca.conic(f"cinempc_qp_{name}", s.qp_solver, qp, opts)
         self._solvers = {}
-
-    def _w_to_z(self, w: np.ndarray) -> np.ndarray:
-        z = np.empty(self._nz)
-        z[self._perm] = w[self.layout.nx:]
-        z[self._v_in_z] = z[self._u_in_z]
-        return z
+        return form
 
     def _qp_options(self) -> dict:
         name = self.s.qp_solver
@@ -592,33 +627,34 @@ class MpcSolver:
         warm = s.warm_start and self._last is not None
         max_it = s.sqp_iter if warm else s.sqp_iter_cold
         budget = self._budget_s(cold=not warm)
+        form = self._sqp["warm" if warm else "cold"]
         lam_x = lam_a = None
-        if warm and self._lam_x is not None:
+        if warm and self._lam_x is not None and self._lam_x.size == form.nz:
             m = min(int(round(shift_s / self.dt)), self.n - 1)
             lx, la = self._lam_x.reshape(self.n, -1), self._lam_g.reshape(self.n, -1)
             if m > 0:
                 lx = np.vstack([lx[m:], np.repeat(lx[-1:], m, axis=0)])
                 la = np.vstack([la[m:], np.repeat(la[-1:], m, axis=0)])
             lam_x, lam_a = lx.reshape(-1), la.reshape(-1)
-        perm, nx = self._perm, lay.nx
+        perm, nx = form.perm, lay.nx
         pz = np.concatenate([p, w[:nx]])
-        lbz, ubz = self._w_to_z(lbw), self._w_to_z(ubw)
+        lbz, ubz = form.w_to_z(lbw, nx), form.w_to_z(ubw, nx)
         status, it, qp_iters, step = "not started", 0, 0, math.inf
         g_w = None
         while it < max_it:
-            z = self._w_to_z(w)
-            hess, grad, gv, jg, f0 = self._qpfun(z, pz)
+            z = form.w_to_z(w, nx)
+            hess, grad, gv, jg, f0 = form.qpfun(z, pz)
             gv = np.asarray(gv).reshape(-1)
             if it == 0:
                 f0 = float(f0)
-                merit0 = f0 + self._penalty_mu * float(np.sum(np.maximum(self._lbgz - gv, 0)
-                                                              + np.maximum(gv - self._ubgz, 0)))
-            args = {"h": hess, "g": grad, "a": jg, "lba": self._lbgz - gv, "uba": self._ubgz - gv,
+                merit0 = f0 + self._penalty_mu * float(np.sum(np.maximum(form.lbg - gv, 0)
+                                                              + np.maximum(gv - form.ubg, 0)))
+            args = {"h": hess, "g": grad, "a": jg, "lba": form.lbg - gv, "uba": form.ubg - gv,
                     "lbx": lbz - z, "ubx": ubz - z, "x0": np.zeros_like(z)}
             if lam_x is not None:
                 args["lam_x0"], args["lam_a0"] = lam_x, lam_a
-            sol = self._qp(**args)
-            qst = self._qp.stats()
+            sol = form.qp(**args)
+            qst = form.qp.stats()
             qp_iters += int(qst.get("iter_count", 0) or 0)
             dz = np.asarray(sol["x"]).reshape(-1)
             dw = np.zeros_like(w)

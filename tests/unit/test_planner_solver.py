@@ -139,7 +139,7 @@ def test_qp_failure_is_a_failed_solve_never_nan():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("solver, n_libs", [("ipopt", 1), ("sqp_rti", 2)])
+@pytest.mark.parametrize("solver, n_libs", [("ipopt", 1), ("sqp_rti", 3)])  # SQP: two QP forms + post
 def test_generated_code_is_compiled_once_and_cached(tmp_path, solver, n_libs):
     # given codegen on and an empty cache: the first build compiles the shared library(ies)
     cfg = pc.replace(pc.PlannerConfig(max_solve_time_s=2.0),
