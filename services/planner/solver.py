@@ -185,10 +185,11 @@ class MpcSolver:
         u_last = u_prev
         sqp = s.solver == "sqp_rti"
         # A stage-wise QP (HPIPM) cannot couple u_{k-1} and u_k, which the input-change cost does: either the
-        # QP carries input copies as states (exact Gauss-Newton Hessian, stages of 19 + 11 variables) or the
-        # Hessian of that cost is majorised by a block-diagonal one, (a - b)^2 <= 2 a^2 + 2 b^2 (the gradient
-        # stays exact: same optimum, slower convergence, half the QP time). For the SQP the previous input of
-        # stage k >= 1 is written as v_k (= u_{k-1}); the NLP's cost substitutes it back.
+        # QP carries input copies as states (exact Gauss-Newton Hessian, stages of 19 + 11 variables: the
+        # default) or, for warm iterations, that cost's cross-stage Hessian terms are dropped (block-diagonal;
+        # the gradient stays exact, so the optimum is the same; about half the QP time, but slower convergence
+        # along the weakly determined directions: a larger steady framing error in the benchmark). For the
+        # SQP the previous input of stage k >= 1 is written as v_k (= u_{k-1}); the NLP's cost substitutes it.
         aug = sqp
         majorise = sqp and s.qp_solver == "hpipm"
         v_copy = sym.sym("v", max(n - 1, 0) * lay.nu)
@@ -260,7 +261,7 @@ class MpcSolver:
                          ("lens_rate_change", du_n[lens_idx])]
                 major = exact
                 if majorise and k > 0:
-                    a_n, b_n = math.sqrt(2.0) * u * u_scale, math.sqrt(2.0) * u_last * u_scale
+                    a_n, b_n = u * u_scale, u_last * u_scale
                     major = [(name, vec[idx]) for name, idx in (("accel_change", acc_idx),
                                                                 ("camera_rate_change", cam_idx),
                                                                 ("lens_rate_change", lens_idx))
@@ -412,7 +413,7 @@ class MpcSolver:
             return {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False,
                     "max_iter": 2000}
         if name == "hpipm":
-            return {"hpipm": {"mode": "speed", "iter_max": 100, "res_g_max": 1e-7, "res_b_max": 1e-8,
+            return {"hpipm": {"mode": "speed", "iter_max": 100, "res_g_max": 1e-8, "res_b_max": 1e-8,
                               "res_d_max": 1e-8, "res_m_max": 1e-8}, "error_on_fail": False}
         if name == "piqp":
             return {"piqp": {"eps_abs": 1e-7, "eps_rel": 1e-8, "verbose": False}, "error_on_fail": False}
