@@ -15,7 +15,9 @@ Configurations:
 - ipopt: today's IPOPT configuration (SX-expanded NLP, warm start from the shifted last solution,
   20 Hz) at N = 15 and N = 20 (dt 0.1 s): N = 20 is the tracking-cost reference;
 - sqp_rti (the default): one Gauss-Newton SQP iteration per step from the shifted warm start
-  (real-time iteration), QP in stage-wise form, at N = 20 and 15 (dt 0.1 s), 20 Hz.
+  (real-time iteration), QP in stage-wise form solved by HPIPM, at N = 20 and 15 (dt 0.1 s), 20 Hz;
+  also with the block-diagonal QP form (sqp_input_copies=False: cross-stage input-change Hessian
+  terms dropped, smaller QP stages) and, with --codegen, on generated C.
 Reported per configuration and scenario: wall and CPU (thread) time per solve, median / p95 / max
 over the steady part (first 5 solves excluded), iterations, over-budget solves (vs 40 ms), the
 tracking cost on the simulator's true state (mean over time of 200 * sum_e |im_e - im*_e|^2 + 5 *
@@ -119,6 +121,9 @@ def configs(args: argparse.Namespace) -> list[tuple[str, pc.PlannerConfig]]:
     ]
     for qp in args.qp.split(","):
         out.append((f"sqp_rti N=20 dt=0.1 {qp}", ours(20, 0.1, "sqp_rti", **{"structure.qp_solver": qp})))
+    if "hpipm" in args.qp.split(","):
+        out.append(("sqp_rti N=20 dt=0.1 hpipm block-diagonal",
+                    ours(20, 0.1, "sqp_rti", **{"structure.qp_solver": "hpipm", "structure.sqp_input_copies": False})))
     if not args.quick:
         out.append((f"sqp_rti N=15 dt=0.1 {args.qp.split(',')[0]}",
                     ours(15, 0.1, "sqp_rti", **{"structure.qp_solver": args.qp.split(",")[0]})))
