@@ -671,7 +671,8 @@ class MpcSolver:
                 w_try, f1, g1 = self._postfun(np.clip(w + alpha * dw, lbw, ubw), p)
                 g1 = np.asarray(g1).reshape(-1)
                 merit1 = float(f1) + self._penalty_mu * self._viol(g1)
-                if merit1 <= merit0 + 1e-4 * alpha * min(dd, 0.0) or alpha < 0.1:
+                # Armijo on the merit, up to rounding (at a converged point the step is ~0 and the merit flat)
+                if merit1 <= merit0 + 1e-4 * alpha * min(dd, 0.0) + 1e-10 * (1.0 + abs(merit0)) or alpha < 0.1:
                     break
                 alpha *= 0.5
             w, merit0, f0, g_w = np.asarray(w_try).reshape(-1), merit1, float(f1), g1
