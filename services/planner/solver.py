@@ -1,4 +1,4 @@
-"""The CineMPC nonlinear program, built once with casadi and solved with IPOPT.
+"""The CineMPC nonlinear program, built once with casadi; solved by SQP real-time iteration or IPOPT.
 
 Multiple shooting over N stages of dt: decision vector [x_0, (u_k, x_{k+1}, slack_k) k < N],
 x_0 fixed to the measured state through its bounds. Everything that changes between solves is a
@@ -12,6 +12,16 @@ once and caches the shared library under `cache_dir`, keyed by the structure and
 Warm start: the last solution, shifted by the time elapsed since it was computed (states
 interpolated, inputs held piecewise constant, multipliers shifted by whole stages), with the
 new measured state in front.
+
+Solvers (`Structure.solver`):
+- "sqp_rti" (default): from the warm start, `sqp_iter` (1: the real-time iteration of acados)
+  SQP steps, each one convex QP — Gauss-Newton Hessian of the cost's residuals, exact gradient —
+  in stage-wise form (x_0 a parameter) for a structure-exploiting QP solver (HPIPM; or any casadi
+  conic plugin), then slacks made exact and an exact-penalty line search. Cold solves iterate to
+  convergence. See _build_sqp / _solve_sqp.
+- "ipopt": the reference; a warm instance (multipliers in, small barrier) and a cold one.
+The wall-time budget can be set or lifted at run time (set_time_budget); every SolveResult
+reports wall_s, cpu_s (this thread) and over_budget.
 """
 from __future__ import annotations
 
@@ -112,8 +122,8 @@ class ParamLayout:
 def _structure_key(s: Structure) -> str:
     """Hash of what the generated code depends on: structure, casadi version, this package's code."""
     d = dataclasses.asdict(s)
-    for k in ("cache_dir", "codegen", "compiler", "max_iter", "max_iter_cold", "tol", "warm_start", "qp_solver",
-              "sqp_iter", "sqp_iter_cold", "sqp_step_tol"):  # (sqp_input_copies changes the code: kept)
+    for k in ("cache_dir", "codegen", "compiler", "max_iter", "max_iter_cold", "tol", "warm_start",
+              "sqp_iter", "sqp_iter_cold", "sqp_step_tol"):  # (qp_solver, sqp_input_copies: kept)
         d.pop(k, None)
     src = b""
     here = Path(__file__).resolve().parent
