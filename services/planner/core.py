@@ -194,14 +194,10 @@ class Planner:
         run = 0.0 if self._run_from_ns is None else (now_ns - self._run_from_ns) * 1e-9
         return self._elapsed_s + run
 
-    def use_time_budget(self, max_solve_time_s: float) -> None:
-        """Rebuild the solver with another wall-time budget per solve (simulation time lifts it:
-        the solve is then as long as it needs, and `over_budget` counts what real time would miss)."""
-        cfg = self.cfg
-        self.solver = MpcSolver(cfg.structure, self.solver.bounds, self.solver.weights,
-                                max_solve_time_s=max_solve_time_s,
-                                max_cold_solve_time_s=max(max_solve_time_s, cfg.max_cold_solve_time_s),
-                                feasibility_tol=cfg.feasibility_tol, accept_suboptimal=cfg.accept_suboptimal)
+    def use_time_budget(self, max_solve_time_s: float | None) -> None:
+        """Set the solver's wall-time budget per solve; None lifts it (simulation time: a solve
+        then takes as long as it needs, and `over_budget` counts what real time would miss)."""
+        self.solver.set_time_budget(max_solve_time_s)
         self._forget_plan()
 
     def _forget_plan(self) -> None:

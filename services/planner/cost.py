@@ -155,3 +155,24 @@ def reciprocal_targets(near_m: float, far_m: float, *, near_foreground_m: float,
     else:
         wf, gf, one = 1.0, 1.0 / max(far_m, 0.1), 0.0
     return wn, gn, wf, gf, one
+
+
+# --- residual forms (Gauss-Newton Hessian of the SQP solver; the cost itself is built from the terms above)
+def joint_image_residual(point_c, u_t, v_t, focal_mm, sensor_w_mm, sensor_h_mm, *,  # noqa: ANN001, ANN201
+                         theta0_rad=math.pi / 3):
+    """(u - u*, v - v*) of one joint: joint_image_error is the sum of their squares."""
+    u, v = project_extended(point_c, focal_mm, sensor_w_mm, sensor_h_mm, theta0_rad)
+    return u - u_t, v - v_t
+
+
+def look_residual(point_c):  # noqa: ANN001, ANN201
+    """r = p/|p| - e_x: 0.5 |r|^2 = 1 - cos(angle) = look_cost (up to its 1e-6 regularisation)."""
+    n = ca.sqrt(point_c[0] ** 2 + point_c[1] ** 2 + point_c[2] ** 2 + 1e-6)
+    return ca.vertcat(point_c[0] / n - 1.0, point_c[1] / n, point_c[2] / n)
+
+
+def dof_residuals(inv_near, inv_far, distance_m, *, g_near, g_far, far_one_sided):  # noqa: ANN001, ANN201
+    """(e_n, e_f) of dof_cost, which is w_near e_n^2 + w_far e_f^2."""
+    r_f = inv_far - g_far
+    r_f = far_one_sided * ca.fmax(r_f, 0) + (1 - far_one_sided) * r_f
+    return distance_m * (inv_near - g_near), distance_m * r_f

@@ -72,8 +72,6 @@ def config_from_args(args: argparse.Namespace) -> pc.PlannerConfig:
     return pc.replace(cfg, **upd).validate()
 
 
-#: in simulation time a solve takes as long as it needs; this only bounds a runaway solve [s]
-SIM_SOLVE_BUDGET_S = 30.0
 #: in simulation time, how long to wait for the state of a clock tick before solving without it [s]
 STATE_WAIT_S = 2.0
 
@@ -113,7 +111,7 @@ class PlannerShell:
 
     def _enter_sim_time(self) -> None:
         log.info("simulation clock seen: following it (solve budget lifted, over-budget solves counted)")
-        self.planner.use_time_budget(SIM_SOLVE_BUDGET_S)
+        self.planner.use_time_budget(None)
         self.sim_time = True
 
     def _wall_tick(self) -> None:

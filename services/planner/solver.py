@@ -1,4 +1,4 @@
-"""The CineMPC nonlinear program, built once with casadi and solved with IPOPT.
+"""The CineMPC nonlinear program, built once with casadi; solved by SQP real-time iteration or IPOPT.
 
 Multiple shooting over N stages of dt: decision vector [x_0, (u_k, x_{k+1}, slack_k) k < N],
 x_0 fixed to the measured state through its bounds. Everything that changes between solves is a
@@ -12,6 +12,16 @@ once and caches the shared library under `cache_dir`, keyed by the structure and
 Warm start: the last solution, shifted by the time elapsed since it was computed (states
 interpolated, inputs held piecewise constant, multipliers shifted by whole stages), with the
 new measured state in front.
+
+Solvers (`Structure.solver`):
+- "sqp_rti" (default): from the warm start, `sqp_iter` (1: the real-time iteration of acados)
+  SQP steps, each one convex QP — Gauss-Newton Hessian of the cost's residuals, exact gradient —
+  in stage-wise form (x_0 a parameter) for a structure-exploiting QP solver (HPIPM; or any casadi
+  conic plugin), then slacks made exact and an exact-penalty line search. Cold solves iterate to
+  convergence. See _build_sqp / _solve_sqp.
+- "ipopt": the reference; a warm instance (multipliers in, small barrier) and a cold one.
+The wall-time budget can be set or lifted at run time (set_time_budget); every SolveResult
+reports wall_s, cpu_s (this thread) and over_budget.
 """
 from __future__ import annotations
 
@@ -69,7 +79,27 @@ class SolveResult:
     wall_s: float
     violation: float  # max constraint violation of the returned iterate
     cpu_s: float = float("nan")  # CPU time of this thread in the solve (robust to a loaded machine)
+    over_budget: bool = False  # wall_s exceeded the time budget (never, when the budget is lifted)
     extras: dict = field(default_factory=dict)
+
+
+class _QpForm:
+    """One QP form of the SQP: its data function, QP solver, and the map between w and z."""
+
+    perm: np.ndarray
+    nz: int
+    u_in_z: np.ndarray
+    v_in_z: np.ndarray
+    lbg: np.ndarray
+    ubg: np.ndarray
+    qpfun: ca.Function
+    qp: ca.Function
+
+    def w_to_z(self, w: np.ndarray, nx: int) -> np.ndarray:
+        z = np.empty(self.nz)
+        z[self.perm] = w[nx:]
+        z[self.v_in_z] = z[self.u_in_z]
+        return z
 
 
 class ParamLayout:
@@ -92,7 +122,8 @@ class ParamLayout:
 def _structure_key(s: Structure) -> str:
     """Hash of what the generated code depends on: structure, casadi version, this package's code."""
     d = dataclasses.asdict(s)
-    for k in ("cache_dir", "codegen", "compiler", "max_iter", "max_iter_cold", "tol", "warm_start"):
+    for k in ("cache_dir", "codegen", "compiler", "max_iter", "max_iter_cold", "tol", "warm_start",
+              "sqp_iter", "sqp_iter_cold", "sqp_step_tol"):  # (qp_solver, sqp_input_copies: kept)
         d.pop(k, None)
     src = b""
     here = Path(__file__).resolve().parent
@@ -114,8 +145,9 @@ class MpcSolver:
         self.dt = structure.dt_s
         self.e = structure.max_joints
         self.pl = ParamLayout(structure)
-        self.max_solve_time_s = max_solve_time_s
+        self.max_solve_time_s: float | None = max_solve_time_s
         self.max_cold_solve_time_s = max(max_solve_time_s, max_cold_solve_time_s or 0.0)
+        self._nominal_budget = (self.max_solve_time_s, self.max_cold_solve_time_s)  # restored by set_time_budget
         self.feasibility_tol = feasibility_tol
         self.accept_suboptimal = accept_suboptimal
         self.bounds = (bounds or Bounds()).validate()
@@ -128,6 +160,7 @@ class MpcSolver:
         self._lam_g: np.ndarray | None = None
         self._last: SolveResult | None = None
         self._lbg, self._ubg = C.constraint_bounds(self.layout, self.n)
+        self._penalty_mu = 10.0  # exact-penalty weight of the SQP's merit (grows with the multipliers)
 
     # ------------------------------------------------------------------ build
     @property
@@ -160,8 +193,21 @@ class MpcSolver:
         blk = nu + nx + C.N_SOFT
         x_prev = w[0:nx]
         u_last = u_prev
+        sqp = s.solver == "sqp_rti"
+        # A stage-wise QP (HPIPM) cannot couple u_{k-1} and u_k, which the input-change cost does: either the
+        # QP carries input copies as states (exact Gauss-Newton Hessian, stages of 19 + 11 variables: the
+        # default) or, for warm iterations, that cost's cross-stage Hessian terms are dropped (block-diagonal;
+        # the gradient stays exact, so the optimum is the same; about half the QP time, but slower convergence
+        # along the weakly determined directions: a larger steady framing error in the benchmark). For the
+        # SQP the previous input of stage k >= 1 is written as v_k (= u_{k-1}); the NLP's cost substitutes it.
+        aug = sqp
+        majorise = sqp and s.qp_solver == "hpipm"
+        v_copy = sym.sym("v", max(n - 1, 0) * lay.nu)
+        du_exact, du_major = [], []  # input-change residuals: exact, majorised (HPIPM's warm iterations)
         cost = 0
         g = []
+        g_ocp = []
+        resid = []  # Gauss-Newton residuals: sum of squares ~ the cost (SQP's Hessian model)
         acc_idx = list(range(0, 3))
         cam_idx = list(range(3, lay.F_RATE))
         lens_idx = list(range(lay.F_RATE, nu))
@@ -174,6 +220,10 @@ class MpcSolver:
             g.append(x - (ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)))
             centre = centre0 + vel * tk
             g.append(C.soft_constraints(x, slack, centre, z_min, z_max, d_min))
+            # the same rows in the stage-wise form of the QP (x_{k+1} through the dynamics; equal wherever
+            # the dynamics hold, which every SQP iterate after the first satisfies exactly)
+            x_pred = ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)
+            g_ocp += [x_pred - x, C.soft_constraints(x_pred, slack, centre, z_min, z_max, d_min)]
 
             yaw, pitch, roll = lay.angles(x)
             cam = x[lay.P]
@@ -188,6 +238,12 @@ class MpcSolver:
                 err2 = J.joint_image_error(pc, targets[ti], targets[ti + 1], f_mm, s.sensor_width_mm,
                                            s.sensor_height_mm, theta0_rad=math.radians(s.pinhole_half_angle_deg))
                 im += mask[k * e + j] * err2
+                if s.solver != "ipopt":
+                    ru, rv = J.joint_image_residual(pc, targets[ti], targets[ti + 1], f_mm, s.sensor_width_mm,
+                                                    s.sensor_height_mm,
+                                                    theta0_rad=math.radians(s.pinhole_half_angle_deg))
+                    sw = ca.sqrt(dt * wts["image"] * mask[k * e + j])
+                    resid += [sw * ru, sw * rv]
             cc = ca.mtimes(r.T, centre - cam)
             inv_n, inv_f = J.inverse_dof_limits(f_mm, x[lay.A], x[lay.S], s.coc_mm)
             d = dof[k * N_DOF:(k + 1) * N_DOF]
@@ -205,16 +261,53 @@ class MpcSolver:
                      + wts["velocity"] * ca.sumsqr(vn)
                      + wts["soft_constraint"] * (ca.sum1(slack) + ca.sumsqr(slack)))
             cost += dt * stage
-            x_prev, u_last = x, u
+            if s.solver != "ipopt":
+                e_n, e_f = J.dof_residuals(inv_n, inv_f, dref[k], g_near=d[1], g_far=d[3], far_one_sided=d[4])
+                resid += [ca.sqrt(0.5 * dt * wts["look"]) * J.look_residual(cc),
+                          ca.sqrt(dt * d[0] * wts["dof_near"]) * e_n, ca.sqrt(dt * d[2] * wts["dof_far"]) * e_f]
+                terms = [("accel", un[acc_idx]), ("camera_rate", un[cam_idx]), ("lens_rate", un[lens_idx]),
+                         ("velocity", vn), ("soft_constraint", slack)]
+                exact = [("accel_change", du_n[acc_idx]), ("camera_rate_change", du_n[cam_idx]),
+                         ("lens_rate_change", du_n[lens_idx])]
+                major = exact
+                if majorise and k > 0:
+                    a_n, b_n = u * u_scale, u_last * u_scale
+                    major = [(name, vec[idx]) for name, idx in (("accel_change", acc_idx),
+                                                                ("camera_rate_change", cam_idx),
+                                                                ("lens_rate_change", lens_idx))
+                             for vec in (a_n, b_n)]
+                resid += [ca.sqrt(dt * wts[name]) * vec for name, vec in terms]
+                du_exact += [ca.sqrt(dt * wts[name]) * vec for name, vec in exact]
+                du_major += [ca.sqrt(dt * wts[name]) * vec for name, vec in major]
+            x_prev, u_last = x, (v_copy[k * nu:(k + 1) * nu] if aug and k < n - 1 else u)
         gvec = ca.vertcat(*g)
+        cost_v = cost
+        if aug and n > 1:  # the NLP's own cost: v_k = u_{k-1}
+            blk = nu + nx + C.N_SOFT
+            cost = ca.substitute(cost, v_copy, ca.vertcat(*[w[nx + k * blk:nx + k * blk + nu] for k in range(n - 1)]))
         nlp = {"x": w, "p": p, "f": cost, "g": gvec}
         self._gfun = ca.Function("g", [w, p], [gvec])
         self._ffun = ca.Function("f", [w, p], [cost])
+        self._nlp = nlp
+        self.last_stats: dict = {}
+        if sqp:
+            g_ocp = ca.vertcat(*g_ocp)
+            exact = self._build_sqp(w, v_copy, p, cost_v, g_ocp, ca.vertcat(*resid, *du_exact),
+                                    copies=s.qp_solver == "hpipm", name="exact")
+            self._sqp = {"cold": exact, "warm": exact}
+            if majorise and not s.sqp_input_copies:
+                self._sqp["warm"] = self._build_sqp(w, v_copy, p, cost_v, g_ocp, ca.vertcat(*resid, *du_major),
+                                                    copies=False, name="major")
+        else:
+            self._make_ipopt()
+
+    def _make_ipopt(self) -> None:
         # two instances of one NLP: warm-started solves (multipliers in, small barrier, the per-step
         # budget) and cold ones (IPOPT's default start, a larger budget: first solve, after a hold)
-        variants = {"cold": self._ipopt_options(warm=False, budget_s=self.max_cold_solve_time_s)}
+        s, nlp = self.s, self._nlp
+        variants = {"cold": self._ipopt_options(warm=False, budget_s=self._budget_s(cold=True))}
         if s.warm_start:
-            variants["warm"] = self._ipopt_options(warm=True, budget_s=self.max_solve_time_s)
+            variants["warm"] = self._ipopt_options(warm=True, budget_s=self._budget_s(cold=False))
         self._solvers = {}
         for name, opts in variants.items():
             if s.codegen:
@@ -223,12 +316,152 @@ class MpcSolver:
                 if not s.expand:
                     opts["expand"] = False
                 self._solvers[name] = ca.nlpsol(f"cinempc_{name}", s.solver, nlp, opts)
-        self.last_stats: dict = {}
+
+    def _budget_s(self, *, cold: bool) -> float:
+        """Wall-time budget of a solve [s]; inf when lifted (set_time_budget(None))."""
+        if self.max_solve_time_s is None:
+            return math.inf
+        return self.max_cold_solve_time_s if cold else self.max_solve_time_s
+
+    def set_time_budget(self, seconds: float | None, cold_seconds: float | None = None) -> None:
+        """Set the wall-time budget of a warm-started solve (and of a cold one: default max(seconds,
+        the current cold budget)), or lift both with None (simulation lockstep: a solve then never
+        fails for time, and SolveResult.wall_s / over_budget tell whether it would have met real time).
+        IPOPT's instances are rebuilt (its options are fixed at creation; ~0.1 s); the SQP reads it per solve."""
+        if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
+            raise ValueError(f"time budget must be a finite value > 0 or None, got {seconds!r}")
+        if seconds is None:
+            self.max_solve_time_s = None  # the finite pair stays in _nominal_budget
+        else:
+            self.max_solve_time_s = float(seconds)
+            self.max_cold_solve_time_s = max(float(seconds), float(cold_seconds) if cold_seconds is not None
+                                             else self._nominal_budget[1])
+            self._nominal_budget = (self.max_solve_time_s, self.max_cold_solve_time_s)
+        if self.s.solver == "ipopt":
+            self._make_ipopt()
+
+    @property
+    def time_budget_s(self) -> float | None:
+        """The warm-solve wall-time budget [s], None when lifted."""
+        return self.max_solve_time_s
+
+    # ------------------------------------------------------------------ SQP (real-time iteration)
+    def _build_sqp(self, w, v_copy, p, cost_v, g_ocp, resid, *, copies: bool, name: str) -> "_QpForm":  # noqa: ANN001
+        """QP data of one SQP iteration, in the stage-wise (optimal-control) form structured QP solvers take.
+
+        QP variables z = [(u_k, slack_k, x_{k+1}[, v_{k+1}]) for k < N], with `copies` v_{k+1} = u_k, a copy
+        of the input as a state (so the exact input-change cost couples no two stages); x_0 is the measured
+        state, a parameter. Constraints: [(A x_k + B u_k - x_{k+1}[, u_k - v_{k+1}], soft_k(A x_k + B u_k,
+        slack_k)) for k < N]. Hessian: Gauss-Newton 2 J_r' J_r of the residuals (positive semi-definite:
+        every QP is convex); gradient: the exact cost's. `cost_v` and `resid` are written with v_k for
+        u_{k-1} (k >= 1); without copies v_k is u_{k-1} itself."""
+        s, lay, n = self.s, self.layout, self.n
+        nx, nu, ns = lay.nx, lay.nu, C.N_SOFT
+        nv = nu if copies else 0
+        bz = nu + ns + nx + nv  # QP variables per stage
+        z = ca.SX.sym("z", n * bz)
+        x0 = ca.SX.sym("x0", nx)
+        w_pieces, v_pieces, g_rows, perm = [x0], [], [], []
+        for k in range(n):
+            zk = z[k * bz:(k + 1) * bz]
+            u, sl, x, v = zk[0:nu], zk[nu:nu + ns], zk[nu + ns:nu + ns + nx], zk[nu + ns + nx:]
+            w_pieces += [u, x, sl]
+            if k < n - 1:
+                v_pieces.append(v if nv else u)
+            perm += [k * bz + i for i in range(nu)] + [k * bz + nu + ns + i for i in range(nx)] \
+                + [k * bz + nu + i for i in range(ns)]
+        form = _QpForm()
+        form.perm = np.asarray(perm)  # w[nx:] = z[perm]
+        form.nz = n * bz
+        form.u_in_z = np.concatenate([np.arange(k * bz, k * bz + nu) for k in range(n)]) if nv else np.zeros(0, int)
+        form.v_in_z = np.concatenate([np.arange(k * bz + nu + ns + nx, (k + 1) * bz) for k in range(n)]) \
+            if nv else np.zeros(0, int)
+        w_of_z, v_of_z = ca.vertcat(*w_pieces), ca.vertcat(*v_pieces)
+        subst = ca.Function("subst", [w, v_copy, p], [cost_v, g_ocp, resid])
+        cost_z, g_z, r_z = subst(w_of_z, v_of_z, p)
+        gb = nx + ns
+        for k in range(n):
+            zk = z[k * bz:(k + 1) * bz]
+            g_rows += [g_z[k * gb:k * gb + nx], zk[0:nv] - zk[nu + ns + nx:], g_z[k * gb + nx:(k + 1) * gb]]
+        g_z = ca.vertcat(*g_rows)
+        lo = np.concatenate([np.zeros(nx + nv), np.zeros(ns)])
+        hi = np.concatenate([np.zeros(nx + nv), np.full(ns, np.inf)])
+        form.lbg, form.ubg = np.tile(lo, n), np.tile(hi, n)
+        pz = ca.vertcat(p, x0)
+        jr = ca.jacobian(r_z, z)
+        hess = 2 * ca.mtimes(jr.T, jr)
+        grad = ca.gradient(cost_z, z)
+        jg = ca.jacobian(g_z, z)
+        form.qpfun = ca.Function(f"qp_data_{name}", [z, pz], [hess, grad, g_z, jg, cost_z])
+        if not hasattr(self, "_postfun"):
+            # after a step: each soft constraint's slack raised to the least value that satisfies it, then
+            # the cost and constraints there (one call)
+            g_w = self._nlp["g"]
+            gsoft = ca.reshape(g_w, nx + ns, n)[nx:, :]  # (ns, n): soft rows, >= 0
+            raise_by = ca.reshape(ca.fmax(-gsoft, 0), ns * n, 1)
+            add = ca.SX.zeros(w.shape[0])
+            for j, i in enumerate(nx + k * (nu + nx + ns) + nu + nx + i for k in range(n) for i in range(ns)):
+                add[i] = raise_by[j]
+            f_fix, g_fix = ca.Function("fg", [w, p], [self._nlp["f"], g_w])(w + add, p)
+            self._postfun = ca.Function("post", [w, p], [w + add, f_fix, g_fix])
+            if s.codegen:
+                self._postfun = self._codegen_function(self._postfun)
+        if s.codegen:
+            form.qpfun = self._codegen_function(form.qpfun)
+        qp = {"h": hess.sparsity(), "a": jg.sparsity()}
+        opts = self._qp_options()
+        if s.qp_solver == "hpipm":
+            opts.update({"N": n, "nx": [0] + [nx + nv] * n, "nu": [nu + ns] * n + [0], "ng": [ns] * n + [0],
+                         "inf": 1e6})
+        form.qp = ca.conic(f"cinempc_qp_{name}", s.qp_solver, qp, opts)
+        self._solvers = {}
+        return form
+
+    def _qp_options(self) -> dict:
+        name = self.s.qp_solver
+        if name == "qrqp":
+            return {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False,
+                    "max_iter": 2000}
+        if name == "hpipm":
+            return {"hpipm": {"mode": "speed", "iter_max": 100, "res_g_max": 1e-8, "res_b_max": 1e-8,
+                              "res_d_max": 1e-8, "res_m_max": 1e-8}, "error_on_fail": False}
+        if name == "piqp":
+            return {"piqp": {"eps_abs": 1e-7, "eps_rel": 1e-8, "verbose": False}, "error_on_fail": False}
+        if name == "osqp":
+            return {"osqp": {"verbose": False, "eps_abs": 1e-7, "eps_rel": 1e-7, "polish": True,
+                             "max_iter": 20000}, "error_on_fail": False}
+        if name == "qpoases":
+            return {"printLevel": "none", "sparse": True, "error_on_fail": False}
+        return {"error_on_fail": False}
+
+    def _codegen_function(self, fun: ca.Function) -> ca.Function:
+        """`fun` compiled to a shared library under cache_dir (once), loaded as an external."""
+        key = _structure_key(self.s)
+        cache = Path(self.s.cache_dir)
+        cache.mkdir(parents=True, exist_ok=True)
+        lib = cache / f"cinempc_{fun.name()}_{key}.so"
+        if not lib.exists():
+            with tempfile.TemporaryDirectory(dir=cache) as tmp:
+                c_file = os.path.join(tmp, f"{fun.name()}.c")
+                cwd = os.getcwd()
+                try:
+                    os.chdir(tmp)
+                    fun.generate(f"{fun.name()}.c")
+                finally:
+                    os.chdir(cwd)
+                t = time.perf_counter()
+                out = Path(tmp) / (lib.name + ".part")
+                subprocess.run([self.s.compiler, *self.s.compile_flags, c_file, "-o", str(out)],
+                               check=True, capture_output=True)
+                os.replace(out, lib)
+                log.info("compiled %s in %.1f s -> %s", fun.name(), time.perf_counter() - t, lib)
+        return ca.external(fun.name(), str(lib))
 
     def _ipopt_options(self, *, warm: bool, budget_s: float) -> dict:
         s = self.s
         ip = {"print_level": 0, "sb": "yes", "max_iter": s.max_iter, "tol": s.tol,
-              "acceptable_tol": 1e-3, "acceptable_iter": 5, "max_wall_time": float(budget_s),
+              "acceptable_tol": 1e-3, "acceptable_iter": 5,
+              "max_wall_time": float(budget_s) if math.isfinite(budget_s) else 1e20,
               "mu_strategy": "adaptive", "linear_solver": "mumps"}
         if warm:
             ip.update({"warm_start_init_point": "yes", "warm_start_bound_push": 1e-6,
@@ -348,6 +581,7 @@ class MpcSolver:
     # ------------------------------------------------------------------ solve
     def solve(self, data: StageData, *, shift_s: float = 0.0) -> SolveResult:
         """Solve once. `shift_s` = time since the last successful solve (for the warm start)."""
+        t, c = time.perf_counter(), time.thread_time()  # the whole solve: packing and warm start included
         lay = self.layout
         x0 = np.asarray(data.x0, dtype=float)
         p = self.pack(data)
@@ -356,6 +590,8 @@ class MpcSolver:
         if guess is None:
             guess = self.cold_guess(x0)
         guess = np.clip(guess, lbw, ubw)
+        if self.s.solver == "sqp_rti":
+            return self._solve_sqp(guess, p, lbw, ubw, shift_s, t, c)
         args = {"x0": guess, "p": p, "lbx": lbw, "ubx": ubw, "lbg": self._lbg, "ubg": self._ubg}
         solver = self._solvers["cold"]
         if self.s.warm_start and self._last is not None:
@@ -363,7 +599,6 @@ class MpcSolver:
             if lam_x is not None:
                 args["lam_x0"], args["lam_g0"] = lam_x, lam_g
                 solver = self._solvers["warm"]
-        t, c = time.perf_counter(), time.thread_time()
         sol = solver(**args)
         wall, cpu = time.perf_counter() - t, time.thread_time() - c
         stats = solver.stats()
@@ -383,13 +618,104 @@ class MpcSolver:
                                                       np.full((self.n, C.N_SOFT), np.nan))
         res = SolveResult(ok=ok, status=status, x=x, u=u, slack=slack,
                           cost=float(sol["f"]) if finite else math.inf,
-                          iterations=int(stats.get("iter_count", -1)), wall_s=wall, violation=viol, cpu_s=cpu)
+                          iterations=int(stats.get("iter_count", -1)), wall_s=wall, violation=viol, cpu_s=cpu,
+                          over_budget=wall > self._budget_s(cold=solver is self._solvers["cold"]))
         if ok:
             self._last = res
             self._guess = wv
             self._lam_x = np.asarray(sol["lam_x"]).reshape(-1)
             self._lam_g = np.asarray(sol["lam_g"]).reshape(-1)
         return res
+
+    def _solve_sqp(self, w: np.ndarray, p: np.ndarray, lbw: np.ndarray, ubw: np.ndarray,
+                   shift_s: float, t: float, c: float) -> SolveResult:
+        """SQP from the (shifted) guess: a real-time iteration when warm (sqp_iter QPs, 1 = RTI), iterations
+        to convergence (up to sqp_iter_cold) when cold. Each QP is convex (Gauss-Newton Hessian) and
+        keeps the linear dynamics and every hard bound exactly; the soft constraints' slacks are then
+        set to their exact value, so every returned iterate is feasible. A step is shortened (halved,
+        at most 4 times) while it does not decrease the exact-penalty merit f + mu |violation|."""
+        lay, s = self.layout, self.s
+        warm = s.warm_start and self._last is not None
+        max_it = s.sqp_iter if warm else s.sqp_iter_cold
+        budget = self._budget_s(cold=not warm)
+        form = self._sqp["warm" if warm else "cold"]
+        lam_x = lam_a = None
+        if warm and self._lam_x is not None and self._lam_x.size == form.nz:
+            m = min(int(round(shift_s / self.dt)), self.n - 1)
+            lx, la = self._lam_x.reshape(self.n, -1), self._lam_g.reshape(self.n, -1)
+            if m > 0:
+                lx = np.vstack([lx[m:], np.repeat(lx[-1:], m, axis=0)])
+                la = np.vstack([la[m:], np.repeat(la[-1:], m, axis=0)])
+            lam_x, lam_a = lx.reshape(-1), la.reshape(-1)
+        perm, nx = form.perm, lay.nx
+        pz = np.concatenate([p, w[:nx]])
+        lbz, ubz = form.w_to_z(lbw, nx), form.w_to_z(ubw, nx)
+        status, it, qp_iters, step = "not started", 0, 0, math.inf
+        g_w = None
+        while it < max_it:
+            z = form.w_to_z(w, nx)
+            hess, grad, gv, jg, f0 = form.qpfun(z, pz)
+            gv = np.asarray(gv).reshape(-1)
+            if it == 0:
+                f0 = float(f0)
+                merit0 = f0 + self._penalty_mu * float(np.sum(np.maximum(form.lbg - gv, 0)
+                                                              + np.maximum(gv - form.ubg, 0)))
+            args = {"h": hess, "g": grad, "a": jg, "lba": form.lbg - gv, "uba": form.ubg - gv,
+                    "lbx": lbz - z, "ubx": ubz - z, "x0": np.zeros_like(z)}
+            if lam_x is not None:
+                args["lam_x0"], args["lam_a0"] = lam_x, lam_a
+            sol = form.qp(**args)
+            qst = form.qp.stats()
+            qp_iters += int(qst.get("iter_count", 0) or 0)
+            dz = np.asarray(sol["x"]).reshape(-1)
+            dw = np.zeros_like(w)
+            dw[nx:] = dz[perm]
+            if not (qst.get("success", False) and np.all(np.isfinite(dw))):
+                status = f"QP failed ({qst.get('return_status', 'unknown')})"
+                break
+            lam_x = np.asarray(sol["lam_x"]).reshape(-1)
+            lam_a = np.asarray(sol["lam_a"]).reshape(-1)
+            self._penalty_mu = max(self._penalty_mu, 2.0 * float(np.max(np.abs(lam_a), initial=0.0)))
+            alpha, dd = 1.0, float(np.dot(np.asarray(grad).reshape(-1), dz))
+            for _ in range(5):
+                w_try, f1, g1 = self._postfun(np.clip(w + alpha * dw, lbw, ubw), p)
+                g1 = np.asarray(g1).reshape(-1)
+                merit1 = float(f1) + self._penalty_mu * self._viol(g1)
+                # Armijo on the merit, up to rounding (at a converged point the step is ~0 and the merit flat)
+                if merit1 <= merit0 + 1e-4 * alpha * min(dd, 0.0) + 1e-10 * (1.0 + abs(merit0)) or alpha < 0.1:
+                    break
+                alpha *= 0.5
+            w, merit0, f0, g_w = np.asarray(w_try).reshape(-1), merit1, float(f1), g1
+            it += 1
+            step = float(np.max(np.abs(alpha * dw) / (1.0 + np.abs(w))))
+            if step <= s.sqp_step_tol:
+                status = "Solve_Succeeded"
+                break
+            status = "real-time iteration" if warm else "Maximum_Iterations_Exceeded"
+            elapsed = time.perf_counter() - t
+            if elapsed * (it + 1) / it > budget:  # the next iteration would not fit
+                if it < max_it:
+                    status = "Maximum_WallTime_Exceeded"
+                break
+        finite = bool(it >= 1 and np.all(np.isfinite(w)) and math.isfinite(f0))
+        viol = math.inf if g_w is None else max(self._viol(g_w), float(np.max(np.maximum(lbw - w, 0)
+                                                                                + np.maximum(w - ubw, 0))))
+        wall, cpu = time.perf_counter() - t, time.thread_time() - c
+        ok = finite and viol <= self.feasibility_tol
+        x, u, slack = self._split(w)
+        res = SolveResult(ok=ok, status=status, x=x, u=u, slack=slack, cost=float(f0) if finite else math.inf,
+                          iterations=it, wall_s=wall, violation=viol, cpu_s=cpu, over_budget=wall > budget,
+                          extras={"qp_iterations": qp_iters, "step": step, "alpha": alpha if it else 0.0})
+        self.last_stats = {"return_status": status, "iter_count": it, "qp_iter_count": qp_iters}
+        if ok:
+            self._last = res
+            self._guess = w
+            self._lam_x, self._lam_g = lam_x, lam_a
+        return res
+
+    def _viol(self, gv: np.ndarray) -> float:
+        """Sum of the constraint violations of g (L1)."""
+        return float(np.sum(np.maximum(self._lbg - gv, 0) + np.maximum(gv - self._ubg, 0)))
 
     def evaluate_cost(self, data: StageData, x: np.ndarray, u: np.ndarray, slack: np.ndarray | None = None) -> float:
         """The NLP cost of a given trajectory (for comparisons)."""

@@ -185,7 +185,7 @@ def test_same_ticks_give_the_same_setpoints_whatever_came_before(planner_cfg, in
     # given two planners with different histories before a scheduled start (one has been solving)
     def run(history_steps: int) -> list[np.ndarray]:
         p = Planner(planner_cfg)
-        p.use_time_budget(30.0)  # as in simulation time: no wall-clock limit can cut a solve short
+        p.use_time_budget(None)  # as in simulation time: no wall-clock limit can cut a solve short
         sim = KinematicSim(wrong_start_scene())
         p.command(M.Command(action="start"), T0 - 10 * S)
         for i in range(history_steps):

@@ -224,6 +224,10 @@ def test_unwrap_and_wrap():
     ({"structure.dt_s": 2.0}, "dt_s"),
     ({"rate_hz": 0.0}, "rate_hz"),
     ({"bounds.altitude_max_m": 0.5}, "altitude_max_m"),
+    ({"structure.solver": "snopt"}, "solver"),
+    ({"structure.qp_solver": "gurobi"}, "qp_solver"),
+    ({"structure.expand": False}, "expand"),  # the SQP is built in SX only (IPOPT takes MX: the baseline)
+    ({"structure.sqp_iter": 0}, "sqp_iter"),
 ])
 def test_config_validation_names_the_field(changes, field):
     with pytest.raises(pc.ConfigError, match=field):

@@ -1,4 +1,4 @@
-"""The NLP solver: warm start, runtime parameters, generated code cached across builds."""
+"""The NLP solvers (SQP real-time iteration, IPOPT): warm start, agreement, time budget, generated code."""
 import os
 import time
 
@@ -36,8 +36,9 @@ class _Dummy:
         pass
 
 
-def test_warm_start_needs_fewer_iterations_than_cold():
-    cfg = pc.PlannerConfig(max_solve_time_s=1.0)
+@pytest.mark.parametrize("solver", ["sqp_rti", "ipopt"])
+def test_warm_start_needs_fewer_iterations_than_cold(solver):
+    cfg = pc.replace(pc.PlannerConfig(max_solve_time_s=1.0), **{"structure.solver": solver})
     data = stage_data(cfg)
     solver = MpcSolver(cfg.structure, cfg.bounds, cfg.weights, max_solve_time_s=1.0)
     cold = solver.solve(data)
@@ -55,7 +56,7 @@ def test_warm_start_needs_fewer_iterations_than_cold():
 
 def test_mx_baseline_and_sx_agree():
     # given the same problem built in MX (no expand, the CineMPC-like baseline) and in SX
-    cfg = pc.PlannerConfig(max_solve_time_s=5.0)
+    cfg = pc.replace(pc.PlannerConfig(max_solve_time_s=5.0), **{"structure.solver": "ipopt"})
     data = stage_data(cfg)
     sx = MpcSolver(cfg.structure, max_solve_time_s=5.0).solve(data)
     mx = MpcSolver(pc.replace(cfg, **{"structure.expand": False}).structure, max_solve_time_s=5.0).solve(data)
@@ -68,31 +69,113 @@ def test_mx_baseline_and_sx_agree():
 def test_budget_exceeded_is_reported():
     # given a budget of one iteration, the solve stops early; without accepting suboptimal
     # iterates this is a failure (the planner then flies its tail / holds)
-    cfg = pc.replace(pc.PlannerConfig(), **{"structure.max_iter": 1, "structure.max_iter_cold": 1})
+    cfg = pc.replace(pc.PlannerConfig(), **{"structure.max_iter": 1, "structure.max_iter_cold": 1,
+                                            "structure.solver": "ipopt"})
     data = stage_data(cfg)
     r = MpcSolver(cfg.structure, accept_suboptimal=False).solve(data)
     assert not r.ok and "Maximum_Iterations_Exceeded" in r.status
 
 
+@pytest.mark.parametrize("qp_solver", ["hpipm", "piqp", "qrqp"])
+def test_sqp_converges_to_the_ipopt_optimum(qp_solver):
+    # given one problem (the vehicle off the shot, N = 20), solved cold by the SQP and by IPOPT
+    cfg = pc.replace(pc.PlannerConfig(), **{"structure.horizon_steps": 20, "structure.qp_solver": qp_solver})
+    data = stage_data(cfg)
+    sqp = MpcSolver(cfg.structure, max_solve_time_s=5.0, max_cold_solve_time_s=5.0).solve(data)
+    ref = MpcSolver(pc.replace(cfg, **{"structure.solver": "ipopt"}).structure, max_solve_time_s=5.0,
+                    max_cold_solve_time_s=5.0).solve(data)
+    # then the SQP iterates to the same optimum, feasible, with the measured state in front
+    assert sqp.ok and ref.ok and sqp.status == "Solve_Succeeded", sqp.status
+    assert sqp.cost == pytest.approx(ref.cost, rel=1e-4)
+    np.testing.assert_allclose(sqp.x[1:4], ref.x[1:4], atol=1e-3)
+    np.testing.assert_array_equal(sqp.x[0], data.x0)
+    assert sqp.violation < 1e-6 and np.all(sqp.slack >= 0)
+    assert 0 < sqp.iterations <= cfg.structure.sqp_iter_cold
+
+
+def test_time_budget_can_be_set_and_lifted_at_run_time():
+    cfg = pc.PlannerConfig()
+    data = stage_data(cfg)
+    solver = MpcSolver(cfg.structure, max_solve_time_s=0.04, max_cold_solve_time_s=0.25)
+    assert solver.time_budget_s == 0.04
+    # given a budget no solve can meet: a cold SQP stops after its first iteration (still a feasible,
+    # usable plan), reports the budget status and that it was over budget, with wall and CPU time
+    solver.set_time_budget(1e-9, cold_seconds=1e-9)
+    r = solver.solve(data)
+    assert r.ok and r.iterations == 1 and r.status == "Maximum_WallTime_Exceeded" and r.over_budget
+    assert r.wall_s > 0 and r.cpu_s > 0 and r.violation < 1e-6
+    # when the budget is lifted (simulation lockstep): it iterates to convergence and is never over budget
+    solver.set_time_budget(None)
+    assert solver.time_budget_s is None
+    solver.reset()
+    r = solver.solve(data)
+    assert r.ok and r.status == "Solve_Succeeded" and r.iterations > 1 and not r.over_budget
+    # and a budget set again applies to cold solves too (the larger of it and the last cold budget)
+    solver.set_time_budget(0.04)
+    assert solver.time_budget_s == 0.04 and solver.max_cold_solve_time_s == 0.04
+    with pytest.raises(ValueError):
+        solver.set_time_budget(-1.0)
+
+
+def test_ipopt_time_budget_is_rebuilt_at_run_time():
+    # given IPOPT with a budget no solve can meet: it stops for time (a failure unless feasible)
+    cfg = pc.replace(pc.PlannerConfig(), **{"structure.solver": "ipopt"})
+    data = stage_data(cfg)
+    solver = MpcSolver(cfg.structure, max_solve_time_s=1e-6, max_cold_solve_time_s=1e-6, accept_suboptimal=False)
+    r = solver.solve(data)
+    assert not r.ok and "WallTime" in r.status and r.over_budget
+    # when lifted, the same solve succeeds
+    solver.set_time_budget(None)
+    r = solver.solve(data)
+    assert r.ok and r.status == "Solve_Succeeded" and not r.over_budget
+
+
+def test_qp_failure_is_a_failed_solve_never_nan():
+    # given a measured state that no input can bring into the bounds at stage 1 (|v| = 3 m/s > 2 + 0.12)
+    cfg = pc.PlannerConfig()
+    data = stage_data(cfg)
+    data.x0 = data.x0.copy()
+    data.x0[3] = 3.0
+    r = MpcSolver(cfg.structure).solve(data)
+    # then the solve fails (the planner flies its tail / holds), with a reason, and nothing is NaN-poisoned
+    assert not r.ok and r.status.startswith("QP failed"), r.status
+
+
 @pytest.mark.slow
-def test_generated_code_is_compiled_once_and_cached(tmp_path):
-    # given codegen on and an empty cache: the first build compiles a shared library
+@pytest.mark.parametrize("solver, n_libs", [("ipopt", 1), ("sqp_rti", 2)])  # SQP: QP data + post-step
+def test_generated_code_is_compiled_once_and_cached(tmp_path, solver, n_libs):
+    # given codegen on and an empty cache: the first build compiles the shared library(ies)
     cfg = pc.replace(pc.PlannerConfig(max_solve_time_s=2.0),
-                     **{"structure.codegen": True, "structure.cache_dir": str(tmp_path),
+                     **{"structure.codegen": True, "structure.cache_dir": str(tmp_path), "structure.solver": solver,
                         "structure.compile_flags": ("-O0", "-fPIC", "-shared"), "structure.horizon_steps": 8})
     data = stage_data(cfg)
     s1 = MpcSolver(cfg.structure, max_solve_time_s=2.0)
-    libs = list(tmp_path.glob("cinempc_*.so"))
-    assert len(libs) == 1
+    libs = sorted(tmp_path.glob("cinempc_*.so"))
+    assert len(libs) == n_libs
     mtime = os.path.getmtime(libs[0])
     # when built again, the cached library is loaded (no compile: fast, same file)
     t = time.perf_counter()
     s2 = MpcSolver(cfg.structure, max_solve_time_s=2.0)
     assert time.perf_counter() - t < 5.0 and os.path.getmtime(libs[0]) == mtime
-    assert list(tmp_path.glob("cinempc_*.so")) == libs
+    assert sorted(tmp_path.glob("cinempc_*.so")) == libs
     # then it solves like the in-memory SX solver
     ref = MpcSolver(pc.replace(cfg, **{"structure.codegen": False}).structure, max_solve_time_s=2.0).solve(data)
     r1, r2 = s1.solve(data), s2.solve(data)
     assert r1.ok and r2.ok and ref.ok
     assert r1.cost == pytest.approx(ref.cost, rel=1e-6)
-    np.testing.assert_allclose(r2.x, ref.x, atol=1e-6)
+    np.testing.assert_allclose(r2.x, ref.x, atol=1e-5)
+
+
+def test_sqp_without_input_copies_keeps_the_optimum_on_warm_steps():
+    # given the HPIPM SQP whose warm iterations drop the input-change cross-stage Hessian terms
+    cfg = pc.replace(pc.PlannerConfig(), **{"structure.sqp_input_copies": False})
+    data = stage_data(cfg)
+    solver = MpcSolver(cfg.structure, max_solve_time_s=1.0, max_cold_solve_time_s=5.0)
+    cold = solver.solve(data)
+    assert cold.ok and cold.status == "Solve_Succeeded"
+    # when it makes real-time iterations on the same problem, the plan stays feasible and optimal
+    # (exact gradient: the optimum is a fixed point of the approximate-Hessian step)
+    for _ in range(5):
+        warm = solver.solve(data)
+        assert warm.ok and warm.iterations == 1 and warm.violation < 1e-6
+    assert warm.cost == pytest.approx(cold.cost, rel=1e-4)
