@@ -2,9 +2,10 @@
 output.mp4 and their ground truth into a list, each frame in its slot.
 
 The Zenoh callback only enqueues (key, payload, receive time); one worker thread writes the
-log, decodes what it needs and feeds two `TakeAssembler`s (frames, truths). Which recorded
-frame is slot k of the take is set by `arm_exact` (simulation time: the camera frame index
-since the simulation reset) or `arm_realtime` (wall clock: the frame stamp).
+log, decodes what it needs and feeds a `TakeAssembler` that gives each camera frame its slot;
+the truth of a slot is the truth of the frame it shows (joined at close, whatever order they
+came in). Which recorded frame is slot k is set by `arm(Window)`: in simulation time by the
+camera frame index within the takes, on the wall clock by the frame stamp.
 """
 from __future__ import annotations
 
@@ -70,14 +71,16 @@ class Recorder:
         self.clock_key = keys.SIM_CLOCK.key(rig)
         self.health: dict[str, M.Health] = {}
         self.last_clock: M.SimClock | None = None
+        #: the truth of each recorded slot: the truth of the very frame the video shows there (a
+        #: repeated slot shows, and is scored as, the frame before it); filled by close()
         self.truths: list[M.GroundTruth] = []
-        #: simulation time: truth of every camera frame since the reset, by index (settling included)
+        #: truth of every camera frame since the recording was armed, by frame index (settling included)
         self.timeline_truths: dict[int, M.GroundTruth] = {}
+        self._shown: list[int] = []  # frame index shown in each written slot
         self.undecodable = 0
         self.interrupted = False
         self._window: Window | None = None
         self._frames: TakeAssembler | None = None
-        self._truth_asm: TakeAssembler | None = None
         self._video = None
         self._q: queue.SimpleQueue = queue.SimpleQueue()
         self._progress = threading.Condition()
@@ -121,9 +124,9 @@ class Recorder:
             if isinstance(msg, M.Frame):
                 self._place(self._frames, msg.stamp_ns, msg.index, msg, self._write_frame)
             elif isinstance(msg, M.GroundTruth):
-                if self._window.exact and msg.stamp_ns >= self._window.epoch_ns:
+                start = self._window.epoch_ns if self._window.exact else self._window.t0_ns
+                if msg.stamp_ns >= start - 10**9:  # (real time: the frame shown first may be a bit older)
                     self.timeline_truths[int(msg.frame_index)] = msg
-                self._place(self._truth_asm, msg.stamp_ns, msg.frame_index, msg, self._add_truth)
 
     def _place(self, asm: TakeAssembler | None, stamp_ns: int, index: int, msg: Any, sink: Any) -> None:
         slot = self._window.slot(stamp_ns, index) if self._window else None
@@ -145,15 +148,13 @@ class Recorder:
             self._video = cv2.VideoWriter(str(self.outdir / "output.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
                                           self._window.fps, (w, h))
         self._video.write(img)
+        self._shown.append(int(p.item.index))
 
-    def _add_truth(self, p: Placed) -> None:
-        self.truths.append(dataclasses.replace(p.item, frame_index=p.slot))
 
     # ------------------------------------------------------------------ control (main thread)
     def arm(self, window: Window) -> None:
         """Record the take defined by `window` from now on."""
         self._frames = TakeAssembler(window.n_slots, exact=window.exact)
-        self._truth_asm = TakeAssembler(window.n_slots, exact=window.exact)
         self._window = window
 
     @property
@@ -174,6 +175,20 @@ class Recorder:
         if self._video is not None:
             self._video.release()
         self.log.close()
-        if self._frames is None or self._truth_asm is None:
+        if self._frames is None:
             return None, None
-        return self._frames.finish(), self._truth_asm.finish()
+        return self._frames.finish(), self._truth_summary()
+
+    def _truth_summary(self) -> TakeSummary:
+        """Give each written slot the truth of the frame it shows; slots without one are missing."""
+        summary = TakeSummary(self._frames.summary.n_slots)
+        self.truths = []
+        for slot, index in enumerate(self._shown):
+            truth = self.timeline_truths.get(index)
+            if truth is None:
+                summary.missing_slots.append(slot)
+                continue
+            self.truths.append(dataclasses.replace(truth, frame_index=slot))
+        summary.written = len(self.truths)
+        summary.missing_slots += list(range(len(self._shown), summary.n_slots))
+        return summary

@@ -138,15 +138,18 @@ def _progress(rec: Recorder, k: int, stall_s: float, *, what: str) -> None:
             bar.refresh()
 
 
-def shot_schedule(style: M.Instructions, *, preroll_s: float, settle_s: float, one_take: bool) -> list[dict]:
+def shot_schedule(style: M.Instructions, *, preroll_s: float, settle_s: float, one_take: bool,
+                  min_take_s: float = 0.5) -> list[dict]:
     """The takes of the flight, in camera frames since time zero (camera rate = instruction rate):
     one per shot of the source (one for all with `one_take`), each after a settle phase (the
-    first after the pre-roll) in which the planner frames the shot's first instruction frame."""
+    first after the pre-roll) in which the planner frames the shot's first instruction frame.
+    A shot shorter than `min_take_s` (a flash cut, frames of a morph) is filmed on in the take
+    before it: a re-framing pause for a few frames would cost more than it gives."""
     from cinetransfer.services.smoother.instructions import shot_segments
 
     fps = float(style.fps)
     k = style.image_targets.shape[0]
-    shots = [(0, k)] if one_take else shot_segments(style)
+    shots = [(0, k)] if one_take else merge_short(shot_segments(style), int(round(min_take_s * fps)))
     t, out = 0, []
     for i, (a, b) in enumerate(shots):
         settle = int(round((preroll_s if i == 0 else settle_s) * fps))
@@ -156,8 +159,21 @@ def shot_schedule(style: M.Instructions, *, preroll_s: float, settle_s: float, o
     return out
 
 
+def merge_short(segments: list[tuple[int, int]], min_len: int) -> list[tuple[int, int]]:
+    """Join every segment shorter than `min_len` rows to the one before it (the first to the next)."""
+    out: list[list[int]] = []
+    for a, b in segments:
+        if out and b - a < min_len:
+            out[-1][1] = b
+        elif out and out[-1][1] - out[-1][0] < min_len:
+            out[-1][1] = b  # a short first segment joins the next
+        else:
+            out.append([a, b])
+    return [(a, b) for a, b in out]
+
+
 def fly_sim_time(style: M.Instructions, rec: Recorder, cond: Conductor, *, preroll_s: float, settle_s: float,
-                 one_take: bool, stall_s: float) -> dict:
+                 one_take: bool, stall_s: float, pace: float = 0.0) -> dict:
     """The flight in simulation time: reset the simulation to a fresh time zero, let the planner
     start each take exactly on schedule (a settle phase on its first frame, then its frames),
     record every frame of every take; the edit joins the takes at the source's cuts."""
@@ -189,7 +205,7 @@ def fly_sim_time(style: M.Instructions, rec: Recorder, cond: Conductor, *, prero
     log.info("simulation time: %d take(s) of %s frames at %.3g fps, settling %s frames before each", len(takes),
              "/".join(str(t["end_row"] - t["first_row"]) for t in takes), fps,
              "/".join(str(t["settle_frames"]) for t in takes))
-    cond.to_bridge("reset", epoch_ns=epoch, fps=fps, pace=0.0)
+    cond.to_bridge("reset", epoch_ns=epoch, fps=fps, pace=float(pace))
     _progress(rec, k, stall_s, what="simulation")
     return {"clock": "simulation (lockstep)", "epoch_ns": epoch, "preroll_frames": takes[0]["settle_frames"],
             "takes": takes, "one_take": one_take}
@@ -221,7 +237,7 @@ def _already_stopping(_signum, _frame) -> None:
 
 def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: float, realtime: bool,
         stall_s: float, meta: dict, publish_instructions: bool = True, settle_s: float = 3.0,
-        one_take: bool = False) -> Recorder:
+        one_take: bool = False, pace: float = 0.0) -> Recorder:
     """Fly and record the take, stop; Ctrl-C stops the vehicle too. The planner has the smoother's
     instructions already; a style given as a file is published here (`publish_instructions`)."""
     rec = Recorder(session, rig, outdir, meta)
@@ -231,7 +247,7 @@ def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: fl
         time.sleep(0.3)
     try:
         how = (fly_realtime if realtime else fly_sim_time)(style, rec, cond, preroll_s=preroll_s, stall_s=stall_s,
-                                                           settle_s=settle_s, one_take=one_take)
+                                                           settle_s=settle_s, one_take=one_take, pace=pace)
         meta.update(how)
     except KeyboardInterrupt:
         rec.interrupted = True
@@ -288,6 +304,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds (simulated) to settle on frame 0 before recording (default %(default)s)")
     p.add_argument("--max-frames", type=int, default=0, help="use only the first N frames of the source (0 = all)")
     p.add_argument("--style", help="use this style.json instead of extracting one")
+    p.add_argument("--pace", type=float, default=0.0, metavar="X",
+                   help="simulated seconds per wall second during the take (default 0 = as fast as the machine "
+                        "allows; 1 = watch it in real time). The result is the same either way")
     p.add_argument("--settle", type=float, default=3.0, metavar="S",
                    help="seconds (simulated) to re-frame between the takes of a multi-shot source (default %(default)s)")
     p.add_argument("--one-take", action="store_true",
@@ -427,7 +446,8 @@ def _job(args, src: Path, out: Path, meta: dict, timings: dict) -> tuple[Path, M
             t = time.monotonic()
             rec = fly(style, outdir=out, session=session, rig=args.rig, preroll_s=args.preroll,
                       realtime=args.realtime, stall_s=args.stall_timeout, meta=meta,
-                      publish_instructions=bool(args.style), settle_s=args.settle, one_take=args.one_take)
+                      publish_instructions=bool(args.style), settle_s=args.settle, one_take=args.one_take,
+                      pace=args.pace)
             timings["flight_s"] = time.monotonic() - t
             meta["health"] = {n: {"received": h.received, "rejected": h.rejected, "dropped": h.dropped,
                                   "published": h.published, "counters": h.counters}
@@ -459,6 +479,9 @@ def main(argv: list[str]) -> int:
     src, out = Path(args.source), Path(args.outdir)
     if not src.is_file():
         print(f"cinetransfer transfer: source video {src} does not exist", file=sys.stderr)
+        return 2
+    if not (0.0 <= args.pace <= 1000.0 and args.settle >= 0.0 and args.preroll >= 0.0):
+        print("cinetransfer transfer: --pace must be in 0..1000, --settle and --preroll >= 0", file=sys.stderr)
         return 2
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.monotonic()

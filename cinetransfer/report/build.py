@@ -75,7 +75,8 @@ def per_shot(source: M.Instructions, output: M.Instructions | None, truths: list
     take's settle figures when the recording was made one take per shot."""
     from cinetransfer.services.smoother.instructions import slice_instructions
 
-    segs = shot_segments(source)
+    # the takes as flown (very short shots are filmed on in the take before), else the source's shots
+    segs = [(int(t["first_row"]), int(t["end_row"])) for t in takes] if takes else shot_segments(source)
     if len(segs) < 2:
         return []
     by_row = {t.get("first_row"): t for t in (takes or [])}
@@ -136,7 +137,8 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
     fid = F.compute_fidelity(source, output, truths, output_fps=output_fps, output_frames=output_frames,
                              output_missing_reason=reason)
     credit = str(meta.get("credit") or figs.credit_for(source_video))
-    shot_rows = [a for a, _ in shot_segments(source)][1:]
+    shot_rows = ([int(t["first_row"]) for t in meta["takes"]] if meta.get("takes") else
+                 [a for a, _ in shot_segments(source)])[1:]
     figures, fig_errors = figs.make_figures(outdir, fid.series, source_video=source_video,
                                             output_video=output_video, credit=credit,
                                             repeated_slots=meta.get("repeated_slots") or (), shot_rows=shot_rows)

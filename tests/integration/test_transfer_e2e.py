@@ -133,7 +133,8 @@ def test_ctrl_c_stops_the_vehicle_and_keeps_the_recording(data, tmp_path):
     out = tmp_path / "run"
     proc = subprocess.Popen([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
                              "--scene", "lawn_juggler", "-o", str(out), "--max-frames", "240", "--preroll", "1",
-                             "--rig", "ctrlc"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                             "--rig", "ctrlc", "--pace", "1"],  # a 10 s take, however fast the machine
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         deadline = time.monotonic() + 300
         # when the take is being recorded (the output video exists and grows) ...

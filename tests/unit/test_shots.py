@@ -49,3 +49,11 @@ def test_settle_time_is_when_the_framing_stays_within_tolerance():
     assert not rep[1]["settled"] and rep[1]["settle_s"] is None
     assert abs(rep[1]["error_at_take_start"] - 0.25) < 1e-6 and abs(rep[1]["best_error_while_settling"] - 0.25) < 1e-6
     assert rep[2]["settled"] and rep[2]["settle_s"] == 0.0
+
+
+def test_short_shots_are_filmed_on_in_the_take_before():
+    from cinetransfer.transfer import merge_short
+
+    assert merge_short([(0, 20), (20, 22), (22, 24), (24, 40)], 12) == [(0, 24), (24, 40)]
+    assert merge_short([(0, 3), (3, 30)], 12) == [(0, 30)]
+    assert merge_short([(0, 20), (20, 40)], 12) == [(0, 20), (20, 40)]
