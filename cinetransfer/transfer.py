@@ -173,7 +173,7 @@ def merge_short(segments: list[tuple[int, int]], min_len: int) -> list[tuple[int
 
 
 def fly_sim_time(style: M.Instructions, rec: Recorder, cond: Conductor, *, preroll_s: float, settle_s: float,
-                 one_take: bool, stall_s: float, pace: float = 0.0) -> dict:
+                 one_take: bool, stall_s: float, pace: float = 0.0, min_take_s: float = 0.5) -> dict:
     """The flight in simulation time: reset the simulation to a fresh time zero, let the planner
     start each take exactly on schedule (a settle phase on its first frame, then its frames),
     record every frame of every take; the edit joins the takes at the source's cuts."""
@@ -184,7 +184,7 @@ def fly_sim_time(style: M.Instructions, rec: Recorder, cond: Conductor, *, prero
                             "then run transfer with --realtime)")
     # time zero of the flight: far ahead of the running clock, so it is never reached before the reset
     epoch = max(M.now_ns(), rec.last_clock.stamp_ns) + 600 * 10**9
-    takes = shot_schedule(style, preroll_s=preroll_s, settle_s=settle_s, one_take=one_take)
+    takes = shot_schedule(style, preroll_s=preroll_s, settle_s=settle_s, one_take=one_take, min_take_s=min_take_s)
     cond.to_planner("stop")
     for tk in takes:
         at = epoch + int(round(tk["settle_start_index"] / fps * 1e9))
@@ -237,7 +237,7 @@ def _already_stopping(_signum, _frame) -> None:
 
 def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: float, realtime: bool,
         stall_s: float, meta: dict, publish_instructions: bool = True, settle_s: float = 3.0,
-        one_take: bool = False, pace: float = 0.0) -> Recorder:
+        one_take: bool = False, pace: float = 0.0, min_take_s: float = 0.5) -> Recorder:
     """Fly and record the take, stop; Ctrl-C stops the vehicle too. The planner has the smoother's
     instructions already; a style given as a file is published here (`publish_instructions`)."""
     rec = Recorder(session, rig, outdir, meta)
@@ -247,7 +247,8 @@ def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: fl
         time.sleep(0.3)
     try:
         how = (fly_realtime if realtime else fly_sim_time)(style, rec, cond, preroll_s=preroll_s, stall_s=stall_s,
-                                                           settle_s=settle_s, one_take=one_take, pace=pace)
+                                                           settle_s=settle_s, one_take=one_take, pace=pace,
+                                                           min_take_s=min_take_s)
         meta.update(how)
     except KeyboardInterrupt:
         rec.interrupted = True
@@ -309,6 +310,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "allows; 1 = watch it in real time). The result is the same either way")
     p.add_argument("--settle", type=float, default=3.0, metavar="S",
                    help="seconds (simulated) to re-frame between the takes of a multi-shot source (default %(default)s)")
+    p.add_argument("--min-take", type=float, default=0.5, metavar="S",
+                   help="a shot shorter than this is filmed on in the take before it (default %(default)s s)")
     p.add_argument("--one-take", action="store_true",
                    help="fly a multi-shot source as one continuous take (for comparison) instead of one take per shot")
     p.add_argument("--realtime", action="store_true",
@@ -447,7 +450,7 @@ def _job(args, src: Path, out: Path, meta: dict, timings: dict) -> tuple[Path, M
             rec = fly(style, outdir=out, session=session, rig=args.rig, preroll_s=args.preroll,
                       realtime=args.realtime, stall_s=args.stall_timeout, meta=meta,
                       publish_instructions=bool(args.style), settle_s=args.settle, one_take=args.one_take,
-                      pace=args.pace)
+                      pace=args.pace, min_take_s=args.min_take)
             timings["flight_s"] = time.monotonic() - t
             meta["health"] = {n: {"received": h.received, "rejected": h.rejected, "dropped": h.dropped,
                                   "published": h.published, "counters": h.counters}
