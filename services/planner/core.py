@@ -346,6 +346,7 @@ class Planner:
         fps = ins.fps if ins.fps > 0 else (1.0 / ins.frame_duration_s if ins.frame_duration_s > 0 else 24.0)
         t = self.recording_time_s(now_ns)
         moving = self.state == "recording"
+        self.counters["phase"] = "settle" if moving and t < 0 else ("take" if moving else self.state)
 
         def frame_at(tt: float) -> int:
             return self.start_frame + int(math.floor(tt * fps + 1e-9))
