@@ -199,3 +199,41 @@ def test_realtime_take_states_its_repeats_or_fails_when_short(data, tmp_path):
     assert report["recording"]["clock"] == "realtime"
     if meta["repeated_frames"]:
         assert "repeat the previous frame" in (out / "report.html").read_text()
+
+
+@pytest.mark.slow
+def test_a_three_shot_source_is_flown_as_three_takes_cut_at_the_source_cuts(data, tmp_path):
+    from cinetransfer.services.smoother.instructions import save_style
+
+    # given a style of three shots (cuts at rows 12 and 24): one extracted from real frames, cut
+    first = tmp_path / "first"
+    r = subprocess.run([sys.executable, "-m", "cinetransfer", "extract", str(data / "sam2_juggle_1280x720.mp4"),
+                        "--stop", str(FRAMES), "-o", str(tmp_path / "style1.json"), "--quiet"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    style = load_style(tmp_path / "style1.json")
+    starts = np.zeros(FRAMES, bool)
+    starts[[0, 12, 24]] = True
+    import dataclasses
+
+    save_style(tmp_path / "three.json", dataclasses.replace(style, shot_start=starts))
+    r = subprocess.run([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
+                        "--scene", "lawn_juggler", "-o", str(first), "--style", str(tmp_path / "three.json"),
+                        "--preroll", "1", "--settle", "0.5", "--rig", "shots"], capture_output=True, text=True,
+                       timeout=900)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-5000:]
+    meta = json.loads((first / "meta.json").read_text())
+    # then three takes, every instruction frame recorded once, nothing repeated
+    assert [(t["first_row"], t["end_row"]) for t in meta["takes"]] == [(0, 12), (12, 24), (24, 36)]
+    assert meta["recorded_frames"] == FRAMES and meta["repeated_frames"] == 0 and meta["missing_frames"] == 0
+    # and the edit cuts exactly at the source's cuts: within a take consecutive frames are one frame
+    # period apart in simulated time, across a cut the settle phase (0.5 s = 12 frames) lies between
+    truths = read_truths(first / "truth.msgpack")
+    gaps = np.diff([t.stamp_ns for t in truths]) / (1e9 / 24)
+    assert [k + 1 for k, g in enumerate(gaps) if abs(g - 1) > 1e-3] == [12, 24]
+    assert np.allclose(gaps[[11, 23]], 13, atol=1e-3)
+    # and the report gives each take's goals and settle phase
+    report = json.loads((first / "report.json").read_text())
+    assert [s["rows"] for s in report["shots"]] == [[0, 12], [12, 24], [24, 36]]
+    assert all(s["settle_limit_s"] is not None for s in report["shots"])
+    assert "Shots" in (first / "report.html").read_text()
