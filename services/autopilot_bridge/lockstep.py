@@ -121,7 +121,7 @@ class SimClockLoop:
             self.clock_pub.put(M.SimClock(stamp_ns=t_ns, epoch_ns=self.epoch_ns, step=self.step,
                                           period_s=self.period_ns * 1e-9, lockstep=lockstep, pace=self.pace))
             self.counters["frames_published"] += self._frames()
-        sps = self._await_setpoint(t_ns) if lockstep else bridge.sp_in.drain()
+        sps = self._await_setpoint(t_ns) if lockstep else self._setpoints_on_clock(t_ns)
         with node.timed():
             if self._commands():  # a reset starts this step over at the new time zero
                 return
@@ -166,6 +166,17 @@ class SimClockLoop:
             self.node.error(f"no setpoint for simulation step {self.step} within {self.cfg.setpoint_wait_s:g} s",
                             "clock")
         return []
+
+    def _setpoints_on_clock(self, t_ns: int) -> list[M.Setpoint]:
+        """Without a planner to wait for: what arrived, if stamped on this clock (a setpoint stamped
+        ahead of simulated time, e.g. on the wall clock, would poison the ordering check)."""
+        out = []
+        for sp in self.bridge.sp_in.drain():
+            if sp.stamp_ns <= t_ns:
+                out.append(sp)
+            else:
+                self.node.reject(f"setpoint stamped {sp.stamp_ns} is ahead of the simulation clock {t_ns}")
+        return out
 
     def _commands(self) -> bool:
         """Handle clock commands; pass the rest to the bridge. True if the simulation was reset."""
