@@ -259,15 +259,23 @@ class BoxFirstPose:
                 p = kp[ok]
                 mb = np.array([*p.min(axis=0), *p.max(axis=0)], dtype=np.float32)
             box = mb
-        person_box = box.astype(np.float32)
-        if mb is not None and box_iou(mb, box) >= cfg.bf_mask_box_min_iou:
-            w = cfg.bf_mask_box_weight
-            person_box = (w * mb + (1 - w) * box).astype(np.float32)
         if mask_crop is None:
-            x0, y0, x1, y1 = (int(v) for v in np.round(person_box))
+            x0, y0, x1, y1 = (int(v) for v in np.round(box))
             mask_crop = np.zeros((max(1, y1 - y0), max(1, x1 - x0)), dtype=bool)
-            mb = np.array([x0, y0], dtype=np.float32)
-        return conf, person_box, (int(mb[0]), int(mb[1])), mask_crop, kp, jc, lm
+            origin = (x0, y0)
+        else:
+            origin = (int(mb[0]), int(mb[1]))
+        return conf, box.astype(np.float32), mb, origin, mask_crop, kp, jc, lm
+
+    def _final_box(self, box: np.ndarray, mb: np.ndarray | None) -> np.ndarray:
+        """The reported box: the mask's box where it agrees with the detector's box (IoU >=
+        bf_mask_box_min_iou; it is then the tighter of the two), else the detector's box (a mask that
+        disagrees has lost hidden or thin parts of the person, or taken in a neighbour)."""
+        cfg = self.cfg
+        if mb is None or box_iou(mb, box) < cfg.bf_mask_box_min_iou:
+            return box
+        w = cfg.bf_mask_box_weight
+        return (w * mb + (1 - w) * box).astype(np.float32)
 
     def detect(self, image_bgr: np.ndarray, stamp_ns: int) -> tuple[list[PersonDetection], list[Skeleton]]:
         cfg = self.cfg
@@ -282,8 +290,14 @@ class BoxFirstPose:
         for i, (box, score) in enumerate(zip(boxes, scores)):
             j = match.get(i, -1)
             roi = self.box_roi(box)
-            if j >= 0 and self._prev[j]["roi"] is not None and self._roi_fits(self._prev[j]["roi"], box):
-                roi = self._prev[j]["roi"]
+            if j >= 0 and self._prev[j]["roi"] is not None:
+                tr = self._prev[j]["roi"]
+                pb = self._prev[j]["det_box"]
+                if pb is not None:  # the crop moves with the detector box's centre
+                    tr = (tr[0] + (box[0] + box[2] - pb[0] - pb[2]) / 2, tr[1] + (box[1] + box[3] - pb[1] - pb[3]) / 2,
+                          *tr[2:])
+                if self._roi_fits(tr, box):
+                    roi = tr
             c = self._person(image_bgr, roi, box, float(score))
             if c is not None:
                 cands.append((c, j, 0))
@@ -303,11 +317,14 @@ class BoxFirstPose:
                 break
         prev, self._prev = self._prev, []
         people, skels = [], []
-        for i, ((conf, box, origin, mask, kp, jc, lm), j, coast) in enumerate(keep):
+        for i, ((conf, box, mb, origin, mask, kp, jc, lm), j, coast) in enumerate(keep):
+            det_box = box
+            box = self._final_box(box, mb)
             tid = prev[j]["id"] if j >= 0 else -1
             if tid < 0 or any(t["id"] == tid for t in self._prev):
                 tid, self._next_id = self._next_id, self._next_id + 1
-            self._prev.append({"box": box, "id": tid, "roi": self.landmark_roi(lm), "coast": coast})
+            self._prev.append({"box": box, "det_box": det_box if coast == 0 else None, "id": tid,
+                               "roi": self.landmark_roi(lm), "coast": coast})
             people.append(PersonDetection(box_xyxy=box, confidence=float(np.clip(conf, 0, 1)),
                                           mask_origin_xy=np.asarray(origin, dtype=np.int32), mask=mask, track_id=tid))
             skels.append(Skeleton(keypoints_px=kp, confidences=jc, keypoint_set="coco17", person_index=i))

@@ -34,8 +34,8 @@ class DetectorConfig:
     bf_track_min_pose_flag: float = 0.5  # ... for a person followed by landmarks alone (detector lost it), [0, 1]
     bf_track_confidence: float = 0.5  # confidence of such a person = this x the pose flag, [0, 1]
     bf_max_coast_frames: int = 30  # follow a person by landmarks alone for at most this many frames, 0..1000
-    bf_mask_box_min_iou: float = 0.5  # blend in the mask's box when it overlaps the SSD box this much, [0, 1]
-    bf_mask_box_weight: float = 0.7  # reported box = w x mask box + (1 - w) x SSD box, [0, 1]
+    bf_mask_box_min_iou: float = 0.6  # use the mask's box when it overlaps the SSD box this much, [0, 1]
+    bf_mask_box_weight: float = 1.0  # reported box = w x mask box + (1 - w) x SSD box, when they agree, [0, 1]
     bf_max_people: int = 12  # most people reported per frame, 1..50
     bf_track_iou: float = 0.3  # a person overlapping one of the previous frame this much keeps its track id, (0, 1]
     bf_threads: int = 1  # LiteRT threads per model (the other core runs the focus map), 1..4
