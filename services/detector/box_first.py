@@ -18,8 +18,12 @@ The person's confidence is sqrt(box score x pose flag): the pose flag is the sec
 drops static objects the SSD takes for people (`bf_min_pose_flag`). The reported box is the
 mask's bounding box where the mask is a plausible part of the SSD box, else the SSD box.
 
-Tracking ids: a greedy IoU match to the previous frame's people (`track_id`), reset with
-`reset()` or when time goes backwards.
+Video mode (`running_mode`, the default) follows people as MediaPipe does: a box that overlaps a
+person of the previous frame is cropped where that person's auxiliary landmarks (33 mid-hip, 34
+body scale) put the body, rotated upright, so twirling or tumbling bodies stay aligned in the crop;
+a person the SSD loses is followed by its landmarks alone for up to `bf_max_coast_frames` while the
+pose flag stays >= `bf_track_min_pose_flag`. `track_id` comes from that greedy IoU match and is kept
+while the person is followed. `reset()`, image mode and time going backwards forget it all.
 """
 from __future__ import annotations
 
@@ -105,7 +109,6 @@ class BoxFirstPose:
         ok, why = box_models.available(landmark_model=cfg.bf_landmark_model)
         if not ok:
             raise BoxFirstUnavailable(why)
-        self.name = f"box_first ({cfg.bf_landmark_model})"
         self._ssd = _interpreter(box_models.model_path(box_models.SSD_MODEL), cfg.bf_threads)
         self._lmk = _interpreter(box_models.model_path(box_models.LANDMARK_MODELS[cfg.bf_landmark_model]),
                                  cfg.bf_threads)
@@ -279,8 +282,9 @@ class BoxFirstPose:
 
     def detect(self, image_bgr: np.ndarray, stamp_ns: int) -> tuple[list[PersonDetection], list[Skeleton]]:
         cfg = self.cfg
-        if self._last_stamp is not None and stamp_ns < self._last_stamp - 1_000_000_000:
-            self.reset()  # time went backwards: a new source
+        backwards = self._last_stamp is not None and stamp_ns < self._last_stamp - 1_000_000_000
+        if cfg.running_mode == "image" or backwards:
+            self.reset()  # frames are unrelated (image mode), or time went backwards (a new source)
         self._last_stamp = int(stamp_ns)
         boxes, scores = self.boxes(image_bgr)
         # each detector box takes the tracking crop of the previous person it overlaps most (as MediaPipe
