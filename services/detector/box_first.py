@@ -27,8 +27,10 @@ while the person is followed. `reset()`, image mode and time going backwards for
 """
 from __future__ import annotations
 
+import concurrent.futures as cf
 import logging
 import math
+import threading
 
 import cv2
 import numpy as np
@@ -110,8 +112,12 @@ class BoxFirstPose:
         if not ok:
             raise BoxFirstUnavailable(why)
         self._ssd = _interpreter(box_models.model_path(box_models.SSD_MODEL), cfg.bf_threads)
-        self._lmk = _interpreter(box_models.model_path(box_models.LANDMARK_MODELS[cfg.bf_landmark_model]),
-                                 cfg.bf_threads)
+        lmk_path = box_models.model_path(box_models.LANDMARK_MODELS[cfg.bf_landmark_model])
+        self._lmk = _interpreter(lmk_path, cfg.bf_threads)
+        # threads=2: the SSD and a second landmark interpreter run in a worker thread beside the caller's
+        # (LiteRT releases the GIL while it computes)
+        self._pool = cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="box_first") if cfg.threads > 1 else None
+        self._lmk2 = _interpreter(lmk_path, cfg.bf_threads) if self._pool is not None else None
         labels = box_models.model_path(box_models.LABELMAP).read_text().splitlines()
         if len(labels) <= PERSON_CLASS or labels[PERSON_CLASS].strip() != "Person":
             raise BoxFirstUnavailable(f"unexpected labelmap: line {PERSON_CLASS} is not 'Person'")
@@ -138,7 +144,10 @@ class BoxFirstPose:
         self._last_stamp: int | None = None
 
     def close(self) -> None:
-        self._ssd = self._lmk = None
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+        self._ssd = self._lmk = self._lmk2 = None
 
     def reset(self) -> None:
         self._prev = []
@@ -190,18 +199,19 @@ class BoxFirstPose:
             return None
         return float(c[0]), float(c[1]), 2.5 * r, float(-d[1] / r), float(d[0] / r)
 
-    def landmarks(self, image_bgr: np.ndarray, roi: tuple) -> tuple[np.ndarray, float, np.ndarray]:
+    def landmarks(self, image_bgr: np.ndarray, roi: tuple, lmk=None) -> tuple[np.ndarray, float, np.ndarray]:
         """Landmarks (39, 5: x, y [frame px], z, visibility, presence [0,1]), pose flag and segmentation
         probability (256, 256) of one crop `roi` = (cx, cy, side, cos, sin)."""
         a, t = self._crop_matrix(roi)
         crop = cv2.warpAffine(image_bgr, np.hstack([a, t[:, None]]), (LANDMARK_INPUT, LANDMARK_INPUT),
                               flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
         x = cv2.cvtColor(crop, cv2.COLOR_BGR2RGB).astype(np.float32) * (1.0 / 255.0)
-        self._lmk.set_tensor(self._lmk_in, x[None])
-        self._lmk.invoke()
-        lm = self._lmk.get_tensor(self._lmk_out["landmarks"]).reshape(39, 5).astype(np.float64)
-        flag = float(np.ravel(self._lmk.get_tensor(self._lmk_out["flag"]))[0])
-        seg = self._lmk.get_tensor(self._lmk_out["seg"])[0, :, :, 0]
+        it = lmk if lmk is not None else self._lmk
+        it.set_tensor(self._lmk_in, x[None])
+        it.invoke()
+        lm = it.get_tensor(self._lmk_out["landmarks"]).reshape(39, 5).astype(np.float64)
+        flag = float(np.ravel(it.get_tensor(self._lmk_out["flag"]))[0])
+        seg = it.get_tensor(self._lmk_out["seg"])[0, :, :, 0].copy()
         cx, cy, side, co, si = roi
         q = (lm[:, :2] - LANDMARK_INPUT / 2) * (side / LANDMARK_INPUT)  # crop offsets [frame px], crop axes
         lm[:, 0] = cx + co * q[:, 0] - si * q[:, 1]
@@ -233,11 +243,12 @@ class BoxFirstPose:
         return prob > self.cfg.mask_threshold, (fx0, fy0)
 
     # ------------------------------------------------------------------ per frame
-    def _person(self, image_bgr: np.ndarray, roi: tuple, box: np.ndarray | None, score: float):
-        """One candidate from one crop: (confidence, box, mask origin, mask, keypoints, joint conf, lm) or None."""
+    def _candidate(self, raw: tuple, box: np.ndarray | None, score: float, width: int, height: int):
+        """One candidate from one crop's landmark result `raw` = (lm, flag, seg, roi), with its detector
+        box and score (box None: followed by landmarks alone):
+        (confidence, box, mask box, mask origin, mask, keypoints, joint conf, lm) or None."""
         cfg = self.cfg
-        height, width = image_bgr.shape[:2]
-        lm, flag, seg = self.landmarks(image_bgr, roi)
+        lm, flag, seg, roi = raw
         if flag < (cfg.bf_min_pose_flag if box is not None else cfg.bf_track_min_pose_flag):
             return None
         conf = math.sqrt(score * flag) if box is not None else cfg.bf_track_confidence * flag
@@ -280,38 +291,71 @@ class BoxFirstPose:
         w = cfg.bf_mask_box_weight
         return (w * mb + (1 - w) * box).astype(np.float32)
 
+    def _run_crops(self, image_bgr: np.ndarray, rois: list[tuple], *, with_ssd: bool):
+        """Landmarks of every crop (and, if asked, the SSD boxes), split over the caller's thread and the
+        worker thread when there is one: ([(lm, flag, seg, roi)], (boxes, scores) or None)."""
+        out: list = [None] * len(rois)
+        if self._pool is None:
+            ssd = self.boxes(image_bgr) if with_ssd else None
+            for k, roi in enumerate(rois):
+                out[k] = (*self.landmarks(image_bgr, roi), roi)
+            return out, ssd
+        lock = threading.Lock()
+        todo = iter(range(len(rois)))
+
+        def drain(lmk) -> None:
+            while True:
+                with lock:
+                    k = next(todo, None)
+                if k is None:
+                    return
+                out[k] = (*self.landmarks(image_bgr, rois[k], lmk), rois[k])
+
+        def worker():
+            ssd = self.boxes(image_bgr) if with_ssd else None
+            drain(self._lmk2)
+            return ssd
+
+        fut = self._pool.submit(worker)
+        try:
+            drain(self._lmk)
+        finally:
+            ssd = fut.result()
+        return out, ssd
+
     def detect(self, image_bgr: np.ndarray, stamp_ns: int) -> tuple[list[PersonDetection], list[Skeleton]]:
         cfg = self.cfg
+        height, width = image_bgr.shape[:2]
         backwards = self._last_stamp is not None and stamp_ns < self._last_stamp - 1_000_000_000
         if cfg.running_mode == "image" or backwards:
             self.reset()  # frames are unrelated (image mode), or time went backwards (a new source)
         self._last_stamp = int(stamp_ns)
-        boxes, scores = self.boxes(image_bgr)
-        # each detector box takes the tracking crop of the previous person it overlaps most (as MediaPipe
-        # does in video mode: the crop then follows the body's rotation), else an upright crop of the box
-        match = self._match([b for b in boxes], [t["box"] for t in self._prev])
-        cands = []  # (candidate, previous track index or -1)
-        for i, (box, score) in enumerate(zip(boxes, scores)):
-            j = match.get(i, -1)
-            roi = self.box_roi(box)
-            if j >= 0 and self._prev[j]["roi"] is not None:
-                tr = self._prev[j]["roi"]
-                pb = self._prev[j]["det_box"]
-                if pb is not None:  # the crop moves with the detector box's centre
-                    tr = (tr[0] + (box[0] + box[2] - pb[0] - pb[2]) / 2, tr[1] + (box[1] + box[3] - pb[1] - pb[3]) / 2,
-                          *tr[2:])
-                if self._roi_fits(tr, box):
-                    roi = tr
-            c = self._person(image_bgr, roi, box, float(score))
+        # 1. the people of the last frame, looked for where their landmarks put them (as MediaPipe does in
+        #    video mode: the crop follows the body's rotation), while the SSD looks at the whole frame
+        tracks = [j for j, t in enumerate(self._prev) if t["roi"] is not None and t["coast"] < cfg.bf_max_coast_frames]
+        raws, (boxes, scores) = self._run_crops(image_bgr, [self._prev[j]["roi"] for j in tracks], with_ssd=True)
+        followed = {j: (raw, self._candidate(raw, None, 0.0, width, height)) for j, raw in zip(tracks, raws)}
+        followed = {j: v for j, v in followed.items() if v[1] is not None}
+        # 2. a detector box on a followed person confirms it (its score, its box); the other boxes get
+        #    an upright crop of their own
+        fj = list(followed)
+        match = self._match(list(boxes), [followed[j][1][1] for j in fj])
+        cands = []  # (candidate, previous person index or -1, frames without a detector box)
+        for i, k in match.items():
+            raw, c = followed[fj[k]]
+            cands.append(((math.sqrt(float(scores[i]) * raw[1]), boxes[i].astype(np.float32), *c[2:]), fj[k], 0))
+        rest = [i for i in range(len(boxes)) if i not in match]
+        raws, _ = self._run_crops(image_bgr, [self.box_roi(boxes[i]) for i in rest], with_ssd=False)
+        idmatch = self._match([boxes[i] for i in rest], [t["box"] for t in self._prev])  # ids only
+        used = {fj[k] for k in match.values()}
+        for n, (i, raw) in enumerate(zip(rest, raws)):
+            c = self._candidate(raw, boxes[i], float(scores[i]), width, height)
+            j = idmatch.get(n, -1)
             if c is not None:
-                cands.append((c, j, 0))
-        matched = set(match.values())
-        for j, t in enumerate(self._prev):  # people the detector lost this frame: follow their landmarks
-            if j in matched or t["roi"] is None or t["coast"] >= cfg.bf_max_coast_frames:
-                continue
-            c = self._person(image_bgr, t["roi"], None, 0.0)
-            if c is not None:
-                cands.append((c, j, t["coast"] + 1))
+                cands.append((c, j if j not in used else -1, 0))
+        for j in fj:  # people the detector lost this frame: followed by their landmarks alone
+            if j not in used:
+                cands.append((followed[j][1], j, self._prev[j]["coast"] + 1))
         cands.sort(key=lambda c: -c[0][0])
         keep = []
         for c in cands:  # two crops on one person give near-identical boxes: keep the surer one
@@ -322,24 +366,15 @@ class BoxFirstPose:
         prev, self._prev = self._prev, []
         people, skels = [], []
         for i, ((conf, box, mb, origin, mask, kp, jc, lm), j, coast) in enumerate(keep):
-            det_box = box
             box = self._final_box(box, mb)
             tid = prev[j]["id"] if j >= 0 else -1
             if tid < 0 or any(t["id"] == tid for t in self._prev):
                 tid, self._next_id = self._next_id, self._next_id + 1
-            self._prev.append({"box": box, "det_box": det_box if coast == 0 else None, "id": tid,
-                               "roi": self.landmark_roi(lm), "coast": coast})
+            self._prev.append({"box": box, "id": tid, "roi": self.landmark_roi(lm), "coast": coast})
             people.append(PersonDetection(box_xyxy=box, confidence=float(np.clip(conf, 0, 1)),
                                           mask_origin_xy=np.asarray(origin, dtype=np.int32), mask=mask, track_id=tid))
             skels.append(Skeleton(keypoints_px=kp, confidences=jc, keypoint_set="coco17", person_index=i))
         return people, skels
-
-    @staticmethod
-    def _roi_fits(roi: tuple, box: np.ndarray) -> bool:
-        """Is a tracking crop plausible for this detector box (centre inside, size comparable)?"""
-        cx, cy, side = roi[:3]
-        long_side = float(max(box[2] - box[0], box[3] - box[1]))
-        return bool(box[0] <= cx <= box[2] and box[1] <= cy <= box[3] and 0.6 * long_side <= side <= 3.0 * long_side)
 
     def _match(self, boxes: list[np.ndarray], prev: list[np.ndarray]) -> dict[int, int]:
         """Greedy IoU association {box index: previous index}."""
