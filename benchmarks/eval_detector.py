@@ -143,7 +143,8 @@ def main() -> None:
 
     over = parse(a.set)
     cfg = DetectorConfig(**over).validate()
-    print(f"config overrides: {over or 'none (defaults)'}; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
+    print(f"config overrides: {over or 'none (defaults)'}; "
+          f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
     out: dict = {"config": over}
     with Detector(cfg) as det:
         print(f"backend: {det.name}")

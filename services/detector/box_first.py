@@ -14,16 +14,19 @@ and a 256x256 segmentation logit map. COCO-17 joints are BlazePose landmarks
 [0,2,5,7,8,11,12,13,14,15,16,23,24,25,26,27,28] with confidence visibility x presence (0 for a
 joint outside the frame); the mask is segmentation > `mask_threshold` inside the crop.
 
-The person's confidence is sqrt(box score x pose flag): the pose flag is the second opinion that
-drops static objects the SSD takes for people (`bf_min_pose_flag`). The reported box is the
-mask's bounding box where the mask is a plausible part of the SSD box, else the SSD box.
+The person's confidence is sqrt(box certainty x pose flag), the box certainty being the SSD score
+spread over [0.3, 1] (`box_certainty`); the pose flag is the second opinion that drops static
+objects the SSD takes for people (`bf_min_pose_flag`). The reported box is the mask's bounding box
+where it agrees with the SSD box (IoU >= `bf_mask_box_min_iou`), else the SSD box.
 
-Video mode (`running_mode`, the default) follows people as MediaPipe does: a box that overlaps a
-person of the previous frame is cropped where that person's auxiliary landmarks (33 mid-hip, 34
-body scale) put the body, rotated upright, so twirling or tumbling bodies stay aligned in the crop;
-a person the SSD loses is followed by its landmarks alone for up to `bf_max_coast_frames` while the
-pose flag stays >= `bf_track_min_pose_flag`. `track_id` comes from that greedy IoU match and is kept
-while the person is followed. `reset()`, image mode and time going backwards forget it all.
+Video mode (`running_mode`, the default) follows people as MediaPipe does: each person of the
+previous frame is looked for in the crop its auxiliary landmarks (33 mid-hip, 34 body scale) give,
+rotated upright, so twirling or tumbling bodies stay aligned (this runs beside the SSD, on the
+other thread when `threads` = 2). An SSD box overlapping a person found so (IoU >= `bf_track_iou`)
+confirms it; the other boxes get upright crops of their own; a person the SSD loses is kept on its
+landmarks alone for up to `bf_max_coast_frames` while the pose flag stays >= `bf_track_min_pose_flag`.
+`track_id` is kept while a person is followed. `reset()`, image mode and time going backwards
+forget it all.
 """
 from __future__ import annotations
 
@@ -243,6 +246,13 @@ class BoxFirstPose:
         return prob > self.cfg.mask_threshold, (fx0, fy0)
 
     # ------------------------------------------------------------------ per frame
+    def box_certainty(self, score: float) -> float:
+        """The SSD's Person score spread over [0.3, 1]: its scores are compressed (on TUD, true people
+        score 0.41-0.54 (10-90 %), false ones 0.35-0.43), so `bf_score_threshold` maps to 0.3 and
+        `bf_score_full` and above to 1."""
+        t, full = self.cfg.bf_score_threshold, self.cfg.bf_score_full
+        return 0.3 + 0.7 * float(np.clip((score - t) / max(1e-6, full - t), 0.0, 1.0))
+
     def _candidate(self, raw: tuple, box: np.ndarray | None, score: float, width: int, height: int):
         """One candidate from one crop's landmark result `raw` = (lm, flag, seg, roi), with its detector
         box and score (box None: followed by landmarks alone):
@@ -251,7 +261,7 @@ class BoxFirstPose:
         lm, flag, seg, roi = raw
         if flag < (cfg.bf_min_pose_flag if box is not None else cfg.bf_track_min_pose_flag):
             return None
-        conf = math.sqrt(score * flag) if box is not None else cfg.bf_track_confidence * flag
+        conf = math.sqrt(self.box_certainty(score) * flag) if box is not None else cfg.bf_track_confidence * flag
         sel = lm[BLAZEPOSE_TO_COCO17]
         kp = sel[:, :2].astype(np.float32)
         jc = (sel[:, 3] * sel[:, 4]).astype(np.float32)
@@ -343,7 +353,8 @@ class BoxFirstPose:
         cands = []  # (candidate, previous person index or -1, frames without a detector box)
         for i, k in match.items():
             raw, c = followed[fj[k]]
-            cands.append(((math.sqrt(float(scores[i]) * raw[1]), boxes[i].astype(np.float32), *c[2:]), fj[k], 0))
+            conf = math.sqrt(self.box_certainty(float(scores[i])) * raw[1])
+            cands.append(((conf, boxes[i].astype(np.float32), *c[2:]), fj[k], 0))
         rest = [i for i in range(len(boxes)) if i not in match]
         raws, _ = self._run_crops(image_bgr, [self.box_roi(boxes[i]) for i in rest], with_ssd=False)
         idmatch = self._match([boxes[i] for i in rest], [t["box"] for t in self._prev])  # ids only

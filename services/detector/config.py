@@ -28,6 +28,7 @@ class DetectorConfig:
     #     unavailable and the detector runs the mediapipe backend instead
     bf_landmark_model: str = "full"  # landmark model per box: 'full' (~12 ms/person) or 'heavy' (~40 ms/person)
     bf_score_threshold: float = 0.35  # SSD Person score threshold, (0, 1) (scores are compressed: 0.5 misses most)
+    bf_score_full: float = 0.55  # SSD score that counts as a certain person (confidence scale), > bf_score_threshold
     bf_nms_iou: float = 0.5  # SSD boxes overlapping more than this (IoU) are one, (0, 1]
     bf_crop_scale: float = 1.25  # landmark crop side / the box's long side, 1..3
     bf_min_pose_flag: float = 0.1  # landmark model's "a pose is here" score below which a box is dropped, [0, 1]
@@ -94,6 +95,7 @@ class DetectorConfig:
         need(0.0 <= self.fallback_overlap <= 1.0, "fallback_overlap", "[0, 1]")
         need(self.bf_landmark_model in LANDMARK_MODELS, "bf_landmark_model", " | ".join(LANDMARK_MODELS))
         need(0.0 < self.bf_score_threshold < 1.0, "bf_score_threshold", "(0, 1)")
+        need(self.bf_score_threshold < self.bf_score_full <= 1.0, "bf_score_full", "(bf_score_threshold, 1]")
         need(0.0 < self.bf_nms_iou <= 1.0, "bf_nms_iou", "(0, 1]")
         need(1.0 <= self.bf_crop_scale <= 3.0, "bf_crop_scale", "1..3")
         need(0.0 <= self.bf_min_pose_flag <= 1.0, "bf_min_pose_flag", "[0, 1]")
@@ -167,7 +169,8 @@ def add_config_arguments(parser: Any) -> None:
 def config_from_args(args: Any, base: DetectorConfig | None = None) -> DetectorConfig:
     base = base or DetectorConfig()
     return dataclasses.replace(
-        base, backend=args.backend, bf_landmark_model=args.landmark_model, num_poses=args.num_poses, running_mode=args.running_mode,
+        base, backend=args.backend, bf_landmark_model=args.landmark_model, num_poses=args.num_poses,
+        running_mode=args.running_mode,
         upscale_max_side_px=args.upscale, tiles=args.tiles, focus=not args.no_focus,
         person_fallback=args.fallback,
         focus_work_width_px=args.focus_width, threads=args.threads,
