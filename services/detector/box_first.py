@@ -99,8 +99,11 @@ def _sigmoid(x: np.ndarray) -> np.ndarray:
 def _interpreter(path, threads: int):
     from ai_edge_litert.interpreter import Interpreter
 
-    it = Interpreter(model_path=str(path), num_threads=threads)
-    it.allocate_tensors()
+    from cinetransfer.services.detector.pose_mediapipe import _filtered_native_stderr
+
+    with _filtered_native_stderr():  # LiteRT announces its XNNPACK delegate on fd 2
+        it = Interpreter(model_path=str(path), num_threads=threads)
+        it.allocate_tensors()
     return it
 
 
@@ -117,10 +120,6 @@ class BoxFirstPose:
         self._ssd = _interpreter(box_models.model_path(box_models.SSD_MODEL), cfg.bf_threads)
         lmk_path = box_models.model_path(box_models.LANDMARK_MODELS[cfg.bf_landmark_model])
         self._lmk = _interpreter(lmk_path, cfg.bf_threads)
-        # threads=2: the SSD and a second landmark interpreter run in a worker thread beside the caller's
-        # (LiteRT releases the GIL while it computes)
-        self._pool = cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="box_first") if cfg.threads > 1 else None
-        self._lmk2 = _interpreter(lmk_path, cfg.bf_threads) if self._pool is not None else None
         labels = box_models.model_path(box_models.LABELMAP).read_text().splitlines()
         if len(labels) <= PERSON_CLASS or labels[PERSON_CLASS].strip() != "Person":
             raise BoxFirstUnavailable(f"unexpected labelmap: line {PERSON_CLASS} is not 'Person'")
@@ -142,6 +141,10 @@ class BoxFirstPose:
                 self._lmk_out["seg"] = o["index"]
         if set(self._lmk_out) != {"landmarks", "flag", "seg"}:
             raise BoxFirstUnavailable(f"unexpected landmark model outputs: {self._lmk.get_output_details()}")
+        # threads=2: the SSD and a second landmark interpreter run in a worker thread beside the caller's
+        # (LiteRT releases the GIL while it computes)
+        self._lmk2 = _interpreter(lmk_path, cfg.bf_threads) if cfg.threads > 1 else None
+        self._pool = cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="box_first") if cfg.threads > 1 else None
         self._prev: list[dict] = []  # the last frame's people: box, track id, tracking crop, frames coasted
         self._next_id = 0
         self._last_stamp: int | None = None
