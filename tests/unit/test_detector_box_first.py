@@ -7,7 +7,7 @@ and checks, and the fallback when the models are not installed.
 from __future__ import annotations
 
 import io
-import json
+import os
 import subprocess
 import sys
 import tarfile
@@ -131,7 +131,7 @@ def test_detect_logs_the_fallback(tmp_path, data):
     r = subprocess.run([sys.executable, "-m", "cinetransfer", "detect", str(data / "sam2_juggle_1280x720.mp4"),
                         "-o", str(out), "--stop", "2", "--no-progress", "--no-focus"],
                        capture_output=True, text=True, timeout=240,
-                       env={**__import__("os").environ, "CT_DETECTOR_MODELS": str(tmp_path / "none")})
+                       env={**os.environ, "CT_DETECTOR_MODELS": str(tmp_path / "none")})
     assert r.returncode == 0, r.stderr[-2000:]
     assert "box_first backend unavailable" in r.stderr
     from cinetransfer.services.detector.measurements_file import read_measurements
