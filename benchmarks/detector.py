@@ -40,21 +40,27 @@ def _time(fn, frames, warmup: int) -> dict:
     for i in range(warmup):
         fn(frames[i % len(frames)], i)
     lat = []
-    c0, t0 = time.process_time(), time.perf_counter()
+    c0, m0, t0 = time.process_time(), time.thread_time(), time.perf_counter()
     for i, f in enumerate(frames):
         t = time.perf_counter()
         fn(f, warmup + i)
         lat.append(time.perf_counter() - t)
     wall = time.perf_counter() - t0
     cpu = time.process_time() - c0
+    main = time.thread_time() - m0
     lat_ms = 1e3 * np.asarray(lat)
+    # On 2 idle cores a frame takes at least the caller thread's CPU time and at least half the
+    # process's: a load-independent estimate of the quiet-machine rate (upper bound, perfect overlap).
+    idle_ms = 1e3 * max(main, cpu / 2) / len(frames)
     return {"fps": len(frames) / wall, "ms_median": float(np.median(lat_ms)), "ms_p95": float(np.percentile(lat_ms, 95)),
-            "ms_max": float(lat_ms.max()), "cpu_cores_used": cpu / wall, "cpu_ms_per_frame": 1e3 * cpu / len(frames)}
+            "ms_max": float(lat_ms.max()), "cpu_cores_used": cpu / wall, "cpu_ms_per_frame": 1e3 * cpu / len(frames),
+            "caller_thread_cpu_ms_per_frame": 1e3 * main / len(frames), "idle_estimate_fps": 1e3 / idle_ms}
 
 
 def _line(name: str, r: dict) -> str:
     return (f"  {name:<34} {r['fps']:6.1f} frames/s   median {r['ms_median']:6.1f} ms   p95 {r['ms_p95']:6.1f} ms   "
-            f"max {r['ms_max']:6.1f} ms   cores {r['cpu_cores_used']:.2f}   CPU {r['cpu_ms_per_frame']:5.1f} ms/frame")
+            f"max {r['ms_max']:6.1f} ms   cores {r['cpu_cores_used']:.2f}   CPU {r['cpu_ms_per_frame']:5.1f} ms/frame "
+            f"(caller {r['caller_thread_cpu_ms_per_frame']:5.1f})   idle est. {r['idle_estimate_fps']:5.1f} frames/s")
 
 
 def main() -> None:
@@ -103,8 +109,9 @@ def main() -> None:
     for label, r, goal in (("1280x720 (one person)", results["1280x720"]["full, 2 threads (default)"], 24.0),
                            ("TUD (about 5 people)", results["tud_640x480"]["full, 2 threads (default)"], 10.0)):
         print(f"goal: >= {goal:.0f} frames/s on {label} -> {r['fps']:.1f} frames/s measured "
-              f"({'met' if r['fps'] >= goal else 'NOT met'}); CPU cost {r['cpu_ms_per_frame']:.1f} ms/frame -> at most "
-              f"{2000 / r['cpu_ms_per_frame']:.1f} frames/s on 2 idle cores")
+              f"({'met' if r['fps'] >= goal else 'NOT met'}); CPU cost {r['cpu_ms_per_frame']:.1f} ms/frame, caller "
+              f"thread {r['caller_thread_cpu_ms_per_frame']:.1f} -> about {r['idle_estimate_fps']:.1f} frames/s on 2 idle "
+              f"cores ({'met' if r['idle_estimate_fps'] >= goal else 'NOT met'} there)")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     results["load_avg_before"] = load
     print(f"wrote {write_result('detector', results)}")
