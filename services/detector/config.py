@@ -5,7 +5,8 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-BACKENDS = ("mediapipe", "torchvision")
+BACKENDS = ("box_first", "mediapipe", "torchvision")
+LANDMARK_MODELS = ("full", "heavy")
 FALLBACKS = ("none", "hog")
 RUNNING_MODES = ("video", "image")
 
@@ -21,7 +22,24 @@ class DetectorConfig:
     Pose (people, masks, skeletons):
     """
 
-    backend: str = "mediapipe"  # 'mediapipe' (runs here, no download) or 'torchvision' (user weights)
+    backend: str = "box_first"  # 'box_first' (SSD boxes, then landmarks per box; models from npm at install),
+    #                             'mediapipe' (face-anchored landmarker from the wheel) or 'torchvision' (user weights)
+    # --- box_first backend (box_first.py): if its models are not installed it reports itself
+    #     unavailable and the detector runs the mediapipe backend instead
+    bf_landmark_model: str = "full"  # landmark model per box: 'full' (~12 ms/person) or 'heavy' (~40 ms/person)
+    bf_score_threshold: float = 0.35  # SSD Person score threshold, (0, 1) (scores are compressed: 0.5 misses most)
+    bf_score_full: float = 0.55  # SSD score that counts as a certain person (confidence scale), > bf_score_threshold
+    bf_nms_iou: float = 0.5  # SSD boxes overlapping more than this (IoU) are one, (0, 1]
+    bf_crop_scale: float = 1.25  # landmark crop side / the box's long side, 1..3
+    bf_min_pose_flag: float = 0.1  # landmark model's "a pose is here" score below which a box is dropped, [0, 1]
+    bf_track_min_pose_flag: float = 0.5  # ... for a person followed by landmarks alone (detector lost it), [0, 1]
+    bf_track_confidence: float = 0.5  # confidence of such a person = this x the pose flag, [0, 1]
+    bf_max_coast_frames: int = 30  # follow a person by landmarks alone for at most this many frames, 0..1000
+    bf_mask_box_min_iou: float = 0.6  # use the mask's box when it overlaps the SSD box this much, [0, 1]
+    bf_mask_box_weight: float = 1.0  # reported box = w x mask box + (1 - w) x SSD box, when they agree, [0, 1]
+    bf_max_people: int = 12  # most people reported per frame, 1..50
+    bf_track_iou: float = 0.3  # a person overlapping one of the previous frame this much keeps its track id, (0, 1]
+    bf_threads: int = 1  # LiteRT threads per model (the other core runs the focus map), 1..4
     # --- mediapipe backend
     num_poses: int = 6  # most people reported per frame, 1..20
     min_detection_confidence: float = 0.3  # person-detector score threshold, [0, 1]
@@ -75,6 +93,20 @@ class DetectorConfig:
         need(len(self.hog_box_shrink_xy) == 2 and all(0.1 <= v <= 1.0 for v in self.hog_box_shrink_xy),
              "hog_box_shrink_xy", "two values in 0.1..1")
         need(0.0 <= self.fallback_overlap <= 1.0, "fallback_overlap", "[0, 1]")
+        need(self.bf_landmark_model in LANDMARK_MODELS, "bf_landmark_model", " | ".join(LANDMARK_MODELS))
+        need(0.0 < self.bf_score_threshold < 1.0, "bf_score_threshold", "(0, 1)")
+        need(self.bf_score_threshold < self.bf_score_full <= 1.0, "bf_score_full", "(bf_score_threshold, 1]")
+        need(0.0 < self.bf_nms_iou <= 1.0, "bf_nms_iou", "(0, 1]")
+        need(1.0 <= self.bf_crop_scale <= 3.0, "bf_crop_scale", "1..3")
+        need(0.0 <= self.bf_min_pose_flag <= 1.0, "bf_min_pose_flag", "[0, 1]")
+        need(0.0 <= self.bf_track_min_pose_flag <= 1.0, "bf_track_min_pose_flag", "[0, 1]")
+        need(0.0 <= self.bf_track_confidence <= 1.0, "bf_track_confidence", "[0, 1]")
+        need(0 <= self.bf_max_coast_frames <= 1000, "bf_max_coast_frames", "0..1000")
+        need(0.0 <= self.bf_mask_box_weight <= 1.0, "bf_mask_box_weight", "[0, 1]")
+        need(0.0 <= self.bf_mask_box_min_iou <= 1.0, "bf_mask_box_min_iou", "[0, 1]")
+        need(1 <= self.bf_max_people <= 50, "bf_max_people", "1..50")
+        need(0.0 < self.bf_track_iou <= 1.0, "bf_track_iou", "(0, 1]")
+        need(1 <= self.bf_threads <= 4, "bf_threads", "1..4")
         need(self.running_mode in RUNNING_MODES, "running_mode", " | ".join(RUNNING_MODES))
         need(1 <= self.num_poses <= 20, "num_poses", "1..20")
         for name in ("min_detection_confidence", "min_presence_confidence", "min_tracking_confidence",
@@ -112,6 +144,8 @@ def add_config_arguments(parser: Any) -> None:
     d = DetectorConfig()
     g = parser.add_argument_group("detector")
     g.add_argument("--backend", choices=BACKENDS, default=d.backend, help="pose backend (default %(default)s)")
+    g.add_argument("--landmark-model", choices=LANDMARK_MODELS, default=d.bf_landmark_model,
+                   help="box_first: landmark model per person box (default %(default)s)")
     g.add_argument("--num-poses", type=int, default=d.num_poses, help="max people per frame (default %(default)s)")
     g.add_argument("--running-mode", choices=RUNNING_MODES, default=d.running_mode,
                    help="mediapipe mode: 'video' tracks over frames (default %(default)s)")
@@ -135,7 +169,8 @@ def add_config_arguments(parser: Any) -> None:
 def config_from_args(args: Any, base: DetectorConfig | None = None) -> DetectorConfig:
     base = base or DetectorConfig()
     return dataclasses.replace(
-        base, backend=args.backend, num_poses=args.num_poses, running_mode=args.running_mode,
+        base, backend=args.backend, bf_landmark_model=args.landmark_model, num_poses=args.num_poses,
+        running_mode=args.running_mode,
         upscale_max_side_px=args.upscale, tiles=args.tiles, focus=not args.no_focus,
         person_fallback=args.fallback,
         focus_work_width_px=args.focus_width, threads=args.threads,

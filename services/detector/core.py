@@ -16,6 +16,7 @@ people's masks so that the in-focus map does not bleed between a person and what
 from __future__ import annotations
 
 import concurrent.futures as cf
+import dataclasses
 import logging
 import math
 from typing import Iterator
@@ -36,7 +37,20 @@ class DetectorError(RuntimeError):
 
 
 def make_backend(cfg: DetectorConfig):
-    """The pose backend named by the config."""
+    """The pose backend named by the config. When the box-first backend (the default) is not
+    installed (npm was missing at setup), it says so once and MediaPipe's landmarker runs instead;
+    that backend's `unavailable` attribute then holds the reason (Health counters, `detect` log)."""
+    if cfg.backend == "box_first":
+        from cinetransfer.services.detector.box_first import BoxFirstPose, BoxFirstUnavailable
+
+        try:
+            return BoxFirstPose(cfg)
+        except BoxFirstUnavailable as e:
+            log.warning("box_first backend unavailable (%s); running the mediapipe backend instead", e)
+            be = make_backend(dataclasses.replace(cfg, backend="mediapipe"))
+            be.unavailable = f"box_first: {e}"
+            be.name = f"{be.name} (box_first unavailable)"
+            return be
     if cfg.backend == "mediapipe":
         from cinetransfer.services.detector.pose_mediapipe import MediaPipePose
 

@@ -232,6 +232,8 @@ def main(argv: list[str]) -> int:
         with node:
             node.counters.update(backend=det.name, frames_processed=0, frames_skipped=0, errors=0,
                                  frames_missing_upstream=0)
+            if getattr(det.backend, "unavailable", ""):  # the configured backend is not installed
+                node.counters["backend_unavailable"] = det.backend.unavailable
             if args.video or args.images:
                 return run_file(node, det, args, stats)
             if args.input == "source":

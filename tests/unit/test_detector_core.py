@@ -95,7 +95,7 @@ def test_measurement_fields_and_overlay(detector, juggle_frames):
     detector.reset()
     f = juggle_frames[0]
     m = detector.process(f.image, 7, 123, source="x.mp4", fps=24.0)
-    assert (m.frame_index, m.stamp_ns, m.source, m.fps, m.detector) == (7, 123, "x.mp4", 24.0, "mediapipe")
+    assert (m.frame_index, m.stamp_ns, m.source, m.fps, m.detector) == (7, 123, "x.mp4", 24.0, detector.name)
     assert m.focus_map.shape == (90, 160)
     p = m.people[0]
     assert p.mask.shape == (int(p.box_xyxy[3] - p.box_xyxy[1]), int(p.box_xyxy[2] - p.box_xyxy[0]))
@@ -226,8 +226,9 @@ def test_config_validation_names_the_field():
 def test_hog_fallback_adds_back_view_pedestrians_without_duplicates():
     # given a TUD-Stadtmitte frame (pedestrians, several seen from the back or side)
     f = next(iter(iter_frames(data_dir() / "tud_stadtmitte_640x480.mp4", start=20, stop=21, prefetch=0)))
-    with Detector(DetectorConfig(running_mode="image", focus=False)) as plain, \
-            Detector(DetectorConfig(running_mode="image", focus=False, person_fallback="hog")) as fb:
+    with Detector(DetectorConfig(backend="mediapipe", running_mode="image", focus=False)) as plain, \
+            Detector(DetectorConfig(backend="mediapipe", running_mode="image", focus=False,
+                                    person_fallback="hog")) as fb:
         a = plain.process(f.image, f.index, f.stamp_ns)
         b = fb.process(f.image, f.index, f.stamp_ns)
     # then the fallback adds people, keeps the pose people first (skeleton indices stay valid)
