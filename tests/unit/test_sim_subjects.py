@@ -2,7 +2,8 @@
 
 The detector check renders each subject in each bundled scene (swapped in with
 `load_scene(scene, subject=NAME)`, as `--subject` does) at times spread over its whole script, so
-every action it does is seen, from a camera that moves round it and zooms. A frame counts when a
+every action it does is seen, from a camera that moves sideways (and up, never below the scene's camera height: in focus_hedge
+the hedge then hides the legs) and zooms. A frame counts when a
 MediaPipe skeleton's median joint distance to the ground-truth joints is < 3 % of the image.
 """
 from __future__ import annotations
@@ -120,7 +121,7 @@ def render_subject_flight(scene_name: str, subject: str, n: int):
     for k in range(n):
         t = (k + 0.5) * period / n
         pose = r.subject.script.pose_at(t)
-        pos = p0 + [0.0, 1.5 * math.sin(2 * math.pi * k / n), 0.3 * math.cos(2 * math.pi * k / n)]
+        pos = p0 + [0.0, 1.5 * math.sin(2 * math.pi * k / n), 0.2 * (1 + math.cos(2 * math.pi * k / n))]
         view = dataclasses.replace(sim.view(), position_m=pos)
         target = pose.position_m + [0, 0, 0.5 * r.subject.spec.height_m]
         view = _aim(view, target, r.subject.spec.height_m, 0.55 + 0.2 * math.sin(1.3 * k))

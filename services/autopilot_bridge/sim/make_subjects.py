@@ -256,8 +256,9 @@ def _tud_walker(data: Path, track: int) -> tuple[list[np.ndarray], list[np.ndarr
 
 def make_walker(data: Path, out: Path) -> None:
     frames, masks, ids, speed = _tud_walker(data, track=2)
-    # one gait cycle (two steps) from the middle of the track, 25 fps: frames 30..56
-    cyc = [i for i in ids if 30 <= i < 57]
+    # one gait cycle (two steps) from the middle of the track, 25 fps: frames 30..54 (the ankles'
+    # horizontal separation goes +61 px at 35, -70 px at 48 and back to ~0 at 55 = frame 30)
+    cyc = [i for i in ids if 30 <= i < 55]
     make = {"walk": {"source_frames": cyc, "loop": "cycle", "fps": 25.0, "speed_mps": round(speed, 2)}}
     log.info("walker: speed %.2f m/s from the ground-truth world positions", speed)
     cut_subject("walker", frames, masks, make, out, LIBRARY["walker"])
