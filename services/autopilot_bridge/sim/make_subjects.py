@@ -41,6 +41,9 @@ log = logging.getLogger("make_subjects")
 #: standing height / torso length (shoulder mid to hip mid), measured on the juggler's cut-outs
 #: (420 px tall, torso 121 px): keeps every subject on one scale convention.
 HEIGHT_PER_TORSO = 3.47
+#: ankle (the lower one) to the ground point of the cut-out, in torso lengths: the juggler's, median
+#: over his cut-outs (anchor = lowest mask pixel there: 0.36 torso below his lower ankle)
+SOLE_PER_TORSO = 0.36
 #: torso length of a scale-normalised cut-out [px] (standing height ~ 330 px: small assets).
 TORSO_PX = 95.0
 GREY = 128
@@ -157,33 +160,32 @@ def cut_subject(name: str, frames: list[np.ndarray], masks: list[np.ndarray], ac
             j = lm[COCO_FROM_BLAZE]
             fname = f"{name}_{k:02d}.png"
             cv2.imwrite(str(out / fname), bgra, [cv2.IMWRITE_PNG_COMPRESSION, 9])
-            ys, _ = np.nonzero(bgra[..., 3] > 64)
             index[i] = k
             meta["frames"].append({
                 "file": fname, "source_frame": int(i), "size_px": [int(bgra.shape[1]), int(bgra.shape[0])],
-                "foot_px": float(ys.max() + 1),
                 "joints_px": [[round(float(x - pad), 2), round(float(y - pad), 2)] for x, y in j[:, :2]],
                 "visibility": [round(float(v), 3) for v in j[:, 3]],
             })
-    # ground contact: the ground lies at the lowest foot position (relative to the hips) seen
-    # within +-6 frames of the same action (a stance foot touches it); a foot within 3 % of the
-    # height of it is in contact.
+    # ground contact: the ground lies a sole below the lowest ankle (a stance foot's ankle), taken
+    # as the lowest over +-6 frames of the same action; the sole (ankle to the ground point of a
+    # billboard) is the juggler's, measured on his standing cut-outs (SOLE_PER_TORSO). The lowest
+    # mask pixel is not used: a pointed foot or a leg stretched towards a high camera reaches far
+    # below the ground (the dancer's toes: 0.7 torso below her ankles). A frame whose lowest ankle
+    # is higher than that by > 6 % of the height (more than rising onto the toes) is airborne.
     H = meta["height_px_standing"]
     for aname, a in actions.items():
         ks = [index[i] for i in a["source_frames"]]
         fr = [meta["frames"][k] for k in ks]
         hip = [(f["joints_px"][11][1] + f["joints_px"][12][1]) / 2 for f in fr]
-        d = [f["foot_px"] - h for f, h in zip(fr, hip)]
+        d = [max(f["joints_px"][15][1], f["joints_px"][16][1]) - h for f, h in zip(fr, hip)]
         for n, f in enumerate(fr):
             g = max(d[max(0, n - 6):n + 7])
             jx = f["joints_px"]
-            f["anchor_px"] = [round((jx[15][0] + jx[16][0]) / 2, 2), round(hip[n] + g, 2)]
-            f["contact"] = bool(d[n] >= g - 0.03 * H)
+            f["anchor_px"] = [round((jx[15][0] + jx[16][0]) / 2, 2), round(hip[n] + g + SOLE_PER_TORSO * TORSO_PX, 2)]
+            f["contact"] = bool(d[n] >= g - 0.06 * H)
         meta["actions"][aname] = {"frames": ks, "loop": a["loop"], "fps": a["fps"],
                                   **({"speed_mps": a["speed_mps"]} if "speed_mps" in a else {}),
                                   "source_frames": [int(i) for i in a["source_frames"]]}
-    for f in meta["frames"]:
-        f.pop("foot_px")
     (out / f"{name}.json").write_text(json.dumps(meta, indent=1))
     log.info("%s: %d cut-outs, actions %s", name, len(used), sorted(actions))
     return meta
