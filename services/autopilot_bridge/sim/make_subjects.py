@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 from pathlib import Path
 
@@ -82,7 +83,11 @@ LIBRARY = {
         "credit": "MOTChallenge TUD-Stadtmitte, CC BY-NC-SA 3.0 (Andriluka, Roth, Schiele, CVPR 2010; "
                   "Leal-Taixé et al. 2015), research use",
         "height_m": 1.75,
-        "default_script": [{"action": "walk", "path_m": [[0.0, 1.5], [0.0, -1.5]]}],
+        # a loop round an octagon (radius 2 m) at 1.0 m/s, gait slowed to match: a camera limited to
+        # 1.2 m/s^2 follows smooth turns, not a walk back and forth (a 2.4 m/s reversal takes it 2 s)
+        "default_script": [{"action": "walk", "speed_mps": 1.0, "path_m": [
+            [round(2.0 * math.sin(math.pi * k / 4), 3), round(2.0 - 2.0 * math.cos(math.pi * k / 4), 3)]
+            for k in range(1, 9)]}],
     },
 }
 
