@@ -69,6 +69,21 @@ def per_joint_truth(out: Path) -> dict[str, float]:
     return res
 
 
+def hip_proportion(joints: np.ndarray, aspect: float = 1.0) -> float:
+    """hip width / torso length (see proportion)."""
+    joints = np.asarray(joints, float) * [aspect, 1.0]
+    hw = np.linalg.norm(joints[..., 2, :] - joints[..., 3, :], axis=-1)
+    tl = np.linalg.norm((joints[..., 0, :] + joints[..., 1, :]) / 2 - (joints[..., 2, :] + joints[..., 3, :]) / 2,
+                        axis=-1)
+    return float(np.nanmedian(hw / tl))
+
+
+def facing(joints: np.ndarray) -> float:
+    """Share of frames seen from the front (left shoulder on the image's right, as in a front view)."""
+    j = np.asarray(joints, float)
+    return float(np.mean(j[..., 0, 0] > j[..., 1, 0]))
+
+
 def proportion(joints: np.ndarray, aspect: float = 1.0) -> float:
     """shoulder width / torso length (shoulder mid-point to hip mid-point), joints (..., 4, 2) in the
     order left_shoulder, right_shoulder, left_hip, right_hip; `aspect` = width / height for joints
@@ -150,18 +165,23 @@ def main() -> int:
         from cinetransfer.services.smoother.instructions import load_style
 
         ins = load_style(style)
-        res["source_proportion"] = round(proportion(np.asarray(ins.image_targets, float), 16 / 9), 3)  # 1280x720
+        tg = np.asarray(ins.image_targets, float)
+        res["source_proportion"] = round(proportion(tg, 16 / 9), 3)  # 1280x720
+        res["source_hip_proportion"] = round(hip_proportion(tg, 16 / 9), 3)
+        res["source_front_view_share"] = round(facing(tg[np.isfinite(tg).all(axis=(1, 2))]), 3)
         from cinetransfer.services.autopilot_bridge.sim.subject import load_clip
 
         for subject in ["juggler", *args.subjects]:
             clip = load_clip(subject)
             j = np.array([f.joints_px[[5, 6, 11, 12]] for f in clip.frames])
-            row = {"subject_proportion": round(proportion(j), 3)}
+            row = {"subject_proportion": round(proportion(j), 3), "subject_hip_proportion": round(hip_proportion(j), 3),
+                   "subject_front_view_share": round(facing(j), 3)}
             for wname, w in WEIGHT_SETS.items():
                 row[wname] = fly_weights(style, "open_country", subject, w)
             res["weights"][subject] = row
-            print(f"weights {subject:8s} proportion {row['subject_proportion']} (source "
-                  f"{res['source_proportion']}): " + "; ".join(
+            print(f"weights {subject:8s} shoulders/torso {row['subject_proportion']} hips/torso "
+                  f"{row['subject_hip_proportion']} front view {row['subject_front_view_share']} (source "
+                  f"{res['source_proportion']} {res['source_hip_proportion']} {res['source_front_view_share']}): " + "; ".join(
                       f"{k}: {v['per_joint']}" for k, v in row.items() if isinstance(v, dict)), flush=True)
     Path(args.out).write_text(json.dumps(res, indent=1) + "\n")
     print(f"wrote {args.out}")
