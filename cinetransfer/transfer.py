@@ -437,6 +437,10 @@ def main(argv: list[str]) -> int:
     if not src.is_file():
         print(f"cinetransfer transfer: source video {src} does not exist", file=sys.stderr)
         return 2
+    if args.subject and (args.deployment or getattr(args, "connect", None)):
+        print("cinetransfer transfer: --subject needs the transfer's own deployment; a running bridge films "
+              "the subject it was started with (autopilot_bridge --subject NAME)", file=sys.stderr)
+        return 2
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.monotonic()
     timings: dict[str, float] = {}
