@@ -310,7 +310,9 @@ def _parse_subject(d: dict, swap: str | None = None) -> SubjectSpec:
         acts = set(info["actions"]) | ({"walk"} if "run" in info["actions"] else set())
         if not isinstance(script, list) or any(not isinstance(s, dict) or s.get("action") not in acts
                                                for s in script):
-            script = info.get("default_script", [])
+            x0, y0 = _vec(d, "start_m", w, 2, (0.0, 0.0))
+            script = [{**st, **({"path_m": [[x + x0, y + y0] for x, y in st["path_m"]]} if "path_m" in st else {})}
+                      for st in info.get("default_script", [])]
     info = subject_info(clip)
     if not isinstance(script, list) or not script:
         raise SceneError(f"{w}.script: required, a non-empty list of steps "
