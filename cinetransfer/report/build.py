@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
+import cv2
 import numpy as np
 
 from cinetransfer.report import fidelity as F
@@ -143,8 +144,15 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
                                             output_video=output_video, credit=credit,
                                             repeated_slots=meta.get("repeated_slots") or (), shot_rows=shot_rows)
 
+    from cinetransfer.report.people import make_people
+
+    try:
+        people = make_people(outdir, meta, source_video)
+    except (OSError, ValueError, KeyError, cv2.error) as e:  # the report never fails on this picture
+        people = {"error": str(e)}
     s = fid.series
     summary: dict[str, Any] = {
+        "people": people,
         "format": REPORT_FORMAT, "version": REPORT_VERSION,
         "generated": time.strftime("%Y-%m-%d %H:%M:%S"),
         **fid.summary,

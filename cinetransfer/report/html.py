@@ -202,6 +202,20 @@ def _img(path: Path, embed: bool) -> str:
     return f"<img alt='{_e(path.name)}' src='{_e(path.name)}'>"
 
 
+def _people_card(p: dict[str, Any], embed: bool) -> str:
+    """Source person and target person, named, side by side."""
+    if not p.get("target_person"):
+        return ""
+    fig = ""
+    if p.get("figure") and Path(p["figure"]).is_file():
+        fig = ("<figure>" + _img(Path(p["figure"]), embed) + "<figcaption>left: the source clip (middle frame); "
+               "right: the target subject (a cut-out of its own footage)</figcaption></figure>")
+    return (f"<h2>People</h2><div class='card'><table class='meta'>"
+            f"<tr><td>source (style from)</td><td>{_e(p.get('source_person'))}</td></tr>"
+            f"<tr><td>target (filmed)</td><td>{_e(p.get('target_person'))} [subject '{_e(p.get('subject'))}']"
+            f"</td></tr></table>{fig}</div>")
+
+
 def render_html(summary: dict[str, Any], figures: dict[str, Path], *, meta: dict[str, Any],
                 figure_errors: dict[str, str] | None = None, credit: str = "", embed: bool = True) -> str:
     """The whole report page as a string."""
@@ -273,6 +287,7 @@ and focus agreement ≥ {F.EXTRACTION_FOCUS_AGREEMENT_MIN:.0%} per region; by gr
 and ≥ {F.TRUTH_FOCUS_AGREEMENT_MIN:.0%}.</span>
 </div>
 {''.join(warn)}
+{_people_card(summary.get("people") or {}, embed)}
 <h2>Goals</h2>
 <div class="card">{_goals_table(summary)}</div>
 {_shots_table(summary)}

@@ -231,6 +231,8 @@ class BridgeConfig:
     backend: str = "sim"
     #: simulator scene: a bundled scene name or a path to a scene file (sim backend only).
     scene: str = "lawn_juggler"
+    #: simulator subject: a person from the subject library in place of the scene's own ('' = the scene's).
+    subject: str = ""
     #: control loop rate [Hz]: setpoints are checked, the backend stepped and state published.
     rate_hz: float = 50.0
     #: publish frames as JPEG of this quality (1..100) for a radio link; 0 = raw (one host).

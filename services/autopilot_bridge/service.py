@@ -55,7 +55,7 @@ def _floats(n: int):
 
 #: flag dest -> (config section, field)
 _FLAG_FIELDS = {
-    "backend": ("bridge", "backend"), "scene": ("bridge", "scene"), "rate": ("bridge", "rate_hz"),
+    "backend": ("bridge", "backend"), "scene": ("bridge", "scene"), "subject": ("bridge", "subject"), "rate": ("bridge", "rate_hz"),
     "jpeg": ("bridge", "jpeg_quality"), "realtime": ("bridge", "sim_clock"), "step": ("bridge", "step_s"),
     "pace": ("bridge", "pace"), "setpoint_wait": ("bridge", "setpoint_wait_s"),
     "home": ("safety", "home_m"), "geofence": ("safety", "geofence_shape"),
@@ -78,6 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
     g = ap.add_argument_group("bridge")
     g.add_argument("--backend", choices=BACKENDS, default=None, help="vehicle backend (default sim)")
     g.add_argument("--scene", default=None, help="simulator scene name or file (sim backend)")
+    g.add_argument("--subject", default=None, help="simulator subject from the library in place of the scene's")
     g.add_argument("--rate", type=float, default=None, metavar="HZ", help="control loop rate (default 50)")
     g.add_argument("--jpeg", type=int, default=None, metavar="QUALITY",
                    help="publish frames as JPEG of this quality (for radio links); default raw")
@@ -161,7 +162,7 @@ def make_backend(cfg: BridgeConfig) -> VehiclePort:
     # time nothing is skipped: rendering overlaps the planner's solve, and a step ends with its
     # frames.
     lag = SIM_MAX_FRAME_LAG_S if cfg.sim_clock == "realtime" else None
-    return SimBackend(load_scene(cfg.scene), max_frame_lag_s=lag, async_render=True)
+    return SimBackend(load_scene(cfg.scene, subject=cfg.subject or None), max_frame_lag_s=lag, async_render=True)
 
 
 # ----------------------------------------------------------------------------- service

@@ -87,8 +87,9 @@ def _bridge_scenes() -> tuple[Any, list[str]] | None:
     return sb, scene_names()
 
 
-def make_sim(scene: str | None, bounds: pc.Bounds) -> tuple[Any, str]:
-    """(simulator, description) for a scene name; see the module docstring for the rules."""
+def make_sim(scene: str | None, bounds: pc.Bounds, subject: str | None = None) -> tuple[Any, str]:
+    """(simulator, description) for a scene name; see the module docstring for the rules.
+    `subject`: another person from the bridge simulator's subject library (bridge scenes only)."""
     if scene and scene.startswith("kinematic:"):
         name = scene.split(":", 1)[1]
         if name not in SCENES:
@@ -103,10 +104,13 @@ def make_sim(scene: str | None, bounds: pc.Bounds) -> tuple[Any, str]:
             scene = "lawn_juggler" if "lawn_juggler" in names else names[0]
         if scene is not None and (scene in names or Path(scene).suffix in (".yaml", ".yml")):
             try:
-                backend = sb.SimBackend(sb.load_scene(scene), render=False, truth=False)
+                backend = sb.SimBackend(sb.load_scene(scene, subject=subject), render=False, truth=False)
             except TypeError:  # an older simulator without these options
                 backend = sb.SimBackend(sb.load_scene(scene))
-            return BridgeSimAdapter(backend), f"bridge simulator:{scene}"
+            who = f" ({backend.scene.subject.clip})" if subject else ""
+            return BridgeSimAdapter(backend), f"bridge simulator:{scene}{who}"
+    if subject:
+        raise ValueError(f"--subject {subject!r} needs a bridge-simulator scene, not {scene!r}")
     scene = scene or "standing"
     if scene in SCENES:
         return KinematicSim(SCENES[scene], bounds=bounds), f"kinematic:{scene}"
@@ -143,6 +147,9 @@ def main(argv: list[str]) -> int:
                    help="simulator scene: a bridge-simulator scene name/file, or a kinematic scene "
                         f"({', '.join(sorted(SCENES))}; 'kinematic:NAME' forces it). Default: the bridge "
                         "simulator's 'lawn_juggler' if installed, else kinematic 'standing'")
+    p.add_argument("--subject", default=None, metavar="NAME",
+                   help="bridge-simulator scenes: the filmed person from the subject library "
+                        "(juggler, dancer, runner, walker; default: the scene's own)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="seconds to fly (default: the style)")
     p.add_argument("--config", metavar="YAML", default=None, help="planner parameters (as for 'cinetransfer planner')")
     p.add_argument("--rate", type=float, default=None, metavar="HZ", help="replanning rate (default 20)")
@@ -163,7 +170,7 @@ def main(argv: list[str]) -> int:
         cfg = config_from_args(ns)
         # in-process the simulated clock waits for the solver: give it room (budget = 10 periods)
         cfg = dataclasses.replace(cfg, max_solve_time_s=max(cfg.max_solve_time_s, 10.0 / cfg.rate_hz))
-        sim, what = make_sim(args.scene, cfg.bounds)
+        sim, what = make_sim(args.scene, cfg.bounds, subject=args.subject)
     except (StyleFileError, pc.ConfigError, ValueError, OSError) as e:
         print(f"cinetransfer plan: {e}", file=sys.stderr)
         return 2

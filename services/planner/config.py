@@ -238,6 +238,12 @@ class PlannerConfig:
     clamp_tolerance: float = 0.05  # measured state outside a hard bound by <= this fraction of the range is clamped
     autostart: bool = False  # start the recording when the first instructions arrive (else wait for 'start')
     mu_default_m: float = 1.0  # DoF margin when the instructions carry none (mu <= 0) [m]
+    #: per-joint factors on the image term, ((COCO-17 name, factor >= 0), ...); unnamed joints 1.
+    #: How the planner trades joint targets it cannot all meet (another body): docs/planner.md.
+    joint_weights: tuple[tuple[str, float], ...] = ()
+
+    def joint_weight(self, name: str) -> float:
+        return dict(self.joint_weights).get(name, 1.0)
 
     def validate(self) -> "PlannerConfig":
         self.structure.validate()
@@ -249,6 +255,12 @@ class PlannerConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise _bad("", name, v, "a finite value > 0")
+        from cinetransfer.shared.messages import COCO17_NAMES
+
+        for name, v in self.joint_weights:
+            if name not in COCO17_NAMES or not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise _bad("", "joint_weights", (name, v), f"a COCO-17 name ({', '.join(COCO17_NAMES)}) "
+                           "and a finite factor >= 0")
         for name in ("tail_max_s", "setpoint_lead_s", "clamp_tolerance", "feasibility_tol"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
@@ -286,6 +298,8 @@ def from_dict(d: dict[str, Any]) -> PlannerConfig:
         if "compile_flags" in sub:
             sub["compile_flags"] = tuple(sub["compile_flags"])
         kw[g] = cls(**sub)
+    if isinstance(d.get("joint_weights"), dict):
+        d["joint_weights"] = tuple(sorted((str(k), float(v)) for k, v in d["joint_weights"].items()))
     names = {f.name for f in dataclasses.fields(PlannerConfig)}
     unknown = set(d) - names
     if unknown:

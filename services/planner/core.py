@@ -301,7 +301,7 @@ class Planner:
         for j, name in enumerate(ctrl):
             if name in names and finite[names.index(name)]:
                 jw[j] = joints[names.index(name)]
-                jmask[j] = 1.0
+                jmask[j] = self.cfg.joint_weight(name)  # 1 unless config.joint_weights says otherwise
         # --- instruction rows of the stages
         rows, frame = self._rows(now_ns, ins, n, dt)
         targets = np.zeros((n, e_max, 2))
@@ -312,7 +312,7 @@ class Planner:
             t = ti[r, :ne]
             ok = np.all(np.isfinite(t), axis=1) & (jmask[:ne] > 0)
             targets[k, :ne][ok] = t[ok]
-            mask[k, :ne] = ok
+            mask[k, :ne] = ok * jmask[:ne]
         # --- depth-of-field targets from the predicted subject depth along the planned camera
         mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
         focus = np.asarray(ins.focus_in, dtype=bool)

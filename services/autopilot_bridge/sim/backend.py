@@ -91,7 +91,7 @@ class SceneRenderer:
             self._ground_tex = Texture.from_bgra(tiled, wrap="wrap")
             self._ground_period_m = (tiled.shape[1] * scene.ground.m_per_px, tiled.shape[0] * scene.ground.m_per_px)
         self._clip_tex = {id(f): Texture.from_bgra(f.texture, premultiplied=True)
-                          for f in self.subject.clip.frames + self.subject.clip.sit_frames}
+                          for f in self.subject.clip.frames}
         self.last_draw: list[DrawInfo] = []
 
     # -- geometry --------------------------------------------------------------------------
@@ -128,7 +128,7 @@ class SceneRenderer:
     def planes(self, view: View, t_s: float) -> tuple[list[Plane], dict]:
         """Planes in draw order (far to near) and the subject's geometry at time t_s."""
         pose = self.subject.script.pose_at(t_s)
-        frame = self.subject.frame_at(t_s, pose.action)
+        frame = self.subject.frame_at(t_s, pose.action, float(np.hypot(*pose.velocity_mps[:2])))
         root = pose.position_m
         joints = self.subject.joints_world(frame, root, view.position_m)
         right, _ = self.subject.facing_axes(root, view.position_m)

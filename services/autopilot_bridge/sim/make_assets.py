@@ -343,6 +343,9 @@ def main(argv: list[str] | None = None) -> int:
     if "juggler" in only:
         plate = make_juggler(args.data, args.out)
         cv2.imwrite(str(plate_path), plate)
+        from cinetransfer.services.autopilot_bridge.sim.make_subjects import add_juggler_fields
+
+        add_juggler_fields(args.out)  # his subject-library fields (actions, person, credit, height)
     else:
         plate = cv2.imread(str(plate_path))
         if plate is None:

@@ -20,7 +20,10 @@ from cinetransfer.services.autopilot_bridge.sim.dynamics import DynamicsLimits
 SCENES_DIR = Path(__file__).resolve().parent / "scenes"
 ASSETS_DIR = Path(__file__).resolve().parent / "assets"
 
-ACTIONS = ("stand", "walk", "sit")
+#: what a step may ask for; which of them a subject can do is in its library entry (subjects())
+ACTIONS = ("stand", "walk", "run", "juggle", "dance", "twirl", "vault")
+#: steps that follow a path (`path_m`, `speed_mps`); the others stay at a point for `duration_s`
+MOVING = ("walk", "run")
 REGIONS = ("foreground", "background", "sky")
 WRAPS = ("none", "reflect", "replicate")
 
@@ -161,7 +164,7 @@ class SubjectSpec:
     loop: bool = True
     start_m: tuple[float, float] = (0.0, 0.0)
     subject_id: str = "subject"
-    clip_fps: float = 12.0
+    clip_fps: float | None = None  # None: each action's own rate from the library
 
 
 @dataclass(frozen=True)
@@ -235,46 +238,97 @@ def _parse_layer(d: dict, i: int) -> LayerSpec:
                      wrap=wrap, extent_m=extent, distance_m=distance)
 
 
-def _parse_step(d: dict, i: int) -> ScriptStep:
+def subject_names() -> list[str]:
+    """Names of the subjects in the library (assets/<name>.json with an `actions` table)."""
+    return sorted(n for n, _ in _library().items())
+
+
+def _library() -> dict[str, dict]:
+    import json
+
+    out = {}
+    for p in sorted(ASSETS_DIR.glob("*.json")):
+        try:
+            meta = json.loads(p.read_text())
+        except ValueError:
+            continue
+        if isinstance(meta, dict) and "actions" in meta and "frames" in meta:
+            out[p.stem] = meta
+    return out
+
+
+def subject_info(name: str) -> dict:
+    """The library entry of a subject: person, source, credit, height_m, actions, default_script."""
+    import json
+
+    p = _asset(f"{name}.json", "subject.clip")
+    meta = json.loads(p.read_text())
+    if "actions" not in meta:
+        raise SceneError(f"subject.clip: {p.name} is not a library subject (no actions); "
+                         f"subjects: {subject_names()}")
+    return meta
+
+
+def _parse_step(d: dict, i: int, subject: str = "", actions: tuple[str, ...] = ACTIONS) -> ScriptStep:
     w = f"subject.script[{i}]"
     if not isinstance(d, dict):
         raise SceneError(f"{w}: must be a mapping")
     _known(d, w, {"action", "duration_s", "at_m", "path_m", "speed_mps"})
     action = _str(d, "action", w, choices=ACTIONS)
+    # a 'walk' is done by a walking clip, or else by a running one (at a rate matching the stride)
+    can = set(actions) | ({"walk"} if "run" in actions else set())
+    if action not in can:
+        raise SceneError(f"{w}.action: subject {subject!r} has no action {action!r}; "
+                         f"its actions: {sorted(actions)}")
     at = _vec(d, "at_m", w, 2) if "at_m" in d else None
-    if action == "walk":
+    if action in MOVING:
         path = d.get("path_m")
         if not isinstance(path, list) or not path:
             raise SceneError(f"{w}.path_m: a walk needs a non-empty list of [x, y] waypoints")
         pts = tuple(_vec({"p": p}, "p", f"{w}.path_m[{k}]", 2) for k, p in enumerate(path))
-        speed = _num(d, "speed_mps", w, 1.2, positive=True, hi=10.0)
+        speed = _num(d, "speed_mps", w, 1.2 if action == "walk" else 3.0, positive=True, hi=10.0)
         return ScriptStep(action=action, duration_s=_num(d, "duration_s", w, 0.0, lo=0.0), at_m=at,
                           path_m=pts, speed_mps=speed)
     if "path_m" in d:
-        raise SceneError(f"{w}.path_m: only a 'walk' has a path")
+        raise SceneError(f"{w}.path_m: only a {' or '.join(repr(a) for a in MOVING)} has a path")
     return ScriptStep(action=action, duration_s=_num(d, "duration_s", w, positive=True), at_m=at)
 
 
-def _parse_subject(d: dict) -> SubjectSpec:
+def _parse_subject(d: dict, swap: str | None = None) -> SubjectSpec:
     w = "subject"
     _known(d, w, {"clip", "height_m", "script", "loop", "start_m", "id", "clip_fps"})
     clip = _str(d, "clip", w)
-    _asset(f"{clip}.json", w + ".clip")
     script = d.get("script")
+    if swap is not None and swap != clip:
+        # --subject: another person in this scene; its own height, and its default script when
+        # the scene's script asks for an action this person does not do
+        if swap not in subject_names():
+            raise SceneError(f"subject {swap!r} is not in the library; subjects: {subject_names()}")
+        clip = swap
+        d = {k: v for k, v in d.items() if k != "height_m"}
+        info = subject_info(clip)
+        acts = set(info["actions"]) | ({"walk"} if "run" in info["actions"] else set())
+        if not isinstance(script, list) or any(not isinstance(s, dict) or s.get("action") not in acts
+                                               for s in script):
+            x0, y0 = _vec(d, "start_m", w, 2, (0.0, 0.0))
+            script = [{**st, **({"path_m": [[x + x0, y + y0] for x, y in st["path_m"]]} if "path_m" in st else {})}
+                      for st in info.get("default_script", [])]
+    info = subject_info(clip)
     if not isinstance(script, list) or not script:
         raise SceneError(f"{w}.script: required, a non-empty list of steps "
-                         f"(each with action in {list(ACTIONS)})")
+                         f"(subject {clip!r} does {sorted(info['actions'])})")
     loop = d.get("loop", True)
     if not isinstance(loop, bool):
         raise SceneError(f"{w}.loop: must be true or false")
-    return SubjectSpec(clip=clip, height_m=_num(d, "height_m", w, 1.78, lo=0.5, hi=2.5),
-                       script=tuple(_parse_step(s, i) for i, s in enumerate(script)), loop=loop,
+    acts = tuple(sorted(info["actions"]))
+    return SubjectSpec(clip=clip, height_m=_num(d, "height_m", w, float(info.get("height_m", 1.75)), lo=0.5, hi=2.5),
+                       script=tuple(_parse_step(s, i, clip, acts) for i, s in enumerate(script)), loop=loop,
                        start_m=_vec(d, "start_m", w, 2, (0.0, 0.0)), subject_id=_str(d, "id", w, "subject"),
-                       clip_fps=_num(d, "clip_fps", w, 12.0, positive=True, hi=120))
+                       clip_fps=_num(d, "clip_fps", w, positive=True, hi=120) if "clip_fps" in d else None)
 
 
-def parse_scene(doc: Any, path: Path | None = None) -> Scene:
-    """Validate a scene document (the YAML's mapping)."""
+def parse_scene(doc: Any, path: Path | None = None, subject: str | None = None) -> Scene:
+    """Validate a scene document (the YAML's mapping); `subject` swaps in another library person."""
     if not isinstance(doc, dict):
         raise SceneError("scene: the file must contain a mapping at the top level")
     _known(doc, "scene", {"name", "description", "seed", "camera", "vehicle", "limits", "ground", "layers",
@@ -302,7 +356,7 @@ def parse_scene(doc: Any, path: Path | None = None) -> Scene:
                  vehicle=_parse_vehicle(_dict(doc, "vehicle", "scene", required=True)),
                  limits=limits, ground=ground,
                  layers=tuple(_parse_layer(d, i) for i, d in enumerate(layers)),
-                 subject=_parse_subject(_dict(doc, "subject", "scene", required=True)), path=path)
+                 subject=_parse_subject(_dict(doc, "subject", "scene", required=True), subject), path=path)
 
 
 def scene_names() -> list[str]:
@@ -310,8 +364,9 @@ def scene_names() -> list[str]:
     return sorted(p.stem for p in SCENES_DIR.glob("*.yaml"))
 
 
-def load_scene(name_or_path: str | Path) -> Scene:
-    """A bundled scene by name ('lawn_juggler') or a scene file by path."""
+def load_scene(name_or_path: str | Path, subject: str | None = None) -> Scene:
+    """A bundled scene by name ('lawn_juggler') or a scene file by path; `subject`: another
+    person from the library in place of the scene's own (see subject_names())."""
     p = Path(name_or_path)
     if not p.suffix:
         cand = SCENES_DIR / f"{name_or_path}.yaml"
@@ -325,6 +380,6 @@ def load_scene(name_or_path: str | Path) -> Scene:
     except yaml.YAMLError as e:
         raise SceneError(f"{p}: not valid YAML: {e}") from None
     try:
-        return parse_scene(doc, p)
+        return parse_scene(doc, p, subject)
     except SceneError as e:
         raise SceneError(f"{p.name}: {e}") from None

@@ -1,15 +1,19 @@
-"""The filmed subject: scripted motion and 3-D COCO-17 joints consistent with its cut-out.
+"""The filmed subject: a person from the subject library, scripted, with 3-D COCO-17 joints.
 
 The subject is drawn as a camera-facing billboard (a real person cut out of a real clip, see
-assets/), so the person always turns to face the camera about the vertical axis — like a
-performer playing to the camera. Its joints are the joints measured in the cut-out, placed on
-that billboard plane, so that projecting them gives exactly where the drawn person's joints are.
+assets/ and make_subjects.py), so the person always turns to face the camera about the vertical
+axis — like a performer playing to the camera. Its joints are the joints measured in the cut-out,
+placed on that billboard plane, so that projecting them gives exactly where the drawn person's
+joints are.
 
-Script actions (scene.ScriptStep):
-- stand: stay at `at_m` (or where the previous step ended) for `duration_s`;
-- walk: follow `path_m` waypoints at `speed_mps` (the clip keeps playing: the legs move);
-- sit: stay for `duration_s` in a seated pose — the cut-out's thighs are folded towards the camera
-  (frontal view: the torso drops by the thigh length, knees just under the hips).
+Library (`subject_names()`): juggler (juggle, stand), dancer (dance, twirl), runner (run, vault),
+walker (walk). A script step's action must be one its subject does (scene.py checks it); each
+action plays the cut-outs that show it in the footage (`pingpong` or `cycle` loop). Steps:
+- in place (stand, juggle, dance, twirl, vault): stay at `at_m` (or where the previous step ended)
+  for `duration_s`;
+- moving (walk, run): follow `path_m` at `speed_mps`. The gait plays at
+  `fps x speed_mps / natural speed` (its stride matches the ground speed: no sliding feet);
+  'walk' uses the walking clip, or the running one when the subject only runs.
 The script repeats when `loop` is true, else the last state is held.
 """
 from __future__ import annotations
@@ -23,11 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from cinetransfer.services.autopilot_bridge.sim.scene import ASSETS_DIR, SubjectSpec
-
-L_HIP, R_HIP, L_KNEE, R_KNEE = 11, 12, 13, 14
-#: seated: how much of the hip-to-knee band remains (foreshortened thighs).
-SIT_THIGH_KEEP = 0.25
+from cinetransfer.services.autopilot_bridge.sim.scene import ASSETS_DIR, MOVING, SubjectSpec
 
 
 @dataclass(frozen=True)
@@ -36,15 +36,38 @@ class ClipFrame:
 
     texture: np.ndarray  # (h, w, 4) uint8, colour premultiplied by alpha
     joints_px: np.ndarray  # (17, 2) float (x right, y down)
-    anchor_px: tuple[float, float]  # ground contact point (between the feet)
+    anchor_px: tuple[float, float]  # ground point under the subject (between the feet)
+    contact: bool = True  # a foot is on the ground (False mid-air: jumps, running flight)
+
+
+@dataclass(frozen=True)
+class Action:
+    """The cut-outs that show one action, how they loop, and (moving actions) the natural speed."""
+
+    name: str
+    frames: tuple[int, ...]  # indices into Clip.frames
+    loop: str  # 'pingpong' (forth and back, no jump) or 'cycle' (a gait cycle, forward only)
+    fps: float
+    speed_mps: float | None = None
 
 
 @dataclass(frozen=True)
 class Clip:
     name: str
     frames: tuple[ClipFrame, ...]
-    sit_frames: tuple[ClipFrame, ...]
+    actions: dict
     standing_height_px: float
+    person: str = ""
+    source: str = ""
+    credit: str = ""
+    height_m: float = 1.75
+
+    def action(self, name: str) -> Action:
+        if name in self.actions:
+            return self.actions[name]
+        if name == "walk" and "run" in self.actions:
+            return self.actions["run"]
+        raise ValueError(f"subject {self.name!r} has no action {name!r}; its actions: {sorted(self.actions)}")
 
 
 def _premultiply(bgra: np.ndarray) -> np.ndarray:
@@ -54,35 +77,7 @@ def _premultiply(bgra: np.ndarray) -> np.ndarray:
     return out
 
 
-def _sit(frame: ClipFrame) -> ClipFrame:
-    """Fold the thighs: compress the hip→knee band of the cut-out (rows), move joints with it."""
-    tex, j = frame.texture, frame.joints_px
-    h, w = tex.shape[:2]
-    yh = float((j[L_HIP, 1] + j[R_HIP, 1]) / 2)
-    yk = float((j[L_KNEE, 1] + j[R_KNEE, 1]) / 2)
-    band = max(yk - yh, 1.0)
-    drop = band * (1.0 - SIT_THIGH_KEEP)
-    new_h = int(round(h - drop))
-
-    def src_row(y: np.ndarray) -> np.ndarray:  # new row -> old row
-        return np.where(y < yh, y, np.where(y < yh + band * SIT_THIGH_KEEP,
-                                            yh + (y - yh) / SIT_THIGH_KEEP, y + drop))
-
-    def dst_row(y: np.ndarray) -> np.ndarray:  # old row -> new row
-        return np.where(y < yh, y, np.where(y < yk, yh + (y - yh) * SIT_THIGH_KEEP, y - drop))
-
-    # the whole body is shifted down by `drop` so that the feet stay on the ground
-    ys = np.arange(new_h, dtype=np.float32)
-    map_y = np.repeat(src_row(ys)[:, None], w, axis=1).astype(np.float32)
-    map_x = np.repeat(np.arange(w, dtype=np.float32)[None, :], new_h, axis=0)
-    out = cv2.remap(tex, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    jj = j.copy()
-    jj[:, 1] = dst_row(j[:, 1])
-    ax, ay = frame.anchor_px
-    return ClipFrame(texture=out, joints_px=jj, anchor_px=(ax, float(dst_row(np.array(ay)))))
-
-
-@lru_cache(maxsize=8)
+@lru_cache(maxsize=16)
 def load_clip(name: str, assets_dir: str | None = None) -> Clip:
     """Cut-outs `<name>_NN.png` + `<name>.json` from the assets folder (cached)."""
     d = Path(assets_dir) if assets_dir else ASSETS_DIR
@@ -93,10 +88,15 @@ def load_clip(name: str, assets_dir: str | None = None) -> Clip:
         if img is None or img.ndim != 3 or img.shape[2] != 4:
             raise ValueError(f"clip {name}: {fr['file']} is not a BGRA image")
         frames.append(ClipFrame(texture=_premultiply(img), joints_px=np.asarray(fr["joints_px"], float),
-                                anchor_px=tuple(fr["anchor_px"])))
-    frames_t = tuple(frames)
-    return Clip(name=name, frames=frames_t, sit_frames=tuple(_sit(f) for f in frames_t),
-                standing_height_px=float(meta["height_px_standing"]))
+                                anchor_px=tuple(fr["anchor_px"]), contact=bool(fr.get("contact", True))))
+    acts = meta.get("actions") or {"stand": {"frames": list(range(len(frames))), "loop": "pingpong", "fps": 12.0}}
+    actions = {k: Action(name=k, frames=tuple(int(i) for i in a["frames"]), loop=a.get("loop", "pingpong"),
+                         fps=float(a.get("fps", 12.0)), speed_mps=a.get("speed_mps"))
+               for k, a in acts.items()}
+    return Clip(name=name, frames=tuple(frames), actions=actions,
+                standing_height_px=float(meta["height_px_standing"]), person=meta.get("person", name),
+                source=meta.get("source", ""), credit=meta.get("credit", ""),
+                height_m=float(meta.get("height_m", 1.75)))
 
 
 @dataclass(frozen=True)
@@ -120,7 +120,7 @@ class SubjectScript:
         t = 0.0
         pos = np.array(spec.start_m, float)
         for i, st in enumerate(spec.script):
-            if st.action == "walk":
+            if st.action in MOVING:
                 pts = [pos.copy()] + [np.array(p, float) for p in st.path_m]
                 if st.at_m is not None:
                     pts[0] = np.array(st.at_m, float)
@@ -129,11 +129,11 @@ class SubjectScript:
                     if dist < 1e-9:
                         continue
                     dt = dist / st.speed_mps
-                    segs.append((t, t + dt, "walk", a, b, i))
+                    segs.append((t, t + dt, st.action, a, b, i))
                     t += dt
                 pos = pts[-1]
                 if st.duration_s > 0:  # pause at the end of the walk, still walking in place
-                    segs.append((t, t + st.duration_s, "walk_idle", pos.copy(), pos.copy(), i))
+                    segs.append((t, t + st.duration_s, st.action + "_idle", pos.copy(), pos.copy(), i))
                     t += st.duration_s
             else:
                 if st.at_m is not None:
@@ -141,7 +141,7 @@ class SubjectScript:
                 segs.append((t, t + st.duration_s, st.action, pos.copy(), pos.copy(), i))
                 t += st.duration_s
         if not segs:
-            segs.append((0.0, 1.0, "stand", pos.copy(), pos.copy(), 0))
+            segs.append((0.0, 1.0, spec.script[0].action if spec.script else "stand", pos.copy(), pos.copy(), 0))
             t = 1.0
         self.segments = segs
         self.period_s = t
@@ -161,17 +161,19 @@ class SubjectScript:
         s = min(max((t - t0) / span, 0.0), 1.0)
         xy = a + (b - a) * s
         ended = not self.spec.loop and t_s >= self.period_s
-        vel = (b - a) / span if kind == "walk" and not ended else np.zeros(2)
-        action = "walk" if kind == "walk_idle" else kind
+        vel = (b - a) / span if kind in MOVING and not ended else np.zeros(2)
+        action = kind.removesuffix("_idle")
         return SubjectPose(position_m=np.array([xy[0], xy[1], self.z]),
                            velocity_mps=np.array([vel[0], vel[1], 0.0]), action=action, step_index=i)
 
 
-def clip_frame_index(t_s: float, n: int, fps: float) -> int:
-    """Ping-pong playback of an n-frame loop (no jump at the wrap)."""
+def clip_frame_index(t_s: float, n: int, fps: float, loop: str = "pingpong") -> int:
+    """Ping-pong (no jump at the wrap) or cyclic playback of an n-frame loop."""
     if n <= 1:
         return 0
     k = int(math.floor(t_s * fps + 1e-9))
+    if loop == "cycle":
+        return k % n
     period = 2 * (n - 1)
     k %= period
     return k if k < n else period - k
@@ -186,9 +188,18 @@ class Subject:
         self.clip = load_clip(spec.clip, assets_dir)
         self.m_per_px = spec.height_m / self.clip.standing_height_px
 
-    def frame_at(self, t_s: float, action: str) -> ClipFrame:
-        frames = self.clip.sit_frames if action == "sit" else self.clip.frames
-        return frames[clip_frame_index(t_s, len(frames), self.spec.clip_fps)]
+    def playback(self, action: str, speed_mps: float = 0.0) -> tuple[Action, float]:
+        """(the clip action, its playback rate [cut-outs/s]) for a script action at a speed."""
+        act = self.clip.action(action)
+        fps = self.spec.clip_fps or act.fps
+        if act.speed_mps and speed_mps > 0:  # the stride matches the ground speed
+            fps *= speed_mps / float(act.speed_mps)
+        return act, fps
+
+    def frame_at(self, t_s: float, action: str, speed_mps: float = 0.0) -> ClipFrame:
+        act, fps = self.playback(action, speed_mps)
+        k = clip_frame_index(t_s, len(act.frames), fps, act.loop)
+        return self.clip.frames[act.frames[k]]
 
     @staticmethod
     def facing_axes(root_m: np.ndarray, camera_pos_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
