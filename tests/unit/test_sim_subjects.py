@@ -18,7 +18,6 @@ from cinetransfer.services.autopilot_bridge.sim.backend import SimBackend
 from cinetransfer.services.autopilot_bridge.sim.scene import (ASSETS_DIR, SceneError, load_scene, parse_scene,
                                                               scene_names, subject_info, subject_names)
 from cinetransfer.services.autopilot_bridge.sim.subject import load_clip
-from cinetransfer.shared import camera as cam
 
 SUBJECTS = ("juggler", "dancer", "runner", "walker")
 N_FRAMES = 50
