@@ -1,8 +1,9 @@
-"""The recorder of a transfer: every message of the rig into the run log, the take's frames into
-output.mp4 and their ground truth into a list, each frame in its slot.
+"""The recorder of a transfer: every message of the rig into the recording (run.mcap, see
+shared/runlog.py), the take's frames into output.mp4 (H.264) and their ground truth into a list,
+each frame in its slot.
 
 The Zenoh callback only enqueues (key, payload, receive time); one worker thread writes the
-log, decodes what it needs and feeds two `TakeAssembler`s (frames, truths). Which recorded
+recording, decodes what it needs and feeds two `TakeAssembler`s (frames, truths). Which recorded
 frame is slot k of the take is set by `arm_exact` (simulation time: the camera frame index
 since the simulation reset) or `arm_realtime` (wall clock: the frame stamp).
 """
@@ -19,7 +20,8 @@ import numpy as np
 
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
-from cinetransfer.shared.recording import LogWriter
+from cinetransfer.shared.runlog import RunWriter
+from cinetransfer.shared.video import H264Writer
 from cinetransfer.take import Placed, TakeAssembler, TakeSummary
 
 log = logging.getLogger("cinetransfer.recorder")
@@ -50,7 +52,7 @@ class Recorder:
 
     def __init__(self, session: Any, rig: str, outdir: Path, meta: dict) -> None:
         self.outdir = outdir
-        self.log = LogWriter(outdir / "run.ctlog", meta)
+        self.log = RunWriter(outdir / "run.mcap", meta)
         self.frame_key, self.truth_key = keys.FRAME.key(rig), keys.SIM_TRUTH.key(rig)
         self.clock_key = keys.SIM_CLOCK.key(rig)
         self.health: dict[str, M.Health] = {}
@@ -118,14 +120,9 @@ class Recorder:
                 self._progress.notify_all()
 
     def _write_frame(self, p: Placed) -> None:
-        import cv2
-
-        img = np.asarray(p.item.image)
         if self._video is None:
-            h, w = img.shape[:2]
-            self._video = cv2.VideoWriter(str(self.outdir / "output.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
-                                          self._window.fps, (w, h))
-        self._video.write(img)
+            self._video = H264Writer(self.outdir / "output.mp4", self._window.fps)
+        self._video.write(np.asarray(p.item.image))
 
     def _add_truth(self, p: Placed) -> None:
         self.truths.append(dataclasses.replace(p.item, frame_index=p.slot))
@@ -153,7 +150,7 @@ class Recorder:
         self._q.put(None)
         self._worker.join()
         if self._video is not None:
-            self._video.release()
+            self._video.close()
         self.log.close()
         if self._frames is None or self._truth_asm is None:
             return None, None
