@@ -154,10 +154,11 @@ def test_an_interrupted_run_leaves_a_recording_the_reader_opens(tmp_path):
     assert [m.index for m in msgs if isinstance(m, M.Frame)] == list(range(30))
     # and the mcap library's streaming reader reads the same messages before it meets the end
     from mcap.exceptions import EndOfFile
-    from mcap.reader import NonSeekingReader
+    from mcap.records import Message
+    from mcap.stream_reader import StreamReader
 
     n = 0
     with open(path, "rb") as f, pytest.raises(EndOfFile):
-        for _ in NonSeekingReader(f).iter_messages():
-            n += 1
+        for rec in StreamReader(f).records:
+            n += isinstance(rec, Message)
     assert n == 30 * 3  # state, frame image, frame info
