@@ -161,4 +161,4 @@ def test_an_interrupted_run_leaves_a_recording_the_reader_opens(tmp_path):
     with open(path, "rb") as f, pytest.raises(EndOfFile):
         for rec in StreamReader(f).records:
             n += isinstance(rec, Message)
-    assert n == 30 * 3  # state, frame image, frame info
+    assert n == 30 * 5  # state and its two transforms, frame image and info
