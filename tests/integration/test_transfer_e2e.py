@@ -13,7 +13,8 @@ from cinetransfer.report.truthfile import read_truths
 from cinetransfer.services.smoother.instructions import load_style
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
-from cinetransfer.shared.recording import read_log
+from cinetransfer.shared.runlog import RunReader, read_run, size_report
+from cinetransfer.shared.video import probe
 
 FRAMES = 36  # 1.5 s of the 24 fps clip
 
@@ -77,7 +78,7 @@ def test_transfer_through_zenoh_processes(data, tmp_path):
                         "--scene", "open_country", "-o", str(out), "--max-frames", str(FRAMES), "--preroll", "2",
                         "--rig", "e2e"], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-5000:]
-    for f in ("style.json", "output.mp4", "output_style.json", "run.ctlog", "truth.msgpack", "report.html",
+    for f in ("style.json", "output.mp4", "output_style.json", "run.mcap", "truth.msgpack", "report.html",
               "report.json", "meta.json"):
         assert (out / f).is_file(), f
 
@@ -85,10 +86,10 @@ def test_transfer_through_zenoh_processes(data, tmp_path):
     for node in ("router", "planner", "autopilot_bridge"):
         assert (out / "deploy" / f"{node}.log").stat().st_size > 0
 
-    # the run log holds what crossed Zenoh: setpoints from the planner, frames and truth from the bridge
+    # the recording holds what crossed Zenoh: setpoints from the planner, frames and truth from the bridge
     counts: dict[str, int] = {}
     planner_setpoints = []
-    for _, key, payload in read_log(out / "run.ctlog"):
+    for _, key, payload in read_run(out / "run.mcap"):
         counts[key] = counts.get(key, 0) + 1
         if key == keys.SETPOINT.key("e2e"):
             planner_setpoints.append(codec.decode(payload, M.Setpoint))
@@ -96,6 +97,11 @@ def test_transfer_through_zenoh_processes(data, tmp_path):
     assert counts.get(keys.SIM_TRUTH.key("e2e"), 0) >= FRAMES
     assert any(sp.mode == "track" for sp in planner_setpoints)
     assert counts.get(keys.health("e2e", "planner"), 0) >= 1
+    # ... complete, within 2 MB per second of flight, and the output video is H.264 with its index first
+    run = RunReader(out / "run.mcap")
+    assert run.info.complete and 0 < size_report(run.info)["mb_per_flight_s"] <= 2.0, size_report(run.info)
+    vid = probe(out / "output.mp4")
+    assert vid["codec"] == "h264" and vid["faststart"] and vid["frames"] == FRAMES, vid
 
     meta = json.loads((out / "meta.json").read_text())
     assert meta["recorded_frames"] == FRAMES == meta["instruction_frames"]
@@ -154,7 +160,7 @@ def test_ctrl_c_stops_the_vehicle_and_keeps_the_recording(data, tmp_path):
         proc.stdout.close()
     assert rc == 130, log[-3000:]
     # then the planner was told to stop and the bridge to hold, after the take had started
-    actions = [(key, codec.decode(p, M.Command).action) for _, key, p in read_log(out / "run.ctlog")
+    actions = [(key, codec.decode(p, M.Command).action) for _, key, p in read_run(out / "run.mcap")
                if key in (keys.PLANNER_COMMAND.key("ctrlc"), keys.BRIDGE_COMMAND.key("ctrlc"))]
     stop_at = actions.index((keys.PLANNER_COMMAND.key("ctrlc"), "stop"), 1)  # (the first 'stop' precedes the take)
     assert actions[stop_at:stop_at + 2] == [(keys.PLANNER_COMMAND.key("ctrlc"), "stop"),
