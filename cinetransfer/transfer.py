@@ -416,7 +416,8 @@ def _evaluate(out: Path, src: Path, style_path: Path, rec: Recorder, meta: dict)
     from cinetransfer.report import build_report
 
     return build_report(out, source_style=style_path, output_style=out_style, truths=rec.truths,
-                        source_video=src, output_video=out / "output.mp4", meta=meta)
+                        source_video=src, output_video=out / "output.mp4", meta=meta,
+                        recording=out / "run.mcap")
 
 
 def main(argv: list[str]) -> int:
