@@ -162,3 +162,28 @@ def test_an_interrupted_run_leaves_a_recording_the_reader_opens(tmp_path):
         for rec in StreamReader(f).records:
             n += isinstance(rec, Message)
     assert n == 30 * 5  # state and its two transforms, frame image and info
+
+
+def test_report_refuses_a_run_folder_whose_recording_is_damaged_or_foreign(tmp_path):
+    # given a run folder (a style and a synthetic output) whose run.mcap is cut, or someone else's
+    from cinetransfer.report import synth
+    from cinetransfer.services.smoother.instructions import save_style
+
+    run = tmp_path / "run"
+    run.mkdir()
+    save_style(run / "style.json", synth.instructions(12))
+    _write_samples(tmp_path / "ok.mcap")
+    data = (tmp_path / "ok.mcap").read_bytes()
+    for bad, why in ((data[: len(data) // 2], "truncated"), (b"\x89MCAP0\r\n" + b"\0" * 40, "MCAP")):
+        (run / "run.mcap").write_bytes(bad)
+        r = subprocess.run([sys.executable, "-m", "cinetransfer", "report", str(run)], capture_output=True,
+                           text=True, timeout=300)
+        # then the report says what is wrong with which file and exits non-zero
+        assert r.returncode == 1 and "run.mcap" in r.stderr and why in r.stderr, r.stderr
+    # and a sound recording is summarised in the report
+    (run / "run.mcap").write_bytes(data)
+    r = subprocess.run([sys.executable, "-m", "cinetransfer", "report", str(run)], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((run / "report.json").read_text())
+    assert rep["recording_file"]["complete"] is True and "ct/r/camera/frame" in rep["recording_file"]["topics"]

@@ -37,6 +37,29 @@ def busy_cores(n: int = 2) -> list[subprocess.Popen]:
     return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
 
 
+def replayed_frames(path, port, listener_opts, last_index: int) -> None:
+    import threading
+
+    from cinetransfer.shared import zenoh_config
+    from conftest import connect_flags, spawn, wait_for
+
+    got: list[M.Frame] = []
+    lock = threading.Lock()
+    with zenoh_config.open_session(listener_opts) as s:
+        def on(sample):
+            with lock:
+                got.append(codec.decode(sample.payload.to_bytes(), M.Frame))
+        sub = s.declare_subscriber(keys.FRAME.key("again"), on)
+        proc = spawn("replay", str(path), "--rig", "again", "--speed", "4", "--only", "camera/frame",
+                     *connect_flags(port))
+        try:
+            wait_for(lambda: any(f.index == last_index for f in got), timeout=120, what="replayed frames")
+        finally:
+            assert proc.wait(60) == 0
+        sub.undeclare()
+    assert got[-1].image.shape == (540, 960, 3)
+
+
 @pytest.mark.slow
 def test_take_is_frame_exact_and_reproducible_on_a_loaded_machine(data, tmp_path):
     # given one style, flown twice in the same scene: once on a quiet machine, once while two
@@ -72,7 +95,7 @@ def test_take_is_frame_exact_and_reproducible_on_a_loaded_machine(data, tmp_path
 
 
 @pytest.mark.slow
-def test_transfer_through_zenoh_processes(data, tmp_path):
+def test_transfer_through_zenoh_processes(data, tmp_path, port, listener_opts):
     out = tmp_path / "run"
     r = subprocess.run([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
                         "--scene", "open_country", "-o", str(out), "--max-frames", str(FRAMES), "--preroll", "2",
@@ -102,6 +125,9 @@ def test_transfer_through_zenoh_processes(data, tmp_path):
     assert run.info.complete and 0 < size_report(run.info)["mb_per_flight_s"] <= 2.0, size_report(run.info)
     vid = probe(out / "output.mp4")
     assert vid["codec"] == "h264" and vid["faststart"] and vid["frames"] == FRAMES, vid
+    # ... and `replay run.mcap` republishes the camera frames, under another rig name
+    replayed_frames(out / "run.mcap", port, listener_opts, last_index=max(
+        codec.decode(p, M.Frame).index for _, k, p in read_run(out / "run.mcap", keys.FRAME.key("e2e"))))
 
     meta = json.loads((out / "meta.json").read_text())
     assert meta["recorded_frames"] == FRAMES == meta["instruction_frames"]
