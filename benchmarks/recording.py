@@ -79,14 +79,18 @@ def main() -> int:
     p.add_argument("--max-frames", type=int, default=240, help="instruction frames (240 = 10 s at 24 fps)")
     p.add_argument("--run", help="measure this existing run folder instead of running a transfer")
     p.add_argument("--out", default=str(HERE / "results" / "recording.json"))
+    p.add_argument("--keep", help="run the transfer into this folder (kept) instead of a temporary one")
     args = p.parse_args()
     load_before = os.getloadavg()
     tmp = None
     if args.run:
         run, transfer_s = Path(args.run), None
     else:
-        tmp = tempfile.TemporaryDirectory(prefix="ct-bench-rec-")
-        run = Path(tmp.name) / "run"
+        if args.keep:
+            run = Path(args.keep)
+        else:
+            tmp = tempfile.TemporaryDirectory(prefix="ct-bench-rec-")
+            run = Path(tmp.name) / "run"
         src = Path(args.source) if args.source else data_dir() / "sam2_juggle_1280x720.mp4"
         cmd = [sys.executable, "-m", "cinetransfer", "transfer", str(src), "--scene", args.scene, "-o", str(run),
                "--rig", "benchrec", *(["--max-frames", str(args.max_frames)] if args.max_frames else [])]
@@ -135,7 +139,7 @@ def main() -> int:
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
     m = result["mcap"]
-    print(f"run.mcap: {m['bytes'] / 1e6:.2f} MB for {m['flight_s']:.2f} s of flight = {m['mb_per_flight_s']:.3f} MB/s "
+    print(f"run.mcap: {m['bytes'] / 1e6:.2f} MB for {m['flight_s']:.2f} s of flight ({m['camera_frames']} camera frames) = {m['mb_per_flight_s']:.3f} MB/s "
           f"(goal <= 2: {'met' if m['goal_met'] else 'MISSED'}); {m['messages']} MCAP messages, read back in "
           f"{m['read_back_s']} s")
     top = list(m["bytes_by_channel"].items())[:4]

@@ -266,19 +266,21 @@ class RunInfo:
     complete: bool = True  #: False: no footer (the run was interrupted); messages up to the cut are there
     messages: int = 0
     channels: dict[str, dict[str, Any]] = field(default_factory=dict)  #: topic -> {schema, encoding, count, role}
-    start_ns: int = 0
-    end_ns: int = 0
     bytes: int = 0
+    frame_stamps: list[int] = field(default_factory=list)  #: stamps of the camera frames (ct/RIG/camera/frame)
 
-    frames: int = 0  #: camera frames (ct/RIG/camera/frame)
+    @property
+    def frames(self) -> int:
+        return len(self.frame_stamps)
 
     def flight_s(self) -> float:
-        """Seconds of flight the recording covers: the span of the camera frames' stamps
-        (simulation time in lockstep) plus one frame period."""
-        if self.frames < 2 or self.end_ns <= self.start_ns:
-            return 0.0
-        span = (self.end_ns - self.start_ns) / 1e9
-        return span * self.frames / (self.frames - 1)
+        """Seconds of flight the recording covers: camera frames x their period (the median step
+        between consecutive stamps, simulation time in lockstep). Not the span of the stamps: a
+        take's simulation restarts at a time zero far ahead of the clock that ran before it."""
+        st = np.asarray(self.frame_stamps, np.int64)
+        steps = np.diff(st)
+        steps = steps[steps > 0]
+        return float(len(st) * np.median(steps) / 1e9) if steps.size else 0.0
 
 
 class _Tell(io.RawIOBase):
@@ -393,10 +395,7 @@ class RunReader:
                 self.info.channels[ch.topic]["count"] += 1
                 self.info.messages += 1
                 if ch.metadata.get(ROLE) == "frame-image" and ch.topic.endswith("/camera/frame"):
-                    st = rec.publish_time
-                    self.info.start_ns = st if not self.info.frames else min(self.info.start_ns, st)
-                    self.info.frames += 1
-                    self.info.end_ns = max(self.info.end_ns, st)
+                    self.info.frame_stamps.append(rec.publish_time)
             elif isinstance(rec, Footer):
                 self.info.complete = True
         if not seen_meta:
@@ -499,5 +498,5 @@ def size_report(info: RunInfo) -> dict[str, Any]:
     fl = info.flight_s()
     return {"bytes": info.bytes, "flight_s": round(fl, 3), "messages": info.messages,
             "mb_per_flight_s": round(info.bytes / 1e6 / fl, 3) if fl > 0 else None,
-            "complete": info.complete, "channels": len(info.channels)}
+            "complete": info.complete, "channels": len(info.channels), "camera_frames": info.frames}
 
