@@ -139,7 +139,8 @@ def main() -> int:
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
     m = result["mcap"]
-    print(f"run.mcap: {m['bytes'] / 1e6:.2f} MB for {m['flight_s']:.2f} s of flight ({m['camera_frames']} camera frames) = {m['mb_per_flight_s']:.3f} MB/s "
+    print(f"run.mcap: {m['bytes'] / 1e6:.2f} MB for {m['flight_s']:.2f} s of flight ({m['camera_frames']} camera "
+          f"frames) = {m['mb_per_flight_s']:.3f} MB/s "
           f"(goal <= 2: {'met' if m['goal_met'] else 'MISSED'}); {m['messages']} MCAP messages, read back in "
           f"{m['read_back_s']} s")
     top = list(m["bytes_by_channel"].items())[:4]

@@ -376,9 +376,9 @@ class RunReader:
             elif isinstance(rec, Channel):
                 chans[rec.id] = rec
                 s = schemas.get(rec.schema_id)
-                self.info.channels.setdefault(rec.topic, {"schema": s.name if s else "", "encoding": rec.message_encoding,
-                                                          "schema_encoding": s.encoding if s else "",
-                                                          "role": rec.metadata.get(ROLE, ""), "count": 0})
+                self.info.channels.setdefault(rec.topic, {
+                    "schema": s.name if s else "", "encoding": rec.message_encoding,
+                    "schema_encoding": s.encoding if s else "", "role": rec.metadata.get(ROLE, ""), "count": 0})
             elif isinstance(rec, Metadata) and rec.name == META_NAME:
                 seen_meta = True
                 if rec.metadata.get("format") != FORMAT:

@@ -88,6 +88,28 @@ def probe(path: str | Path) -> dict[str, Any]:
         info = {"codec": v.codec_context.name, "width": v.codec_context.width, "height": v.codec_context.height,
                 "pix_fmt": v.codec_context.pix_fmt, "frames": n, "fps": float(v.average_rate or 0),
                 "duration_s": float(v.duration * v.time_base) if v.duration else None}
-    head = Path(path).read_bytes()[:4096]
-    info["faststart"] = 0 <= head.find(b"moov") < max(head.find(b"mdat"), 0) or (b"moov" in head and b"mdat" not in head)
+    boxes = top_level_boxes(path)
+    info["faststart"] = "moov" in boxes and "mdat" in boxes and boxes.index("moov") < boxes.index("mdat")
     return info
+
+
+def top_level_boxes(path: str | Path) -> list[str]:
+    """The types of an MP4's top-level boxes, in file order (faststart: moov before mdat)."""
+    import struct
+
+    out = []
+    with open(path, "rb") as f:
+        size = Path(path).stat().st_size
+        pos = 0
+        while pos + 8 <= size:
+            f.seek(pos)
+            n, kind = struct.unpack(">I4s", f.read(8))
+            if n == 1:
+                n = struct.unpack(">Q", f.read(8))[0]
+            elif n == 0:
+                n = size - pos
+            out.append(kind.decode("latin-1"))
+            if n < 8:
+                break
+            pos += n
+    return out

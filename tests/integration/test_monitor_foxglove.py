@@ -97,7 +97,8 @@ def test_monitor_serves_the_rig_to_a_foxglove_websocket_client(port, listener_op
     assert json.loads(st["schema"])["properties"]["position_m"]["items"]["type"] == "number"
     assert json.loads(got["ct/live/vehicle/state"])["position_m"] == [1.0, 2.0, 3.0]
     # and the frame is a foxglove.CompressedImage (JPEG), the pose a FrameTransform, the lens a calibration
-    for topic, name in (("ct/live/camera/frame", "foxglove.CompressedImage"), ("ct/live/tf/camera", "foxglove.FrameTransform"),
+    for topic, name in (("ct/live/camera/frame", "foxglove.CompressedImage"),
+                        ("ct/live/tf/camera", "foxglove.FrameTransform"),
                         ("ct/live/camera/frame/calibration", "foxglove.CameraCalibration")):
         ch = channels[topic]
         assert ch["encoding"] == "protobuf" and ch["schemaName"] == name, ch
