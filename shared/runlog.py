@@ -6,9 +6,11 @@ What goes where (`views`):
 
 - a message of ours on key K -> channel K, JSON (`json`), with the JSON schema generated from
   shared/messages.py (`cinetransfer.<Type>`, shared/jsonmsg.py);
-- a `Frame` on key K -> channel K as foxglove.CompressedImage (JPEG, protobuf), and its other
-  fields (index, lens, stamps) on K/info (`cinetransfer.FrameInfo`); a frame with a known lens
-  also gives K/calibration (foxglove.CameraCalibration, pinhole);
+- a `Frame` on key K -> channel K as foxglove.CompressedVideo (H.264, one frame per message,
+  no B-frames, a keyframe with SPS/PPS every second) in a recording, or foxglove.CompressedImage
+  (JPEG) in the live view and for odd-sized images; its other fields (index, lens, stamps) on
+  K/info (`cinetransfer.FrameInfo`); a frame with a known lens also gives K/calibration
+  (foxglove.CameraCalibration, pinhole);
 - vehicle, gimbal/camera and subject poses -> foxglove.FrameTransform on ct/RIG/tf/{drone,camera,
   subject} (frames `world` -> `drone`, `world` -> `camera` (optical: x right, y down, z forward),
   `world` -> `subject`), so the 3-D panel shows the drone, the camera frustum and the subject;
@@ -46,9 +48,12 @@ FORMAT = "cinetransfer-run"
 FORMAT_VERSION = 1
 META_NAME = "cinetransfer"
 RAW_ENCODING = "cinetransfer-codec"
-ROLE = "cinetransfer.role"  # channel metadata: 'message' | 'frame-image' | 'frame-info' | 'derived' | 'raw'
-#: JPEG quality of recorded frames: ~1.2 MB per second of 960x540 24 fps video (benchmarks/recording.py)
+ROLE = "cinetransfer.role"  # channel metadata: message, frame-video, frame-image, frame-info, derived, raw
+#: JPEG quality of frames in the live view (and of odd-sized frames in a recording)
 JPEG_QUALITY = 75
+#: H.264 of recorded frames: x264 constant quality, a keyframe every KEYFRAME_S seconds (seeking)
+VIDEO_CRF = 23
+KEYFRAME_S = 1.0
 
 
 class RunFormatError(ValueError):
@@ -131,18 +136,54 @@ def _finite(a: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(a), a, 0.0)
 
 
-def _frame_views(key: str, frame: M.Frame, jpeg_quality: int) -> list[View]:
+class H264Stream:
+    """One topic's frames as an H.264 elementary stream (Annex B), one packet per frame, at once
+    (x264 zerolatency: no lookahead, no B-frames; SPS/PPS repeated on every keyframe)."""
+
+    def __init__(self, width: int, height: int, fps: float, crf: int = VIDEO_CRF) -> None:
+        from fractions import Fraction
+
+        import av
+
+        self._av = av
+        fps = fps if math.isfinite(fps) and fps > 0 else 24.0
+        self.ctx = av.CodecContext.create("libx264", "w")
+        self.ctx.width, self.ctx.height, self.ctx.pix_fmt = width, height, "yuv420p"
+        self.ctx.time_base = Fraction(1, 1000)
+        self.ctx.options = {"preset": "veryfast", "tune": "zerolatency", "crf": str(crf), "bf": "0",
+                            "g": str(max(1, int(round(KEYFRAME_S * fps))))}
+        self.shape = (height, width)
+        self.n = 0
+
+    def encode(self, img: np.ndarray) -> bytes:
+        f = self._av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="bgr24")
+        f.pts = self.n
+        self.n += 1
+        return b"".join(bytes(p) for p in self.ctx.encode(f))
+
+
+def _frame_views(key: str, frame: M.Frame, jpeg_quality: int, streams: dict[str, H264Stream] | None = None
+                 ) -> list[View]:
     import cv2
-    from foxglove.messages import CameraCalibration, CompressedImage
+    from foxglove.messages import CameraCalibration, CompressedImage, CompressedVideo
 
     img = np.asarray(frame.image)
-    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
-    if not ok:
-        raise codec.EncodeError("JPEG encoding failed")
     frame_id = "camera" if key.endswith("/camera/frame") else key.split("/")[2]
-    out = [_fox(key, CompressedImage(timestamp=_ts(frame.stamp_ns), frame_id=frame_id, data=buf.tobytes(),
-                                     format="jpeg"), frame.stamp_ns, role="frame-image"),
-           _json_view(key + "/info", frame, role="frame-info")]
+    h, w = img.shape[:2]
+    if streams is not None and h % 2 == 0 and w % 2 == 0 and h and w:
+        st = streams.get(key)
+        if st is None or st.shape != (h, w):
+            st = streams[key] = H264Stream(w, h, frame.fps)
+        data = st.encode(img)
+        image = _fox(key, CompressedVideo(timestamp=_ts(frame.stamp_ns), frame_id=frame_id, data=data,
+                                          format="h264"), frame.stamp_ns, role="frame-video")
+    else:
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
+        if not ok:
+            raise codec.EncodeError("JPEG encoding failed")
+        image = _fox(key, CompressedImage(timestamp=_ts(frame.stamp_ns), frame_id=frame_id, data=buf.tobytes(),
+                                          format="jpeg"), frame.stamp_ns, role="frame-image")
+    out = [image, _json_view(key + "/info", frame, role="frame-info")]
     lens = frame.lens
     if lens is not None and img.ndim == 3 and all(math.isfinite(v) and v > 0 for v in (
             lens.focal_length_mm, lens.sensor_width_mm)):
@@ -159,8 +200,10 @@ def _frame_views(key: str, frame: M.Frame, jpeg_quality: int) -> list[View]:
     return out
 
 
-def views(key: str, payload: bytes, *, jpeg_quality: int = JPEG_QUALITY) -> list[View]:
-    """What one message of the rig becomes in a recording or the live view (see the module doc)."""
+def views(key: str, payload: bytes, *, jpeg_quality: int = JPEG_QUALITY,
+          video: dict[str, H264Stream] | None = None) -> list[View]:
+    """What one message of the rig becomes in a recording or the live view (see the module doc).
+    `video`: the H.264 streams of the frame topics (a recording's; None = JPEG frames)."""
     try:
         msg = codec.decode(payload)
     except codec.DecodeError:
@@ -168,7 +211,7 @@ def views(key: str, payload: bytes, *, jpeg_quality: int = JPEG_QUALITY) -> list
     rig = _rig_of(key)
     tf = f"{keys.ROOT}/{rig}/tf"
     if isinstance(msg, M.Frame):
-        return _frame_views(key, msg, jpeg_quality)
+        return _frame_views(key, msg, jpeg_quality, video)
     out = [_json_view(key, msg)]
     if isinstance(msg, M.VehicleState):
         pos = _finite(msg.position_m)
@@ -192,7 +235,7 @@ class RunWriter:
     the recorder's worker thread is its only user."""
 
     def __init__(self, path: str | Path, meta: dict[str, Any] | None = None, *, jpeg_quality: int = JPEG_QUALITY,
-                 flush_s: float = 1.0, chunk_size: int = 4 << 20) -> None:
+                 flush_s: float = 1.0, chunk_size: int = 4 << 20, video: bool = True) -> None:
         from mcap.writer import CompressionType, Writer
 
         self.path = Path(path)
@@ -207,6 +250,7 @@ class RunWriter:
         self._channels: dict[tuple[str, str, str], int] = {}
         self._seq: dict[int, int] = {}
         self.jpeg_quality = jpeg_quality
+        self._video: dict[str, H264Stream] | None = {} if video else None
         self.flush_s = flush_s
         self._last_flush = time.monotonic()
         self.count = 0  #: messages of the rig written (each may have several views)
@@ -227,7 +271,7 @@ class RunWriter:
 
     def write(self, key: str, payload: bytes, t_ns: int | None = None) -> None:
         t = time.time_ns() if t_ns is None else t_ns
-        for v in views(key, payload, jpeg_quality=self.jpeg_quality):
+        for v in views(key, payload, jpeg_quality=self.jpeg_quality, video=self._video):
             cid = self._channel(v)
             seq = self._seq.get(cid, 0)
             self._seq[cid] = seq + 1
@@ -394,7 +438,7 @@ class RunReader:
                     raise RunFormatError(f"{self.path}: message on unknown channel {rec.channel_id}")
                 self.info.channels[ch.topic]["count"] += 1
                 self.info.messages += 1
-                if ch.metadata.get(ROLE) == "frame-image" and ch.topic.endswith("/camera/frame"):
+                if ch.metadata.get(ROLE) in ("frame-image", "frame-video") and ch.topic.endswith("/camera/frame"):
                     self.info.frame_stamps.append(rec.publish_time)
             elif isinstance(rec, Footer):
                 self.info.complete = True
@@ -415,9 +459,10 @@ class RunReader:
         schemas: dict[int, Schema] = {}
         chans: dict[int, Channel] = {}
         types_by_schema = {jsonmsg.schema_name(c): c for c in M.MESSAGE_TYPES.values()}
-        pending_img: dict[tuple[str, int], tuple[int, bytes]] = {}
+        pending_img: dict[tuple[str, int], tuple[int, np.ndarray]] = {}
         pending_info: dict[tuple[str, int], M.Frame] = {}
-        image_cls = None
+        pb_classes: dict[str, Any] = {}
+        decoders: dict[str, Any] = {}
         for rec in _records(self.path, self.salvage):
             if isinstance(rec, Schema):
                 schemas[rec.id] = rec
@@ -444,16 +489,21 @@ class RunReader:
                         pending_info[(key, info.stamp_ns)] = info
                     else:
                         yield img[0], key, self._frame(info, img[1])
-                elif role == "frame-image":
-                    if image_cls is None:
-                        image_cls = _protobuf_class(schemas[ch.schema_id])
-                    ci = image_cls.FromString(rec.data)
+                elif role in ("frame-image", "frame-video"):
+                    schema = schemas[ch.schema_id]
+                    if schema.name not in pb_classes:
+                        pb_classes[schema.name] = _protobuf_class(schema)
+                    ci = pb_classes[schema.name].FromString(rec.data)
                     stamp = ci.timestamp.seconds * 10**9 + ci.timestamp.nanos
+                    img = self._jpeg(ci.data, stamp) if role == "frame-image" else self._h264(decoders, topic, ci.data,
+                                                                                              stamp)
+                    if img is None:
+                        continue
                     info = pending_info.pop((topic, stamp), None)
                     if info is None:
-                        pending_img[(topic, stamp)] = (rec.log_time, ci.data)
+                        pending_img[(topic, stamp)] = (rec.log_time, img)
                     else:
-                        yield rec.log_time, topic, self._frame(info, ci.data)
+                        yield rec.log_time, topic, self._frame(info, img)
 
     def _json(self, data: bytes, topic: str) -> Any:
         try:
@@ -467,13 +517,30 @@ class RunReader:
         except (jsonmsg.JsonMessageError, codec.CodecError) as e:
             raise RunFormatError(f"{self.path}: message on {topic} does not fit {cls.__name__}: {e}") from None
 
-    def _frame(self, info: M.Frame, jpeg: bytes) -> bytes:
+    def _jpeg(self, data: bytes, stamp: int) -> np.ndarray:
         import cv2
+
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+        if img is None:
+            raise RunFormatError(f"{self.path}: corrupt JPEG frame (stamp {stamp})")
+        return img
+
+    def _h264(self, decoders: dict[str, Any], topic: str, data: bytes, stamp: int) -> np.ndarray | None:
+        """The frame of one H.264 packet (the stream is decoded in order; one frame per packet)."""
+        import av
+
+        dec = decoders.get(topic)
+        if dec is None:
+            dec = decoders[topic] = av.CodecContext.create("h264", "r")
+        try:
+            frames = dec.decode(av.Packet(data))
+        except av.FFmpegError as e:
+            raise RunFormatError(f"{self.path}: corrupt H.264 frame on {topic} (stamp {stamp}): {e}") from None
+        return frames[-1].to_ndarray(format="bgr24") if frames else None
+
+    def _frame(self, info: M.Frame, img: np.ndarray) -> bytes:
         from dataclasses import replace
 
-        img = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
-        if img is None:
-            raise RunFormatError(f"{self.path}: corrupt JPEG frame (stamp {info.stamp_ns})")
         return codec.encode(replace(info, image=img))
 
 

@@ -88,7 +88,7 @@ def test_every_message_survives_a_recording_and_the_mcap_library_reads_every_sch
                     for c in summary.channels.values()}
         n = sum(1 for _ in reader.iter_messages())
     assert n == summary.statistics.message_count
-    assert by_topic["ct/r/camera/frame"][1].name == "foxglove.CompressedImage"
+    assert by_topic["ct/r/camera/frame"][1].name == "foxglove.CompressedVideo"  # H.264
     assert by_topic["ct/r/camera/frame/calibration"][1].name == "foxglove.CameraCalibration"
     assert {by_topic[t][1].name for t in ("ct/r/tf/drone", "ct/r/tf/camera", "ct/r/tf/subject")} == \
         {"foxglove.FrameTransform"}
