@@ -153,6 +153,16 @@ def test_transfer_through_zenoh_processes(data, tmp_path, port, listener_opts):
     report = json.loads((out / "report.json").read_text())
     assert report["headline"]["truth"]["joint_error_mean"] == pytest.approx(float(np.mean(errs)), rel=1e-3)
     assert report["headline"]["extraction"]["available"] is True
+    # and the report's side-by-side video is H.264 and plays offline in headless Chromium, when there is one
+    assert probe(out / "report_video.mp4")["frames"] == FRAMES
+    assert report["recording_file"]["complete"] is True
+    import shutil
+
+    if shutil.which("chromium"):
+        from cinetransfer.report.browser_check import check, verdict
+
+        result = check(out / "report.html")
+        assert verdict(result) == [], result
 
 
 @pytest.mark.slow
