@@ -254,6 +254,7 @@ class RunWriter:
         self.flush_s = flush_s
         self._last_flush = time.monotonic()
         self.count = 0  #: messages of the rig written (each may have several views)
+        self.errors = 0  #: messages kept as raw bytes because they could not be translated
         self.closed = False
 
     def _channel(self, v: View) -> int:
@@ -271,7 +272,14 @@ class RunWriter:
 
     def write(self, key: str, payload: bytes, t_ns: int | None = None) -> None:
         t = time.time_ns() if t_ns is None else t_ns
-        for v in views(key, payload, jpeg_quality=self.jpeg_quality, video=self._video):
+        try:
+            vs = views(key, payload, jpeg_quality=self.jpeg_quality, video=self._video)
+        except Exception as e:  # noqa: BLE001 - a message we cannot translate is still kept, as it travelled
+            self.errors += 1
+            if self.errors <= 5 or self.errors % 1000 == 0:
+                log.warning("recording %s as raw bytes (%d so far): %s: %s", key, self.errors, type(e).__name__, e)
+            vs = [View(key, "", "", b"", RAW_ENCODING, bytes(payload), "raw")]
+        for v in vs:
             cid = self._channel(v)
             seq = self._seq.get(cid, 0)
             self._seq[cid] = seq + 1

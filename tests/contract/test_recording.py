@@ -187,3 +187,19 @@ def test_report_refuses_a_run_folder_whose_recording_is_damaged_or_foreign(tmp_p
     assert r.returncode == 0, r.stderr
     rep = json.loads((run / "report.json").read_text())
     assert rep["recording_file"]["complete"] is True and "ct/r/camera/frame" in rep["recording_file"]["topics"]
+
+
+def test_a_message_that_cannot_be_translated_is_kept_as_it_travelled(tmp_path, monkeypatch):
+    # given a translation that fails for one message (a bug, say)
+    def broken(*a, **k):
+        raise RuntimeError("boom")
+
+    path = tmp_path / "run.mcap"
+    with runlog.RunWriter(path, {}) as w:
+        w.write("ct/r/vehicle/state", codec.encode(M.VehicleState(seq=1)), t_ns=1)
+        monkeypatch.setattr(runlog, "views", broken)
+        w.write("ct/r/vehicle/state", codec.encode(M.VehicleState(seq=2)), t_ns=2)
+        monkeypatch.undo()
+        # then the recording goes on, and the message is there, raw
+        assert w.errors == 1
+    assert [codec.decode(p).seq for _, _, p in runlog.read_run(path)] == [1, 2]
