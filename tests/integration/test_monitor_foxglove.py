@@ -78,8 +78,10 @@ def test_monitor_serves_the_rig_to_a_foxglove_websocket_client(port, listener_op
                 while len(got) < len(WANT):
                     assert time.monotonic() < deadline, f"nothing on {set(WANT) - set(got)}; {channels}"
                     if time.monotonic() > retry:
-                        # foxglove-sdk 0.30 now and then loses a subscription that arrives just as the
-                        # channel is created (seen about 1 run in 6); a viewer re-subscribes
+                        # foxglove-sdk 0.30.3 advertises a new channel to connected clients a moment before
+                        # it accepts subscriptions to it (it answers status "Unknown channel ID: N"; seen
+                        # in about 1 run in 6 when the client connects while channels are being created):
+                        # like a viewer, subscribe again
                         subscribe([t for t in WANT if t not in got])
                         retry = time.monotonic() + 5
                     msg = ws.recv(timeout=30)
