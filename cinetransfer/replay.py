@@ -85,5 +85,6 @@ def main(argv: list[str]) -> int:
         finally:
             for pub in pubs.values():
                 pub.undeclare()
-    log.info("replayed %d messages", sent)
+    log.info("replayed %d messages%s", sent, f" ({run.skipped} left out: they did not fit their schema)"
+             if run.skipped else "")
     return 0

@@ -413,6 +413,7 @@ class RunReader:
         if not self.path.is_file():
             raise RunFormatError(f"{self.path}: no such file")
         self.info = RunInfo(self.path, bytes=self.path.stat().st_size)
+        self.skipped = 0  #: messages left out by messages() because they did not fit their schema
         self._scan()
 
     def _scan(self) -> None:
@@ -488,10 +489,19 @@ class RunReader:
                     cls = types_by_schema.get(schemas[ch.schema_id].name) if ch.schema_id else None
                     if cls is None:
                         continue
-                    yield rec.log_time, topic, self._encode(cls, rec.data, topic)
+                    try:
+                        payload = self._encode(cls, rec.data, topic)
+                    except RunFormatError as e:
+                        self._skip(e)
+                        continue
+                    yield rec.log_time, topic, payload
                 elif role == "frame-info":
                     key = topic[: -len("/info")]
-                    info = jsonmsg.from_json(M.Frame, self._json(rec.data, topic), topic)
+                    try:
+                        info = jsonmsg.from_json(M.Frame, self._json(rec.data, topic), topic)
+                    except (RunFormatError, jsonmsg.JsonMessageError) as e:
+                        self._skip(e)
+                        continue
                     img = pending_img.pop((key, info.stamp_ns), None)
                     if img is None:
                         pending_info[(key, info.stamp_ns)] = info
@@ -512,6 +522,12 @@ class RunReader:
                         pending_img[(topic, stamp)] = (rec.log_time, img)
                     else:
                         yield rec.log_time, topic, self._frame(info, img)
+
+    def _skip(self, e: Exception) -> None:
+        """One message that does not fit its schema is left out (counted, logged), not the run."""
+        self.skipped += 1
+        if self.skipped <= 5:
+            log.warning("skipping a message: %s", e)
 
     def _json(self, data: bytes, topic: str) -> Any:
         try:

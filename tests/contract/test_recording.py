@@ -203,3 +203,25 @@ def test_a_message_that_cannot_be_translated_is_kept_as_it_travelled(tmp_path, m
         # then the recording goes on, and the message is there, raw
         assert w.errors == 1
     assert [codec.decode(p).seq for _, _, p in runlog.read_run(path)] == [1, 2]
+
+
+def test_a_recorded_message_that_does_not_fit_its_schema_is_left_out_not_the_run(tmp_path):
+    # given a recording in which one vehicle state was tampered with (a position of two numbers)
+    from mcap.writer import Writer
+
+    path = tmp_path / "run.mcap"
+    schema = json.dumps(jsonmsg.message_schema(M.VehicleState)).encode()
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        w.add_metadata(runlog.META_NAME, {"format": runlog.FORMAT, "version": "1", "meta": "{}"})
+        sid = w.register_schema(jsonmsg.schema_name(M.VehicleState), "jsonschema", schema)
+        cid = w.register_channel("ct/r/vehicle/state", "json", sid, {runlog.ROLE: "message"})
+        for seq, pos in ((1, [0.0, 0.0, 1.0]), (2, [0.0, 1.0]), (3, [0.0, 0.0, 3.0])):
+            obj = jsonmsg.to_json(M.VehicleState(seq=seq))
+            obj["position_m"] = pos
+            w.add_message(cid, log_time=seq, data=json.dumps(obj).encode(), publish_time=seq)
+        w.finish()
+    # then reading it gives the two good ones and counts the bad one
+    run = runlog.RunReader(path)
+    assert [codec.decode(p).seq for _, _, p in run.messages()] == [1, 3] and run.skipped == 1
