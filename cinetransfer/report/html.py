@@ -194,7 +194,7 @@ def _video(path: Path | None, info: dict[str, Any] | None, error: str, embed: bo
     else:
         src = _e(Path(path).name)
     info = info or {}
-    return (f"<figure><video id='side-by-side' controls muted loop playsinline preload='auto' "
+    return (f"<figure><video id='side-by-side' controls autoplay muted loop playsinline preload='auto' "
             f"data-duration='{_e(info.get('duration_s'))}' data-frames='{_e(info.get('frames'))}' "
             f"style='max-width:100%' src='{src}'></video>"
             f"<figcaption>Source (left) and recorded output (right), frame by frame "
