@@ -1,11 +1,12 @@
-"""The recorder of a transfer: every message of the rig into the run log, the take's frames into
-output.mp4 and their ground truth into a list, each frame in its slot.
+"""The recorder of a transfer: every message of the rig into the recording (run.mcap, see
+shared/runlog.py), the take's frames into output.mp4 (H.264) and their ground truth into a list,
+each frame in its slot.
 
 The Zenoh callback only enqueues (key, payload, receive time); one worker thread writes the
-log, decodes what it needs and feeds a `TakeAssembler` that gives each camera frame its slot;
-the truth of a slot is the truth of the frame it shows (joined at close, whatever order they
-came in). Which recorded frame is slot k is set by `arm(Window)`: in simulation time by the
-camera frame index within the takes, on the wall clock by the frame stamp.
+recording, decodes what it needs and feeds a `TakeAssembler` that gives each camera frame its
+slot; the truth of a slot is the truth of the frame it shows (joined at close, whatever order
+they came in). Which recorded frame is slot k is set by `arm(Window)`: in simulation time by
+the camera frame index within the takes, on the wall clock by the frame stamp.
 """
 from __future__ import annotations
 
@@ -20,7 +21,8 @@ import numpy as np
 
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
-from cinetransfer.shared.recording import LogWriter
+from cinetransfer.shared.runlog import RunWriter
+from cinetransfer.shared.video import H264Writer
 from cinetransfer.take import Placed, TakeAssembler, TakeSummary
 
 log = logging.getLogger("cinetransfer.recorder")
@@ -66,7 +68,7 @@ class Recorder:
 
     def __init__(self, session: Any, rig: str, outdir: Path, meta: dict) -> None:
         self.outdir = outdir
-        self.log = LogWriter(outdir / "run.ctlog", meta)
+        self.log = RunWriter(outdir / "run.mcap", meta)
         self.frame_key, self.truth_key = keys.FRAME.key(rig), keys.SIM_TRUTH.key(rig)
         self.clock_key = keys.SIM_CLOCK.key(rig)
         self.health: dict[str, M.Health] = {}
@@ -140,16 +142,10 @@ class Recorder:
                 self._progress.notify_all()
 
     def _write_frame(self, p: Placed) -> None:
-        import cv2
-
-        img = np.asarray(p.item.image)
         if self._video is None:
-            h, w = img.shape[:2]
-            self._video = cv2.VideoWriter(str(self.outdir / "output.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
-                                          self._window.fps, (w, h))
-        self._video.write(img)
+            self._video = H264Writer(self.outdir / "output.mp4", self._window.fps)
+        self._video.write(np.asarray(p.item.image))
         self._shown.append(int(p.item.index))
-
 
     # ------------------------------------------------------------------ control (main thread)
     def arm(self, window: Window) -> None:
@@ -173,7 +169,7 @@ class Recorder:
         self._q.put(None)
         self._worker.join()
         if self._video is not None:
-            self._video.release()
+            self._video.close()
         self.log.close()
         if self._frames is None:
             return None, None

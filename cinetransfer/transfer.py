@@ -12,8 +12,8 @@
    instructions), and the bridge steps only when the planner's setpoint for the step has
    arrived, so every camera frame exists and machine load cannot change the result
    (`--realtime`: the wall clock instead; skipped frames are repeated, counted, reported)
-   and record every message                                    → OUTDIR/run.ctlog
-   and the camera's frames, frame k = instruction frame k      → OUTDIR/output.mp4
+   and record every message (MCAP, docs/recording.md)          → OUTDIR/run.mcap
+   and the camera's frames, frame k = instruction frame k      → OUTDIR/output.mp4 (H.264)
 4. stop: the planner stops, the bridge holds; Ctrl-C at any time does the same and keeps
    what was recorded
 5. evaluate: the same extraction on the output video           → OUTDIR/output_style.json
@@ -484,7 +484,8 @@ def _evaluate(out: Path, src: Path, style_path: Path, rec: Recorder, meta: dict)
     from cinetransfer.report import build_report
 
     return build_report(out, source_style=style_path, output_style=out_style, truths=rec.truths,
-                        source_video=src, output_video=out / "output.mp4", meta=meta)
+                        source_video=src, output_video=out / "output.mp4", meta=meta,
+                        recording=out / "run.mcap")
 
 
 def main(argv: list[str]) -> int:

@@ -3,6 +3,8 @@
 A live table of keys with rate, size, age and a one-line decoded summary, plus the nodes
 whose liveliness tokens are present. `--json` streams every decoded message as one JSON line
 (for scripts); `--once` collects for `--duration` seconds, prints one snapshot and exits.
+`--foxglove` serves the same topics live over the Foxglove WebSocket protocol instead (images,
+transforms and camera calibration included; shared/foxglove_live.py), on 127.0.0.1:`--port`.
 """
 from __future__ import annotations
 
@@ -174,6 +176,12 @@ def main(argv: list[str]) -> int:
     p.add_argument("--once", action="store_true", help="print one snapshot after --duration seconds and exit")
     p.add_argument("--duration", type=float, default=2.0, help="collection time for --once (default %(default)s s)")
     p.add_argument("--period", type=float, default=1.0, help="table refresh period (default %(default)s s)")
+    p.add_argument("--foxglove", action="store_true",
+                   help="serve the topics live over the Foxglove WebSocket protocol (open ws://HOST:PORT in Foxglove)")
+    p.add_argument("--port", type=int, default=8765, help="Foxglove WebSocket port (default %(default)s)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="Foxglove WebSocket address (default %(default)s: this machine only; the server has no "
+                        "authentication, so think twice before listening on another interface)")
     p.add_argument("--deployment", default=None, metavar="CONFIG",
                    help="join this running deployment (config name or file) as the read-only 'observer' "
                         "(default, when no endpoint is given: local)")
@@ -186,6 +194,8 @@ def main(argv: list[str]) -> int:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
+    if args.foxglove:
+        return _serve_foxglove(opts, args, stop)
     with zenoh_config.open_session(opts) as session:
         mon = Monitor(session, args.keyexpr, json_out=args.json)
         try:
@@ -204,4 +214,21 @@ def main(argv: list[str]) -> int:
                     sys.stdout.flush()
         finally:
             mon.close()
+    return 0
+
+
+def _serve_foxglove(opts: zenoh_config.ZenohOptions, args: argparse.Namespace, stop: threading.Event) -> int:
+    from cinetransfer.shared.foxglove_live import FoxgloveLive
+
+    with zenoh_config.open_session(opts) as session:
+        try:
+            live = FoxgloveLive(session, args.keyexpr, host=args.host, port=args.port)
+        except RuntimeError as e:  # the port is taken, say
+            print(f"cinetransfer monitor: cannot serve Foxglove on {args.host}:{args.port}: {e}", file=sys.stderr)
+            return 1
+        print(f"serving {args.keyexpr} to Foxglove at ws://{args.host}:{live.port} (Ctrl-C to stop)", flush=True)
+        try:
+            stop.wait()
+        finally:
+            live.close()
     return 0

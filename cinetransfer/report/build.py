@@ -1,4 +1,5 @@
-"""build_report: numbers (report.json), figures (fig_*.png) and the page (report.html) of one run."""
+"""build_report: numbers (report.json), figures (fig_*.png), the side-by-side video
+(report_video.mp4, H.264) and the page (report.html) of one run."""
 from __future__ import annotations
 
 import dataclasses
@@ -24,6 +25,16 @@ log = logging.getLogger("cinetransfer.report")
 
 REPORT_FORMAT = "cinetransfer-report"
 REPORT_VERSION = 1
+VIDEO = "report_video.mp4"
+
+
+def _recording(path: Path | str) -> dict[str, Any]:
+    """Size and content of a run.mcap (RunFormatError, a ValueError, when it is not readable)."""
+    from cinetransfer.shared.runlog import RunReader, size_report
+
+    run = RunReader(path)
+    topics = {t: c["schema"] or c["encoding"] for t, c in sorted(run.info.channels.items())}
+    return {"path": str(path), **size_report(run.info), "topics": topics}
 
 
 def jsonable(v: Any) -> Any:
@@ -103,16 +114,19 @@ def per_shot(source: M.Instructions, output: M.Instructions | None, truths: list
 def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLike | None,
                  truths: Sequence[M.GroundTruth], source_video: Path | str | None,
                  output_video: Path | str | None, meta: dict[str, Any] | None = None,
-                 embed_images: bool = True) -> dict[str, Any]:
+                 embed_images: bool = True, recording: Path | str | None = None) -> dict[str, Any]:
     """Compare a recorded run with its source style; write outdir/report.html, report.json and
     fig_*.png. Returns the summary (the content of report.json; its "headline" is a short digest).
 
     source_style / output_style: a style.json path or an `Instructions` message. output_style
     None (or unreadable) means the extraction on the output failed: the report says so and
     the ground-truth half is still computed. truths: the simulator's GroundTruth, one per
-    recorded frame (may be empty). Raises ValueError when the source style cannot be loaded.
+    recorded frame (may be empty). recording: the run's run.mcap, summarised in the report (size
+    per second of flight, channels). Raises ValueError when the source style cannot be loaded or
+    the recording is not a readable cinetransfer MCAP (shared.runlog.RunFormatError).
     """
     t0 = time.monotonic()
+    rec_info = _recording(recording) if recording else None
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
@@ -151,6 +165,15 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
     except (OSError, ValueError, KeyError, cv2.error) as e:  # the report never fails on this picture
         people = {"error": str(e)}
     s = fid.series
+    video, video_error = None, ""
+    try:
+        from cinetransfer.report.video import side_by_side
+
+        video = side_by_side(outdir / VIDEO, s, source_video=source_video, output_video=output_video,
+                             fps=float(output_fps or source.fps or 24.0))
+    except Exception as e:  # noqa: BLE001 - the numbers are still worth a report
+        video_error = f"{type(e).__name__}: {e}"
+        log.warning("side-by-side video not made: %s", video_error)
     summary: dict[str, Any] = {
         "people": people,
         "format": REPORT_FORMAT, "version": REPORT_VERSION,
@@ -167,6 +190,8 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
         "shots": per_shot(source, output, list(truths), output_fps, meta.get("takes")),
         "figures": sorted(figures),
         "figure_errors": fig_errors,
+        "video": video, "video_error": video_error,
+        "recording_file": rec_info,
         "per_frame": {"t_s": _round_list(s["t_s"], 4), "source_row": [int(x) for x in s["k"]],
                       "joint_error_extraction": _round_list(s["error_extraction"]),
                       "joint_error_truth": _round_list(s["error_truth"])},
@@ -174,7 +199,8 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
     }
     summary = jsonable(summary)
     write_html(outdir / "report.html", summary, figures, meta=summary["meta"], figure_errors=fig_errors,
-               credit=credit, embed=embed_images)
+               credit=credit, embed=embed_images, video=(outdir / VIDEO) if video else None,
+               video_error=video_error)
     summary["report_s"] = round(time.monotonic() - t0, 3)
     tmp = outdir / "report.json.tmp"
     tmp.write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n", encoding="utf-8")

@@ -4,11 +4,13 @@ A run folder (written by `cinetransfer transfer`) holds:
 
     style.json          the source's style (required)
     output_style.json   the same extraction run on the recorded video (optional)
-    output.mp4          the recorded video (optional: frames figure only)
+    output.mp4          the recorded video, H.264 (optional: frames figure and side-by-side video)
+    run.mcap            the recording (optional: summarised in the report; a damaged or foreign
+                        file is an error, exit 1)
     truth.msgpack       the simulator's GroundTruth per recorded frame (optional; see truthfile.py)
     meta.json           run metadata, printed in the report; its "source" names the source video
 
-and receives report.html, report.json and fig_*.png (or into -o OUTDIR).
+and receives report.html, report.json, fig_*.png and report_video.mp4 (or into -o OUTDIR).
 """
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ from pathlib import Path
 STYLE = "style.json"
 OUTPUT_STYLE = "output_style.json"
 OUTPUT_VIDEO = "output.mp4"
+RECORDING = "run.mcap"
 TRUTH = "truth.msgpack"
 META = "meta.json"
 
@@ -78,7 +81,8 @@ def main(argv: list[str]) -> int:
     try:
         summary = build_report(outdir, source_style=run / STYLE, output_style=out_style, truths=truths,
                                source_video=source_video, output_video=out_video, meta=meta,
-                               embed_images=not args.no_embed)
+                               embed_images=not args.no_embed,
+                               recording=run / RECORDING if (run / RECORDING).is_file() else None)
     except ValueError as e:
         print(f"cinetransfer report: {e}", file=sys.stderr)
         return 1

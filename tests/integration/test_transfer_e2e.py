@@ -13,7 +13,8 @@ from cinetransfer.report.truthfile import read_truths
 from cinetransfer.services.smoother.instructions import load_style
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
-from cinetransfer.shared.recording import read_log
+from cinetransfer.shared.runlog import RunReader, read_run, size_report
+from cinetransfer.shared.video import probe
 
 FRAMES = 36  # 1.5 s of the 24 fps clip
 
@@ -34,6 +35,29 @@ def video_frames(path) -> list[np.ndarray]:
 def busy_cores(n: int = 2) -> list[subprocess.Popen]:
     """Processes that keep the machine's cores busy (the CI machine has 2)."""
     return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+
+
+def replayed_frames(path, port, listener_opts, last_index: int) -> None:
+    import threading
+
+    from cinetransfer.shared import zenoh_config
+    from conftest import connect_flags, spawn, wait_for
+
+    got: list[M.Frame] = []
+    lock = threading.Lock()
+    with zenoh_config.open_session(listener_opts) as s:
+        def on(sample):
+            with lock:
+                got.append(codec.decode(sample.payload.to_bytes(), M.Frame))
+        sub = s.declare_subscriber(keys.FRAME.key("again"), on)
+        proc = spawn("replay", str(path), "--rig", "again", "--speed", "4", "--only", "camera/frame",
+                     *connect_flags(port))
+        try:
+            wait_for(lambda: any(f.index == last_index for f in got), timeout=120, what="replayed frames")
+        finally:
+            assert proc.wait(60) == 0
+        sub.undeclare()
+    assert got[-1].image.shape == (540, 960, 3)
 
 
 @pytest.mark.slow
@@ -71,13 +95,13 @@ def test_take_is_frame_exact_and_reproducible_on_a_loaded_machine(data, tmp_path
 
 
 @pytest.mark.slow
-def test_transfer_through_zenoh_processes(data, tmp_path):
+def test_transfer_through_zenoh_processes(data, tmp_path, port, listener_opts):
     out = tmp_path / "run"
     r = subprocess.run([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
                         "--scene", "open_country", "-o", str(out), "--max-frames", str(FRAMES), "--preroll", "2",
                         "--rig", "e2e"], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-5000:]
-    for f in ("style.json", "output.mp4", "output_style.json", "run.ctlog", "truth.msgpack", "report.html",
+    for f in ("style.json", "output.mp4", "output_style.json", "run.mcap", "truth.msgpack", "report.html",
               "report.json", "meta.json"):
         assert (out / f).is_file(), f
 
@@ -85,10 +109,10 @@ def test_transfer_through_zenoh_processes(data, tmp_path):
     for node in ("router", "planner", "autopilot_bridge"):
         assert (out / "deploy" / f"{node}.log").stat().st_size > 0
 
-    # the run log holds what crossed Zenoh: setpoints from the planner, frames and truth from the bridge
+    # the recording holds what crossed Zenoh: setpoints from the planner, frames and truth from the bridge
     counts: dict[str, int] = {}
     planner_setpoints = []
-    for _, key, payload in read_log(out / "run.ctlog"):
+    for _, key, payload in read_run(out / "run.mcap"):
         counts[key] = counts.get(key, 0) + 1
         if key == keys.SETPOINT.key("e2e"):
             planner_setpoints.append(codec.decode(payload, M.Setpoint))
@@ -96,6 +120,14 @@ def test_transfer_through_zenoh_processes(data, tmp_path):
     assert counts.get(keys.SIM_TRUTH.key("e2e"), 0) >= FRAMES
     assert any(sp.mode == "track" for sp in planner_setpoints)
     assert counts.get(keys.health("e2e", "planner"), 0) >= 1
+    # ... complete, within 2 MB per second of flight, and the output video is H.264 with its index first
+    run = RunReader(out / "run.mcap")
+    assert run.info.complete and 0 < size_report(run.info)["mb_per_flight_s"] <= 2.0, size_report(run.info)
+    vid = probe(out / "output.mp4")
+    assert vid["codec"] == "h264" and vid["faststart"] and vid["frames"] == FRAMES, vid
+    # ... and `replay run.mcap` republishes the camera frames, under another rig name
+    replayed_frames(out / "run.mcap", port, listener_opts, last_index=max(
+        codec.decode(p, M.Frame).index for _, k, p in read_run(out / "run.mcap", keys.FRAME.key("e2e"))))
 
     meta = json.loads((out / "meta.json").read_text())
     assert meta["recorded_frames"] == FRAMES == meta["instruction_frames"]
@@ -121,6 +153,16 @@ def test_transfer_through_zenoh_processes(data, tmp_path):
     report = json.loads((out / "report.json").read_text())
     assert report["headline"]["truth"]["joint_error_mean"] == pytest.approx(float(np.mean(errs)), rel=1e-3)
     assert report["headline"]["extraction"]["available"] is True
+    # and the report's side-by-side video is H.264 and plays offline in headless Chromium, when there is one
+    assert probe(out / "report_video.mp4")["frames"] == FRAMES
+    assert report["recording_file"]["complete"] is True
+    import shutil
+
+    if shutil.which("chromium"):
+        from cinetransfer.report.browser_check import check, verdict
+
+        result = check(out / "report.html")
+        assert verdict(result) == [], result
 
 
 @pytest.mark.slow
@@ -155,7 +197,7 @@ def test_ctrl_c_stops_the_vehicle_and_keeps_the_recording(data, tmp_path):
         proc.stdout.close()
     assert rc == 130, log[-3000:]
     # then the planner was told to stop and the bridge to hold, after the take had started
-    actions = [(key, codec.decode(p, M.Command).action) for _, key, p in read_log(out / "run.ctlog")
+    actions = [(key, codec.decode(p, M.Command).action) for _, key, p in read_run(out / "run.mcap")
                if key in (keys.PLANNER_COMMAND.key("ctrlc"), keys.BRIDGE_COMMAND.key("ctrlc"))]
     stop_at = actions.index((keys.PLANNER_COMMAND.key("ctrlc"), "stop"), 1)  # (the first 'stop' precedes the take)
     assert actions[stop_at:stop_at + 2] == [(keys.PLANNER_COMMAND.key("ctrlc"), "stop"),

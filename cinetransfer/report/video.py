@@ -1,0 +1,129 @@
+"""The report's side-by-side video: source | output, frame by frame, with the controlled joints and
+the focus labels drawn, as H.264 (shared/video.py) that a browser plays.
+
+Row i of the comparison shows source frame `first_frame + k[i]` on the left and output frame i on
+the right. Rings: the source's targets for the controlled joints (on both halves: where the shot
+should put them); dots: extraction on the output; crosses: the simulator's truth. Under each half,
+the regions in focus (source: the instructions; output: truth, else extraction).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cinetransfer.report import fidelity as F
+from cinetransfer.report.figures import _colour, _dark, _in_focus_text
+
+HEIGHT = 360  #: pixel height of each half
+
+
+def _bgr(colour: Any) -> tuple[int, int, int]:
+    from matplotlib.colors import to_rgb
+
+    r, g, b = to_rgb(colour)
+    return int(b * 255), int(g * 255), int(r * 255)
+
+
+class _Reader:
+    """Sequential frames of a video (exact on any codec); None past the end or when unreadable."""
+
+    def __init__(self, path: str | Path | None) -> None:
+        import cv2
+
+        self.cap = cv2.VideoCapture(str(path)) if path and Path(path).is_file() else None
+        self.i, self.last = 0, None
+
+    def get(self, index: int) -> np.ndarray | None:
+        if self.cap is None or index < self.i - 1:
+            return None
+        if index == self.i - 1:
+            return self.last
+        while self.i < index:
+            if not self.cap.grab():
+                return None
+            self.i += 1
+        ok, img = self.cap.read()
+        if not ok:
+            return None
+        self.i += 1
+        self.last = img
+        return img
+
+    def close(self) -> None:
+        if self.cap is not None:
+            self.cap.release()
+
+
+def _half(img: np.ndarray | None, width: int, text: str) -> np.ndarray:
+    import cv2
+
+    if img is None:
+        out = np.full((HEIGHT, width, 3), 200, np.uint8)
+        cv2.putText(out, text, (10, HEIGHT // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (80, 80, 80), 1, cv2.LINE_AA)
+        return out
+    return cv2.resize(img, (width, HEIGHT), interpolation=cv2.INTER_AREA)
+
+
+def _label(img: np.ndarray, text: str, y: int) -> None:
+    import cv2
+
+    (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.5, 1)
+    cv2.rectangle(img, (4, y - th - 6), (12 + tw, y + 4), (0, 0, 0), -1)
+    cv2.putText(img, text, (8, y - 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+
+
+def side_by_side(path: Path, series: dict[str, Any], *, source_video: str | Path | None,
+                 output_video: str | Path | None, fps: float) -> dict[str, Any]:
+    """Write the comparison video to `path`; returns what it holds (frames, fps, duration)."""
+    import cv2
+
+    from cinetransfer.shared.video import H264Writer
+
+    t, k = series["t_s"], series["k"]
+    src: F.Track = series["source"]
+    ext: F.Track = series["extraction"]
+    tru: F.Track = series["truth"]
+    first = int(series.get("source_first_frame", 0))
+    n, n_joints = len(t), len(series["joint_names"])
+    if n == 0:
+        raise ValueError("no frames to compare")
+    srd, ord_ = _Reader(source_video), _Reader(output_video)
+    widths: tuple[int, int] | None = None
+    try:
+        with H264Writer(path, fps, crf=23) as w:
+            for i in range(n):
+                a, b = srd.get(first + int(k[i])), ord_.get(i)
+                if widths is None:
+                    def wid(img: np.ndarray | None) -> int:
+                        return 640 if img is None else int(round(img.shape[1] * HEIGHT / img.shape[0] / 2) * 2)
+                    widths = (wid(a), wid(b))
+                left = _half(a, widths[0], "source frame not readable")
+                right = _half(b, widths[1], "no output frame")
+                for e in range(n_joints):
+                    col = _bgr(_colour(e))
+                    if src.ok[i, e]:
+                        for half, wd in ((left, widths[0]), (right, widths[1])):
+                            x, y = src.xy[i, e]
+                            cv2.circle(half, (int(x * wd), int(y * HEIGHT)), 9, col, 2, cv2.LINE_AA)
+                    if ext.ok[i, e]:
+                        x, y = ext.xy[i, e]
+                        cv2.circle(right, (int(x * widths[1]), int(y * HEIGHT)), 4, _bgr(_dark(_colour(e))), -1,
+                                   cv2.LINE_AA)
+                    if tru.ok[i, e]:
+                        x, y = tru.xy[i, e]
+                        cv2.drawMarker(right, (int(x * widths[1]), int(y * HEIGHT)), (255, 255, 255),
+                                       cv2.MARKER_TILTED_CROSS, 10, 2, cv2.LINE_AA)
+                _label(left, f"source  k={int(k[i])}  t={t[i]:.2f}s", 20)
+                _label(right, f"output  frame {i}", 20)
+                _label(left, _in_focus_text(src, i), HEIGHT - 10)
+                which = tru if tru.available[i] else ext
+                _label(right, _in_focus_text(which, i) + (" (truth)" if tru.available[i] else " (extraction)"),
+                       HEIGHT - 10)
+                w.write(np.hstack([left, right]))
+    finally:
+        srd.close()
+        ord_.close()
+    return {"file": path.name, "frames": n, "fps": fps, "duration_s": round(n / fps, 6),
+            "width": sum(widths), "height": HEIGHT, "bytes": path.stat().st_size}

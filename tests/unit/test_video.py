@@ -1,0 +1,54 @@
+"""H.264 videos people watch (shared/video.py): browser-playable, index first, frame-exact."""
+import cv2
+import numpy as np
+import pytest
+
+from cinetransfer.shared.video import H264Writer, probe
+
+
+def _frames(n: int, h: int = 54, w: int = 96) -> list[np.ndarray]:
+    out = []
+    for i in range(n):
+        img = np.zeros((h, w, 3), np.uint8)
+        img[:, (i * 3) % w: (i * 3) % w + 10] = (40, 200, 250)
+        out.append(img)
+    return out
+
+
+@pytest.mark.parametrize("size", [(54, 96), (55, 97)], ids=["even", "odd (padded)"])
+def test_h264_with_faststart_and_every_frame(tmp_path, size):
+    # given n frames written at 24 fps
+    path = tmp_path / "v.mp4"
+    frames = _frames(30, *size)
+    with H264Writer(path, 24.0) as w:
+        for f in frames:
+            w.write(f)
+    # then the file is H.264 yuv420p with its index before the data, 30 frames lasting 1.25 s
+    info = probe(path)
+    assert (info["codec"], info["pix_fmt"], info["faststart"], info["frames"]) == ("h264", "yuv420p", True, 30)
+    assert info["duration_s"] == pytest.approx(30 / 24)
+    # and OpenCV reads back every frame, in order, close to what was written
+    cap = cv2.VideoCapture(str(path))
+    back = []
+    while True:
+        ok, img = cap.read()
+        if not ok:
+            break
+        back.append(img[: size[0], : size[1]])
+    cap.release()
+    assert len(back) == 30
+    assert max(float(np.abs(a.astype(int) - b).mean()) for a, b in zip(frames, back)) < 4.0
+
+
+def test_bad_frames_are_refused(tmp_path):
+    w = H264Writer(tmp_path / "v.mp4", 24.0)
+    try:
+        w.write(_frames(1)[0])
+        with pytest.raises(ValueError, match="the video is 96x54"):
+            w.write(np.zeros((60, 96, 3), np.uint8))
+        with pytest.raises(ValueError, match="uint8"):
+            w.write(np.zeros((54, 96, 3), np.float32))
+    finally:
+        w.close()
+    with pytest.raises(ValueError, match="fps"):
+        H264Writer(tmp_path / "x.mp4", 0.0)
