@@ -8,7 +8,6 @@ import sys
 import typing
 
 import jsonschema
-import numpy as np
 import pytest
 
 from cinetransfer.shared import codec, jsonmsg, runlog
