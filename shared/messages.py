@@ -200,7 +200,7 @@ class Instructions:
     focus_in: np.ndarray = array("bool", (None, 3), doc="region in focus (B > theta), shape (K, 3)")
     theta: float = doc("focus threshold on B", 0.5)
     mu_m: float = doc("depth-of-field margin mu [m] (DESIGN §1.2)", 1.0)
-    shot_start: np.ndarray | None = array("bool", (None,), optional=True, since=2,
+    shot_start: np.ndarray = array("bool", (None,), optional=True, since=2,
                                           doc="row k starts a new shot of the source (a cut), shape (K,); "
                                               "row 0 is always a start; null = one shot")
 
