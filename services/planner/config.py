@@ -154,7 +154,7 @@ class Structure:
     sqp_iter: int = 1  # SQP iterations per warm-started solve (1 = real-time iteration), >= 1
     sqp_iter_cold: int = 30  # SQP iterations of a cold solve (stops earlier when converged), >= 1
     sqp_step_tol: float = 1e-6  # an SQP step smaller than this (relative, inf-norm) is converged
-    sqp_input_copies: bool = True  # HPIPM: exact Gauss-Newton Hessian, the inputs copied into the QP's states
+    sqp_input_copies: bool = False  # HPIPM: True = exact Gauss-Newton Hessian (inputs copied into the QP states)
     #                                (stages of 19 + 11 variables); False: warm iterations drop the input-change
     #                                cost's cross-stage Hessian terms (11 + 11: ~35 % faster, same optimum, but
     #                                a larger steady framing error in the benchmark)

@@ -142,11 +142,13 @@ def test_qp_failure_is_a_failed_solve_never_nan():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("solver, n_libs", [("ipopt", 1), ("sqp_rti", 2)])  # SQP: QP data + post-step
-def test_generated_code_is_compiled_once_and_cached(tmp_path, solver, n_libs):
+@pytest.mark.parametrize("solver, copies, n_libs", [("ipopt", True, 1), ("sqp_rti", True, 2), ("sqp_rti", False, 3)])
+def test_generated_code_is_compiled_once_and_cached(tmp_path, solver, copies, n_libs):
     # given codegen on and an empty cache: the first build compiles the shared library(ies)
+    # (SQP: QP data + post-step; the block-diagonal form also its cold-start QP data)
     cfg = pc.replace(pc.PlannerConfig(max_solve_time_s=2.0),
                      **{"structure.codegen": True, "structure.cache_dir": str(tmp_path), "structure.solver": solver,
+                        "structure.sqp_input_copies": copies,
                         "structure.compile_flags": ("-O0", "-fPIC", "-shared"), "structure.horizon_steps": 8})
     data = stage_data(cfg)
     s1 = MpcSolver(cfg.structure, max_solve_time_s=2.0)
