@@ -488,8 +488,13 @@ def _evaluate(out: Path, src: Path, style_path: Path, rec: Recorder, meta: dict)
                         recording=out / "run.mcap")
 
 
+def _terminate(_signum, _frame) -> None:
+    raise KeyboardInterrupt  # SIGTERM (a CI timeout, `kill`): stop the vehicle and the nodes as Ctrl-C does
+
+
 def main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
+    signal.signal(signal.SIGTERM, _terminate)
     setup_logging(args.log_level)
     src, out = Path(args.source), Path(args.outdir)
     if not src.is_file():
