@@ -162,6 +162,20 @@ class Inbox:
         return float("inf") if self.last_rx_mono is None else time.monotonic() - self.last_rx_mono
 
 
+class Presence:
+    """Whether a named node of the rig is alive (its liveliness token), kept by a subscriber."""
+
+    def __init__(self, session: zenoh.Session, rig: str, node: str) -> None:
+        self.alive = False
+        self._sub = session.liveliness().declare_subscriber(keys.alive(rig, node), self._on, history=True)
+
+    def _on(self, sample: zenoh.Sample) -> None:  # Zenoh thread: only flips a flag
+        self.alive = sample.kind == zenoh.SampleKind.PUT
+
+    def undeclare(self) -> None:
+        self._sub.undeclare()
+
+
 class Publisher:
     """Encodes, stamps `seq` and publishes messages of one key."""
 

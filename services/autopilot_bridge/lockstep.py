@@ -26,6 +26,7 @@ from typing import Any
 
 from cinetransfer.shared import keys
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.node import Presence
 
 log = logging.getLogger("cinetransfer.autopilot_bridge.clock")
 
@@ -61,23 +62,6 @@ def _opt_number(args: dict[str, Any], name: str, lo: float, hi: float) -> float 
     return float(v)
 
 
-class PlannerPresence:
-    """Whether a planner is alive on the rig (Zenoh liveliness): only then does a step wait."""
-
-    def __init__(self, session: Any, rig: str) -> None:
-        self.alive = False
-        key = keys.alive(rig, "planner")
-        self._sub = session.liveliness().declare_subscriber(key, self._on, history=True)
-
-    def _on(self, sample: Any) -> None:  # Zenoh thread: only flips a flag
-        import zenoh
-
-        self.alive = sample.kind == zenoh.SampleKind.PUT
-
-    def undeclare(self) -> None:
-        self._sub.undeclare()
-
-
 class SimClockLoop:
     """Runs the bridge on simulation time (see the module doc)."""
 
@@ -88,7 +72,7 @@ class SimClockLoop:
         self.n_sub = substeps(cfg.step_s, cfg.rate_hz)
         self.pace = cfg.pace
         self.clock_pub = node.publisher(keys.SIM_CLOCK)
-        self.planner = PlannerPresence(node.session, node.rig)
+        self.planner = Presence(node.session, node.rig, "planner")  # only a live planner is waited for
         self.counters = {"sim_steps": 0, "sim_time_s": 0.0, "setpoint_waits_timed_out": 0, "sp_stale": 0,
                          "resets": 0, "frames_published": 0, "lockstep": False}
         self._step_ms: collections.deque[float] = collections.deque(maxlen=2000)

@@ -22,7 +22,7 @@ from typing import Any
 from cinetransfer.services.source.credit import Credit
 from cinetransfer.shared import keys
 from cinetransfer.shared import messages as M
-from cinetransfer.shared.node import add_node_arguments, node_from_args
+from cinetransfer.shared.node import Presence, add_node_arguments, node_from_args
 
 NAME = "source"
 log = logging.getLogger(f"cinetransfer.{NAME}")
@@ -55,15 +55,8 @@ class Player:
         self.end_pub = node.publisher(keys.SOURCE_END)
         self.cmd_in = node.subscribe(keys.SOURCE_COMMAND)
         self.acks = node.subscribe(keys.MEASUREMENT, maxlen=100_000, policy="no-drop")
-        self._detector_alive = False
-        self._alive_sub = node.session.liveliness().declare_subscriber(
-            keys.alive(node.rig, "detector"), self._on_alive, history=True)
+        self.detector = Presence(node.session, node.rig, "detector")
         node.counters.update(state="idle", frames_sent=0, frames_acked=0, in_flight=0, plays=0)
-
-    def _on_alive(self, sample: Any) -> None:  # Zenoh thread: only flips a flag
-        import zenoh
-
-        self._detector_alive = sample.kind == zenoh.SampleKind.PUT
 
     def serve(self) -> None:
         while self.node.running:
@@ -112,7 +105,7 @@ class Player:
 
     def _await_detector(self) -> None:
         deadline = time.monotonic() + self.args.wait_detector
-        while not self._detector_alive:
+        while not self.detector.alive:
             if time.monotonic() > deadline or not self.node.running:
                 raise SourceError(f"no detector alive on rig {self.node.rig!r} after {self.args.wait_detector:g} s")
             self.node.sleep(0.1)
@@ -164,7 +157,7 @@ class Player:
         self.node.counters.update(frames_sent=credit.sent, frames_acked=credit.acked, in_flight=credit.in_flight)
 
     def close(self) -> None:
-        self._alive_sub.undeclare()
+        self.detector.undeclare()
 
 
 def main(argv: list[str]) -> int:
