@@ -124,19 +124,19 @@ class Recorder:
         elif key in (self.frame_key, self.truth_key) and self._window is not None:
             msg = codec.decode(payload)
             if isinstance(msg, M.Frame):
-                self._place(self._frames, msg.stamp_ns, msg.index, msg, self._write_frame)
+                self._place_frame(msg)
             elif isinstance(msg, M.GroundTruth):
                 start = self._window.epoch_ns if self._window.exact else self._window.t0_ns
                 if msg.stamp_ns >= start - 10**9:  # (real time: the frame shown first may be a bit older)
                     self.timeline_truths[int(msg.frame_index)] = msg
 
-    def _place(self, asm: TakeAssembler | None, stamp_ns: int, index: int, msg: Any, sink: Any) -> None:
-        slot = self._window.slot(stamp_ns, index) if self._window else None
-        if asm is None or slot is None:
+    def _place_frame(self, frame: M.Frame) -> None:
+        slot = self._window.slot(frame.stamp_ns, frame.index) if self._window else None
+        if self._frames is None or slot is None:
             return
-        placed = asm.add(slot, msg)
+        placed = self._frames.add(slot, frame)
         for p in placed:
-            sink(p)
+            self._write_frame(p)
         if placed:
             with self._progress:
                 self._progress.notify_all()
