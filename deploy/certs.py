@@ -19,10 +19,10 @@ import ipaddress
 import os
 import secrets
 import sys
-import tempfile
 from pathlib import Path
 
 from cinetransfer.shared import access
+from cinetransfer.shared.atomic import atomic_write
 
 CA_NAME = "cinetransfer-ca"
 VALID_DAYS = 825  # the longest validity most TLS stacks accept for a leaf certificate
@@ -31,15 +31,8 @@ USERS_FILE = "users.txt"
 
 def _write_private(path: Path, data: bytes) -> None:
     """Write `data` to `path` with mode 0600, via a unique temporary name and a rename."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.fchmod(fd, 0o600)
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(path, binary=True, mode=0o600) as f:
+        f.write(data)
 
 
 def _san(hosts: list[str]):

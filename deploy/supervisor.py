@@ -37,7 +37,6 @@ import re
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -45,6 +44,7 @@ from typing import Any
 import yaml
 
 from cinetransfer.shared import keys
+from cinetransfer.shared.atomic import atomic_write
 
 log = logging.getLogger("cinetransfer.deploy")
 CONFIG_DIR = Path(__file__).resolve().parent / "configs"
@@ -276,14 +276,8 @@ def prepare_security(cfg: DeployConfig, run_dir: Path) -> None:
 
 def _write_atomic(path: Path, text: str) -> None:
     """Write via a unique temporary file in the same folder and rename (readers never see half)."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(path, mode=0o600) as f:
+        f.write(text)
 
 
 def security_flags(cfg: DeployConfig, run_dir: Path, proc: Proc) -> list[str]:

@@ -25,8 +25,10 @@ from typing import IO, Any, Iterator
 class AtomicFile:
     """An open temporary file that becomes `path` on `commit()` and vanishes on `discard()`."""
 
-    def __init__(self, path: str | os.PathLike, *, binary: bool = False, encoding: str = "utf-8") -> None:
+    def __init__(self, path: str | os.PathLike, *, binary: bool = False, encoding: str = "utf-8",
+                 mode: int | None = None) -> None:
         self.path = Path(path)
+        self.mode = mode  # None: the usual permissions (umask applies); e.g. 0o600 for secrets
         fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent or ".")
         self.tmp_path = Path(tmp)
         self.file: IO[Any] = os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"encoding": encoding}))
@@ -42,9 +44,12 @@ class AtomicFile:
             os.fsync(self.file.fileno())
             self.file.close()
             # mkstemp creates 0600; a result file gets the usual permissions (umask applies)
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(self.tmp_path, 0o666 & ~umask)
+            if self.mode is None:
+                umask = os.umask(0)
+                os.umask(umask)
+                os.chmod(self.tmp_path, 0o666 & ~umask)
+            else:
+                os.chmod(self.tmp_path, self.mode)
             os.replace(self.tmp_path, self.path)
         except BaseException:
             self._remove()
@@ -65,10 +70,11 @@ class AtomicFile:
 
 
 @contextlib.contextmanager
-def atomic_write(path: str | os.PathLike, *, binary: bool = False, encoding: str = "utf-8") -> Iterator[IO[Any]]:
+def atomic_write(path: str | os.PathLike, *, binary: bool = False, encoding: str = "utf-8",
+                 mode: int | None = None) -> Iterator[IO[Any]]:
     """Write `path` through a temporary file: renamed into place when the block ends normally,
-    deleted (and `path` untouched) when it raises."""
-    f = AtomicFile(path, binary=binary, encoding=encoding)
+    deleted (and `path` untouched) when it raises. `mode`: see AtomicFile."""
+    f = AtomicFile(path, binary=binary, encoding=encoding, mode=mode)
     try:
         yield f.file
     except BaseException:
