@@ -5,7 +5,6 @@ the stream stops; SIGINT gives exit code 0."""
 from __future__ import annotations
 
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -76,8 +75,12 @@ def test_sim_backend_publishes_state_subject_frames_truth_and_tracks_setpoints(l
         sp = M.Setpoint(position_m=target, camera_ypr_rad=s0.camera_ypr_rad.copy(), lens=M.LensState())
 
         def stream():
+            # stamped on the bridge's simulation clock, as the planner does: under load simulated
+            # time falls behind the wall clock, and a wall-stamped setpoint is then "from the future"
             while not stop_stream.wait(0.04):
-                bus.sp_pub.put(codec.encode(M.Setpoint(**{**sp.__dict__, "stamp_ns": time.time_ns()})))
+                tick = bus.last(keys.SIM_CLOCK)
+                if tick is not None:
+                    bus.sp_pub.put(codec.encode(M.Setpoint(**{**sp.__dict__, "stamp_ns": tick.stamp_ns})))
 
         th = threading.Thread(target=stream, daemon=True)
         th.start()
@@ -93,7 +96,7 @@ def test_sim_backend_publishes_state_subject_frames_truth_and_tracks_setpoints(l
         # the stream stops: the watchdog holds the simulated vehicle
         stop_stream.set()
         th.join(2)
-        wait_for(lambda: bus.last(keys.VEHICLE_STATE).holding, 5, what="watchdog hold")
+        wait_for(lambda: bus.last(keys.VEHICLE_STATE).holding, 30, what="watchdog hold")
     finally:
         stop_stream.set()
         rc = stop(br)
