@@ -38,6 +38,7 @@ import numpy as np
 
 from cinetransfer.services.autopilot_bridge.config import SafetyConfig
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.angles import wrap_angle  # noqa: F401 (re-exported for callers)
 
 MODES = ("track", "hold")
 
@@ -51,12 +52,6 @@ COUNTER_NAMES = (
 
 
 # ----------------------------------------------------------------------------- pure helpers
-def wrap_angle(a: float) -> float:
-    """Angle wrapped to (-pi, pi]."""
-    w = math.remainder(a, 2.0 * math.pi)
-    return math.pi if w == -math.pi else w
-
-
 def clamp_norm(v: np.ndarray, max_norm: float) -> tuple[np.ndarray, bool]:
     """`v` scaled down to norm <= max_norm; (vector, whether it was clamped)."""
     n = float(np.linalg.norm(v))

@@ -20,12 +20,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from cinetransfer.shared.angles import wrap_angle
+
 G = 9.81
-
-
-def _wrap(a: float) -> float:
-    w = math.remainder(a, 2.0 * math.pi)
-    return math.pi if w == -math.pi else w
 
 
 def _toward(x: float, target: float, max_step: float) -> float:
@@ -34,8 +31,8 @@ def _toward(x: float, target: float, max_step: float) -> float:
 
 
 def _toward_angle(x: float, target: float, max_step: float) -> float:
-    d = _wrap(target - x)
-    return _wrap(target) if abs(d) <= max_step else _wrap(x + math.copysign(max_step, d))
+    d = wrap_angle(target - x)
+    return wrap_angle(target) if abs(d) <= max_step else wrap_angle(x + math.copysign(max_step, d))
 
 
 @dataclass(frozen=True)
