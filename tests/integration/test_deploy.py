@@ -209,9 +209,10 @@ def test_deploy_check_passes_the_shipped_configs_and_names_what_is_broken(tmp_pa
     assert r.returncode == 1 and "smoother reads detector/measurement but no node of the deployment writes it" in r.stderr
     # two planners on one rig: two writers of the setpoint
     two = tmp_path / "two_planners.yaml"
-    two.write_text(local.replace("  - name: planner\n    command: planner\n    args: []\n",
-                                 "  - name: planner\n    command: planner\n    args: []\n"
-                                 "  - name: planner2\n    role: planner\n    command: planner\n    args: []\n"))
+    assert "  - name: planner\n" in local and "  - name: autopilot_bridge\n" in local
+    two.write_text(local.replace("  - name: autopilot_bridge\n",
+                                 "  - name: planner2\n    role: planner\n    command: planner\n    args: []\n"
+                                 "  - name: autopilot_bridge\n"))
     r = check(str(two))
     assert r.returncode == 1 and "planner/setpoint has 2 writers (planner, planner2)" in r.stderr
     # an unknown node and an unknown key
