@@ -76,3 +76,26 @@ def _mapping(v: Any, where: str) -> dict[str, Any]:
     if not isinstance(v, dict):
         raise ConfigError(f"config: {where} must be a mapping")
     return dict(v)
+
+
+def parse_with_settings(parser: argparse.ArgumentParser, argv: list[str], node: str,
+                        fields: dict[str, str]) -> argparse.Namespace:
+    """For a node whose settings are its flags: the section's values become the flags' defaults.
+
+    `fields` maps a settings key to the flag's dest; values are converted by the flag's own type,
+    so a bad one is a ConfigError naming the key. Flags given on the command line win."""
+    args = parser.parse_args(argv)
+    section = args_section(args, node)
+    unknown = sorted(set(section) - set(fields))
+    if unknown:
+        raise ConfigError(f"{node} config: unknown field(s) {unknown}; allowed: {sorted(fields)}")
+    actions = {a.dest: a for a in parser._actions}
+    defaults = {}
+    for key, value in section.items():
+        conv = actions[fields[key]].type or str
+        try:
+            defaults[fields[key]] = conv(value) if isinstance(conv, type) else conv(str(value))
+        except (TypeError, ValueError, argparse.ArgumentTypeError):
+            raise ConfigError(f"{node} config: {key} = {value!r} is invalid") from None
+    parser.set_defaults(**defaults)
+    return parser.parse_args(argv)

@@ -32,6 +32,7 @@ def run_node(*argv):
     ("autopilot_bridge", {"rate_hz": 0}, "rate_hz"),
     ("smoother", {"theta": 1.5}, "theta"),
     ("smoother", {"windw_s": 3}, "windw_s"),
+    ("source", {"window": 0}, "window"),
 ])
 def test_a_broken_node_setting_is_refused_on_stderr_with_exit_2_naming_the_field(tmp_path, command, settings, field):
     path = deploy_config(tmp_path, command, settings)
