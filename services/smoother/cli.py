@@ -14,7 +14,8 @@ import time
 from pathlib import Path
 from typing import Any, Iterable
 
-from cinetransfer.services.smoother.config import FOCUS_METHODS, SUBJECT_METHODS, ConfigError, SmootherConfig
+from cinetransfer.services.smoother.config import FOCUS_METHODS, SUBJECT_METHODS, SmootherConfig
+from cinetransfer.shared.errors import ConfigError, report_config_error
 
 log = logging.getLogger("cinetransfer.smoother")
 
@@ -99,8 +100,7 @@ def smooth_main(argv: list[str]) -> int:
     try:
         cfg = config_from_args(args)
     except ConfigError as e:
-        print(f"cinetransfer smooth: {e}", file=sys.stderr)
-        return 2
+        return report_config_error(e, "cinetransfer smooth")
     from cinetransfer.services.detector.measurements_file import (MeasurementsFileError, iter_measurements,
                                                                   read_header, read_measurements)
     from cinetransfer.services.smoother.core import SmootherInputError, features_from_measurements, smooth_sequence
@@ -145,8 +145,7 @@ def extract_main(argv: list[str]) -> int:
     try:
         cfg = config_from_args(args)
     except ConfigError as e:
-        print(f"cinetransfer extract: {e}", file=sys.stderr)
-        return 2
+        return report_config_error(e, "cinetransfer extract")
     from cinetransfer.services.smoother.core import SmootherInputError, smooth_sequence
     from cinetransfer.services.smoother.extract import ExtractError, extract_features
 
