@@ -231,6 +231,15 @@ def load_vehicle(name_or_path: str | None = None) -> VehicleProfile:
     return _CACHE[key]
 
 
+def _vehicle_arg(text: str) -> str:
+    """--vehicle's type: the name or path as given, once the profile loads (argparse exits 2 otherwise)."""
+    try:
+        load_vehicle(text)
+    except ConfigError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
+
+
 def add_vehicle_argument(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--vehicle", default=None, metavar="NAME|PATH",
+    p.add_argument("--vehicle", default=None, metavar="NAME|PATH", type=_vehicle_arg,
                    help=f"vehicle profile (deploy/vehicles: {', '.join(vehicle_names())}; default {DEFAULT_VEHICLE})")
