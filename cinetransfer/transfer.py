@@ -44,6 +44,7 @@ from cinetransfer.shared import messages as M
 from cinetransfer.shared import zenoh_config
 from cinetransfer.shared.atomic import atomic_write
 from cinetransfer.shared.node import setup_logging
+from cinetransfer.shared.vehicle import add_vehicle_argument
 from cinetransfer.take import MissingFramesError
 
 log = logging.getLogger("cinetransfer.transfer")
@@ -63,6 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"the filmed person, from the subject library: {', '.join(_subjects())} "
                         "(default: the scene's own)")
     p.add_argument("-o", "--outdir", required=True, help="output folder")
+    add_vehicle_argument(p)
     p.add_argument("--rig", default="transfer", help="rig name (default %(default)s)")
     p.add_argument("--preroll", type=float, default=5.0,
                    help="seconds (simulated) to settle on frame 0 before recording (default %(default)s)")

@@ -33,7 +33,6 @@ import hashlib
 import json
 import logging
 import os
-import re
 import signal
 import subprocess
 import sys
@@ -45,14 +44,11 @@ import yaml
 
 from cinetransfer.shared import keys
 from cinetransfer.shared.atomic import atomic_write
+from cinetransfer.shared.errors import ConfigError, report_config_error
+from cinetransfer.shared.nodeconfig import substitute_env
 
 log = logging.getLogger("cinetransfer.deploy")
 CONFIG_DIR = Path(__file__).resolve().parent / "configs"
-_VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
-
-
-class ConfigError(ValueError):
-    """The deploy config is invalid; the message names the field."""
 
 
 # ----------------------------------------------------------------------------- config
@@ -89,9 +85,7 @@ class DeployConfig:
 
 
 def _subst(value: Any) -> Any:
-    if isinstance(value, str):
-        return _VAR.sub(lambda m: os.environ.get(m.group(1), m.group(2) if m.group(2) is not None else ""), value)
-    return value
+    return substitute_env(value) if isinstance(value, str) else value
 
 
 def resolve_config_path(name_or_path: str) -> Path:
@@ -140,6 +134,74 @@ def _check_listeners(listen: list, where: str) -> None:
                               f"docs/security.md)")
 
 
+def _load_routers(raw: dict, path: Path) -> list[Proc]:
+    routers = []
+    for i, r in enumerate(raw.get("routers") or []):
+        if not isinstance(r, dict) or "name" not in r:
+            raise ConfigError(f"{path}: routers[{i}] needs a name")
+        argv = ["router", *_zenoh_flags({"mode": "router", **(r.get("zenoh") or {})}, f"routers[{i}]")]
+        _check_listeners((r.get("zenoh") or {}).get("listen") or [], f"{path}: routers[{i}]")
+        routers.append(Proc(str(r["name"]), "router", tuple(argv), r.get("identity")))
+    return routers
+
+
+def _load_node(n: Any, i: int, raw: dict, path: Path) -> Proc:
+    """One node; its `settings` stay in the file: the node reads them itself (--config FILE --section NAME)."""
+    if not isinstance(n, dict) or "name" not in n or "command" not in n:
+        raise ConfigError(f"{path}: nodes[{i}] needs 'name' and 'command'")
+    unknown = set(n) - {"name", "command", "args", "settings", "zenoh", "identity", "role"}
+    if unknown:
+        raise ConfigError(f"{path}: nodes[{i}] ({n['name']}): unknown keys {sorted(unknown)}")
+    args = n.get("args") or []
+    if not isinstance(args, list):
+        raise ConfigError(f"{path}: nodes[{i}].args must be a list")
+    if "settings" in n and not isinstance(n["settings"], (dict, type(None))):
+        raise ConfigError(f"{path}: nodes[{i}].settings ({n['name']}) must be a mapping of the node's settings")
+    settings = ["--config", str(path.resolve()), "--section", str(n["name"])] if n.get("settings") else []
+    z = {**((raw.get("defaults") or {}).get("zenoh") or {}), **(n.get("zenoh") or {})}
+    argv = [str(n["command"]), *settings, *map(str, args), "--rig", str(raw.get("rig", "rig0")),
+            *_zenoh_flags(z, f"nodes[{i}]")]
+    return Proc(str(n["name"]), "node", tuple(argv), str(n.get("identity", n["name"])), str(n.get("role", n["name"])))
+
+
+def _check_endpoint(raw: dict, path: Path) -> str | None:
+    check = raw.get("check_endpoint")
+    if check is None and raw.get("routers"):
+        listen = ((raw["routers"][0].get("zenoh") or {}).get("listen") or [None])[0]
+        if listen is not None and not isinstance(listen, str):
+            raise ConfigError(f"{path}: routers[0].zenoh.listen entries must be strings like tcp/127.0.0.1:7447")
+        check = listen.replace("0.0.0.0", "127.0.0.1") if listen else None
+    return check
+
+
+def _security(raw: dict, path: Path) -> dict[str, Any]:
+    sec = raw.get("security") or {}
+    if not isinstance(sec, dict) or set(sec) - {"enabled", "secrets", "grants"}:
+        raise ConfigError(f"{path}: security must be a mapping with keys enabled, secrets, grants")
+    grants = sec.get("grants") or {}
+    if not isinstance(grants, dict) or not all(isinstance(v, list) for v in grants.values()):
+        raise ConfigError(f"{path}: security.grants must map an identity to a list of key expressions")
+    return dict(secure=bool(sec.get("enabled", True)),
+                secrets=str(Path(sec["secrets"]).expanduser().resolve()) if sec.get("secrets") else None,
+                grants=tuple((str(k), tuple(map(str, v))) for k, v in grants.items()))
+
+
+def _restart(raw: dict, path: Path) -> dict[str, float]:
+    restart = raw.get("restart") or {}
+    defaults = {"backoff_initial_s": 0.5, "backoff_max_s": 10.0, "backoff_reset_s": 30.0, "stop_grace_s": 10.0,
+                "startup_timeout_s": 90.0}
+    unknown = set(restart) - set(defaults)
+    if unknown:
+        raise ConfigError(f"{path}: restart: unknown keys {sorted(unknown)}")
+    out = {}
+    for k, v in defaults.items():
+        try:
+            out[k] = float(restart.get(k, v))
+        except (TypeError, ValueError):
+            raise ConfigError(f"{path}: restart.{k} = {restart[k]!r}: must be a number") from None
+    return out
+
+
 def load_config(name_or_path: str) -> DeployConfig:
     path = resolve_config_path(name_or_path)
     try:
@@ -153,58 +215,17 @@ def load_config(name_or_path: str) -> DeployConfig:
                           "security"}
     if unknown:
         raise ConfigError(f"{path}: unknown top-level keys {sorted(unknown)}")
-    rig = str(raw.get("rig", "rig0"))
-    defaults = raw.get("defaults") or {}
-    routers = []
-    for i, r in enumerate(raw.get("routers") or []):
-        if not isinstance(r, dict) or "name" not in r:
-            raise ConfigError(f"{path}: routers[{i}] needs a name")
-        argv = ["router", *_zenoh_flags({"mode": "router", **(r.get("zenoh") or {})}, f"routers[{i}]")]
-        _check_listeners((r.get("zenoh") or {}).get("listen") or [], f"{path}: routers[{i}]")
-        routers.append(Proc(str(r["name"]), "router", tuple(argv), r.get("identity")))
-    nodes = []
-    for i, n in enumerate(raw.get("nodes") or []):
-        if not isinstance(n, dict) or "name" not in n or "command" not in n:
-            raise ConfigError(f"{path}: nodes[{i}] needs 'name' and 'command'")
-        args = n.get("args") or []
-        if not isinstance(args, list):
-            raise ConfigError(f"{path}: nodes[{i}].args must be a list")
-        z = {**(defaults.get("zenoh") or {}), **(n.get("zenoh") or {})}
-        argv = [str(n["command"]), *map(str, args), "--rig", rig, *_zenoh_flags(z, f"nodes[{i}]")]
-        nodes.append(Proc(str(n["name"]), "node", tuple(argv), str(n.get("identity", n["name"])),
-                          str(n.get("role", n["name"]))))
+    routers = _load_routers(raw, path)
+    nodes = [_load_node(n, i, raw, path) for i, n in enumerate(raw.get("nodes") or [])]
     names = [p.name for p in routers + nodes]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
         raise ConfigError(f"{path}: duplicate process names {sorted(dup)}")
     if not nodes and not routers:
         raise ConfigError(f"{path}: nothing to run (no routers, no nodes)")
-    restart = raw.get("restart") or {}
-    sec = raw.get("security") or {}
-    if not isinstance(sec, dict) or set(sec) - {"enabled", "secrets", "grants"}:
-        raise ConfigError(f"{path}: security must be a mapping with keys enabled, secrets, grants")
-    grants = sec.get("grants") or {}
-    if not isinstance(grants, dict) or not all(isinstance(v, list) for v in grants.values()):
-        raise ConfigError(f"{path}: security.grants must map an identity to a list of key expressions")
-    check = raw.get("check_endpoint")
-    if check is None and raw.get("routers"):
-        listen = ((raw["routers"][0].get("zenoh") or {}).get("listen") or [None])[0]
-        if listen is not None and not isinstance(listen, str):
-            raise ConfigError(f"{path}: routers[0].zenoh.listen entries must be strings like tcp/127.0.0.1:7447")
-        check = listen.replace("0.0.0.0", "127.0.0.1") if listen else None
-    try:
-        return DeployConfig(name=path.stem, path=str(path.resolve()), rig=rig, routers=tuple(routers), nodes=tuple(nodes), check_endpoint=check,
-                            secure=bool(sec.get("enabled", True)), secrets=(str(Path(sec["secrets"]).expanduser().resolve())
-                                                                            if sec.get("secrets") else None),
-                            grants=tuple((str(k), tuple(map(str, v))) for k, v in grants.items()),
-                            shipped=path.resolve().parent == CONFIG_DIR,
-                            backoff_initial_s=float(restart.get("backoff_initial_s", 0.5)),
-                            backoff_max_s=float(restart.get("backoff_max_s", 10.0)),
-                            backoff_reset_s=float(restart.get("backoff_reset_s", 30.0)),
-                            stop_grace_s=float(restart.get("stop_grace_s", 10.0)),
-                            startup_timeout_s=float(restart.get("startup_timeout_s", 90.0)))
-    except (TypeError, ValueError) as e:
-        raise ConfigError(f"{path}: restart: {e}") from None
+    return DeployConfig(name=path.stem, path=str(path.resolve()), rig=str(raw.get("rig", "rig0")),
+                        routers=tuple(routers), nodes=tuple(nodes), check_endpoint=_check_endpoint(raw, path),
+                        shipped=path.resolve().parent == CONFIG_DIR, **_security(raw, path), **_restart(raw, path))
 
 
 # ----------------------------------------------------------------------------- run folder, lock, security
@@ -714,9 +735,11 @@ def main(argv: list[str]) -> int:
     try:
         cfg = load_config(args.config)
     except ConfigError as e:
-        print(f"cinetransfer deploy: {e}", file=sys.stderr)
-        return 2
-    run_dir = resolve_run_dir(cfg, args.run_dir)
+        return report_config_error(e, "cinetransfer deploy")
+    return _run_command(args, cfg, resolve_run_dir(cfg, args.run_dir))
+
+
+def _run_command(args: argparse.Namespace, cfg: DeployConfig, run_dir: Path) -> int:
     if args.cmd == "_supervise":
         if os.environ.get(ENV_RUN_DIR) != str(run_dir) or args.lock_fd is None:
             print("cinetransfer deploy _supervise is started by 'deploy up' (use 'up --foreground')", file=sys.stderr)

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import zenoh
 
+from cinetransfer.shared.errors import ConfigError
+
 ENV_CONFIG = "CT_ZENOH_CONFIG"
 MODES = ("peer", "client", "router")
 SHM_POOL_BYTES = 64 * 1024 * 1024  # holds ~20 raw 720p frames in flight
@@ -48,29 +50,36 @@ class ZenohOptions:
     extra: tuple[tuple[str, str], ...] = field(default=())  # (key, json5 value) pairs
 
     def validate(self) -> None:
+        """Raises ConfigError (a ValueError) naming the option."""
         if self.mode not in MODES:
-            raise ValueError(f"zenoh mode {self.mode!r} is not one of {', '.join(MODES)}")
+            raise ConfigError(f"zenoh mode {self.mode!r} is not one of {', '.join(MODES)}")
         for ep in (*self.listen, *self.connect):
             if "/" not in ep:
-                raise ValueError(f"zenoh endpoint {ep!r} must look like 'tcp/127.0.0.1:7447'")
+                raise ConfigError(f"zenoh endpoint {ep!r} must look like 'tcp/127.0.0.1:7447'")
+        self._validate_files()
+        for ep in self.listen:
+            self._validate_listener(ep)
+
+    def _validate_files(self) -> None:
         for p in (self.config_file, self.tls_root_ca, self.tls_cert, self.tls_key):
             if p and not os.path.isfile(p):
-                raise ValueError(f"zenoh configuration file {p!r} does not exist")
+                raise ConfigError(f"zenoh configuration file {p!r} does not exist")
         if bool(self.tls_cert) != bool(self.tls_key):
-            raise ValueError("--tls-cert and --tls-key must be given together")
+            raise ConfigError("--tls-cert and --tls-key must be given together")
         if self.secrets and not os.path.isdir(self.secrets):
-            raise ValueError(f"secrets folder {self.secrets!r} does not exist (cinetransfer deploy certs DIR)")
+            raise ConfigError(f"secrets folder {self.secrets!r} does not exist (cinetransfer deploy certs DIR)")
         if self.access_control and not os.path.isfile(self.access_control):
-            raise ValueError(f"access-control file {self.access_control!r} does not exist")
-        for ep in self.listen:
-            proto, host = endpoint_host(ep)
-            if proto in ("tls", "quic"):
-                if not (self.tls_mtls or self.secrets):
-                    raise ValueError(f"listener {ep!r}: tls/quic listeners must require client certificates "
-                                     f"(--mtls, or --secrets DIR which implies it)")
-            elif not _is_local(proto, host):
-                raise ValueError(f"listener {ep!r} would accept unauthenticated connections from the network; "
-                                 f"listen on 127.0.0.1 or use tls/{host}:PORT with mTLS (docs/security.md)")
+            raise ConfigError(f"access-control file {self.access_control!r} does not exist")
+
+    def _validate_listener(self, ep: str) -> None:
+        proto, host = endpoint_host(ep)
+        if proto in ("tls", "quic"):
+            if not (self.tls_mtls or self.secrets):
+                raise ConfigError(f"listener {ep!r}: tls/quic listeners must require client certificates "
+                                  f"(--mtls, or --secrets DIR which implies it)")
+        elif not _is_local(proto, host):
+            raise ConfigError(f"listener {ep!r} would accept unauthenticated connections from the network; "
+                              f"listen on 127.0.0.1 or use tls/{host}:PORT with mTLS (docs/security.md)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -130,6 +139,17 @@ def build_config(opts: ZenohOptions) -> zenoh.Config:
     def put(key: str, value: object) -> None:
         conf.insert_json5(key, json.dumps(value))
 
+    _put_links(opts, put)
+    _put_tls(opts, put)
+    if opts.access_control:
+        conf.insert_json5("access_control", Path(opts.access_control).read_text())
+    for key, value in opts.extra:
+        conf.insert_json5(key, value)
+    return conf
+
+
+def _put_links(opts: ZenohOptions, put) -> None:
+    """Mode, scouting, endpoints and shared memory."""
     put("mode", opts.mode)
     put("scouting/multicast/enabled", opts.multicast_scouting)
     if opts.listen:
@@ -142,21 +162,32 @@ def build_config(opts: ZenohOptions) -> zenoh.Config:
     put("transport/shared_memory/enabled", bool(opts.shared_memory))
     if opts.shared_memory:
         put("transport/shared_memory/transport_optimization/pool_size", SHM_POOL_BYTES)
-    root_ca, cert, key, mtls = opts.tls_root_ca, opts.tls_cert, opts.tls_key, opts.tls_mtls
-    if opts.secrets:
-        from cinetransfer.shared import access
 
-        sec = Path(opts.secrets)
-        if opts.mode == "router":
-            put("transport/auth/usrpwd/dictionary_file", str(sec / "users.txt"))
-        if opts.identity:
-            put("transport/auth/usrpwd/user", opts.identity)
-            put("transport/auth/usrpwd/password", access.read_password(sec, opts.identity))
-        if any(endpoint_host(ep)[0] in ("tls", "quic") for ep in (*opts.listen, *opts.connect)):
-            root_ca = root_ca or str(sec / "ca.pem")
-            if not cert and opts.identity and (sec / f"{opts.identity}.pem").is_file():
-                cert, key = str(sec / f"{opts.identity}.pem"), str(sec / f"{opts.identity}-key.pem")
-            mtls = True
+
+def _tls_files(opts: ZenohOptions, put) -> tuple[str | None, str | None, str | None, bool]:
+    """(root CA, certificate, key, mutual TLS): the options', completed from the secrets folder;
+    puts the user/password authentication of the secrets folder on the way."""
+    root_ca, cert, key, mtls = opts.tls_root_ca, opts.tls_cert, opts.tls_key, opts.tls_mtls
+    if not opts.secrets:
+        return root_ca, cert, key, mtls
+    from cinetransfer.shared import access
+
+    sec = Path(opts.secrets)
+    if opts.mode == "router":
+        put("transport/auth/usrpwd/dictionary_file", str(sec / "users.txt"))
+    if opts.identity:
+        put("transport/auth/usrpwd/user", opts.identity)
+        put("transport/auth/usrpwd/password", access.read_password(sec, opts.identity))
+    if any(endpoint_host(ep)[0] in ("tls", "quic") for ep in (*opts.listen, *opts.connect)):
+        root_ca = root_ca or str(sec / "ca.pem")
+        if not cert and opts.identity and (sec / f"{opts.identity}.pem").is_file():
+            cert, key = str(sec / f"{opts.identity}.pem"), str(sec / f"{opts.identity}-key.pem")
+        mtls = True
+    return root_ca, cert, key, mtls
+
+
+def _put_tls(opts: ZenohOptions, put) -> None:
+    root_ca, cert, key, mtls = _tls_files(opts, put)
     if root_ca:
         put("transport/link/tls/root_ca_certificate", root_ca)
     if cert:
@@ -166,11 +197,6 @@ def build_config(opts: ZenohOptions) -> zenoh.Config:
         put("transport/link/tls/connect_private_key", key)
     if mtls:
         put("transport/link/tls/enable_mtls", True)
-    if opts.access_control:
-        conf.insert_json5("access_control", Path(opts.access_control).read_text())
-    for key, value in opts.extra:
-        conf.insert_json5(key, value)
-    return conf
 
 
 def endpoint_host(endpoint: str) -> tuple[str, str]:

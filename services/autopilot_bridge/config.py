@@ -16,14 +16,13 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from cinetransfer.shared.errors import ConfigError
+from cinetransfer.shared.vehicle import VehicleProfile
+
 GEOFENCE_SHAPES = ("cylinder", "box")
 BACKENDS = ("sim", "mavlink")
 AUTOPILOTS = ("auto", "px4", "ardupilot")
 SIM_CLOCKS = ("lockstep", "realtime")
-
-
-class ConfigError(ValueError):
-    """A configuration value is out of its allowed range (the message names the field)."""
 
 
 def _finite(name: str, v: float) -> None:
@@ -48,9 +47,11 @@ def _range(lo_name: str, lo: float, hi_name: str, hi: float) -> None:
 class SafetyConfig:
     """Limits the bridge enforces on every setpoint, whatever the backend.
 
-    Defaults suit a small camera drone filming a person in an open field; the speed and
-    acceleration limits sit a little above the planner's own bounds (CineMPC: |v| <= 2 m/s,
-    |a| <= 1.2 m/s^2, DESIGN §4) so that the safety layer only acts on plans that break them.
+    The vehicle's limits (envelope, speed, acceleration, gimbal and lens ranges) come from its
+    profile (`from_vehicle`, shared/vehicle.py): the planner plans within the same numbers and
+    the simulator flies them. The defaults are the default profile's (deploy/vehicles/cinempc.yaml).
+    The planner bounds each axis of v and a; the safety layer bounds their norm (what the
+    simulated autopilot saturates too).
     """
 
     #: home point [m], world frame: centre of the geofence; altitudes are measured from its z.
@@ -62,28 +63,28 @@ class SafetyConfig:
     #: box half-extents (x, y) [m] around home (shape 'box').
     geofence_half_extent_m: tuple[float, float] = (60.0, 60.0)
     #: altitude band above home [m]: setpoints below/above are clamped.
-    altitude_min_m: float = 0.5
+    altitude_min_m: float = 1.0
     altitude_max_m: float = 40.0
     #: speed limit [m/s]: clamps the velocity feed-forward AND how fast the commanded position
     #: may move (a jump in the position setpoint is approached at this speed).
-    max_speed_mps: float = 3.0
+    max_speed_mps: float = 2.0
     #: acceleration limit [m/s^2]: clamps the acceleration feed-forward and the change of the
     #: velocity feed-forward between ticks.
-    max_accel_mps2: float = 2.0
+    max_accel_mps2: float = 1.2
     #: minimum horizontal distance [m] between the commanded position and the subject's centre
-    #: (the planner keeps 2 m itself, DESIGN §4); 0 disables.
-    min_subject_distance_m: float = 1.5
+    #: (CineMPC: 2 m, DESIGN §4); 0 disables.
+    min_subject_distance_m: float = 2.0
     #: subject state older than this [s] is ignored by the distance rule.
     subject_timeout_s: float = 1.0
     #: camera pitch band [rad] (positive = looking up) and |roll| limit [rad].
     gimbal_pitch_min_rad: float = -math.pi / 2
     gimbal_pitch_max_rad: float = math.radians(30.0)
-    gimbal_roll_max_rad: float = math.radians(20.0)
+    gimbal_roll_max_rad: float = math.radians(17.2)
     #: lens ranges: focal length [mm], focus distance [m], f-number.
-    focal_length_min_mm: float = 10.0
+    focal_length_min_mm: float = 30.0
     focal_length_max_mm: float = 500.0
-    focus_min_m: float = 0.3
-    focus_max_m: float = 1000.0
+    focus_min_m: float = 0.5
+    focus_max_m: float = 100.0
     f_number_min: float = 1.0
     f_number_max: float = 22.0
     #: watchdog [s]: no fresh accepted setpoint for this long -> hold position.
@@ -101,7 +102,34 @@ class SafetyConfig:
     def __post_init__(self) -> None:
         self.validate()
 
+    @classmethod
+    def from_vehicle(cls, v: VehicleProfile, **changes: Any) -> "SafetyConfig":
+        """The vehicle's envelope and limits (the planner and the simulator read the same numbers)."""
+        env, lens, gim = v.envelope, v.lens, v.gimbal
+        return cls(**{**dict(
+            geofence_shape=env.geofence_shape, geofence_radius_m=env.geofence_radius_m,
+            geofence_half_extent_m=env.geofence_half_extent_m,
+            altitude_min_m=env.altitude_m[0], altitude_max_m=env.altitude_m[1],
+            max_speed_mps=v.motion.speed_max_mps, max_accel_mps2=v.motion.accel_max_mps2,
+            min_subject_distance_m=env.min_subject_distance_m,
+            gimbal_pitch_min_rad=gim.pitch_rad[0], gimbal_pitch_max_rad=gim.pitch_rad[1],
+            gimbal_roll_max_rad=gim.roll_max_rad,
+            focal_length_min_mm=lens.focal_length_mm[0], focal_length_max_mm=lens.focal_length_mm[1],
+            focus_min_m=lens.focus_distance_m[0], focus_max_m=lens.focus_distance_m[1],
+            f_number_min=lens.f_number[0], f_number_max=lens.f_number[1]), **changes})
+
     def validate(self) -> None:
+        self._validate_envelope()
+        self._validate_gimbal_and_lens()
+        _positive("watchdog_timeout_s", self.watchdog_timeout_s)
+        for name, hi in (("breach_tolerance_m", 10.0), ("breach_return_margin_m", 50.0),
+                         ("max_stamp_ahead_s", 60.0)):
+            v = getattr(self, name)
+            _finite(name, v)
+            if not 0 <= v <= hi:
+                raise ConfigError(f"{name} = {v!r}: must be in [0, {hi}]")
+
+    def _validate_envelope(self) -> None:
         if len(self.home_m) != 3:
             raise ConfigError(f"home_m = {self.home_m!r}: needs 3 values (x, y, z)")
         for i, v in enumerate(self.home_m):
@@ -120,6 +148,8 @@ class SafetyConfig:
         if self.min_subject_distance_m < 0:
             raise ConfigError("min_subject_distance_m must be >= 0 (0 disables)")
         _positive("subject_timeout_s", self.subject_timeout_s)
+
+    def _validate_gimbal_and_lens(self) -> None:
         _range("gimbal_pitch_min_rad", self.gimbal_pitch_min_rad, "gimbal_pitch_max_rad", self.gimbal_pitch_max_rad)
         if self.gimbal_pitch_min_rad < -math.pi / 2 - 1e-9 or self.gimbal_pitch_max_rad > math.pi / 2 + 1e-9:
             raise ConfigError("gimbal pitch band must lie within [-pi/2, pi/2]")
@@ -131,13 +161,6 @@ class SafetyConfig:
         _range("f_number_min", self.f_number_min, "f_number_max", self.f_number_max)
         if self.focal_length_min_mm <= 0 or self.focus_min_m <= 0 or self.f_number_min <= 0:
             raise ConfigError("lens lower limits must be > 0")
-        _positive("watchdog_timeout_s", self.watchdog_timeout_s)
-        for name, hi in (("breach_tolerance_m", 10.0), ("breach_return_margin_m", 50.0),
-                         ("max_stamp_ahead_s", 60.0)):
-            v = getattr(self, name)
-            _finite(name, v)
-            if not 0 <= v <= hi:
-                raise ConfigError(f"{name} = {v!r}: must be in [0, {hi}]")
 
 
 @dataclass(frozen=True)
@@ -233,6 +256,9 @@ class BridgeConfig:
     scene: str = "lawn_juggler"
     #: simulator subject: a person from the subject library in place of the scene's own ('' = the scene's).
     subject: str = ""
+    #: vehicle profile (deploy/vehicles NAME or a path; '' = the default): the simulator flies it;
+    #: `safety` and `mavlink`'s sensor are built from it by the service.
+    vehicle: str = ""
     #: control loop rate [Hz]: setpoints are checked, the backend stepped and state published.
     rate_hz: float = 50.0
     #: publish frames as JPEG of this quality (1..100) for a radio link; 0 = raw (one host).

@@ -17,11 +17,7 @@ from typing import Sequence
 
 import numpy as np
 
-
-def wrap(a: float) -> float:
-    """Angle wrapped to (-pi, pi]."""
-    w = math.remainder(a, 2.0 * math.pi)
-    return math.pi if w == -math.pi else w
+from cinetransfer.shared.angles import wrap_angle as wrap
 
 
 def enu_to_ned(v: Sequence[float]) -> np.ndarray:

@@ -38,6 +38,7 @@ import numpy as np
 
 from cinetransfer.services.autopilot_bridge.config import SafetyConfig
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.angles import wrap_angle
 
 MODES = ("track", "hold")
 
@@ -51,12 +52,6 @@ COUNTER_NAMES = (
 
 
 # ----------------------------------------------------------------------------- pure helpers
-def wrap_angle(a: float) -> float:
-    """Angle wrapped to (-pi, pi]."""
-    w = math.remainder(a, 2.0 * math.pi)
-    return math.pi if w == -math.pi else w
-
-
 def clamp_norm(v: np.ndarray, max_norm: float) -> tuple[np.ndarray, bool]:
     """`v` scaled down to norm <= max_norm; (vector, whether it was clamped)."""
     n = float(np.linalg.norm(v))
@@ -304,6 +299,11 @@ class MotionCommand:
     clamps: tuple[str, ...] = ()
 
 
+def _note(clamps: list[str], hit: bool, counter: str) -> None:
+    if hit:
+        clamps.append(counter)
+
+
 class SafetyLayer:
     """Checks setpoints against `SafetyConfig` and counts every rejection and clamp."""
 
@@ -324,70 +324,79 @@ class SafetyLayer:
         skipped); `vehicle_xy`: where the vehicle is (direction of the push when the setpoint
         sits on the subject); `lens_now`: lens values used where the setpoint's are NaN.
         """
-        cfg = self.cfg
         self.counters["sp_checked"] += 1
-        if sp.mode not in MODES:
-            return self._reject(f"unknown setpoint mode {sp.mode!r}", "sp_rejected_mode")
-        for name in ("position_m", "velocity_mps", "acceleration_mps2", "camera_ypr_rad"):
-            a = getattr(sp, name)
-            if np.shape(a) != (3,) or not _finite_array(a):
-                return self._reject(f"setpoint {name} is not 3 finite numbers: {a!r}", "sp_rejected_nonfinite")
-        for name in ("focal_length_mm", "focus_distance_m", "f_number"):
-            v = getattr(sp.lens, name)
-            if isinstance(v, float) and math.isinf(v):
-                return self._reject(f"setpoint lens.{name} is infinite", "sp_rejected_nonfinite")
+        bad = self._invalid(sp)
+        if bad is not None:
+            return self._reject(*bad)
         clamps: list[str] = []
-
-        # -- position: subject distance, then geofence and altitude (the fence wins)
-        p = np.array(sp.position_m, dtype=float)
-        if subject_xy is not None and cfg.min_subject_distance_m > 0:
-            p, hit = push_from_subject(p, np.asarray(subject_xy, float), cfg.min_subject_distance_m, vehicle_xy)
-            if hit:
-                clamps.append("clamp_subject_distance")
-        p, hit = clamp_geofence(p, cfg)
-        if hit:
-            clamps.append("clamp_geofence")
-        p, hit = clamp_altitude(p, cfg)
-        if hit:
-            clamps.append("clamp_altitude")
-        if subject_xy is not None and cfg.min_subject_distance_m > 0:
-            if float(np.linalg.norm(p[:2] - subject_xy)) < cfg.min_subject_distance_m - 1e-6:
-                return self._reject("no point inside the geofence keeps the minimum subject distance",
-                                    "sp_rejected_subject_conflict")
-
-        # -- feed-forward velocity and acceleration
-        v, hit = clamp_norm(np.array(sp.velocity_mps, dtype=float), cfg.max_speed_mps)
-        if hit:
-            clamps.append("clamp_speed")
-        v, hit = clamp_outward_velocity(p, v, cfg)
-        if hit:
-            clamps.append("clamp_velocity_outward")
-        a, hit = clamp_norm(np.array(sp.acceleration_mps2, dtype=float), cfg.max_accel_mps2)
-        if hit:
-            clamps.append("clamp_accel")
-        a, hit = clamp_outward_accel(p, a, cfg)
-        if hit:
-            clamps.append("clamp_accel_outward")
-
-        # -- gimbal
-        yaw, pitch, roll = (float(x) for x in sp.camera_ypr_rad)
-        pitch2 = min(max(pitch, cfg.gimbal_pitch_min_rad), cfg.gimbal_pitch_max_rad)
-        roll2 = min(max(roll, -cfg.gimbal_roll_max_rad), cfg.gimbal_roll_max_rad)
-        if pitch2 != pitch or roll2 != roll:
-            clamps.append("clamp_gimbal")
-        ypr = np.array([wrap_angle(yaw), pitch2, roll2])
-
+        p = self._position(sp, subject_xy, vehicle_xy, clamps)
+        if p is None:
+            return self._reject("no point inside the geofence keeps the minimum subject distance",
+                                "sp_rejected_subject_conflict")
+        v, a = self._feed_forward(sp, p, clamps)
+        ypr = self._gimbal(sp, clamps)
         # -- lens (NaN = keep the current value)
         lens, hit = self.clamp_lens(sp.lens, lens_now)
-        if hit:
-            clamps.append("clamp_lens")
-
+        _note(clamps, hit, "clamp_lens")
         for c in clamps:
             self.counters[c] += 1
         self.counters["sp_accepted"] += 1
         out = dataclasses.replace(sp, position_m=p, velocity_mps=v, acceleration_mps2=a, camera_ypr_rad=ypr,
                                   lens=lens)
         return SafetyResult(out, "", tuple(clamps))
+
+    @staticmethod
+    def _invalid(sp: M.Setpoint) -> tuple[str, str] | None:
+        """(reason, counter) when the setpoint is unusable (unknown mode, non-finite values), else None."""
+        if sp.mode not in MODES:
+            return f"unknown setpoint mode {sp.mode!r}", "sp_rejected_mode"
+        for name in ("position_m", "velocity_mps", "acceleration_mps2", "camera_ypr_rad"):
+            a = getattr(sp, name)
+            if np.shape(a) != (3,) or not _finite_array(a):
+                return f"setpoint {name} is not 3 finite numbers: {a!r}", "sp_rejected_nonfinite"
+        for name in ("focal_length_mm", "focus_distance_m", "f_number"):
+            v = getattr(sp.lens, name)
+            if isinstance(v, float) and math.isinf(v):
+                return f"setpoint lens.{name} is infinite", "sp_rejected_nonfinite"
+        return None
+
+    def _position(self, sp: M.Setpoint, subject_xy: np.ndarray | None, vehicle_xy: np.ndarray | None,
+                  clamps: list[str]) -> np.ndarray | None:
+        """Subject distance, then geofence and altitude (the fence wins); None when they conflict."""
+        cfg = self.cfg
+        p = np.array(sp.position_m, dtype=float)
+        keep_away = subject_xy is not None and cfg.min_subject_distance_m > 0
+        if keep_away:
+            p, hit = push_from_subject(p, np.asarray(subject_xy, float), cfg.min_subject_distance_m, vehicle_xy)
+            _note(clamps, hit, "clamp_subject_distance")
+        p, hit = clamp_geofence(p, cfg)
+        _note(clamps, hit, "clamp_geofence")
+        p, hit = clamp_altitude(p, cfg)
+        _note(clamps, hit, "clamp_altitude")
+        if keep_away and float(np.linalg.norm(p[:2] - subject_xy)) < cfg.min_subject_distance_m - 1e-6:
+            return None
+        return p
+
+    def _feed_forward(self, sp: M.Setpoint, p: np.ndarray, clamps: list[str]) -> tuple[np.ndarray, np.ndarray]:
+        """Velocity and acceleration feed-forward within the limits, and not outward at the envelope."""
+        cfg = self.cfg
+        v, hit = clamp_norm(np.array(sp.velocity_mps, dtype=float), cfg.max_speed_mps)
+        _note(clamps, hit, "clamp_speed")
+        v, hit = clamp_outward_velocity(p, v, cfg)
+        _note(clamps, hit, "clamp_velocity_outward")
+        a, hit = clamp_norm(np.array(sp.acceleration_mps2, dtype=float), cfg.max_accel_mps2)
+        _note(clamps, hit, "clamp_accel")
+        a, hit = clamp_outward_accel(p, a, cfg)
+        _note(clamps, hit, "clamp_accel_outward")
+        return v, a
+
+    def _gimbal(self, sp: M.Setpoint, clamps: list[str]) -> np.ndarray:
+        cfg = self.cfg
+        yaw, pitch, roll = (float(x) for x in sp.camera_ypr_rad)
+        pitch2 = min(max(pitch, cfg.gimbal_pitch_min_rad), cfg.gimbal_pitch_max_rad)
+        roll2 = min(max(roll, -cfg.gimbal_roll_max_rad), cfg.gimbal_roll_max_rad)
+        _note(clamps, pitch2 != pitch or roll2 != roll, "clamp_gimbal")
+        return np.array([wrap_angle(yaw), pitch2, roll2])
 
     def clamp_lens(self, lens: M.LensState, lens_now: M.LensState | None) -> tuple[M.LensState, bool]:
         cfg = self.cfg

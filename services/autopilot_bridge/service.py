@@ -22,18 +22,18 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
-import sys
 import time
-from pathlib import Path
 from typing import Any
 
 from cinetransfer.services.autopilot_bridge.config import (
     AUTOPILOTS, BACKENDS, GEOFENCE_SHAPES, BridgeConfig, ConfigError, MavlinkConfig, SafetyConfig)
 from cinetransfer.services.autopilot_bridge.core import BridgeCore
 from cinetransfer.services.autopilot_bridge.port import VehiclePort
-from cinetransfer.shared import keys
+from cinetransfer.shared import keys, nodeconfig
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.errors import report_config_error
 from cinetransfer.shared.node import add_node_arguments, call_periodically, node_from_args
+from cinetransfer.shared.vehicle import add_vehicle_argument, load_vehicle
 
 log = logging.getLogger("cinetransfer.autopilot_bridge")
 NODE_NAME = "autopilot_bridge"
@@ -55,7 +55,8 @@ def _floats(n: int):
 
 #: flag dest -> (config section, field)
 _FLAG_FIELDS = {
-    "backend": ("bridge", "backend"), "scene": ("bridge", "scene"), "subject": ("bridge", "subject"), "rate": ("bridge", "rate_hz"),
+    "backend": ("bridge", "backend"), "scene": ("bridge", "scene"), "subject": ("bridge", "subject"),
+    "rate": ("bridge", "rate_hz"),
     "jpeg": ("bridge", "jpeg_quality"), "realtime": ("bridge", "sim_clock"), "step": ("bridge", "step_s"),
     "pace": ("bridge", "pace"), "setpoint_wait": ("bridge", "setpoint_wait_s"),
     "home": ("safety", "home_m"), "geofence": ("safety", "geofence_shape"),
@@ -73,8 +74,8 @@ _FLAG_FIELDS = {
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="cinetransfer autopilot_bridge",
                                  description="vehicle bridge: safety layer + built-in simulator or MAVLink")
-    ap.add_argument("--config", metavar="YAML", default=None,
-                    help="config file with sections bridge:, safety:, mavlink: (flags override it)")
+    nodeconfig.add_config_arguments(ap, NODE_NAME)
+    add_vehicle_argument(ap)
     g = ap.add_argument_group("bridge")
     g.add_argument("--backend", choices=BACKENDS, default=None, help="vehicle backend (default sim)")
     g.add_argument("--scene", default=None, help="simulator scene name or file (sim backend)")
@@ -122,29 +123,42 @@ def _tuplify(d: dict[str, Any]) -> dict[str, Any]:
     return {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
 
 
-def config_from_args(args: argparse.Namespace) -> BridgeConfig:
-    """Defaults, then the --config file, then flags. Raises ConfigError naming the field."""
-    sections: dict[str, dict[str, Any]] = {"bridge": {}, "safety": {}, "mavlink": {}}
-    if args.config:
-        import yaml
+def _sections(settings: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The node's settings split into bridge fields and the safety: / mavlink: sub-sections.
 
-        data = yaml.safe_load(Path(args.config).read_text()) or {}
-        if not isinstance(data, dict):
-            raise ConfigError(f"{args.config}: expected a mapping with sections bridge/safety/mavlink")
-        for sec, vals in data.items():
-            if sec not in sections or not isinstance(vals, dict):
-                raise ConfigError(f"{args.config}: unknown section {sec!r} (allowed: bridge, safety, mavlink)")
-            sections[sec].update(_tuplify(vals))
+    Bridge fields stand at the top (a deploy config's `settings`) or under `bridge:` (a file of
+    the bridge's own)."""
+    settings = dict(settings)
+    out: dict[str, dict[str, Any]] = {}
+    for sec in ("bridge", "safety", "mavlink"):
+        vals = settings.pop(sec, None) or {}
+        if not isinstance(vals, dict):
+            raise ConfigError(f"autopilot_bridge config: {sec} must be a mapping")
+        out[sec] = _tuplify(vals)
+    out["bridge"].update(_tuplify(settings))
+    return out
+
+
+def config_from_args(args: argparse.Namespace) -> BridgeConfig:
+    """The vehicle profile's limits, then the node's settings (shared/nodeconfig.py), then flags.
+
+    Raises ConfigError naming the field."""
+    sections = _sections(nodeconfig.args_section(args, NODE_NAME))
     for dest, (sec, fld) in _FLAG_FIELDS.items():
         v = getattr(args, dest, None)
         if v is not None:
             sections[sec][fld] = v
+    if getattr(args, "vehicle", None):
+        sections["bridge"]["vehicle"] = args.vehicle
+    vehicle = load_vehicle(sections["bridge"].get("vehicle") or None)
+    cam = vehicle.camera
+    mav = {"sensor_width_mm": cam.sensor_width_mm, "sensor_height_mm": cam.sensor_height_mm, "coc_mm": cam.coc_mm,
+           **sections["mavlink"]}
     try:
-        safety = SafetyConfig(**sections["safety"])
-        mav = MavlinkConfig(**sections["mavlink"])
-        return BridgeConfig(safety=safety, mavlink=mav, **sections["bridge"])
+        safety = SafetyConfig.from_vehicle(vehicle, **sections["safety"])
+        return BridgeConfig(safety=safety, mavlink=MavlinkConfig(**mav), **sections["bridge"])
     except TypeError as e:  # unknown field name in the file
-        raise ConfigError(str(e)) from None
+        raise ConfigError(f"autopilot_bridge config: {e}") from None
 
 
 # ----------------------------------------------------------------------------- backends
@@ -162,7 +176,10 @@ def make_backend(cfg: BridgeConfig) -> VehiclePort:
     # time nothing is skipped: rendering overlaps the planner's solve, and a step ends with its
     # frames.
     lag = SIM_MAX_FRAME_LAG_S if cfg.sim_clock == "realtime" else None
-    return SimBackend(load_scene(cfg.scene, subject=cfg.subject or None), max_frame_lag_s=lag, async_render=True)
+    from cinetransfer.services.autopilot_bridge.sim.scene import with_vehicle
+
+    scene = with_vehicle(load_scene(cfg.scene, subject=cfg.subject or None), load_vehicle(cfg.vehicle or None))
+    return SimBackend(scene, max_frame_lag_s=lag, async_render=True)
 
 
 # ----------------------------------------------------------------------------- service
@@ -312,8 +329,7 @@ def main(argv: list[str]) -> int:
     try:
         cfg = config_from_args(args)
     except ConfigError as e:
-        print(f"cinetransfer autopilot_bridge: invalid configuration: {e}", file=sys.stderr)
-        return 2
+        return report_config_error(e, "cinetransfer autopilot_bridge")
     node = node_from_args(NODE_NAME, args, config=cfg)
     sim_time = cfg.backend == "sim" and cfg.sim_clock == "lockstep"
     try:

@@ -23,10 +23,9 @@ It emulates just enough of PX4 (or ArduCopter with --autopilot ardupilot) for th
 - ArduCopter GUIDED semantics: position targets move it once it is flying (take-off first when
   landed); a velocity-only target stops after 3 s without update; no stream is required.
 
-Dynamics (--dynamics): 'sim' (default) = the built-in simulator's `sim.dynamics.VehicleDynamics`
-(the same model the sim backend flies; arming and the ground added by
-`vehicle_model.SimDynamicsAdapter`), or 'simple' = `vehicle_model.VehicleModel`, a small point
-mass of its own with the same kind of limits, which does not import the simulator.
+Dynamics: the built-in simulator's `sim.dynamics.VehicleDynamics` (the one model the sim backend
+flies too; arming and the ground added by `vehicle_model.SimDynamicsAdapter`), with the limits,
+lens ranges and camera sensor of the vehicle profile (--vehicle, shared/vehicle.py).
 """
 from __future__ import annotations
 
@@ -44,7 +43,10 @@ import numpy as np
 
 from cinetransfer.services.autopilot_bridge import enu_ned as F
 from cinetransfer.services.autopilot_bridge.mavlink import connect, mavlink
-from cinetransfer.services.autopilot_bridge.vehicle_model import ModelParams, SimDynamicsAdapter, VehicleModel
+from cinetransfer.services.autopilot_bridge.sim.dynamics import DynamicsLimits
+from cinetransfer.services.autopilot_bridge.vehicle_model import SimDynamicsAdapter
+from cinetransfer.shared.errors import ConfigError, report_config_error
+from cinetransfer.shared.vehicle import VehicleProfile, add_vehicle_argument, load_vehicle
 
 log = logging.getLogger("cinetransfer.sim_vehicle")
 
@@ -57,23 +59,16 @@ class SimVehicle:
 
     def __init__(self, url: str, *, autopilot: str = "px4", system_id: int = 1, start_enu=(0.0, 0.0, 0.0),
                  rate_hz: float = 100.0, telemetry_hz: float = 50.0, offboard_timeout_s: float = 0.5,
-                 params: ModelParams | None = None, sensor_width_mm: float = 23.76,
-                 sensor_height_mm: float = 13.365, dynamics: str = "sim") -> None:
+                 vehicle: VehicleProfile | None = None) -> None:
         if autopilot not in ("px4", "ardupilot"):
             raise ValueError(f"autopilot {autopilot!r} must be 'px4' or 'ardupilot'")
         self.url, self.autopilot = url, autopilot
         self.rate_hz = rate_hz
         self.offboard_timeout_s = offboard_timeout_s
-        self.sensor_w, self.sensor_h = sensor_width_mm, sensor_height_mm
+        vehicle = vehicle or load_vehicle()
+        self.sensor_w, self.sensor_h = vehicle.camera.sensor_width_mm, vehicle.camera.sensor_height_mm
         self.conn = connect(url, source_system=system_id, source_component=R.MAV_COMP_ID_AUTOPILOT1)
-        if dynamics == "sim":
-            self.model: Any = SimDynamicsAdapter(start_enu)
-        elif dynamics == "simple":
-            self.model = VehicleModel(params=params or ModelParams())
-            self.model.position_m = np.asarray(start_enu, dtype=float).copy()
-            self.model.hold_here()
-        else:
-            raise ValueError(f"dynamics {dynamics!r} must be 'sim' or 'simple'")
+        self.model: Any = SimDynamicsAdapter(start_enu, limits=DynamicsLimits.from_vehicle(vehicle))
         self.home_enu = np.array([start_enu[0], start_enu[1], 0.0])
         self.mode = "LOITER"  # PX4 AUTO.LOITER ('Hold') / ArduCopter LOITER
         self.t0 = time.monotonic()
@@ -148,30 +143,37 @@ class SimVehicle:
         if t == "HEARTBEAT":
             if msg.get_srcSystem() != self.conn.mav.srcSystem:
                 self.last_gcs_heartbeat_s = now
-        elif t == "SET_MODE":
-            if msg.target_system == self.conn.mav.srcSystem:
-                cm = int(msg.custom_mode)
-                name = self._mode_from_custom(msg.base_mode, (cm >> 16) & 0xFF if self.autopilot == "px4" else cm,
-                                              (cm >> 24) & 0xFF)
-                if name:
-                    self._set_mode(name, now)
-        elif t == "COMMAND_LONG":
-            if msg.target_system in (0, self.conn.mav.srcSystem) and msg.target_component in CAMERA_COMPONENTS:
-                result = self._command(int(msg.command), [msg.param1, msg.param2, msg.param3, msg.param4,
-                                                          msg.param5, msg.param6, msg.param7], now)
-                self.conn.mav.command_ack_send(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
-                self.stats["acks_sent"] += 1
-        elif t == "SET_POSITION_TARGET_LOCAL_NED":
-            if msg.target_system == self.conn.mav.srcSystem:
-                self._setpoint(msg, now)
-        elif t == "GIMBAL_MANAGER_SET_ATTITUDE":
-            if msg.target_system == self.conn.mav.srcSystem:
-                q = list(msg.q)
-                if all(math.isfinite(c) for c in q):
-                    roll, pitch, yaw = F.quat_to_euler(q)
-                    if not msg.flags & R.GIMBAL_MANAGER_FLAGS_YAW_LOCK:
-                        yaw += F.yaw_enu_to_ned(self.model.yaw_rad)  # vehicle-relative yaw
-                    self.model.point_camera(np.array([F.yaw_ned_to_enu(yaw), pitch, roll]))
+            return
+        handler = {"SET_MODE": self._rx_set_mode, "COMMAND_LONG": self._rx_command,
+                   "SET_POSITION_TARGET_LOCAL_NED": self._setpoint,
+                   "GIMBAL_MANAGER_SET_ATTITUDE": self._rx_gimbal}.get(t)
+        if handler is not None and msg.target_system in (0, self.conn.mav.srcSystem):
+            # only COMMAND_LONG may be broadcast (target 0); the others must name this vehicle
+            if msg.target_system == self.conn.mav.srcSystem or t == "COMMAND_LONG":
+                handler(msg, now)
+
+    def _rx_set_mode(self, msg: Any, now: float) -> None:
+        cm = int(msg.custom_mode)
+        name = self._mode_from_custom(msg.base_mode, (cm >> 16) & 0xFF if self.autopilot == "px4" else cm,
+                                      (cm >> 24) & 0xFF)
+        if name:
+            self._set_mode(name, now)
+
+    def _rx_command(self, msg: Any, now: float) -> None:
+        if msg.target_component not in CAMERA_COMPONENTS:
+            return
+        result = self._command(int(msg.command), [msg.param1, msg.param2, msg.param3, msg.param4,
+                                                  msg.param5, msg.param6, msg.param7], now)
+        self.conn.mav.command_ack_send(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
+        self.stats["acks_sent"] += 1
+
+    def _rx_gimbal(self, msg: Any, now: float) -> None:
+        q = list(msg.q)
+        if all(math.isfinite(c) for c in q):
+            roll, pitch, yaw = F.quat_to_euler(q)
+            if not msg.flags & R.GIMBAL_MANAGER_FLAGS_YAW_LOCK:
+                yaw += F.yaw_enu_to_ned(self.model.yaw_rad)  # vehicle-relative yaw
+            self.model.point_camera(np.array([F.yaw_ned_to_enu(yaw), pitch, roll]))
 
     def _setpoint(self, msg: Any, now: float) -> None:
         if msg.coordinate_frame != R.MAV_FRAME_LOCAL_NED:
@@ -198,69 +200,90 @@ class SimVehicle:
         self.model.track(F.ned_to_enu([msg.x, msg.y, msg.z]) if pos_ok else None, vel, yaw)
 
     def _command(self, cmd: int, p: list[float], now: float) -> int:
+        """Carry out a COMMAND_LONG; returns its MAV_RESULT."""
+        handlers = {
+            R.MAV_CMD_DO_SET_MODE: self._cmd_set_mode, R.MAV_CMD_COMPONENT_ARM_DISARM: self._cmd_arm,
+            R.MAV_CMD_NAV_TAKEOFF: self._cmd_takeoff, R.MAV_CMD_NAV_LAND: self._cmd_land,
+            R.MAV_CMD_GET_HOME_POSITION: self._cmd_home, R.MAV_CMD_SET_MESSAGE_INTERVAL: self._cmd_interval,
+            R.MAV_CMD_SET_CAMERA_ZOOM: self._cmd_zoom, R.MAV_CMD_SET_CAMERA_FOCUS: self._cmd_focus,
+            R.MAV_CMD_DO_DIGICAM_CONFIGURE: self._cmd_digicam, R.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW: self._cmd_pitchyaw,
+        }
+        handler = handlers.get(cmd)
+        return R.MAV_RESULT_UNSUPPORTED if handler is None else handler(p, now)
+
+    def _cmd_set_mode(self, p: list[float], now: float) -> int:
+        name = self._mode_from_custom(int(p[0]), int(p[1]), int(p[2]))
+        return R.MAV_RESULT_DENIED if name is None else self._set_mode(name, now)
+
+    def _cmd_arm(self, p: list[float], now: float) -> int:
         m = self.model
-        if cmd == R.MAV_CMD_DO_SET_MODE:
-            name = self._mode_from_custom(int(p[0]), int(p[1]), int(p[2]))
-            return R.MAV_RESULT_DENIED if name is None else self._set_mode(name, now)
-        if cmd == R.MAV_CMD_COMPONENT_ARM_DISARM:
-            if p[0] >= 0.5:
-                if not m.armed:
-                    m.armed = True
-                    m.hold_here()
-                    self._event("armed")
-                return R.MAV_RESULT_ACCEPTED
-            if not m.landed and int(p[1]) != 21196:
-                return R.MAV_RESULT_DENIED  # no disarm in flight unless forced
-            m.armed = False
-            self.taking_off = False
-            self._event("disarmed")
-            return R.MAV_RESULT_ACCEPTED
-        if cmd == R.MAV_CMD_NAV_TAKEOFF:
+        if p[0] >= 0.5:
             if not m.armed:
-                return R.MAV_RESULT_DENIED
-            alt = float(p[6]) if math.isfinite(p[6]) and p[6] > 0 else 2.5
-            m.track(np.array([m.position_m[0], m.position_m[1], m.ground_z_m + alt]), np.zeros(3), None)
-            self.taking_off = True
-            self.takeoff_alt_m = m.ground_z_m + alt
-            if self.autopilot == "px4":
-                self.mode = "TAKEOFF"
-            self._event(f"take-off to {alt:.1f} m")
+                m.armed = True
+                m.hold_here()
+                self._event("armed")
             return R.MAV_RESULT_ACCEPTED
-        if cmd == R.MAV_CMD_NAV_LAND:
-            return self._set_mode("LAND", now) if self.mode != "LAND" else R.MAV_RESULT_ACCEPTED
-        if cmd == R.MAV_CMD_GET_HOME_POSITION:
-            self._send_home(now)
-            return R.MAV_RESULT_ACCEPTED
-        if cmd == R.MAV_CMD_SET_MESSAGE_INTERVAL:
-            name = {R.MAVLINK_MSG_ID_LOCAL_POSITION_NED: "LOCAL_POSITION_NED", R.MAVLINK_MSG_ID_ATTITUDE: "ATTITUDE",
-                    R.MAVLINK_MSG_ID_GIMBAL_DEVICE_ATTITUDE_STATUS: "GIMBAL_DEVICE_ATTITUDE_STATUS",
-                    R.MAVLINK_MSG_ID_CAMERA_FOV_STATUS: "CAMERA_FOV_STATUS",
-                    R.MAVLINK_MSG_ID_HEARTBEAT: "HEARTBEAT"}.get(int(p[0]))
-            if name is None:
-                return R.MAV_RESULT_UNSUPPORTED
-            if p[1] > 0:
-                self.intervals[name] = max(p[1] * 1e-6, 0.005)
-            return R.MAV_RESULT_ACCEPTED
-        if cmd == R.MAV_CMD_SET_CAMERA_ZOOM:
-            if int(p[0]) != R.ZOOM_TYPE_FOCAL_LENGTH:
-                return R.MAV_RESULT_UNSUPPORTED
-            return _set_lens_in_range(m, "focal_length_mm", p[1])
-        if cmd == R.MAV_CMD_SET_CAMERA_FOCUS:
-            if int(p[0]) != R.FOCUS_TYPE_METERS:
-                return R.MAV_RESULT_UNSUPPORTED
-            return _set_lens_in_range(m, "focus_distance_m", p[1])
-        if cmd == R.MAV_CMD_DO_DIGICAM_CONFIGURE:
-            # param3 = f-stop; 0 (or less) leaves the aperture alone, as the command's other fields are
-            return _set_lens_in_range(m, "f_number", p[2]) if p[2] > 0 else R.MAV_RESULT_ACCEPTED
-        if cmd == R.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW:
-            pitch, yaw = math.radians(p[0]), math.radians(p[1])
-            if not (math.isfinite(pitch) and math.isfinite(yaw)):
-                return R.MAV_RESULT_DENIED
-            flags = int(p[4])
-            yaw_ned = yaw if flags & R.GIMBAL_MANAGER_FLAGS_YAW_LOCK else yaw + F.yaw_enu_to_ned(m.yaw_rad)
-            m.point_camera(np.array([F.yaw_ned_to_enu(yaw_ned), pitch, 0.0]))
-            return R.MAV_RESULT_ACCEPTED
-        return R.MAV_RESULT_UNSUPPORTED
+        if not m.landed and int(p[1]) != 21196:
+            return R.MAV_RESULT_DENIED  # no disarm in flight unless forced
+        m.armed = False
+        self.taking_off = False
+        self._event("disarmed")
+        return R.MAV_RESULT_ACCEPTED
+
+    def _cmd_takeoff(self, p: list[float], now: float) -> int:
+        m = self.model
+        if not m.armed:
+            return R.MAV_RESULT_DENIED
+        alt = float(p[6]) if math.isfinite(p[6]) and p[6] > 0 else 2.5
+        m.track(np.array([m.position_m[0], m.position_m[1], m.ground_z_m + alt]), np.zeros(3), None)
+        self.taking_off = True
+        self.takeoff_alt_m = m.ground_z_m + alt
+        if self.autopilot == "px4":
+            self.mode = "TAKEOFF"
+        self._event(f"take-off to {alt:.1f} m")
+        return R.MAV_RESULT_ACCEPTED
+
+    def _cmd_land(self, p: list[float], now: float) -> int:
+        return self._set_mode("LAND", now) if self.mode != "LAND" else R.MAV_RESULT_ACCEPTED
+
+    def _cmd_home(self, p: list[float], now: float) -> int:
+        self._send_home(now)
+        return R.MAV_RESULT_ACCEPTED
+
+    def _cmd_interval(self, p: list[float], now: float) -> int:
+        name = {R.MAVLINK_MSG_ID_LOCAL_POSITION_NED: "LOCAL_POSITION_NED", R.MAVLINK_MSG_ID_ATTITUDE: "ATTITUDE",
+                R.MAVLINK_MSG_ID_GIMBAL_DEVICE_ATTITUDE_STATUS: "GIMBAL_DEVICE_ATTITUDE_STATUS",
+                R.MAVLINK_MSG_ID_CAMERA_FOV_STATUS: "CAMERA_FOV_STATUS",
+                R.MAVLINK_MSG_ID_HEARTBEAT: "HEARTBEAT"}.get(int(p[0]))
+        if name is None:
+            return R.MAV_RESULT_UNSUPPORTED
+        if p[1] > 0:
+            self.intervals[name] = max(p[1] * 1e-6, 0.005)
+        return R.MAV_RESULT_ACCEPTED
+
+    def _cmd_zoom(self, p: list[float], now: float) -> int:
+        if int(p[0]) != R.ZOOM_TYPE_FOCAL_LENGTH:
+            return R.MAV_RESULT_UNSUPPORTED
+        return _set_lens_in_range(self.model, "focal_length_mm", p[1])
+
+    def _cmd_focus(self, p: list[float], now: float) -> int:
+        if int(p[0]) != R.FOCUS_TYPE_METERS:
+            return R.MAV_RESULT_UNSUPPORTED
+        return _set_lens_in_range(self.model, "focus_distance_m", p[1])
+
+    def _cmd_digicam(self, p: list[float], now: float) -> int:
+        # param3 = f-stop; 0 (or less) leaves the aperture alone, as the command's other fields are
+        return _set_lens_in_range(self.model, "f_number", p[2]) if p[2] > 0 else R.MAV_RESULT_ACCEPTED
+
+    def _cmd_pitchyaw(self, p: list[float], now: float) -> int:
+        m = self.model
+        pitch, yaw = math.radians(p[0]), math.radians(p[1])
+        if not (math.isfinite(pitch) and math.isfinite(yaw)):
+            return R.MAV_RESULT_DENIED
+        flags = int(p[4])
+        yaw_ned = yaw if flags & R.GIMBAL_MANAGER_FLAGS_YAW_LOCK else yaw + F.yaw_enu_to_ned(m.yaw_rad)
+        m.point_camera(np.array([F.yaw_ned_to_enu(yaw_ned), pitch, 0.0]))
+        return R.MAV_RESULT_ACCEPTED
 
     # ------------------------------------------------------------------ send
     def _send_home(self, now: float) -> None:
@@ -400,19 +423,19 @@ def main(argv: list[str]) -> int:
                     help="LOCAL_POSITION_NED / ATTITUDE rate [Hz] (default %(default)s)")
     ap.add_argument("--offboard-timeout", type=float, default=0.5,
                     help="PX4: leave OFFBOARD when no setpoint for this long [s] (default %(default)s)")
-    ap.add_argument("--max-speed", type=float, default=5.0,
-                    help="vehicle speed limit [m/s] (--dynamics simple only)")
-    ap.add_argument("--dynamics", choices=("sim", "simple"), default="sim",
-                    help="'sim': the built-in simulator's vehicle dynamics (default); "
-                         "'simple': vehicle_model.VehicleModel, no dependency on the simulator")
+    add_vehicle_argument(ap)
     ap.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     args = ap.parse_args(argv)
     logging.basicConfig(level=getattr(logging, args.log_level),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    for name in ("rate", "telemetry_rate", "offboard_timeout", "max_speed"):
+    for name in ("rate", "telemetry_rate", "offboard_timeout"):
         v = getattr(args, name)
         if not (math.isfinite(v) and v > 0):
             ap.error(f"--{name.replace('_', '-')} must be > 0")
+    try:
+        vehicle = load_vehicle(args.vehicle)
+    except ConfigError as e:
+        return report_config_error(e, "cinetransfer sim-vehicle")
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: object) -> None:
@@ -423,7 +446,7 @@ def main(argv: list[str]) -> int:
     signal.signal(signal.SIGTERM, on_signal)
     veh = SimVehicle(args.mavlink, autopilot=args.autopilot, system_id=args.system_id, start_enu=args.start,
                      rate_hz=args.rate, telemetry_hz=args.telemetry_rate, offboard_timeout_s=args.offboard_timeout,
-                     params=ModelParams(max_speed_mps=args.max_speed), dynamics=args.dynamics)
+                     vehicle=vehicle)
     log.info("sim-vehicle (%s) on %s, start %s", args.autopilot, args.mavlink, args.start)
     try:
         veh.run(stop)

@@ -19,7 +19,7 @@ landmarker instead (core.make_backend).
 
 Models folder: $CT_DETECTOR_MODELS if set, else `<sys.prefix>/share/cinetransfer/detector-models`
 (inside the venv, so a fresh venv reflects exactly what its setup installed). Cache of the npm
-tarballs: $CT_CACHE_DIR/npm (default ~/.cache/cinetransfer/npm).
+tarballs: shared/paths.cache_dir()/npm ($CT_CACHE_DIR, default ~/.cache/cinetransfer).
 """
 from __future__ import annotations
 
@@ -35,6 +35,8 @@ import tarfile
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+
+from cinetransfer.shared.paths import cache_dir
 
 NPM_PACKAGES = {
     "objectron": ("@mediapipe/objectron", "0.4.1675468480", "mediapipe-objectron-0.4.1675468480.tgz"),
@@ -80,8 +82,7 @@ def models_dir() -> Path:
 
 
 def npm_cache_dir() -> Path:
-    env = os.environ.get("CT_CACHE_DIR")
-    return (Path(env) if env else Path.home() / ".cache" / "cinetransfer") / "npm"
+    return cache_dir("npm")
 
 
 def _sha(data: bytes) -> str:

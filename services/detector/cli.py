@@ -12,8 +12,10 @@ import logging
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
-from cinetransfer.services.detector.config import ConfigError, add_config_arguments, config_from_args
+from cinetransfer.services.detector.config import add_config_arguments, config_from_args
+from cinetransfer.shared.errors import ConfigError, report_config_error
 
 log = logging.getLogger("cinetransfer.detector")
 
@@ -35,21 +37,17 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def main(argv: list[str]) -> int:
-    args = build_parser().parse_args(argv)
-    logging.basicConfig(level=getattr(logging, args.log_level), format="%(levelname)s %(name)s: %(message)s")
+def _start(args: argparse.Namespace) -> tuple[Any, Any, Path, Any] | int:
+    """(config, source info, output path, detector), or the exit status when one of them fails."""
     try:
         cfg = config_from_args(args)
     except ConfigError as e:
-        log.error("%s", e)
-        return 2
+        return report_config_error(e, "cinetransfer detect")
     if args.start < 0 or (args.stop is not None and args.stop <= args.start):
         log.error("--start/--stop: need 0 <= start < stop")
         return 2
-
     from cinetransfer.services.detector.core import Detector, DetectorError
-    from cinetransfer.services.detector.measurements_file import MeasurementsWriter
-    from cinetransfer.services.detector.sources import FrameSourceError, iter_frames, probe
+    from cinetransfer.services.detector.sources import FrameSourceError, probe
 
     try:
         info = probe(args.source, hash_file=args.hash, fps=args.fps)
@@ -61,22 +59,27 @@ def main(argv: list[str]) -> int:
         log.error("output folder %s does not exist", out.parent)
         return 1
     try:
-        det = Detector(cfg)
+        return cfg, info, out, Detector(cfg)
     except (DetectorError, OSError, RuntimeError) as e:
         log.error("detector cannot start: %s", e)
         return 1
 
-    total = info.n_frames
-    if total:
-        total = max(0, min(total, args.stop if args.stop is not None else total) - args.start)
-    overlay = None
-    n = 0
-    people = 0
-    t0 = time.perf_counter()
-    rc = 0
-    try:
+
+class _Run:
+    """Frames measured, people seen and the overlay of one `detect` run."""
+
+    def __init__(self) -> None:
+        self.n, self.people, self.overlay, self.t0 = 0, 0, None, time.perf_counter()
+
+    def measure(self, args: argparse.Namespace, cfg: Any, info: Any, out: Path, det: Any) -> None:
         from tqdm import tqdm
 
+        from cinetransfer.services.detector.measurements_file import MeasurementsWriter
+        from cinetransfer.services.detector.sources import iter_frames
+
+        total = info.n_frames
+        if total:
+            total = max(0, min(total, args.stop if args.stop is not None else total) - args.start)
         with MeasurementsWriter(out, source=info, detector=det.name, config=cfg,
                                 focus_map_scale=det.focus_map_scale(info.width, info.height)) as writer, \
                 tqdm(total=total or None, unit="frame", disable=args.no_progress, dynamic_ncols=True,
@@ -85,32 +88,50 @@ def main(argv: list[str]) -> int:
                 m = det.process(f.image, f.index, f.stamp_ns, source=info.path, fps=f.fps)
                 writer.write(m)
                 if args.overlay:
-                    if overlay is None:
-                        from cinetransfer.services.detector.overlay import OverlayWriter
-
-                        overlay = OverlayWriter(args.overlay, f.fps, f.image.shape[1], f.image.shape[0])
-                    overlay.write(f.image, m)
-                n += 1
-                people += len(m.people)
+                    self._overlay(args.overlay, f, m)
+                self.n += 1
+                self.people += len(m.people)
                 bar.update(1)
-                bar.set_postfix(fps=f"{n / max(1e-9, time.perf_counter() - t0):.1f}", people=len(m.people), refresh=False)
+                bar.set_postfix(fps=f"{self.n / max(1e-9, time.perf_counter() - self.t0):.1f}",
+                                people=len(m.people), refresh=False)
+
+    def _overlay(self, path: str, f: Any, m: Any) -> None:
+        if self.overlay is None:
+            from cinetransfer.services.detector.overlay import OverlayWriter
+
+            self.overlay = OverlayWriter(path, f.fps, f.image.shape[1], f.image.shape[0])
+        self.overlay.write(f.image, m)
+
+
+def main(argv: list[str]) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=getattr(logging, args.log_level), format="%(levelname)s %(name)s: %(message)s")
+    started = _start(args)
+    if isinstance(started, int):
+        return started
+    cfg, info, out, det = started
+    from cinetransfer.services.detector.sources import FrameSourceError
+
+    run, rc = _Run(), 0
+    try:
+        run.measure(args, cfg, info, out, det)
     except FrameSourceError as e:
         log.error("cannot read the source: %s", e)
         rc = 1
     except KeyboardInterrupt:
-        log.warning("interrupted: kept %d measurements", n)
+        log.warning("interrupted: kept %d measurements", run.n)
         rc = 130
     except OSError as e:
         log.error("%s", e)
         rc = 1
     finally:
         det.close()
-        if overlay is not None:
-            overlay.close()
-    dt = time.perf_counter() - t0
-    if n:
-        log.info("%d frames in %.1f s (%.1f frames/s), %.2f people/frame -> %s%s", n, dt, n / dt, people / n, out,
-                 f", overlay {args.overlay}" if overlay is not None else "")
+        if run.overlay is not None:
+            run.overlay.close()
+    dt = time.perf_counter() - run.t0
+    if run.n:
+        log.info("%d frames in %.1f s (%.1f frames/s), %.2f people/frame -> %s%s", run.n, dt, run.n / dt,
+                 run.people / run.n, out, f", overlay {args.overlay}" if run.overlay is not None else "")
     return rc
 
 

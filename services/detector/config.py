@@ -5,14 +5,12 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+from cinetransfer.shared.errors import ConfigError
+
 BACKENDS = ("box_first", "mediapipe", "torchvision")
 LANDMARK_MODELS = ("full", "heavy")
 FALLBACKS = ("none", "hog")
 RUNNING_MODES = ("video", "image")
-
-
-class ConfigError(ValueError):
-    """A detector parameter is out of its allowed range."""
 
 
 @dataclass(frozen=True)
@@ -140,40 +138,55 @@ class DetectorConfig:
 
 
 def add_config_arguments(parser: Any) -> None:
-    """Flags for the commonly changed parameters (the rest keep their defaults)."""
+    """Flags for the commonly changed parameters; each is None unless given (it overrides only that)."""
     d = DetectorConfig()
     g = parser.add_argument_group("detector")
-    g.add_argument("--backend", choices=BACKENDS, default=d.backend, help="pose backend (default %(default)s)")
-    g.add_argument("--landmark-model", choices=LANDMARK_MODELS, default=d.bf_landmark_model,
-                   help="box_first: landmark model per person box (default %(default)s)")
-    g.add_argument("--num-poses", type=int, default=d.num_poses, help="max people per frame (default %(default)s)")
-    g.add_argument("--running-mode", choices=RUNNING_MODES, default=d.running_mode,
-                   help="mediapipe mode: 'video' tracks over frames (default %(default)s)")
-    g.add_argument("--upscale", type=int, default=d.upscale_max_side_px, metavar="PX",
+    g.add_argument("--backend", choices=BACKENDS, default=None, help=f"pose backend (default {d.backend})")
+    g.add_argument("--landmark-model", choices=LANDMARK_MODELS, default=None,
+                   help=f"box_first: landmark model per person box (default {d.bf_landmark_model})")
+    g.add_argument("--num-poses", type=int, default=None, help=f"max people per frame (default {d.num_poses})")
+    g.add_argument("--running-mode", choices=RUNNING_MODES, default=None,
+                   help=f"mediapipe mode: 'video' tracks over frames (default {d.running_mode})")
+    g.add_argument("--upscale", type=int, default=None, metavar="PX",
                    help="run pose on the frame upscaled to this long side, for small people (0 = off)")
-    g.add_argument("--tiles", type=int, default=d.tiles, help="extra pose pass over N tiles (0 = off)")
-    g.add_argument("--fallback", choices=FALLBACKS, default=d.person_fallback,
-                   help="extra person detector for people the pose model misses (default %(default)s)")
-    g.add_argument("--no-focus", action="store_true", help="skip the focus map")
-    g.add_argument("--focus-width", type=int, default=d.focus_work_width_px, metavar="PX",
-                   help="focus estimator working width (default %(default)s)")
-    g.add_argument("--threads", type=int, default=d.threads, choices=(1, 2),
-                   help="2 = focus and pose in parallel (default %(default)s)")
-    g.add_argument("--mask-checkpoint", default="", metavar="FILE",
+    g.add_argument("--tiles", type=int, default=None, help="extra pose pass over N tiles (0 = off)")
+    g.add_argument("--fallback", choices=FALLBACKS, default=None,
+                   help=f"extra person detector for people the pose model misses (default {d.person_fallback})")
+    g.add_argument("--no-focus", action="store_true", default=None, help="skip the focus map")
+    g.add_argument("--focus-width", type=int, default=None, metavar="PX",
+                   help=f"focus estimator working width (default {d.focus_work_width_px})")
+    g.add_argument("--threads", type=int, default=None, choices=(1, 2),
+                   help=f"2 = focus and pose in parallel (default {d.threads})")
+    g.add_argument("--mask-checkpoint", default=None, metavar="FILE",
                    help="torchvision Mask R-CNN state_dict (backend torchvision)")
-    g.add_argument("--keypoint-checkpoint", default="", metavar="FILE",
+    g.add_argument("--keypoint-checkpoint", default=None, metavar="FILE",
                    help="torchvision Keypoint R-CNN state_dict (backend torchvision)")
-    g.add_argument("--device", default=d.tv_device, help="torch device for the torchvision backend")
+    g.add_argument("--device", default=None, help=f"torch device for the torchvision backend (default {d.tv_device})")
+
+
+#: flag dest -> DetectorConfig field
+_FLAG_FIELDS = {"backend": "backend", "landmark_model": "bf_landmark_model", "num_poses": "num_poses",
+                "running_mode": "running_mode", "upscale": "upscale_max_side_px", "tiles": "tiles",
+                "fallback": "person_fallback", "focus_width": "focus_work_width_px", "threads": "threads",
+                "mask_checkpoint": "tv_mask_checkpoint", "keypoint_checkpoint": "tv_keypoint_checkpoint",
+                "device": "tv_device"}
 
 
 def config_from_args(args: Any, base: DetectorConfig | None = None) -> DetectorConfig:
-    base = base or DetectorConfig()
-    return dataclasses.replace(
-        base, backend=args.backend, bf_landmark_model=args.landmark_model, num_poses=args.num_poses,
-        running_mode=args.running_mode,
-        upscale_max_side_px=args.upscale, tiles=args.tiles, focus=not args.no_focus,
-        person_fallback=args.fallback,
-        focus_work_width_px=args.focus_width, threads=args.threads,
-        tv_mask_checkpoint=args.mask_checkpoint, tv_keypoint_checkpoint=args.keypoint_checkpoint,
-        tv_device=args.device,
-    ).validate()
+    """`base` (the defaults, or the node's settings) with the flags that were given."""
+    upd = {f: getattr(args, dest) for dest, f in _FLAG_FIELDS.items() if getattr(args, dest, None) is not None}
+    if getattr(args, "no_focus", None):
+        upd["focus"] = False
+    return dataclasses.replace(base or DetectorConfig(), **upd).validate()
+
+
+def from_dict(d: dict) -> DetectorConfig:
+    """From a settings mapping (a deploy config's `settings`, shared/nodeconfig.py); unknown keys are errors."""
+    names = {f.name for f in dataclasses.fields(DetectorConfig)}
+    unknown = sorted(set(d) - names)
+    if unknown:
+        raise ConfigError(f"detector config: unknown field(s) {unknown}; allowed: {sorted(names)}")
+    try:
+        return DetectorConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}).validate()
+    except TypeError as e:  # a value of the wrong kind
+        raise ConfigError(f"detector config: {e}") from None

@@ -23,6 +23,8 @@ import tempfile
 import warnings
 from pathlib import Path
 
+from cinetransfer.shared import paths
+
 log = logging.getLogger("cinetransfer.detector")
 
 DETECTOR_REL = ("modules", "pose_detection", "pose_detection.tflite")
@@ -34,9 +36,8 @@ class BundleError(RuntimeError):
 
 
 def cache_dir() -> Path:
-    """$CT_CACHE_DIR, else ~/.cache/cinetransfer."""
-    env = os.environ.get("CT_CACHE_DIR")
-    return Path(env) if env else Path.home() / ".cache" / "cinetransfer"
+    """shared/paths.cache_dir(): $CT_CACHE_DIR, else $XDG_CACHE_HOME/cinetransfer (~/.cache/cinetransfer)."""
+    return paths.cache_dir()
 
 
 def _mediapipe_dir() -> Path:

@@ -23,9 +23,10 @@ import logging
 import sys
 import time
 
-from cinetransfer.services.detector.config import ConfigError, add_config_arguments, config_from_args
-from cinetransfer.shared import keys
+from cinetransfer.services.detector.config import add_config_arguments, config_from_args, from_dict
+from cinetransfer.shared import keys, nodeconfig
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.errors import ConfigError, report_config_error
 from cinetransfer.shared.node import add_node_arguments, node_from_args
 
 NAME = "detector"
@@ -36,6 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="cinetransfer detector", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     add_node_arguments(ap)
+    nodeconfig.add_config_arguments(ap, NAME)
     src = ap.add_mutually_exclusive_group()
     src.add_argument("--video", metavar="PATH", help="process this video file instead of subscribing to frames")
     src.add_argument("--images", metavar="DIR", help="process this folder of images instead of subscribing")
@@ -213,10 +215,9 @@ def main(argv: list[str]) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
     try:
-        cfg = config_from_args(args)
+        cfg = config_from_args(args, from_dict(nodeconfig.args_section(args, NAME)))
     except ConfigError as e:
-        print(f"cinetransfer detector: {e}", file=sys.stderr)
-        return 2
+        return report_config_error(e, "cinetransfer detector")
     if args.queue < 1:
         ap.error("--queue must be >= 1")
     node = node_from_args(NAME, args, config=cfg)

@@ -26,6 +26,7 @@ from cinetransfer.services.planner.kinematic_sim import SCENES, KinematicSim
 from cinetransfer.services.planner.scenarios import LoopLog, run_closed_loop
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.vehicle import VehicleProfile, add_vehicle_argument, load_vehicle
 
 
 class BridgeSimAdapter:
@@ -87,9 +88,11 @@ def _bridge_scenes() -> tuple[Any, list[str]] | None:
     return sb, scene_names()
 
 
-def make_sim(scene: str | None, bounds: pc.Bounds, subject: str | None = None) -> tuple[Any, str]:
+def make_sim(scene: str | None, bounds: pc.Bounds, subject: str | None = None,
+             vehicle: VehicleProfile | None = None) -> tuple[Any, str]:
     """(simulator, description) for a scene name; see the module docstring for the rules.
-    `subject`: another person from the bridge simulator's subject library (bridge scenes only)."""
+    `subject`: another person from the bridge simulator's subject library (bridge scenes only);
+    `vehicle`: the profile the bridge simulator flies (default: the default profile)."""
     if scene and scene.startswith("kinematic:"):
         name = scene.split(":", 1)[1]
         if name not in SCENES:
@@ -104,7 +107,10 @@ def make_sim(scene: str | None, bounds: pc.Bounds, subject: str | None = None) -
             scene = "lawn_juggler" if "lawn_juggler" in names else names[0]
         if scene is not None and (scene in names or Path(scene).suffix in (".yaml", ".yml")):
             try:
-                backend = sb.SimBackend(sb.load_scene(scene, subject=subject), render=False, truth=False)
+                from cinetransfer.services.autopilot_bridge.sim.scene import with_vehicle
+
+                sc = with_vehicle(sb.load_scene(scene, subject=subject), vehicle or load_vehicle())
+                backend = sb.SimBackend(sc, render=False, truth=False)
             except TypeError:  # an older simulator without these options
                 backend = sb.SimBackend(sb.load_scene(scene))
             who = f" ({backend.scene.subject.clip})" if subject else ""
@@ -152,6 +158,7 @@ def main(argv: list[str]) -> int:
                         "(juggler, dancer, runner, walker; default: the scene's own)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="seconds to fly (default: the style)")
     p.add_argument("--config", metavar="YAML", default=None, help="planner parameters (as for 'cinetransfer planner')")
+    add_vehicle_argument(p)
     p.add_argument("--rate", type=float, default=None, metavar="HZ", help="replanning rate (default 20)")
     p.add_argument("--horizon", type=int, default=None, metavar="N", help="horizon steps (default 15)")
     p.add_argument("--dt", type=float, default=None, metavar="S", help="horizon step (default 0.1)")
@@ -165,13 +172,14 @@ def main(argv: list[str]) -> int:
         ins = load_style(args.style)
         from cinetransfer.services.planner.service import config_from_args
 
-        ns = argparse.Namespace(config=args.config, rate=args.rate, horizon=args.horizon, dt=args.dt,
-                                codegen=None, cache_dir=None, max_solve_time=None, autostart=None)
+        ns = argparse.Namespace(config=args.config, section="planner", vehicle=args.vehicle, rate=args.rate,
+                                horizon=args.horizon, dt=args.dt, codegen=None, cache_dir=None, max_solve_time=None,
+                                autostart=None)
         cfg = config_from_args(ns)
         # in-process the simulated clock waits for the solver: give it room (budget = 10 periods)
         cfg = dataclasses.replace(cfg, max_solve_time_s=max(cfg.max_solve_time_s, 10.0 / cfg.rate_hz))
-        sim, what = make_sim(args.scene, cfg.bounds, subject=args.subject)
-    except (StyleFileError, pc.ConfigError, ValueError, OSError) as e:
+        sim, what = make_sim(args.scene, cfg.bounds, subject=args.subject, vehicle=load_vehicle(args.vehicle))
+    except (StyleFileError, ValueError, OSError) as e:  # ConfigError is a ValueError
         print(f"cinetransfer plan: {e}", file=sys.stderr)
         return 2
     k = ins.image_targets.shape[0]

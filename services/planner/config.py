@@ -8,7 +8,8 @@ Three groups, kept apart as STYLE §5 asks:
   they can change between two solves without a rebuild (`Planner.set_bounds`, `set_weights`).
 - the rest of `PlannerConfig`: timing and the failure policy of the core and the service.
 
-Defaults of `Bounds` are CineMPC's (DESIGN §4) where it gives them; the others are documented.
+Defaults of `Bounds` are the default vehicle profile's (deploy/vehicles/cinempc.yaml: CineMPC's
+camera, DESIGN §4); `with_vehicle` takes bounds and sensor from any profile (shared/vehicle.py).
 Cost weights are per second of horizon (each stage cost is multiplied by the step dt), so the
 same weights work for any horizon length and step.
 """
@@ -16,16 +17,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from cinetransfer.shared.camera import COC_MM, SENSOR_HEIGHT_MM, SENSOR_WIDTH_MM
 
 
-class ConfigError(ValueError):
-    """A planner parameter is out of its allowed range (the message names the field)."""
+from cinetransfer.shared.errors import ConfigError
+from cinetransfer.shared.paths import cache_dir
+from cinetransfer.shared.vehicle import VehicleProfile
 
 
 def _bad(section: str, name: str, value: Any, allowed: str) -> ConfigError:
@@ -45,23 +45,40 @@ class Bounds:
     speed_max_mps: float = 2.0  # |v_x|, |v_y|, |v_z| [m/s], > 0 (CineMPC: 2)
     accel_max_mps2: float = 1.2  # |a_x|, |a_y|, |a_z| [m/s^2], > 0 (CineMPC: 1.2)
     altitude_min_m: float = 1.0  # floor for the camera position z [m] (soft)
-    altitude_max_m: float = 120.0  # ceiling [m] (soft), > altitude_min_m
+    altitude_max_m: float = 40.0  # ceiling [m] (soft), > altitude_min_m
     min_distance_m: float = 2.0  # minimum horizontal camera-subject distance [m] (soft), >= 0 (CineMPC: 2)
     pitch_min_rad: float = -math.pi / 2  # camera pitch lower limit [rad] (looking down), >= -pi/2
     pitch_max_rad: float = math.pi / 6  # camera pitch upper limit [rad], <= pi/2
-    roll_max_rad: float = 0.3  # |roll| [rad] (only with Structure.control_roll)
-    yaw_rate_max_radps: float = 1.5  # |d yaw/dt| [rad/s], > 0
-    pitch_rate_max_radps: float = 1.5  # |d pitch/dt| [rad/s], > 0
-    roll_rate_max_radps: float = 1.0  # |d roll/dt| [rad/s], > 0
+    roll_max_rad: float = math.radians(17.2)  # |roll| [rad] (only with Structure.control_roll)
+    yaw_rate_max_radps: float = math.radians(86.0)  # |d yaw/dt| [rad/s], > 0
+    pitch_rate_max_radps: float = math.radians(86.0)  # |d pitch/dt| [rad/s], > 0
+    roll_rate_max_radps: float = math.radians(57.0)  # |d roll/dt| [rad/s], > 0
     focal_min_mm: float = 30.0  # focal length range [mm] (CineMPC: 30-500)
     focal_max_mm: float = 500.0
     focal_rate_max_mmps: float = 20.0  # |df/dt| [mm/s] (CineMPC: 20)
-    focus_min_m: float = 4.0  # focus distance range [m] (CineMPC: 4-100)
+    focus_min_m: float = 0.5  # focus distance range [m]: the camera's minimum focus distance to 100 m
     focus_max_m: float = 100.0
     focus_rate_max_mps: float = 15.0  # |ds/dt| [m/s] (CineMPC: 15)
     fnumber_min: float = 1.0  # f-number range (CineMPC: 1-22)
     fnumber_max: float = 22.0
     fnumber_rate_max_ps: float = 3.0  # |dA/dt| [1/s] (CineMPC: 3)
+
+    @classmethod
+    def from_vehicle(cls, v: VehicleProfile) -> "Bounds":
+        """The vehicle's limits (shared/vehicle.py): the same numbers the safety layer and the simulator use."""
+        lens, gim, mo, env = v.lens, v.gimbal, v.motion, v.envelope
+        return cls(speed_max_mps=mo.speed_max_mps, accel_max_mps2=mo.accel_max_mps2,
+                   altitude_min_m=env.altitude_m[0], altitude_max_m=env.altitude_m[1],
+                   min_distance_m=env.min_subject_distance_m,
+                   pitch_min_rad=gim.pitch_rad[0], pitch_max_rad=gim.pitch_rad[1], roll_max_rad=gim.roll_max_rad,
+                   yaw_rate_max_radps=gim.yaw_rate_radps, pitch_rate_max_radps=gim.pitch_rate_radps,
+                   roll_rate_max_radps=gim.roll_rate_radps,
+                   focal_min_mm=lens.focal_length_mm[0], focal_max_mm=lens.focal_length_mm[1],
+                   focal_rate_max_mmps=lens.focal_rate_mmps,
+                   focus_min_m=lens.focus_distance_m[0], focus_max_m=lens.focus_distance_m[1],
+                   focus_rate_max_mps=lens.focus_rate_mps,
+                   fnumber_min=lens.f_number[0], fnumber_max=lens.f_number[1],
+                   fnumber_rate_max_ps=lens.f_number_rate_ps).validate()
 
     def validate(self) -> "Bounds":
         s = "bounds."
@@ -132,10 +149,8 @@ QP_SOLVERS = ("qrqp", "osqp", "qpoases", "piqp", "hpipm", "daqp", "proxqp")
 
 
 def default_cache_dir() -> str:
-    """Where generated solver code is compiled and kept ($CT_CACHE_DIR or ~/.cache/cinetransfer)."""
-    base = os.environ.get("CT_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.join(str(Path.home()), ".cache"), "cinetransfer")
-    return os.path.join(base, "planner")
+    """Where generated solver code is compiled and kept (shared/paths.cache_dir()/planner)."""
+    return str(cache_dir("planner"))
 
 
 @dataclass(frozen=True)
@@ -182,42 +197,37 @@ class Structure:
         return 9 if self.control_roll else 8
 
     def validate(self) -> "Structure":
-        s = "structure."
-        if not (isinstance(self.horizon_steps, int) and 1 <= self.horizon_steps <= 100):
-            raise _bad(s, "horizon_steps", self.horizon_steps, "an integer in 1..100")
-        if not (0 < self.dt_s <= 1.0):
-            raise _bad(s, "dt_s", self.dt_s, "0 < dt <= 1 s")
-        if not (isinstance(self.max_joints, int) and 1 <= self.max_joints <= 33):
-            raise _bad(s, "max_joints", self.max_joints, "an integer in 1..33")
-        for name in ("sensor_width_mm", "sensor_height_mm", "coc_mm"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise _bad(s, name, v, "a finite value > 0")
-        if self.solver not in SOLVERS:
-            raise _bad(s, "solver", self.solver, " | ".join(SOLVERS))
-        if self.qp_solver not in QP_SOLVERS:
-            raise _bad(s, "qp_solver", self.qp_solver, " | ".join(QP_SOLVERS))
-        if self.solver == "sqp_rti" and not self.expand:
-            raise _bad(s, "expand", self.expand, "True with solver sqp_rti")
-        for name in ("sqp_iter", "sqp_iter_cold"):
-            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
-                raise _bad(s, name, getattr(self, name), "an integer >= 1")
-        if not (0 < self.sqp_step_tol < 1):
-            raise _bad(s, "sqp_step_tol", self.sqp_step_tol, "0 < value < 1")
-        if self.codegen and not self.expand:
-            raise _bad(s, "codegen", self.codegen, "False when expand is False")
-        for name in ("max_iter", "max_iter_cold"):
-            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
-                raise _bad(s, name, getattr(self, name), "an integer >= 1")
-        if not (0 < self.tol < 1):
-            raise _bad(s, "tol", self.tol, "0 < tol < 1")
-        if not (self.far_margin_inv_m >= 0):
-            raise _bad(s, "far_margin_inv_m", self.far_margin_inv_m, ">= 0")
-        if not (self.near_foreground_m > 0):
-            raise _bad(s, "near_foreground_m", self.near_foreground_m, "> 0")
-        if not (30.0 < self.pinhole_half_angle_deg < 80.0):
-            raise _bad(s, "pinhole_half_angle_deg", self.pinhole_half_angle_deg, "30 < value < 80")
+        for name, ok, allowed in self._checks():
+            if not ok:
+                raise _bad("structure.", name, getattr(self, name), allowed)
         return self
+
+    def _checks(self) -> list[tuple[str, bool, str]]:
+        """(field, whether its value is allowed, what is allowed), in the order they are reported."""
+        def count(v: Any, lo: int, hi: float = math.inf) -> bool:
+            return isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi
+
+        def positive(v: Any) -> bool:
+            return isinstance(v, (int, float)) and math.isfinite(v) and v > 0
+
+        return [
+            ("horizon_steps", count(self.horizon_steps, 1, 100), "an integer in 1..100"),
+            ("dt_s", 0 < self.dt_s <= 1.0, "0 < dt <= 1 s"),
+            ("max_joints", count(self.max_joints, 1, 33), "an integer in 1..33"),
+            *((n, positive(getattr(self, n)), "a finite value > 0")
+              for n in ("sensor_width_mm", "sensor_height_mm", "coc_mm")),
+            ("solver", self.solver in SOLVERS, " | ".join(SOLVERS)),
+            ("qp_solver", self.qp_solver in QP_SOLVERS, " | ".join(QP_SOLVERS)),
+            ("expand", self.expand or self.solver != "sqp_rti", "True with solver sqp_rti"),
+            *((n, count(getattr(self, n), 1), "an integer >= 1") for n in ("sqp_iter", "sqp_iter_cold")),
+            ("sqp_step_tol", 0 < self.sqp_step_tol < 1, "0 < value < 1"),
+            ("codegen", self.expand or not self.codegen, "False when expand is False"),
+            *((n, count(getattr(self, n), 1), "an integer >= 1") for n in ("max_iter", "max_iter_cold")),
+            ("tol", 0 < self.tol < 1, "0 < tol < 1"),
+            ("far_margin_inv_m", self.far_margin_inv_m >= 0, ">= 0"),
+            ("near_foreground_m", self.near_foreground_m > 0, "> 0"),
+            ("pinhole_half_angle_deg", 30.0 < self.pinhole_half_angle_deg < 80.0, "30 < value < 80"),
+        ]
 
 
 @dataclass(frozen=True)
@@ -268,6 +278,13 @@ class PlannerConfig:
         return self
 
 
+def with_vehicle(cfg: PlannerConfig, v: VehicleProfile) -> PlannerConfig:
+    """`cfg` with the bounds and the camera sensor of vehicle profile `v`."""
+    structure = dataclasses.replace(cfg.structure, sensor_width_mm=v.camera.sensor_width_mm,
+                                    sensor_height_mm=v.camera.sensor_height_mm, coc_mm=v.camera.coc_mm)
+    return dataclasses.replace(cfg, bounds=Bounds.from_vehicle(v), structure=structure).validate()
+
+
 def replace(cfg: PlannerConfig, **changes: Any) -> PlannerConfig:
     """A copy with changes; dotted names reach into the groups: replace(c, **{'structure.dt_s': 0.2})."""
     groups: dict[str, dict[str, Any]] = {}
@@ -285,23 +302,32 @@ def replace(cfg: PlannerConfig, **changes: Any) -> PlannerConfig:
     return dataclasses.replace(cfg, **top)
 
 
-def from_dict(d: dict[str, Any]) -> PlannerConfig:
-    """Config from a nested dict (e.g. a YAML 'planner' section); unknown keys are errors."""
+def from_dict(d: dict[str, Any], vehicle: VehicleProfile | None = None) -> PlannerConfig:
+    """Config from a nested dict (e.g. a YAML 'planner' section); unknown keys are errors.
+
+    With `vehicle`, the bounds and the sensor start from that profile and the dict overrides them."""
     d = dict(d or {})
+    base = with_vehicle(PlannerConfig(), vehicle) if vehicle is not None else PlannerConfig()
     kw: dict[str, Any] = {}
     for g, cls in (("structure", Structure), ("bounds", Bounds), ("weights", Weights)):
-        sub = dict(d.pop(g, {}) or {})
+        sub = d.pop(g, {}) or {}
+        if not isinstance(sub, dict):
+            raise ConfigError(f"planner config: {g} must be a mapping")
+        sub = dict(sub)
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = set(sub) - names
         if unknown:
             raise ConfigError(f"planner config: unknown {g} fields {sorted(unknown)}; allowed: {sorted(names)}")
         if "compile_flags" in sub:
             sub["compile_flags"] = tuple(sub["compile_flags"])
-        kw[g] = cls(**sub)
+        kw[g] = dataclasses.replace(getattr(base, g), **sub)
     if isinstance(d.get("joint_weights"), dict):
         d["joint_weights"] = tuple(sorted((str(k), float(v)) for k, v in d["joint_weights"].items()))
     names = {f.name for f in dataclasses.fields(PlannerConfig)}
     unknown = set(d) - names
     if unknown:
         raise ConfigError(f"planner config: unknown fields {sorted(unknown)}; allowed: {sorted(names)}")
-    return PlannerConfig(**kw, **d).validate()
+    try:
+        return PlannerConfig(**kw, **d).validate()
+    except TypeError as e:  # a value of the wrong kind (the comparison names no field)
+        raise ConfigError(f"planner config: {e}") from None

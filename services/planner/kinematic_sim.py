@@ -22,6 +22,7 @@ import numpy as np
 
 from cinetransfer.services.planner.config import Bounds
 from cinetransfer.shared import camera as cam
+from cinetransfer.shared.angles import wrap_angle
 from cinetransfer.shared import messages as M
 
 #: COCO-17 joints of a 1.75 m person standing upright, body frame (x forward, y left, z up) [m].
@@ -106,10 +107,6 @@ class Subject:
     def centre(self) -> np.ndarray:
         j = self.joints(("left_shoulder", "right_shoulder", "left_hip", "right_hip"))
         return j.mean(axis=0)
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 class KinematicSim:
@@ -197,9 +194,9 @@ class KinematicSim:
         self.p = self.p + self.v * dt + 0.5 * self.a * dt * dt
         self.v = self.v + self.a * dt
         rate_max = np.array([b.yaw_rate_max_radps, b.pitch_rate_max_radps, b.roll_rate_max_radps])
-        err = np.array([_wrap(ypr_sp[0] - self.ypr[0]), ypr_sp[1] - self.ypr[1], ypr_sp[2] - self.ypr[2]])
+        err = np.array([wrap_angle(ypr_sp[0] - self.ypr[0]), ypr_sp[1] - self.ypr[1], ypr_sp[2] - self.ypr[2]])
         self.ypr = self.ypr + np.clip(err / self.tau_s, -rate_max, rate_max) * dt
-        self.ypr[0] = _wrap(self.ypr[0])
+        self.ypr[0] = wrap_angle(self.ypr[0])
         lens_rate = np.array([b.focal_rate_max_mmps, b.focus_rate_max_mps, b.fnumber_rate_max_ps])
         self.lens = self.lens + np.clip((lens_sp - self.lens) / self.tau_s, -lens_rate, lens_rate) * dt
         self.subject.step(self.t_s, dt)

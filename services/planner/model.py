@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cinetransfer.shared.angles import wrap_angle  # noqa: F401 (the planner's callers import it from here)
+
 from cinetransfer.services.planner.config import Bounds
 
 
@@ -144,11 +146,6 @@ def input_bounds(layout: Layout, bounds: Bounds) -> tuple[np.ndarray, np.ndarray
     hi[layout.S_RATE] = bounds.focus_rate_max_mps
     hi[layout.A_RATE] = bounds.fnumber_rate_max_ps
     return -hi, hi
-
-
-def wrap_angle(a: float | np.ndarray) -> float | np.ndarray:
-    """Angle(s) wrapped to [-pi, pi)."""
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi if np.ndim(a) else (float(a) + np.pi) % (2 * np.pi) - np.pi
 
 
 def unwrap_near(angle: float, reference: float) -> float:

@@ -17,23 +17,23 @@ from __future__ import annotations
 import argparse
 import collections
 import logging
-import sys
 import time
-from pathlib import Path
 from typing import Any
 
 from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.core import Planner
-from cinetransfer.shared import keys
+from cinetransfer.shared import keys, nodeconfig
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.errors import ConfigError, report_config_error
 from cinetransfer.shared.node import add_node_arguments, call_periodically, node_from_args
+from cinetransfer.shared.vehicle import add_vehicle_argument, load_vehicle
 
 log = logging.getLogger("cinetransfer.planner")
 
 
 def add_config_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--config", metavar="YAML", default=None,
-                   help="YAML file with planner parameters (a 'planner:' section or the fields at top level)")
+    nodeconfig.add_config_arguments(p, "planner")
+    add_vehicle_argument(p)
     p.add_argument("--rate", type=float, default=None, metavar="HZ", help="setpoints per second (default 20)")
     p.add_argument("--horizon", type=int, default=None, metavar="N", help="horizon steps (default 15)")
     p.add_argument("--dt", type=float, default=None, metavar="S", help="horizon step [s] (default 0.1)")
@@ -46,14 +46,12 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def config_from_args(args: argparse.Namespace) -> pc.PlannerConfig:
-    """Code defaults, then the YAML file, then flags (STYLE §5)."""
-    base: dict[str, Any] = {}
-    if args.config:
-        import yaml
+    """The vehicle profile's bounds, then the node's settings (shared/nodeconfig.py), then flags (STYLE §5).
 
-        doc = yaml.safe_load(Path(args.config).read_text()) or {}
-        base = doc.get("planner", doc) if isinstance(doc, dict) else {}
-    cfg = pc.from_dict(base)
+    The settings may name the vehicle (`vehicle: NAME|PATH`); --vehicle overrides it."""
+    base = nodeconfig.args_section(args, "planner")
+    vehicle = load_vehicle(getattr(args, "vehicle", None) or base.pop("vehicle", None))
+    cfg = pc.from_dict(base, vehicle=vehicle)
     upd: dict[str, Any] = {}
     if args.rate is not None:
         upd["rate_hz"] = args.rate
@@ -190,9 +188,8 @@ def main(argv: list[str]) -> int:
     args = p.parse_args(argv)
     try:
         cfg = config_from_args(args)
-    except (pc.ConfigError, OSError, ValueError, TypeError) as e:
-        print(f"cinetransfer planner: {e}", file=sys.stderr)
-        return 2
+    except ConfigError as e:
+        return report_config_error(e, "cinetransfer planner")
     node = node_from_args("planner", args, config=cfg)
     with node:
         t = time.perf_counter()

@@ -16,11 +16,12 @@ import dataclasses
 import time
 
 from cinetransfer.services.smoother.cli import add_config_arguments, config_from_args
-from cinetransfer.services.smoother.config import ConfigError, SmootherConfig
+from cinetransfer.services.smoother.config import SmootherConfig
 from cinetransfer.services.smoother.core import SmootherInputError
 from cinetransfer.services.smoother.stream import StreamState
-from cinetransfer.shared import keys
+from cinetransfer.shared import keys, nodeconfig
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.errors import ConfigError, report_config_error
 from cinetransfer.shared.node import add_node_arguments, node_from_args
 
 END_ACTIONS = ("end", "stop", "finish")
@@ -30,88 +31,119 @@ def build_parser() -> argparse.ArgumentParser:
     d = SmootherConfig()
     ap = argparse.ArgumentParser(prog="cinetransfer smoother", description="run the smoother node")
     add_node_arguments(ap)
+    nodeconfig.add_config_arguments(ap, "smoother")
     add_config_arguments(ap)
-    ap.add_argument("--window", type=float, default=d.window_s, help="streaming window [s] (default %(default)s)")
-    ap.add_argument("--history", type=float, default=d.history_s,
-                    help="history used by each window solve [s] (default %(default)s)")
-    ap.add_argument("--publish-period", type=float, default=d.publish_period_s,
-                    help="at most one window per period [s], <= 0.5 (default %(default)s)")
-    ap.add_argument("--end-idle", type=float, default=d.end_idle_s,
+    ap.add_argument("--window", type=float, default=None, help=f"streaming window [s] (default {d.window_s})")
+    ap.add_argument("--history", type=float, default=None,
+                    help=f"history used by each window solve [s] (default {d.history_s})")
+    ap.add_argument("--publish-period", type=float, default=None,
+                    help=f"at most one window per period [s], <= 0.5 (default {d.publish_period_s})")
+    ap.add_argument("--end-idle", type=float, default=None,
                     help="end of stream after this long without measurements [s]; 0 = only on command "
-                         "(default %(default)s)")
+                         f"(default {d.end_idle_s})")
     return ap
+
+
+def node_config(args: argparse.Namespace) -> SmootherConfig:
+    """Code defaults, then the node's settings (shared/nodeconfig.py), then flags."""
+    cfg = config_from_args(args, SmootherConfig.from_dict(nodeconfig.args_section(args, "smoother")))
+    upd = {f: getattr(args, dest) for dest, f in (("window", "window_s"), ("history", "history_s"),
+                                                  ("publish_period", "publish_period_s"), ("end_idle", "end_idle_s"))
+           if getattr(args, dest) is not None}
+    if args.window is not None:  # a longer window takes the history with it
+        upd["history_s"] = max(upd.get("history_s", cfg.history_s), args.window)
+    return cfg.replace(**upd)
+
+
+class SmootherLoop:
+    """The node's loop: commands, stream ends and measurements in; windows and whole sequences out."""
+
+    def __init__(self, node, cfg: SmootherConfig) -> None:
+        self.node, self.cfg = node, cfg
+        self.state = StreamState(cfg)
+        self.inbox = node.subscribe(keys.MEASUREMENT, policy="no-drop")
+        self.commands = node.subscribe(keys.SMOOTHER_COMMAND, policy="no-drop")
+        self.ends = node.subscribe(keys.DETECTOR_END)
+        self.pub = node.publisher(keys.INSTRUCTIONS)
+        self.last_pub = 0.0
+
+    def finish(self, reason: str, source: M.SourceInfo | None = None) -> None:
+        node, state = self.node, self.state
+        if not len(state):
+            return
+        try:
+            with node.timed():
+                ins = state.final(source)
+            self.pub.put(ins)
+            node.log.info("end of stream (%s): published the whole sequence, %d frames", reason,
+                          ins.image_targets.shape[0])
+        except SmootherInputError as e:
+            node.error(f"end of stream ({reason}): {e}", "final")
+        state.reset()
+
+    def update_counters(self) -> None:
+        self.node.counters.update(dataclasses.asdict(self.state.counters))
+        self.node.counters["held_frames"] = len(self.state)
+
+    def ingest_queued(self) -> None:
+        for m in self.inbox.drain():
+            # guard: a measurement the stream state trips over is rejected, the loop goes on
+            with self.node.guard(self.inbox.key, "measurement"):
+                _ingest(self.node, self.state, m, self.finish)
+
+    def handle_commands(self) -> None:
+        for cmd in self.commands.drain():
+            action = str(cmd.action).lower()
+            if action in END_ACTIONS:
+                self.ingest_queued()  # every measurement already queued belongs to the sequence
+                with self.node.guard(self.commands.key, "command"):
+                    self.finish(f"command {action!r}")
+            elif action == "reset":
+                self.state.reset()
+            else:
+                self.node.reject(f"unknown smoother command {cmd.action!r} (use 'end' or 'reset')")
+
+    def handle_ends(self) -> None:
+        for end in self.ends.drain():
+            with self.node.guard(self.ends.key, "end of stream"):
+                _await_stream(self.node, self.inbox, self.state, end, self.finish)
+                self.finish(f"end of stream: {end.reason}", source=end.source)
+
+    def publish_window(self) -> None:
+        now = time.monotonic()
+        if self.state.dirty and now - self.last_pub >= self.cfg.publish_period_s:
+            with self.node.timed():
+                win = self.state.window()
+            if win is not None:
+                self.pub.put(win)
+            self.last_pub = now
+
+    def run(self) -> None:
+        node, cfg = self.node, self.cfg
+        while node.running:
+            node.wait(0.05)
+            self.handle_commands()
+            self.handle_ends()
+            self.ingest_queued()
+            self.publish_window()
+            if cfg.end_idle_s > 0 and len(self.state) and self.inbox.age_s() > cfg.end_idle_s:
+                self.finish("idle")
+            self.update_counters()
+        self.finish("shutdown")
+        self.update_counters()
 
 
 def main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
     try:
-        cfg = config_from_args(args).replace(window_s=args.window, history_s=max(args.history, args.window),
-                                             publish_period_s=args.publish_period, end_idle_s=args.end_idle)
+        cfg = node_config(args)
     except ConfigError as e:
-        print(f"cinetransfer smoother: {e}")
-        return 2
+        return report_config_error(e, "cinetransfer smoother")
     node = node_from_args("smoother", args, config=cfg)
-    state = StreamState(cfg)
     with node:
-        inbox = node.subscribe(keys.MEASUREMENT, policy="no-drop")
-        commands = node.subscribe(keys.SMOOTHER_COMMAND, policy="no-drop")
-        ends = node.subscribe(keys.DETECTOR_END)
-        pub = node.publisher(keys.INSTRUCTIONS)
+        loop = SmootherLoop(node, cfg)
         node.ready()
-        last_pub = 0.0
-
-        def finish(reason: str, source: M.SourceInfo | None = None) -> None:
-            if not len(state):
-                return
-            try:
-                with node.timed():
-                    ins = state.final(source)
-                pub.put(ins)
-                node.log.info("end of stream (%s): published the whole sequence, %d frames", reason,
-                              ins.image_targets.shape[0])
-            except SmootherInputError as e:
-                node.error(f"end of stream ({reason}): {e}", "final")
-            state.reset()
-
-        def update_counters() -> None:
-            node.counters.update(dataclasses.asdict(state.counters))
-            node.counters["held_frames"] = len(state)
-
-        while node.running:
-            node.wait(0.05)
-            for cmd in commands.drain():
-                action = str(cmd.action).lower()
-                if action in END_ACTIONS:
-                    # Take every measurement already queued before closing the sequence.
-                    for m in inbox.drain():
-                        with node.guard(inbox.key, "measurement"):
-                            _ingest(node, state, m, finish)
-                    with node.guard(commands.key, "command"):
-                        finish(f"command {action!r}")
-                elif action == "reset":
-                    state.reset()
-                else:
-                    node.reject(f"unknown smoother command {cmd.action!r} (use 'end' or 'reset')")
-            for end in ends.drain():
-                with node.guard(ends.key, "end of stream"):
-                    _await_stream(node, inbox, state, end, finish)
-                    finish(f"end of stream: {end.reason}", source=end.source)
-            for m in inbox.drain():
-                # guard: a measurement the stream state trips over is rejected, the loop goes on
-                with node.guard(inbox.key, "measurement"):
-                    _ingest(node, state, m, finish)
-            now = time.monotonic()
-            if state.dirty and now - last_pub >= cfg.publish_period_s:
-                with node.timed():
-                    win = state.window()
-                if win is not None:
-                    pub.put(win)
-                last_pub = now
-            if cfg.end_idle_s > 0 and len(state) and inbox.age_s() > cfg.end_idle_s:
-                finish("idle")
-            update_counters()
-        finish("shutdown")
-        update_counters()
+        loop.run()
     return 0
 
 

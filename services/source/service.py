@@ -14,14 +14,14 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
 from cinetransfer.services.source.credit import Credit
-from cinetransfer.shared import keys
+from cinetransfer.shared import keys, nodeconfig
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.errors import ConfigError, report_config_error
 from cinetransfer.shared.node import Presence, add_node_arguments, node_from_args
 
 NAME = "source"
@@ -160,11 +160,19 @@ class Player:
         self.detector.undeclare()
 
 
+#: the source's settings (a deploy config's nodes[].settings) -> its flags
+SETTINGS = {"window": "window", "wait_detector_s": "wait_detector", "stall_s": "stall"}
+
+
 def main(argv: list[str]) -> int:
-    args = build_parser().parse_args(argv)
-    if args.window < 1:
-        print("cinetransfer source: --window must be >= 1", file=sys.stderr)
-        return 2
+    ap = build_parser()
+    nodeconfig.add_config_arguments(ap, NAME)
+    try:
+        args = nodeconfig.parse_with_settings(ap, argv, NAME, SETTINGS)
+        if args.window < 1:
+            raise ConfigError(f"source config: window = {args.window}: must be >= 1")
+    except ConfigError as e:
+        return report_config_error(e, "cinetransfer source")
     node = node_from_args(NAME, args)
     with node:
         player = Player(node, args)

@@ -118,11 +118,11 @@ def near(p, q, tol):
     return float(np.linalg.norm(np.asarray(p) - np.asarray(q))) < tol
 
 
-@pytest.mark.parametrize("autopilot,dynamics", [("px4", "sim"), ("ardupilot", "simple")])
-def test_backend_flies_sim_vehicle_over_udp(autopilot, dynamics):
+@pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
+def test_backend_flies_sim_vehicle_over_udp(autopilot):
     port = free_udp_port()
     start = "0,0,3" if autopilot == "px4" else "0,0,0"  # ArduCopter takes off from the ground
-    proc = spawn_vehicle(port, "--autopilot", autopilot, "--start", start, "--dynamics", dynamics)
+    proc = spawn_vehicle(port, "--autopilot", autopilot, "--start", start)
     backend = MavlinkBackend(MavlinkConfig(url=f"udpout:127.0.0.1:{port}", connect_timeout_s=20.0))
     core = BridgeCore(SafetyConfig(max_speed_mps=4.0))
     try:

@@ -9,7 +9,8 @@ import pytest
 
 from cinetransfer.services.autopilot_bridge.config import SafetyConfig
 from cinetransfer.services.autopilot_bridge.core import BridgeCore
-from cinetransfer.services.autopilot_bridge.vehicle_model import ModelParams, VehicleModel
+from cinetransfer.services.autopilot_bridge.sim.dynamics import DynamicsLimits
+from cinetransfer.services.autopilot_bridge.vehicle_model import SimDynamicsAdapter
 from cinetransfer.shared import messages as M
 
 
@@ -95,8 +96,8 @@ def test_closed_loop_tracking_stays_within_limits_and_reaches_the_setpoints():
     """Given a plan that jumps 20 m then follows a 1.5 m/s line, the vehicle (sim-vehicle's model)
     tracks it without exceeding the bridge's speed limit, and ends on the line."""
     c = BridgeCore(CFG)
-    m = VehicleModel(params=ModelParams(max_speed_mps=8.0, max_accel_mps2=6.0))  # a vehicle faster than allowed
-    m.position_m = np.array([0.0, 0.0, 5.0])
+    fast = DynamicsLimits(max_speed_xy_mps=8.0, max_speed_z_mps=8.0, max_accel_mps2=6.0)  # faster than allowed
+    m = SimDynamicsAdapter((0.0, 0.0, 5.0), limits=fast)
     m.armed = True
     m.hold_here()
     dt, t = 0.02, 0.0
@@ -113,8 +114,7 @@ def test_closed_loop_tracking_stays_within_limits_and_reaches_the_setpoints():
         d = c.tick(t, vehicle=vs(m.position_m, m.velocity_mps))
         assert not d.hold or k == 0
         if not d.hold:
-            m.target_position_m = d.setpoint.position_m
-            m.target_velocity_mps = d.setpoint.velocity_mps
+            m.track(d.setpoint.position_m, d.setpoint.velocity_mps, None)
         m.step(dt)
         speeds.append(float(np.linalg.norm(m.velocity_mps)))
         if t == pytest.approx(14.0):

@@ -15,7 +15,8 @@ from cinetransfer.services.autopilot_bridge.safety import (
 from cinetransfer.services.autopilot_bridge.sim.backend import SimBackend
 from cinetransfer.shared import messages as M
 
-CFG = SafetyConfig()  # the defaults of the issue: fence radius 60 m, altitude band 0.5..40 m
+# the envelope of the issue: fence radius 60 m, altitude band 0.5..40 m, braking at 2 m/s^2
+CFG = SafetyConfig(altitude_min_m=0.5, max_speed_mps=3.0, max_accel_mps2=2.0)
 CLOCK = 1_700_000_000_000_000_000
 S = 1_000_000_000
 

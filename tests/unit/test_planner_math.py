@@ -187,7 +187,7 @@ def test_bounds_vectors_follow_the_config():
     b = pc.Bounds()
     lay = model.Layout(False)
     lo, hi = model.state_bounds(lay, b)
-    assert (lo[lay.F], hi[lay.F]) == (30.0, 500.0) and (lo[lay.S], hi[lay.S]) == (4.0, 100.0)
+    assert (lo[lay.F], hi[lay.F]) == (30.0, 500.0) and (lo[lay.S], hi[lay.S]) == (0.5, 100.0)
     assert (lo[lay.A], hi[lay.A]) == (1.0, 22.0) and np.all(hi[lay.V] == 2.0)
     assert np.all(np.isinf(lo[lay.P])) and math.isinf(lo[lay.YAW])
     ulo, uhi = model.input_bounds(lay, b)

@@ -125,7 +125,7 @@ def test_given_gimbal_and_lens_out_of_range_when_checked_then_clamped_and_yaw_wr
     assert y == pytest.approx(-math.pi / 2) and p == pytest.approx(CFG.gimbal_pitch_max_rad)
     assert rl == pytest.approx(-CFG.gimbal_roll_max_rad)
     assert (r.setpoint.lens.focal_length_mm, r.setpoint.lens.focus_distance_m, r.setpoint.lens.f_number) == \
-        (500.0, 0.3, 1.0)
+        (CFG.focal_length_max_mm, CFG.focus_min_m, CFG.f_number_min)
     assert s.counters["clamp_gimbal"] == 1 and s.counters["clamp_lens"] == 1
 
 

@@ -19,26 +19,34 @@ often `advance` is called.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
+
+from cinetransfer.shared.angles import wrap_angle
+from cinetransfer.shared.errors import ConfigError
+from cinetransfer.shared.vehicle import VehicleProfile
 
 
 @dataclass(frozen=True)
 class DynamicsLimits:
-    """Limits and time constants of the simulated vehicle (defaults: CineMPC's paper run, DESIGN §4)."""
+    """Limits and time constants of the simulated vehicle.
+
+    The limits come from the vehicle profile (`from_vehicle`, shared/vehicle.py); the defaults
+    are the default profile's (deploy/vehicles/cinempc.yaml, CineMPC's camera, DESIGN §4). The
+    time constants and gains are the simulated autopilot's own."""
 
     max_speed_xy_mps: float = 2.0
     max_speed_z_mps: float = 1.0
     max_accel_mps2: float = 1.2
     lag_tau_s: float = 0.25
     position_gain_per_s: float = 1.0
-    yaw_rate_rps: float = math.radians(60.0)
-    pitch_rate_rps: float = math.radians(45.0)
-    roll_rate_rps: float = math.radians(30.0)
+    yaw_rate_rps: float = math.radians(86.0)
+    pitch_rate_rps: float = math.radians(86.0)
+    roll_rate_rps: float = math.radians(57.0)
     pitch_min_rad: float = math.radians(-90.0)
     pitch_max_rad: float = math.radians(30.0)
-    roll_max_rad: float = math.radians(30.0)
+    roll_max_rad: float = math.radians(17.2)
     focal_min_mm: float = 30.0
     focal_max_mm: float = 500.0
     focal_rate_mmps: float = 20.0
@@ -54,15 +62,29 @@ class DynamicsLimits:
         for f in fields(self):
             v = getattr(self, f.name)
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
-                raise ValueError(f"limits.{f.name}: must be a finite number, got {v!r}")
+                raise ConfigError(f"limits.{f.name}: must be a finite number, got {v!r}")
             if f.name not in ("pitch_min_rad",) and v <= 0:
-                raise ValueError(f"limits.{f.name}: must be > 0, got {v!r}")
+                raise ConfigError(f"limits.{f.name}: must be > 0, got {v!r}")
         if not self.pitch_min_rad < self.pitch_max_rad:
-            raise ValueError("limits: pitch_min_rad must be < pitch_max_rad")
+            raise ConfigError("limits: pitch_min_rad must be < pitch_max_rad")
         for lo, hi in (("focal_min_mm", "focal_max_mm"), ("focus_min_m", "focus_max_m"),
                        ("f_number_min", "f_number_max")):
             if not getattr(self, lo) < getattr(self, hi):
-                raise ValueError(f"limits: {lo} must be < {hi}")
+                raise ConfigError(f"limits: {lo} must be < {hi}")
+
+    @classmethod
+    def from_vehicle(cls, v: VehicleProfile, base: "DynamicsLimits | None" = None) -> "DynamicsLimits":
+        """The vehicle's limits; time constants, gains and sub-step from `base` (default: the defaults)."""
+        lens, gim, mo = v.lens, v.gimbal, v.motion
+        return replace(base or cls(), max_speed_xy_mps=mo.speed_max_mps, max_speed_z_mps=mo.climb_max_mps,
+                       max_accel_mps2=mo.accel_max_mps2, yaw_rate_rps=gim.yaw_rate_radps,
+                       pitch_rate_rps=gim.pitch_rate_radps, roll_rate_rps=gim.roll_rate_radps,
+                       pitch_min_rad=gim.pitch_rad[0], pitch_max_rad=gim.pitch_rad[1], roll_max_rad=gim.roll_max_rad,
+                       focal_min_mm=lens.focal_length_mm[0], focal_max_mm=lens.focal_length_mm[1],
+                       focal_rate_mmps=lens.focal_rate_mmps, focus_min_m=lens.focus_distance_m[0],
+                       focus_max_m=lens.focus_distance_m[1], focus_rate_mps=lens.focus_rate_mps,
+                       f_number_min=lens.f_number[0], f_number_max=lens.f_number[1],
+                       f_number_rate_ps=lens.f_number_rate_ps)
 
     @classmethod
     def from_dict(cls, d: dict | None) -> "DynamicsLimits":
@@ -70,12 +92,8 @@ class DynamicsLimits:
         names = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - names)
         if unknown:
-            raise ValueError(f"limits: unknown field(s) {unknown}; allowed: {sorted(names)}")
+            raise ConfigError(f"limits: unknown field(s) {unknown}; allowed: {sorted(names)}")
         return cls(**{k: float(v) for k, v in d.items()})
-
-
-def wrap_pi(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def _toward(x: float, target: float, max_step: float) -> float:
@@ -196,8 +214,8 @@ class VehicleDynamics:
         # gimbal
         y, p, r = self.camera_ypr
         ty, tp, tr = self.sp_camera_ypr
-        dy = wrap_pi(ty - y)
-        y = wrap_pi(y + max(-lim.yaw_rate_rps * h, min(lim.yaw_rate_rps * h, dy)))
+        dy = wrap_angle(ty - y)
+        y = wrap_angle(y + max(-lim.yaw_rate_rps * h, min(lim.yaw_rate_rps * h, dy)))
         tp = min(max(tp, lim.pitch_min_rad), lim.pitch_max_rad)
         tr = min(max(tr, -lim.roll_max_rad), lim.roll_max_rad)
         p = _toward(p, tp, lim.pitch_rate_rps * h)

@@ -8,6 +8,7 @@ a file. Every error names the offending field and what is allowed. See docs/simu
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,6 +17,7 @@ from typing import Any
 import yaml
 
 from cinetransfer.services.autopilot_bridge.sim.dynamics import DynamicsLimits
+from cinetransfer.shared.vehicle import VehicleProfile
 
 SCENES_DIR = Path(__file__).resolve().parent / "scenes"
 ASSETS_DIR = Path(__file__).resolve().parent / "assets"
@@ -383,3 +385,12 @@ def load_scene(name_or_path: str | Path, subject: str | None = None) -> Scene:
         return parse_scene(doc, p, subject)
     except SceneError as e:
         raise SceneError(f"{p.name}: {e}") from None
+
+
+def with_vehicle(scene: Scene, vehicle: VehicleProfile) -> Scene:
+    """`scene` flown by `vehicle` (shared/vehicle.py): its limits (the scene's `limits:` keeps only
+    the simulated autopilot's time constants and gains) and its camera sensor. The rendered image
+    keeps the scene's size."""
+    cam = dataclasses.replace(scene.camera, sensor_width_mm=vehicle.camera.sensor_width_mm,
+                              sensor_height_mm=vehicle.camera.sensor_height_mm, coc_mm=vehicle.camera.coc_mm)
+    return dataclasses.replace(scene, limits=DynamicsLimits.from_vehicle(vehicle, scene.limits), camera=cam)

@@ -1,0 +1,79 @@
+"""One config path: every node reads its section of the deploy config, then flags; a broken
+setting is refused before the node joins the bus (stderr, exit 2, the field named)."""
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from cinetransfer.deploy.supervisor import load_config
+from cinetransfer.shared import nodeconfig
+from cinetransfer.shared.errors import ConfigError
+
+
+def deploy_config(tmp_path, command, settings, name=None):
+    doc = {"rig": "cfgtest", "nodes": [{"name": name or command, "command": command, "settings": settings}]}
+    path = tmp_path / "deploy.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def run_node(*argv):
+    # the node must refuse before it connects anywhere: a port nothing listens on, and a short timeout
+    return subprocess.run([sys.executable, "-m", "cinetransfer", *argv, "--connect", "tcp/127.0.0.1:9"],
+                          capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("command, settings, field", [
+    ("planner", {"bounds": {"focus_min_m": -1.0}}, "focus_min_m"),
+    ("planner", {"vehicle": "no_such_drone"}, "vehicle"),
+    ("autopilot_bridge", {"backend": "sim", "safety": {"max_speed_mps": -2.0}}, "max_speed_mps"),
+    ("autopilot_bridge", {"rate_hz": 0}, "rate_hz"),
+    ("smoother", {"theta": 1.5}, "theta"),
+    ("smoother", {"windw_s": 3}, "windw_s"),
+    ("source", {"window": 0}, "window"),
+])
+def test_a_broken_node_setting_is_refused_on_stderr_with_exit_2_naming_the_field(tmp_path, command, settings, field):
+    path = deploy_config(tmp_path, command, settings)
+    cfg = load_config(str(path))  # the supervisor passes the file and the node's name
+    argv = list(cfg.nodes[0].argv)
+    assert argv[1:5] == ["--config", str(path.resolve()), "--section", command]
+    r = run_node(*argv)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert field in r.stderr and "config error" in r.stderr
+    assert field not in r.stdout  # the smoother used to print its config errors on stdout
+
+
+def test_flags_override_the_section_and_the_section_overrides_the_defaults(tmp_path):
+    import argparse
+
+    from cinetransfer.services.autopilot_bridge.service import build_parser, config_from_args
+    from cinetransfer.services.smoother.service import build_parser as smoother_parser
+    from cinetransfer.services.smoother.service import node_config
+
+    path = deploy_config(tmp_path, "autopilot_bridge", {"scene": "focus_hedge", "vehicle": "inspire3",
+                                                        "safety": {"watchdog_timeout_s": 0.8}})
+    cfg = config_from_args(build_parser().parse_args(["--config", str(path), "--scene", "open_country"]))
+    assert cfg.scene == "open_country" and cfg.vehicle == "inspire3"  # the flag wins over the file
+    assert cfg.safety.watchdog_timeout_s == 0.8 and cfg.safety.focal_length_max_mm == 28.0  # file, then profile
+    assert cfg.mavlink.sensor_width_mm == 35.9  # the profile's camera
+    path = deploy_config(tmp_path, "smoother", {"end_idle_s": 0, "theta": 0.4})
+    s = node_config(smoother_parser().parse_args(["--config", str(path), "--theta", "0.6"]))
+    assert (s.end_idle_s, s.theta) == (0.0, 0.6)
+    assert nodeconfig.args_section(argparse.Namespace(config=None, section="x"), "x") == {}
+
+
+def test_a_node_missing_from_the_deploy_config_is_an_error(tmp_path):
+    path = deploy_config(tmp_path, "planner", {"rate_hz": 10})
+    with pytest.raises(ConfigError, match="no node named 'smoother'"):
+        nodeconfig.load_section(path, "smoother")
+
+
+def test_shipped_deploy_configs_carry_settings_not_env_switches():
+    for name in ("local", "onboard"):
+        path = load_config(name).path
+        body = Path(path).read_text()
+        assert "CT_SCENE" not in body and "CT_BRIDGE_BACKEND" not in body
+        bridge = nodeconfig.load_section(path, "autopilot_bridge")
+        assert bridge["backend"] == "sim" and bridge["vehicle"] == "cinempc"
