@@ -3,6 +3,7 @@ here as separate processes) or a running one it joins as the operator."""
 from __future__ import annotations
 
 import logging
+import os
 import shutil
 import subprocess
 import sys
@@ -73,7 +74,9 @@ def deployment(args, out: Path) -> Iterator[zenoh_config.ZenohOptions]:
     deploy_dir = out / "deploy"
     cfg_path = deploy_config(out, zenoh_config.free_tcp_port(), args.rig, args.scene, realtime=args.realtime,
                              subject=args.subject, vehicle=args.vehicle)
-    run_cli(["deploy", "up", str(cfg_path), "--run-dir", str(deploy_dir)], "starting nodes")
+    # the nodes end with this process even if it is killed outright (SIGKILL): no orphan deployment
+    run_cli(["deploy", "up", str(cfg_path), "--run-dir", str(deploy_dir), "--owner-pid", str(os.getpid())],
+            "starting nodes")
     try:
         # the deployment is secure by default: join as the operator with its generated credentials
         yield zenoh_config.deployment_options(cfg_path, "operator", run_dir=deploy_dir, shared_memory=True)

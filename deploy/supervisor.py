@@ -365,8 +365,10 @@ def running_procs(run_dir: Path) -> dict[int, str]:
 class Supervisor:
     """Runs in the detached supervisor process: start, watch, restart, stop."""
 
-    def __init__(self, cfg: DeployConfig, run_dir: Path) -> None:
+    def __init__(self, cfg: DeployConfig, run_dir: Path, owner_pid: int | None = None) -> None:
         self.cfg, self.run_dir = cfg, run_dir
+        self.owner_pid = owner_pid  # the deployment ends with this process (a transfer's own nodes)
+        self._owner_checked = 0.0
         self.children: dict[str, subprocess.Popen] = {}
         self.restarts: dict[str, int] = {p.name: 0 for p in cfg.procs}
         self.backoff: dict[str, float] = {p.name: cfg.backoff_initial_s for p in cfg.procs}
@@ -408,6 +410,8 @@ class Supervisor:
         self.write_state()
         while not self.stopping:
             now = time.monotonic()
+            if self._owner_gone(now):
+                break
             changed = False
             for p in self.cfg.procs:
                 child = self.children.get(p.name)
@@ -432,6 +436,17 @@ class Supervisor:
             time.sleep(0.05)
         self.shutdown()
         return 0
+
+    def _owner_gone(self, now: float) -> bool:
+        """True once the owner process has died (checked once a second): its nodes would otherwise
+        run on as orphans, e.g. after the transfer that started them was SIGKILLed."""
+        if self.owner_pid is None or now - self._owner_checked < 1.0:
+            return False
+        self._owner_checked = now
+        if _pid_alive(self.owner_pid):
+            return False
+        log.warning("owner process %d is gone: stopping the deployment", self.owner_pid)
+        return True
 
     def shutdown(self) -> None:
         log.info("stopping all processes")
@@ -541,7 +556,7 @@ def cmd_check(names: list[str]) -> int:
     return 0
 
 
-def cmd_up(cfg: DeployConfig, run_dir: Path, wait: bool, foreground: bool) -> int:
+def cmd_up(cfg: DeployConfig, run_dir: Path, wait: bool, foreground: bool, owner_pid: int | None = None) -> int:
     run_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
     lock_fd = _try_lock(run_dir)
     if lock_fd is None:
@@ -563,7 +578,8 @@ def cmd_up(cfg: DeployConfig, run_dir: Path, wait: bool, foreground: bool) -> in
             return 2
         (run_dir / "state.json").unlink(missing_ok=True)
         argv = [sys.executable, "-m", "cinetransfer", "deploy", "_supervise", cfg.path,
-                "--run-dir", str(run_dir), "--lock-fd", str(lock_fd)]
+                "--run-dir", str(run_dir), "--lock-fd", str(lock_fd),
+                *(["--owner-pid", str(owner_pid)] if owner_pid else [])]
         env = {**os.environ, ENV_RUN_DIR: str(run_dir), ENV_PROC: "supervisor"}
         if foreground:
             sup = subprocess.Popen(argv, pass_fds=(lock_fd,), env=env)
@@ -715,6 +731,8 @@ def main(argv: list[str]) -> int:
     common(up)
     up.add_argument("--no-wait", action="store_true", help="return without waiting for the nodes to be alive")
     up.add_argument("--foreground", action="store_true", help="supervise in this terminal (Ctrl-C stops all)")
+    up.add_argument("--owner-pid", type=int, default=None, metavar="PID",
+                    help="stop the deployment when process PID ends (the transfer passes its own)")
     down = sub.add_parser("down", help="stop everything the config started")
     common(down)
     down.add_argument("--timeout", type=float, default=30.0)
@@ -730,6 +748,7 @@ def main(argv: list[str]) -> int:
     sv = sub.add_parser("_supervise", help=argparse.SUPPRESS)
     common(sv)
     sv.add_argument("--lock-fd", type=int, default=None)
+    sv.add_argument("--owner-pid", type=int, default=None)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
@@ -745,7 +764,7 @@ def _run_command(args: argparse.Namespace, cfg: DeployConfig, run_dir: Path) -> 
             print("cinetransfer deploy _supervise is started by 'deploy up' (use 'up --foreground')", file=sys.stderr)
             return 2
         fcntl.flock(args.lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # ours already (inherited); fails otherwise
-        return Supervisor(cfg, run_dir).run()
+        return Supervisor(cfg, run_dir, owner_pid=args.owner_pid).run()
     if args.cmd == "up":
         problems = dataflow_problems([cfg], grants=False)  # (test rigs may grant keys of their own)
         if problems:
@@ -754,7 +773,7 @@ def _run_command(args: argparse.Namespace, cfg: DeployConfig, run_dir: Path) -> 
             print("cinetransfer deploy up: refused (see deploy/dataflow.yaml; 'cinetransfer deploy check')",
                   file=sys.stderr)
             return 2
-        return cmd_up(cfg, run_dir, wait=not args.no_wait, foreground=args.foreground)
+        return cmd_up(cfg, run_dir, wait=not args.no_wait, foreground=args.foreground, owner_pid=args.owner_pid)
     if args.cmd == "down":
         return cmd_down(cfg, run_dir, args.timeout)
     if args.cmd == "status":
