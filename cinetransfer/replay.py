@@ -3,7 +3,8 @@
 For monitoring and re-plotting: `cinetransfer monitor` (or any node) sees the recorded keys
 as if the run were live: every message of the rig goes out on its key in our codec again
 (frames rebuilt from their JPEG, so lossy; see docs/recording.md). `--rig` rewrites the rig
-segment of every key so that a replay never collides with a live vehicle; `--speed` scales time; `--only` keeps keys containing a string.
+segment of every key so that a replay never collides with a live vehicle; `--speed` scales time;
+`--only` keeps keys containing a string.
 """
 from __future__ import annotations
 
@@ -33,7 +34,8 @@ def rewrite_rig(key: str, rig: str | None) -> str:
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="cinetransfer replay", description=__doc__.splitlines()[0])
     p.add_argument("log", help="a recording (OUTDIR/run.mcap written by `cinetransfer transfer`)")
-    p.add_argument("--rig", default="replay", help="rig name to publish under (default %(default)s; '' keeps the recorded one)")
+    p.add_argument("--rig", default="replay",
+                   help="rig name to publish under (default %(default)s; '' keeps the recorded one)")
     p.add_argument("--speed", type=float, default=1.0, help="time scale (2 = twice as fast; 0 = as fast as possible)")
     p.add_argument("--only", action="append", default=[], help="replay only keys containing this (repeatable)")
     p.add_argument("--loop", action="store_true", help="start again at the end")

@@ -413,5 +413,6 @@ def summary(msg: Any) -> str:
         return f"Command {msg.action} {msg.args or ''}".strip()
     if isinstance(msg, M.Health):
         return (f"Health {msg.node} rx={msg.received} rej={msg.rejected} drop={msg.dropped} "
-                f"tx={msg.published} p50={msg.latency_ms_p50:.2f}ms{' ERR ' + msg.last_error if msg.last_error else ''}")
+                f"tx={msg.published} p50={msg.latency_ms_p50:.2f}ms"
+                f"{' ERR ' + msg.last_error if msg.last_error else ''}")
     return name

@@ -543,7 +543,8 @@ class MavlinkBackend(VehiclePort):
             self._send_gimbal(now)
         # retry lens commands that were never acked
         for name in list(self.lens_sent):
-            cmd = {"focal_length_mm": mavlink.MAV_CMD_SET_CAMERA_ZOOM, "focus_distance_m": mavlink.MAV_CMD_SET_CAMERA_FOCUS,
+            cmd = {"focal_length_mm": mavlink.MAV_CMD_SET_CAMERA_ZOOM,
+                   "focus_distance_m": mavlink.MAV_CMD_SET_CAMERA_FOCUS,
                    "f_number": mavlink.MAV_CMD_DO_DIGICAM_CONFIGURE}[name]
             if cmd in self.pending and now - self.pending[cmd][0] > 1.0:
                 self._send_lens(name, self.lens_sent[name], now)

@@ -207,7 +207,8 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
     return SmoothResult(instr, diag, warnings)
 
 
-def reconcile_frame_count(src: M.SourceInfo, *, first: int, rows: int, final: bool) -> tuple[M.SourceInfo, tuple[str, ...]]:
+def reconcile_frame_count(src: M.SourceInfo, *, first: int, rows: int,
+                          final: bool) -> tuple[M.SourceInfo, tuple[str, ...]]:
     """Source info whose `n_frames` agrees with the rows of a final instruction set, and a warning
     when the source declared another count (a truncated video: its container promises frames
     that never decoded; or a run stopped early). A window (not final) is left alone."""
