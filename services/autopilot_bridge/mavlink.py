@@ -163,11 +163,7 @@ class MavlinkBackend(VehiclePort):
 
     # ------------------------------------------------------------------ lifecycle
     def _open(self) -> None:
-        if self.conn is not None:
-            try:
-                self.conn.close()
-            except OSError:
-                pass
+        self.close()
         self.conn = connect(self.cfg.url, source_system=self.cfg.source_system,
                             source_component=self.cfg.source_component, baud=self.cfg.baud_rate)
 
