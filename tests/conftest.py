@@ -32,6 +32,19 @@ def data() -> Path:
         pytest.fail(str(e))
 
 
+@pytest.fixture(scope="module")
+def pose_detector():
+    """The project's detector (MediaPipe pose, no focus map, one thread), one per test module."""
+    try:
+        from cinetransfer.services.detector.config import DetectorConfig
+        from cinetransfer.services.detector.core import Detector
+        det = Detector(DetectorConfig(focus=False, threads=1))
+    except Exception as e:  # noqa: BLE001 - any backend failure means: cannot run this check here
+        pytest.skip(f"detector backend unavailable: {e}")
+    yield det
+    det.close()
+
+
 @pytest.fixture
 def listener_opts(port: int) -> ZenohOptions:
     """Options for the test's own session: it listens, node processes connect to it."""

@@ -134,17 +134,26 @@ def _group_row(label: str, ncols: int) -> str:
     return f"<tr class='group'><td class='l' colspan='{ncols}'>{_e(label)}</td></tr>"
 
 
+def _by_measure(summary: dict[str, Any], part: str, header: str, rows_of) -> str:
+    """A table of one part of the fidelity summary ('joints', 'focus'): a group per measure
+    (extraction, truth), each with its rows (`rows_of(measure, data)`) or 'not available'."""
+    rows = [header]
+    for measure, heading in _MEASURES:
+        rows.append(_group_row(heading, 6))
+        data = (summary.get(measure) or {}).get(part)
+        if not data:
+            rows.append("<tr><td class='l'></td><td colspan='5' class='na'>not available</td></tr>")
+            continue
+        rows += rows_of(measure, data)
+    return "<table>" + "".join(rows) + "</table>"
+
+
 def _joint_table(summary: dict[str, Any]) -> str:
     names = summary.get("joint_names", [])
     goals = _goal_index(summary)
-    rows = ["<tr><th class='l'>joint</th><th>|dx| mean ± std</th><th>|dy| mean ± std</th>"
-            "<th>euclidean mean ± std</th><th>max</th><th>joint-frames</th></tr>"]
-    for measure, heading in _MEASURES:
-        rows.append(_group_row(heading, 6))
-        js = (summary.get(measure) or {}).get("joints")
-        if not js:
-            rows.append("<tr><td class='l'></td><td colspan='5' class='na'>not available</td></tr>")
-            continue
+
+    def rows_of(measure: str, js: dict) -> list[str]:
+        rows = []
         for label, key in [(n, n) for n in names] + [("all controlled joints", None)]:
             st = js["overall"] if key is None else js["per_joint"].get(key, {})
             eu = st.get("euclidean") or {}
@@ -152,30 +161,34 @@ def _joint_table(summary: dict[str, Any]) -> str:
             if key is None:
                 cls = f" class='{_status_cls(goals.get(f'{measure}_joint_error', {}).get('status', 'n/a'))}'"
                 style = " class='total'"
-            rows.append(f"<tr{style}><td class='l'>{_e(label)}</td><td>{_ms(st.get('x'))}</td><td>{_ms(st.get('y'))}</td>"
+            rows.append(f"<tr{style}><td class='l'>{_e(label)}</td>"
+                        f"<td>{_ms(st.get('x'))}</td><td>{_ms(st.get('y'))}</td>"
                         f"<td{cls}>{_ms(eu)}</td><td>{_num(eu.get('max'))}</td><td>{eu.get('n', 0)}</td></tr>")
-    return "<table>" + "".join(rows) + "</table>"
+        return rows
+
+    return _by_measure(summary, "joints", "<tr><th class='l'>joint</th><th>|dx| mean ± std</th><th>|dy| mean ± std</th>"
+                       "<th>euclidean mean ± std</th><th>max</th><th>joint-frames</th></tr>", rows_of)
 
 
 def _focus_table(summary: dict[str, Any]) -> str:
     goals = _goal_index(summary)
-    rows = ["<tr><th class='l'>region</th><th>label agreement</th><th>frames (present on both sides)</th>"
-            "<th>frames in focus: source / output</th><th>presence agreement</th><th>|b| error mean</th></tr>"]
-    for measure, heading in _MEASURES:
-        rows.append(_group_row(heading, 6))
-        focus = (summary.get(measure) or {}).get("focus")
-        if not focus:
-            rows.append("<tr><td class='l'></td><td colspan='5' class='na'>not available</td></tr>")
-            continue
+
+    def rows_of(measure: str, focus: dict) -> list[str]:
+        rows = []
         for region in F.REGIONS:
             fo = focus.get(region) or {}
             st = goals.get(f"{measure}_focus_{region}", {}).get("status", "n/a")
             fe = (fo.get("fraction_error") or {}).get("mean")
-            rows.append(f"<tr><td class='l'>{_e(region)}</td><td class='{_status_cls(st)}'>{_pct(fo.get('agreement'))}</td>"
+            rows.append(f"<tr><td class='l'>{_e(region)}</td>"
+                        f"<td class='{_status_cls(st)}'>{_pct(fo.get('agreement'))}</td>"
                         f"<td>{fo.get('n_frames', 0)}</td>"
                         f"<td>{fo.get('in_focus_reference', 0)} / {fo.get('in_focus_compared', 0)}</td>"
                         f"<td>{_pct(fo.get('presence_agreement'))}</td><td>{_num(fe)}</td></tr>")
-    return "<table>" + "".join(rows) + "</table>"
+        return rows
+
+    return _by_measure(summary, "focus", "<tr><th class='l'>region</th><th>label agreement</th>"
+                       "<th>frames (present on both sides)</th><th>frames in focus: source / output</th>"
+                       "<th>presence agreement</th><th>|b| error mean</th></tr>", rows_of)
 
 
 def _kv_table(d: dict[str, Any]) -> str:

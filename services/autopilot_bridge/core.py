@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cinetransfer.services.autopilot_bridge.config import SafetyConfig
+from cinetransfer.services.autopilot_bridge.port import VehiclePort
 from cinetransfer.services.autopilot_bridge.safety import (
     SafetyLayer, SafetyResult, check_command_args, envelope_breach, return_point, subject_centre_xy)
 from cinetransfer.shared import messages as M
@@ -58,6 +59,14 @@ class Decision:
     reason: str = ""  #: why it holds ('' when tracking)
     changed: bool = False  #: the hold/track state or hold reason changed this tick
     breach: bool = False  #: the measured vehicle is outside the envelope: `setpoint` flies it back
+
+    def drive(self, backend: VehiclePort) -> None:
+        """Do it with the backend: hold (commanded once, when the decision changes) or track the setpoint."""
+        if self.hold:
+            if self.changed:
+                backend.hold()
+        else:
+            backend.apply(self.setpoint)
 
 
 class BridgeCore:

@@ -99,12 +99,7 @@ def fly(backend: MavlinkBackend, core: BridgeCore, sp: M.Setpoint | None, until,
             k += 1
             core.on_setpoint(M.Setpoint(**{**sp.__dict__, "stamp_ns": time.time_ns()}), now,
                              clock_ns=time.time_ns(), vehicle=state)
-        d = core.tick(now, vehicle=state, connected=backend.connected)
-        if d.hold:
-            if d.changed:
-                backend.hold()
-        else:
-            backend.apply(d.setpoint)
+        core.tick(now, vehicle=state, connected=backend.connected).drive(backend)
         backend.step(now)
         state = backend.vehicle_state()
         if until(state):

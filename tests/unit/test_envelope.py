@@ -134,11 +134,7 @@ def fly(core: BridgeCore, sim: SimBackend, setpoint_at, seconds: float, *, dt=0.
             if s is not None:
                 core.on_setpoint(dataclass_stamp(s, CLOCK + int(t * S)), t, clock_ns=CLOCK + int(t * S), vehicle=vs)
         d = core.tick(t, vehicle=vs)
-        if d.hold:
-            if d.changed:
-                sim.hold()
-        else:
-            sim.apply(d.setpoint)
+        d.drive(sim)
         sim.step(t)
         vs = sim.vehicle_state()
         states.append(vs)

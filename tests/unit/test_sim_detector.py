@@ -18,25 +18,10 @@ from cinetransfer.shared import messages as M
 N_FRAMES = 36
 
 
-@pytest.fixture(scope="module")
-def detector():
-    try:
-        from cinetransfer.services.detector.config import DetectorConfig
-        from cinetransfer.services.detector.core import Detector
-    except ImportError as e:  # the detector is written in parallel
-        pytest.skip(f"services/detector not importable: {e}")
-    try:
-        det = Detector(DetectorConfig(focus=False, threads=1))
-    except Exception as e:  # noqa: BLE001 - any backend failure means: cannot run this check here
-        pytest.skip(f"detector backend unavailable: {e}")
-    yield det
-    det.close()
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("scene", scene_names())
-def test_detector_finds_the_subject_and_joints_in_90_percent_of_frames(detector, scene):
-    detector.reset()
+def test_detector_finds_the_subject_and_joints_in_90_percent_of_frames(pose_detector, scene):
+    pose_detector.reset()
     sim = SimBackend(scene, epoch_ns=0)
     sim.start()
     v = sim.scene.vehicle
@@ -50,7 +35,7 @@ def test_detector_finds_the_subject_and_joints_in_90_percent_of_frames(detector,
                                               focus_distance_m=float("nan"), f_number=float("nan"))))
         sim.step(t)
         for fr, gt in zip(sim.frames(), sim.truths()):
-            m = detector.process(fr.image, fr.index, fr.stamp_ns + 1)
+            m = pose_detector.process(fr.image, fr.index, fr.stamp_ns + 1)
             h, w = fr.image.shape[:2]
             errs = [float(np.nanmedian(np.linalg.norm(sk.keypoints_px / [w, h] - gt.joints_norm, axis=1)))
                     for sk in m.skeletons]

@@ -2,8 +2,8 @@
 
 The detector check renders each subject in each bundled scene (swapped in with
 `load_scene(scene, subject=NAME)`, as `--subject` does) at times spread over its whole script, so
-every action it does is seen, from a camera that moves sideways (and up, never below the scene's camera height: in focus_hedge
-the hedge then hides the legs) and zooms. A frame counts when a
+every action it does is seen, from a camera that moves sideways (and up, never below the scene's camera height: in
+focus_hedge the hedge then hides the legs) and zooms. A frame counts when a
 MediaPipe skeleton's median joint distance to the ground-truth joints is < 3 % of the image.
 """
 from __future__ import annotations
@@ -88,18 +88,6 @@ def test_swapping_the_subject_keeps_the_scene_and_uses_the_persons_height_and_ac
     assert a.layers == b.layers
 
 
-@pytest.fixture(scope="module")
-def detector():
-    try:
-        from cinetransfer.services.detector.config import DetectorConfig
-        from cinetransfer.services.detector.core import Detector
-        det = Detector(DetectorConfig(focus=False, threads=1))
-    except Exception as e:  # noqa: BLE001 - any backend failure means: cannot run this check here
-        pytest.skip(f"detector backend unavailable: {e}")
-    yield det
-    det.close()
-
-
 def _aim(view, target_m: np.ndarray, height_m: float, fill: float):
     """A view from `view.position_m` looking at `target_m`, zoomed so the person fills `fill`."""
     d = target_m - view.position_m
@@ -131,11 +119,11 @@ def render_subject_flight(scene_name: str, subject: str, n: int):
 @pytest.mark.slow
 @pytest.mark.parametrize("scene", scene_names())
 @pytest.mark.parametrize("subject", SUBJECTS)
-def test_detector_finds_every_subject_in_every_scene_and_its_joints_land_on_the_cut_out(detector, scene, subject):
-    detector.reset()
+def test_detector_finds_every_subject_in_every_scene_and_its_joints_land_on_the_cut_out(pose_detector, scene, subject):
+    pose_detector.reset()
     found, errors = 0, []
     for k, (img, geo, _view) in enumerate(render_subject_flight(scene, subject, N_FRAMES)):
-        m = detector.process(img, k, k * 41_666_667 + 1)
+        m = pose_detector.process(img, k, k * 41_666_667 + 1)
         h, w = img.shape[:2]
         errs = [float(np.nanmedian(np.linalg.norm(sk.keypoints_px / [w, h] - geo["joints_norm"], axis=1)))
                 for sk in m.skeletons]
