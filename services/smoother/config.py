@@ -54,6 +54,8 @@ class SmootherConfig:
     focus_noise: float = 0.25  # HMM: std of the measured fraction b around its state (0 or 1), > 0
     focus_smoothness: float = 4.0  # 'l2' method: lambda at 24 fps, > 0
     theta: float = 0.5  # region in focus when B > theta, (0, 1)
+    # a shot where no region reaches theta is judged relative to its sharpest region (focus.soft_shot)
+    focus_soft_floor: float = 0.1  # ... if that region reads at least this, (0, 1]; 1 = off
     foreground_min_rows: float = 0.03  # foreground band (below the feet) exists when >= this fraction of the height
     focus_region_margin: float = 0.015  # b ignores a border band of each region this wide (fraction of the map width), [0, 0.2]
     mu_m: float = 1.0  # depth-of-field margin mu [m] written into the instructions, > 0
@@ -102,6 +104,8 @@ class SmootherConfig:
             raise bad("cut_threshold", "0 < value <= 1 (1 = never cut)")
         if not self.cut_ratio >= 1.0:
             raise bad("cut_ratio", ">= 1")
+        if not 0.0 < self.focus_soft_floor <= 1.0:
+            raise bad("focus_soft_floor", "0 < value <= 1 (1 = off)")
         if not 0.0 < self.focus_switch_prob < 0.5:
             raise bad("focus_switch_prob", "0 < value < 0.5")
         if not 0.0 <= self.focus_region_margin <= 0.2:

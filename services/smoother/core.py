@@ -160,8 +160,11 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
             present[f] = (True, True, True)
     # A region whose extent is unknown (no focus map) is assumed present where the subject is.
     B = np.full_like(b, np.nan)
+    soft_levels = []
     for seg in shots_mod.segments(cuts):  # each shot's focus on its own: a cut may change it at once
-        B[seg] = focus_mod.smooth_focus(b[seg], method=cfg.focus_method, fps=fps,
+        b_seg, level = focus_mod.soft_shot(b[seg], theta=cfg.theta, floor=cfg.focus_soft_floor)
+        soft_levels.append(level)
+        B[seg] = focus_mod.smooth_focus(b_seg, method=cfg.focus_method, fps=fps,
                                         switch_prob_24=cfg.focus_switch_prob, sigma=cfg.focus_noise,
                                         lam_24=cfg.focus_smoothness, adaptive=cfg.focus_adaptive_levels)
     any_focus = np.isfinite(b).any(axis=0)  # (3,) region measured at least once
@@ -199,6 +202,7 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
         "raw_joint_conf": joint_conf,
         "smoothed_joints": sm_joints / scale,
         "focus_B_unmasked": B,
+        "focus_soft_level": np.asarray(soft_levels),  # per shot: the sharpest region's level (NaN = absolute)
         "selection_cost": float(sel.cost),
         "duplicates": int(dups),
         "gaps": int(gaps),
