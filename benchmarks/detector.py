@@ -52,7 +52,8 @@ def _time(fn, frames, warmup: int) -> dict:
     # On 2 idle cores a frame takes at least the caller thread's CPU time and at least half the
     # process's: a load-independent estimate of the quiet-machine rate (upper bound, perfect overlap).
     idle_ms = 1e3 * max(main, cpu / 2) / len(frames)
-    return {"fps": len(frames) / wall, "ms_median": float(np.median(lat_ms)), "ms_p95": float(np.percentile(lat_ms, 95)),
+    return {"fps": len(frames) / wall, "ms_median": float(np.median(lat_ms)),
+            "ms_p95": float(np.percentile(lat_ms, 95)),
             "ms_max": float(lat_ms.max()), "cpu_cores_used": cpu / wall, "cpu_ms_per_frame": 1e3 * cpu / len(frames),
             "caller_thread_cpu_ms_per_frame": 1e3 * main / len(frames), "idle_estimate_fps": 1e3 / idle_ms}
 
@@ -110,7 +111,8 @@ def main() -> None:
                            ("TUD (about 5 people)", results["tud_640x480"]["full, 2 threads (default)"], 10.0)):
         print(f"goal: >= {goal:.0f} frames/s on {label} -> {r['fps']:.1f} frames/s measured "
               f"({'met' if r['fps'] >= goal else 'NOT met'}); CPU cost {r['cpu_ms_per_frame']:.1f} ms/frame, caller "
-              f"thread {r['caller_thread_cpu_ms_per_frame']:.1f} -> about {r['idle_estimate_fps']:.1f} frames/s on 2 idle "
+              f"thread {r['caller_thread_cpu_ms_per_frame']:.1f} -> about {r['idle_estimate_fps']:.1f} frames/s "
+              "on 2 idle "
               f"cores ({'met' if r['idle_estimate_fps'] >= goal else 'NOT met'} there)")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     results["load_avg_before"] = load

@@ -83,7 +83,8 @@ def eval_davis(det: Detector, name: str) -> dict:
             missed += 1
         box_ious.append(best_b)
         mask_ious.append(best_m)
-    res = {"frames": len(box_ious), "box_iou_mean": float(np.mean(box_ious)), "mask_iou_mean": float(np.mean(mask_ious)),
+    res = {"frames": len(box_ious), "box_iou_mean": float(np.mean(box_ious)),
+           "mask_iou_mean": float(np.mean(mask_ious)),
            "box_iou_median": float(np.median(box_ious)), "frames_missed": missed,
            "ms_per_frame_median": _frames.last_ms}
     print(f"DAVIS {name}: box IoU mean {res['box_iou_mean']:.3f} (median {res['box_iou_median']:.3f}), "
@@ -152,10 +153,11 @@ def main() -> None:
         if "juggler" in a.only:
             out["juggler"] = eval_juggler(det)
         if "davis" in a.only:
-            out["davis"] = {n: eval_davis(det, n) for n in ("dance-twirl", "parkour")}
-            out["davis"]["mean_box_iou"] = float(np.mean([out["davis"][n]["box_iou_mean"] for n in ("dance-twirl", "parkour")]))
-            out["davis"]["mean_mask_iou"] = float(np.mean([out["davis"][n]["mask_iou_mean"] for n in ("dance-twirl", "parkour")]))
-            print(f"DAVIS both: box IoU {out['davis']['mean_box_iou']:.3f}, mask IoU {out['davis']['mean_mask_iou']:.3f}")
+            clips = ("dance-twirl", "parkour")
+            davis = out["davis"] = {n: eval_davis(det, n) for n in clips}
+            davis["mean_box_iou"] = float(np.mean([davis[n]["box_iou_mean"] for n in clips]))
+            davis["mean_mask_iou"] = float(np.mean([davis[n]["mask_iou_mean"] for n in clips]))
+            print(f"DAVIS both: box IoU {davis['mean_box_iou']:.3f}, mask IoU {davis['mean_mask_iou']:.3f}")
     if "tud" in a.only:
         tud_over = parse(a.tud_set) if a.tud_set is not None else over
         if a.tud_set is not None:

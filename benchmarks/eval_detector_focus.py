@@ -65,12 +65,7 @@ def evaluate(cfg: DetectorConfig, clips: list[str], stride: int = 1, verbose: bo
              masks_from: str = "detector") -> dict:
     """`masks_from`: which person masks guide the propagation: 'detector' (the full pipeline, as
     deployed), 'gt' (ground-truth masks: the estimator's ceiling), 'none' (no masks)."""
-    est = FocusEstimator(cfg)
-    det = None
-    if masks_from == "detector":
-        from cinetransfer.services.detector.core import Detector
-
-        det = Detector(cfg.replace(running_mode="image"))
+    focus_prob = _focus_method(cfg, masks_from)
     errs: dict[str, list[float]] = {r: [] for r in REGIONS}
     by_cond: dict[str, list[float]] = {c: [] for c in CONDITIONS}
     acc, ious, times = [], [], []
@@ -84,30 +79,15 @@ def evaluate(cfg: DetectorConfig, clips: list[str], stride: int = 1, verbose: bo
             cond, sigma = CONDITIONS[k % len(CONDITIONS)], SIGMAS[(k // len(CONDITIONS)) % len(SIGMAS)]
             k += 1
             img = blur_frame(f.image, reg, cond, sigma)
-            if det is not None:
-                t = time.perf_counter()
-                _, _, res = det.analyse(img, 0)
-                times.append(time.perf_counter() - t)
-            else:
-                t = time.perf_counter()
-                res = est.estimate(img, masks[f.index] if masks_from == "gt" else None)
-                times.append(time.perf_counter() - t)
+            t = time.perf_counter()
+            prob = focus_prob(img, masks[f.index])
+            times.append(time.perf_counter() - t)
             h, w = img.shape[:2]
-            prob = cv2.resize(res.prob, (w, h), interpolation=cv2.INTER_LINEAR)
-            focused = prob > 0.5
-            truth = np.ones((h, w), bool)
-            if cond == "all":
-                truth[:] = False
-            elif cond != "none":
-                truth[reg[cond]] = False
-            acc.append(float((focused == truth).mean()))
-            u = (focused | truth).sum()
-            ious.append(float((focused & truth).sum() / u) if u else 1.0)
-            for r in REGIONS:
-                if reg[r].sum() < 0.01 * h * w:  # region absent (or a sliver)
-                    continue
-                gt = 0.0 if cond in (r, "all") else 1.0
-                e = abs(float(focused[reg[r]].mean()) - gt)
+            focused = cv2.resize(prob, (w, h), interpolation=cv2.INTER_LINEAR) > 0.5
+            a, iou, region_errs = frame_scores(focused, reg, cond)
+            acc.append(a)
+            ious.append(iou)
+            for r, e in region_errs.items():
                 errs[r].append(e)
                 by_cond[cond].append(e)
     out = {
@@ -120,15 +100,51 @@ def evaluate(cfg: DetectorConfig, clips: list[str], stride: int = 1, verbose: bo
         "ms_p95": 1e3 * float(np.percentile(times, 95)),
     }
     if verbose:
-        print(f"focus on {', '.join(clips)}: {k} frames (stride {stride}), person masks from {masks_from}")
-        for r in REGIONS:
-            print(f"  region {r:<10} mean |b - b_true| = {out['mean_abs_error'][r]:.3f}   (goal <= 0.12)")
-        for c, v in out["error_by_condition"].items():
-            print(f"  condition {c:<10} mean error {v:.3f}")
-        print(f"  pixel accuracy {out['pixel_accuracy']:.3f}, in-focus IoU {out['in_focus_iou']:.3f}")
-        what = "pose + focus" if det is not None else "focus"
-        print(f"  {what} time median {out['ms_median']:.1f} ms, p95 {out['ms_p95']:.1f} ms (854x480 input)")
+        _print_summary(out, clips, stride, masks_from)
     return out
+
+
+def _focus_method(cfg: DetectorConfig, masks_from: str):
+    """(image, ground-truth mask) -> focus probability map: the whole detector (pose + focus) with
+    'detector', else the focus estimator alone, given the ground-truth mask ('gt') or none."""
+    if masks_from == "detector":
+        from cinetransfer.services.detector.core import Detector
+
+        det = Detector(cfg.replace(running_mode="image"))
+        return lambda img, _mask: det.analyse(img, 0)[2].prob
+    est = FocusEstimator(cfg)
+    return lambda img, mask: est.estimate(img, mask if masks_from == "gt" else None).prob
+
+
+def frame_scores(focused: np.ndarray, reg: dict[str, np.ndarray], cond: str) -> tuple[float, float, dict[str, float]]:
+    """One frame blurred under `cond`: pixel accuracy and in-focus IoU of the focused map, and the
+    error |b - b_true| of each region present (a region under 1 % of the frame is left out)."""
+    h, w = focused.shape
+    truth = np.ones((h, w), bool)
+    if cond == "all":
+        truth[:] = False
+    elif cond != "none":
+        truth[reg[cond]] = False
+    u = (focused | truth).sum()
+    iou = float((focused & truth).sum() / u) if u else 1.0
+    region_errs = {}
+    for r in REGIONS:
+        if reg[r].sum() < 0.01 * h * w:  # region absent (or a sliver)
+            continue
+        gt = 0.0 if cond in (r, "all") else 1.0
+        region_errs[r] = abs(float(focused[reg[r]].mean()) - gt)
+    return float((focused == truth).mean()), iou, region_errs
+
+
+def _print_summary(out: dict, clips: list[str], stride: int, masks_from: str) -> None:
+    print(f"focus on {', '.join(clips)}: {out['frames']} frames (stride {stride}), person masks from {masks_from}")
+    for r in REGIONS:
+        print(f"  region {r:<10} mean |b - b_true| = {out['mean_abs_error'][r]:.3f}   (goal <= 0.12)")
+    for c, v in out["error_by_condition"].items():
+        print(f"  condition {c:<10} mean error {v:.3f}")
+    print(f"  pixel accuracy {out['pixel_accuracy']:.3f}, in-focus IoU {out['in_focus_iou']:.3f}")
+    what = "pose + focus" if masks_from == "detector" else "focus"
+    print(f"  {what} time median {out['ms_median']:.1f} ms, p95 {out['ms_p95']:.1f} ms (854x480 input)")
 
 
 def main() -> None:

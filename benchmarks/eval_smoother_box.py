@@ -175,7 +175,8 @@ def main(argv: list[str] | None = None) -> int:
         r = tud(cfg, lit, oracle, fallback=fb)
         res["tud"][label] = r
         o = r["ours"]
-        line = (f"  {label:8s} ({r['detections_per_frame']:.1f} detections/frame) ours: {o['switches']} switches, purity "
+        line = (f"  {label:8s} ({r['detections_per_frame']:.1f} detections/frame) ours: {o['switches']} switches, "
+                "purity "
                 f"{o['purity']:.3f} over {o['matched_frames']} matched frames")
         if lit:
             li = r["literal"]

@@ -49,7 +49,8 @@ def truth_track(kind: str, n: int) -> np.ndarray:
     elif kind == "far":
         cx, cy, h = 300 + 600 * (t / t[-1]), 300 + 3 * np.sin(2 * np.pi * 2.0 * t), 110 + 0 * t
     elif kind == "zoom":
-        cx, cy, h = 640 + 40 * np.sin(2 * np.pi * 0.2 * t), 360 + 0 * t, 250 + 300 * (0.5 - 0.5 * np.cos(np.pi * t / t[-1]))
+        cx, cy = 640 + 40 * np.sin(2 * np.pi * 0.2 * t), 360 + 0 * t
+        h = 250 + 300 * (0.5 - 0.5 * np.cos(np.pi * t / t[-1]))
     else:
         raise ValueError(kind)
     w = 0.4 * h
@@ -150,7 +151,8 @@ def main(argv: list[str] | None = None) -> int:
         for part in ("raw", "optimised"):
             agg[part] = {ax: {"mean": float(np.mean([r[part][ax]["mean"] for r in runs])),
                               "std": float(np.mean([r[part][ax]["std"] for r in runs]))} for ax in ("x", "y")}
-        agg["all_joints"] = {p: float(np.mean([r["all_joints"][p]["mean"] for r in runs])) for p in ("raw", "optimised")}
+        agg["all_joints"] = {p: float(np.mean([r["all_joints"][p]["mean"] for r in runs]))
+                             for p in ("raw", "optimised")}
         pq = [evaluate(kind, args.frames, 100 * s + 7, paper_cfg)["optimised"] for s in range(args.seeds)]
         agg["paper_qp"] = {ax: {"mean": float(np.mean([r[ax]["mean"] for r in pq])),
                                 "std": float(np.mean([r[ax]["std"] for r in pq]))} for ax in ("x", "y")}

@@ -181,8 +181,8 @@ def main() -> int:
             res["weights"][subject] = row
             print(f"weights {subject:8s} shoulders/torso {row['subject_proportion']} hips/torso "
                   f"{row['subject_hip_proportion']} front view {row['subject_front_view_share']} (source "
-                  f"{res['source_proportion']} {res['source_hip_proportion']} {res['source_front_view_share']}): " + "; ".join(
-                      f"{k}: {v['per_joint']}" for k, v in row.items() if isinstance(v, dict)), flush=True)
+                  f"{res['source_proportion']} {res['source_hip_proportion']} {res['source_front_view_share']}): "
+                  + "; ".join(f"{k}: {v['per_joint']}" for k, v in row.items() if isinstance(v, dict)), flush=True)
     Path(args.out).write_text(json.dumps(res, indent=1) + "\n")
     print(f"wrote {args.out}")
     return 0

@@ -138,7 +138,8 @@ def _line(r: dict) -> str:
     w, c = r["wall_ms"], r["cpu_ms"]
     return (f"{r['name']:<40} {r['scenario']:<8} wall {w['median']:6.2f} {w['p95']:6.2f} {w['max']:6.2f} | cpu "
             f"{c['median']:6.2f} {c['p95']:6.2f} {c['max']:6.2f} ms | it {r['iterations_median']:3.0f}/"
-            f"{r['iterations_max']:3d} | cost {r['tracking_cost']:.4f} err>3s med {r['image_error_median_after_3s']:.4f}"
+            f"{r['iterations_max']:3d} | cost {r['tracking_cost']:.4f} "
+            f"err>3s med {r['image_error_median_after_3s']:.4f}"
             f" max {r['image_error_max_after_3s']:.4f} | over {r['over_budget']} fail {r['failures']}")
 
 
@@ -161,12 +162,15 @@ def main(argv: list[str] | None = None) -> int:
             print(_line(r), flush=True)
     base = {r["scenario"]: r for r in results if r["name"].startswith("baseline")}
     ref = {r["scenario"]: r for r in results if r["name"].startswith("ipopt N=20")}
-    print("\nratios vs the CineMPC-like baseline (baseline / this: > 1 = faster), tracking cost vs the IPOPT reference:")
+    print("\nratios vs the CineMPC-like baseline (baseline / this: > 1 = faster), "
+          "tracking cost vs the IPOPT reference:")
     for r in results:
         b = base[r["scenario"]]
-        print(f"  {r['name']:<40} {r['scenario']:<8} wall median x{b['wall_ms']['median'] / r['wall_ms']['median']:6.1f}"
+        print(f"  {r['name']:<40} {r['scenario']:<8} "
+              f"wall median x{b['wall_ms']['median'] / r['wall_ms']['median']:6.1f}"
               f" p95 x{b['wall_ms']['p95'] / r['wall_ms']['p95']:6.1f} | cpu median "
-              f"x{b['cpu_ms']['median'] / r['cpu_ms']['median']:6.1f} p95 x{b['cpu_ms']['p95'] / r['cpu_ms']['p95']:6.1f}"
+              f"x{b['cpu_ms']['median'] / r['cpu_ms']['median']:6.1f} "
+              f"p95 x{b['cpu_ms']['p95'] / r['cpu_ms']['p95']:6.1f}"
               f" | tracking cost {r['tracking_cost'] / ref[r['scenario']]['tracking_cost'] - 1:+7.2%} vs IPOPT N=20")
     load = os.getloadavg()
     goal = {}

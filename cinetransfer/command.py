@@ -46,7 +46,8 @@ def parse_args_kv(items: list[str]) -> dict:
 
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="cinetransfer command", description=__doc__.splitlines()[0],
-                                epilog="\n".join(__doc__.splitlines()[2:]), formatter_class=argparse.RawDescriptionHelpFormatter)
+                                epilog="\n".join(__doc__.splitlines()[2:]),
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("target", choices=sorted(TARGETS))
     p.add_argument("action")
     p.add_argument("args", nargs="*", metavar="NAME=VALUE")

@@ -3,7 +3,8 @@
 For monitoring and re-plotting: `cinetransfer monitor` (or any node) sees the recorded keys
 as if the run were live: every message of the rig goes out on its key in our codec again
 (frames rebuilt from their JPEG, so lossy; see docs/recording.md). `--rig` rewrites the rig
-segment of every key so that a replay never collides with a live vehicle; `--speed` scales time; `--only` keeps keys containing a string.
+segment of every key so that a replay never collides with a live vehicle; `--speed` scales time;
+`--only` keeps keys containing a string.
 """
 from __future__ import annotations
 
@@ -30,10 +31,11 @@ def rewrite_rig(key: str, rig: str | None) -> str:
     return "/".join(parts)
 
 
-def main(argv: list[str]) -> int:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="cinetransfer replay", description=__doc__.splitlines()[0])
     p.add_argument("log", help="a recording (OUTDIR/run.mcap written by `cinetransfer transfer`)")
-    p.add_argument("--rig", default="replay", help="rig name to publish under (default %(default)s; '' keeps the recorded one)")
+    p.add_argument("--rig", default="replay",
+                   help="rig name to publish under (default %(default)s; '' keeps the recorded one)")
     p.add_argument("--speed", type=float, default=1.0, help="time scale (2 = twice as fast; 0 = as fast as possible)")
     p.add_argument("--only", action="append", default=[], help="replay only keys containing this (repeatable)")
     p.add_argument("--loop", action="store_true", help="start again at the end")
@@ -41,7 +43,48 @@ def main(argv: list[str]) -> int:
                    help="a recording cut inside a record: replay the messages before the cut instead of refusing")
     p.add_argument("--log-level", default="INFO")
     zenoh_config.add_arguments(p)
-    args = p.parse_args(argv)
+    return p
+
+
+class _Publishers:
+    """One publisher per (rewritten) key, declared on first use."""
+
+    def __init__(self, session, rig: str | None) -> None:
+        self.session, self.rig = session, rig
+        self.pubs: dict[str, object] = {}
+        self.sent = 0
+
+    def put(self, key: str, payload: bytes) -> None:
+        k = rewrite_rig(key, self.rig)
+        if k not in self.pubs:
+            self.pubs[k] = self.session.declare_publisher(k)
+        self.pubs[k].put(payload)
+        self.sent += 1
+
+    def undeclare(self) -> None:
+        for pub in self.pubs.values():
+            pub.undeclare()
+
+
+def _play_once(run: RunReader, out: _Publishers, *, only: list[str], speed: float) -> None:
+    """Publish the recording's messages (those whose key contains one of `only`, if given) once,
+    at `speed` times their recorded pace (0: as fast as possible)."""
+    t_first = None
+    t0 = time.monotonic()
+    for t_ns, key, payload in tqdm(run.messages(), desc="replay", unit="msg", disable=None):
+        if only and not any(o in key for o in only):
+            continue
+        if t_first is None:
+            t_first = t_ns
+        if speed > 0:
+            delay = t0 + (t_ns - t_first) / 1e9 / speed - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+        out.put(key, payload)
+
+
+def main(argv: list[str]) -> int:
+    args = build_parser().parse_args(argv)
     setup_logging(args.log_level)
     try:
         run = RunReader(args.log, salvage=args.salvage)
@@ -53,38 +96,19 @@ def main(argv: list[str]) -> int:
         log.warning("%s has no summary (the run was interrupted): replaying the %d messages it holds",
                     args.log, run.info.messages)
     log.info("replaying %s (%s)", args.log, run.meta.get("description", run.meta.get("source", "")))
-    sent = 0
     with zenoh_config.open_session(opts) as s:
-        pubs: dict[str, object] = {}
+        out = _Publishers(s, args.rig)
         try:
-            while True:
-                t_first = None
-                t0 = time.monotonic()
-                for t_ns, key, payload in tqdm(run.messages(), desc="replay", unit="msg", disable=None):
-                    if args.only and not any(o in key for o in args.only):
-                        continue
-                    if t_first is None:
-                        t_first = t_ns
-                    if args.speed > 0:
-                        due = t0 + (t_ns - t_first) / 1e9 / args.speed
-                        delay = due - time.monotonic()
-                        if delay > 0:
-                            time.sleep(delay)
-                    k = rewrite_rig(key, args.rig)
-                    if k not in pubs:
-                        pubs[k] = s.declare_publisher(k)
-                    pubs[k].put(payload)
-                    sent += 1
-                if not args.loop:
-                    break
+            _play_once(run, out, only=args.only, speed=args.speed)
+            while args.loop:
+                _play_once(run, out, only=args.only, speed=args.speed)
         except KeyboardInterrupt:
             log.info("interrupted")
         except RunFormatError as e:
             print(f"cinetransfer replay: {e}", file=sys.stderr)
             return 2
         finally:
-            for pub in pubs.values():
-                pub.undeclare()
-    log.info("replayed %d messages%s", sent, f" ({run.skipped} left out: they did not fit their schema)"
+            out.undeclare()
+    log.info("replayed %d messages%s", out.sent, f" ({run.skipped} left out: they did not fit their schema)"
              if run.skipped else "")
     return 0

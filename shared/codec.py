@@ -229,6 +229,15 @@ def _plain(value: Any, where: str, err: type[CodecError]) -> Any:
 
 
 def _decode_array(obj: Any, meta: dict, where: str, blob: memoryview) -> np.ndarray:
+    kind, dt, shape, count, data = _array_ref(obj, where, blob)
+    decode = _ARRAY_DECODERS.get(kind) if isinstance(kind, str) else None
+    if decode is None:
+        raise DecodeError(f"{where}: unknown array encoding {kind!r}")
+    return _check_array(decode(data, dt, shape, count, where), meta, where, DecodeError)
+
+
+def _array_ref(obj: Any, where: str, blob: memoryview) -> tuple[Any, Any, list[int], int, memoryview]:
+    """An array reference checked against the blob: (encoding, dtype, shape, element count, bytes)."""
     if not isinstance(obj, dict) or "__nd__" not in obj:
         raise DecodeError(f"{where}: expected an array reference")
     try:
@@ -242,28 +251,36 @@ def _decode_array(obj: Any, meta: dict, where: str, blob: memoryview) -> np.ndar
     count = math.prod(shape)
     if count > MAX_ARRAY_ELEMENTS:
         raise DecodeError(f"{where}: shape {shape} exceeds the limit of {MAX_ARRAY_ELEMENTS} elements")
-    data = blob[off:off + n]
-    if kind == "raw":
-        try:
-            dtype = np.dtype(dt)
-        except TypeError:
-            raise DecodeError(f"{where}: unknown dtype {dt!r}") from None
-        if dtype.hasobject or count * dtype.itemsize != n:
-            raise DecodeError(f"{where}: {n} bytes do not hold shape {shape} of {dtype}")
-        arr = np.frombuffer(data, dtype=dtype, count=count).reshape(shape)
-    elif kind == "bits":
-        if (count + 7) // 8 != n:
-            raise DecodeError(f"{where}: {n} packed bytes do not hold shape {shape}")
-        arr = np.unpackbits(np.frombuffer(data, dtype=np.uint8), count=count).astype(bool).reshape(shape)
-    elif kind == "jpeg":
-        import cv2
+    return kind, dt, shape, count, blob[off:off + n]
 
-        arr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
-        if arr is None or list(arr.shape) != shape:
-            raise DecodeError(f"{where}: corrupt JPEG image")
-    else:
-        raise DecodeError(f"{where}: unknown array encoding {kind!r}")
-    return _check_array(arr, meta, where, DecodeError)
+
+def _raw_array(data: memoryview, dt: Any, shape: list[int], count: int, where: str) -> np.ndarray:
+    try:
+        dtype = np.dtype(dt)
+    except TypeError:
+        raise DecodeError(f"{where}: unknown dtype {dt!r}") from None
+    if dtype.hasobject or count * dtype.itemsize != len(data):
+        raise DecodeError(f"{where}: {len(data)} bytes do not hold shape {shape} of {dtype}")
+    return np.frombuffer(data, dtype=dtype, count=count).reshape(shape)
+
+
+def _bits_array(data: memoryview, _dt: Any, shape: list[int], count: int, where: str) -> np.ndarray:
+    if (count + 7) // 8 != len(data):
+        raise DecodeError(f"{where}: {len(data)} packed bytes do not hold shape {shape}")
+    return np.unpackbits(np.frombuffer(data, dtype=np.uint8), count=count).astype(bool).reshape(shape)
+
+
+def _jpeg_array(data: memoryview, _dt: Any, shape: list[int], _count: int, where: str) -> np.ndarray:
+    import cv2
+
+    arr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+    if arr is None or list(arr.shape) != shape:
+        raise DecodeError(f"{where}: corrupt JPEG image")
+    return arr
+
+
+#: the array encodings of the wire format, by their tag
+_ARRAY_DECODERS = {"raw": _raw_array, "bits": _bits_array, "jpeg": _jpeg_array}
 
 
 def _decode_value(obj: Any, tp: Any, where: str, f: dataclasses.Field | None, blob: memoryview) -> Any:
@@ -413,5 +430,6 @@ def summary(msg: Any) -> str:
         return f"Command {msg.action} {msg.args or ''}".strip()
     if isinstance(msg, M.Health):
         return (f"Health {msg.node} rx={msg.received} rej={msg.rejected} drop={msg.dropped} "
-                f"tx={msg.published} p50={msg.latency_ms_p50:.2f}ms{' ERR ' + msg.last_error if msg.last_error else ''}")
+                f"tx={msg.published} p50={msg.latency_ms_p50:.2f}ms"
+                f"{' ERR ' + msg.last_error if msg.last_error else ''}")
     return name

@@ -56,18 +56,21 @@ def render() -> str:
         out.append(f"| `{t.key('RIG').replace('RIG', '{rig}')}` | {t.msg_type.__name__} | "
                    f"{', '.join(flow.publishers(t)) or '-'} | {', '.join(flow.subscribers(t)) or '-'} | {rate} | "
                    f"{t.policy} | {t.doc} |")
-    out.append(f"| `{keys.health('RIG', 'NODE').replace('RIG', '{rig}').replace('NODE', '{node}')}` | Health | every node | "
+    health_key = keys.health('RIG', 'NODE').replace('RIG', '{rig}').replace('NODE', '{node}')
+    out.append(f"| `{health_key}` | Health | every node | "
                "monitor | 1 Hz | drop-oldest | node statistics |")
     out.append("| `ct/{rig}/alive/{node}` | liveliness token | every node | anyone | - | - | present while the node is "
                "ready |")
-    out.append("| `ct/{rig}/{node}/config` | query → JSON | every node | operator | - | - | the node's effective config |")
+    out.append("| `ct/{rig}/{node}/config` | query → JSON | every node | operator | - | - "
+               "| the node's effective config |")
     out += ["", "## Nodes", "", "The declared dataflow (`deploy/dataflow.yaml`; keys without `ct/{rig}/`):", "",
             render_nodes(), ""]
     for group, types in (("Messages", M.MESSAGE_TYPES), ("Nested types", M.NESTED_TYPES)):
         out += [f"## {group}", ""]
         for name, cls in types.items():
             ver = f" (schema version {cls.SCHEMA_VERSION})" if hasattr(cls, "SCHEMA_VERSION") else ""
-            if getattr(cls, "MIN_SCHEMA_VERSION", getattr(cls, "SCHEMA_VERSION", 0)) < getattr(cls, "SCHEMA_VERSION", 0):
+            version = getattr(cls, "SCHEMA_VERSION", 0)
+            if getattr(cls, "MIN_SCHEMA_VERSION", version) < version:
                 ver = f" (schema version {cls.SCHEMA_VERSION}; reads {cls.MIN_SCHEMA_VERSION} to {cls.SCHEMA_VERSION})"
             out += [f"### {name}{ver}", "", (cls.__doc__ or "").strip(), "", "| field | type | meaning |",
                     "|---|---|---|"]

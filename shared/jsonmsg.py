@@ -165,7 +165,7 @@ def _array_from_json(obj: Any, meta: dict, where: str) -> np.ndarray:
         shape = [int(s) for s in obj["shape"]]
         raw = base64.b64decode(obj["base64"])
         n = math.prod(shape)
-        if dt == bool:
+        if dt.kind == "b":
             return np.unpackbits(np.frombuffer(raw, np.uint8), count=n).astype(bool).reshape(shape)
         return np.frombuffer(raw, dt, count=n).reshape(shape).copy()
     try:

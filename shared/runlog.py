@@ -354,7 +354,6 @@ def _records(path: Path, salvage: bool) -> Iterator[Any]:
     """MCAP records in file order, chunks opened. A file that stops at a record boundary without a
     footer (interrupted run) ends quietly; one cut inside a record raises RunFormatError, unless
     `salvage` (then everything before the cut is yielded and a warning logged)."""
-    from mcap.exceptions import EndOfFile, InvalidMagic, McapError
     from mcap.records import Chunk, Footer
     from mcap.stream_reader import StreamReader, breakup_chunk
 
@@ -369,37 +368,63 @@ def _records(path: Path, salvage: bool) -> Iterator[Any]:
                 rec = next(it)
             except StopIteration:
                 return
-            except InvalidMagic:
-                raise RunFormatError(f"{path}: not an MCAP file (bad magic)") from None
-            except (EndOfFile, McapError, struct.error, ValueError, EOFError) as e:
-                if boundary and boundary >= size:
-                    return  # interrupted cleanly: no summary, every record complete
-                if t.pos <= 8:
-                    raise RunFormatError(f"{path}: not an MCAP file ({type(e).__name__})") from None
-                msg = (f"{path}: truncated or damaged MCAP: a record is cut at byte {boundary} of {size} "
-                       f"({type(e).__name__}{': ' + str(e) if str(e) else ''})")
-                if salvage:
-                    log.warning("%s; keeping the messages before it", msg)
-                    return
-                raise RunFormatError(msg + "; `--salvage` keeps the messages before the cut") from None
-            except Exception as e:  # noqa: BLE001 - zstd and friends raise their own types on garbage
-                if salvage:
-                    log.warning("%s: damaged chunk (%s); keeping the messages before it", path, e)
-                    return
-                raise RunFormatError(f"{path}: damaged MCAP ({type(e).__name__}: {e})") from None
+            except Exception as e:  # noqa: BLE001 - judged by _end_of_stream: zstd and friends raise their own types
+                _end_of_stream(e, path, salvage, boundary=boundary, size=size, pos=t.pos)
+                return
             boundary = t.pos
             if isinstance(rec, Chunk):
                 try:
                     yield from breakup_chunk(rec)
                 except Exception as e:  # noqa: BLE001
-                    if salvage:
-                        log.warning("%s: damaged chunk (%s); keeping the messages before it", path, e)
-                        return
-                    raise RunFormatError(f"{path}: damaged chunk ({type(e).__name__}: {e})") from None
+                    _damaged(e, path, salvage, "damaged chunk")
+                    return
             else:
                 yield rec
             if isinstance(rec, Footer):
                 return
+
+
+def _end_of_stream(e: Exception, path: Path, salvage: bool, *, boundary: int, size: int, pos: int) -> None:
+    """The next record could not be read: return if the records end there (an interrupted run
+    cut at a record boundary, or `salvage`), else RunFormatError saying where and why."""
+    from mcap.exceptions import EndOfFile, InvalidMagic, McapError
+
+    if isinstance(e, InvalidMagic):
+        raise RunFormatError(f"{path}: not an MCAP file (bad magic)") from None
+    if not isinstance(e, (EndOfFile, McapError, struct.error, ValueError, EOFError)):
+        _damaged(e, path, salvage, "damaged MCAP")
+        return
+    if boundary and boundary >= size:
+        return  # interrupted cleanly: no summary, every record complete
+    if pos <= 8:
+        raise RunFormatError(f"{path}: not an MCAP file ({type(e).__name__})") from None
+    msg = (f"{path}: truncated or damaged MCAP: a record is cut at byte {boundary} of {size} "
+           f"({type(e).__name__}{': ' + str(e) if str(e) else ''})")
+    if not salvage:
+        raise RunFormatError(msg + "; `--salvage` keeps the messages before the cut") from None
+    log.warning("%s; keeping the messages before it", msg)
+
+
+def _damaged(e: Exception, path: Path, salvage: bool, what: str) -> None:
+    """Garbage inside the file: with `salvage` the records end here (logged), else RunFormatError."""
+    if not salvage:
+        raise RunFormatError(f"{path}: {what} ({type(e).__name__}: {e})") from None
+    log.warning("%s: damaged chunk (%s); keeping the messages before it", path, e)
+
+
+@dataclass
+class _ReadState:
+    """What RunReader.messages() keeps while it reads: schemas and channels so far, halves of
+    frames waiting for the other half, protobuf classes and H.264 decoders per topic."""
+
+    schemas: dict[int, Any] = field(default_factory=dict)
+    chans: dict[int, Any] = field(default_factory=dict)
+    pending_img: dict[tuple[str, int], tuple[int, np.ndarray]] = field(default_factory=dict)
+    pending_info: dict[tuple[str, int], M.Frame] = field(default_factory=dict)
+    pb_classes: dict[str, Any] = field(default_factory=dict)
+    decoders: dict[str, Any] = field(default_factory=dict)
+    types_by_schema: dict[str, type] = field(
+        default_factory=lambda: {jsonmsg.schema_name(c): c for c in M.MESSAGE_TYPES.values()})
 
 
 class RunReader:
@@ -465,63 +490,70 @@ class RunReader:
         from their JPEG and info (the image is lossy: JPEG), raw channels as they travelled."""
         from mcap.records import Channel, Message, Schema
 
-        schemas: dict[int, Schema] = {}
-        chans: dict[int, Channel] = {}
-        types_by_schema = {jsonmsg.schema_name(c): c for c in M.MESSAGE_TYPES.values()}
-        pending_img: dict[tuple[str, int], tuple[int, np.ndarray]] = {}
-        pending_info: dict[tuple[str, int], M.Frame] = {}
-        pb_classes: dict[str, Any] = {}
-        decoders: dict[str, Any] = {}
+        st = _ReadState()
         for rec in _records(self.path, self.salvage):
             if isinstance(rec, Schema):
-                schemas[rec.id] = rec
+                st.schemas[rec.id] = rec
             elif isinstance(rec, Channel):
-                chans[rec.id] = rec
+                st.chans[rec.id] = rec
             elif isinstance(rec, Message):
-                ch = chans[rec.channel_id]
+                ch = st.chans[rec.channel_id]
                 role = ch.metadata.get(ROLE, "")
-                topic = ch.topic
-                if role == "derived" or not topic.startswith(key_prefix):
+                if role == "derived" or not ch.topic.startswith(key_prefix):
                     continue
-                if role == "raw":
-                    yield rec.log_time, topic, rec.data
-                elif role == "message":
-                    cls = types_by_schema.get(schemas[ch.schema_id].name) if ch.schema_id else None
-                    if cls is None:
-                        continue
-                    try:
-                        payload = self._encode(cls, rec.data, topic)
-                    except RunFormatError as e:
-                        self._skip(e)
-                        continue
-                    yield rec.log_time, topic, payload
-                elif role == "frame-info":
-                    key = topic[: -len("/info")]
-                    try:
-                        info = jsonmsg.from_json(M.Frame, self._json(rec.data, topic), topic)
-                    except (RunFormatError, jsonmsg.JsonMessageError) as e:
-                        self._skip(e)
-                        continue
-                    img = pending_img.pop((key, info.stamp_ns), None)
-                    if img is None:
-                        pending_info[(key, info.stamp_ns)] = info
-                    else:
-                        yield img[0], key, self._frame(info, img[1])
-                elif role in ("frame-image", "frame-video"):
-                    schema = schemas[ch.schema_id]
-                    if schema.name not in pb_classes:
-                        pb_classes[schema.name] = _protobuf_class(schema)
-                    ci = pb_classes[schema.name].FromString(rec.data)
-                    stamp = ci.timestamp.seconds * 10**9 + ci.timestamp.nanos
-                    img = self._jpeg(ci.data, stamp) if role == "frame-image" else self._h264(decoders, topic, ci.data,
-                                                                                              stamp)
-                    if img is None:
-                        continue
-                    info = pending_info.pop((topic, stamp), None)
-                    if info is None:
-                        pending_img[(topic, stamp)] = (rec.log_time, img)
-                    else:
-                        yield rec.log_time, topic, self._frame(info, img)
+                out = self._message(st, rec, ch, role)
+                if out is not None:
+                    yield out
+
+    def _message(self, st: _ReadState, rec: Any, ch: Any, role: str) -> tuple[int, str, bytes] | None:
+        """One recorded message as (log_time_ns, key, payload), or None: left out, or half of a
+        frame (image and info are joined by stamp, whichever comes first waits for the other)."""
+        topic = ch.topic
+        if role == "raw":
+            return rec.log_time, topic, rec.data
+        if role == "message":
+            cls = st.types_by_schema.get(st.schemas[ch.schema_id].name) if ch.schema_id else None
+            if cls is None:
+                return None
+            try:
+                return rec.log_time, topic, self._encode(cls, rec.data, topic)
+            except RunFormatError as e:
+                self._skip(e)
+                return None
+        if role == "frame-info":
+            return self._frame_info(st, rec, topic)
+        if role in ("frame-image", "frame-video"):
+            return self._frame_image(st, rec, ch, role)
+        return None
+
+    def _frame_info(self, st: _ReadState, rec: Any, topic: str) -> tuple[int, str, bytes] | None:
+        key = topic[: -len("/info")]
+        try:
+            info = jsonmsg.from_json(M.Frame, self._json(rec.data, topic), topic)
+        except (RunFormatError, jsonmsg.JsonMessageError) as e:
+            self._skip(e)
+            return None
+        img = st.pending_img.pop((key, info.stamp_ns), None)
+        if img is None:
+            st.pending_info[(key, info.stamp_ns)] = info
+            return None
+        return img[0], key, self._frame(info, img[1])
+
+    def _frame_image(self, st: _ReadState, rec: Any, ch: Any, role: str) -> tuple[int, str, bytes] | None:
+        topic = ch.topic
+        schema = st.schemas[ch.schema_id]
+        if schema.name not in st.pb_classes:
+            st.pb_classes[schema.name] = _protobuf_class(schema)
+        ci = st.pb_classes[schema.name].FromString(rec.data)
+        stamp = ci.timestamp.seconds * 10**9 + ci.timestamp.nanos
+        img = self._jpeg(ci.data, stamp) if role == "frame-image" else self._h264(st.decoders, topic, ci.data, stamp)
+        if img is None:
+            return None
+        info = st.pending_info.pop((topic, stamp), None)
+        if info is None:
+            st.pending_img[(topic, stamp)] = (rec.log_time, img)
+            return None
+        return rec.log_time, topic, self._frame(info, img)
 
     def _skip(self, e: Exception) -> None:
         """One message that does not fit its schema is left out (counted, logged), not the run."""

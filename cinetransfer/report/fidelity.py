@@ -375,7 +375,8 @@ def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
     summary = {"joint_names": joint_names, "regions": list(REGIONS), "alignment": alignment,
                "extraction": measures["extraction"], "truth": measures["truth"], "goals": goal_list,
                "headline": headline}
-    series = {"t_s": t, "k": k, "joint_names": joint_names, "source_first_frame": int(source.first_frame), "source": src, "extraction": out_tr, "truth": tru_tr,
+    series = {"t_s": t, "k": k, "joint_names": joint_names, "source_first_frame": int(source.first_frame),
+              "source": src, "extraction": out_tr, "truth": tru_tr,
               "source_full": src_full, "source_t_full": np.arange(src_full.n) / src_fps if src_fps > 0
               else np.arange(src_full.n, dtype=float),
               "error_extraction": errs["extraction"], "error_truth": errs["truth"],

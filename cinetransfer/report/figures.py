@@ -164,7 +164,8 @@ def fig_frames(path: Path, series: dict[str, Any], *, source_video: str | Path |
     img_h = cell_w * aspect
     height = top_in + 2 * (title_in + img_h + label_in) + bottom_in
     fig = _figure(width, height)
-    gs = fig.add_gridspec(2, cols, left=left_in / width, right=1 - right_in / width, top=1 - (top_in + title_in) / height,
+    gs = fig.add_gridspec(2, cols, left=left_in / width, right=1 - right_in / width,
+                          top=1 - (top_in + title_in) / height,
                           bottom=(bottom_in + label_in) / height, wspace=gap_w / cell_w,
                           hspace=(label_in + title_in) / img_h)
     if not len(picks):

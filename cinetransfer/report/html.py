@@ -152,7 +152,8 @@ def _joint_table(summary: dict[str, Any]) -> str:
             if key is None:
                 cls = f" class='{_status_cls(goals.get(f'{measure}_joint_error', {}).get('status', 'n/a'))}'"
                 style = " class='total'"
-            rows.append(f"<tr{style}><td class='l'>{_e(label)}</td><td>{_ms(st.get('x'))}</td><td>{_ms(st.get('y'))}</td>"
+            rows.append(f"<tr{style}><td class='l'>{_e(label)}</td>"
+                        f"<td>{_ms(st.get('x'))}</td><td>{_ms(st.get('y'))}</td>"
                         f"<td{cls}>{_ms(eu)}</td><td>{_num(eu.get('max'))}</td><td>{eu.get('n', 0)}</td></tr>")
     return "<table>" + "".join(rows) + "</table>"
 
@@ -171,7 +172,8 @@ def _focus_table(summary: dict[str, Any]) -> str:
             fo = focus.get(region) or {}
             st = goals.get(f"{measure}_focus_{region}", {}).get("status", "n/a")
             fe = (fo.get("fraction_error") or {}).get("mean")
-            rows.append(f"<tr><td class='l'>{_e(region)}</td><td class='{_status_cls(st)}'>{_pct(fo.get('agreement'))}</td>"
+            rows.append(f"<tr><td class='l'>{_e(region)}</td>"
+                        f"<td class='{_status_cls(st)}'>{_pct(fo.get('agreement'))}</td>"
                         f"<td>{fo.get('n_frames', 0)}</td>"
                         f"<td>{fo.get('in_focus_reference', 0)} / {fo.get('in_focus_compared', 0)}</td>"
                         f"<td>{_pct(fo.get('presence_agreement'))}</td><td>{_num(fe)}</td></tr>")

@@ -230,37 +230,49 @@ class MavlinkBackend(VehiclePort):
             return
         src = msg.get_srcSystem()
         if t == "HEARTBEAT":
-            if msg.type in (mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER) or \
-                    msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
-                return  # a ground station, another companion, a gimbal, a camera
-            if self.target_system == 0:
-                self.target_system = src
-                self.target_component = self.target_component or msg.get_srcComponent()
-            if src != self.target_system:
-                return
-            self._on_heartbeat(msg, now)
+            if self._is_vehicle_heartbeat(msg, src):
+                self._on_heartbeat(msg, now)
             return
         if self.target_system and src != self.target_system:
             return
         if self.link_up:
             self.last_rx_s = now  # any message from the vehicle keeps the link alive
-        if t == "LOCAL_POSITION_NED":
-            self.pos_ned = np.array([msg.x, msg.y, msg.z], dtype=float)
-            self.vel_ned = np.array([msg.vx, msg.vy, msg.vz], dtype=float)
-            self.pos_rx_s = now
-            self.pos_stamp_ns = M.now_ns()
-        elif t == "ATTITUDE":
-            self.rpy_ned = np.array([msg.roll, msg.pitch, msg.yaw], dtype=float)
-        elif t == "GIMBAL_DEVICE_ATTITUDE_STATUS":
-            self._on_gimbal_status(msg)
-        elif t == "CAMERA_FOV_STATUS":
-            hfov = float(msg.hfov)
-            if math.isfinite(hfov) and 0.0 < hfov < 180.0:
-                self.focal_from_fov_mm = self.cfg.sensor_width_mm / (2.0 * math.tan(math.radians(hfov) / 2.0))
-        elif t == "COMMAND_ACK":
-            self._on_ack(msg, now)
-        elif t == "STATUSTEXT":
-            self.log.info("vehicle: %s", msg.text)
+        handler = self._TELEMETRY.get(t)
+        if handler is not None:
+            getattr(self, handler)(msg, now)
+
+    #: the handler of each message type the bridge reads from the vehicle (besides HEARTBEAT)
+    _TELEMETRY = {"LOCAL_POSITION_NED": "_on_position", "ATTITUDE": "_on_attitude",
+                  "GIMBAL_DEVICE_ATTITUDE_STATUS": "_on_gimbal_status", "CAMERA_FOV_STATUS": "_on_fov",
+                  "COMMAND_ACK": "_on_ack", "STATUSTEXT": "_on_statustext"}
+
+    def _is_vehicle_heartbeat(self, msg: Any, src: int) -> bool:
+        """A HEARTBEAT of the vehicle (the first autopilot heard becomes the target); not one of a
+        ground station, another companion, a gimbal or a camera."""
+        if msg.type in (mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER) or \
+                msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
+            return False
+        if self.target_system == 0:
+            self.target_system = src
+            self.target_component = self.target_component or msg.get_srcComponent()
+        return src == self.target_system
+
+    def _on_position(self, msg: Any, now: float) -> None:
+        self.pos_ned = np.array([msg.x, msg.y, msg.z], dtype=float)
+        self.vel_ned = np.array([msg.vx, msg.vy, msg.vz], dtype=float)
+        self.pos_rx_s = now
+        self.pos_stamp_ns = M.now_ns()
+
+    def _on_attitude(self, msg: Any, _now: float) -> None:
+        self.rpy_ned = np.array([msg.roll, msg.pitch, msg.yaw], dtype=float)
+
+    def _on_fov(self, msg: Any, _now: float) -> None:
+        hfov = float(msg.hfov)
+        if math.isfinite(hfov) and 0.0 < hfov < 180.0:
+            self.focal_from_fov_mm = self.cfg.sensor_width_mm / (2.0 * math.tan(math.radians(hfov) / 2.0))
+
+    def _on_statustext(self, msg: Any, _now: float) -> None:
+        self.log.info("vehicle: %s", msg.text)
 
     def _on_heartbeat(self, msg: Any, now: float) -> None:
         self.counters["mav_heartbeats_rx"] += 1
@@ -293,7 +305,7 @@ class MavlinkBackend(VehiclePort):
             self.engaged = True
             self.log.info("engaged: %s, armed", ext)
 
-    def _on_gimbal_status(self, msg: Any) -> None:
+    def _on_gimbal_status(self, msg: Any, _now: float) -> None:
         try:
             roll, pitch, yaw = F.quat_to_euler(msg.q)
         except ValueError:
@@ -504,7 +516,20 @@ class MavlinkBackend(VehiclePort):
         if self.conn is None:
             self._open()
         self._poll(now)
-        # link loss and reopen
+        if not self._keep_link(now) or self.conn is None:
+            return
+        if now >= self._next_hb:
+            self._next_hb = now + 1.0 / self.cfg.heartbeat_rate_hz
+            self._send_heartbeat()
+        if not self.link_up:
+            return
+        self._stream(now)
+        if self.want_engaged:
+            self._engage_step(now)
+
+    def _keep_link(self, now: float) -> bool:
+        """Notice a lost link (nothing from the vehicle for link_timeout_s) and reopen a stream link
+        now and then; False when a reopen failed (nothing more to do this step)."""
         if self.link_up and (self.last_rx_s is None or now - self.last_rx_s > self.cfg.link_timeout_s):
             self.link_up = False
             self.counters["mav_link_losses"] += 1
@@ -522,14 +547,12 @@ class MavlinkBackend(VehiclePort):
             except (OSError, ConnectionError) as e:
                 self.log.warning("reopen failed: %s", e)
                 self.conn = None
-                return
-        if self.conn is None:
-            return
-        if now >= self._next_hb:
-            self._next_hb = now + 1.0 / self.cfg.heartbeat_rate_hz
-            self._send_heartbeat()
-        if not self.link_up:
-            return
+                return False
+        return True
+
+    def _stream(self, now: float) -> None:
+        """What flows while the link is up: the position setpoint at its rate, the gimbal target
+        when it changed (or once a second), lens commands that were never acked again."""
         if self.sp_pos_ned is None and self.pos_ned is not None:
             self.hold()  # stream 'stay here' from the start
         if self.sp_pos_ned is not None and now >= self._next_sp and not self._taking_off_while_holding():
@@ -541,14 +564,15 @@ class MavlinkBackend(VehiclePort):
                 self.gimbal_sent is None or now - self.gimbal_sent_s > 1.0
                 or (np.max(np.abs(self.gimbal_target - self.gimbal_sent)) > 1e-3 and now - self.gimbal_sent_s > 0.05)):
             self._send_gimbal(now)
-        # retry lens commands that were never acked
         for name in list(self.lens_sent):
-            cmd = {"focal_length_mm": mavlink.MAV_CMD_SET_CAMERA_ZOOM, "focus_distance_m": mavlink.MAV_CMD_SET_CAMERA_FOCUS,
-                   "f_number": mavlink.MAV_CMD_DO_DIGICAM_CONFIGURE}[name]
+            cmd = self._LENS_COMMANDS[name]
             if cmd in self.pending and now - self.pending[cmd][0] > 1.0:
                 self._send_lens(name, self.lens_sent[name], now)
-        if self.want_engaged:
-            self._engage_step(now)
+
+    #: the MAVLink command that sets each lens value (its ack is awaited in `pending`)
+    _LENS_COMMANDS = {"focal_length_mm": mavlink.MAV_CMD_SET_CAMERA_ZOOM,
+                      "focus_distance_m": mavlink.MAV_CMD_SET_CAMERA_FOCUS,
+                      "f_number": mavlink.MAV_CMD_DO_DIGICAM_CONFIGURE}
 
     def vehicle_state(self) -> M.VehicleState:
         now = self.clock()

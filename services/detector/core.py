@@ -174,7 +174,8 @@ class Detector:
         change = (shots.shot_change(prev[2], sig) if prev is not None and prev[0] == source
                   and prev[1] == int(frame_index) - 1 else float("nan"))
         self._prev_shot = (source, int(frame_index), sig)
-        return Measurement(shot_change=change, stamp_ns=int(stamp_ns), valid=valid, source=source, frame_index=int(frame_index),
+        return Measurement(shot_change=change, stamp_ns=int(stamp_ns), valid=valid, source=source,
+                           frame_index=int(frame_index),
                            fps=float(fps) if fps is not None and math.isfinite(fps) else float("nan"),
                            width=w, height=h, people=people, skeletons=skeletons,
                            focus_map=focus.as_uint8() if focus is not None else None, lens=lens,

@@ -168,47 +168,61 @@ def iter_frames(path: str | os.PathLike, *, start: int = 0, stop: int | None = N
 _END = object()
 
 
-def _prefetched(first: SourceFrame, gen: Iterator[SourceFrame], depth: int) -> Iterator[SourceFrame]:
-    q: queue.Queue = queue.Queue(maxsize=depth)
-    stop = threading.Event()
+class _Prefetcher:
+    """Reads frames ahead in a thread of its own into a bounded queue; a decoder failure is handed
+    to the consumer, and closing stops and unblocks the reader."""
 
-    def put(item: object) -> bool:
-        while not stop.is_set():
+    def __init__(self, gen: Iterator[SourceFrame], depth: int) -> None:
+        self.q: queue.Queue = queue.Queue(maxsize=depth)
+        self.stop = threading.Event()
+        self.gen = gen
+        self.thread = threading.Thread(target=self._work, name="frame-reader", daemon=True)
+
+    def _put(self, item: object) -> bool:
+        while not self.stop.is_set():
             try:
-                q.put(item, timeout=0.1)
+                self.q.put(item, timeout=0.1)
                 return True
             except queue.Full:
                 continue
         return False
 
-    def work() -> None:
+    def _work(self) -> None:
         try:
-            for item in gen:
-                if not put(item):
+            for item in self.gen:
+                if not self._put(item):
                     break
             else:
-                put(_END)
+                self._put(_END)
         except Exception as e:  # hand any decoder failure to the consumer
-            put(e)
+            self._put(e)
         finally:
-            gen.close()
+            self.gen.close()
 
-    t = threading.Thread(target=work, name="frame-reader", daemon=True)
-    yield first
-    t.start()
-    try:
+    def items(self) -> Iterator[SourceFrame]:
         while True:
-            item = q.get()
+            item = self.q.get()
             if item is _END:
                 return
             if isinstance(item, Exception):
                 raise item
             yield item
-    finally:
-        stop.set()
+
+    def close(self) -> None:
+        self.stop.set()
         while True:  # unblock the reader so it can exit
             try:
-                q.get_nowait()
+                self.q.get_nowait()
             except queue.Empty:
                 break
-        t.join(timeout=2.0)
+        self.thread.join(timeout=2.0)
+
+
+def _prefetched(first: SourceFrame, gen: Iterator[SourceFrame], depth: int) -> Iterator[SourceFrame]:
+    reader = _Prefetcher(gen, depth)
+    yield first
+    reader.thread.start()
+    try:
+        yield from reader.items()
+    finally:
+        reader.close()

@@ -211,38 +211,49 @@ class Planner:
     def step(self, now_ns: int, instructions: M.Instructions | None, vehicle: M.VehicleState | None,
              subject: M.SubjectState | None) -> M.Setpoint:
         """One control step: solve (or fall back) and return the setpoint to publish now."""
-        cfg = self.cfg
         self._apply_due(now_ns)
-        if self.state == "idle" and cfg.autostart and instructions is not None and instructions.image_targets.shape[0]:
+        if self.state == "idle" and self.cfg.autostart and instructions is not None \
+                and instructions.image_targets.shape[0]:
             self.command(M.Command(action="start"), now_ns)
         if vehicle is None:
             return self._no_vehicle(now_ns, "no vehicle state")
-        stale = max(0.0, (now_ns - vehicle.stamp_ns) * 1e-9) > cfg.max_input_age_s
-        if not vehicle.valid or stale:
-            return self._hold(now_ns, vehicle, "vehicle state stale or invalid", valid=False)
-        if self.state in ("idle", "stopped", "holding"):
-            return self._hold(now_ns, vehicle, self.state, valid=True)
-        if instructions is None or instructions.image_targets.shape[0] == 0:
-            return self._hold(now_ns, vehicle, "no instructions", valid=False)
-        if unusable_targets(instructions):  # all NaN or absurd: "track" would chase nothing sane
-            return self._hold(now_ns, vehicle, "instructions refused", valid=False)
-        if subject is None or not subject.valid or (now_ns - subject.stamp_ns) * 1e-9 > cfg.max_input_age_s:
-            return self._hold(now_ns, vehicle, "subject state missing, stale or invalid", valid=False)
+        refused = self._refused_inputs(now_ns, instructions, vehicle, subject)
+        if refused is not None:
+            return self._hold(now_ns, vehicle, refused[0], valid=refused[1])
         try:
             data, frame = self._stage_data(now_ns, instructions, vehicle, subject)
         except ValueError as e:  # e.g. no finite joint of the subject
             return self._hold(now_ns, vehicle, f"bad input: {e}", valid=False)
+        return self._solve(now_ns, vehicle, data, frame)
+
+    def _refused_inputs(self, now_ns: int, instructions: M.Instructions | None, vehicle: M.VehicleState,
+                        subject: M.SubjectState | None) -> tuple[str, bool] | None:
+        """Why this step holds instead of tracking (the reason, and whether the hold is valid), or None."""
+        cfg = self.cfg
+        stale = max(0.0, (now_ns - vehicle.stamp_ns) * 1e-9) > cfg.max_input_age_s
+        if not vehicle.valid or stale:
+            return "vehicle state stale or invalid", False
+        if self.state in ("idle", "stopped", "holding"):
+            return self.state, True
+        if instructions is None or instructions.image_targets.shape[0] == 0:
+            return "no instructions", False
+        if unusable_targets(instructions):  # all NaN or absurd: "track" would chase nothing sane
+            return "instructions refused", False
+        if subject is None or not subject.valid or (now_ns - subject.stamp_ns) * 1e-9 > cfg.max_input_age_s:
+            return "subject state missing, stale or invalid", False
+        return None
+
+    def _solve(self, now_ns: int, vehicle: M.VehicleState, data: StageData, frame: int) -> M.Setpoint:
+        """Solve from the staged data and follow the new plan, or fall back when the solve fails."""
         shift = 0.0 if self._plan is None else (now_ns - self._plan.t0_ns) * 1e-9
         try:
             res = self.solver.solve(data, shift_s=shift)
         except (ValueError, RuntimeError) as e:  # non-finite parameters, an exception inside casadi
             log.warning("solve raised: %s", e)
-            self.counters.update(failures=int(self.counters["failures"]) + 1,
-                                 consecutive_failures=int(self.counters["consecutive_failures"]) + 1,
-                                 solver_status=f"error: {e}"[:200])
+            self._count_failure(solver_status=f"error: {e}"[:200])
             return self._fallback(now_ns, vehicle, f"solver error: {e}"[:200])
         self.last_result = res
-        if res.wall_s > cfg.max_solve_time_s:  # what a real-time run would have missed
+        if res.wall_s > self.cfg.max_solve_time_s:  # what a real-time run would have missed
             self.counters["over_budget"] = int(self.counters["over_budget"]) + 1
         self.counters.update(solves=int(self.counters["solves"]) + 1, solver_status=res.status,
                              solve_ms=round(res.wall_s * 1e3, 3), iterations=res.iterations, instruction_frame=frame)
@@ -254,16 +265,45 @@ class Planner:
             sp = self._from_plan(now_ns, self._plan, res.status, valid=True)
             if sp is not None:
                 return sp
-        self.counters.update(failures=int(self.counters["failures"]) + 1,
-                             consecutive_failures=int(self.counters["consecutive_failures"]) + 1)
+        self._count_failure()
         return self._fallback(now_ns, vehicle, f"failed: {res.status}")
+
+    def _count_failure(self, **more: object) -> None:
+        self.counters.update(failures=int(self.counters["failures"]) + 1,
+                             consecutive_failures=int(self.counters["consecutive_failures"]) + 1, **more)
 
     # ------------------------------------------------------------------ stage data
     def _stage_data(self, now_ns: int, ins: M.Instructions, vehicle: M.VehicleState,
                     subject: M.SubjectState) -> tuple[StageData, int]:
-        st, lay = self.cfg.structure, self.layout
+        st = self.cfg.structure
         n, e_max, dt = st.horizon_steps, st.max_joints, st.dt_s
-        # --- measured state
+        x0 = self._measured_state(now_ns, vehicle)
+        subj = predict_subject(subject, now_ns)
+        # --- controlled joints
+        ctrl = list(ins.joint_names)
+        if len(ctrl) > e_max:
+            self.counters["joints_ignored"] = len(ctrl) - e_max
+        ctrl = ctrl[:e_max]
+        jw = np.zeros((e_max, 3))
+        jmask = np.zeros(e_max)
+        for j, name in enumerate(ctrl):
+            if name in subj.names and subj.finite[subj.names.index(name)]:
+                jw[j] = subj.joints[subj.names.index(name)]
+                jmask[j] = self.cfg.joint_weight(name)  # 1 unless config.joint_weights says otherwise
+        rows, frame = self._rows(now_ns, ins, n, dt)
+        targets, mask = stage_targets(ins, rows, len(ctrl), jmask)
+        dof, dref = self._dof_targets(now_ns, ins, rows, x0, subj)
+        u_prev = self._u_prev
+        if self._plan is not None:
+            _, u_prev = self._plan.at((now_ns - self._plan.t0_ns) * 1e-9)
+        data = StageData(x0=x0, u_prev=u_prev, joints_w=jw, subject_centre_w=subj.centre, subject_velocity=subj.vel,
+                         targets=targets, mask=mask, dof=dof, distance_ref=dref)
+        return data, frame
+
+    def _measured_state(self, now_ns: int, vehicle: M.VehicleState) -> np.ndarray:
+        """The state x0 the solve starts from: the vehicle's, position predicted to `now`, yaw
+        unwrapped near the plan's, lens from the last finite values, clamped into the bounds."""
+        lay = self.layout
         x0 = np.zeros(lay.nx)
         dt_v = max(0.0, (now_ns - vehicle.stamp_ns) * 1e-9)
         x0[lay.P] = np.asarray(vehicle.position_m, dtype=float) + np.asarray(vehicle.velocity_mps) * dt_v
@@ -279,41 +319,14 @@ class Planner:
         x0, _ = C.clamp_state(lay, self.solver.bounds, x0, self.cfg.clamp_tolerance)
         if not np.all(np.isfinite(x0)):
             raise ValueError("non-finite vehicle state")
-        # --- subject, predicted at constant velocity from `now`
-        names = list(subject.joint_names)
-        joints = np.asarray(subject.joints_m, dtype=float)
-        vel = np.asarray(subject.velocity_mps, dtype=float)
-        if joints.shape[0] != len(names):
-            raise ValueError("subject joints and names differ in length")
-        joints = joints + vel * max(0.0, (now_ns - subject.stamp_ns) * 1e-9)
-        finite = np.all(np.isfinite(joints), axis=1)
-        if not finite.any():
-            raise ValueError("no finite subject joint")
-        ci = [names.index(j) for j in CENTRE_JOINTS if j in names and finite[names.index(j)]]
-        centre = joints[ci].mean(axis=0) if ci else joints[finite].mean(axis=0)
-        # --- controlled joints
-        ctrl = list(ins.joint_names)
-        if len(ctrl) > e_max:
-            self.counters["joints_ignored"] = len(ctrl) - e_max
-        ctrl = ctrl[:e_max]
-        jw = np.zeros((e_max, 3))
-        jmask = np.zeros(e_max)
-        for j, name in enumerate(ctrl):
-            if name in names and finite[names.index(name)]:
-                jw[j] = joints[names.index(name)]
-                jmask[j] = self.cfg.joint_weight(name)  # 1 unless config.joint_weights says otherwise
-        # --- instruction rows of the stages
-        rows, frame = self._rows(now_ns, ins, n, dt)
-        targets = np.zeros((n, e_max, 2))
-        mask = np.zeros((n, e_max))
-        ti = np.asarray(ins.image_targets, dtype=float)
-        ne = min(len(ctrl), ti.shape[1])
-        for k, r in enumerate(rows):
-            t = ti[r, :ne]
-            ok = np.all(np.isfinite(t), axis=1) & (jmask[:ne] > 0)
-            targets[k, :ne][ok] = t[ok]
-            mask[k, :ne] = ok * jmask[:ne]
-        # --- depth-of-field targets from the predicted subject depth along the planned camera
+        return x0
+
+    def _dof_targets(self, now_ns: int, ins: M.Instructions, rows: list[int], x0: np.ndarray,
+                     subj: PredictedSubject) -> tuple[np.ndarray, np.ndarray]:
+        """Depth-of-field targets (n, 5) of the stages and the subject distance along the planned
+        camera (n,), from the predicted subject depth (the plan's state, or x0 with no plan)."""
+        st, lay = self.cfg.structure, self.layout
+        n, dt = len(rows), st.dt_s
         mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
         focus = np.asarray(ins.focus_in, dtype=bool)
         dof = np.zeros((n, 5))
@@ -325,7 +338,7 @@ class Planner:
             else:
                 xk = x0
             yaw, pitch, roll = lay.angles(xk)
-            depth = float(cam.world_to_camera(centre + vel * t, xk[lay.P], np.array([yaw, pitch, roll]))[0])
+            depth = float(cam.world_to_camera(subj.centre + subj.vel * t, xk[lay.P], np.array([yaw, pitch, roll]))[0])
             depth = max(depth, 0.5)
             dref[k] = depth
             if focus.shape[0] > r and focus.shape[1] == 3:
@@ -333,12 +346,7 @@ class Planner:
                                                    depth, mu, defocus_when_none=st.defocus_when_none)
                 dof[k] = reciprocal_targets(near, far, near_foreground_m=st.near_foreground_m,
                                             far_margin_inv_m=st.far_margin_inv_m)
-        u_prev = self._u_prev
-        if self._plan is not None:
-            _, u_prev = self._plan.at((now_ns - self._plan.t0_ns) * 1e-9)
-        data = StageData(x0=x0, u_prev=u_prev, joints_w=jw, subject_centre_w=centre, subject_velocity=vel,
-                         targets=targets, mask=mask, dof=dof, distance_ref=dref)
-        return data, frame
+        return dof, dref
 
     def _rows(self, now_ns: int, ins: M.Instructions, n: int, dt: float) -> tuple[list[int], int]:
         """Instruction rows of stages 1..n and the source frame index followed now."""
@@ -447,6 +455,50 @@ def _setpoint_finite(sp: M.Setpoint) -> bool:
               sp.horizon_position_m, sp.horizon_camera_ypr_rad, sp.horizon_lens]
     lens = [sp.lens.focal_length_mm, sp.lens.focus_distance_m, sp.lens.f_number]
     return all(np.all(np.isfinite(a)) for a in arrays) and all(math.isfinite(v) for v in lens)
+
+
+@dataclass(frozen=True, eq=False)
+class PredictedSubject:
+    """The subject at `now`, predicted at constant velocity from its last state [m, world]."""
+
+    names: list[str]
+    joints: np.ndarray  #: (J, 3), NaN rows where a joint is unknown
+    vel: np.ndarray  #: (3,)
+    finite: np.ndarray  #: (J,) the joint is known
+    centre: np.ndarray  #: (3,) mean of the centre joints known (else of all known joints)
+
+
+def predict_subject(subject: M.SubjectState, now_ns: int) -> PredictedSubject:
+    """The subject's joints moved on at its velocity to `now`; ValueError when none is finite."""
+    names = list(subject.joint_names)
+    joints = np.asarray(subject.joints_m, dtype=float)
+    vel = np.asarray(subject.velocity_mps, dtype=float)
+    if joints.shape[0] != len(names):
+        raise ValueError("subject joints and names differ in length")
+    joints = joints + vel * max(0.0, (now_ns - subject.stamp_ns) * 1e-9)
+    finite = np.all(np.isfinite(joints), axis=1)
+    if not finite.any():
+        raise ValueError("no finite subject joint")
+    ci = [names.index(j) for j in CENTRE_JOINTS if j in names and finite[names.index(j)]]
+    centre = joints[ci].mean(axis=0) if ci else joints[finite].mean(axis=0)
+    return PredictedSubject(names, joints, vel, finite, centre)
+
+
+def stage_targets(ins: M.Instructions, rows: list[int], n_ctrl: int,
+                  jmask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Image targets (n, E, 2) and their weights (n, E) of the stages' instruction rows: a target
+    counts where it is finite and its joint is controlled (weight jmask > 0)."""
+    n, e_max = len(rows), jmask.shape[0]
+    targets = np.zeros((n, e_max, 2))
+    mask = np.zeros((n, e_max))
+    ti = np.asarray(ins.image_targets, dtype=float)
+    ne = min(n_ctrl, ti.shape[1])
+    for k, r in enumerate(rows):
+        t = ti[r, :ne]
+        ok = np.all(np.isfinite(t), axis=1) & (jmask[:ne] > 0)
+        targets[k, :ne][ok] = t[ok]
+        mask[k, :ne] = ok * jmask[:ne]
+    return targets, mask
 
 
 def instructions_from_arrays(*, targets: np.ndarray, joint_names: list[str], focus_in: np.ndarray | None = None,

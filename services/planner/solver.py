@@ -119,6 +119,48 @@ class ParamLayout:
         self.size = off
 
 
+@dataclass
+class _NlpTerms:
+    """What the stages of the NLP add up to: cost, constraint rows (NLP and stage-wise QP forms),
+    Gauss-Newton residuals, and the input-change residuals (exact; majorised)."""
+
+    cost: object = 0
+    g: list = field(default_factory=list)
+    g_ocp: list = field(default_factory=list)
+    resid: list = field(default_factory=list)
+    du_exact: list = field(default_factory=list)
+    du_major: list = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class _NlpParams:
+    """The pieces of the parameter vector p, as symbols (see ParamLayout)."""
+
+    u_prev: object
+    joints0: object  #: (3, E): column j = joint j
+    centre0: object
+    vel: object
+    targets: object
+    mask: object
+    dof: object
+    dref: object
+    wts: dict
+    u_scale: object
+    v_scale: object
+    z_min: object
+    z_max: object
+    d_min: object
+
+    @classmethod
+    def of(cls, p, sl: dict[str, slice], e: int) -> _NlpParams:
+        soft = p[sl["soft"]]
+        return cls(u_prev=p[sl["u_prev"]], joints0=ca.reshape(p[sl["joints"]], 3, e), centre0=p[sl["centre"]],
+                   vel=p[sl["subj_vel"]], targets=p[sl["targets"]], mask=p[sl["mask"]], dof=p[sl["dof"]],
+                   dref=p[sl["dref"]], wts={name: p[sl["weights"]][i] for i, name in enumerate(WEIGHT_NAMES)},
+                   u_scale=p[sl["u_scale"]], v_scale=p[sl["v_scale"]][0], z_min=soft[0], z_max=soft[1],
+                   d_min=soft[2])
+
+
 def _structure_key(s: Structure) -> str:
     """Hash of what the generated code depends on: structure, casadi version, this package's code."""
     d = dataclasses.asdict(s)
@@ -168,31 +210,14 @@ class MpcSolver:
         return self.layout.nx + self.n * (self.layout.nu + self.layout.nx + C.N_SOFT)
 
     def _build(self) -> None:
-        s, lay, n, e, dt = self.s, self.layout, self.n, self.e, self.dt
+        s, lay, n = self.s, self.layout, self.n
         sym = ca.SX if s.expand else ca.MX
         w = sym.sym("w", self.nw)
         p = sym.sym("p", self.pl.size)
-        sl = self.pl.slices
-        a_mat, b_mat = discrete_matrices(lay, dt)
-        a_dm, b_dm = ca.DM(a_mat), ca.DM(b_mat)
-
-        u_prev = p[sl["u_prev"]]
-        joints0 = ca.reshape(p[sl["joints"]], 3, e)  # column j = joint j
-        centre0 = p[sl["centre"]]
-        vel = p[sl["subj_vel"]]
-        targets = p[sl["targets"]]
-        mask = p[sl["mask"]]
-        dof = p[sl["dof"]]
-        dref = p[sl["dref"]]
-        wts = {name: p[sl["weights"]][i] for i, name in enumerate(WEIGHT_NAMES)}
-        u_scale = p[sl["u_scale"]]
-        v_scale = p[sl["v_scale"]][0]
-        z_min, z_max, d_min = p[sl["soft"]][0], p[sl["soft"]][1], p[sl["soft"]][2]
-
+        par = _NlpParams.of(p, self.pl.slices, self.e)
+        self._ab_dm = tuple(ca.DM(m) for m in discrete_matrices(lay, self.dt))
         nx, nu = lay.nx, lay.nu
         blk = nu + nx + C.N_SOFT
-        x_prev = w[0:nx]
-        u_last = u_prev
         sqp = s.solver == "sqp_rti"
         # A stage-wise QP (HPIPM) cannot couple u_{k-1} and u_k, which the input-change cost does: either the
         # QP carries input copies as states (exact Gauss-Newton Hessian, stages of 19 + 11 variables: the
@@ -203,87 +228,17 @@ class MpcSolver:
         aug = sqp
         majorise = sqp and s.qp_solver == "hpipm"
         v_copy = sym.sym("v", max(n - 1, 0) * lay.nu)
-        du_exact, du_major = [], []  # input-change residuals: exact, majorised (HPIPM's warm iterations)
-        cost = 0
-        g = []
-        g_ocp = []
-        resid = []  # Gauss-Newton residuals: sum of squares ~ the cost (SQP's Hessian model)
-        acc_idx = list(range(0, 3))
-        cam_idx = list(range(3, lay.F_RATE))
-        lens_idx = list(range(lay.F_RATE, nu))
+        terms = _NlpTerms()
+        x_prev = w[0:nx]
+        u_last = par.u_prev
         for k in range(n):
             off = nx + k * blk
-            u = w[off:off + nu]
-            x = w[off + nu:off + nu + nx]
-            slack = w[off + nu + nx:off + blk]
-            tk = (k + 1) * dt
-            g.append(x - (ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)))
-            centre = centre0 + vel * tk
-            g.append(C.soft_constraints(x, slack, centre, z_min, z_max, d_min))
-            # the same rows in the stage-wise form of the QP (x_{k+1} through the dynamics; equal wherever
-            # the dynamics hold, which every SQP iterate after the first satisfies exactly)
-            x_pred = ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)
-            g_ocp += [x_pred - x, C.soft_constraints(x_pred, slack, centre, z_min, z_max, d_min)]
-
-            yaw, pitch, roll = lay.angles(x)
-            cam = x[lay.P]
-            r = J.rotation_ypr(yaw, pitch, roll)
-            f_mm = x[lay.F]
-            # image term: predicted joints projected through the planned camera
-            im = 0
-            for j in range(e):
-                pj = joints0[:, j] + vel * tk
-                pc = ca.mtimes(r.T, pj - cam)
-                ti = (k * e + j) * 2
-                err2 = J.joint_image_error(pc, targets[ti], targets[ti + 1], f_mm, s.sensor_width_mm,
-                                           s.sensor_height_mm, theta0_rad=math.radians(s.pinhole_half_angle_deg))
-                im += mask[k * e + j] * err2
-                if s.solver != "ipopt":
-                    ru, rv = J.joint_image_residual(pc, targets[ti], targets[ti + 1], f_mm, s.sensor_width_mm,
-                                                    s.sensor_height_mm,
-                                                    theta0_rad=math.radians(s.pinhole_half_angle_deg))
-                    sw = ca.sqrt(dt * wts["image"] * mask[k * e + j])
-                    resid += [sw * ru, sw * rv]
-            cc = ca.mtimes(r.T, centre - cam)
-            inv_n, inv_f = J.inverse_dof_limits(f_mm, x[lay.A], x[lay.S], s.coc_mm)
-            d = dof[k * N_DOF:(k + 1) * N_DOF]
-            jdof = J.dof_cost(inv_n, inv_f, dref[k], w_near=d[0] * wts["dof_near"], g_near=d[1],
-                              w_far=d[2] * wts["dof_far"], g_far=d[3], far_one_sided=d[4])
-            un = u * u_scale
-            du_n = (u - u_last) * u_scale
-            vn = (x[lay.V] - vel) * v_scale  # relative to the subject: follow, don't wander
-            stage = (wts["image"] * im + wts["look"] * J.look_cost(cc) + jdof
-                     + wts["accel"] * ca.sumsqr(un[acc_idx]) + wts["camera_rate"] * ca.sumsqr(un[cam_idx])
-                     + wts["lens_rate"] * ca.sumsqr(un[lens_idx])
-                     + wts["accel_change"] * ca.sumsqr(du_n[acc_idx])
-                     + wts["camera_rate_change"] * ca.sumsqr(du_n[cam_idx])
-                     + wts["lens_rate_change"] * ca.sumsqr(du_n[lens_idx])
-                     + wts["velocity"] * ca.sumsqr(vn)
-                     + wts["soft_constraint"] * (ca.sum1(slack) + ca.sumsqr(slack)))
-            cost += dt * stage
-            if s.solver != "ipopt":
-                e_n, e_f = J.dof_residuals(inv_n, inv_f, dref[k], g_near=d[1], g_far=d[3], far_one_sided=d[4])
-                resid += [ca.sqrt(0.5 * dt * wts["look"]) * J.look_residual(cc),
-                          ca.sqrt(dt * d[0] * wts["dof_near"]) * e_n, ca.sqrt(dt * d[2] * wts["dof_far"]) * e_f]
-                terms = [("accel", un[acc_idx]), ("camera_rate", un[cam_idx]), ("lens_rate", un[lens_idx]),
-                         ("velocity", vn), ("soft_constraint", slack)]
-                exact = [("accel_change", du_n[acc_idx]), ("camera_rate_change", du_n[cam_idx]),
-                         ("lens_rate_change", du_n[lens_idx])]
-                major = exact
-                if majorise and k > 0:
-                    a_n, b_n = u * u_scale, u_last * u_scale
-                    major = [(name, vec[idx]) for name, idx in (("accel_change", acc_idx),
-                                                                ("camera_rate_change", cam_idx),
-                                                                ("lens_rate_change", lens_idx))
-                             for vec in (a_n, b_n)]
-                resid += [ca.sqrt(dt * wts[name]) * vec for name, vec in terms]
-                du_exact += [ca.sqrt(dt * wts[name]) * vec for name, vec in exact]
-                du_major += [ca.sqrt(dt * wts[name]) * vec for name, vec in major]
+            u, x, slack = w[off:off + nu], w[off + nu:off + nu + nx], w[off + nu + nx:off + blk]
+            self._add_stage(terms, k, par, x_prev=x_prev, u_last=u_last, u=u, x=x, slack=slack, majorise=majorise)
             x_prev, u_last = x, (v_copy[k * nu:(k + 1) * nu] if aug and k < n - 1 else u)
-        gvec = ca.vertcat(*g)
-        cost_v = cost
+        gvec = ca.vertcat(*terms.g)
+        cost = cost_v = terms.cost
         if aug and n > 1:  # the NLP's own cost: v_k = u_{k-1}
-            blk = nu + nx + C.N_SOFT
             cost = ca.substitute(cost, v_copy, ca.vertcat(*[w[nx + k * blk:nx + k * blk + nu] for k in range(n - 1)]))
         nlp = {"x": w, "p": p, "f": cost, "g": gvec}
         self._gfun = ca.Function("g", [w, p], [gvec])
@@ -291,15 +246,108 @@ class MpcSolver:
         self._nlp = nlp
         self.last_stats: dict = {}
         if sqp:
-            g_ocp = ca.vertcat(*g_ocp)
-            exact = self._build_sqp(w, v_copy, p, cost_v, g_ocp, ca.vertcat(*resid, *du_exact),
+            g_ocp = ca.vertcat(*terms.g_ocp)
+            exact = self._build_sqp(w, v_copy, p, cost_v, g_ocp, ca.vertcat(*terms.resid, *terms.du_exact),
                                     copies=s.qp_solver == "hpipm", name="exact")
             self._sqp = {"cold": exact, "warm": exact}
             if majorise and not s.sqp_input_copies:
-                self._sqp["warm"] = self._build_sqp(w, v_copy, p, cost_v, g_ocp, ca.vertcat(*resid, *du_major),
-                                                    copies=False, name="major")
+                self._sqp["warm"] = self._build_sqp(w, v_copy, p, cost_v, g_ocp,
+                                                    ca.vertcat(*terms.resid, *terms.du_major), copies=False,
+                                                    name="major")
         else:
             self._make_ipopt()
+
+    def _input_groups(self) -> tuple[list[int], list[int], list[int]]:
+        """Indices of the input vector: accelerations, camera rates, lens rates."""
+        lay = self.layout
+        return list(range(0, 3)), list(range(3, lay.F_RATE)), list(range(lay.F_RATE, lay.nu))
+
+    def _add_stage(self, terms: _NlpTerms, k: int, par: _NlpParams, *, x_prev, u_last, u, x, slack,
+                   majorise: bool) -> None:
+        """Stage k+1 of the NLP: its dynamics and soft constraints (in both forms), its cost and,
+        for the SQP, its Gauss-Newton residuals."""
+        s, lay, dt = self.s, self.layout, self.dt
+        a_dm, b_dm = self._ab_dm
+        tk = (k + 1) * dt
+        terms.g.append(x - (ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)))
+        centre = par.centre0 + par.vel * tk
+        terms.g.append(C.soft_constraints(x, slack, centre, par.z_min, par.z_max, par.d_min))
+        # the same rows in the stage-wise form of the QP (x_{k+1} through the dynamics; equal wherever
+        # the dynamics hold, which every SQP iterate after the first satisfies exactly)
+        x_pred = ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)
+        terms.g_ocp += [x_pred - x, C.soft_constraints(x_pred, slack, centre, par.z_min, par.z_max, par.d_min)]
+
+        yaw, pitch, roll = lay.angles(x)
+        cam = x[lay.P]
+        r = J.rotation_ypr(yaw, pitch, roll)
+        f_mm = x[lay.F]
+        im = self._image_term(terms, k, par, r=r, cam=cam, f_mm=f_mm, tk=tk)
+        cc = ca.mtimes(r.T, centre - cam)
+        inv_n, inv_f = J.inverse_dof_limits(f_mm, x[lay.A], x[lay.S], s.coc_mm)
+        d = par.dof[k * N_DOF:(k + 1) * N_DOF]
+        wts = par.wts
+        jdof = J.dof_cost(inv_n, inv_f, par.dref[k], w_near=d[0] * wts["dof_near"], g_near=d[1],
+                          w_far=d[2] * wts["dof_far"], g_far=d[3], far_one_sided=d[4])
+        un = u * par.u_scale
+        du_n = (u - u_last) * par.u_scale
+        vn = (x[lay.V] - par.vel) * par.v_scale  # relative to the subject: follow, don't wander
+        acc_idx, cam_idx, lens_idx = self._input_groups()
+        stage = (wts["image"] * im + wts["look"] * J.look_cost(cc) + jdof
+                 + wts["accel"] * ca.sumsqr(un[acc_idx]) + wts["camera_rate"] * ca.sumsqr(un[cam_idx])
+                 + wts["lens_rate"] * ca.sumsqr(un[lens_idx])
+                 + wts["accel_change"] * ca.sumsqr(du_n[acc_idx])
+                 + wts["camera_rate_change"] * ca.sumsqr(du_n[cam_idx])
+                 + wts["lens_rate_change"] * ca.sumsqr(du_n[lens_idx])
+                 + wts["velocity"] * ca.sumsqr(vn)
+                 + wts["soft_constraint"] * (ca.sum1(slack) + ca.sumsqr(slack)))
+        terms.cost += dt * stage
+        if s.solver != "ipopt":
+            e_n, e_f = J.dof_residuals(inv_n, inv_f, par.dref[k], g_near=d[1], g_far=d[3], far_one_sided=d[4])
+            terms.resid += [ca.sqrt(0.5 * dt * wts["look"]) * J.look_residual(cc),
+                            ca.sqrt(dt * d[0] * wts["dof_near"]) * e_n, ca.sqrt(dt * d[2] * wts["dof_far"]) * e_f]
+            self._add_input_residuals(terms, wts, un=un, du_n=du_n, vn=vn, slack=slack,
+                                      majorised=(u * par.u_scale, u_last * par.u_scale) if majorise and k > 0
+                                      else None)
+
+    def _image_term(self, terms: _NlpTerms, k: int, par: _NlpParams, *, r, cam, f_mm, tk):
+        """The image cost of stage k+1: the predicted joints projected through the planned camera,
+        against their targets (weighted by the mask); for the SQP, their residuals too."""
+        s, e, dt = self.s, self.e, self.dt
+        im = 0
+        for j in range(e):
+            pj = par.joints0[:, j] + par.vel * tk
+            pc = ca.mtimes(r.T, pj - cam)
+            ti = (k * e + j) * 2
+            err2 = J.joint_image_error(pc, par.targets[ti], par.targets[ti + 1], f_mm, s.sensor_width_mm,
+                                       s.sensor_height_mm, theta0_rad=math.radians(s.pinhole_half_angle_deg))
+            im += par.mask[k * e + j] * err2
+            if s.solver != "ipopt":
+                ru, rv = J.joint_image_residual(pc, par.targets[ti], par.targets[ti + 1], f_mm, s.sensor_width_mm,
+                                                s.sensor_height_mm,
+                                                theta0_rad=math.radians(s.pinhole_half_angle_deg))
+                sw = ca.sqrt(dt * par.wts["image"] * par.mask[k * e + j])
+                terms.resid += [sw * ru, sw * rv]
+        return im
+
+    def _add_input_residuals(self, terms: _NlpTerms, wts: dict, *, un, du_n, vn, slack,
+                             majorised: tuple | None) -> None:
+        """Residuals of the input, velocity and slack costs; the input-change ones exact, and
+        majorised (`majorised` = (u, u_last) scaled: each side on its own) for HPIPM's warm iterations."""
+        dt = self.dt
+        acc_idx, cam_idx, lens_idx = self._input_groups()
+        terms_ = [("accel", un[acc_idx]), ("camera_rate", un[cam_idx]), ("lens_rate", un[lens_idx]),
+                  ("velocity", vn), ("soft_constraint", slack)]
+        exact = [("accel_change", du_n[acc_idx]), ("camera_rate_change", du_n[cam_idx]),
+                 ("lens_rate_change", du_n[lens_idx])]
+        major = exact
+        if majorised is not None:
+            major = [(name, vec[idx]) for name, idx in (("accel_change", acc_idx),
+                                                        ("camera_rate_change", cam_idx),
+                                                        ("lens_rate_change", lens_idx))
+                     for vec in majorised]
+        terms.resid += [ca.sqrt(dt * wts[name]) * vec for name, vec in terms_]
+        terms.du_exact += [ca.sqrt(dt * wts[name]) * vec for name, vec in exact]
+        terms.du_major += [ca.sqrt(dt * wts[name]) * vec for name, vec in major]
 
     def _make_ipopt(self) -> None:
         # two instances of one NLP: warm-started solves (multipliers in, small barrier, the per-step
@@ -639,14 +687,7 @@ class MpcSolver:
         max_it = s.sqp_iter if warm else s.sqp_iter_cold
         budget = self._budget_s(cold=not warm)
         form = self._sqp["warm" if warm else "cold"]
-        lam_x = lam_a = None
-        if warm and self._lam_x is not None and self._lam_x.size == form.nz:
-            m = min(int(round(shift_s / self.dt)), self.n - 1)
-            lx, la = self._lam_x.reshape(self.n, -1), self._lam_g.reshape(self.n, -1)
-            if m > 0:
-                lx = np.vstack([lx[m:], np.repeat(lx[-1:], m, axis=0)])
-                la = np.vstack([la[m:], np.repeat(la[-1:], m, axis=0)])
-            lam_x, lam_a = lx.reshape(-1), la.reshape(-1)
+        lam_x, lam_a = self._qp_multipliers(form, shift_s) if warm else (None, None)
         perm, nx = form.perm, lay.nx
         pz = np.concatenate([p, w[:nx]])
         lbz, ubz = form.w_to_z(lbw, nx), form.w_to_z(ubw, nx)
@@ -676,15 +717,8 @@ class MpcSolver:
             lam_x = np.asarray(sol["lam_x"]).reshape(-1)
             lam_a = np.asarray(sol["lam_a"]).reshape(-1)
             self._penalty_mu = max(self._penalty_mu, 2.0 * float(np.max(np.abs(lam_a), initial=0.0)))
-            alpha, dd = 1.0, float(np.dot(np.asarray(grad).reshape(-1), dz))
-            for _ in range(5):
-                w_try, f1, g1 = self._postfun(np.clip(w + alpha * dw, lbw, ubw), p)
-                g1 = np.asarray(g1).reshape(-1)
-                merit1 = float(f1) + self._penalty_mu * self._viol(g1)
-                # Armijo on the merit, up to rounding (at a converged point the step is ~0 and the merit flat)
-                if merit1 <= merit0 + 1e-4 * alpha * min(dd, 0.0) + 1e-10 * (1.0 + abs(merit0)) or alpha < 0.1:
-                    break
-                alpha *= 0.5
+            alpha, w_try, f1, g1, merit1 = self._line_search(w, dw, p, lbw, ubw, merit0,
+                                                             float(np.dot(np.asarray(grad).reshape(-1), dz)))
             w, merit0, f0, g_w = np.asarray(w_try).reshape(-1), merit1, float(f1), g1
             it += 1
             step = float(np.max(np.abs(alpha * dw) / (1.0 + np.abs(w))))
@@ -712,6 +746,33 @@ class MpcSolver:
             self._guess = w
             self._lam_x, self._lam_g = lam_x, lam_a
         return res
+
+    def _qp_multipliers(self, form: _QpForm, shift_s: float) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The last solve's QP multipliers shifted by the whole stages elapsed (the last stage's
+        repeated), to warm-start the QP; (None, None) when there are none for this form."""
+        if self._lam_x is None or self._lam_x.size != form.nz:
+            return None, None
+        m = min(int(round(shift_s / self.dt)), self.n - 1)
+        lx, la = self._lam_x.reshape(self.n, -1), self._lam_g.reshape(self.n, -1)
+        if m > 0:
+            lx = np.vstack([lx[m:], np.repeat(lx[-1:], m, axis=0)])
+            la = np.vstack([la[m:], np.repeat(la[-1:], m, axis=0)])
+        return lx.reshape(-1), la.reshape(-1)
+
+    def _line_search(self, w: np.ndarray, dw: np.ndarray, p: np.ndarray, lbw: np.ndarray, ubw: np.ndarray,
+                     merit0: float, dd: float) -> tuple[float, np.ndarray, float, np.ndarray, float]:
+        """The step along dw (halved at most 4 times) that decreases the exact-penalty merit, with
+        the slacks made exact there: (alpha, w, cost, constraints, merit). `dd`: gradient . step."""
+        alpha = 1.0
+        for _ in range(5):
+            w_try, f1, g1 = self._postfun(np.clip(w + alpha * dw, lbw, ubw), p)
+            g1 = np.asarray(g1).reshape(-1)
+            merit1 = float(f1) + self._penalty_mu * self._viol(g1)
+            # Armijo on the merit, up to rounding (at a converged point the step is ~0 and the merit flat)
+            if merit1 <= merit0 + 1e-4 * alpha * min(dd, 0.0) + 1e-10 * (1.0 + abs(merit0)) or alpha < 0.1:
+                break
+            alpha *= 0.5
+        return alpha, w_try, f1, g1, merit1
 
     def _viol(self, gv: np.ndarray) -> float:
         """Sum of the constraint violations of g (L1)."""

@@ -109,16 +109,62 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
         raise SmootherInputError("no measurements: the sequence is empty")
     W, H = _frame_size(frames)
     fps = _fps(frames, cfg)
-    F = len(frames)
     if not any(f.n_people for f in frames):
-        raise SmootherInputError(f"no person detected in any of the {F} frames: no main subject to follow")
+        raise SmootherInputError(f"no person detected in any of the {len(frames)} frames: no main subject to follow")
+    scores, cuts = _shot_cuts(frames, cfg)
+    track = _track_subject(frames, cfg, fps=fps, size=(W, H), cuts=cuts)
+    focus = _focus(frames, track, cfg, fps=fps, cuts=cuts)
+    src = source or M.SourceInfo(path=frames[0].source, width=W, height=H, fps=fps, n_frames=len(frames))
+    src, warnings = reconcile_frame_count(src, first=frames[0].frame_index, rows=len(frames), final=final)
+    instr = _instructions(frames, track, focus, cfg, fps=fps, size=(W, H), cuts=cuts, source=src, final=final,
+                          complete=gaps == 0)
+    diag = {
+        "shot_change": scores,
+        "cut": cuts,
+        "frame_index": np.array([f.frame_index for f in frames]),
+        "n_people": np.array([f.n_people for f in frames]),
+        "person": track.sel.person.copy(),
+        "bridged": track.sel.bridged.copy(),
+        "mask_index": track.mask_idx,
+        "skeleton_index": track.skel_idx,
+        "raw_box": track.raw_box / np.array([W, H, W, H], dtype=float),
+        "raw_joints": track.raw_joints / np.array([W, H], dtype=float),
+        "raw_joint_conf": track.joint_conf,
+        "smoothed_joints": track.joints / np.array([W, H], dtype=float),
+        "focus_B_unmasked": focus.B,
+        "selection_cost": float(track.sel.cost),
+        "duplicates": int(dups),
+        "gaps": int(gaps),
+        "config": dataclasses.asdict(cfg),
+    }
+    return SmoothResult(instr, diag, warnings)
 
-    # 0. Shots: chains of smoothing never cross a cut.
+
+def _shot_cuts(frames: list[FrameFeatures], cfg: SmootherConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Step 0, shots: the shot-change scores and the cuts found in them (chains of smoothing never
+    cross a cut)."""
     scores = np.array([f.shot_change for f in frames], dtype=float)
     cuts = shots_mod.find_cuts(scores, threshold=cfg.cut_threshold, ratio=cfg.cut_ratio) \
-        if cfg.cut_threshold < 1.0 else np.zeros(F, dtype=bool)
+        if cfg.cut_threshold < 1.0 else np.zeros(len(frames), dtype=bool)
+    return scores, cuts
 
-    # 1. Main subject.
+
+@dataclass(frozen=True, eq=False)
+class _Track:
+    """The main subject through the sequence: who, its box, mask, skeleton and joints [px]."""
+
+    sel: Any  #: the selection (subject.Selection or the baseline's)
+    raw_box: np.ndarray
+    box: np.ndarray
+    mask_idx: np.ndarray
+    skel_idx: np.ndarray
+    raw_joints: np.ndarray
+    joint_conf: np.ndarray
+    joints: np.ndarray  #: smoothed
+
+
+def _select(frames: list[FrameFeatures], cfg: SmootherConfig, *, fps: float, cuts: np.ndarray):
+    """Step 1, the main subject of each frame."""
     if cfg.subject_method == "literal":
         from cinetransfer.services.smoother import baseline  # casadi: imported only when asked for
 
@@ -130,24 +176,46 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
                                          reentry_cost=cfg.reentry_cost, cuts=cuts)
         sel = subject_mod.extend_runs(frames, sel, min_iou=cfg.extend_min_iou) if cfg.extend_min_iou < 1 else sel
     if not sel.visible.any():
-        raise SmootherInputError(f"no main subject found in {F} frames")
+        raise SmootherInputError(f"no main subject found in {len(frames)} frames")
+    return sel
+
+
+def _track_subject(frames: list[FrameFeatures], cfg: SmootherConfig, *, fps: float, size: tuple[int, int],
+                   cuts: np.ndarray) -> _Track:
+    """Steps 1-3: the main subject, its smoothed box, its mask and skeleton, its smoothed joints."""
+    W, H = size
+    sel = _select(frames, cfg, fps=fps, cuts=cuts)
     raw_box, box = subject_mod.smooth_box(frames, sel, lam=cfg.lam(cfg.box_smoothness, fps), width=W, height=H,
                                           lam2=cfg.lam(cfg.box_accel_smoothness, fps, order=2), cuts=cuts)
-
-    # 2.-3. Mask, skeleton, joints.
     mask_idx, skel_idx, raw_joints, joint_conf = joints_mod.raw_subject_joints(frames, box, sel.visible)
     sm_joints = joints_mod.smooth_joints(raw_joints, joint_conf, sel.visible,
                                          lam=cfg.lam(cfg.joint_smoothness, fps), width=W, height=H,
                                          min_confidence=cfg.min_joint_confidence,
                                          lam2=cfg.lam(cfg.joint_accel_smoothness, fps, order=2),
                                          max_gap=int(round(cfg.max_bridge_s * fps)), cuts=cuts)
+    return _Track(sel, raw_box, box, mask_idx, skel_idx, raw_joints, joint_conf, sm_joints)
 
-    # 4. Focus: b per region (NaN = not measured), which regions exist, then B.
+
+@dataclass(frozen=True, eq=False)
+class _Focus:
+    """Step 4, focus per region (foreground, subject, background), (F, 3) each."""
+
+    b: np.ndarray  #: measured focused fraction (NaN = not measured)
+    present: np.ndarray  #: the region exists in the frame
+    B: np.ndarray  #: smoothed, before masking by `present`
+    B_out: np.ndarray  #: smoothed where the region exists and was ever measured, else NaN
+    focus_in: np.ndarray  #: B_out above theta
+
+
+def raw_focus(frames: list[FrameFeatures], visible: np.ndarray, mask_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """b per frame and region (NaN = not measured) and which regions exist. A region whose extent
+    is unknown (no focus map) is assumed present where the subject is."""
+    F = len(frames)
     b = np.full((F, 3), np.nan)
     present = np.zeros((F, 3), dtype=bool)
     for f, feat in enumerate(frames):
         m = mask_idx[f]
-        if not sel.visible[f]:
+        if not visible[f]:
             present[f] = (False, False, True)
             if feat.has_focus:
                 b[f] = feat.focus_none
@@ -158,60 +226,45 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
                 present[f] = np.isfinite(feat.focus[m])
         else:  # visible but not detected (bridged): regions exist, b unknown
             present[f] = (True, True, True)
-    # A region whose extent is unknown (no focus map) is assumed present where the subject is.
+    return b, present
+
+
+def _focus(frames: list[FrameFeatures], track: _Track, cfg: SmootherConfig, *, fps: float,
+           cuts: np.ndarray) -> _Focus:
+    """Step 4: b per region, which regions exist, then B smoothed shot by shot."""
+    b, present = raw_focus(frames, track.sel.visible, track.mask_idx)
     B = np.full_like(b, np.nan)
-    soft_levels = []
     for seg in shots_mod.segments(cuts):  # each shot's focus on its own: a cut may change it at once
-        b_seg, level = focus_mod.soft_shot(b[seg], theta=cfg.theta, floor=cfg.focus_soft_floor)
-        soft_levels.append(level)
+        b_seg, _ = focus_mod.soft_shot(b[seg], theta=cfg.theta, floor=cfg.focus_soft_floor)  # soft footage
         B[seg] = focus_mod.smooth_focus(b_seg, method=cfg.focus_method, fps=fps,
                                         switch_prob_24=cfg.focus_switch_prob, sigma=cfg.focus_noise,
                                         lam_24=cfg.focus_smoothness, adaptive=cfg.focus_adaptive_levels)
     any_focus = np.isfinite(b).any(axis=0)  # (3,) region measured at least once
     B_out = np.where(present & any_focus[None, :] & np.isfinite(B), B, np.nan)
-    focus_in = np.nan_to_num(B_out, nan=0.0) > cfg.theta
+    return _Focus(b, present, B, B_out, np.nan_to_num(B_out, nan=0.0) > cfg.theta)
 
-    # Instructions.
+
+def _instructions(frames: list[FrameFeatures], track: _Track, focus: _Focus, cfg: SmootherConfig, *, fps: float,
+                  size: tuple[int, int], cuts: np.ndarray, source: M.SourceInfo, final: bool,
+                  complete: bool) -> M.Instructions:
+    """The Instructions message: targets and box normalised by the frame size."""
+    W, H = size
     jidx = [M.COCO17_NAMES.index(n) for n in cfg.joints]
-    scale = np.array([W, H], dtype=float)
-    targets = sm_joints[:, jidx, :] / scale
-    box_n = box / np.array([W, H, W, H], dtype=float)
-    first = frames[0].frame_index
-    src = source or M.SourceInfo(path=frames[0].source, width=W, height=H, fps=fps, n_frames=F)
-    src, warnings = reconcile_frame_count(src, first=frames[0].frame_index, rows=F, final=final)
+    targets = track.joints[:, jidx, :] / np.array([W, H], dtype=float)
+    box_n = track.box / np.array([W, H, W, H], dtype=float)
     stamp = max(f.stamp_ns for f in frames)
-    valid = all(f.valid for f in frames if f.n_people or f.has_focus) and gaps == 0
-    instr = M.Instructions(
-        stamp_ns=int(stamp), valid=bool(valid), source=src, fps=float(fps), frame_duration_s=1.0 / fps,
-        first_frame=int(first), final=bool(final), joint_names=list(cfg.joints),
-        image_targets=targets.astype(np.float32), subject_visible=sel.visible.copy(),
-        subject_box=box_n.astype(np.float32), focus_raw=np.where(present, b, np.nan).astype(np.float32),
-        focus_smoothed=B_out.astype(np.float32), focus_in=focus_in, theta=float(cfg.theta), mu_m=float(cfg.mu_m),
-        shot_start=_shot_start(cuts, F))
-    diag = {
-        "shot_change": scores,
-        "cut": cuts,
-        "frame_index": np.array([f.frame_index for f in frames]),
-        "n_people": np.array([f.n_people for f in frames]),
-        "person": sel.person.copy(),
-        "bridged": sel.bridged.copy(),
-        "mask_index": mask_idx,
-        "skeleton_index": skel_idx,
-        "raw_box": raw_box / np.array([W, H, W, H], dtype=float),
-        "raw_joints": raw_joints / scale,
-        "raw_joint_conf": joint_conf,
-        "smoothed_joints": sm_joints / scale,
-        "focus_B_unmasked": B,
-        "focus_soft_level": np.asarray(soft_levels),  # per shot: the sharpest region's level (NaN = absolute)
-        "selection_cost": float(sel.cost),
-        "duplicates": int(dups),
-        "gaps": int(gaps),
-        "config": dataclasses.asdict(cfg),
-    }
-    return SmoothResult(instr, diag, warnings)
+    valid = all(f.valid for f in frames if f.n_people or f.has_focus) and complete
+    return M.Instructions(
+        stamp_ns=int(stamp), valid=bool(valid), source=source, fps=float(fps), frame_duration_s=1.0 / fps,
+        first_frame=int(frames[0].frame_index), final=bool(final), joint_names=list(cfg.joints),
+        image_targets=targets.astype(np.float32), subject_visible=track.sel.visible.copy(),
+        subject_box=box_n.astype(np.float32), focus_raw=np.where(focus.present, focus.b, np.nan).astype(np.float32),
+        focus_smoothed=focus.B_out.astype(np.float32), focus_in=focus.focus_in, theta=float(cfg.theta),
+        mu_m=float(cfg.mu_m), shot_start=_shot_start(cuts, len(frames)))
 
 
-def reconcile_frame_count(src: M.SourceInfo, *, first: int, rows: int, final: bool) -> tuple[M.SourceInfo, tuple[str, ...]]:
+def reconcile_frame_count(src: M.SourceInfo, *, first: int, rows: int,
+                          final: bool) -> tuple[M.SourceInfo, tuple[str, ...]]:
     """Source info whose `n_frames` agrees with the rows of a final instruction set, and a warning
     when the source declared another count (a truncated video: its container promises frames
     that never decoded; or a run stopped early). A window (not final) is left alone."""

@@ -51,7 +51,8 @@ def measure_video(video: str | os.PathLike, *, detector_config: Any = None, stop
     return guarded(), source, det
 
 
-def extract_features(video: str | os.PathLike, cfg: SmootherConfig, *, measurements_path: str | os.PathLike | None = None,
+def extract_features(video: str | os.PathLike, cfg: SmootherConfig, *,
+                     measurements_path: str | os.PathLike | None = None,
                      stop: int | None = None, progress: bool = False,
                      detector_config: Any = None) -> tuple[list[FrameFeatures], SourceInfo]:
     """Run the detector over a video and keep the smoother's features of every frame (optionally

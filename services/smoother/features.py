@@ -130,21 +130,8 @@ def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foregr
     M_ = len(people)
     boxes = np.array([np.asarray(p.box_xyxy, dtype=float) for p in people]).reshape(M_, 4)
     conf = np.array([float(p.confidence) for p in people], dtype=float)
-
     crops = [_full_mask_crop(p, W, H) for p in people]
-    grids = np.zeros((M_, GRID, GRID))
-    gx = np.zeros((M_, GRID + 1))
-    gy = np.zeros((M_, GRID + 1))
-    for k, (mask, ox, oy) in enumerate(crops):
-        h, w = mask.shape
-        gx[k], gy[k] = ox, oy
-        if h == 0 or w == 0:
-            continue
-        gh, gw = min(GRID, h), min(GRID, w)
-        grids[k, :gh, :gw] = cv2.resize(mask.astype(np.float32), (gw, gh), interpolation=cv2.INTER_AREA)
-        # Padding cells have zero width/height (edges repeat the last one).
-        gx[k] = ox + w * np.minimum(np.arange(GRID + 1), gw) / gw
-        gy[k] = oy + h * np.minimum(np.arange(GRID + 1), gh) / gh
+    grids, gx, gy = occupancy_grids(crops)
 
     # Skeletons (COCO-17 only) and h(p, m) = joints of skeleton p inside mask m.
     sk = [s for s in m.skeletons if s.keypoint_set == "coco17" and s.keypoints_px.shape == (N_JOINTS, 2)]
@@ -152,19 +139,7 @@ def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foregr
     joints = np.array([np.asarray(s.keypoints_px, dtype=float) for s in sk]).reshape(P, N_JOINTS, 2)
     jconf = np.array([np.asarray(s.confidences, dtype=float) for s in sk]).reshape(P, N_JOINTS)
     jconf = np.where(np.isfinite(jconf), jconf, 0.0)
-    inside = np.zeros((P, M_), dtype=int)
-    for k, (mask, ox, oy) in enumerate(crops):
-        if mask.size == 0:
-            continue
-        for p in range(P):
-            xy = joints[p]
-            ok = np.all(np.isfinite(xy), axis=1)
-            if not ok.any():
-                continue
-            xi = np.floor(xy[ok, 0]).astype(int) - ox
-            yi = np.floor(xy[ok, 1]).astype(int) - oy
-            inb = (xi >= 0) & (yi >= 0) & (xi < mask.shape[1]) & (yi < mask.shape[0])
-            inside[p, k] = int(mask[yi[inb], xi[inb]].sum())
+    inside = joints_inside(crops, joints)
     # A skeleton that names its person counts as fully inside that person (detectors that give
     # both from one model know the pairing better than the mask test).
     for p, s in enumerate(sk):
@@ -176,28 +151,80 @@ def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foregr
     focus_none = np.full(3, np.nan)
     has_focus = m.focus_map is not None and m.focus_map.size > 0 and W > 0 and H > 0
     if has_focus:
-        fm = np.asarray(m.focus_map)
-        infocus = fm >= focus_pixel_threshold * 255.0
-        h, w = fm.shape
-        sx, sy = w / W, h / H
-        min_rows = int(np.ceil(foreground_min_rows * h))
-        focus_none = _region_fractions(infocus, None, None, min_rows)
-        # Frame pixel sampled at the centre of each focus-map pixel.
-        fx = np.minimum(((np.arange(w) + 0.5) / sx).astype(int), W - 1)
-        fy = np.minimum(((np.arange(h) + 0.5) / sy).astype(int), H - 1)
-        for k, (mask, ox, oy) in enumerate(crops):
-            subj = np.zeros((h, w), dtype=bool)
-            if mask.size:
-                cx, cy = fx - ox, fy - oy
-                okx = (cx >= 0) & (cx < mask.shape[1])
-                oky = (cy >= 0) & (cy < mask.shape[0])
-                if okx.any() and oky.any():
-                    subj[np.ix_(oky, okx)] = mask[np.ix_(cy[oky], cx[okx])]
-            rows = np.flatnonzero(subj.any(axis=1))
-            feet_row = int(rows[-1]) + 1 if rows.size else int(np.ceil(boxes[k, 3] * sy))
-            focus[k] = _region_fractions(infocus, subj, feet_row, min_rows, int(round(focus_margin * w)))
+        focus, focus_none = focus_fractions(np.asarray(m.focus_map) >= focus_pixel_threshold * 255.0, crops, boxes,
+                                            (W, H), foreground_min_rows=foreground_min_rows, margin=focus_margin)
     return FrameFeatures(frame_index=int(m.frame_index), stamp_ns=int(m.stamp_ns), width=W, height=H,
                          fps=float(m.fps), source=m.source, boxes=boxes, conf=conf, grids=grids, grid_x=gx, grid_y=gy,
                          joints=joints, joint_conf=jconf, inside=inside, focus=focus,
                          focus_none=focus_none, has_focus=bool(has_focus), valid=bool(m.valid),
                          shot_change=float(m.shot_change))
+
+
+def occupancy_grids(crops: list[tuple[np.ndarray, int, int]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each mask crop as a coarse occupancy grid over its own box: (M, G, G) occupancy in [0, 1] and
+    the cell edges (M, G+1) in x and y [px]. Padding cells have zero width/height (edges repeat)."""
+    M_ = len(crops)
+    grids = np.zeros((M_, GRID, GRID))
+    gx = np.zeros((M_, GRID + 1))
+    gy = np.zeros((M_, GRID + 1))
+    for k, (mask, ox, oy) in enumerate(crops):
+        h, w = mask.shape
+        gx[k], gy[k] = ox, oy
+        if h == 0 or w == 0:
+            continue
+        gh, gw = min(GRID, h), min(GRID, w)
+        grids[k, :gh, :gw] = cv2.resize(mask.astype(np.float32), (gw, gh), interpolation=cv2.INTER_AREA)
+        gx[k] = ox + w * np.minimum(np.arange(GRID + 1), gw) / gw
+        gy[k] = oy + h * np.minimum(np.arange(GRID + 1), gh) / gh
+    return grids, gx, gy
+
+
+def joints_inside(crops: list[tuple[np.ndarray, int, int]], joints: np.ndarray) -> np.ndarray:
+    """(P, M): how many joints of skeleton p fall on a pixel of mask m."""
+    inside = np.zeros((joints.shape[0], len(crops)), dtype=int)
+    for k, (mask, ox, oy) in enumerate(crops):
+        if mask.size == 0:
+            continue
+        for p, xy in enumerate(joints):
+            ok = np.all(np.isfinite(xy), axis=1)
+            if not ok.any():
+                continue
+            xi = np.floor(xy[ok, 0]).astype(int) - ox
+            yi = np.floor(xy[ok, 1]).astype(int) - oy
+            inb = (xi >= 0) & (yi >= 0) & (xi < mask.shape[1]) & (yi < mask.shape[0])
+            inside[p, k] = int(mask[yi[inb], xi[inb]].sum())
+    return inside
+
+
+def focus_fractions(infocus: np.ndarray, crops: list[tuple[np.ndarray, int, int]], boxes: np.ndarray,
+                    size: tuple[int, int], *, foreground_min_rows: float,
+                    margin: float) -> tuple[np.ndarray, np.ndarray]:
+    """The focused fraction b of each region (foreground, subject, background) from the in-focus
+    pixels of the focus map: (M, 3) with person m as the subject, and (3,) with no subject."""
+    W, H = size
+    h, w = infocus.shape
+    sx, sy = w / W, h / H
+    min_rows = int(np.ceil(foreground_min_rows * h))
+    focus = np.full((len(crops), 3), np.nan)
+    focus_none = _region_fractions(infocus, None, None, min_rows)
+    # Frame pixel sampled at the centre of each focus-map pixel.
+    fx = np.minimum(((np.arange(w) + 0.5) / sx).astype(int), W - 1)
+    fy = np.minimum(((np.arange(h) + 0.5) / sy).astype(int), H - 1)
+    for k, (mask, ox, oy) in enumerate(crops):
+        subj = _mask_on_focus_map(mask, fx - ox, fy - oy)
+        rows = np.flatnonzero(subj.any(axis=1))
+        feet_row = int(rows[-1]) + 1 if rows.size else int(np.ceil(boxes[k, 3] * sy))
+        focus[k] = _region_fractions(infocus, subj, feet_row, min_rows, int(round(margin * w)))
+    return focus, focus_none
+
+
+def _mask_on_focus_map(mask: np.ndarray, cx: np.ndarray, cy: np.ndarray) -> np.ndarray:
+    """The mask crop resampled onto the focus map: cx (w,), cy (h,) are the crop pixel of each
+    focus-map column and row (outside the crop: not the subject)."""
+    subj = np.zeros((cy.size, cx.size), dtype=bool)
+    if mask.size:
+        okx = (cx >= 0) & (cx < mask.shape[1])
+        oky = (cy >= 0) & (cy < mask.shape[0])
+        if okx.any() and oky.any():
+            subj[np.ix_(oky, okx)] = mask[np.ix_(cy[oky], cx[okx])]
+    return subj

@@ -69,130 +69,173 @@ def smooth(y: np.ndarray, w: np.ndarray, lam: float | np.ndarray, *, lo: float |
     F, C = y.shape
     if F == 0 or C == 0:
         return QPResult(np.zeros((F, C)), 0, 0)
+    lam_c, lam2_c = _checked_weights(w, lam, lam2, C)
+    w = np.where(np.isfinite(y), w, 0.0)
+    y0 = np.where(w > 0, y, 0.0)
+    lo_fc, hi_fc = _as_fc(lo, F, C), _as_fc(hi, F, C)
+    if np.any(lo_fc > hi_fc):
+        raise ValueError("lower bound above upper bound")
+    lk = _checked_links(link, F)
+    d_fc, bands = hessian_bands(w, lk, lam_c, lam2_c)
+    undetermined = undetermined_runs(w, lk)
+    if undetermined.any():  # a segment's couplings lie inside it: cut them, fix x = 0 (reported NaN)
+        d_fc = np.where(undetermined, 1.0, d_fc)
+        bands = [np.where(undetermined, 0.0, u) for u in bands]
+    qp = _BoxQP.stack(d_fc, bands, w * y0, np.where(undetermined, -np.inf, lo_fc),
+                      np.where(undetermined, np.inf, hi_fc))
+    x, it = _solve_box(qp)
+    x = np.where(undetermined.T.reshape(-1), np.nan, x)
+    n_act = int(np.count_nonzero((x <= qp.lo) | (x >= qp.hi)))
+    return QPResult(x.reshape(C, F).T.copy(), it, n_act)
+
+
+def _checked_weights(w: np.ndarray, lam, lam2, C: int) -> tuple[np.ndarray, np.ndarray]:
+    """The smoothness weights per column (C,); ValueError for a negative or non-finite weight."""
     if not np.all(np.isfinite(w)) or np.any(w < 0):
         raise ValueError("weights must be finite and >= 0")
     lam_c = np.broadcast_to(np.asarray(lam, dtype=float), (C,))
     lam2_c = np.broadcast_to(np.asarray(lam2, dtype=float), (C,))
     if np.any(~np.isfinite(lam_c)) or np.any(lam_c < 0) or np.any(~np.isfinite(lam2_c)) or np.any(lam2_c < 0):
         raise ValueError("smoothness weights must be finite and >= 0")
-    w = np.where(np.isfinite(y), w, 0.0)
-    y0 = np.where(w > 0, y, 0.0)
-    lo_fc, hi_fc = _as_fc(lo, F, C), _as_fc(hi, F, C)
-    if np.any(lo_fc > hi_fc):
-        raise ValueError("lower bound above upper bound")
+    return lam_c, lam2_c
 
+
+def _checked_links(link: np.ndarray | None, F: int) -> np.ndarray:
     lk = np.ones(F - 1, dtype=bool) if link is None else np.asarray(link, dtype=bool)
     if lk.shape != (F - 1,):
         raise ValueError(f"link must have shape ({F - 1},)")
-    # Band of the Hessian per column (row f couples f and f+k): d (diagonal), u1, u2.
-    d_fc = w.copy()
+    return lk
+
+
+def hessian_bands(w: np.ndarray, lk: np.ndarray, lam_c: np.ndarray,
+                  lam2_c: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The band of the Hessian per column, (F, C) each: the diagonal and the upper bands (row f
+    couples f and f+k): [u1] with first differences only, [u1, u2] with the second-difference term."""
+    F, C = w.shape
+    d = w.copy()
     u1 = np.zeros((F, C))
-    u2 = np.zeros((F, C))
     l1 = lk[:, None] * lam_c[None, :]  # (F-1, C)
     u1[:-1] -= l1
-    d_fc[:-1] += l1
-    d_fc[1:] += l1
-    second = bool(np.any(lam2_c > 0)) and F >= 3
-    if second:
-        t = (lk[:-1] & lk[1:])[:, None] * lam2_c[None, :]  # triplet centred on f = 1..F-2
-        d_fc[:-2] += t
-        d_fc[1:-1] += 4 * t
-        d_fc[2:] += t
-        u1[:-2] -= 2 * t
-        u1[1:-1] -= 2 * t
-        u2[:-2] += t
-    # Undetermined runs: linked segments of a column with no weight at all.
+    d[:-1] += l1
+    d[1:] += l1
+    if not (bool(np.any(lam2_c > 0)) and F >= 3):
+        return d, [u1]
+    u2 = np.zeros((F, C))
+    t = (lk[:-1] & lk[1:])[:, None] * lam2_c[None, :]  # triplet centred on f = 1..F-2
+    d[:-2] += t
+    d[1:-1] += 4 * t
+    d[2:] += t
+    u1[:-2] -= 2 * t
+    u1[1:-1] -= 2 * t
+    u2[:-2] += t
+    return d, [u1, u2]
+
+
+def undetermined_runs(w: np.ndarray, lk: np.ndarray) -> np.ndarray:
+    """(F, C) True where a frame lies in a linked run of frames with no weight at all in its column."""
     seg = np.concatenate([[0], np.cumsum(~lk)])  # segment id per frame
-    n_seg = int(seg[-1]) + 1
-    wsum = np.zeros((n_seg, C))
+    wsum = np.zeros((int(seg[-1]) + 1, w.shape[1]))
     np.add.at(wsum, seg, w)
-    undetermined = (wsum[seg] <= 0)  # (F, C)
-    if undetermined.any():  # a segment's couplings lie inside it: cut them, fix x = 0 (reported NaN)
-        d_fc = np.where(undetermined, 1.0, d_fc)
-        u1 = np.where(undetermined, 0.0, u1)
-        u2 = np.where(undetermined, 0.0, u2)
-    rhs_fc = w * y0
+    return wsum[seg] <= 0
 
-    # Column-major stacking: index i = c * F + f; couplings past a column's end are 0.
-    d0 = d_fc.T.reshape(-1)
-    us = [u1.T.reshape(-1)] + ([u2.T.reshape(-1)] if second else [])
-    b0 = rhs_fc.T.reshape(-1)
-    und = undetermined.T.reshape(-1)
-    lo_v = np.where(und, -np.inf, lo_fc.T.reshape(-1))
-    hi_v = np.where(und, np.inf, hi_fc.T.reshape(-1))
-    n = d0.size
-    bw = len(us)
 
-    def hess_times(x: np.ndarray) -> np.ndarray:
-        out = d0 * x
-        for k, u in enumerate(us, start=1):
+@dataclass(frozen=True)
+class _BoxQP:
+    """The stacked system: column after column (index i = c * F + f), couplings past a column's
+    end 0; Hessian diagonal `d`, upper bands `us` (band k couples i and i+k), right-hand side `b`
+    and the box lo <= x <= hi."""
+
+    d: np.ndarray
+    us: tuple[np.ndarray, ...]
+    b: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+
+    @classmethod
+    def stack(cls, d_fc: np.ndarray, bands: list[np.ndarray], rhs_fc: np.ndarray, lo_fc: np.ndarray,
+              hi_fc: np.ndarray) -> _BoxQP:
+        def flat(a: np.ndarray) -> np.ndarray:
+            return a.T.reshape(-1)
+
+        return cls(flat(d_fc), tuple(flat(u) for u in bands), flat(rhs_fc), flat(lo_fc), flat(hi_fc))
+
+    def hess_times(self, x: np.ndarray) -> np.ndarray:
+        out = self.d * x
+        for k, u in enumerate(self.us, start=1):
             out[:-k] += u[:-k] * x[k:]
             out[k:] += u[:-k] * x[:-k]
         return out
 
-    def solve(d: np.ndarray, uu: list[np.ndarray], b: np.ndarray) -> np.ndarray:
+    def _solve(self, d: np.ndarray, uu: list[np.ndarray], b: np.ndarray) -> np.ndarray:
+        bw, n = len(self.us), self.d.size
         ab = np.zeros((bw + 1, n))
         ab[bw] = d
         for k, u in enumerate(uu, start=1):
             ab[bw - k, k:] = u[:-k]
         return solveh_banded(ab, b, lower=False, check_finite=False)
 
-    def solve_fixed(act_lo: np.ndarray, act_hi: np.ndarray) -> np.ndarray:
+    def solve_fixed(self, act_lo: np.ndarray, act_hi: np.ndarray) -> np.ndarray:
         """Minimiser with the variables of the two sets fixed at their bounds."""
         fixed = act_lo | act_hi
         if not fixed.any():
-            return solve(d0, us, b0)
-        xb = np.where(act_lo, lo_v, np.where(act_hi, hi_v, 0.0))
-        d = np.where(fixed, 1.0, d0)
-        b = b0.copy()
+            return self._solve(self.d, list(self.us), self.b)
+        xb = np.where(act_lo, self.lo, np.where(act_hi, self.hi, 0.0))
+        d = np.where(fixed, 1.0, self.d)
+        b = self.b.copy()
         uu = []
-        for k, u in enumerate(us, start=1):
+        for k, u in enumerate(self.us, start=1):
             # Move couplings to fixed neighbours into the right-hand side, then cut them.
             b[:-k] -= np.where(~fixed[:-k] & fixed[k:], u[:-k] * xb[k:], 0.0)
             b[k:] -= np.where(~fixed[k:] & fixed[:-k], u[:-k] * xb[:-k], 0.0)
             uc = u.copy()
             uc[:-k] = np.where(fixed[:-k] | fixed[k:], 0.0, u[:-k])
             uu.append(uc)
-        return solve(d, uu, np.where(fixed, xb, b))
+        return self._solve(d, uu, np.where(fixed, xb, b))
 
-    act_lo = np.zeros(n, dtype=bool)
-    act_hi = np.zeros(n, dtype=bool)
-    x = np.zeros(n)
-    it = 0
-    converged = False
-    for it in range(1, MAX_PDAS_ITERS + 1):
-        x = solve_fixed(act_lo, act_hi)
-        grad = hess_times(x) - b0
-        # Multipliers: lower-active needs grad >= 0, upper-active needs grad <= 0.
-        new_lo = np.where(act_lo, grad > 0, x < lo_v)
-        new_hi = np.where(act_hi, grad < 0, x > hi_v)
-        if np.array_equal(new_lo, act_lo) and np.array_equal(new_hi, act_hi):
-            converged = True
-            break
-        act_lo, act_hi = new_lo, new_hi
+
+def _solve_box(qp: _BoxQP) -> tuple[np.ndarray, int]:
+    """The exact minimiser in the box and the banded solves it took: the primal-dual active-set
+    loop, finished by the primal method if it does not settle."""
+    x, it, converged = _primal_dual_active_set(qp)
     if not converged:
-        # The loop above is finite for Stieltjes matrices (first differences only); with the
+        # The loop is finite for Stieltjes matrices (first differences only); with the
         # second-difference term it can cycle. Finish with the primal active-set method
         # (Nocedal & Wright, Alg. 16.3), which is finite for any positive definite Hessian.
-        x, k = _primal_active_set(solve_fixed, hess_times, b0, lo_v, hi_v, np.clip(x, lo_v, hi_v))
+        x, k = _primal_active_set(qp, np.clip(x, qp.lo, qp.hi))
         it += k
-    x = np.where(und, np.nan, x)
-    n_act = int(np.count_nonzero((x <= lo_v) | (x >= hi_v)))
-    return QPResult(x.reshape(C, F).T.copy(), it, n_act)
+    return x, it
 
 
-def _primal_active_set(solve_fixed, hess_times, b0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                       x: np.ndarray) -> tuple[np.ndarray, int]:
+def _primal_dual_active_set(qp: _BoxQP) -> tuple[np.ndarray, int, bool]:
+    """Hintermüller, Ito & Kunisch: the last iterate, the solves taken, and whether the active sets settled."""
+    act_lo = np.zeros(qp.d.size, dtype=bool)
+    act_hi = np.zeros(qp.d.size, dtype=bool)
+    x = np.zeros(qp.d.size)
+    it = 0
+    for it in range(1, MAX_PDAS_ITERS + 1):
+        x = qp.solve_fixed(act_lo, act_hi)
+        grad = qp.hess_times(x) - qp.b
+        # Multipliers: lower-active needs grad >= 0, upper-active needs grad <= 0.
+        new_lo = np.where(act_lo, grad > 0, x < qp.lo)
+        new_hi = np.where(act_hi, grad < 0, x > qp.hi)
+        if np.array_equal(new_lo, act_lo) and np.array_equal(new_hi, act_hi):
+            return x, it, True
+        act_lo, act_hi = new_lo, new_hi
+    return x, it, False
+
+
+def _primal_active_set(qp: _BoxQP, x: np.ndarray) -> tuple[np.ndarray, int]:
     """Primal active-set method from a feasible x: exact minimiser and the solves it took."""
+    b0, lo, hi = qp.b, qp.lo, qp.hi
     tol = 1e-12 * (1.0 + float(np.max(np.abs(b0))))
     act_lo = x <= lo
     act_hi = (x >= hi) & ~act_lo
     for it in range(1, MAX_PRIMAL_ITERS + 1):
-        xs = solve_fixed(act_lo, act_hi)
+        xs = qp.solve_fixed(act_lo, act_hi)
         p = xs - x
         free = ~(act_lo | act_hi)
         if np.max(np.abs(p[free]), initial=0.0) <= 1e-13 * (1.0 + np.max(np.abs(x))):
-            grad = hess_times(xs) - b0
+            grad = qp.hess_times(xs) - b0
             lam = np.where(act_lo, grad, np.where(act_hi, -grad, np.inf))
             j = int(np.argmin(lam))
             if lam[j] >= -tol:

@@ -28,7 +28,8 @@ def sample_messages():
     tg = rng.random((k, 4, 2)).astype(np.float32)
     tg[2, 1] = np.nan
     yield M.Instructions(source=M.SourceInfo(path="a.mp4", width=640, height=360, fps=24.0, n_frames=k),
-                         fps=24.0, frame_duration_s=1 / 24, joint_names=list(M.COCO17_NAMES[5:7] + M.COCO17_NAMES[11:13]),
+                         fps=24.0, frame_duration_s=1 / 24,
+                         joint_names=list(M.COCO17_NAMES[5:7] + M.COCO17_NAMES[11:13]),
                          image_targets=tg, subject_visible=np.ones(k, bool),
                          subject_box=rng.random((k, 4)).astype(np.float32),
                          focus_raw=rng.random((k, 3)).astype(np.float32),

@@ -204,9 +204,11 @@ def test_deploy_check_passes_the_shipped_configs_and_names_what_is_broken(tmp_pa
     local = (REPO / "deploy" / "configs" / "local.yaml").read_text()
     # a deployment without the detector: the smoother reads a key nobody writes
     no_detector = tmp_path / "no_detector.yaml"
-    no_detector.write_text(local.replace("  - name: detector\n    command: detector\n    args: [--input, source]\n", ""))
+    detector_node = "  - name: detector\n    command: detector\n    args: [--input, source]\n"
+    no_detector.write_text(local.replace(detector_node, ""))
     r = check(str(no_detector))
-    assert r.returncode == 1 and "smoother reads detector/measurement but no node of the deployment writes it" in r.stderr
+    assert r.returncode == 1
+    assert "smoother reads detector/measurement but no node of the deployment writes it" in r.stderr
     # two planners on one rig: two writers of the setpoint
     two = tmp_path / "two_planners.yaml"
     two.write_text(local.replace("  - name: planner\n    command: planner\n    args: []\n",
@@ -225,6 +227,7 @@ def test_deploy_check_passes_the_shipped_configs_and_names_what_is_broken(tmp_pa
     assert "node 'warp_drive' is not declared in dataflow.yaml" in r.stderr
     assert "unknown key 'ct/*/planner/setpoints'" in r.stderr
     # and 'up' refuses a broken config before starting anything
-    r = subprocess.run([sys.executable, "-m", "cinetransfer", "deploy", "up", str(two), "--run-dir", str(tmp_path / "rd")],
+    r = subprocess.run([sys.executable, "-m", "cinetransfer", "deploy", "up", str(two),
+                        "--run-dir", str(tmp_path / "rd")],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "planner/setpoint has 2 writers" in r.stderr

@@ -231,7 +231,8 @@ def test_ctrl_c_stops_the_vehicle_and_keeps_the_recording(data, tmp_path):
             proc.kill()
             proc.wait()
             if (out / "deploy" / "transfer.yaml").is_file():
-                subprocess.run([sys.executable, "-m", "cinetransfer", "deploy", "down", str(out / "deploy" / "transfer.yaml"),
+                subprocess.run([sys.executable, "-m", "cinetransfer", "deploy", "down",
+                                str(out / "deploy" / "transfer.yaml"),
                                 "--run-dir", str(out / "deploy")], capture_output=True, timeout=120)
         console.close()
         log = (tmp_path / "console.log").read_text()

@@ -11,7 +11,8 @@ from conftest import REPO
 
 def test_message_reference_is_up_to_date():
     committed = (REPO / "docs" / "messages.md").read_text()
-    assert committed == docgen.render(), "docs/messages.md is stale: run `cinetransfer docs messages -o docs/messages.md`"
+    assert committed == docgen.render(), \
+        "docs/messages.md is stale: run `cinetransfer docs messages -o docs/messages.md`"
 
 
 def test_console_script_lists_commands():

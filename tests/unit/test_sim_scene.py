@@ -21,9 +21,9 @@ def test_bundled_scenes_load():
         s = load_scene(n)
         assert s.name == n
         assert s.subject.script and s.camera.width > 0 and s.ground is not None
-        assert any(l.region == "sky" for l in s.layers)
+        assert any(layer.region == "sky" for layer in s.layers)
     focus = load_scene("focus_hedge")
-    assert any(l.region == "foreground" for l in focus.layers)
+    assert any(layer.region == "foreground" for layer in focus.layers)
 
 
 def test_load_by_path(tmp_path):

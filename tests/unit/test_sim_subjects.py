@@ -2,8 +2,8 @@
 
 The detector check renders each subject in each bundled scene (swapped in with
 `load_scene(scene, subject=NAME)`, as `--subject` does) at times spread over its whole script, so
-every action it does is seen, from a camera that moves sideways (and up, never below the scene's camera height: in focus_hedge
-the hedge then hides the legs) and zooms. A frame counts when a
+every action it does is seen, from a camera that moves sideways (and up, never below the scene's camera height: in
+focus_hedge the hedge then hides the legs) and zooms. A frame counts when a
 MediaPipe skeleton's median joint distance to the ground-truth joints is < 3 % of the image.
 """
 from __future__ import annotations

@@ -77,7 +77,7 @@ class SceneRenderer:
         self.sensor = cam.Sensor(scene.camera.sensor_width_mm, scene.camera.sensor_height_mm, scene.camera.coc_mm)
         gz = scene.ground.z_m if scene.ground else 0.0
         self.subject = Subject(scene.subject, ground_z_m=gz)
-        self._layer_tex = [_read_texture(l.texture, l.wrap) for l in scene.layers]
+        self._layer_tex = [_read_texture(layer.texture, layer.wrap) for layer in scene.layers]
         self._ground_tex = None
         self._ground_period_m = (0.0, 0.0)
         if scene.ground:

@@ -1,0 +1,114 @@
+"""The style of the source, extracted by the dataflow's own nodes: the source clip is played into
+a running deployment (source -> detector -> smoother) and the smoother's final whole-sequence
+instructions are the style."""
+from __future__ import annotations
+
+import logging
+import queue
+import shutil
+import time
+from pathlib import Path
+
+from tqdm import tqdm
+
+from cinetransfer.job import TransferError
+from cinetransfer.shared import codec, keys
+from cinetransfer.shared import messages as M
+
+log = logging.getLogger("cinetransfer.transfer")
+
+
+class StyleTap:
+    """Listens to the extraction half of the dataflow: measurements (progress), the ends of the
+    source and detector streams, and the smoother's instructions (the callbacks only enqueue)."""
+
+    def __init__(self, session, rig: str) -> None:
+        self.q: queue.SimpleQueue = queue.SimpleQueue()
+        self.measured = 0
+        topics = (keys.INSTRUCTIONS, keys.SOURCE_END, keys.DETECTOR_END)
+        self._subs = [session.declare_subscriber(t.key(rig), lambda s, t=t: self.q.put((t, s.payload.to_bytes())))
+                      for t in topics]
+        self._subs.append(session.declare_subscriber(keys.MEASUREMENT.key(rig), self._on_measurement))
+
+    def _on_measurement(self, _sample) -> None:
+        self.measured += 1
+
+    def next(self, timeout: float):
+        try:
+            topic, payload = self.q.get(timeout=timeout)
+        except queue.Empty:
+            return None, None
+        try:
+            return topic, codec.decode(payload, topic.msg_type)
+        except codec.DecodeError as e:
+            log.warning("undecodable message on %s: %s", topic.key("RIG"), e)
+            return topic, None
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()
+
+
+def extract_on_dataflow(session, rig: str, src: Path, stop: int | None, stall_s: float) -> M.Instructions:
+    """Play the source into the dataflow (source -> detector -> smoother) and return the smoother's
+    whole-sequence instructions for it. TransferError when a stage fails or stalls."""
+    path = str(src.resolve())
+    tap = StyleTap(session, rig)
+    cmd = session.declare_publisher(keys.SOURCE_COMMAND.key(rig))
+    try:
+        args = {"path": path, **({"stop": int(stop)} if stop else {})}
+        cmd.put(codec.encode(M.Command(stamp_ns=M.now_ns(), action="play", args=args)))
+        return _await_final(tap, path, stall_s)
+    finally:
+        cmd.undeclare()
+        tap.close()
+
+
+def _await_final(tap: StyleTap, path: str, stall_s: float) -> M.Instructions:
+    """The smoother's final instructions for `path`; TransferError when the source fails or
+    nothing arrives for `stall_s` wall seconds."""
+    with tqdm(desc=f"extract {Path(path).name} (dataflow)", unit="frame", disable=None) as bar:
+        last = time.monotonic()
+        while True:
+            topic, msg = tap.next(0.2)
+            bar.n = tap.measured
+            bar.refresh()
+            if topic is None:
+                if time.monotonic() - last > stall_s:
+                    raise TransferError(f"extraction stalled: nothing from the source, detector or smoother for "
+                                        f"{stall_s:.0f} s (see OUTDIR/deploy/*.log)")
+                continue
+            last = time.monotonic()
+            final = _final_instructions(topic, msg, path)
+            if final is not None:
+                return final
+
+
+def _final_instructions(topic, msg, path: str) -> M.Instructions | None:
+    """One message of the extraction: the final instructions for `path`, or None (keep waiting);
+    TransferError when the source node could not play it."""
+    if msg is None or msg.source.path != path:
+        return None
+    if topic is keys.SOURCE_END and not msg.valid:
+        raise TransferError(f"the source node could not play {path}: {msg.reason}")
+    if topic is keys.DETECTOR_END:
+        log.info("detector: %d frames measured (%s)", msg.frames, msg.reason)
+    if topic is keys.INSTRUCTIONS and msg.final:
+        return msg
+    return None
+
+
+def source_style(args, src: Path, out: Path, session) -> tuple[Path, M.Instructions]:
+    """The source's style, written to OUTDIR/style.json: from --style, or extracted by the
+    dataflow's own services."""
+    from cinetransfer.services.smoother.instructions import load_style, save_style
+
+    style_path = out / "style.json"
+    if args.style:
+        shutil.copyfile(args.style, style_path)
+        return style_path, load_style(style_path)
+    style = extract_on_dataflow(session, args.rig, src, args.max_frames or None, args.stall_timeout)
+    save_style(style_path, style)
+    print(f"wrote {style_path}: {style.image_targets.shape[0]} frames at {style.fps:g} fps (extracted by the "
+          f"source, detector and smoother nodes)")
+    return style_path, load_style(style_path)

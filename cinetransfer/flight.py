@@ -1,0 +1,234 @@
+"""The flight of a transfer: the takes of the style flown against a running deployment and
+recorded, then stopped whatever happens (Ctrl-C included).
+
+In simulation time (the default) the simulation restarts at a fresh time zero, the planner
+starts each take exactly on schedule (a settle phase on the shot's first frame, then its frames)
+and the bridge steps only when the planner's setpoint for the step has arrived, so every camera
+frame exists; on the wall clock (`--realtime`) skipped frames are repeated, counted, reported.
+"""
+from __future__ import annotations
+
+import logging
+import signal
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+from tqdm import tqdm
+
+from cinetransfer.job import TransferError
+from cinetransfer.recorder import Recorder, Take, Window
+from cinetransfer.shared import codec, keys
+from cinetransfer.shared import messages as M
+from cinetransfer.take import TakeSummary, require_complete
+
+log = logging.getLogger("cinetransfer.transfer")
+
+
+class Conductor:
+    """Sends the take's commands to the planner and the bridge of a rig."""
+
+    def __init__(self, session, rig: str) -> None:
+        self.planner = session.declare_publisher(keys.PLANNER_COMMAND.key(rig))
+        self.bridge = session.declare_publisher(keys.BRIDGE_COMMAND.key(rig))
+        self.instructions = session.declare_publisher(keys.INSTRUCTIONS.key(rig))
+
+    def to_planner(self, action: str, **args) -> None:
+        self.planner.put(codec.encode(M.Command(stamp_ns=M.now_ns(), action=action, args=args)))
+
+    def to_bridge(self, action: str, **args) -> None:
+        self.bridge.put(codec.encode(M.Command(stamp_ns=M.now_ns(), action=action, args=args)))
+
+    def stop(self, sim_time: bool) -> None:
+        """Whatever happened: the planner stops (it then commands a hold), the bridge holds, and a
+        simulation goes back to real-time pace."""
+        self.to_planner("stop")
+        self.to_bridge("hold")
+        if sim_time:
+            self.to_bridge("clock", pace=1.0)
+
+    def undeclare(self) -> None:
+        for p in (self.planner, self.bridge, self.instructions):
+            p.undeclare()
+
+
+def _progress(rec: Recorder, k: int, stall_s: float, *, what: str) -> None:
+    """Wait until the take's k frames are recorded, with a progress bar; TransferError if no
+    frame arrives for `stall_s` wall seconds (a node died or hangs)."""
+    with tqdm(total=k, desc="recording", unit="frame", disable=None) as bar:
+        while rec.frames_written < k:
+            n = rec.frames_written
+            if not rec.wait(lambda: rec.frames_written != n, stall_s):
+                raise TransferError(f"{what}: no frame for {stall_s:.0f} s after {n} of {k} "
+                                    "(see OUTDIR/deploy/*.log)")
+            bar.n = min(rec.frames_written, k)
+            bar.refresh()
+
+
+def shot_schedule(style: M.Instructions, *, preroll_s: float, settle_s: float, one_take: bool,
+                  min_take_s: float = 0.5) -> list[dict]:
+    """The takes of the flight, in camera frames since time zero (camera rate = instruction rate):
+    one per shot of the source (one for all with `one_take`), each after a settle phase (the
+    first after the pre-roll) in which the planner frames the shot's first instruction frame.
+    A shot shorter than `min_take_s` (a flash cut, frames of a morph) is filmed on in the take
+    before it: a re-framing pause for a few frames would cost more than it gives."""
+    from cinetransfer.services.smoother.instructions import shot_segments
+
+    fps = float(style.fps)
+    k = style.image_targets.shape[0]
+    shots = [(0, k)] if one_take else merge_short(shot_segments(style), int(round(min_take_s * fps)))
+    t, out = 0, []
+    for i, (a, b) in enumerate(shots):
+        settle = int(round((preroll_s if i == 0 else settle_s) * fps))
+        out.append({"shot": i, "first_row": a, "end_row": b, "settle_start_index": t, "first_index": t + settle,
+                    "settle_frames": settle, "settle_limit_s": settle / fps})
+        t += settle + (b - a)
+    return out
+
+
+def merge_short(segments: list[tuple[int, int]], min_len: int) -> list[tuple[int, int]]:
+    """Join every segment shorter than `min_len` rows to the one before it (the first to the next)."""
+    out: list[list[int]] = []
+    for a, b in segments:
+        if out and b - a < min_len:
+            out[-1][1] = b
+        elif out and out[-1][1] - out[-1][0] < min_len:
+            out[-1][1] = b  # a short first segment joins the next
+        else:
+            out.append([a, b])
+    return [(a, b) for a, b in out]
+
+
+def fly_sim_time(style: M.Instructions, rec: Recorder, cond: Conductor, *, preroll_s: float, settle_s: float,
+                 one_take: bool, stall_s: float, pace: float = 0.0, min_take_s: float = 0.5) -> dict:
+    """The flight in simulation time: reset the simulation to a fresh time zero, let the planner
+    start each take exactly on schedule (a settle phase on its first frame, then its frames),
+    record every frame of every take; the edit joins the takes at the source's cuts."""
+    k = style.image_targets.shape[0]
+    fps = float(style.fps)
+    epoch = _flight_epoch(rec)
+    takes = shot_schedule(style, preroll_s=preroll_s, settle_s=settle_s, one_take=one_take, min_take_s=min_take_s)
+    _schedule_takes(style, rec, cond, takes, epoch)
+    rec.arm(Window(exact=True, n_slots=k, fps=fps, epoch_ns=epoch,
+                   takes=tuple(Take(t["first_index"], t["first_row"], t["end_row"] - t["first_row"]) for t in takes)))
+    log.info("simulation time: %d take(s) of %s frames at %.3g fps, settling %s frames before each", len(takes),
+             "/".join(str(t["end_row"] - t["first_row"]) for t in takes), fps,
+             "/".join(str(t["settle_frames"]) for t in takes))
+    cond.to_bridge("reset", epoch_ns=epoch, fps=fps, pace=float(pace))
+    _progress(rec, k, stall_s, what="simulation")
+    return {"clock": "simulation (lockstep)", "epoch_ns": epoch, "preroll_frames": takes[0]["settle_frames"],
+            "takes": takes, "one_take": one_take}
+
+
+def _flight_epoch(rec: Recorder) -> int:
+    """Time zero of the flight [ns]: far ahead of the running simulation clock, so it is never
+    reached before the reset."""
+    if not rec.wait(lambda: rec.last_clock is not None, 30.0):
+        raise TransferError("the bridge publishes no simulation clock (is it a --realtime bridge? "
+                            "then run transfer with --realtime)")
+    return max(M.now_ns(), rec.last_clock.stamp_ns) + 600 * 10**9
+
+
+def _schedule_takes(style: M.Instructions, rec: Recorder, cond: Conductor, takes: list[dict], epoch: int) -> None:
+    """Tell the planner when each take starts (simulation time) and wait until it says it has them all."""
+    fps = float(style.fps)
+    cond.to_planner("stop")
+    for tk in takes:
+        at = epoch + int(round(tk["settle_start_index"] / fps * 1e9))
+        cond.to_planner("start", start_frame=int(style.first_frame) + tk["first_row"],
+                        preroll_s=tk["settle_frames"] / fps, at_ns=at)
+    last_at = epoch + int(round(takes[-1]["settle_start_index"] / fps * 1e9))
+
+    def acknowledged() -> bool:
+        h = rec.health.get("planner")
+        return h is not None and h.counters.get("sim_time") is True and \
+            h.counters.get("scheduled") == len(takes) and h.counters.get("scheduled_at_ns") == last_at
+
+    if not rec.wait(acknowledged, 60.0):
+        raise TransferError("the planner did not acknowledge the scheduled takes (is it following the "
+                            "simulation clock? see OUTDIR/deploy/planner.log)")
+
+
+def fly_realtime(style: M.Instructions, rec: Recorder, cond: Conductor, *, preroll_s: float,
+                 stall_s: float, **_unused) -> dict:
+    """The take on the wall clock (a --realtime simulator or a real vehicle): frames are slotted
+    by their stamp; a slot the camera skipped repeats the previous frame (counted, reported)."""
+    k = style.image_targets.shape[0]
+    # 'start' then 'pause' makes the planner frame instruction 0 without the clock running
+    cond.to_planner("start", start_frame=0)
+    cond.to_planner("pause")
+    log.info("pre-roll: settling on frame 0 for %.1f s (wall clock)", preroll_s)
+    time.sleep(preroll_s)
+    rec.arm(Window(exact=False, n_slots=k, fps=float(style.fps), t0_ns=M.now_ns()))
+    cond.to_planner("resume")
+    try:
+        _progress(rec, k, min(stall_s, k / style.fps + 5.0), what="real-time take")
+    except TransferError as e:
+        log.error("%s", e)  # judged with the take below: a short take exits non-zero
+    return {"clock": "wall (real time)"}
+
+
+def _already_stopping(_signum, _frame) -> None:
+    print("cinetransfer transfer: already stopping (vehicle told to hold); saving the recording ...",
+          file=sys.stderr)
+
+
+def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: float, realtime: bool,
+        stall_s: float, meta: dict, publish_instructions: bool = True, settle_s: float = 3.0,
+        one_take: bool = False, pace: float = 0.0, min_take_s: float = 0.5) -> Recorder:
+    """Fly and record the take, stop; Ctrl-C stops the vehicle too. The planner has the smoother's
+    instructions already; a style given as a file is published here (`publish_instructions`)."""
+    rec = Recorder(session, rig, outdir, meta)
+    cond = Conductor(session, rig)
+    if publish_instructions:
+        cond.instructions.put(codec.encode(replace(style, stamp_ns=M.now_ns(), final=True)))
+        time.sleep(0.3)
+    try:
+        how = (fly_realtime if realtime else fly_sim_time)(style, rec, cond, preroll_s=preroll_s, stall_s=stall_s,
+                                                           settle_s=settle_s, one_take=one_take, pace=pace,
+                                                           min_take_s=min_take_s)
+        meta.update(how)
+    except KeyboardInterrupt:
+        rec.interrupted = True
+        # from here on Ctrl-C only says what is happening: the vehicle is told to hold, the nodes
+        # are stopped and the recording saved whatever the user presses
+        signal.signal(signal.SIGINT, _already_stopping)
+        log.warning("interrupted: stopping the vehicle and keeping what was recorded")
+    finally:
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)  # the stop is never cut short
+        try:
+            cond.stop(sim_time=not realtime)
+            time.sleep(0.3)
+            rec.summaries = rec.close()
+            cond.undeclare()
+        finally:
+            signal.signal(signal.SIGINT, old)
+    return rec
+
+
+def take_meta(rec: Recorder, style: M.Instructions, realtime: bool) -> dict:
+    """What the recording holds, stated plainly (repeats, missing frames), for meta.json and the report."""
+    frames, truths = rec.summaries
+    k = int(style.image_targets.shape[0])
+    fs = frames or TakeSummary(k)
+    return {"recorded_frames": fs.written, "instruction_frames": k, "fps": style.fps, "output_fps": style.fps,
+            "repeated_frames": len(fs.repeated_slots), "repeated_slots": fs.repeated_slots,
+            "repeated_share": round(len(fs.repeated_slots) / k, 4) if k else 0.0,
+            "missing_frames": len(fs.missing_slots), "duplicate_frames": fs.duplicates, "late_frames": fs.late,
+            "truth_frames": 0 if truths is None else truths.written, "logged_messages": rec.log.count,
+            "clock_mode": "realtime" if realtime else "lockstep", "interrupted": rec.interrupted}
+
+
+def check_take(meta: dict, rec: Recorder, realtime: bool) -> None:
+    """A take that is not the instructions' length is an error (never a silent partial result)."""
+    frames, truths = rec.summaries
+    if frames is None:
+        raise TransferError("the take never started (see OUTDIR/deploy/*.log)")
+    if not realtime:
+        require_complete(frames, "frames")
+        require_complete(truths, "ground-truth records")
+    elif frames.written < frames.n_slots:
+        raise TransferError(f"the real-time take is short: {frames.written} of {frames.n_slots} instruction "
+                            f"frames were recorded ({meta['repeated_frames']} of them repeats); "
+                            "output.mp4 and the truth are kept in OUTDIR")
