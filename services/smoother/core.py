@@ -101,8 +101,12 @@ def _shot_start(cuts: np.ndarray | None, n: int) -> np.ndarray:
 
 
 def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None = None, *,
-                    source: M.SourceInfo | None = None, final: bool = True) -> SmoothResult:
-    """The whole optimisation for one sequence of frames (any order, duplicates allowed)."""
+                    source: M.SourceInfo | None = None, final: bool = True,
+                    known_cuts: Iterable[int] | None = None) -> SmoothResult:
+    """The whole optimisation for one sequence of frames (any order, duplicates allowed).
+
+    `known_cuts`: the rows where shots begin, when they are known rather than to be found (the
+    output of a transfer flown one take per shot is edited at exactly the takes' first rows)."""
     cfg = (cfg or SmootherConfig()).validate()
     frames, dups, gaps = order_frames(feats)
     if not frames:
@@ -112,6 +116,9 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
     if not any(f.n_people for f in frames):
         raise SmootherInputError(f"no person detected in any of the {len(frames)} frames: no main subject to follow")
     scores, cuts = _shot_cuts(frames, cfg)
+    if known_cuts is not None:
+        cuts = np.zeros(len(frames), dtype=bool)
+        cuts[[r for r in known_cuts if 0 < r < len(frames)]] = True
     track = _track_subject(frames, cfg, fps=fps, size=(W, H), cuts=cuts)
     focus = _focus(frames, track, cfg, fps=fps, cuts=cuts)
     src = source or M.SourceInfo(path=frames[0].source, width=W, height=H, fps=fps, n_frames=len(frames))
