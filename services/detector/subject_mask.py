@@ -53,14 +53,15 @@ def own_pieces(mask: np.ndarray, joints_xy: np.ndarray) -> np.ndarray:
 
 def refine_person(image_bgr: np.ndarray, person: PersonDetection, skeleton: Skeleton | None, *,
                   radius: int = 3, eps: float = 1e-3) -> PersonDetection:
-    """The person with its mask snapped to the image edges and cut to its own body (box,
-    confidence and track id kept). A person without a mask is returned as is."""
+    """The person with its mask snapped to the image edges and cut to its own body, within its
+    crop rectangle (box, crop, confidence and track id kept). A person without a mask is returned
+    as is."""
     mask = np.asarray(person.mask, dtype=bool)
     if mask.size == 0 or not mask.any():
         return person
     H, W = image_bgr.shape[:2]
     ox, oy = int(person.mask_origin_xy[0]), int(person.mask_origin_xy[1])
-    m = 2 * radius + 1  # margin: the boundary may move outwards by up to about the radius
+    m = 2 * radius + 1  # margin: the filter sees the image around the crop too
     x0, y0 = max(0, ox - m), max(0, oy - m)
     x1, y1 = min(W, ox + mask.shape[1] + m), min(H, oy + mask.shape[0] + m)
     if x1 <= x0 or y1 <= y0:
@@ -74,13 +75,14 @@ def refine_person(image_bgr: np.ndarray, person: PersonDetection, skeleton: Skel
     if skeleton is not None:
         ok = np.asarray(skeleton.confidences) >= JOINT_CONFIDENCE
         out = own_pieces(out, np.asarray(skeleton.keypoints_px, dtype=float)[ok] - (x0, y0))
-    ys, xs = np.flatnonzero(out.any(axis=1)), np.flatnonzero(out.any(axis=0))
-    if len(xs) == 0:
+    # back into the model's own crop rectangle: the box (the mask's box for most backends) and the
+    # crop stay as they were; the edge moves within it (growing past it measured no better on DAVIS)
+    crop = np.zeros_like(mask)
+    crop[sy0:sy1, sx0:sx1] = out[oy + sy0 - y0:oy + sy1 - y0, ox + sx0 - x0:ox + sx1 - x0]
+    if not crop.any():
         return person  # the filter dissolved a sliver: keep the model's mask
-    crop = np.ascontiguousarray(out[ys[0]:ys[-1] + 1, xs[0]:xs[-1] + 1])
     return PersonDetection(box_xyxy=person.box_xyxy, confidence=person.confidence,
-                           mask_origin_xy=np.asarray((x0 + xs[0], y0 + ys[0]), dtype=np.int32), mask=crop,
-                           track_id=person.track_id)
+                           mask_origin_xy=person.mask_origin_xy, mask=crop, track_id=person.track_id)
 
 
 def refine_people(image_bgr: np.ndarray, people: list[PersonDetection], skeletons: list[Skeleton],

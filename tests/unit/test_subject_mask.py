@@ -93,7 +93,7 @@ def test_refine_person_keeps_box_confidence_and_track_and_stays_in_the_frame(par
     assert _iou(full, truth) > _iou(mask, truth)
     assert q.track_id == 7 and q.confidence == pytest.approx(0.9)
     assert np.array_equal(q.box_xyxy, p.box_xyxy)
-    assert q.mask_origin_xy.min() >= 0
+    assert np.array_equal(q.mask_origin_xy, p.mask_origin_xy) and q.mask.shape == p.mask.shape
 
 
 def test_refine_person_without_a_mask_is_unchanged(parkour):
