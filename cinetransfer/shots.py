@@ -45,10 +45,12 @@ def settle_report(style: M.Instructions, takes: Sequence[dict], truths: Mapping[
         errs = [framing_error(truths[i], style, row) if i in truths else math.nan for i in range(start, first + 1)]
         settled_at = _settled_from(errs, tolerance)
         finite = [e for e in errs if math.isfinite(e)]
+        framed = bool(np.isfinite(np.asarray(style.image_targets[row], dtype=float)).all(axis=1).any())
         out.append({"shot": tk["shot"], "first_row": row, "end_row": tk["end_row"],
                     "settle_limit_s": tk["settle_limit_s"],
                     "settle_s": None if settled_at is None else round(settled_at / fps, 3),
-                    "settled": settled_at is not None,
+                    # None: the shot's first frame shows no subject, so there is no framing to settle on
+                    "settled": (settled_at is not None) if framed else None,
                     "error_at_take_start": errs[-1] if errs and math.isfinite(errs[-1]) else None,
                     "best_error_while_settling": min(finite) if finite else None})
     return out

@@ -125,7 +125,10 @@ def _job(args, src: Path, out: Path, meta: dict, timings: dict) -> tuple[Path, M
 def _evaluate(out: Path, src: Path, style_path: Path, rec: Recorder, meta: dict) -> dict:
     out_style = out / "output_style.json"
     try:
-        run_cli(["extract", str(out / "output.mp4"), "-o", str(out_style)], "extraction on the output")
+        # the output of per-shot takes is edited at the takes' first rows: its shots are known
+        takes = meta.get("takes") or []
+        cuts = ["--cuts", ",".join(str(t["first_row"]) for t in takes[1:])] if len(takes) > 1 else []
+        run_cli(["extract", str(out / "output.mp4"), "-o", str(out_style), *cuts], "extraction on the output")
     except TransferError as e:
         log.error("%s", e)
         out_style = None

@@ -118,6 +118,7 @@ def _shots_table(summary: dict[str, Any]) -> str:
     for s in shots:
         settle = ("—" if s.get("settle_limit_s") is None else
                   f"{_num(s['settle_s'], 2)} s of {_num(s['settle_limit_s'], 2)} s" if s.get("settled") else
+                  "no subject in its first frame" if s.get("settled") is None else
                   f"not within {_num(s['settle_limit_s'], 2)} s")
         rows.append(f"<tr><td>{s['shot'] + 1}</td><td>{s['rows'][0]}–{s['rows'][1] - 1}</td>"
                     f"<td>{_e(s['goals_met'])}</td><td>{_num(s.get('joint_error_extraction'))}</td>"

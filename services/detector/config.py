@@ -47,6 +47,8 @@ class DetectorConfig:
     upscale_max_side_px: int = 0  # run pose on the frame upscaled so its long side is this (0 = off)
     tiles: int = 0  # extra pass over N overlapping vertical tiles (small/far people), 0 = off, 0..4
     mask_threshold: float = 0.5  # segmentation probability that counts as person, (0, 1)
+    # masks snapped to image edges within this radius, cut to the pieces holding the person's joints
+    mask_refine_radius_px: int = 3  # (subject_mask.py) [px], 0 = off, 0..20
     min_person_confidence: float = 0.35  # drop people whose derived confidence is below this, [0, 1]
     dedup_iou: float = 0.5  # two detections whose boxes overlap more than this are one person, (0, 1]
     min_box_height_px: int = 8  # ignore people smaller than this [px]
@@ -111,6 +113,7 @@ class DetectorConfig:
                      "min_person_confidence", "tv_score_threshold", "focus_no_edge_prior"):
             need(0.0 <= getattr(self, name) <= 1.0, name, "[0, 1]")
         need(0.0 < self.mask_threshold < 1.0, "mask_threshold", "(0, 1)")
+        need(0 <= self.mask_refine_radius_px <= 20, "mask_refine_radius_px", "0..20")
         need(0.0 < self.dedup_iou <= 1.0, "dedup_iou", "(0, 1]")
         need(self.upscale_max_side_px == 0 or 64 <= self.upscale_max_side_px <= 4096, "upscale_max_side_px",
              "0 or 64..4096")

@@ -23,7 +23,7 @@ from typing import Iterator
 
 import numpy as np
 
-from cinetransfer.services.detector import shots
+from cinetransfer.services.detector import shots, subject_mask
 from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.services.detector.focus import FocusEstimator, FocusResult
 from cinetransfer.services.detector.sources import iter_frames
@@ -140,6 +140,8 @@ class Detector:
             people, skeletons = self.backend.detect(image_bgr, stamp_ns)
         finally:
             ev, extra = fut.result() if fut is not None else side_work()
+        if self.cfg.mask_refine_radius_px > 0:
+            people = subject_mask.refine_people(image_bgr, people, skeletons, radius=self.cfg.mask_refine_radius_px)
         if extra:
             people = self._merge_fallback(people, extra)
         focus = None

@@ -362,7 +362,9 @@ class Planner:
         frame = max(frame_at(t), self.start_frame)  # (a pre-roll frames the start frame)
         rows = []
         for k in range(1, n + 1):
-            f = frame_at(t + k * dt) if moving else frame
+            # stages still in the pre-roll frame the start frame too, never the rows before it (a
+            # later take's settle would otherwise fly the previous shot's framing backwards)
+            f = max(frame_at(t + k * dt), self.start_frame) if moving else frame
             rows.append(int(np.clip(f - ins.first_frame, 0, k_rows - 1)))
         self.counters["finished"] = bool(ins.final and frame - ins.first_frame >= k_rows)
         return rows, frame

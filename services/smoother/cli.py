@@ -140,19 +140,25 @@ def extract_main(argv: list[str]) -> int:
     ap.add_argument("--no-diagnostics", action="store_true", help="leave the raw per-frame measures out")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     ap.add_argument("--stop", type=int, default=None, help="stop after this many frames")
+    ap.add_argument("--cuts", default=None, metavar="ROWS",
+                    help="rows where shots begin, comma-separated, instead of finding them ('' = one shot)")
     add_config_arguments(ap)
     args = ap.parse_args(argv)
     try:
         cfg = config_from_args(args)
+        cuts = None if args.cuts is None else [int(r) for r in args.cuts.split(",") if r.strip()]
     except ConfigError as e:
         return report_config_error(e, "cinetransfer extract")
+    except ValueError as e:  # --cuts is not a list of row numbers
+        print(f"cinetransfer extract: --cuts: {e}", file=sys.stderr)
+        return 2
     from cinetransfer.services.smoother.core import SmootherInputError, smooth_sequence
     from cinetransfer.services.smoother.extract import ExtractError, extract_features
 
     try:
         feats, source = extract_features(args.video, cfg, measurements_path=args.measurements, stop=args.stop,
                                          progress=not args.quiet)
-        result = smooth_sequence(feats, cfg, source=source)
+        result = smooth_sequence(feats, cfg, source=source, known_cuts=cuts)
     except (ExtractError, SmootherInputError) as e:
         print(f"cinetransfer extract: {e}", file=sys.stderr)
         return 1

@@ -101,8 +101,12 @@ def _shot_start(cuts: np.ndarray | None, n: int) -> np.ndarray:
 
 
 def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None = None, *,
-                    source: M.SourceInfo | None = None, final: bool = True) -> SmoothResult:
-    """The whole optimisation for one sequence of frames (any order, duplicates allowed)."""
+                    source: M.SourceInfo | None = None, final: bool = True,
+                    known_cuts: Iterable[int] | None = None) -> SmoothResult:
+    """The whole optimisation for one sequence of frames (any order, duplicates allowed).
+
+    `known_cuts`: the rows where shots begin, when they are known rather than to be found (the
+    output of a transfer flown one take per shot is edited at exactly the takes' first rows)."""
     cfg = (cfg or SmootherConfig()).validate()
     frames, dups, gaps = order_frames(feats)
     if not frames:
@@ -112,6 +116,9 @@ def smooth_sequence(feats: Iterable[FrameFeatures], cfg: SmootherConfig | None =
     if not any(f.n_people for f in frames):
         raise SmootherInputError(f"no person detected in any of the {len(frames)} frames: no main subject to follow")
     scores, cuts = _shot_cuts(frames, cfg)
+    if known_cuts is not None:
+        cuts = np.zeros(len(frames), dtype=bool)
+        cuts[[r for r in known_cuts if 0 < r < len(frames)]] = True
     track = _track_subject(frames, cfg, fps=fps, size=(W, H), cuts=cuts)
     focus = _focus(frames, track, cfg, fps=fps, cuts=cuts)
     src = source or M.SourceInfo(path=frames[0].source, width=W, height=H, fps=fps, n_frames=len(frames))
@@ -235,7 +242,8 @@ def _focus(frames: list[FrameFeatures], track: _Track, cfg: SmootherConfig, *, f
     b, present = raw_focus(frames, track.sel.visible, track.mask_idx)
     B = np.full_like(b, np.nan)
     for seg in shots_mod.segments(cuts):  # each shot's focus on its own: a cut may change it at once
-        B[seg] = focus_mod.smooth_focus(b[seg], method=cfg.focus_method, fps=fps,
+        b_seg, _ = focus_mod.soft_shot(b[seg], theta=cfg.theta, floor=cfg.focus_soft_floor)  # soft footage
+        B[seg] = focus_mod.smooth_focus(b_seg, method=cfg.focus_method, fps=fps,
                                         switch_prob_24=cfg.focus_switch_prob, sigma=cfg.focus_noise,
                                         lam_24=cfg.focus_smoothness, adaptive=cfg.focus_adaptive_levels)
     any_focus = np.isfinite(b).any(axis=0)  # (3,) region measured at least once

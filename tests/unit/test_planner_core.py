@@ -181,6 +181,19 @@ def test_scheduled_start_applies_at_its_exact_time_with_a_preroll(planner):
     assert not planner.command(M.Command(action="start", args={"preroll_s": -1.0}), T0)
 
 
+def test_a_later_takes_settle_frames_its_first_frame_not_the_shot_before(planner):
+    # given a take of a later shot (start frame 40) with a 3 s settle, started at T0
+    ins = instructions_from_arrays(targets=np.full((100, 1, 2), 0.5), joint_names=["nose"], fps=24.0)
+    assert planner.command(M.Command(action="start", args={"start_frame": 40, "preroll_s": 3.0}), T0)
+    # when the planner looks ahead from the settle's start, 1 s before its end and 0.1 s before it
+    early, frame = planner._rows(T0, ins, 3, 0.1)
+    late, _ = planner._rows(T0 + int(2.9 * S), ins, 3, 0.1)
+    # then every stage still in the settle frames row 40 (never rows 40 - 72 ... of the shot before),
+    # and the stages past its end look into the take: 40 + floor(24 x (k x 0.1 - 0.1))
+    assert frame == 40 and early == [40, 40, 40]
+    assert late == [40, 42, 44]
+
+
 def test_same_ticks_give_the_same_setpoints_whatever_came_before(planner_cfg, instructions):
     # given two planners with different histories before a scheduled start (one has been solving)
     def run(history_steps: int) -> list[np.ndarray]:

@@ -57,3 +57,15 @@ def test_short_shots_are_filmed_on_in_the_take_before():
     assert merge_short([(0, 20), (20, 22), (22, 24), (24, 40)], 12) == [(0, 24), (24, 40)]
     assert merge_short([(0, 3), (3, 30)], 12) == [(0, 30)]
     assert merge_short([(0, 20), (20, 40)], 12) == [(0, 20), (20, 40)]
+
+
+def test_a_shot_opening_without_the_subject_has_nothing_to_settle_on():
+    # given a third shot whose first frame shows no subject (targets NaN: a VFX morph, an empty frame)
+    style = style_with_shots()
+    style.image_targets[14] = np.nan
+    takes = shot_schedule(style, preroll_s=1.0, settle_s=0.5, one_take=False)
+    truths = {i: truth_at(0.5) for i in range(0, 35)}
+    rep = settle_report(style, takes, truths)
+    # then it is reported as such (settled None), not as a take that failed to settle
+    assert rep[2]["settled"] is None and rep[2]["settle_s"] is None and rep[2]["error_at_take_start"] is None
+    assert rep[0]["settled"] is True and rep[1]["settled"] is True

@@ -307,3 +307,56 @@ def test_targets_jump_at_a_cut_instead_of_gliding():
     flat = smooth_measurements([replace(m, shot_change=float("nan")) for m in ms])
     xf = flat.instructions.image_targets[:, 0, 0]
     assert abs(xf[23] - xf[0]) > 0.01 or abs(xf[24] - xf[47]) > 0.01
+
+
+def test_known_cuts_replace_the_found_ones():
+    # given the same two shots with no shot-change scores (a transfer's output: same scene each side)
+    from dataclasses import replace
+
+    from cinetransfer.services.smoother import synthetic as syn
+    from cinetransfer.services.smoother.core import smooth_sequence
+
+    ms = []
+    for i in range(48):
+        box = np.array([60, 100, 160, 400.0]) if i < 24 else np.array([440, 100, 540, 400.0])
+        ms.append(replace(syn.measurement(i, [syn.person(box)], [syn.skeleton_in(box, person_index=0)]),
+                          shot_change=float("nan")))
+    feats = features_from_measurements(ms, SmootherConfig())
+    # when the edit points are given
+    res = smooth_sequence(feats, known_cuts=[24, 99])
+    # then the shots are cut there (a row out of range is ignored) and the targets jump at once
+    assert res.instructions.shot_start.nonzero()[0].tolist() == [0, 24]
+    x = res.instructions.image_targets[:, 0, 0]
+    assert abs(x[23] - x[0]) < 0.01 and x[24] - x[23] > 0.5
+    assert smooth_sequence(feats, known_cuts=[]).instructions.shot_start.nonzero()[0].tolist() == [0]
+
+
+def test_soft_shot_is_judged_relative_to_its_sharpest_region():
+    # given a shot whose sharp subject reads 0.2 (soft footage) against a background at 0.05, no foreground
+    b = np.column_stack([np.full(40, np.nan), np.r_[np.full(20, 0.15), np.full(20, 0.25)], np.full(40, 0.05)])
+    # when judged as a shot
+    out, level = F.soft_shot(b, theta=0.5, floor=0.1)
+    # then its sharpest region's median level (0.2) means "in focus": subject 0.75 / 1.0 (capped), background 0.25
+    assert level == pytest.approx(0.2)
+    assert out[0, 1] == pytest.approx(0.75) and out[-1, 1] == 1.0
+    assert out[0, 2] == pytest.approx(0.25) and np.isnan(out[0, 0])
+    B = F.smooth_focus(out, fps=24.0)
+    assert (B[:, 1] > 0.5).all() and (B[:, 2] < 0.5).all()
+
+
+@pytest.mark.parametrize("b", [
+    np.column_stack([np.full(30, 0.9), np.full(30, 0.3), np.full(30, 0.1)]),  # some region in focus: absolute
+    np.column_stack([np.full(30, 0.05), np.full(30, 0.08), np.full(30, 0.02)]),  # all below the floor: all out
+    np.full((30, 3), np.nan),  # nothing measured
+])
+def test_soft_shot_leaves_sharp_blurred_and_unmeasured_shots_alone(b):
+    out, level = F.soft_shot(b, theta=0.5, floor=0.1)
+    assert np.isnan(level)
+    assert np.array_equal(out, b, equal_nan=True)
+
+
+def test_soft_floor_one_turns_it_off():
+    b = np.column_stack([np.full(30, np.nan), np.full(30, 0.3), np.full(30, 0.05)])
+    assert np.isnan(F.soft_shot(b, theta=0.5, floor=1.0)[1])
+    with pytest.raises(ConfigError):
+        SmootherConfig(focus_soft_floor=0.0).validate()
