@@ -134,6 +134,24 @@ def _group_row(label: str, ncols: int) -> str:
     return f"<tr class='group'><td class='l' colspan='{ncols}'>{_e(label)}</td></tr>"
 
 
+def _image_side_note(summary: dict[str, Any]) -> str:
+    """Says so when left/right were compared by image side (a subject seen from behind)."""
+    parts = []
+    for measure, heading in _MEASURES:
+        js = (summary.get(measure) or {}).get("joints") or {}
+        n = js.get("frames_by_image_side", 0)
+        if n:
+            by_name = ((js.get("overall") or {}).get("euclidean_by_name") or {}).get("mean")
+            parts.append(f"{heading}: in {n} of {js.get('frames_compared', 0)} frames; with left and right "
+                         f"matched by name the mean joint error is {_num(by_name)}")
+    if not parts:
+        return ""
+    return ("<div class='warn'>Left and right compared <b>by image side</b>: the filmed person faces the other way "
+            "from the source's (seen from behind, a front-view style), so the style's left-shoulder target is met "
+            "by the shoulder on the same side of the image (docs/planner.md, \"Back views\"). "
+            + _e("; ".join(parts)) + ".</div>")
+
+
 def _joint_table(summary: dict[str, Any]) -> str:
     names = summary.get("joint_names", [])
     goals = _goal_index(summary)
@@ -152,8 +170,9 @@ def _joint_table(summary: dict[str, Any]) -> str:
             if key is None:
                 cls = f" class='{_status_cls(goals.get(f'{measure}_joint_error', {}).get('status', 'n/a'))}'"
                 style = " class='total'"
-            rows.append(f"<tr{style}><td class='l'>{_e(label)}</td><td>{_ms(st.get('x'))}</td><td>{_ms(st.get('y'))}</td>"
-                        f"<td{cls}>{_ms(eu)}</td><td>{_num(eu.get('max'))}</td><td>{eu.get('n', 0)}</td></tr>")
+            rows.append(f"<tr{style}><td class='l'>{_e(label)}</td><td>{_ms(st.get('x'))}</td>"
+                        f"<td>{_ms(st.get('y'))}</td><td{cls}>{_ms(eu)}</td><td>{_num(eu.get('max'))}</td>"
+                        f"<td>{eu.get('n', 0)}</td></tr>")
     return "<table>" + "".join(rows) + "</table>"
 
 
@@ -171,7 +190,8 @@ def _focus_table(summary: dict[str, Any]) -> str:
             fo = focus.get(region) or {}
             st = goals.get(f"{measure}_focus_{region}", {}).get("status", "n/a")
             fe = (fo.get("fraction_error") or {}).get("mean")
-            rows.append(f"<tr><td class='l'>{_e(region)}</td><td class='{_status_cls(st)}'>{_pct(fo.get('agreement'))}</td>"
+            rows.append(f"<tr><td class='l'>{_e(region)}</td>"
+                        f"<td class='{_status_cls(st)}'>{_pct(fo.get('agreement'))}</td>"
                         f"<td>{fo.get('n_frames', 0)}</td>"
                         f"<td>{fo.get('in_focus_reference', 0)} / {fo.get('in_focus_compared', 0)}</td>"
                         f"<td>{_pct(fo.get('presence_agreement'))}</td><td>{_num(fe)}</td></tr>")
@@ -322,6 +342,7 @@ and focus agreement ≥ {F.EXTRACTION_FOCUS_AGREEMENT_MIN:.0%} per region; by gr
 and ≥ {F.TRUTH_FOCUS_AGREEMENT_MIN:.0%}.</span>
 </div>
 {''.join(warn)}
+{_image_side_note(summary)}
 {_people_card(summary.get("people") or {}, embed)}
 <h2>Goals</h2>
 <div class="card">{_goals_table(summary)}</div>

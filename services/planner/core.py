@@ -33,11 +33,35 @@ from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
 from cinetransfer.services.planner.solver import MpcSolver, SolveResult, StageData
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.facing import by_image_side
 from cinetransfer.shared.plausible import unusable_targets
 
 log = logging.getLogger("cinetransfer.planner")
 
 CENTRE_JOINTS = ("left_shoulder", "right_shoulder", "left_hip", "right_hip")
+
+
+def stage_targets(image_targets: np.ndarray, rows: list[int] | np.ndarray, ctrl: list[str], jmask: np.ndarray,
+                  seen_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(targets (N, E_max, 2), weights (N, E_max)) of the horizon's stages from the instruction rows.
+
+    `ctrl`: the controlled joints' names (the instructions' order), `jmask` their weights (0 = no
+    joint or not controlled), `seen_xy` (len(ctrl), 2) where the subject's joints are seen now.
+    A row whose person faces the other way from the subject as seen now (a front-view style on a
+    subject seen from behind) is met by image side: its left/right targets are swapped
+    (shared/facing.py; docs/planner.md, "Back views").
+    """
+    n, e_max = len(rows), jmask.shape[0]
+    targets = np.zeros((n, e_max, 2))
+    mask = np.zeros((n, e_max))
+    ne = min(len(ctrl), image_targets.shape[1])
+    names = list(ctrl[:ne])
+    for k, r in enumerate(rows):
+        t, _ = by_image_side(seen_xy[:ne], image_targets[r, :ne], names)
+        ok = np.all(np.isfinite(t), axis=1) & (jmask[:ne] > 0)
+        targets[k, :ne][ok] = t[ok]
+        mask[k, :ne] = ok * jmask[:ne]
+    return targets, mask
 STATES = ("idle", "recording", "paused", "holding", "stopped")
 
 
@@ -217,17 +241,9 @@ class Planner:
             self.command(M.Command(action="start"), now_ns)
         if vehicle is None:
             return self._no_vehicle(now_ns, "no vehicle state")
-        stale = max(0.0, (now_ns - vehicle.stamp_ns) * 1e-9) > cfg.max_input_age_s
-        if not vehicle.valid or stale:
-            return self._hold(now_ns, vehicle, "vehicle state stale or invalid", valid=False)
-        if self.state in ("idle", "stopped", "holding"):
-            return self._hold(now_ns, vehicle, self.state, valid=True)
-        if instructions is None or instructions.image_targets.shape[0] == 0:
-            return self._hold(now_ns, vehicle, "no instructions", valid=False)
-        if unusable_targets(instructions):  # all NaN or absurd: "track" would chase nothing sane
-            return self._hold(now_ns, vehicle, "instructions refused", valid=False)
-        if subject is None or not subject.valid or (now_ns - subject.stamp_ns) * 1e-9 > cfg.max_input_age_s:
-            return self._hold(now_ns, vehicle, "subject state missing, stale or invalid", valid=False)
+        why, valid = self._why_hold(now_ns, instructions, vehicle, subject)
+        if why:
+            return self._hold(now_ns, vehicle, why, valid=valid)
         try:
             data, frame = self._stage_data(now_ns, instructions, vehicle, subject)
         except ValueError as e:  # e.g. no finite joint of the subject
@@ -257,6 +273,23 @@ class Planner:
         self.counters.update(failures=int(self.counters["failures"]) + 1,
                              consecutive_failures=int(self.counters["consecutive_failures"]) + 1)
         return self._fallback(now_ns, vehicle, f"failed: {res.status}")
+
+    def _why_hold(self, now_ns: int, instructions: M.Instructions | None, vehicle: M.VehicleState,
+                  subject: M.SubjectState | None) -> tuple[str, bool]:
+        """(reason to hold instead of solving, or "", whether that hold is a valid setpoint)."""
+        cfg = self.cfg
+        stale = max(0.0, (now_ns - vehicle.stamp_ns) * 1e-9) > cfg.max_input_age_s
+        if not vehicle.valid or stale:
+            return "vehicle state stale or invalid", False
+        if self.state in ("idle", "stopped", "holding"):
+            return self.state, True
+        if instructions is None or instructions.image_targets.shape[0] == 0:
+            return "no instructions", False
+        if unusable_targets(instructions):  # all NaN or absurd: "track" would chase nothing sane
+            return "instructions refused", False
+        if subject is None or not subject.valid or (now_ns - subject.stamp_ns) * 1e-9 > cfg.max_input_age_s:
+            return "subject state missing, stale or invalid", False
+        return "", True
 
     # ------------------------------------------------------------------ stage data
     def _stage_data(self, now_ns: int, ins: M.Instructions, vehicle: M.VehicleState,
@@ -304,15 +337,9 @@ class Planner:
                 jmask[j] = self.cfg.joint_weight(name)  # 1 unless config.joint_weights says otherwise
         # --- instruction rows of the stages
         rows, frame = self._rows(now_ns, ins, n, dt)
-        targets = np.zeros((n, e_max, 2))
-        mask = np.zeros((n, e_max))
-        ti = np.asarray(ins.image_targets, dtype=float)
-        ne = min(len(ctrl), ti.shape[1])
-        for k, r in enumerate(rows):
-            t = ti[r, :ne]
-            ok = np.all(np.isfinite(t), axis=1) & (jmask[:ne] > 0)
-            targets[k, :ne][ok] = t[ok]
-            mask[k, :ne] = ok * jmask[:ne]
+        seen = cam.project_world(jw[:len(ctrl)], x0[lay.P], np.array(lay.angles(x0)), float(x0[lay.F]))
+        seen[jmask[:len(ctrl)] == 0] = np.nan  # no joint or not controlled: does not say which way it faces
+        targets, mask = stage_targets(np.asarray(ins.image_targets, dtype=float), rows, ctrl, jmask, seen)
         # --- depth-of-field targets from the predicted subject depth along the planned camera
         mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
         focus = np.asarray(ins.focus_in, dtype=bool)
