@@ -142,14 +142,14 @@ def _image_side_note(summary: dict[str, Any]) -> str:
         n = js.get("frames_by_image_side", 0)
         if n:
             by_name = ((js.get("overall") or {}).get("euclidean_by_name") or {}).get("mean")
-            parts.append(f"{heading}: in {n} of {js.get('frames_compared', 0)} frames; with left and right "
-                         f"matched by name the mean joint error is {_num(by_name)}")
+            parts.append(f"{heading[0].upper() + heading[1:]}: in {n} of {js.get('frames_compared', 0)} frames; "
+                         f"with left and right matched by name the mean joint error is {_num(by_name)}")
     if not parts:
         return ""
     return ("<div class='warn'>Left and right compared <b>by image side</b>: the filmed person faces the other way "
-            "from the source's (seen from behind, a front-view style), so the style's left-shoulder target is met "
-            "by the shoulder on the same side of the image (docs/planner.md, \"Back views\"). "
-            + _e("; ".join(parts)) + ".</div>")
+            "from the source's (one seen from the front, the other from behind), so the style's left-shoulder "
+            "target is met by the shoulder on the same side of the image (docs/planner.md, \"Back views\"). "
+            + _e(". ".join(parts)) + ".</div>")
 
 
 def _joint_table(summary: dict[str, Any]) -> str:

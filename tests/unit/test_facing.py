@@ -64,3 +64,12 @@ def test_fidelity_compares_a_back_view_by_image_side_and_keeps_the_by_name_error
     assert abs(js["overall"]["euclidean"]["mean"] - 0.005) < 1e-12
     # by name, frame 0 errs by the shoulder width (0.12) on the shoulders and the hip width (0.06) on the hips
     assert abs(js["overall"]["euclidean_by_name"]["mean"] - (0.12 * 2 + 0.06 * 2 + 0.01 * 4) / 8) < 1e-12
+
+
+def test_the_report_says_when_it_compared_by_image_side():
+    from cinetransfer.report import html as H
+
+    js = {"frames_by_image_side": 3, "frames_compared": 5, "overall": {"euclidean_by_name": {"mean": 0.07}}}
+    note = H._image_side_note({"truth": {"joints": js}})
+    assert "by image side" in note and "in 3 of 5 frames" in note and "0.0700" in note
+    assert H._image_side_note({"truth": {"joints": {**js, "frames_by_image_side": 0}}}) == ""
