@@ -62,6 +62,8 @@ def stage_targets(image_targets: np.ndarray, rows: list[int] | np.ndarray, ctrl:
         targets[k, :ne][ok] = t[ok]
         mask[k, :ne] = ok * jmask[:ne]
     return targets, mask
+
+
 STATES = ("idle", "recording", "paused", "holding", "stopped")
 
 
