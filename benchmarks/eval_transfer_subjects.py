@@ -9,12 +9,15 @@ Part 1 (issue 15 goal: truth joint error <= 0.035 and truth focus agreement >= 9
 each subject x scene): `cinetransfer transfer` of sam2_juggle_1280x720.mp4 with `--subject NAME`
 (real processes over Zenoh, simulation time, every frame rendered); the style is extracted once
 and reused (`--style`). Reported per run: the report's headline (truth and extraction) and the
-mean truth error per controlled joint.
+mean truth error per controlled joint. Left and right are compared by image side in the frames
+where the subject faces the other way from the source's person (the walker: seen from behind),
+as the planner aims them and the report compares them; the error by name is printed next to it.
 
 Part 2 (weights per joint): the same style flown in-process (planner + bridge simulator without
 rendering, `cinetransfer plan`'s loop) onto every subject in open_country with three sets of
 per-joint weights (planner config `joint_weights`): uniform, hips x4, shoulders x4. Reported:
-the mean image error per controlled joint, and the subject's body proportion (shoulder width /
+the mean image error per controlled joint (by image side, as part 1; by name next to it), and
+the subject's body proportion (shoulder width /
 torso length, from its cut-outs) against the source's (from the style's targets).
 Writes benchmarks/results/eval_transfer_subjects.json.
 """
@@ -54,19 +57,10 @@ def transfer(src: Path, scene: str, subject: str, out: Path, style: Path | None,
 
 
 def per_joint_truth(out: Path) -> dict[str, float]:
-    from cinetransfer.report.truthfile import read_truths
-    from cinetransfer.services.smoother.instructions import load_style
-
-    style = load_style(out / "style.json")
-    truths = read_truths(out / "truth.msgpack")
-    names = list(truths[0].joint_names)
-    res = {}
-    for e, j in enumerate(style.joint_names):
-        errs = [float(np.linalg.norm(t.joints_norm[names.index(j)] - style.image_targets[k, e]))
-                for k, t in enumerate(truths[:style.image_targets.shape[0]])
-                if t.joints_visible[names.index(j)] and np.isfinite(style.image_targets[k, e]).all()]
-        res[j] = round(float(np.mean(errs)), 4) if errs else None
-    return res
+    """Mean truth error per controlled joint, as the report computes it (left/right by image side)."""
+    rep = json.loads((out / "report.json").read_text())
+    per = ((rep.get("truth") or {}).get("joints") or {}).get("per_joint") or {}
+    return {j: round(v["euclidean"]["mean"], 4) if v["euclidean"]["mean"] is not None else None for j, v in per.items()}
 
 
 def hip_proportion(joints: np.ndarray, aspect: float = 1.0) -> float:
@@ -114,12 +108,19 @@ def fly_weights(style_path: Path, scene: str, subject: str, weights: dict[str, f
         return r
 
     log = run_closed_loop(Planner(cfg), sim, ins, duration_s=ins.image_targets.shape[0] / ins.fps, truth=truth)
-    pts = np.array(seen)
+    from cinetransfer.shared.facing import by_image_side
+
     tgt = np.asarray(ins.image_targets, float)[np.clip(np.asarray(log.frame), 0, len(ins.image_targets) - 1)]
+    by_name = np.array(seen)
+    # left/right by image side where the subject faces the other way (a back view), as the report
+    side = [by_image_side(q, p, list(ins.joint_names)) for p, q in zip(by_name, tgt)]
+    pts = np.array([p for p, _ in side])
     err = np.linalg.norm(pts - tgt, axis=-1)
     skip = len(err) // 10  # the first 10 %: the camera flies in from its start position
     per = {j: round(float(np.nanmean(err[skip:, e])), 4) for e, j in enumerate(ins.joint_names)}
     return {"per_joint": per, "mean": round(float(np.nanmean(err[skip:])), 4),
+            "mean_by_name": round(float(np.nanmean(np.linalg.norm(by_name - tgt, axis=-1)[skip:])), 4),
+            "frames_by_image_side": int(sum(s for _, s in side[skip:])), "frames": len(side) - skip,
             "output_proportion": round(proportion(pts[skip:], 16 / 9), 3)}
 
 
@@ -155,8 +156,9 @@ def main() -> int:
                         v is None or v >= 0.95 for v in (tr.get("focus_agreement") or {}).values()))
                     res["transfers"][f"{scene}/{subject}"] = r
                     print(f"{scene:13s} {subject:8s} truth err {tr.get('joint_error_mean', float('nan')):.4f} "
-                          f"focus {tr.get('focus_agreement')} goal {'met' if r['goal_met'] else 'MISSED'} "
-                          f"{r.get('error', '')}", flush=True)
+                          f"(by image side in {tr.get('frames_by_image_side')} frames; by name "
+                          f"{tr.get('joint_error_by_name', float('nan')):.4f}) focus {tr.get('focus_agreement')} "
+                          f"goal {'met' if r['goal_met'] else 'MISSED'} {r.get('error', '')}", flush=True)
         if style is None:
             style = tmp / "style.json"
             subprocess.run([sys.executable, "-m", "cinetransfer", "extract", str(src), "-o", str(style),
@@ -179,10 +181,13 @@ def main() -> int:
             for wname, w in WEIGHT_SETS.items():
                 row[wname] = fly_weights(style, "open_country", subject, w)
             res["weights"][subject] = row
+            src_shape = f"{res['source_proportion']} {res['source_hip_proportion']} {res['source_front_view_share']}"
             print(f"weights {subject:8s} shoulders/torso {row['subject_proportion']} hips/torso "
                   f"{row['subject_hip_proportion']} front view {row['subject_front_view_share']} (source "
-                  f"{res['source_proportion']} {res['source_hip_proportion']} {res['source_front_view_share']}): "
-                  + "; ".join(f"{k}: {v['per_joint']}" for k, v in row.items() if isinstance(v, dict)), flush=True)
+                  f"{src_shape}): " + "; ".join(
+                      f"{k}: {v['per_joint']} mean {v['mean']} (by name {v['mean_by_name']}, by image side in "
+                      f"{v['frames_by_image_side']}/{v['frames']})" for k, v in row.items() if isinstance(v, dict)),
+                  flush=True)
     Path(args.out).write_text(json.dumps(res, indent=1) + "\n")
     print(f"wrote {args.out}")
     return 0

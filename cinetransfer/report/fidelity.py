@@ -20,6 +20,13 @@ truth: `joints_visible`). Focus agreement of a region: the fraction of frames wi
 booleans, over frames where the region is present on both sides (instructions: `focus_smoothed`
 finite; truth: `region_present`).
 
+Left and right by image side: in a frame where the output's person faces the other way from the
+source's (a front-view style on a subject seen from behind: the library's walker), the output's
+left/right joints are compared with the source's joints on the same side of the image, as the
+planner aims them (shared/facing.py; decided by which way each view faces, never by the smaller
+error). The number of such frames (`frames_by_image_side`) and the error with left/right matched by
+name (`euclidean_by_name`) are kept next to it, and the report states both.
+
 Goals (issue 8): by extraction, mean joint error <= 0.05 and focus agreement >= 90 % per region;
 by ground truth, <= 0.03 and >= 95 %. The joint goal uses the Euclidean error pooled over the
 controlled joints and frames (stricter than either axis alone).
@@ -30,12 +37,13 @@ per-frame series the figures draw.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
 
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.facing import faces_opposite, mirror_permutation
 
 REGIONS: tuple[str, ...] = M.FOCUS_REGIONS
 
@@ -211,8 +219,25 @@ def _frame_mean(err: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return out
 
 
+def by_image_side(ref: Track, est: Track, joint_names: Sequence[str]) -> tuple[Track, np.ndarray]:
+    """`est` with left/right swapped in the frames where it faces the other way from `ref`
+    (module docstring); (relabelled track, which frames were swapped)."""
+    perm = mirror_permutation(joint_names)
+    xy, ok = est.xy.copy(), est.ok.copy()
+    swapped = np.zeros(est.n, dtype=bool)
+    for i in range(min(ref.n, est.n)):
+        r = np.where(ref.ok[i][:, None], ref.xy[i], np.nan)
+        o = np.where(est.ok[i][:, None], est.xy[i], np.nan)
+        if faces_opposite(r, o, joint_names):
+            xy[i], ok[i], swapped[i] = est.xy[i][perm], est.ok[i][perm], True
+    return replace(est, xy=xy, ok=ok), swapped
+
+
 def compare_joints(ref: Track, est: Track, joint_names: Sequence[str]) -> tuple[dict[str, Any], np.ndarray]:
-    """Joint error of `est` against `ref` (same timeline): (summary, per-frame mean Euclidean error)."""
+    """Joint error of `est` against `ref` (same timeline), left/right by image side:
+    (summary, per-frame mean Euclidean error)."""
+    by_name = est
+    est, swapped = by_image_side(ref, est, joint_names)
     both = ref.ok & est.ok
     d = np.abs(est.xy - ref.xy)  # (N, E, 2)
     eu = np.sqrt((d ** 2).sum(axis=2))
@@ -222,7 +247,10 @@ def compare_joints(ref: Track, est: Track, joint_names: Sequence[str]) -> tuple[
         per_joint[name] = {"x": stats(d[m, e, 0]), "y": stats(d[m, e, 1]), "euclidean": stats(eu[m, e])}
     overall = {"x": stats(d[..., 0][both]), "y": stats(d[..., 1][both]), "euclidean": stats(eu[both])}
     n_frames = int(both.any(axis=1).sum())
+    named = ref.ok & by_name.ok
+    overall["euclidean_by_name"] = stats(np.linalg.norm(by_name.xy - ref.xy, axis=2)[named])
     summary = {"per_joint": per_joint, "overall": overall, "frames_compared": n_frames,
+               "frames_by_image_side": int((swapped & both.any(axis=1)).sum()),
                "frames_reference_seen": int(ref.ok.any(axis=1).sum()),
                "frames_compared_seen": int(est.ok.any(axis=1).sum())}
     return summary, _frame_mean(eu, both)
@@ -368,6 +396,8 @@ def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
             return {"available": False, "reason": m["reason"]}
         return {"available": True, "joint_error_mean": m["joints"]["overall"]["euclidean"]["mean"],
                 "joint_error_std": m["joints"]["overall"]["euclidean"]["std"],
+                "frames_by_image_side": m["joints"]["frames_by_image_side"],
+                "joint_error_by_name": m["joints"]["overall"]["euclidean_by_name"]["mean"],
                 "focus_agreement": {r: m["focus"][r]["agreement"] for r in REGIONS}}
 
     headline = {"goals_met": f"{n_met}/{n_judged}", "extraction": _headline("extraction"),

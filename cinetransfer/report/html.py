@@ -149,6 +149,24 @@ def _by_measure(summary: dict[str, Any], part: str, header: str, rows_of) -> str
     return "<table>" + "".join(rows) + "</table>"
 
 
+def _image_side_note(summary: dict[str, Any]) -> str:
+    """Says so when left/right were compared by image side (a subject seen from behind)."""
+    parts = []
+    for measure, heading in _MEASURES:
+        js = (summary.get(measure) or {}).get("joints") or {}
+        n = js.get("frames_by_image_side", 0)
+        if n:
+            by_name = ((js.get("overall") or {}).get("euclidean_by_name") or {}).get("mean")
+            parts.append(f"{heading[0].upper() + heading[1:]}: in {n} of {js.get('frames_compared', 0)} frames; "
+                         f"with left and right matched by name the mean joint error is {_num(by_name)}")
+    if not parts:
+        return ""
+    return ("<div class='warn'>Left and right compared <b>by image side</b>: the filmed person faces the other way "
+            "from the source's (one seen from the front, the other from behind), so the style's left-shoulder "
+            "target is met by the shoulder on the same side of the image (docs/planner.md, \"Back views\"). "
+            + _e(". ".join(parts)) + ".</div>")
+
+
 def _joint_table(summary: dict[str, Any]) -> str:
     names = summary.get("joint_names", [])
     goals = _goal_index(summary)
@@ -336,6 +354,7 @@ and focus agreement ≥ {F.EXTRACTION_FOCUS_AGREEMENT_MIN:.0%} per region; by gr
 and ≥ {F.TRUTH_FOCUS_AGREEMENT_MIN:.0%}.</span>
 </div>
 {''.join(warn)}
+{_image_side_note(summary)}
 {_people_card(summary.get("people") or {}, embed)}
 <h2>Goals</h2>
 <div class="card">{_goals_table(summary)}</div>

@@ -33,6 +33,7 @@ from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
 from cinetransfer.services.planner.solver import MpcSolver, SolveResult, StageData
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.facing import by_image_side
 from cinetransfer.shared.plausible import unusable_targets
 
 log = logging.getLogger("cinetransfer.planner")
@@ -291,7 +292,10 @@ class Planner:
                 jw[j] = subj.joints[subj.names.index(name)]
                 jmask[j] = self.cfg.joint_weight(name)  # 1 unless config.joint_weights says otherwise
         rows, frame = self._rows(now_ns, ins, n, dt)
-        targets, mask = stage_targets(ins, rows, len(ctrl), jmask)
+        lay = self.layout
+        seen = cam.project_world(jw[:len(ctrl)], x0[lay.P], np.array(lay.angles(x0)), float(x0[lay.F]))
+        seen[jmask[:len(ctrl)] == 0] = np.nan  # no joint or not controlled: does not say which way it faces
+        targets, mask = stage_targets(np.asarray(ins.image_targets, dtype=float), rows, ctrl, jmask, seen)
         dof, dref = self._dof_targets(now_ns, ins, rows, x0, subj)
         u_prev = self._u_prev
         if self._plan is not None:
@@ -486,17 +490,24 @@ def predict_subject(subject: M.SubjectState, now_ns: int) -> PredictedSubject:
     return PredictedSubject(names, joints, vel, finite, centre)
 
 
-def stage_targets(ins: M.Instructions, rows: list[int], n_ctrl: int,
-                  jmask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Image targets (n, E, 2) and their weights (n, E) of the stages' instruction rows: a target
-    counts where it is finite and its joint is controlled (weight jmask > 0)."""
+def stage_targets(image_targets: np.ndarray, rows: list[int] | np.ndarray, ctrl: list[str], jmask: np.ndarray,
+                  seen_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(targets (N, E_max, 2), weights (N, E_max)) of the horizon's stages from the instruction rows.
+
+    `ctrl`: the controlled joints' names (the instructions' order), `jmask` their weights (0 = no
+    joint or not controlled), `seen_xy` (len(ctrl), 2) where the subject's joints are seen now.
+    A target counts where it is finite and its joint is controlled. A row whose person faces the
+    other way from the subject as seen now (a front-view style on a subject seen from behind) is
+    met by image side: its left/right targets are swapped (shared/facing.py; docs/planner.md,
+    "Back views").
+    """
     n, e_max = len(rows), jmask.shape[0]
     targets = np.zeros((n, e_max, 2))
     mask = np.zeros((n, e_max))
-    ti = np.asarray(ins.image_targets, dtype=float)
-    ne = min(n_ctrl, ti.shape[1])
+    ne = min(len(ctrl), image_targets.shape[1])
+    names = list(ctrl[:ne])
     for k, r in enumerate(rows):
-        t = ti[r, :ne]
+        t, _ = by_image_side(seen_xy[:ne], image_targets[r, :ne], names)
         ok = np.all(np.isfinite(t), axis=1) & (jmask[:ne] > 0)
         targets[k, :ne][ok] = t[ok]
         mask[k, :ne] = ok * jmask[:ne]

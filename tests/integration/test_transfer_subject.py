@@ -35,6 +35,12 @@ def test_transfer_with_a_subject_different_from_the_source(data, tmp_path):
     out_style = json.loads((out / "output_style.json").read_text())
     assert out_style is not None
     assert report["headline"]["truth"]["joint_error_mean"] < 0.1
+    # the walker is seen from behind: left/right compared by image side, and the report says so,
+    # with the by-name error (a shoulder width off on the shoulders) next to it
+    truth = report["headline"]["truth"]
+    assert truth["frames_by_image_side"] > FRAMES // 2
+    assert truth["joint_error_by_name"] > truth["joint_error_mean"]
+    assert "by image side" in html
 
 
 def test_transfer_help_lists_the_subjects():
