@@ -251,6 +251,11 @@ class PlannerConfig:
     #: per-joint factors on the image term, ((COCO-17 name, factor >= 0), ...); unnamed joints 1.
     #: How the planner trades joint targets it cannot all meet (another body): docs/planner.md.
     joint_weights: tuple[tuple[str, float], ...] = ()
+    #: how a style row's left/right targets meet the subject: "image_side" (a row whose person faces
+    #: the other way from the subject as seen now is met by image side, shared/facing.py: the
+    #: planner frames the side it sees) or "name" (left by left: a back-view shot is flown from
+    #: behind, a front-view one from the front). docs/planner.md, "Back views".
+    left_right: str = "image_side"
 
     def joint_weight(self, name: str) -> float:
         return dict(self.joint_weights).get(name, 1.0)
@@ -275,7 +280,12 @@ class PlannerConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise _bad("", name, v, "a finite value >= 0")
+        if self.left_right not in LEFT_RIGHT:
+            raise _bad("", "left_right", self.left_right, " | ".join(LEFT_RIGHT))
         return self
+
+
+LEFT_RIGHT = ("image_side", "name")
 
 
 def with_vehicle(cfg: PlannerConfig, v: VehicleProfile) -> PlannerConfig:

@@ -295,6 +295,8 @@ class Planner:
         lay = self.layout
         seen = cam.project_world(jw[:len(ctrl)], x0[lay.P], np.array(lay.angles(x0)), float(x0[lay.F]))
         seen[jmask[:len(ctrl)] == 0] = np.nan  # no joint or not controlled: does not say which way it faces
+        if self.cfg.left_right == "name":
+            seen[:] = np.nan  # no view to compare with: left meets left
         targets, mask = stage_targets(np.asarray(ins.image_targets, dtype=float), rows, ctrl, jmask, seen)
         dof, dref = self._dof_targets(now_ns, ins, rows, x0, subj)
         u_prev = self._u_prev

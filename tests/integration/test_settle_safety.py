@@ -19,7 +19,9 @@ from cinetransfer.services.planner.kinematic_sim import KinematicScene, Kinemati
 from cinetransfer.services.planner.scenarios import ReferenceShot, reference_instructions, standing_shot
 from cinetransfer.shared import messages as M
 
-CFG = pc.PlannerConfig(max_solve_time_s=0.5)
+# left/right by name: shot B is a back view, and only then must the camera go round to film it
+# (by image side, the default, the planner keeps filming the front with the targets mirrored)
+CFG = pc.PlannerConfig(max_solve_time_s=0.5, left_right="name")
 T0 = 1_700_000_000_000_000_000
 SHOT_A_S, SETTLE_S = 3.0, 8.0
 TOL = 1e-6

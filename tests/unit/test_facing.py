@@ -73,3 +73,15 @@ def test_the_report_says_when_it_compared_by_image_side():
     note = H._image_side_note({"truth": {"joints": js}})
     assert "by image side" in note and "in 3 of 5 frames" in note and "0.0700" in note
     assert H._image_side_note({"truth": {"joints": {**js, "frames_by_image_side": 0}}}) == ""
+
+
+def test_left_right_setting_is_validated_and_names_the_field():
+    import pytest
+
+    from cinetransfer.services.planner import config as pc
+    from cinetransfer.shared.errors import ConfigError
+
+    assert pc.PlannerConfig().left_right == "image_side"
+    assert pc.PlannerConfig(left_right="name").validate().left_right == "name"
+    with pytest.raises(ConfigError, match="left_right"):
+        pc.PlannerConfig(left_right="mirror").validate()
