@@ -38,6 +38,7 @@ class FrameFeatures:
     source: str = ""
     boxes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (M, 4) x0 y0 x1 y1 [px]
     conf: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (M,)
+    track: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (M,) detector track id, -1 = none
     grids: np.ndarray = field(default_factory=lambda: np.zeros((0, GRID, GRID)))  # (M, G, G) mask occupancy in [0, 1]
     grid_x: np.ndarray = field(default_factory=lambda: np.zeros((0, GRID + 1)))  # (M, G+1) cell edges [px]
     grid_y: np.ndarray = field(default_factory=lambda: np.zeros((0, GRID + 1)))  # (M, G+1) cell edges [px]
@@ -120,6 +121,31 @@ def _region_fractions(infocus: np.ndarray, subj: np.ndarray | None, feet_row: in
     return out
 
 
+def _joints_inside(joints: np.ndarray, sk: list, crops: list, keep_idx: list[int]) -> np.ndarray:
+    """h(p, m): (P, M) joints of skeleton p inside person m's mask."""
+    P, M_ = len(sk), len(crops)
+    inside = np.zeros((P, M_), dtype=int)
+    for k, (mask, ox, oy) in enumerate(crops):
+        if mask.size == 0:
+            continue
+        for p in range(P):
+            xy = joints[p]
+            ok = np.all(np.isfinite(xy), axis=1)
+            if not ok.any():
+                continue
+            xi = np.floor(xy[ok, 0]).astype(int) - ox
+            yi = np.floor(xy[ok, 1]).astype(int) - oy
+            inb = (xi >= 0) & (yi >= 0) & (xi < mask.shape[1]) & (yi < mask.shape[0])
+            inside[p, k] = int(mask[yi[inb], xi[inb]].sum())
+    # A skeleton that names its person counts as fully inside that person (detectors that give
+    # both from one model know the pairing better than the mask test).
+    for p, s in enumerate(sk):
+        if s.person_index in keep_idx:
+            k = keep_idx.index(s.person_index)
+            inside[p, k] = max(inside[p, k], int(np.all(np.isfinite(joints[p]), axis=1).sum()))
+    return inside
+
+
 def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foreground_min_rows: float = 0.03,
                    min_person_confidence: float = 0.0, focus_margin: float = 0.0) -> FrameFeatures:
     """Compute the FrameFeatures of one Measurement (pure)."""
@@ -130,6 +156,7 @@ def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foregr
     M_ = len(people)
     boxes = np.array([np.asarray(p.box_xyxy, dtype=float) for p in people]).reshape(M_, 4)
     conf = np.array([float(p.confidence) for p in people], dtype=float)
+    track = np.array([int(p.track_id) for p in people], dtype=np.int64)
 
     crops = [_full_mask_crop(p, W, H) for p in people]
     grids = np.zeros((M_, GRID, GRID))
@@ -152,25 +179,7 @@ def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foregr
     joints = np.array([np.asarray(s.keypoints_px, dtype=float) for s in sk]).reshape(P, N_JOINTS, 2)
     jconf = np.array([np.asarray(s.confidences, dtype=float) for s in sk]).reshape(P, N_JOINTS)
     jconf = np.where(np.isfinite(jconf), jconf, 0.0)
-    inside = np.zeros((P, M_), dtype=int)
-    for k, (mask, ox, oy) in enumerate(crops):
-        if mask.size == 0:
-            continue
-        for p in range(P):
-            xy = joints[p]
-            ok = np.all(np.isfinite(xy), axis=1)
-            if not ok.any():
-                continue
-            xi = np.floor(xy[ok, 0]).astype(int) - ox
-            yi = np.floor(xy[ok, 1]).astype(int) - oy
-            inb = (xi >= 0) & (yi >= 0) & (xi < mask.shape[1]) & (yi < mask.shape[0])
-            inside[p, k] = int(mask[yi[inb], xi[inb]].sum())
-    # A skeleton that names its person counts as fully inside that person (detectors that give
-    # both from one model know the pairing better than the mask test).
-    for p, s in enumerate(sk):
-        if s.person_index in keep_idx:
-            k = keep_idx.index(s.person_index)
-            inside[p, k] = max(inside[p, k], int(np.all(np.isfinite(joints[p]), axis=1).sum()))
+    inside = _joints_inside(joints, sk, crops, keep_idx)
 
     focus = np.full((M_, 3), np.nan)
     focus_none = np.full(3, np.nan)
@@ -197,7 +206,8 @@ def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foregr
             feet_row = int(rows[-1]) + 1 if rows.size else int(np.ceil(boxes[k, 3] * sy))
             focus[k] = _region_fractions(infocus, subj, feet_row, min_rows, int(round(focus_margin * w)))
     return FrameFeatures(frame_index=int(m.frame_index), stamp_ns=int(m.stamp_ns), width=W, height=H,
-                         fps=float(m.fps), source=m.source, boxes=boxes, conf=conf, grids=grids, grid_x=gx, grid_y=gy,
+                         fps=float(m.fps), source=m.source, boxes=boxes, conf=conf, track=track, grids=grids,
+                         grid_x=gx, grid_y=gy,
                          joints=joints, joint_conf=jconf, inside=inside, focus=focus,
                          focus_none=focus_none, has_focus=bool(has_focus), valid=bool(m.valid),
                          shot_change=float(m.shot_change))
