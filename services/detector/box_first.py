@@ -115,9 +115,11 @@ class BoxFirstPose:
     """Pose backend: `detect(image_bgr, stamp_ns) -> (people, skeletons)`."""
 
     name = "box_first"
-    # The largest person's box gets a second segmentation (one more landmark pass per frame, ~12 ms
-    # of CPU): dance-twirl box IoU 0.910 -> 0.920, parkour unchanged (benchmarks/eval_detector.py).
+    # Second look: one more landmark pass per frame (~12 ms of CPU, beside the SSD) on an upright crop
+    # around the previous frame's largest person; its mask's box widens the box it agrees with.
+    # DAVIS dance-twirl box IoU 0.910 -> 0.92, parkour unchanged (benchmarks/eval_detector.py).
     second_look = True
+    look_min_change = 0.05
 
     def __init__(self, cfg: DetectorConfig) -> None:
         self.cfg = cfg
@@ -311,24 +313,30 @@ class BoxFirstPose:
         w = cfg.bf_mask_box_weight
         return (w * mb + (1 - w) * box).astype(np.float32)
 
-    def _second_look(self, image_bgr: np.ndarray, box: np.ndarray) -> np.ndarray:
-        """The box widened to a second segmentation of an upright crop around it, when that mask's box
-        agrees with it (IoU >= bf_mask_box_min_iou). One crop's mask loses parts another crop keeps
-        (a twirling dancer's flying scarf, an arm at the crop's edge); the box of the union of the two
-        masks is the union of their boxes. The mask itself stays the first crop's."""
-        height, width = image_bgr.shape[:2]
-        roi = self.box_roi(box)
-        _, _, seg = self.landmarks(image_bgr, roi)
-        mk = self._mask(seg, roi, width, height)
-        if mk is None or not mk[0].any():
-            return box
-        full, (ox, oy) = mk
-        ys = np.flatnonzero(full.any(axis=1))
-        xs = np.flatnonzero(full.any(axis=0))
-        mb = np.array([ox + xs[0], oy + ys[0], ox + xs[-1] + 1, oy + ys[-1] + 1], dtype=np.float32)
-        if box_iou(mb, box) < self.cfg.bf_mask_box_min_iou:
-            return box
-        return np.concatenate([np.minimum(box[:2], mb[:2]), np.maximum(box[2:], mb[2:])]).astype(np.float32)
+    def _look_roi(self) -> tuple | None:
+        """The second look's crop: upright, around the previous frame's largest person's box, if that
+        box was changing (1 - IoU with the one before >= `look_min_change`: moving, turning, limbs or
+        clothes flying); a steady person's box is already settled."""
+        if not self._prev:
+            return None
+        t = max(self._prev, key=lambda t: _area(t["box"]))
+        return self.box_roi(t["box"]) if t["moved"] >= self.look_min_change else None
+
+    def _look_box(self, raw: tuple, width: int, height: int) -> np.ndarray | None:
+        """The box of the second look's mask (None if empty). One crop's mask loses parts another
+        crop keeps (a twirling dancer's flying scarf, an arm at the crop's edge); the box of the
+        union of two masks is the union of their boxes. The reported mask stays the first crop's.
+        The crop is upright, so the box is found in crop pixels and scaled (no warp to the frame)."""
+        _, _, seg, (cx, cy, side, _, _) = raw
+        on = seg > self.cfg.mask_threshold
+        ys = np.flatnonzero(on.any(axis=1))
+        xs = np.flatnonzero(on.any(axis=0))
+        if xs.size == 0:
+            return None
+        s = side / LANDMARK_INPUT
+        box = np.array([cx + (xs[0] - LANDMARK_INPUT / 2) * s, cy + (ys[0] - LANDMARK_INPUT / 2) * s,
+                        cx + (xs[-1] + 1 - LANDMARK_INPUT / 2) * s, cy + (ys[-1] + 1 - LANDMARK_INPUT / 2) * s])
+        return np.clip(box, 0, [width, height, width, height]).astype(np.float32)
 
     def _run_crops(self, image_bgr: np.ndarray, rois: list[tuple], *, with_ssd: bool):
         """Landmarks of every crop (and, if asked, the SSD boxes), split over the caller's thread and the
@@ -372,7 +380,10 @@ class BoxFirstPose:
         # 1. the people of the last frame, looked for where their landmarks put them (as MediaPipe does in
         #    video mode: the crop follows the body's rotation), while the SSD looks at the whole frame
         tracks = [j for j, t in enumerate(self._prev) if t["roi"] is not None and t["coast"] < cfg.bf_max_coast_frames]
-        raws, (boxes, scores) = self._run_crops(image_bgr, [self._prev[j]["roi"] for j in tracks], with_ssd=True)
+        look = self._look_roi() if self.second_look else None
+        rois = [self._prev[j]["roi"] for j in tracks] + ([look] if look is not None else [])
+        raws, (boxes, scores) = self._run_crops(image_bgr, rois, with_ssd=True)
+        second = self._look_box(raws.pop(), width, height) if look is not None else None
         followed = {j: (raw, self._candidate(raw, None, 0.0, width, height)) for j, raw in zip(tracks, raws)}
         followed = {j: v for j, v in followed.items() if v[1] is not None}
         # 2. a detector box on a followed person confirms it (its score, its box); the other boxes get
@@ -396,11 +407,12 @@ class BoxFirstPose:
         for j in fj:  # people the detector lost this frame: followed by their landmarks alone
             if j not in used:
                 cands.append((followed[j][1], j, self._prev[j]["coast"] + 1))
-        return self._emit(image_bgr, cands)
+        return self._emit(cands, second)
 
-    def _emit(self, image_bgr: np.ndarray, cands: list) -> tuple[list[PersonDetection], list[Skeleton]]:
+    def _emit(self, cands: list, second: np.ndarray | None) -> tuple[list[PersonDetection], list[Skeleton]]:
         """The frame's people from its candidates (candidate, previous person index or -1, frames
-        without a detector box): duplicates dropped, boxes final, track ids kept or new."""
+        without a detector box): duplicates dropped, boxes final (widened by the second look's mask box
+        `second`), track ids kept or new."""
         cfg = self.cfg
         cands.sort(key=lambda c: -c[0][0])
         keep = []
@@ -410,9 +422,11 @@ class BoxFirstPose:
             if len(keep) >= cfg.bf_max_people:
                 break
         finals = [self._final_box(c[0][1], c[0][2]) for c in keep]
-        if self.second_look and finals:
-            k = max(range(len(finals)), key=lambda i: _area(finals[i]))
-            finals[k] = self._second_look(image_bgr, finals[k])
+        if second is not None and finals:
+            k = max(range(len(finals)), key=lambda i: box_iou(finals[i], second))
+            if box_iou(finals[k], second) >= cfg.bf_mask_box_min_iou:  # it agrees: the same person
+                finals[k] = np.concatenate([np.minimum(finals[k][:2], second[:2]),
+                                            np.maximum(finals[k][2:], second[2:])]).astype(np.float32)
         prev, self._prev = self._prev, []
         people, skels = [], []
         for i, ((conf, _, _, origin, mask, kp, jc, lm), j, coast) in enumerate(keep):
@@ -420,7 +434,8 @@ class BoxFirstPose:
             tid = prev[j]["id"] if j >= 0 else -1
             if tid < 0 or any(t["id"] == tid for t in self._prev):
                 tid, self._next_id = self._next_id, self._next_id + 1
-            self._prev.append({"box": box, "id": tid, "roi": self.landmark_roi(lm), "coast": coast})
+            moved = 1.0 - box_iou(box, prev[j]["box"]) if j >= 0 else 1.0  # box change since the last frame
+            self._prev.append({"box": box, "id": tid, "roi": self.landmark_roi(lm), "coast": coast, "moved": moved})
             people.append(PersonDetection(box_xyxy=box, confidence=float(np.clip(conf, 0, 1)),
                                           mask_origin_xy=np.asarray(origin, dtype=np.int32), mask=mask, track_id=tid))
             skels.append(Skeleton(keypoints_px=kp, confidences=jc, keypoint_set="coco17", person_index=i))
