@@ -120,6 +120,8 @@ class BoxFirstPose:
     # DAVIS dance-twirl box IoU 0.910 -> 0.92, parkour unchanged (benchmarks/eval_detector.py).
     second_look = True
     look_min_change = 0.05
+    ghost_frames = 15  # frames a person not seen is remembered for (its id given back when it reappears)
+    provenance_bonus = 0.2  # association score bonus for the track whose landmark crop found the box
 
     def __init__(self, cfg: DetectorConfig) -> None:
         self.cfg = cfg
@@ -155,6 +157,7 @@ class BoxFirstPose:
         self._lmk2 = _interpreter(lmk_path, cfg.bf_threads) if cfg.threads > 1 else None
         self._pool = cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="box_first") if cfg.threads > 1 else None
         self._prev: list[dict] = []  # the last frame's people: box, track id, tracking crop, frames coasted
+        self._ghosts: list[dict] = []  # people not seen lately: last box, velocity, id (see _emit)
         self._next_id = 0
         self._last_stamp: int | None = None
 
@@ -166,6 +169,7 @@ class BoxFirstPose:
 
     def reset(self) -> None:
         self._prev = []
+        self._ghosts = []
         self._last_stamp = None
 
     # ------------------------------------------------------------------ stage 1
@@ -427,19 +431,48 @@ class BoxFirstPose:
             if box_iou(finals[k], second) >= cfg.bf_mask_box_min_iou:  # it agrees: the same person
                 finals[k] = np.concatenate([np.minimum(finals[k][:2], second[:2]),
                                             np.maximum(finals[k][2:], second[2:])]).astype(np.float32)
-        prev, self._prev = self._prev, []
-        people, skels = [], []
-        for i, ((conf, _, _, origin, mask, kp, jc, lm), j, coast) in enumerate(keep):
-            box = finals[i]
-            tid = prev[j]["id"] if j >= 0 else -1
-            if tid < 0 or any(t["id"] == tid for t in self._prev):
+        tracks = self._prev + self._ghosts
+        owner = self._assign(finals, [c[1] for c in keep], tracks)
+        self._prev, people, skels = [], [], []
+        for i, ((conf, _, _, origin, mask, kp, jc, lm), _, coast) in enumerate(keep):
+            box, t = finals[i], owner[i]
+            if t >= 0:
+                tid, last, vel = tracks[t]["id"], tracks[t]["box"], tracks[t]["vel"]
+                vel = 0.5 * vel + 0.5 * (box - last)
+            else:
                 tid, self._next_id = self._next_id, self._next_id + 1
-            moved = 1.0 - box_iou(box, prev[j]["box"]) if j >= 0 else 1.0  # box change since the last frame
-            self._prev.append({"box": box, "id": tid, "roi": self.landmark_roi(lm), "coast": coast, "moved": moved})
+                last, vel = box, np.zeros(4, np.float32)
+            moved = 1.0 - box_iou(box, last) if t >= 0 else 1.0  # box change since the last frame
+            self._prev.append({"box": box, "id": tid, "roi": self.landmark_roi(lm), "coast": coast, "moved": moved,
+                               "vel": vel, "unseen": 0})
             people.append(PersonDetection(box_xyxy=box, confidence=float(np.clip(conf, 0, 1)),
                                           mask_origin_xy=np.asarray(origin, dtype=np.int32), mask=mask, track_id=tid))
             skels.append(Skeleton(keypoints_px=kp, confidences=jc, keypoint_set="coco17", person_index=i))
+        # People not seen this frame (hidden behind another, or merged into one box with them) are
+        # remembered on their last motion for a while, so they get their id back when they reappear.
+        claimed = set(owner)
+        self._ghosts = [{**t, "box": t["box"] + t["vel"], "unseen": t["unseen"] + 1, "roi": None}
+                        for k, t in enumerate(tracks) if k not in claimed and t["unseen"] < self.ghost_frames]
         return people, skels
+
+    def _assign(self, boxes: list[np.ndarray], came_from: list[int], tracks: list[dict]) -> list[int]:
+        """Track of each box (-1 = new person): greedy by IoU with where each track's motion puts it
+        this frame, plus `provenance_bonus` for the track whose landmark crop found the box. Motion,
+        not the crop alone, decides: when two people cross, a crop can slide onto the other one."""
+        n_prev = len(self._prev)
+        pairs = []
+        for i, b in enumerate(boxes):
+            for k, t in enumerate(tracks):
+                score = box_iou(b, t["box"] + t["vel"]) + (self.provenance_bonus if k < n_prev and k == came_from[i]
+                                                           else 0.0)
+                if score >= self.cfg.bf_track_iou:
+                    pairs.append((score, i, k))
+        owner, used = [-1] * len(boxes), set()
+        for _, i, k in sorted(pairs, reverse=True):
+            if owner[i] < 0 and k not in used:
+                owner[i] = k
+                used.add(k)
+        return owner
 
     def _match(self, boxes: list[np.ndarray], prev: list[np.ndarray]) -> dict[int, int]:
         """Greedy IoU association {box index: previous index}."""
