@@ -17,7 +17,9 @@ joint outside the frame); the mask is segmentation > `mask_threshold` inside the
 The person's confidence is sqrt(box certainty x pose flag), the box certainty being the SSD score
 spread over [0.3, 1] (`box_certainty`); the pose flag is the second opinion that drops static
 objects the SSD takes for people (`bf_min_pose_flag`). The reported box is the mask's bounding box
-where it agrees with the SSD box (IoU >= `bf_mask_box_min_iou`), else the SSD box.
+where it agrees with the SSD box (IoU >= `bf_mask_box_min_iou`), else the SSD box; the second look
+(`second_look`: one more upright crop around the previous frame's largest person, when its box was
+changing) widens the box it agrees with to its own mask's box.
 
 Video mode (`running_mode`, the default) follows people as MediaPipe does: each person of the
 previous frame is looked for in the crop its auxiliary landmarks (33 mid-hip, 34 body scale) give,
@@ -25,8 +27,10 @@ rotated upright, so twirling or tumbling bodies stay aligned (this runs beside t
 other thread when `threads` = 2). An SSD box overlapping a person found so (IoU >= `bf_track_iou`)
 confirms it; the other boxes get upright crops of their own; a person the SSD loses is kept on its
 landmarks alone for up to `bf_max_coast_frames` while the pose flag stays >= `bf_track_min_pose_flag`.
-`track_id` is kept while a person is followed. `reset()`, image mode and time going backwards
-forget it all.
+`track_id` goes by motion: each box to the previous person whose box, moved by its velocity, it
+overlaps most (the crop that found it counts a little); a person not seen (hidden, or merged into
+one box with another) is remembered on its motion for `ghost_frames` and gets its id back.
+`reset()`, image mode and time going backwards forget it all.
 """
 from __future__ import annotations
 

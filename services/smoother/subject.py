@@ -14,7 +14,8 @@ non-convex. We split it:
                          reentry_cost                       re-appearing after an absence of more
                                                             than G - 1 frames (identity not checked)
                          track_switch_cost                  between detections of two different
-                                                            detector tracks (track_id >= 0)
+                                                            detector tracks (track_id >= 0); x LEAVE_FACTOR
+                                                            if the track left is still in the later frame
 
    where d = |r_j - r_i| / s is the change of the box 4-vector relative to the mean diagonal s
    of the two boxes (scale-free), or 1 - IoU with continuity='iou'; along one detector track d is
@@ -40,13 +41,17 @@ import numpy as np
 from cinetransfer.services.smoother import qp
 from cinetransfer.services.smoother.features import FrameFeatures
 
-# Detector track ids (the box-first backend's tracker follows each person by its landmarks): a step
-# along one track moves at SAME_TRACK_MOVE x the box change, a step from one track to another costs
-# TRACK_SWITCH_COST more. Measured on TUD-Stadtmitte (eval_smoother_box.py): purity 1.0 with no switch
-# for switch costs 5-10 with same-track factors 0.1-0.5 (and 2 with 0.25); without them (0, 1) the
-# path crossed from one walker to another through a box that merged both (purity 0.65).
+# Detector track ids (the box-first backend's tracker follows each person by motion): a step along
+# one track counts its box change at SAME_TRACK_MOVE x, a step from one track to another costs
+# TRACK_SWITCH_COST more, LEAVE_FACTOR x that when the track left is still there in the frame
+# stepped to (a deliberate change of person, not a track that ended). Measured on TUD-Stadtmitte
+# (eval_smoother_box.py): purity 1.0 with no switch for switch costs 2-10 with same-track factors
+# 0.1-0.5; without the track terms the path crossed from one walker to another through a box that
+# merged both (purity 0.65), and so it did with a same-track factor of 1 or without LEAVE_FACTOR
+# at some of these settings.
 TRACK_SWITCH_COST = 5.0
 SAME_TRACK_MOVE = 0.25
+LEAVE_FACTOR = 4.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -132,7 +137,12 @@ def _step_costs(c: _Candidates, src: np.ndarray, dst: np.ndarray, *, move_cost: 
         across = shot[c.frame_of[dst]] != shot[c.frame_of[src]]
         excess = np.where(across, 0.0, excess)
         switch &= ~across
-    return (g - 1.0) * miss_cost + move_cost * excess ** 2 / g + track_switch_cost * switch
+    # Leaving a person whose track is still there in the destination frame is a deliberate change of
+    # person (costlier than taking up a track that has ended): track_switch_cost x LEAVE_FACTOR.
+    key = c.frame_of * (int(c.track.max()) + 2) + c.track
+    alive = np.isin(c.frame_of[dst] * (int(c.track.max()) + 2) + c.track[src], key[c.track >= 0])
+    return (g - 1.0) * miss_cost + move_cost * excess ** 2 / g + track_switch_cost * switch * (
+        1.0 + (LEAVE_FACTOR - 1.0) * alive)
 
 
 def select_subject(feats: list[FrameFeatures], *, fps: float, move_cost: float = 100.0, miss_cost: float = 1.0,

@@ -215,7 +215,7 @@ def test_viterbi_is_exact_against_brute_force():
     import itertools
 
     from cinetransfer.services.smoother.features import FrameFeatures
-    from cinetransfer.services.smoother.subject import select_subject
+    from cinetransfer.services.smoother.subject import LEAVE_FACTOR, select_subject
 
     rng = np.random.default_rng(4)
     kw = dict(move_cost=7.0, miss_cost=1.0, confidence_cost=0.5, reentry_cost=1.5, track_switch_cost=0.8,
@@ -246,7 +246,8 @@ def test_viterbi_is_exact_against_brute_force():
                     t1, t2 = feats[f1].track[k1], feats[f2].track[k2]
                     d = np.linalg.norm(a - b) / s * (kw["same_track_move"] if t1 >= 0 and t1 == t2 else 1.0)
                     c += (g - 1) * kw["miss_cost"] + kw["move_cost"] * d ** 2 / g
-                    c += kw["track_switch_cost"] * (t1 >= 0 and t2 >= 0 and t1 != t2)
+                    if t1 >= 0 and t2 >= 0 and t1 != t2:  # leaving a track still there costs LEAVE_FACTOR x
+                        c += kw["track_switch_cost"] * (LEAVE_FACTOR if t1 in feats[f2].track else 1.0)
                 else:
                     c += (g - 1) * kw["miss_cost"] + kw["reentry_cost"]
             return c
