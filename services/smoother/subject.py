@@ -139,10 +139,13 @@ def _step_costs(c: _Candidates, src: np.ndarray, dst: np.ndarray, *, move_cost: 
         switch &= ~across
     # Leaving a person whose track is still there in the destination frame is a deliberate change of
     # person (costlier than taking up a track that has ended): track_switch_cost x LEAVE_FACTOR.
-    key = c.frame_of * (int(c.track.max()) + 2) + c.track
-    alive = np.isin(c.frame_of[dst] * (int(c.track.max()) + 2) + c.track[src], key[c.track >= 0])
-    return (g - 1.0) * miss_cost + move_cost * excess ** 2 / g + track_switch_cost * switch * (
-        1.0 + (LEAVE_FACTOR - 1.0) * alive)
+    sw = np.flatnonzero(switch)
+    n_ids = int(c.track.max()) + 1
+    present = c.frame_of[c.track >= 0] * n_ids + c.track[c.track >= 0]
+    alive = np.isin(c.frame_of[dst[sw]] * n_ids + c.track[src[sw]], present)
+    extra = np.zeros(src.size)
+    extra[sw] = track_switch_cost * np.where(alive, LEAVE_FACTOR, 1.0)
+    return (g - 1.0) * miss_cost + move_cost * excess ** 2 / g + extra
 
 
 def select_subject(feats: list[FrameFeatures], *, fps: float, move_cost: float = 100.0, miss_cost: float = 1.0,
