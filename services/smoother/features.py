@@ -121,6 +121,16 @@ def _region_fractions(infocus: np.ndarray, subj: np.ndarray | None, feet_row: in
     return out
 
 
+def _track_id(t) -> int:
+    """A detector's track id as an int64, -1 (none) for anything that is not a non-negative integer
+    below 2**62 (the messages come from other processes)."""
+    try:
+        t = int(t)
+    except (TypeError, ValueError, OverflowError):
+        return -1
+    return t if 0 <= t < 2 ** 62 else -1
+
+
 def _joints_inside(joints: np.ndarray, sk: list, crops: list, keep_idx: list[int]) -> np.ndarray:
     """h(p, m): (P, M) joints of skeleton p inside person m's mask."""
     P, M_ = len(sk), len(crops)
@@ -156,7 +166,7 @@ def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foregr
     M_ = len(people)
     boxes = np.array([np.asarray(p.box_xyxy, dtype=float) for p in people]).reshape(M_, 4)
     conf = np.array([float(p.confidence) for p in people], dtype=float)
-    track = np.array([int(p.track_id) for p in people], dtype=np.int64)
+    track = np.array([_track_id(p.track_id) for p in people], dtype=np.int64)
 
     crops = [_full_mask_crop(p, W, H) for p in people]
     grids = np.zeros((M_, GRID, GRID))

@@ -82,6 +82,10 @@ def _candidates(feats: list[FrameFeatures], confidence_cost: float) -> _Candidat
     boxes = np.concatenate([f.boxes for f in with_people]).astype(float) if with_people else np.zeros((0, 4))
     conf = np.concatenate([f.conf for f in with_people]).astype(float) if with_people else np.zeros(0)
     track = np.concatenate([_tracks(f) for f in with_people]) if with_people else np.zeros(0, dtype=np.int64)
+    ok = track >= 0
+    if ok.any():  # ids 0..n-1 in order (any id a detector sends: keys frame * n + id stay small)
+        track = track.copy()
+        track[ok] = np.unique(track[ok], return_inverse=True)[1]
     return _Candidates(start, np.repeat(np.arange(len(feats)), counts), boxes,
                        confidence_cost * (1.0 - np.clip(conf, 0.0, 1.0)), track)
 
