@@ -38,6 +38,7 @@ class FrameFeatures:
     source: str = ""
     boxes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))  # (M, 4) x0 y0 x1 y1 [px]
     conf: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (M,)
+    track: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))  # (M,) detector track id, -1 = none
     grids: np.ndarray = field(default_factory=lambda: np.zeros((0, GRID, GRID)))  # (M, G, G) mask occupancy in [0, 1]
     grid_x: np.ndarray = field(default_factory=lambda: np.zeros((0, GRID + 1)))  # (M, G+1) cell edges [px]
     grid_y: np.ndarray = field(default_factory=lambda: np.zeros((0, GRID + 1)))  # (M, G+1) cell edges [px]
@@ -120,6 +121,16 @@ def _region_fractions(infocus: np.ndarray, subj: np.ndarray | None, feet_row: in
     return out
 
 
+def _track_id(t) -> int:
+    """A detector's track id as an int64, -1 (none) for anything that is not a non-negative integer
+    below 2**62 (the messages come from other processes)."""
+    try:
+        t = int(t)
+    except (TypeError, ValueError, OverflowError):
+        return -1
+    return t if 0 <= t < 2 ** 62 else -1
+
+
 def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foreground_min_rows: float = 0.03,
                    min_person_confidence: float = 0.0, focus_margin: float = 0.0) -> FrameFeatures:
     """Compute the FrameFeatures of one Measurement (pure)."""
@@ -130,6 +141,8 @@ def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foregr
     M_ = len(people)
     boxes = np.array([np.asarray(p.box_xyxy, dtype=float) for p in people]).reshape(M_, 4)
     conf = np.array([float(p.confidence) for p in people], dtype=float)
+    track = np.array([_track_id(p.track_id) for p in people], dtype=np.int64)
+
     crops = [_full_mask_crop(p, W, H) for p in people]
     grids, gx, gy = occupancy_grids(crops)
 
@@ -154,7 +167,8 @@ def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foregr
         focus, focus_none = focus_fractions(np.asarray(m.focus_map) >= focus_pixel_threshold * 255.0, crops, boxes,
                                             (W, H), foreground_min_rows=foreground_min_rows, margin=focus_margin)
     return FrameFeatures(frame_index=int(m.frame_index), stamp_ns=int(m.stamp_ns), width=W, height=H,
-                         fps=float(m.fps), source=m.source, boxes=boxes, conf=conf, grids=grids, grid_x=gx, grid_y=gy,
+                         fps=float(m.fps), source=m.source, boxes=boxes, conf=conf, track=track, grids=grids,
+                         grid_x=gx, grid_y=gy,
                          joints=joints, joint_conf=jconf, inside=inside, focus=focus,
                          focus_none=focus_none, has_focus=bool(has_focus), valid=bool(m.valid),
                          shot_change=float(m.shot_change))

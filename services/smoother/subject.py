@@ -13,11 +13,15 @@ non-convex. We split it:
                                                             (g > 1: a bridged dropout)
                          reentry_cost                       re-appearing after an absence of more
                                                             than G - 1 frames (identity not checked)
+                         track_switch_cost                  between detections of two different
+                                                            detector tracks (track_id >= 0); x LEAVE_FACTOR
+                                                            if the track left is still in the later frame
 
    where d = |r_j - r_i| / s is the change of the box 4-vector relative to the mean diagonal s
-   of the two boxes (scale-free), or 1 - IoU with continuity='iou'. Moving a distance d in g
-   frames at constant speed costs g (d/g)^2 = d^2/g, so a dropout is judged by the implied
-   speed. The path with the fewest invisible frames and the smoothest identity is the person
+   of the two boxes (scale-free), or 1 - IoU with continuity='iou'; along one detector track d is
+   scaled by same_track_move (the tracker's word that it is one person outweighs box jitter).
+   Moving a distance d in g frames at constant speed costs g (d/g)^2 = d^2/g, so a dropout is
+   judged by the implied speed. The path with the fewest invisible frames and the smoothest identity is the person
    present in most frames, continuously. Minimised exactly by dynamic programming over frames
    (Viterbi with skip transitions for dropouts of up to `max_bridge_s`, G = 1 + that in frames,
    and an 'absent' chain for longer absences); tests/unit/test_smoother_core.py checks it against
@@ -37,6 +41,17 @@ import numpy as np
 from cinetransfer.services.smoother import qp
 from cinetransfer.services.smoother.features import FrameFeatures
 
+# Detector track ids (the box-first backend's tracker follows each person by motion): a step along
+# one track counts its box change at SAME_TRACK_MOVE x, a step from one track to another costs
+# TRACK_SWITCH_COST more, LEAVE_FACTOR x that when the track left is still there in the frame
+# stepped to (a deliberate change of person, not a track that ended). Measured on TUD-Stadtmitte
+# (eval_smoother_box.py): purity 1.0 with no switch for switch costs 2-10 with same-track factors
+# 0.1-0.5; without the track terms the path crossed from one walker to another through a box that
+# merged both (purity 0.65), and so it did with a same-track factor of 1 or without LEAVE_FACTOR
+# at some of these settings.
+TRACK_SWITCH_COST = 5.0
+SAME_TRACK_MOVE = 0.25
+LEAVE_FACTOR = 4.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -49,129 +64,187 @@ class Selection:
     cost: float  # optimal path cost
 
 
-def select_subject(feats: list[FrameFeatures], *, fps: float, move_cost: float = 100.0, miss_cost: float = 1.0,
-                   confidence_cost: float = 0.2, max_bridge_s: float = 0.5, free_move: float = 0.0,
-                   continuity: str = "box", reentry_cost: float = 2.0, cuts: np.ndarray | None = None) -> Selection:
-    """Viterbi over each frame's candidates plus 'not visible' (exact minimiser of the cost above)."""
-    F = len(feats)
-    G = 1 + max(0, int(round(max_bridge_s * fps)))  # longest step between detections (frames)
+@dataclass(frozen=True, eq=False)
+class _Candidates:
+    """Every frame's detections, flattened: detection i is person i - start[f] of frame frame_of[i]."""
+
+    start: np.ndarray  # (F+1,) first flat index of each frame's detections
+    frame_of: np.ndarray  # (N,) frame of each detection
+    boxes: np.ndarray  # (N, 4)
+    emit: np.ndarray  # (N,) confidence cost of choosing the detection
+    track: np.ndarray  # (N,) detector track id, -1 = none
+
+
+def _candidates(feats: list[FrameFeatures], confidence_cost: float) -> _Candidates:
     counts = np.array([f.n_people for f in feats], dtype=int)
     start = np.concatenate([[0], np.cumsum(counts)])
-    N = int(start[-1])
-    if N == 0:
-        return Selection(np.full(F, -1), np.zeros(F, bool), np.zeros(F, bool), F * miss_cost)
-    boxes = np.concatenate([f.boxes for f in feats if f.n_people]).astype(float)
-    conf = np.concatenate([f.conf for f in feats if f.n_people]).astype(float)
-    frame_of = np.repeat(np.arange(F), counts)
-    diag = np.hypot(boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1])
-    emit = confidence_cost * (1.0 - np.clip(conf, 0.0, 1.0))
+    with_people = [f for f in feats if f.n_people]
+    boxes = np.concatenate([f.boxes for f in with_people]).astype(float) if with_people else np.zeros((0, 4))
+    conf = np.concatenate([f.conf for f in with_people]).astype(float) if with_people else np.zeros(0)
+    track = np.concatenate([_tracks(f) for f in with_people]) if with_people else np.zeros(0, dtype=np.int64)
+    ok = track >= 0
+    if ok.any():  # ids 0..n-1 in order (any id a detector sends: keys frame * n + id stay small)
+        track = track.copy()
+        track[ok] = np.unique(track[ok], return_inverse=True)[1]
+    return _Candidates(start, np.repeat(np.arange(len(feats)), counts), boxes,
+                       confidence_cost * (1.0 - np.clip(conf, 0.0, 1.0)), track)
 
-    # Every step between detections g = 1..G frames apart, as one (P_f, M_f) cost matrix per
-    # frame f (P_f = detections in frames f-G..f-1, M_f = detections in frame f), built at once.
+
+def _tracks(f: FrameFeatures) -> np.ndarray:
+    t = np.asarray(f.track, dtype=np.int64)
+    return t if t.shape == (f.n_people,) else np.full(f.n_people, -1, dtype=np.int64)
+
+
+def _step_pairs(start: np.ndarray, G: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every step between detections g = 1..G frames apart, grouped by the later frame f as one
+    (P_f, M_f) block (P_f = detections in frames f-G..f-1, M_f = detections in frame f):
+    (src, dst, pa_f = first flat index of frame f-G, off = block offsets)."""
+    F = start.size - 1
     fr = np.arange(F)
     pa_f = start[np.maximum(0, fr - G)]
     a_f, b_f = start[:-1], start[1:]
-    P_f, M_f = a_f - pa_f, b_f - a_f
-    n_f = P_f * M_f
+    n_f = (a_f - pa_f) * (b_f - a_f)
     off = np.concatenate([[0], np.cumsum(n_f)])
     rep = np.repeat(fr, n_f)
     local = np.arange(int(off[-1])) - off[rep]
-    msafe = np.maximum(M_f, 1)[rep]
-    src = pa_f[rep] + local // msafe
-    dst = a_f[rep] + local % msafe
-    g = (frame_of[dst] - frame_of[src]).astype(float)
-    d2 = np.zeros(src.size)
-    for k in range(4):
-        d2 += (boxes[src, k] - boxes[dst, k]) ** 2
-    s = 0.5 * (diag[src] + diag[dst])
+    msafe = np.maximum(b_f - a_f, 1)[rep]
+    return pa_f[rep] + local // msafe, a_f[rep] + local % msafe, pa_f, off
+
+
+def _box_change(bs: np.ndarray, bd: np.ndarray, continuity: str) -> np.ndarray:
+    """d of the cost: |box change| / mean box diagonal, or 1 - IoU."""
     if continuity == "iou":
-        bs, bd = boxes[src], boxes[dst]
         iw = np.clip(np.minimum(bs[:, 2], bd[:, 2]) - np.maximum(bs[:, 0], bd[:, 0]), 0, None)
         ih = np.clip(np.minimum(bs[:, 3], bd[:, 3]) - np.maximum(bs[:, 1], bd[:, 1]), 0, None)
         inter = iw * ih
-        area = lambda b: (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])  # noqa: E731
-        d = 1.0 - inter / np.maximum(area(bs) + area(bd) - inter, 1e-9)
-    else:
-        d = np.sqrt(d2) / np.maximum(s, 1e-9)  # box change relative to the box size
-    excess = np.maximum(d - free_move * g, 0.0)  # ordinary motion and jitter are free
+        area_s = (bs[:, 2] - bs[:, 0]) * (bs[:, 3] - bs[:, 1])
+        area_d = (bd[:, 2] - bd[:, 0]) * (bd[:, 3] - bd[:, 1])
+        return 1.0 - inter / np.maximum(area_s + area_d - inter, 1e-9)
+    diag = lambda b: np.hypot(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])  # noqa: E731
+    s = 0.5 * (diag(bs) + diag(bd))
+    return np.linalg.norm(bs - bd, axis=1) / np.maximum(s, 1e-9)
+
+
+def _step_costs(c: _Candidates, src: np.ndarray, dst: np.ndarray, *, move_cost: float, miss_cost: float,
+                free_move: float, continuity: str, track_switch_cost: float, same_track_move: float,
+                cuts: np.ndarray | None) -> np.ndarray:
+    """Cost of every step src -> dst: the frames skipped, the box change beyond free motion and,
+    between two different detector tracks, `track_switch_cost`."""
+    g = (c.frame_of[dst] - c.frame_of[src]).astype(float)
+    excess = np.maximum(_box_change(c.boxes[src], c.boxes[dst], continuity) - free_move * g, 0.0)
+    tracked = (c.track[src] >= 0) & (c.track[dst] >= 0)
+    switch = tracked & (c.track[src] != c.track[dst])
+    excess = np.where(tracked & ~switch, same_track_move * excess, excess)
     if cuts is not None and np.any(cuts):
         # Across a cut the subject may appear anywhere in the new shot: no continuity cost.
         shot = np.cumsum(np.asarray(cuts, dtype=int))
-        excess = np.where(shot[frame_of[dst]] != shot[frame_of[src]], 0.0, excess)
-    step_cost = (g - 1.0) * miss_cost + move_cost * excess ** 2 / g
+        across = shot[c.frame_of[dst]] != shot[c.frame_of[src]]
+        excess = np.where(across, 0.0, excess)
+        switch &= ~across
+    # Leaving a person whose track is still there in the destination frame is a deliberate change of
+    # person (costlier than taking up a track that has ended): track_switch_cost x LEAVE_FACTOR.
+    sw = np.flatnonzero(switch)
+    n_ids = int(c.track.max()) + 1
+    present = c.frame_of[c.track >= 0] * n_ids + c.track[c.track >= 0]
+    alive = np.isin(c.frame_of[dst[sw]] * n_ids + c.track[src[sw]], present)
+    extra = np.zeros(src.size)
+    extra[sw] = track_switch_cost * np.where(alive, LEAVE_FACTOR, 1.0)
+    return (g - 1.0) * miss_cost + move_cost * excess ** 2 / g + extra
 
-    D = np.full(N, np.inf)  # best cost of a path ending at detection i (frames up to and incl. its frame)
-    back = np.full(N, -1, dtype=np.int64)  # predecessor detection, or -1 = fresh start, -2 = re-entry
+
+def select_subject(feats: list[FrameFeatures], *, fps: float, move_cost: float = 100.0, miss_cost: float = 1.0,
+                   confidence_cost: float = 0.2, max_bridge_s: float = 0.5, free_move: float = 0.0,
+                   continuity: str = "box", reentry_cost: float = 2.0, cuts: np.ndarray | None = None,
+                   track_switch_cost: float = TRACK_SWITCH_COST, same_track_move: float = SAME_TRACK_MOVE) -> Selection:
+    """Viterbi over each frame's candidates plus 'not visible' (exact minimiser of the cost above)."""
+    F = len(feats)
+    c = _candidates(feats, confidence_cost)
+    if c.frame_of.size == 0:
+        return Selection(np.full(F, -1), np.zeros(F, bool), np.zeros(F, bool), F * miss_cost)
+    G = 1 + max(0, int(round(max_bridge_s * fps)))  # longest step between detections (frames)
+    src, dst, pa_f, off = _step_pairs(c.start, G)
+    step_cost = _step_costs(c, src, dst, move_cost=move_cost, miss_cost=miss_cost, free_move=free_move,
+                            continuity=continuity, track_switch_cost=track_switch_cost,
+                            same_track_move=same_track_move, cuts=cuts)
+    D, back, r_back = _forward(c, step_cost, pa_f, off, G=G, miss_cost=miss_cost, reentry_cost=reentry_cost)
+    return _backtrack(c, D, back, r_back, miss_cost)
+
+
+def _forward(c: _Candidates, step_cost: np.ndarray, pa_f: np.ndarray, off: np.ndarray, *, G: int,
+             miss_cost: float, reentry_cost: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Viterbi recursion. D[i]: best cost of a path ending at detection i (frames up to and
+    including its frame); back[i]: its predecessor detection, -1 = fresh start, -2 = re-entry;
+    r_back[f]: the detection an absence that may end at frame f started from (-1 = continued)."""
+    F = c.start.size - 1
+    D = np.full(c.frame_of.size, np.inf)
+    back = np.full(c.frame_of.size, -1, dtype=np.int64)
     # R: best cost of a path that was visible and has been invisible for at least G frames up to
     # frame f-1 (longer than any bridge), so that it may re-appear at f without a continuity check.
     R = math.inf
-    r_back = np.full(F + 1, -1, dtype=np.int64)  # detection the absence at frame f started from; -1 = continued
-    a_l, b_l, pa_l, off_l = a_f.tolist(), b_f.tolist(), pa_f.tolist(), off.tolist()
-    emit_l = emit.tolist()
+    r_back = np.full(F + 1, -1, dtype=np.int64)
+    a_l, pa_l, off_l = c.start[:-1].tolist(), pa_f.tolist(), off.tolist()
     for f in range(F):
-        # Update R for frame f: the absence continues, or began after a detection of frame f-G-1.
         R += miss_cost
-        f0 = f - G - 1
-        if f0 >= 0 and b_l[f0] > a_l[f0]:
-            p0, p1 = a_l[f0], b_l[f0]
-            i0 = p0 if p1 - p0 == 1 else p0 + int(np.argmin(D[p0:p1]))
-            cand = float(D[i0]) + G * miss_cost
-            if cand < R:
-                R, r_back[f] = cand, i0
-        a, b = a_l[f], b_l[f]
-        m = b - a
-        if not m:
+        R = _absence_from(D, c.start, f - G - 1, R, G * miss_cost, r_back, f)
+        a, b = a_l[f], c.start[f + 1]
+        if b == a:
             continue
-        # Fresh start (all earlier frames invisible), re-entry after an absence, or a step.
+        # Fresh start (all earlier frames invisible) or re-entry after an absence ...
         fresh = f * miss_cost
         base, arg0 = (R + reentry_cost, -2) if R + reentry_cost < fresh else (fresh, -1)
+        D[a:b], back[a:b] = base, arg0
         pa = pa_l[f]
-        if a > pa and m == 1:
-            tot = D[pa:a] + step_cost[off_l[f]:off_l[f + 1]]
-            k = int(tot.argmin())
-            v = float(tot[k])
-            if v < base:
-                D[a], back[a] = v + emit_l[a], pa + k
-            else:
-                D[a], back[a] = base + emit_l[a], arg0
-        elif a > pa:
-            tot = D[pa:a, None] + step_cost[off_l[f]:off_l[f + 1]].reshape(a - pa, m)
+        if a > pa:  # ... or a step from a detection at most G frames back
+            tot = D[pa:a, None] + step_cost[off_l[f]:off_l[f + 1]].reshape(a - pa, b - a)
             k = tot.argmin(axis=0)
-            v = tot[k, np.arange(m)]
+            v = tot[k, np.arange(b - a)]
             better = v < base
-            D[a:b] = np.where(better, v, base) + emit[a:b]
+            D[a:b] = np.where(better, v, base)
             back[a:b] = np.where(better, pa + k, arg0)
-        else:
-            D[a:b] = base + emit[a:b]
-            back[a:b] = arg0
-    # End: never visible, or at a detection with the remaining frames invisible.
-    ends = D + (F - 1 - frame_of) * miss_cost
-    i_end = int(np.argmin(ends))
-    total = min(F * miss_cost, float(ends[i_end]))
+        D[a:b] += c.emit[a:b]
+    return D, back, r_back
+
+
+def _absence_from(D: np.ndarray, start: np.ndarray, f0: int, R: float, cost: float, r_back: np.ndarray,
+                  f: int) -> float:
+    """R for frame f: the absence continues, or began after the best detection of frame f0 = f-G-1."""
+    if f0 < 0 or start[f0 + 1] == start[f0]:
+        return R
+    i0 = int(start[f0]) + int(np.argmin(D[start[f0]:start[f0 + 1]]))
+    if float(D[i0]) + cost < R:
+        r_back[f] = i0
+        return float(D[i0]) + cost
+    return R
+
+
+def _backtrack(c: _Candidates, D: np.ndarray, back: np.ndarray, r_back: np.ndarray, miss_cost: float) -> Selection:
+    """The best path's detections, bridged and visible frames. It ends never visible, or at a
+    detection with the remaining frames invisible."""
+    F = c.start.size - 1
+    ends = D + (F - 1 - c.frame_of) * miss_cost
+    i = int(np.argmin(ends))
     person = np.full(F, -1)
     visible = np.zeros(F, dtype=bool)
     bridged = np.zeros(F, dtype=bool)
-    if F * miss_cost <= float(ends[i_end]):
-        return Selection(person, visible, bridged, total)
-    i = i_end
+    if F * miss_cost <= float(ends[i]):
+        return Selection(person, visible, bridged, F * miss_cost)
+    total = float(ends[i])
     while i >= 0:
-        f = int(frame_of[i])
-        person[f] = i - start[f]
+        f = int(c.frame_of[i])
+        person[f] = i - c.start[f]
         visible[f] = True
         j = int(back[i])
         if j >= 0:
-            fj = int(frame_of[j])
+            fj = int(c.frame_of[j])
             visible[fj + 1:f] = True
             bridged[fj + 1:f] = True
-            i = j
         elif j == -2:
             g = f
             while r_back[g] == -1:
                 g -= 1
-            i = int(r_back[g])
-        else:
-            break
-    return Selection(person, visible, bridged, float(total))
+            j = int(r_back[g])
+        i = j
+    return Selection(person, visible, bridged, total)
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:

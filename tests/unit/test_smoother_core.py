@@ -209,14 +209,17 @@ def test_instructions_are_a_valid_message():
 
 
 def test_viterbi_is_exact_against_brute_force():
-    """Every assignment (a detection or 'not visible' per frame) enumerated on tiny problems."""
+    """Every assignment (a detection or 'not visible' per frame) enumerated on tiny problems; a step
+    between two different detector tracks costs track_switch_cost (not checked across a re-entry), one
+    along a track moves at same_track_move x the box change."""
     import itertools
 
     from cinetransfer.services.smoother.features import FrameFeatures
-    from cinetransfer.services.smoother.subject import select_subject
+    from cinetransfer.services.smoother.subject import LEAVE_FACTOR, select_subject
 
     rng = np.random.default_rng(4)
-    kw = dict(move_cost=7.0, miss_cost=1.0, confidence_cost=0.5, reentry_cost=1.5)
+    kw = dict(move_cost=7.0, miss_cost=1.0, confidence_cost=0.5, reentry_cost=1.5, track_switch_cost=0.8,
+              same_track_move=0.3)
     G = 2  # fps 1, max_bridge_s 1 -> steps of up to 2 frames
     for trial in range(25):
         F_ = 6
@@ -226,7 +229,7 @@ def test_viterbi_is_exact_against_brute_force():
             bx = rng.uniform(0, 300, (m, 2))
             boxes = np.concatenate([bx, bx + rng.uniform(50, 150, (m, 2))], axis=1)
             feats.append(FrameFeatures(frame_index=f, width=640, height=480, boxes=boxes,
-                                       conf=rng.uniform(0.2, 1.0, m)))
+                                       conf=rng.uniform(0.2, 1.0, m), track=rng.integers(-1, 3, m)))
 
         def cost(path):
             chosen = [(f, k) for f, k in enumerate(path) if k >= 0]
@@ -240,7 +243,11 @@ def test_viterbi_is_exact_against_brute_force():
                 if g <= G:
                     a, b = feats[f1].boxes[k1], feats[f2].boxes[k2]
                     s = 0.5 * (np.hypot(*(a[2:] - a[:2])) + np.hypot(*(b[2:] - b[:2])))
-                    c += (g - 1) * kw["miss_cost"] + kw["move_cost"] * (np.linalg.norm(a - b) / s) ** 2 / g
+                    t1, t2 = feats[f1].track[k1], feats[f2].track[k2]
+                    d = np.linalg.norm(a - b) / s * (kw["same_track_move"] if t1 >= 0 and t1 == t2 else 1.0)
+                    c += (g - 1) * kw["miss_cost"] + kw["move_cost"] * d ** 2 / g
+                    if t1 >= 0 and t2 >= 0 and t1 != t2:  # leaving a track still there costs LEAVE_FACTOR x
+                        c += kw["track_switch_cost"] * (LEAVE_FACTOR if t1 in feats[f2].track else 1.0)
                 else:
                     c += (g - 1) * kw["miss_cost"] + kw["reentry_cost"]
             return c
