@@ -98,13 +98,14 @@ def test_steps_wait_for_the_planner_and_no_frame_is_skipped(tape, port, tmp_path
     ticks = [m for k, m in items if k == keys.SIM_CLOCK.key(RIG)]
     lock = [t for t in ticks if t.lockstep]
     assert len(lock) > 80
-    # then each lockstep tick is answered by a setpoint stamped with it before the next tick comes
-    order = [(k, m.stamp_ns) for k, m in items if k in (keys.SIM_CLOCK.key(RIG), keys.SETPOINT.key(RIG))]
+    # then each lockstep tick is answered by a setpoint stamped with it, and the bridge never went on
+    # without one (a timed-out wait is logged). The observer's arrival order is not used: the planner
+    # and the bridge reach it over separate links, so a setpoint may arrive after the next tick.
+    answered = {m.stamp_ns for k, m in items if k == keys.SETPOINT.key(RIG)}
     for a, b in zip(lock, lock[1:]):
-        i = order.index((keys.SIM_CLOCK.key(RIG), a.stamp_ns))
-        j = order.index((keys.SIM_CLOCK.key(RIG), b.stamp_ns))
-        assert (keys.SETPOINT.key(RIG), a.stamp_ns) in order[i:j], f"step {a.step} completed without its setpoint"
+        assert a.stamp_ns in answered, f"step {a.step}: no setpoint stamped with its tick"
         assert b.stamp_ns - a.stamp_ns == int(round(a.period_s * 1e9))
+    assert "no setpoint for simulation step" not in (tmp_path / "bridge.log").read_text()
     # and every camera frame slot up to the last tick was rendered and published, in order
     frames = [m for k, m in items if k == keys.FRAME.key(RIG)]
     idx = [f.index for f in frames]
