@@ -46,6 +46,7 @@ from cinetransfer.shared import keys
 from cinetransfer.shared.atomic import atomic_write
 from cinetransfer.shared.errors import ConfigError, report_config_error
 from cinetransfer.shared.nodeconfig import substitute_env
+from cinetransfer.shared.paths import named_yaml
 
 log = logging.getLogger("cinetransfer.deploy")
 CONFIG_DIR = Path(__file__).resolve().parent / "configs"
@@ -89,16 +90,13 @@ def _subst(value: Any) -> Any:
 
 
 def resolve_config_path(name_or_path: str) -> Path:
-    p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") or p.exists():
-        if not p.is_file():
-            raise ConfigError(f"deploy config {p} does not exist")
+    p, as_path = named_yaml(name_or_path, CONFIG_DIR)
+    if p.is_file():
         return p
-    shipped = CONFIG_DIR / f"{name_or_path}.yaml"
-    if not shipped.is_file():
-        names = ", ".join(sorted(f.stem for f in CONFIG_DIR.glob("*.yaml")))
-        raise ConfigError(f"no deploy config named {name_or_path!r}; shipped configs: {names}")
-    return shipped
+    if as_path:
+        raise ConfigError(f"deploy config {p} does not exist")
+    names = ", ".join(sorted(f.stem for f in CONFIG_DIR.glob("*.yaml")))
+    raise ConfigError(f"no deploy config named {name_or_path!r}; shipped configs: {names}")
 
 
 def _zenoh_flags(z: dict, where: str) -> list[str]:

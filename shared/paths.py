@@ -15,3 +15,12 @@ def cache_dir(*parts: str) -> Path:
     else:
         base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "cinetransfer"
     return base.joinpath(*parts)
+
+
+def named_yaml(name_or_path: str, shipped_dir: Path) -> tuple[Path, bool]:
+    """(the file meant, whether it was given as a path): a .yaml/.yml name or an existing path as
+    given, else the shipped `shipped_dir/NAME.yaml`. The caller says what is wrong if it is not a file."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        return p, True
+    return shipped_dir / f"{name_or_path}.yaml", False

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from cinetransfer.shared.errors import ConfigError
+from cinetransfer.shared.paths import named_yaml
 
 VEHICLES_DIR = Path(__file__).resolve().parents[1] / "deploy" / "vehicles"
 DEFAULT_VEHICLE = "cinempc"
@@ -202,15 +203,12 @@ def vehicle_names() -> list[str]:
 
 
 def resolve_vehicle(name_or_path: str) -> Path:
-    p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") or p.exists():
-        if not p.is_file():
-            raise ConfigError(f"vehicle: profile {p} does not exist")
+    p, as_path = named_yaml(name_or_path, VEHICLES_DIR)
+    if p.is_file():
         return p
-    shipped = VEHICLES_DIR / f"{name_or_path}.yaml"
-    if not shipped.is_file():
-        raise ConfigError(f"vehicle = {name_or_path!r}: no such profile; shipped: {', '.join(vehicle_names())}")
-    return shipped
+    if as_path:
+        raise ConfigError(f"vehicle: profile {p} does not exist")
+    raise ConfigError(f"vehicle = {name_or_path!r}: no such profile; shipped: {', '.join(vehicle_names())}")
 
 
 _CACHE: dict[str, VehicleProfile] = {}
