@@ -269,6 +269,16 @@ class Planner:
         self._count_failure()
         return self._fallback(now_ns, vehicle, f"failed: {res.status}")
 
+    def _seen_now(self, x0: np.ndarray, joints_w: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """Where the controlled joints are seen from the current camera (E, 2), for matching left and
+        right by image side; all NaN (no view: left meets left) with `left_right: name`."""
+        if self.cfg.left_right == "name":
+            return np.full((joints_w.shape[0], 2), np.nan)
+        lay = self.layout
+        seen = cam.project_world(joints_w, x0[lay.P], np.array(lay.angles(x0)), float(x0[lay.F]))
+        seen[weights == 0] = np.nan  # no joint or not controlled: does not say which way it faces
+        return seen
+
     def _count_failure(self, **more: object) -> None:
         self.counters.update(failures=int(self.counters["failures"]) + 1,
                              consecutive_failures=int(self.counters["consecutive_failures"]) + 1, **more)
@@ -292,11 +302,7 @@ class Planner:
                 jw[j] = subj.joints[subj.names.index(name)]
                 jmask[j] = self.cfg.joint_weight(name)  # 1 unless config.joint_weights says otherwise
         rows, frame = self._rows(now_ns, ins, n, dt)
-        lay = self.layout
-        seen = cam.project_world(jw[:len(ctrl)], x0[lay.P], np.array(lay.angles(x0)), float(x0[lay.F]))
-        seen[jmask[:len(ctrl)] == 0] = np.nan  # no joint or not controlled: does not say which way it faces
-        if self.cfg.left_right == "name":
-            seen[:] = np.nan  # no view to compare with: left meets left
+        seen = self._seen_now(x0, jw[:len(ctrl)], jmask[:len(ctrl)])
         targets, mask = stage_targets(np.asarray(ins.image_targets, dtype=float), rows, ctrl, jmask, seen)
         dof, dref = self._dof_targets(now_ns, ins, rows, x0, subj)
         u_prev = self._u_prev
