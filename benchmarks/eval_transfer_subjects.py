@@ -99,7 +99,7 @@ def fly_weights(style_path: Path, scene: str, subject: str, weights: dict[str, f
     ins = load_style(style_path)
     cfg = PlannerConfig(joint_weights=tuple(sorted(weights.items())))
     cfg = dataclasses.replace(cfg, max_solve_time_s=max(cfg.max_solve_time_s, 10.0 / cfg.rate_hz))
-    sim, _ = make_sim(scene, cfg.bounds, subject=subject)
+    sim, _ = make_sim(scene, subject=subject)
     seen: list[np.ndarray] = []
 
     def truth(s, names):

@@ -75,7 +75,7 @@ def run(name: str, cfg: pc.PlannerConfig, scen: str, duration_s: float) -> dict:
     planner = Planner(cfg)
     build_s = time.perf_counter() - t
     planner.solver.set_time_budget(None)  # lockstep: time is measured, never a failure cause
-    sim = KinematicSim(scene, bounds=cfg.bounds, follow_horizon=True)
+    sim = KinematicSim(scene, follow_horizon=True)
     iters: list[int] = []
     wall: list[float] = []
     cpu: list[float] = []

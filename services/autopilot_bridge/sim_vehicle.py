@@ -23,7 +23,7 @@ It emulates just enough of PX4 (or ArduCopter with --autopilot ardupilot) for th
 - ArduCopter GUIDED semantics: position targets move it once it is flying (take-off first when
   landed); a velocity-only target stops after 3 s without update; no stream is required.
 
-Dynamics: the built-in simulator's `sim.dynamics.VehicleDynamics` (the one model the sim backend
+Dynamics: the built-in simulator's `shared.dynamics.VehicleDynamics` (the one model the sim backend
 flies too; arming and the ground added by `vehicle_model.SimDynamicsAdapter`), with the limits,
 lens ranges and camera sensor of the vehicle profile (--vehicle, shared/vehicle.py).
 """
@@ -43,7 +43,7 @@ import numpy as np
 
 from cinetransfer.services.autopilot_bridge import enu_ned as F
 from cinetransfer.services.autopilot_bridge.mavlink import connect, mavlink
-from cinetransfer.services.autopilot_bridge.sim.dynamics import DynamicsLimits
+from cinetransfer.shared.dynamics import DynamicsLimits
 from cinetransfer.services.autopilot_bridge.vehicle_model import SimDynamicsAdapter
 from cinetransfer.shared.errors import ConfigError, report_config_error
 from cinetransfer.shared.vehicle import VehicleProfile, add_vehicle_argument, load_vehicle

@@ -1,6 +1,6 @@
 """The MAVLink sim-vehicle's model: the built-in simulator's dynamics plus what a flight controller adds.
 
-`SimDynamicsAdapter` wraps `sim.dynamics.VehicleDynamics` (the one vehicle model of the
+`SimDynamicsAdapter` wraps `shared.dynamics.VehicleDynamics` (the one vehicle model of the
 simulator) with arming and the ground, behind the interface `SimVehicle` uses. World frame ENU,
 z up, metres, radians; `step(dt)` advances it (no clock).
 """
@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from cinetransfer.services.autopilot_bridge.sim.dynamics import DynamicsLimits, VehicleDynamics
+from cinetransfer.shared.dynamics import DynamicsLimits, VehicleDynamics
 from cinetransfer.shared.vehicle import load_vehicle
 
 
 class SimDynamicsAdapter:
-    """The built-in simulator's `sim.dynamics.VehicleDynamics` behind the interface SimVehicle uses.
+    """The built-in simulator's `shared.dynamics.VehicleDynamics` behind the interface SimVehicle uses.
 
     Adds what a MAVLink vehicle has and the simulator does not model: arming (disarmed = no
     thrust, it stays put) and the ground (z >= ground_z). The simulator's convention that the

@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 
-from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.core import Planner
 from cinetransfer.services.planner.kinematic_sim import SCENES, KinematicSim
 from cinetransfer.services.planner.scenarios import LoopLog, run_closed_loop
@@ -88,16 +87,16 @@ def _bridge_scenes() -> tuple[Any, list[str]] | None:
     return sb, scene_names()
 
 
-def make_sim(scene: str | None, bounds: pc.Bounds, subject: str | None = None,
+def make_sim(scene: str | None, subject: str | None = None,
              vehicle: VehicleProfile | None = None) -> tuple[Any, str]:
     """(simulator, description) for a scene name; see the module docstring for the rules.
     `subject`: another person from the bridge simulator's subject library (bridge scenes only);
-    `vehicle`: the profile the bridge simulator flies (default: the default profile)."""
+    `vehicle`: the profile the simulator flies, bridge or kinematic (default: the default profile)."""
     if scene and scene.startswith("kinematic:"):
         name = scene.split(":", 1)[1]
         if name not in SCENES:
             raise ValueError(f"no kinematic scene {name!r}; built-in: {sorted(SCENES)}")
-        return KinematicSim(SCENES[name], bounds=bounds), f"kinematic:{name}"
+        return KinematicSim(SCENES[name], vehicle=vehicle), f"kinematic:{name}"
     bridge = _bridge_scenes()
     if bridge is not None:
         sb, names = bridge
@@ -119,7 +118,7 @@ def make_sim(scene: str | None, bounds: pc.Bounds, subject: str | None = None,
         raise ValueError(f"--subject {subject!r} needs a bridge-simulator scene, not {scene!r}")
     scene = scene or "standing"
     if scene in SCENES:
-        return KinematicSim(SCENES[scene], bounds=bounds), f"kinematic:{scene}"
+        return KinematicSim(SCENES[scene], vehicle=vehicle), f"kinematic:{scene}"
     avail = sorted(SCENES) + (sorted(bridge[1]) if bridge else [])
     raise ValueError(f"unknown scene {scene!r}; available: {avail}")
 
@@ -178,7 +177,7 @@ def main(argv: list[str]) -> int:
         cfg = config_from_args(ns)
         # in-process the simulated clock waits for the solver: give it room (budget = 10 periods)
         cfg = dataclasses.replace(cfg, max_solve_time_s=max(cfg.max_solve_time_s, 10.0 / cfg.rate_hz))
-        sim, what = make_sim(args.scene, cfg.bounds, subject=args.subject, vehicle=load_vehicle(args.vehicle))
+        sim, what = make_sim(args.scene, subject=args.subject, vehicle=load_vehicle(args.vehicle))
     except (StyleFileError, ValueError, OSError) as e:  # ConfigError is a ValueError
         print(f"cinetransfer plan: {e}", file=sys.stderr)
         return 2

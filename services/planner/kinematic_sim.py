@@ -1,12 +1,9 @@
-"""A kinematic simulator the planner owns, for closed-loop tests, the benchmark and `cinetransfer plan`.
+"""A closed-loop harness the planner owns, for its tests, the benchmark and `cinetransfer plan`.
 
-The vehicle integrates the MPC model's own dynamics (model.py: double integrator for the
-position, rate-integrated camera angles and lens) with a first-order lag between what the
-setpoint asks and what the vehicle does:
-- position: a_cmd = a_ff + kp (p_sp - p) + kd (v_sp - v), clipped; the real acceleration follows
-  a_cmd with time constant `tau_s`;
-- camera angles and lens: each rate = (setpoint - value) / tau_s, clipped to the rate limits.
-With the planner's setpoint lead equal to tau_s, a ramp is tracked without steady lag.
+The vehicle is the built-in simulator's own (shared/dynamics.py, limits
+from the vehicle profile): a saturated velocity loop with a first-order lag under a position
+loop, a rate-limited gimbal and lens, so the planner is tested against the same machine the
+bridge's simulator flies (issue 18: one dynamics model).
 The subject is a COCO-17 skeleton that stands or walks (constant-velocity segments, limbs
 swinging with the stride), so the planner's constant-velocity prediction is good but not exact.
 
@@ -20,10 +17,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cinetransfer.services.planner.config import Bounds
 from cinetransfer.shared import camera as cam
-from cinetransfer.shared.angles import wrap_angle
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.dynamics import DynamicsLimits, VehicleDynamics
+from cinetransfer.shared.vehicle import VehicleProfile, load_vehicle
 
 #: COCO-17 joints of a 1.75 m person standing upright, body frame (x forward, y left, z up) [m].
 BODY_JOINTS: dict[str, tuple[float, float, float]] = {
@@ -110,31 +107,47 @@ class Subject:
 
 
 class KinematicSim:
-    """Vehicle (the MPC model + first-order lag) and subject, stepped at a fixed `dt_s`."""
+    """The built-in simulator's vehicle, gimbal and lens (shared/dynamics.py: the one dynamics model
+    of the project) flying the planner's setpoints, and a kinematic subject, stepped at `dt_s`."""
 
-    def __init__(self, scene: KinematicScene | None = None, *, bounds: Bounds | None = None, tau_s: float = 0.1,
-                 kp: float = 4.0, kd: float = 3.5, accel_limit_factor: float = 1.5, dt_s: float = 0.01,
-                 follow_horizon: bool = False) -> None:
-        """`follow_horizon`: between setpoints, track the published horizon (interpolated, looking
-        tau_s ahead) instead of the single setpoint: what a bridge that flies the planned path does;
-        it matters for planners that publish rarely (CineMPC: 2.5 Hz)."""
-        self.scene = scene or KinematicScene()
-        self.follow_horizon = follow_horizon
+    def __init__(self, scene: KinematicScene | None = None, *, vehicle: VehicleProfile | None = None,
+                 dt_s: float = 0.01, follow_horizon: bool = False, lead_s: float = 0.1) -> None:
+        """`vehicle`: the profile whose limits the vehicle flies (default: the default profile).
+        `follow_horizon`: between setpoints, track the published horizon (interpolated, looking
+        `lead_s` ahead) instead of the single setpoint: what a bridge that flies the planned path
+        does; it matters for planners that publish rarely (CineMPC: 2.5 Hz)."""
+        self.scene = sc = scene or KinematicScene()
+        self.follow_horizon, self.lead_s, self.dt_s = follow_horizon, lead_s, dt_s
         self._t_apply = 0.0
-        self.bounds = bounds or Bounds()
-        self.tau_s, self.kp, self.kd, self.dt_s = tau_s, kp, kd, dt_s
-        self.accel_limit = accel_limit_factor * self.bounds.accel_max_mps2
-        sc = self.scene
         self.t_s = 0.0
-        self.p = np.asarray(sc.vehicle_position_m, dtype=float).copy()
-        self.v = np.asarray(sc.vehicle_velocity_mps, dtype=float).copy()
-        self.a = np.zeros(3)
-        self.ypr = np.asarray(sc.camera_ypr_rad, dtype=float).copy()
-        self.lens = np.asarray(sc.lens, dtype=float).copy()
+        self.dyn = VehicleDynamics(limits=DynamicsLimits.from_vehicle(vehicle or load_vehicle()),
+                                   position=np.asarray(sc.vehicle_position_m, float),
+                                   camera_ypr=np.asarray(sc.camera_ypr_rad, float),
+                                   focal_mm=float(sc.lens[0]), focus_m=float(sc.lens[1]), f_number=float(sc.lens[2]))
+        self.dyn.velocity = np.asarray(sc.vehicle_velocity_mps, float).copy()
         self.subject = Subject(sc.subject_position_m, sc.subject_heading_rad, sc.walks)
         self._sp: M.Setpoint | None = None
-        self._hold: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        self.holding = False
+
+    # ------------------------------------------------------------------ state
+    @property
+    def p(self) -> np.ndarray:
+        return self.dyn.position
+
+    @property
+    def v(self) -> np.ndarray:
+        return self.dyn.velocity
+
+    @property
+    def ypr(self) -> np.ndarray:
+        return self.dyn.camera_ypr
+
+    @property
+    def lens(self) -> np.ndarray:
+        return np.array([self.dyn.focal_mm, self.dyn.focus_m, self.dyn.f_number])
+
+    @property
+    def holding(self) -> bool:
+        return self.dyn.holding
 
     # ------------------------------------------------------------------ commands
     def apply(self, sp: M.Setpoint) -> None:
@@ -143,36 +156,35 @@ class KinematicSim:
             return
         self._sp = sp
         self._t_apply = self.t_s
-        self.holding = False
+        self._track()
 
     def hold(self) -> None:
-        if not self.holding:
-            self._hold = (self.p.copy(), self.ypr.copy(), self.lens.copy())
-        self.holding = True
+        self.dyn.hold()
+
+    def _track(self) -> None:
+        sp = self._sp
+        if self.follow_horizon and sp.horizon_t_s.size >= 2:
+            pos, vel, ypr, lens = self._horizon_targets(sp)
+            self.dyn.set_target(position=pos, velocity=vel, camera_ypr=ypr, lens=tuple(lens))
+            return
+        lens = (sp.lens.focal_length_mm, sp.lens.focus_distance_m, sp.lens.f_number)
+        self.dyn.set_target(position=np.asarray(sp.position_m), velocity=np.asarray(sp.velocity_mps),
+                            acceleration=np.asarray(sp.acceleration_mps2), camera_ypr=np.asarray(sp.camera_ypr_rad),
+                            lens=tuple(float(x) for x in lens))
 
     # ------------------------------------------------------------------ integration
     def step(self, duration_s: float) -> None:
         n = max(1, int(round(duration_s / self.dt_s)))
         for _ in range(n):
-            self._step_once(self.dt_s)
+            if self.follow_horizon and self._sp is not None and not self.holding:
+                self._track()  # the horizon point to aim at moves on between setpoints
+            self.dyn.advance(self.dt_s)
+            self.subject.step(self.t_s, self.dt_s)
+            self.t_s += self.dt_s
 
-    def _targets(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        if self.holding or self._sp is None:
-            if self._hold is None:
-                self._hold = (self.p.copy(), self.ypr.copy(), self.lens.copy())
-            p, ypr, lens = self._hold
-            return p, np.zeros(3), np.zeros(3), ypr, lens
-        sp = self._sp
-        if self.follow_horizon and sp.horizon_t_s.size >= 2:
-            return self._horizon_targets(sp)
-        lens = np.array([sp.lens.focal_length_mm, sp.lens.focus_distance_m, sp.lens.f_number])
-        lens = np.where(np.isfinite(lens), lens, self.lens)
-        return (np.asarray(sp.position_m), np.asarray(sp.velocity_mps), np.asarray(sp.acceleration_mps2),
-                np.asarray(sp.camera_ypr_rad), lens)
-
-    def _horizon_targets(self, sp: M.Setpoint) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _horizon_targets(self, sp: M.Setpoint) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         t = np.asarray(sp.horizon_t_s, dtype=float)
-        tau = float(np.clip(self.t_s - self._t_apply + self.tau_s, t[0], t[-1]))
+        tau = float(np.clip(self.t_s - self._t_apply + self.lead_s, t[0], t[-1]))
         hp = np.asarray(sp.horizon_position_m, dtype=float)
         pos = np.array([np.interp(tau, t, hp[:, i]) for i in range(3)])
         k = int(np.clip(np.searchsorted(t, tau, side="right") - 1, 0, len(t) - 2))
@@ -182,25 +194,7 @@ class KinematicSim:
         ypr = np.array([np.interp(tau, t, ang[:, i]) for i in range(3)])
         hl = np.asarray(sp.horizon_lens, dtype=float)
         lens = np.array([np.interp(tau, t, hl[:, i]) for i in range(3)])
-        return pos, vel, np.zeros(3), ypr, lens
-
-    def _step_once(self, dt: float) -> None:
-        b = self.bounds
-        p_sp, v_sp, a_ff, ypr_sp, lens_sp = self._targets()
-        a_cmd = a_ff + self.kp * (p_sp - self.p) + self.kd * (v_sp - self.v)
-        a_cmd = np.clip(a_cmd, -self.accel_limit, self.accel_limit)
-        alpha = dt / (self.tau_s + dt)
-        self.a = self.a + alpha * (a_cmd - self.a)
-        self.p = self.p + self.v * dt + 0.5 * self.a * dt * dt
-        self.v = self.v + self.a * dt
-        rate_max = np.array([b.yaw_rate_max_radps, b.pitch_rate_max_radps, b.roll_rate_max_radps])
-        err = np.array([wrap_angle(ypr_sp[0] - self.ypr[0]), ypr_sp[1] - self.ypr[1], ypr_sp[2] - self.ypr[2]])
-        self.ypr = self.ypr + np.clip(err / self.tau_s, -rate_max, rate_max) * dt
-        self.ypr[0] = wrap_angle(self.ypr[0])
-        lens_rate = np.array([b.focal_rate_max_mmps, b.focus_rate_max_mps, b.fnumber_rate_max_ps])
-        self.lens = self.lens + np.clip((lens_sp - self.lens) / self.tau_s, -lens_rate, lens_rate) * dt
-        self.subject.step(self.t_s, dt)
-        self.t_s += dt
+        return pos, vel, ypr, lens
 
     # ------------------------------------------------------------------ messages
     def vehicle_state(self, stamp_ns: int) -> M.VehicleState:

@@ -9,7 +9,7 @@ import pytest
 
 from cinetransfer.services.autopilot_bridge.config import SafetyConfig
 from cinetransfer.services.autopilot_bridge.core import BridgeCore
-from cinetransfer.services.autopilot_bridge.sim.dynamics import DynamicsLimits
+from cinetransfer.shared.dynamics import DynamicsLimits
 from cinetransfer.services.autopilot_bridge.vehicle_model import SimDynamicsAdapter
 from cinetransfer.shared import messages as M
 

@@ -1,4 +1,4 @@
-"""Built-in simulator: vehicle, gimbal and lens dynamics (services/autopilot_bridge/sim/dynamics.py)."""
+"""Built-in simulator: vehicle, gimbal and lens dynamics (shared/dynamics.py)."""
 from __future__ import annotations
 
 import math
@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from cinetransfer.services.autopilot_bridge.sim.dynamics import DynamicsLimits, VehicleDynamics
+from cinetransfer.shared.dynamics import DynamicsLimits, VehicleDynamics
 
 LIM = DynamicsLimits()
 

@@ -4,7 +4,7 @@ import math
 import pytest
 
 from cinetransfer.services.autopilot_bridge.config import SafetyConfig
-from cinetransfer.services.autopilot_bridge.sim.dynamics import DynamicsLimits
+from cinetransfer.shared.dynamics import DynamicsLimits
 from cinetransfer.services.autopilot_bridge.vehicle_model import SimDynamicsAdapter
 from cinetransfer.services.planner import config as pc
 from cinetransfer.shared.errors import CinetransferError, ConfigError
@@ -79,3 +79,17 @@ def test_a_broken_profile_is_refused_naming_the_field(tmp_path):
         load_vehicle(str(p))
     with pytest.raises(ConfigError, match="no such profile"):
         load_vehicle("no_such_drone")
+
+
+@pytest.mark.parametrize("name", vehicle_names())
+def test_planner_harness_and_sim_vehicle_fly_one_dynamics_model(name):
+    """The planner's closed-loop harness and the MAVLink sim-vehicle integrate the simulator's
+    VehicleDynamics with the same limits (issue 18: one dynamics model)."""
+    from cinetransfer.services.planner.kinematic_sim import KinematicSim
+    from cinetransfer.shared.dynamics import VehicleDynamics
+
+    v = load_vehicle(name)
+    harness = KinematicSim(vehicle=v).dyn
+    sim_vehicle = SimDynamicsAdapter(limits=DynamicsLimits.from_vehicle(v)).dyn
+    assert type(harness) is VehicleDynamics and type(sim_vehicle) is VehicleDynamics
+    assert harness.limits == sim_vehicle.limits == DynamicsLimits.from_vehicle(v)

@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from cinetransfer.services.autopilot_bridge.port import VehiclePort
-from cinetransfer.services.autopilot_bridge.sim.dynamics import VehicleDynamics
+from cinetransfer.shared.dynamics import VehicleDynamics
 from cinetransfer.services.autopilot_bridge.sim.renderer import (MIN_SIGMA_PX, NEAR_M, SIGMA_PER_DIAMETER,
                                                                  DrawInfo, Plane, Texture, View, draw_plane,
                                                                  ground_bands, label_pass)

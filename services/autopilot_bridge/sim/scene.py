@@ -16,7 +16,7 @@ from typing import Any
 
 import yaml
 
-from cinetransfer.services.autopilot_bridge.sim.dynamics import DynamicsLimits
+from cinetransfer.shared.dynamics import DynamicsLimits
 from cinetransfer.shared.vehicle import VehicleProfile
 
 SCENES_DIR = Path(__file__).resolve().parent / "scenes"
