@@ -21,15 +21,15 @@ import collections
 import dataclasses
 import logging
 import math
-import sys
 import threading
 import time
 from typing import Any
 
 import numpy as np
 
-from cinetransfer.shared import keys
+from cinetransfer.shared import keys, nodeconfig
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.errors import ConfigError, report_config_error
 from cinetransfer.shared.node import add_node_arguments, node_from_args
 
 log = logging.getLogger("cinetransfer.camera")
@@ -56,13 +56,70 @@ class CameraConfig:
 
     def __post_init__(self) -> None:
         if self.kind not in ("device", "url", "video") or not self.source:
-            raise ValueError("give exactly one of --device, --url or --video")
+            raise ConfigError("camera: give exactly one source: --device, --url or --video (settings: "
+                              "device, url or video)")
         if not (0 <= self.jpeg_quality <= 100):
-            raise ValueError("--jpeg must be 0 (raw) or 1..100")
+            raise ConfigError(f"camera.jpeg_quality (--jpeg): must be 0 (raw) or 1..100, got {self.jpeg_quality}")
         if self.fps < 0 or not math.isfinite(self.fps):
-            raise ValueError("--fps must be >= 0")
-        if self.queue_len < 1 or self.max_frames < 0 or self.width < 0:
-            raise ValueError("--queue, --max-frames and --width must be >= 1, >= 0, >= 0")
+            raise ConfigError(f"camera.fps (--fps): must be a finite number >= 0, got {self.fps}")
+        for name, low in (("queue_len", 1), ("max_frames", 0), ("width", 0)):
+            if getattr(self, name) < low:
+                raise ConfigError(f"camera.{name}: must be >= {low}, got {getattr(self, name)}")
+        for name in ("focal_length_mm", "focus_distance_m", "f_number"):
+            v = getattr(self, name)
+            if not math.isnan(v) and not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"camera.{name}: must be a number > 0 (or unset), got {v}")
+
+
+_SOURCES = ("device", "url", "video")
+#: flag dest -> CameraConfig field (a flag that was given overrides the node's settings)
+_FLAG_FIELDS = {"loop": "loop", "fps": "fps", "max_frames": "max_frames", "queue": "queue_len",
+                "jpeg": "jpeg_quality", "width": "width", "focal_length": "focal_length_mm",
+                "focus": "focus_distance_m", "f_number": "f_number"}
+_FIELD_TYPES = {"loop": bool, "realtime": bool, "fps": float, "max_frames": int, "queue_len": int,
+                "jpeg_quality": int, "width": int, "focal_length_mm": float, "focus_distance_m": float,
+                "f_number": float}
+
+
+def settings_fields(d: dict[str, Any]) -> dict[str, Any]:
+    """CameraConfig fields from the node's settings (shared/nodeconfig.py): one of device/url/video
+    as the source, the other fields by name; unknown keys and values of the wrong kind are refused."""
+    unknown = sorted(set(d) - set(_SOURCES) - set(_FIELD_TYPES))
+    if unknown:
+        allowed = sorted(_SOURCES + tuple(_FIELD_TYPES))
+        raise ConfigError(f"camera config: unknown field(s) {unknown}; allowed: {allowed}")
+    out: dict[str, Any] = {}
+    given = [k for k in _SOURCES if d.get(k) is not None]
+    if len(given) > 1:
+        raise ConfigError(f"camera config: give one source, not {given}")
+    if given:
+        out["kind"], out["source"] = given[0], str(d[given[0]])
+    for k, t in _FIELD_TYPES.items():
+        if k in d:
+            out[k] = _typed(k, d[k], t)
+    return out
+
+
+def _typed(name: str, v: Any, t: type) -> Any:
+    if t is bool:
+        if not isinstance(v, bool):
+            raise ConfigError(f"camera.{name}: must be true or false, got {v!r}")
+        return v
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or (t is int and v != int(v)):
+        raise ConfigError(f"camera.{name}: must be {'an integer' if t is int else 'a number'}, got {v!r}")
+    return t(v)
+
+
+def config_from_args(args: argparse.Namespace, settings: dict[str, Any]) -> CameraConfig:
+    """The node's settings, then the flags that were given."""
+    f = settings_fields(settings)
+    flag_source = [k for k in _SOURCES if getattr(args, k, None) is not None]
+    if flag_source:
+        f["kind"], f["source"] = flag_source[0], str(getattr(args, flag_source[0]))
+    f.update({field: getattr(args, dest) for dest, field in _FLAG_FIELDS.items() if getattr(args, dest) is not None})
+    if args.as_fast_as_possible:
+        f["realtime"] = False
+    return CameraConfig(**f)
 
 
 class FrameReader:
@@ -170,21 +227,22 @@ class FrameReader:
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="cinetransfer camera", description="publish camera frames on Zenoh")
-    src = ap.add_mutually_exclusive_group(required=True)
+    nodeconfig.add_config_arguments(ap, NODE_NAME)
+    src = ap.add_mutually_exclusive_group()
     src.add_argument("--device", help="video device index (e.g. 0)")
     src.add_argument("--url", help="stream URL (rtsp://, http://, udp://; anything OpenCV/FFmpeg reads)")
     src.add_argument("--video", help="video file")
-    ap.add_argument("--loop", action="store_true", help="restart a file at its end")
+    ap.add_argument("--loop", action="store_true", default=None, help="restart a file at its end")
     ap.add_argument("--as-fast-as-possible", action="store_true",
                     help="do not pace a file at its fps (frames may then be dropped)")
-    ap.add_argument("--fps", type=float, default=0.0, help="override the nominal frame rate [Hz]")
-    ap.add_argument("--max-frames", type=int, default=0, help="stop after N frames (0 = no limit)")
-    ap.add_argument("--queue", type=int, default=2, help="reader queue length (drop-oldest)")
-    ap.add_argument("--jpeg", type=int, default=0, metavar="QUALITY", help="publish JPEG of this quality (radio)")
-    ap.add_argument("--width", type=int, default=0, help="resize to this width [px]")
-    ap.add_argument("--focal-length", type=float, default=math.nan, metavar="MM", help="static lens: focal length")
-    ap.add_argument("--focus", type=float, default=math.nan, metavar="M", help="static lens: focus distance")
-    ap.add_argument("--f-number", type=float, default=math.nan, help="static lens: f-number")
+    ap.add_argument("--fps", type=float, default=None, help="override the nominal frame rate [Hz]")
+    ap.add_argument("--max-frames", type=int, default=None, help="stop after N frames (0 = no limit)")
+    ap.add_argument("--queue", type=int, default=None, help="reader queue length (drop-oldest)")
+    ap.add_argument("--jpeg", type=int, default=None, metavar="QUALITY", help="publish JPEG of this quality (radio)")
+    ap.add_argument("--width", type=int, default=None, help="resize to this width [px]")
+    ap.add_argument("--focal-length", type=float, default=None, metavar="MM", help="static lens: focal length")
+    ap.add_argument("--focus", type=float, default=None, metavar="M", help="static lens: focus distance")
+    ap.add_argument("--f-number", type=float, default=None, help="static lens: f-number")
     add_node_arguments(ap)
     return ap
 
@@ -192,15 +250,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str]) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
-    kind = "device" if args.device is not None else "url" if args.url is not None else "video"
     try:
-        cfg = CameraConfig(source=args.device or args.url or args.video, kind=kind, loop=args.loop,
-                           realtime=not args.as_fast_as_possible, fps=args.fps, max_frames=args.max_frames,
-                           queue_len=args.queue, jpeg_quality=args.jpeg, width=args.width,
-                           focal_length_mm=args.focal_length, focus_distance_m=args.focus, f_number=args.f_number)
-    except ValueError as e:
-        print(f"cinetransfer camera: invalid configuration: {e}", file=sys.stderr)
-        return 2
+        cfg = config_from_args(args, nodeconfig.args_section(args, NODE_NAME))
+    except ConfigError as e:
+        return report_config_error(e, "cinetransfer camera")
+    kind = cfg.kind
     node = node_from_args(NODE_NAME, args, config=cfg)
     reader = FrameReader(cfg)
     static = any(math.isfinite(v) for v in (cfg.focal_length_mm, cfg.focus_distance_m, cfg.f_number))

@@ -33,6 +33,9 @@ def run_node(*argv):
     ("smoother", {"theta": 1.5}, "theta"),
     ("smoother", {"windw_s": 3}, "windw_s"),
     ("source", {"window": 0}, "window"),
+    ("camera", {"video": "clip.mp4", "jpeg_quality": 300}, "jpeg_quality"),
+    ("camera", {"vidoe": "clip.mp4"}, "vidoe"),
+    ("camera", {"video": "clip.mp4", "focus_distance_m": "near"}, "focus_distance_m"),
 ])
 def test_a_broken_node_setting_is_refused_on_stderr_with_exit_2_naming_the_field(tmp_path, command, settings, field):
     path = deploy_config(tmp_path, command, settings)
@@ -62,6 +65,21 @@ def test_flags_override_the_section_and_the_section_overrides_the_defaults(tmp_p
     s = node_config(smoother_parser().parse_args(["--config", str(path), "--theta", "0.6"]))
     assert (s.end_idle_s, s.theta) == (0.0, 0.6)
     assert nodeconfig.args_section(argparse.Namespace(config=None, section="x"), "x") == {}
+
+
+def test_camera_settings_then_flags(tmp_path):
+    from cinetransfer.services.autopilot_bridge import camera_node as cn
+
+    path = deploy_config(tmp_path, "camera", {"video": "clip.mp4", "width": 320, "loop": True, "f_number": 2.8})
+    parse = cn.build_parser().parse_args
+    cfg = cn.config_from_args(a := parse(["--config", str(path)]), nodeconfig.args_section(a, "camera"))
+    assert (cfg.kind, cfg.source, cfg.width, cfg.loop, cfg.f_number, cfg.queue_len) == \
+        ("video", "clip.mp4", 320, True, 2.8, 2)  # the file, then the defaults
+    cfg = cn.config_from_args(a := parse(["--config", str(path), "--url", "rtsp://10.0.0.2/cam", "--width", "640"]),
+                              nodeconfig.args_section(a, "camera"))
+    assert (cfg.kind, cfg.source, cfg.width, cfg.loop) == ("url", "rtsp://10.0.0.2/cam", 640, True)  # flags win
+    with pytest.raises(ConfigError, match="one source"):
+        cn.config_from_args(parse([]), {})
 
 
 def test_a_node_missing_from_the_deploy_config_is_an_error(tmp_path):
