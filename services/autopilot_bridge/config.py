@@ -68,6 +68,9 @@ class SafetyConfig:
     #: speed limit [m/s]: clamps the velocity feed-forward AND how fast the commanded position
     #: may move (a jump in the position setpoint is approached at this speed).
     max_speed_mps: float = 2.0
+    #: vertical speed limit [m/s] (the vehicle's climb/descent rate): clamps the vertical velocity
+    #: feed-forward and how fast the commanded position may move up or down.
+    max_climb_mps: float = 1.0
     #: acceleration limit [m/s^2]: clamps the acceleration feed-forward and the change of the
     #: velocity feed-forward between ticks.
     max_accel_mps2: float = 1.2
@@ -110,7 +113,8 @@ class SafetyConfig:
             geofence_shape=env.geofence_shape, geofence_radius_m=env.geofence_radius_m,
             geofence_half_extent_m=env.geofence_half_extent_m,
             altitude_min_m=env.altitude_m[0], altitude_max_m=env.altitude_m[1],
-            max_speed_mps=v.motion.speed_max_mps, max_accel_mps2=v.motion.accel_max_mps2,
+            max_speed_mps=v.motion.speed_max_mps, max_climb_mps=v.motion.climb_max_mps,
+            max_accel_mps2=v.motion.accel_max_mps2,
             min_subject_distance_m=env.min_subject_distance_m,
             gimbal_pitch_min_rad=gim.pitch_rad[0], gimbal_pitch_max_rad=gim.pitch_rad[1],
             gimbal_roll_max_rad=gim.roll_max_rad,
@@ -143,6 +147,7 @@ class SafetyConfig:
             _positive(f"geofence_half_extent_m[{i}]", v)
         _range("altitude_min_m", self.altitude_min_m, "altitude_max_m", self.altitude_max_m)
         _positive("max_speed_mps", self.max_speed_mps)
+        _positive("max_climb_mps", self.max_climb_mps)
         _positive("max_accel_mps2", self.max_accel_mps2)
         _finite("min_subject_distance_m", self.min_subject_distance_m)
         if self.min_subject_distance_m < 0:

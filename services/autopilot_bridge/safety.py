@@ -60,6 +60,15 @@ def clamp_norm(v: np.ndarray, max_norm: float) -> tuple[np.ndarray, bool]:
     return v * (max_norm / n), True
 
 
+def clamp_climb(v: np.ndarray, max_climb: float) -> tuple[np.ndarray, bool]:
+    """`v` with its vertical component clamped to +-max_climb; (vector, whether it was clamped)."""
+    if abs(float(v[2])) <= max_climb:
+        return v, False
+    out = np.array(v, dtype=float)
+    out[2] = math.copysign(max_climb, out[2])
+    return out, True
+
+
 def clamp_geofence(p: np.ndarray, cfg: SafetyConfig) -> tuple[np.ndarray, bool]:
     """Position with x/y clamped into the geofence around home (z untouched)."""
     home = np.asarray(cfg.home_m, dtype=float)
@@ -381,7 +390,8 @@ class SafetyLayer:
         """Velocity and acceleration feed-forward within the limits, and not outward at the envelope."""
         cfg = self.cfg
         v, hit = clamp_norm(np.array(sp.velocity_mps, dtype=float), cfg.max_speed_mps)
-        _note(clamps, hit, "clamp_speed")
+        v, hit_z = clamp_climb(v, cfg.max_climb_mps)
+        _note(clamps, hit or hit_z, "clamp_speed")
         v, hit = clamp_outward_velocity(p, v, cfg)
         _note(clamps, hit, "clamp_velocity_outward")
         a, hit = clamp_norm(np.array(sp.acceleration_mps2, dtype=float), cfg.max_accel_mps2)
@@ -427,13 +437,15 @@ class SafetyLayer:
                      prev_vel: np.ndarray, dt_s: float) -> MotionCommand:
         """Move the commanded position/velocity towards the target within speed/accel limits.
 
-        The commanded position advances by at most `max_speed_mps * dt_s` per tick and the
-        commanded velocity changes by at most `max_accel_mps2 * dt_s`.
+        The commanded position advances by at most `max_speed_mps * dt_s` per tick (vertically by
+        `max_climb_mps * dt_s`) and the commanded velocity changes by at most `max_accel_mps2 * dt_s`.
         """
         cfg = self.cfg
         dt = max(float(dt_s), 0.0)
         clamps: list[str] = []
         step, hit = clamp_norm(np.asarray(target_pos, float) - prev_pos, cfg.max_speed_mps * dt)
+        step, hit_z = clamp_climb(step, cfg.max_climb_mps * dt)
+        hit = hit or hit_z
         pos = prev_pos + step
         if hit:
             clamps.append("clamp_position_rate")

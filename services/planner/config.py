@@ -36,14 +36,16 @@ def _bad(section: str, name: str, value: Any, allowed: str) -> ConfigError:
 class Bounds:
     """Limits of the vehicle, gimbal and lens (runtime parameters: no rebuild when changed).
 
-    Velocity and acceleration are boxes per world axis. The altitude band and the minimum
-    distance to the subject are soft constraints with an exact (L1) penalty: they hold whenever
-    they can, and a vehicle that starts outside them is brought back instead of making the
-    problem infeasible. Every other limit is hard.
+    Velocity and acceleration are bounded per world axis (hard; the vertical speed at the climb
+    rate); the speed also in norm (soft), the norm being what the safety layer bounds. The speed
+    norm, the altitude band and the minimum distance to the subject are soft constraints with an
+    exact (L1) penalty: they hold whenever they can, and a vehicle that starts outside them is
+    brought back instead of making the problem infeasible. Every other limit is hard.
     """
 
-    speed_max_mps: float = 2.0  # |v_x|, |v_y|, |v_z| [m/s], > 0 (CineMPC: 2)
-    accel_max_mps2: float = 1.2  # |a_x|, |a_y|, |a_z| [m/s^2], > 0 (CineMPC: 1.2)
+    speed_max_mps: float = 2.0  # |v| and each |v_i| [m/s], > 0 (CineMPC: 2)
+    accel_max_mps2: float = 1.2  # each |a_i| [m/s^2], > 0 (CineMPC: 1.2)
+    climb_max_mps: float = 1.0  # |v_z| [m/s], > 0 (the vehicle's vertical speed)
     altitude_min_m: float = 1.0  # floor for the camera position z [m] (soft)
     altitude_max_m: float = 40.0  # ceiling [m] (soft), > altitude_min_m
     min_distance_m: float = 2.0  # minimum horizontal camera-subject distance [m] (soft), >= 0 (CineMPC: 2)
@@ -67,7 +69,7 @@ class Bounds:
     def from_vehicle(cls, v: VehicleProfile) -> "Bounds":
         """The vehicle's limits (shared/vehicle.py): the same numbers the safety layer and the simulator use."""
         lens, gim, mo, env = v.lens, v.gimbal, v.motion, v.envelope
-        return cls(speed_max_mps=mo.speed_max_mps, accel_max_mps2=mo.accel_max_mps2,
+        return cls(speed_max_mps=mo.speed_max_mps, accel_max_mps2=mo.accel_max_mps2, climb_max_mps=mo.climb_max_mps,
                    altitude_min_m=env.altitude_m[0], altitude_max_m=env.altitude_m[1],
                    min_distance_m=env.min_subject_distance_m,
                    pitch_min_rad=gim.pitch_rad[0], pitch_max_rad=gim.pitch_rad[1], roll_max_rad=gim.roll_max_rad,
@@ -82,7 +84,7 @@ class Bounds:
 
     def validate(self) -> "Bounds":
         s = "bounds."
-        for name in ("speed_max_mps", "accel_max_mps2", "yaw_rate_max_radps", "pitch_rate_max_radps",
+        for name in ("speed_max_mps", "accel_max_mps2", "climb_max_mps", "yaw_rate_max_radps", "pitch_rate_max_radps",
                      "roll_rate_max_radps", "focal_rate_max_mmps", "focus_rate_max_mps", "fnumber_rate_max_ps"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):

@@ -1,13 +1,17 @@
 """Constraints of the MPC: dynamics (hard), input/state boxes (hard), and the soft ones.
 
-Hard: the dynamics equalities, every input bound, and the state bounds on velocity, pitch, roll
-and the lens (`model.state_bounds`). They are applied from stage 1 on; stage 0 is the measured
-state, fixed through its bounds.
+Hard: the dynamics equalities, every input bound, and the state bounds on velocity (each axis;
+the vertical one at the profile's climb rate), pitch, roll and the lens (`model.state_bounds`).
+They are applied from stage 1 on; stage 0 is the measured state, fixed through its bounds.
 
 Soft, with one non-negative slack each per stage and an exact penalty (L1 + L2) in the cost:
 - floor:    z + s_floor >= altitude_min
 - ceiling:  z - s_ceil  <= altitude_max
 - distance: horizontal distance to the predicted subject centre + s_dist >= min_distance
+- speed:    |v| - s_speed <= speed_max   (the norm, as the safety layer bounds it)
+The acceleration stays a box per axis: as a norm constraint it is active in every fast move, and
+the SQP's Gauss-Newton Hessian, which has no constraint curvature, then converges only linearly
+(a cold solve took > 300 iterations instead of < 30).
 A vehicle that starts below the floor or too close is brought back rather than making the
 problem infeasible; whenever the band can be kept, the exact penalty keeps it exactly.
 """
@@ -19,16 +23,26 @@ import numpy as np
 from cinetransfer.services.planner.config import Bounds
 from cinetransfer.services.planner.model import Layout, input_bounds, state_bounds
 
-N_SOFT = 3  # floor, ceiling, distance
+N_SOFT = 4  # floor, ceiling, distance, speed
+_EPS2 = 1e-4  # keeps the norms smooth at 0 (their gradient); adds < 3e-5 at 2 m/s
 
 
-def soft_constraints(x_next, slack, centre_w, z_min, z_max, d_min):  # noqa: ANN001, ANN201
-    """The three soft-constraint expressions of one stage, each required to be >= 0."""
+def soft_constraints(x_next, slack, centre_w, lim):  # noqa: ANN001, ANN201
+    """The soft-constraint expressions of one stage, each required to be >= 0; `lim` =
+    (z_min, z_max, d_min, v_max)."""
+    z_min, z_max, d_min, v_max = (lim[i] for i in range(N_SOFT))
     z = x_next[2]
     dx = x_next[0] - centre_w[0]
     dy = x_next[1] - centre_w[1]
-    dist = ca.sqrt(dx * dx + dy * dy + 1e-4)
-    return ca.vertcat(z + slack[0] - z_min, z_max - z + slack[1], dist + slack[2] - d_min)
+    dist = ca.sqrt(dx * dx + dy * dy + _EPS2)
+    speed = ca.sqrt(ca.sumsqr(x_next[Layout.V]) + _EPS2)
+    return ca.vertcat(z + slack[0] - z_min, z_max - z + slack[1], dist + slack[2] - d_min,
+                      v_max - speed + slack[3])
+
+
+def soft_limits(bounds: Bounds) -> list[float]:
+    """The `lim` parameter of soft_constraints for these bounds."""
+    return [bounds.altitude_min_m, bounds.altitude_max_m, bounds.min_distance_m, bounds.speed_max_mps]
 
 
 def decision_bounds(layout: Layout, bounds: Bounds, n: int, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

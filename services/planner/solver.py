@@ -73,7 +73,7 @@ class SolveResult:
     status: str
     x: np.ndarray  # (N+1, nx) planned states, x[0] = measured (possibly clamped) state
     u: np.ndarray  # (N, nu) planned inputs
-    slack: np.ndarray  # (N, 3) soft-constraint violations (floor, ceiling, distance)
+    slack: np.ndarray  # (N, C.N_SOFT) soft-constraint violations (floor, ceiling, distance, speed)
     cost: float
     iterations: int
     wall_s: float
@@ -110,7 +110,7 @@ class ParamLayout:
         e, n = s.max_joints, s.horizon_steps
         sizes = [("u_prev", lay.nu), ("joints", 3 * e), ("centre", 3), ("subj_vel", 3),
                  ("targets", n * e * 2), ("mask", n * e), ("dof", n * N_DOF), ("dref", n),
-                 ("weights", len(WEIGHT_NAMES)), ("u_scale", lay.nu), ("v_scale", 1), ("soft", 3)]
+                 ("weights", len(WEIGHT_NAMES)), ("u_scale", lay.nu), ("v_scale", 1), ("soft", C.N_SOFT)]
         self.slices: dict[str, slice] = {}
         off = 0
         for name, size in sizes:
@@ -147,18 +147,14 @@ class _NlpParams:
     wts: dict
     u_scale: object
     v_scale: object
-    z_min: object
-    z_max: object
-    d_min: object
+    soft: object  #: the soft constraints' limits (constraints.soft_limits)
 
     @classmethod
     def of(cls, p, sl: dict[str, slice], e: int) -> _NlpParams:
-        soft = p[sl["soft"]]
         return cls(u_prev=p[sl["u_prev"]], joints0=ca.reshape(p[sl["joints"]], 3, e), centre0=p[sl["centre"]],
                    vel=p[sl["subj_vel"]], targets=p[sl["targets"]], mask=p[sl["mask"]], dof=p[sl["dof"]],
                    dref=p[sl["dref"]], wts={name: p[sl["weights"]][i] for i, name in enumerate(WEIGHT_NAMES)},
-                   u_scale=p[sl["u_scale"]], v_scale=p[sl["v_scale"]][0], z_min=soft[0], z_max=soft[1],
-                   d_min=soft[2])
+                   u_scale=p[sl["u_scale"]], v_scale=p[sl["v_scale"]][0], soft=p[sl["soft"]])
 
 
 def _structure_key(s: Structure) -> str:
@@ -271,11 +267,11 @@ class MpcSolver:
         tk = (k + 1) * dt
         terms.g.append(x - (ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)))
         centre = par.centre0 + par.vel * tk
-        terms.g.append(C.soft_constraints(x, slack, centre, par.z_min, par.z_max, par.d_min))
+        terms.g.append(C.soft_constraints(x, slack, centre, par.soft))
         # the same rows in the stage-wise form of the QP (x_{k+1} through the dynamics; equal wherever
         # the dynamics hold, which every SQP iterate after the first satisfies exactly)
         x_pred = ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)
-        terms.g_ocp += [x_pred - x, C.soft_constraints(x_pred, slack, centre, par.z_min, par.z_max, par.d_min)]
+        terms.g_ocp += [x_pred - x, C.soft_constraints(x_pred, slack, centre, par.soft)]
 
         yaw, pitch, roll = lay.angles(x)
         cam = x[lay.P]
@@ -569,7 +565,7 @@ class MpcSolver:
         _, uhi = input_bounds(lay, self.bounds)
         p[sl["u_scale"]] = 1.0 / uhi
         p[sl["v_scale"]] = 1.0 / self.bounds.speed_max_mps
-        p[sl["soft"]] = [self.bounds.altitude_min_m, self.bounds.altitude_max_m, self.bounds.min_distance_m]
+        p[sl["soft"]] = C.soft_limits(self.bounds)
         if not np.all(np.isfinite(p)):
             raise ValueError("non-finite solver parameter")
         return p

@@ -188,7 +188,8 @@ def test_bounds_vectors_follow_the_config():
     lay = model.Layout(False)
     lo, hi = model.state_bounds(lay, b)
     assert (lo[lay.F], hi[lay.F]) == (30.0, 500.0) and (lo[lay.S], hi[lay.S]) == (0.5, 100.0)
-    assert (lo[lay.A], hi[lay.A]) == (1.0, 22.0) and np.all(hi[lay.V] == 2.0)
+    assert (lo[lay.A], hi[lay.A]) == (1.0, 22.0) and list(hi[lay.V]) == [2.0, 2.0, 1.0]  # vertical: the climb rate
+    assert list(lo[lay.V]) == [-2.0, -2.0, -1.0]
     assert np.all(np.isinf(lo[lay.P])) and math.isinf(lo[lay.YAW])
     ulo, uhi = model.input_bounds(lay, b)
     assert np.all(uhi[lay.ACC] == 1.2) and uhi[lay.F_RATE] == 20.0 and uhi[lay.S_RATE] == 15.0
@@ -239,3 +240,20 @@ def test_config_from_dict_rejects_unknown_fields():
     assert cfg.rate_hz == 50 and cfg.structure.horizon_steps == 10 and cfg.weights.image == 10
     with pytest.raises(pc.ConfigError, match="bogus"):
         pc.from_dict({"weights": {"bogus": 1}})
+
+
+def test_soft_constraint_rows_by_hand():
+    from cinetransfer.services.planner import constraints as C
+
+    lay = model.Layout(False)
+    x = np.zeros(lay.nx)
+    x[lay.P] = [3.0, 4.0, 0.5]  # 5 m from the subject at the origin, 0.5 m high
+    x[lay.V] = [1.2, 1.6, 0.0]  # 2 m/s
+    lim = C.soft_limits(pc.Bounds())  # floor 1, ceiling 40, distance 2, speed 2
+    assert lim == [1.0, 40.0, 2.0, 2.0]
+    rows = np.asarray(C.soft_constraints(x, np.zeros(C.N_SOFT), np.zeros(3), lim)).ravel()
+    # floor violated by 0.5, ceiling 39.5 away, distance 3 beyond 2, speed exactly at its limit
+    np.testing.assert_allclose(rows, [-0.5, 39.5, 3.0, 0.0], atol=1e-4)
+    x[lay.V] = [3.0, 0.0, 4.0]  # 5 m/s: 3 over
+    rows = np.asarray(C.soft_constraints(x, np.array([0.5, 0, 0, 3.0]), np.zeros(3), lim)).ravel()
+    np.testing.assert_allclose(rows, [0.0, 39.5, 3.0, 0.0], atol=1e-4)  # the slacks make up for it

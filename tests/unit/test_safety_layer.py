@@ -129,6 +129,16 @@ def test_given_gimbal_and_lens_out_of_range_when_checked_then_clamped_and_yaw_wr
     assert s.counters["clamp_gimbal"] == 1 and s.counters["clamp_lens"] == 1
 
 
+def test_given_a_climb_faster_than_the_vehicle_climbs_when_checked_then_the_vertical_speed_is_clamped():
+    s = SafetyLayer(CFG)  # max_climb_mps: the default profile's 1.0
+    r = s.check(sp(vel=(1.0, 0.0, -1.5)))  # norm 1.8 < 2: only the climb limit bites
+    np.testing.assert_allclose(r.setpoint.velocity_mps, [1.0, 0.0, -1.0])
+    assert s.counters["clamp_speed"] == 1
+    mc = s.limit_motion(target_pos=np.array([0.0, 0.0, 10.0]), target_vel=np.zeros(3), prev_pos=np.zeros(3),
+                        prev_vel=np.zeros(3), dt_s=0.1)  # a jump straight up is approached at 1 m/s, not 2
+    np.testing.assert_allclose(mc.position_m, [0.0, 0.0, 0.1])
+
+
 def test_limit_motion_moves_at_most_max_speed_and_changes_velocity_at_most_max_accel():
     s = SafetyLayer(CFG)
     pos, vel = np.zeros(3), np.zeros(3)

@@ -24,6 +24,7 @@ def limits(b: pc.Bounds, s: SafetyConfig, d: DynamicsLimits) -> dict[str, tuple]
         "pitch_max": (b.pitch_max_rad, s.gimbal_pitch_max_rad, d.pitch_max_rad),
         "roll_max": (b.roll_max_rad, s.gimbal_roll_max_rad, d.roll_max_rad),
         "speed": (b.speed_max_mps, s.max_speed_mps, d.max_speed_xy_mps),
+        "climb": (b.climb_max_mps, s.max_climb_mps, d.max_speed_z_mps),
         "accel": (b.accel_max_mps2, s.max_accel_mps2, d.max_accel_mps2),
     }
 
