@@ -19,9 +19,11 @@ Configurations:
   also with the block-diagonal QP form (sqp_input_copies=False: cross-stage input-change Hessian
   terms dropped, smaller QP stages) and, with --codegen, on generated C.
 Reported per configuration and scenario: wall and CPU (thread) time per solve, median / p95 / max
-over the steady part (first 5 solves excluded), iterations, over-budget solves (vs 40 ms), the
-tracking cost on the simulator's true state (mean over time of 200 * sum_e |im_e - im*_e|^2 + 5 *
-depth-of-field error, scenarios.LoopLog) and the image error after 3 s. Then ratios to the
+over the steady part (first 5 solves excluded; a configuration with fewer than 100 such solves,
+the 2.5 Hz baseline, flies its scenario again, up to 10 runs, and the times are pooled),
+iterations, over-budget solves (vs 40 ms), the tracking cost on the simulator's true state
+(mean over time of 200 * sum_e |im_e - im*_e|^2 + 5 * depth-of-field error, scenarios.LoopLog)
+and the image error after 3 s. Then ratios to the
 baseline and a verdict against the goal (issue 19): N = 20, dt 0.1: wall p95 <= 5 ms, >= 10x faster
 than the baseline at p95, tracking cost within 2 % of the IPOPT reference on every scenario.
 CPU times are the better guide on a busy machine (the load average is printed).
@@ -50,6 +52,11 @@ from cinetransfer.services.planner.scenarios import dolly_zoom_shot, reference_i
 SCENARIOS = ("dolly", "standing")
 
 WARMUP = 5
+#: a configuration whose run gives fewer timed solves than this (the 2.5 Hz baseline: 20 in 10 s)
+#: flies its scenario again, and the times of all runs are pooled: the p95 of 20 samples is their
+#: second largest, and it moved 18-22 ms between identical quiet runs
+MIN_TIMED_SOLVES = 100
+MAX_RUNS = 10
 BUDGET_S = 0.04  # the real-time budget a solve is checked against (PlannerConfig.max_solve_time_s)
 GOAL_P95_MS = 5.0
 GOAL_SPEEDUP = 10.0
@@ -65,11 +72,27 @@ def scenario(name: str, duration_s: float):
 
 
 def _stats(v: list[float]) -> dict:
-    a = np.asarray(v, dtype=float)[WARMUP:]
+    a = np.asarray(v, dtype=float)
     return {"median": float(np.median(a)), "p95": float(np.percentile(a, 95)), "max": float(np.max(a))}
 
 
 def run(name: str, cfg: pc.PlannerConfig, scen: str, duration_s: float) -> dict:
+    """One configuration on one scenario, flown until MIN_TIMED_SOLVES steady solves are timed
+    (at most MAX_RUNS runs; every run is the same closed loop, so the figures other than times are
+    the first run's)."""
+    r = run_once(name, cfg, scen, duration_s)
+    runs, wall, cpu = 1, list(r.pop("_wall")), list(r.pop("_cpu"))
+    while len(wall) < MIN_TIMED_SOLVES and runs < MAX_RUNS:
+        again = run_once(name, cfg, scen, duration_s)
+        wall += again["_wall"]
+        cpu += again["_cpu"]
+        runs += 1
+    r.update(runs=runs, timed_solves=len(wall), wall_ms=_stats(wall), cpu_ms=_stats(cpu),
+             over_budget=int(np.sum(np.asarray(wall) > BUDGET_S * 1e3)))
+    return r
+
+
+def run_once(name: str, cfg: pc.PlannerConfig, scen: str, duration_s: float) -> dict:
     scene, ins = scenario(scen, duration_s)
     t = time.perf_counter()
     planner = Planner(cfg)
@@ -89,14 +112,12 @@ def run(name: str, cfg: pc.PlannerConfig, scen: str, duration_s: float) -> dict:
     err = np.asarray(log.image_error)
     t_s = np.asarray(log.t_s)
     st = cfg.structure
-    steady_wall = np.asarray(wall)[WARMUP:]
     return {
         "name": name, "scenario": scen, "solver": st.solver, "qp_solver": st.qp_solver if st.solver != "ipopt" else "",
         "N": st.horizon_steps, "dt_s": st.dt_s, "rate_hz": cfg.rate_hz, "expand": st.expand,
         "warm_start": st.warm_start, "codegen": st.codegen, "build_s": build_s, "solves": len(wall),
-        "first_solve_ms": float(wall[0]), "wall_ms": _stats(wall), "cpu_ms": _stats(cpu),
+        "first_solve_ms": float(wall[0]), "_wall": wall[WARMUP:], "_cpu": cpu[WARMUP:],
         "iterations_median": float(np.median(iters[WARMUP:])), "iterations_max": int(np.max(iters[WARMUP:])),
-        "over_budget": int(np.sum(steady_wall > BUDGET_S * 1e3)),
         "failures": int(planner.counters["failures"]), "holds": int(sum(m == "hold" for m in log.mode)),
         "tracking_cost": log.tracking_cost(),
         "image_error_median_after_3s": float(np.median(err[t_s >= 3.0])),
@@ -140,7 +161,8 @@ def _line(r: dict) -> str:
             f"{c['median']:6.2f} {c['p95']:6.2f} {c['max']:6.2f} ms | it {r['iterations_median']:3.0f}/"
             f"{r['iterations_max']:3d} | cost {r['tracking_cost']:.4f} "
             f"err>3s med {r['image_error_median_after_3s']:.4f}"
-            f" max {r['image_error_max_after_3s']:.4f} | over {r['over_budget']} fail {r['failures']}")
+            f" max {r['image_error_max_after_3s']:.4f} | over {r['over_budget']} fail {r['failures']}"
+            f" | {r['timed_solves']} timed in {r['runs']} run(s)")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -78,24 +78,43 @@ def _mapping(v: Any, where: str) -> dict[str, Any]:
     return dict(v)
 
 
-def parse_with_settings(parser: argparse.ArgumentParser, argv: list[str], node: str,
-                        fields: dict[str, str]) -> argparse.Namespace:
-    """For a node whose settings are its flags: the section's values become the flags' defaults.
+def parse_with_settings(parser: argparse.ArgumentParser, argv: list[str] | None, node: str,
+                        fields: dict[str, str] | None = None) -> argparse.Namespace:
+    """Parse `argv` with the node's settings (`--config`/`--section`) as the flags' defaults.
 
-    `fields` maps a settings key to the flag's dest; values are converted by the flag's own type,
-    so a bad one is a ConfigError naming the key. Flags given on the command line win."""
-    args = parser.parse_args(argv)
-    section = args_section(args, node)
-    unknown = sorted(set(section) - set(fields))
-    if unknown:
-        raise ConfigError(f"{node} config: unknown field(s) {unknown}; allowed: {sorted(fields)}")
-    actions = {a.dest: a for a in parser._actions}
+    For nodes whose configuration is their flags. `fields` maps a settings key to the flag's dest;
+    without it every flag is a setting, named like its flag (`system_id` or `system-id` for
+    `--system-id`). A value is converted and checked as the flag would be; a flag given on the
+    command line wins. The parser must have `add_config_arguments`. Raises ConfigError naming
+    the field for an unknown setting or a bad value."""
+    pre = argparse.ArgumentParser(add_help=False)
+    add_config_arguments(pre, node)
+    known, _ = pre.parse_known_args(argv)
+    actions = {a.dest: a for a in parser._actions if a.dest not in ("help", "config", "section")}
+    if fields is None:
+        fields = {dest: dest for dest in actions}
     defaults = {}
-    for key, value in section.items():
-        conv = actions[fields[key]].type or str
-        try:
-            defaults[fields[key]] = conv(value) if isinstance(conv, type) else conv(str(value))
-        except (TypeError, ValueError, argparse.ArgumentTypeError):
-            raise ConfigError(f"{node} config: {key} = {value!r} is invalid") from None
+    for key, value in load_section(known.config, known.section or node).items():
+        action = actions.get(fields.get(str(key).replace("-", "_"), ""))
+        if action is None:
+            raise ConfigError(f"{node} config: unknown field {key!r}; allowed: {sorted(fields)}")
+        defaults[action.dest] = _flag_value(node, key, action, value)
+        action.required = False
     parser.set_defaults(**defaults)
     return parser.parse_args(argv)
+
+
+def _flag_value(node: str, key: str, action: argparse.Action, value: Any) -> Any:
+    where = f"{node}.{key}"
+    if action.nargs == 0:  # store_true / store_false
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: must be true or false, got {value!r}")
+        return value
+    text = ",".join(str(v) for v in value) if isinstance(value, list) else str(value)
+    try:
+        out = action.type(text) if action.type is not None else text
+    except (ValueError, TypeError, argparse.ArgumentTypeError) as e:
+        raise ConfigError(f"{where}: {value!r} is not valid ({e})") from None
+    if action.choices is not None and out not in action.choices:
+        raise ConfigError(f"{where}: must be one of {list(action.choices)}, got {value!r}")
+    return out

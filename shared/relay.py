@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import argparse
 
-from cinetransfer.shared import codec
+from cinetransfer.shared import codec, nodeconfig
+from cinetransfer.shared.errors import ConfigError, report_config_error
 from cinetransfer.shared.node import add_node_arguments, node_from_args
 
 
@@ -19,7 +20,11 @@ def main(argv: list[str]) -> int:
     p.add_argument("--name", default="relay", help="node name (default %(default)s)")
     p.add_argument("--queue", type=int, default=64, help="input queue length (drop-oldest)")
     add_node_arguments(p)
-    args = p.parse_args(argv)
+    nodeconfig.add_config_arguments(p, "relay")
+    try:
+        args = nodeconfig.parse_with_settings(p, argv, "relay")
+    except ConfigError as e:
+        return report_config_error(e, "cinetransfer relay")
     try:
         node = node_from_args(args.name, args, config=vars(args))
     except ValueError as e:

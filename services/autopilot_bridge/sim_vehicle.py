@@ -45,6 +45,7 @@ from cinetransfer.services.autopilot_bridge import enu_ned as F
 from cinetransfer.services.autopilot_bridge.mavlink import connect, mavlink
 from cinetransfer.shared.dynamics import DynamicsLimits
 from cinetransfer.services.autopilot_bridge.vehicle_model import SimDynamicsAdapter
+from cinetransfer.shared import nodeconfig
 from cinetransfer.shared.errors import ConfigError, report_config_error
 from cinetransfer.shared.vehicle import VehicleProfile, add_vehicle_argument, load_vehicle
 
@@ -425,17 +426,18 @@ def main(argv: list[str]) -> int:
                     help="PX4: leave OFFBOARD when no setpoint for this long [s] (default %(default)s)")
     add_vehicle_argument(ap)
     ap.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=getattr(logging, args.log_level),
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    for name in ("rate", "telemetry_rate", "offboard_timeout"):
-        v = getattr(args, name)
-        if not (math.isfinite(v) and v > 0):
-            ap.error(f"--{name.replace('_', '-')} must be > 0")
+    nodeconfig.add_config_arguments(ap, "sim-vehicle")
     try:
+        args = nodeconfig.parse_with_settings(ap, argv, "sim-vehicle")
+        for name in ("rate", "telemetry_rate", "offboard_timeout"):
+            v = getattr(args, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"sim-vehicle.{name} (--{name.replace('_', '-')}): must be > 0, got {v}")
         vehicle = load_vehicle(args.vehicle)
     except ConfigError as e:
         return report_config_error(e, "cinetransfer sim-vehicle")
+    logging.basicConfig(level=getattr(logging, args.log_level),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: object) -> None:

@@ -21,7 +21,8 @@ def deploy_config(tmp_path, command, settings, name=None):
 
 def run_node(*argv):
     # the node must refuse before it connects anywhere: a port nothing listens on, and a short timeout
-    return subprocess.run([sys.executable, "-m", "cinetransfer", *argv, "--connect", "tcp/127.0.0.1:9"],
+    bus = [] if argv[0] == "sim-vehicle" else ["--connect", "tcp/127.0.0.1:9"]
+    return subprocess.run([sys.executable, "-m", "cinetransfer", *argv, *bus],
                           capture_output=True, text=True, timeout=120)
 
 
@@ -35,12 +36,19 @@ def run_node(*argv):
     ("source", {"window": 0}, "window"),
     ("camera", {"video": "clip.mp4", "jpeg_quality": 300}, "jpeg_quality"),
     ("camera", {"vidoe": "clip.mp4"}, "vidoe"),
+    ("sim-vehicle", {"autopilot": "betaflight"}, "autopilot"),
+    ("sim-vehicle", {"rate": -5}, "rate"),
+    ("sim-vehicle", {"start": [0, 0]}, "start"),
+    ("relay", {"from": "ct/a/**", "to": "ct/b/x", "queue": "many"}, "queue"),
+    ("relay", {"form": "ct/a/**"}, "form"),
     ("camera", {"video": "clip.mp4", "focus_distance_m": "near"}, "focus_distance_m"),
 ])
 def test_a_broken_node_setting_is_refused_on_stderr_with_exit_2_naming_the_field(tmp_path, command, settings, field):
     path = deploy_config(tmp_path, command, settings)
     cfg = load_config(str(path))  # the supervisor passes the file and the node's name
     argv = list(cfg.nodes[0].argv)
+    if command == "sim-vehicle":  # not a bus node (MAVLink only): run alone with the same two flags
+        argv = argv[:5]
     assert argv[1:5] == ["--config", str(path.resolve()), "--section", command]
     r = run_node(*argv)
     assert r.returncode == 2, r.stdout + r.stderr
@@ -80,6 +88,25 @@ def test_camera_settings_then_flags(tmp_path):
     assert (cfg.kind, cfg.source, cfg.width, cfg.loop) == ("url", "rtsp://10.0.0.2/cam", 640, True)  # flags win
     with pytest.raises(ConfigError, match="one source"):
         cn.config_from_args(parse([]), {})
+
+
+def test_flag_only_nodes_take_their_flags_from_the_settings(tmp_path):
+    import argparse
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--from", dest="src", required=True)
+    ap.add_argument("--rate", type=float, default=100.0)
+    ap.add_argument("--fast", action="store_true")
+    ap.add_argument("--mode", choices=("a", "b"), default="a")
+    nodeconfig.add_config_arguments(ap, "n")
+    path = deploy_config(tmp_path, "n", {"src": "ct/x/**", "rate": 50, "fast": True, "mode": "b"})
+    args = nodeconfig.parse_with_settings(ap, ["--config", str(path), "--rate", "25"], "n")
+    # a required flag satisfied by the file; the flag given wins; a switch and a choice from the file
+    assert (args.src, args.rate, args.fast, args.mode) == ("ct/x/**", 25.0, True, "b")
+    for bad, field in (({"fast": "yes"}, "fast"), ({"mode": "c"}, "mode"), ({"rate": "quick"}, "rate")):
+        path = deploy_config(tmp_path, "n", {"src": "ct/x/**", **bad})
+        with pytest.raises(ConfigError, match=field):
+            nodeconfig.parse_with_settings(ap, ["--config", str(path)], "n")
 
 
 def test_a_node_missing_from_the_deploy_config_is_an_error(tmp_path):
