@@ -167,6 +167,20 @@ def _image_side_note(summary: dict[str, Any]) -> str:
             + _e(". ".join(parts)) + ".</div>")
 
 
+def _joint_counts_note(summary: dict[str, Any]) -> str:
+    """Which joint-frames the error leaves out, with counts (fidelity.joint_frame_counts)."""
+    parts = []
+    for measure, heading in _MEASURES:
+        js = (summary.get(measure) or {}).get("joints") or {}
+        if "joint_frames_compared" in js:
+            parts.append(f"{heading[0].upper() + heading[1:]}: {js['joint_frames_compared']} joint-frames compared; left out "
+                         f"{js['joint_frames_without_target']} where the source has no target (the joint out of "
+                         f"the source's frame, or unseen longer than the smoother bridges) and "
+                         f"{js['joint_frames_target_unseen']} where the output does not show a joint the source "
+                         "controls")
+    return "<p class='small'>" + _e("; ".join(parts)) + ".</p>" if parts else ""
+
+
 def _joint_table(summary: dict[str, Any]) -> str:
     names = summary.get("joint_names", [])
     goals = _goal_index(summary)
@@ -362,7 +376,8 @@ and ≥ {F.TRUTH_FOCUS_AGREEMENT_MIN:.0%}.</span>
 <h2>Controlled-joint error (normalised image units)</h2>
 <div class="card">{_joint_table(summary)}
 <p class="small">Controlled joints: {_e(joints)}. Error = |output − source target| per axis and Euclidean,
-over frames where both sides see the joint; std is the population standard deviation.</p></div>
+over frames where both sides see the joint; std is the population standard deviation.</p>
+{_joint_counts_note(summary)}</div>
 <h2>Focus-label agreement per region</h2>
 <div class="card">{_focus_table(summary)}
 <p class="small">Agreement = fraction of frames whose in-focus boolean equals the source's, over frames where
