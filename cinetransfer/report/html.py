@@ -173,7 +173,8 @@ def _joint_counts_note(summary: dict[str, Any]) -> str:
     for measure, heading in _MEASURES:
         js = (summary.get(measure) or {}).get("joints") or {}
         if "joint_frames_compared" in js:
-            parts.append(f"{heading[0].upper() + heading[1:]}: {js['joint_frames_compared']} joint-frames compared; left out "
+            head = heading[0].upper() + heading[1:]
+            parts.append(f"{head}: {js['joint_frames_compared']} joint-frames compared; left out "
                          f"{js['joint_frames_without_target']} where the source has no target (the joint out of "
                          f"the source's frame, or unseen longer than the smoother bridges) and "
                          f"{js['joint_frames_target_unseen']} where the output does not show a joint the source "
