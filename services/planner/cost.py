@@ -111,6 +111,27 @@ def inverse_dof_limits(focal_mm, fnumber, focus_m, coc_mm):  # noqa: ANN001, ANN
     return 1.0 / focus_m + spread, 1.0 / focus_m - spread
 
 
+def scale_dof_limits(inv_near, inv_far, ratio_near, ratio_far):  # noqa: ANN001, ANN201
+    """(1/D_n, 1/D_f) of the same lens for circles of confusion `ratio` times larger.
+
+    In inverse depth the limits sit symmetrically about 1/s at 1/s +- spread, and the spread is
+    proportional to the circle of confusion (inverse_dof_limits), so scaling it is exact.
+    """
+    centre = 0.5 * (inv_near + inv_far)
+    spread = 0.5 * (inv_near - inv_far)
+    return centre + ratio_near * spread, centre - ratio_far * spread
+
+
+def defocus_ratios(b_fg: bool, b_subject: bool, b_bg: bool, ratio: float) -> tuple[float, float]:
+    """(near, far) circle-of-confusion ratios of a stage: `ratio` on a limit that keeps the subject
+    out of focus (D_n* = d + mu with only the background in focus; D_f* = d - mu with only the
+    foreground, or nothing, in focus), so that its blur is one a viewer sees; 1 elsewhere (a limit
+    that keeps a region in focus, or the subject sharp, uses the sharpness criterion itself)."""
+    near = ratio if (b_bg and not b_subject and not b_fg) else 1.0
+    far = ratio if not (b_subject or b_bg) else 1.0
+    return near, far
+
+
 def dof_cost(inv_near, inv_far, distance_m, *, w_near, g_near, w_far, g_far, far_one_sided):  # noqa: ANN001, ANN201
     """(d (1/D_n - g_n))^2 w_n + (d r_f)^2 w_f with r_f = 1/D_f - g_f, or max(0, that) if one-sided.
 
