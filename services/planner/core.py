@@ -30,7 +30,7 @@ import numpy as np
 
 from cinetransfer.services.planner import constraints as C
 from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
-from cinetransfer.services.planner.cost import defocus_ratios, reciprocal_targets
+from cinetransfer.services.planner.cost import defocus_ratios, reciprocal_targets, subject_softness
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
 from cinetransfer.services.planner.solver import N_DOF, MpcSolver, SolveResult, StageData
 from cinetransfer.shared import camera as cam
@@ -347,6 +347,7 @@ class Planner:
         n, dt = len(rows), st.dt_s
         mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
         focus = np.asarray(ins.focus_in, dtype=bool)
+        b_smooth = np.asarray(ins.focus_smoothed, dtype=float).reshape(-1, 3)
         dof = np.zeros((n, N_DOF))
         dof[:, 5:] = 1.0  # circle-of-confusion ratios (cost.defocus_ratios)
         dref = np.zeros(n)
@@ -365,8 +366,9 @@ class Planner:
                                                    depth, mu, defocus_when_none=st.defocus_when_none)
                 dof[k, :5] = reciprocal_targets(near, far, near_foreground_m=st.near_foreground_m,
                                                 far_margin_inv_m=st.far_margin_inv_m)
+                soft = subject_softness(float(b_smooth[r, 1]), float(ins.theta)) if b_smooth.shape[0] > r else 1.0
                 dof[k, 5:] = defocus_ratios(bool(focus[r, 0]), bool(focus[r, 1]), bool(focus[r, 2]),
-                                            st.defocus_coc_mm / st.coc_mm)
+                                            st.defocus_coc_mm / st.coc_mm, soft)
         return dof, dref
 
     def _rows(self, now_ns: int, ins: M.Instructions, n: int, dt: float) -> tuple[list[int], int]:

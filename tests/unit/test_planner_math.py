@@ -186,6 +186,16 @@ def test_defocus_ratios(focus, expected):
     assert J.defocus_ratios(*focus, 4.0) == expected
 
 
+def test_defocus_ratio_follows_how_soft_the_source_subject_is():
+    # given theta 0.5: B = 0.44 is 0.06 / 0.5 = 0.12 below it, B = 0 all of it, B = 0.6 above it
+    assert J.subject_softness(0.44, 0.5) == pytest.approx(0.12)
+    assert J.subject_softness(0.0, 0.5) == 1.0 and J.subject_softness(0.6, 0.5) == 0.0
+    assert J.subject_softness(float("nan"), 0.5) == 1.0  # no subject in the source: plainly soft
+    # then nothing in focus asks the far limit for a 1 + 3 x 0.12 = 1.36 x circle, or the full 4 x
+    assert J.defocus_ratios(False, False, False, 4.0, 0.12) == pytest.approx((1.0, 1.36))
+    assert J.defocus_ratios(False, False, False, 4.0, 1.0) == (1.0, 4.0)
+
+
 # ----------------------------------------------------------------------------- model
 @pytest.mark.parametrize("roll", [False, True])
 def test_model_step_is_exact_for_constant_inputs(roll):
