@@ -30,9 +30,9 @@ import numpy as np
 
 from cinetransfer.services.planner import constraints as C
 from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
-from cinetransfer.services.planner.cost import defocus_ratios, reciprocal_targets, subject_softness
+from cinetransfer.services.planner.cost import reciprocal_targets
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
-from cinetransfer.services.planner.solver import N_DOF, MpcSolver, SolveResult, StageData
+from cinetransfer.services.planner.solver import MpcSolver, SolveResult, StageData
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.facing import by_image_side
@@ -341,15 +341,13 @@ class Planner:
 
     def _dof_targets(self, now_ns: int, ins: M.Instructions, rows: list[int], x0: np.ndarray,
                      subj: PredictedSubject) -> tuple[np.ndarray, np.ndarray]:
-        """Depth-of-field targets (n, N_DOF) of the stages and the subject distance along the planned
+        """Depth-of-field targets (n, 5) of the stages and the subject distance along the planned
         camera (n,), from the predicted subject depth (the plan's state, or x0 with no plan)."""
         st, lay = self.cfg.structure, self.layout
         n, dt = len(rows), st.dt_s
         mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
         focus = np.asarray(ins.focus_in, dtype=bool)
-        b_smooth = np.asarray(ins.focus_smoothed, dtype=float).reshape(-1, 3)
-        dof = np.zeros((n, N_DOF))
-        dof[:, 5:] = 1.0  # circle-of-confusion ratios (cost.defocus_ratios)
+        dof = np.zeros((n, 5))
         dref = np.zeros(n)
         for k, r in enumerate(rows):
             t = (k + 1) * dt
@@ -364,11 +362,8 @@ class Planner:
             if focus.shape[0] > r and focus.shape[1] == 3:
                 near, far = cam.desired_dof_limits(bool(focus[r, 0]), bool(focus[r, 1]), bool(focus[r, 2]),
                                                    depth, mu, defocus_when_none=st.defocus_when_none)
-                dof[k, :5] = reciprocal_targets(near, far, near_foreground_m=st.near_foreground_m,
-                                                far_margin_inv_m=st.far_margin_inv_m)
-                soft = subject_softness(float(b_smooth[r, 1]), float(ins.theta)) if b_smooth.shape[0] > r else 1.0
-                dof[k, 5:] = defocus_ratios(bool(focus[r, 0]), bool(focus[r, 1]), bool(focus[r, 2]),
-                                            st.defocus_coc_mm / st.coc_mm, soft)
+                dof[k] = reciprocal_targets(near, far, near_foreground_m=st.near_foreground_m,
+                                            far_margin_inv_m=st.far_margin_inv_m)
         return dof, dref
 
     def _rows(self, now_ns: int, ins: M.Instructions, n: int, dt: float) -> tuple[list[int], int]:

@@ -111,41 +111,6 @@ def inverse_dof_limits(focal_mm, fnumber, focus_m, coc_mm):  # noqa: ANN001, ANN
     return 1.0 / focus_m + spread, 1.0 / focus_m - spread
 
 
-def scale_dof_limits(inv_near, inv_far, ratio_near, ratio_far):  # noqa: ANN001, ANN201
-    """(1/D_n, 1/D_f) of the same lens for circles of confusion `ratio` times larger.
-
-    In inverse depth the limits sit symmetrically about 1/s at 1/s +- spread, and the spread is
-    proportional to the circle of confusion (inverse_dof_limits), so scaling it is exact.
-    """
-    centre = 0.5 * (inv_near + inv_far)
-    spread = 0.5 * (inv_near - inv_far)
-    return centre + ratio_near * spread, centre - ratio_far * spread
-
-
-def defocus_ratios(b_fg: bool, b_subject: bool, b_bg: bool, ratio: float,
-                   softness: float = 1.0) -> tuple[float, float]:
-    """(near, far) circle-of-confusion ratios of a stage: up to `ratio` on a limit that keeps the
-    subject out of focus (D_n* = d + mu with only the background in focus; D_f* = d - mu with only
-    the foreground, or nothing, in focus), so that its blur is one a viewer sees; 1 elsewhere (a
-    limit that keeps a region in focus, or the subject sharp, uses the sharpness criterion itself).
-
-    `softness` in [0, 1] says how clearly the source's subject is out of focus (0: at the label's
-    threshold, 1: no sharp pixel): the ratio is 1 + (ratio - 1) softness, so a borderline label
-    does not swing the lens as far as a plainly blurred subject."""
-    r = 1.0 + (ratio - 1.0) * min(max(softness, 0.0), 1.0)
-    near = r if (b_bg and not b_subject and not b_fg) else 1.0
-    far = r if not (b_subject or b_bg) else 1.0
-    return near, far
-
-
-def subject_softness(b_subject: float, theta: float) -> float:
-    """How far the source's smoothed subject focus B lies below the threshold theta, as a fraction
-    of theta (0 at or above it, 1 at B = 0); an absent subject (NaN) counts as plainly soft."""
-    if not math.isfinite(b_subject):
-        return 1.0
-    return min(max((theta - b_subject) / theta, 0.0), 1.0) if theta > 0 else 0.0
-
-
 def dof_cost(inv_near, inv_far, distance_m, *, w_near, g_near, w_far, g_far, far_one_sided):  # noqa: ANN001, ANN201
     """(d (1/D_n - g_n))^2 w_n + (d r_f)^2 w_f with r_f = 1/D_f - g_f, or max(0, that) if one-sided.
 

@@ -161,41 +161,6 @@ def test_reciprocal_targets(focus, d, mu, expected):
     assert got == pytest.approx(expected)
 
 
-def test_scaled_dof_limits_equal_the_limits_of_the_larger_circle():
-    # given f = 50 mm, f/4, focus 5 m: H - f = 50^2 / (4 x 0.05) mm = 12.5 m, spread = 4.95 / (5 x 12.5)
-    inv_n, inv_f = (float(v) for v in J.inverse_dof_limits(50.0, 4.0, 5.0, 0.05))
-    assert (inv_n, inv_f) == pytest.approx((0.2 + 0.0792, 0.2 - 0.0792))
-    # when the circle is 4 x larger (0.2 mm), the spread is 4 x 0.0792 = 0.3168 about 1/s = 0.2
-    got = J.scale_dof_limits(inv_n, inv_f, 4.0, 4.0)
-    assert got == pytest.approx((0.5168, -0.1168))
-    assert got == pytest.approx(tuple(float(v) for v in J.inverse_dof_limits(50.0, 4.0, 5.0, 0.2)))
-    # and a ratio of 1 leaves a limit as it is, each side on its own
-    assert J.scale_dof_limits(inv_n, inv_f, 1.0, 4.0) == pytest.approx((0.2792, -0.1168))
-
-
-@pytest.mark.parametrize("focus, expected", [
-    # (fg, subject, bg) -> (near ratio, far ratio): the ratio only where a limit keeps the subject out
-    ((False, False, False), (1.0, 4.0)),  # nothing in focus: D_f* = d - mu
-    ((True, False, False), (1.0, 4.0)),  # foreground only: D_n* = 0 (in), D_f* = d - mu (subject out)
-    ((False, False, True), (4.0, 1.0)),  # background only: D_n* = d + mu (subject out), D_f* = inf (in)
-    ((False, True, False), (1.0, 1.0)),  # subject in: its sharpness first, as before
-    ((True, True, True), (1.0, 1.0)),
-    ((True, False, True), (1.0, 1.0)),  # fg and bg in: D_n* = 0, D_f* = inf, the subject is not controlled
-])
-def test_defocus_ratios(focus, expected):
-    assert J.defocus_ratios(*focus, 4.0) == expected
-
-
-def test_defocus_ratio_follows_how_soft_the_source_subject_is():
-    # given theta 0.5: B = 0.44 is 0.06 / 0.5 = 0.12 below it, B = 0 all of it, B = 0.6 above it
-    assert J.subject_softness(0.44, 0.5) == pytest.approx(0.12)
-    assert J.subject_softness(0.0, 0.5) == 1.0 and J.subject_softness(0.6, 0.5) == 0.0
-    assert J.subject_softness(float("nan"), 0.5) == 1.0  # no subject in the source: plainly soft
-    # then nothing in focus asks the far limit for a 1 + 3 x 0.12 = 1.36 x circle, or the full 4 x
-    assert J.defocus_ratios(False, False, False, 4.0, 0.12) == pytest.approx((1.0, 1.36))
-    assert J.defocus_ratios(False, False, False, 4.0, 1.0) == (1.0, 4.0)
-
-
 # ----------------------------------------------------------------------------- model
 @pytest.mark.parametrize("roll", [False, True])
 def test_model_step_is_exact_for_constant_inputs(roll):
