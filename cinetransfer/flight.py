@@ -137,7 +137,7 @@ def _schedule_takes(style: M.Instructions, rec: Recorder, cond: Conductor, takes
     for tk in takes:
         at = epoch + int(round(tk["settle_start_index"] / fps * 1e9))
         cond.to_planner("start", start_frame=int(style.first_frame) + tk["first_row"],
-                        preroll_s=tk["settle_frames"] / fps, at_ns=at)
+                        end_frame=int(style.first_frame) + tk["end_row"], preroll_s=tk["settle_frames"] / fps, at_ns=at)
     last_at = epoch + int(round(takes[-1]["settle_start_index"] / fps * 1e9))
 
     def acknowledged() -> bool:

@@ -233,6 +233,17 @@ def by_image_side(ref: Track, est: Track, joint_names: Sequence[str]) -> tuple[T
     return replace(est, xy=xy, ok=ok), swapped
 
 
+def joint_frame_counts(ref: Track, est: Track) -> dict[str, int]:
+    """What the joint error leaves out, in joint-frames (the same rule for every clip): where the
+    source's subject is framed (some joint has a target) but this joint has none (out of the
+    source's frame, or unseen for longer than the smoother bridges), and where the source has a
+    target but the compared side does not see the joint (out of the output's frame)."""
+    framed = ref.ok.any(axis=1)[:, None] & est.available[:, None]
+    return {"joint_frames_compared": int((ref.ok & est.ok).sum()),
+            "joint_frames_without_target": int((framed & ~ref.ok).sum()),
+            "joint_frames_target_unseen": int((ref.ok & est.available[:, None] & ~est.ok).sum())}
+
+
 def compare_joints(ref: Track, est: Track, joint_names: Sequence[str]) -> tuple[dict[str, Any], np.ndarray]:
     """Joint error of `est` against `ref` (same timeline), left/right by image side:
     (summary, per-frame mean Euclidean error)."""
@@ -252,7 +263,7 @@ def compare_joints(ref: Track, est: Track, joint_names: Sequence[str]) -> tuple[
     summary = {"per_joint": per_joint, "overall": overall, "frames_compared": n_frames,
                "frames_by_image_side": int((swapped & both.any(axis=1)).sum()),
                "frames_reference_seen": int(ref.ok.any(axis=1).sum()),
-               "frames_compared_seen": int(est.ok.any(axis=1).sum())}
+               "frames_compared_seen": int(est.ok.any(axis=1).sum()), **joint_frame_counts(ref, est)}
     return summary, _frame_mean(eu, both)
 
 

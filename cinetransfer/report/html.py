@@ -167,6 +167,21 @@ def _image_side_note(summary: dict[str, Any]) -> str:
             + _e(". ".join(parts)) + ".</div>")
 
 
+def _joint_counts_note(summary: dict[str, Any]) -> str:
+    """Which joint-frames the error leaves out, with counts (fidelity.joint_frame_counts)."""
+    parts = []
+    for measure, heading in _MEASURES:
+        js = (summary.get(measure) or {}).get("joints") or {}
+        if "joint_frames_compared" in js:
+            head = heading[0].upper() + heading[1:]
+            parts.append(f"{head}: {js['joint_frames_compared']} joint-frames compared; left out "
+                         f"{js['joint_frames_without_target']} where the source has no target (the joint out of "
+                         f"the source's frame, or unseen longer than the smoother bridges) and "
+                         f"{js['joint_frames_target_unseen']} where the output does not show a joint the source "
+                         "controls")
+    return "<p class='small'>" + _e(". ".join(parts)) + ".</p>" if parts else ""
+
+
 def _joint_table(summary: dict[str, Any]) -> str:
     names = summary.get("joint_names", [])
     goals = _goal_index(summary)
@@ -189,6 +204,14 @@ def _joint_table(summary: dict[str, Any]) -> str:
                        "<th>euclidean mean ± std</th><th>max</th><th>joint-frames</th></tr>", rows_of)
 
 
+def _frames_present(fo: dict) -> str:
+    """Frames compared, and the frames left out because the region exists on one side only."""
+    n = fo.get("n_frames", 0)
+    src_only = fo.get("present_reference", n) - n
+    out_only = fo.get("present_compared", n) - n
+    return f"{n} <span class='small'>(left out: {src_only} source only, {out_only} output only)</span>"
+
+
 def _focus_table(summary: dict[str, Any]) -> str:
     goals = _goal_index(summary)
 
@@ -200,7 +223,7 @@ def _focus_table(summary: dict[str, Any]) -> str:
             fe = (fo.get("fraction_error") or {}).get("mean")
             rows.append(f"<tr><td class='l'>{_e(region)}</td>"
                         f"<td class='{_status_cls(st)}'>{_pct(fo.get('agreement'))}</td>"
-                        f"<td>{fo.get('n_frames', 0)}</td>"
+                        f"<td>{_frames_present(fo)}</td>"
                         f"<td>{fo.get('in_focus_reference', 0)} / {fo.get('in_focus_compared', 0)}</td>"
                         f"<td>{_pct(fo.get('presence_agreement'))}</td><td>{_num(fe)}</td></tr>")
         return rows
@@ -362,11 +385,13 @@ and ≥ {F.TRUTH_FOCUS_AGREEMENT_MIN:.0%}.</span>
 <h2>Controlled-joint error (normalised image units)</h2>
 <div class="card">{_joint_table(summary)}
 <p class="small">Controlled joints: {_e(joints)}. Error = |output − source target| per axis and Euclidean,
-over frames where both sides see the joint; std is the population standard deviation.</p></div>
+over frames where both sides see the joint; std is the population standard deviation.</p>
+{_joint_counts_note(summary)}</div>
 <h2>Focus-label agreement per region</h2>
 <div class="card">{_focus_table(summary)}
 <p class="small">Agreement = fraction of frames whose in-focus boolean equals the source's, over frames where
-the region is present on both sides. Presence agreement = fraction of frames where both sides agree the region
+the region is present on both sides (the frames where it exists on one side only are left out and counted in
+brackets). Presence agreement = fraction of frames where both sides agree the region
 exists. |b| error = mean absolute difference of the fraction of focused pixels.</p></div>
 <h2>Side by side</h2>
 <div class="card">{_video(video, summary.get("video"), video_error, embed)}</div>

@@ -6,7 +6,9 @@
 
 Recording timing: instruction frame k follows the time elapsed since the recording started,
 k = start_frame + floor(elapsed * fps). Commands (Command.action):
-- 'start' (args: start_frame=int, optional): elapsed := 0, recording;
+- 'start' (args: start_frame=int, optional; end_frame=int, optional: the take ends before this
+  frame, so the horizon never looks past it into the next shot, which is its own take): elapsed
+  := 0, recording;
 - 'pause': the instruction time stops (the camera keeps framing the current frame);
 - 'resume': the instruction time goes on;
 - 'hold': hover in place (like pause, but the vehicle holds instead of framing);
@@ -90,6 +92,7 @@ class Planner:
         self._elapsed_s = 0.0  # recording time accumulated before the current run
         self._run_from_ns: int | None = None  # when the current (unpaused) run began
         self.start_frame = 0
+        self.end_frame: int | None = None  #: the take's frames end before this one (None: the sequence's end)
         self._plan: Plan | None = None
         self._last_good_ns: int | None = None
         self._hold_pose: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
@@ -149,11 +152,14 @@ class Planner:
         if a == "start":
             sf = cmd.args.get("start_frame", 0)
             pre = cmd.args.get("preroll_s", 0.0)
+            ef = cmd.args.get("end_frame")
             if isinstance(sf, bool) or not isinstance(sf, int) or sf < 0:
+                return self._bad_command()
+            if ef is not None and (isinstance(ef, bool) or not isinstance(ef, int) or ef <= sf):
                 return self._bad_command()
             if isinstance(pre, bool) or not isinstance(pre, (int, float)) or not 0 <= pre <= 600:
                 return self._bad_command()
-            self.start_frame = sf
+            self.start_frame, self.end_frame = sf, ef
             self._elapsed_s = 0.0
             # the instruction clock starts after the pre-roll; until then the planner frames the
             # start frame (with the horizon already looking into the first frames)
@@ -377,6 +383,10 @@ class Planner:
             # stages still in the pre-roll frame the start frame too, never the rows before it (a
             # later take's settle would otherwise fly the previous shot's framing backwards)
             f = max(frame_at(t + k * dt), self.start_frame) if moving else frame
+            if moving and self.end_frame is not None:
+                # nor past the take's last frame: the next shot is filmed as its own take after a
+                # settle, so anticipating it would only spoil this take's last frames
+                f = min(f, self.end_frame - 1)
             rows.append(int(np.clip(f - ins.first_frame, 0, k_rows - 1)))
         self.counters["finished"] = bool(ins.final and frame - ins.first_frame >= k_rows)
         return rows, frame

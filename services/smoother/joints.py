@@ -8,6 +8,10 @@ Step 3: per joint and axis, min sum_f lam (P_f - P_{f-1})^2 + q_f (P_f - p_f)^2 
 the image: the banded, box-constrained QP of `qp.smooth`, all 17 x 2 coordinates in one solve.
 A joint that is missing (NaN) or below `min_joint_confidence` has weight 0 in that frame and is
 bridged by the smoothness term. Frames where the subject is not visible cut the chain.
+
+A joint the detector places outside the image (the hips below the bottom edge of a medium shot)
+is not a dropout but out of frame: it has weight 0 and no target in that frame (NaN), so that
+the instructions never ask for a joint the source does not show, pulled to the image edge.
 """
 from __future__ import annotations
 
@@ -94,17 +98,27 @@ def frames_from_observation(ok: np.ndarray) -> np.ndarray:
     return np.minimum(idx - last, nxt - idx)
 
 
+def outside_image(joints: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(F, J) the joint's position is known and lies outside the image [0, W] x [0, H] (px)."""
+    x, y = joints[..., 0], joints[..., 1]
+    with np.errstate(invalid="ignore"):
+        out = (x < 0.0) | (x > width) | (y < 0.0) | (y > height)
+    return out & np.isfinite(x) & np.isfinite(y)
+
+
 def smooth_joints(joints: np.ndarray, conf: np.ndarray, visible: np.ndarray, *, lam: float, width: int,
                   height: int, min_confidence: float = 0.1, lam2: float = 0.0,
                   max_gap: int | None = None, cuts: np.ndarray | None = None) -> np.ndarray:
     """Smoothed joints (F, J, 2) px; NaN where the subject is not visible, and (with `max_gap`)
     where a joint is more than `max_gap` frames from any frame it was observed in — a joint
     that is out of the picture for a whole shot (hips in a close-up) is not controlled there,
-    rather than bridged by a straight line or extrapolated."""
+    rather than bridged by a straight line or extrapolated. A joint placed outside the image is
+    NaN in that frame whatever its confidence (module docstring)."""
     F, J, _ = joints.shape
     if F == 0:
         return joints.copy()
-    ok = np.all(np.isfinite(joints), axis=2) & (conf >= min_confidence) & (conf > 0) & visible[:, None]
+    outside = outside_image(joints, width, height)
+    ok = np.all(np.isfinite(joints), axis=2) & (conf >= min_confidence) & (conf > 0) & visible[:, None] & ~outside
     w = np.where(ok, conf, 0.0)  # (F, J)
     y = joints.reshape(F, J * 2)
     ww = np.repeat(w, 2, axis=1)
@@ -115,6 +129,7 @@ def smooth_joints(joints: np.ndarray, conf: np.ndarray, visible: np.ndarray, *, 
     res = qp.smooth(y, ww, lam, lo=0.0, hi=hi, link=link, lam2=lam2)
     out = res.x.reshape(F, J, 2)
     out[~visible] = np.nan
+    out[outside] = np.nan
     if max_gap is not None:
         # Distances are counted within a shot: an observation in the next shot bridges nothing.
         from cinetransfer.services.smoother.shots import segments

@@ -194,6 +194,22 @@ def test_a_later_takes_settle_frames_its_first_frame_not_the_shot_before(planner
     assert late == [40, 42, 44]
 
 
+def test_a_takes_horizon_stops_at_its_last_frame(planner):
+    # given a take of rows 40-49 (the next shot, from row 50, is another take), no pre-roll
+    ins = instructions_from_arrays(targets=np.full((100, 1, 2), 0.5), joint_names=["nose"], fps=24.0)
+    assert planner.command(M.Command(action="start", args={"start_frame": 40, "end_frame": 50}), T0)
+    # when the planner looks 0.1 / 0.2 / 0.3 / 0.4 s ahead from 0.2 s into the take (frame 44)
+    rows, frame = planner._rows(T0 + S // 5, ins, 4, 0.1)
+    # then the stages follow 40 + floor(24 x (0.2 + 0.1 k)) = 47, 49, then stay on the take's last
+    # frame 49 instead of looking into the next shot (52, 54)
+    assert frame == 44 and rows == [47, 49, 49, 49]
+    # and without an end the horizon runs on into the next shot, as a single take does
+    assert planner.command(M.Command(action="start", args={"start_frame": 40}), T0)
+    assert planner._rows(T0 + S // 5, ins, 4, 0.1)[0] == [47, 49, 52, 54]
+    # and an end at or before the start is refused and counted
+    assert not planner.command(M.Command(action="start", args={"start_frame": 40, "end_frame": 40}), T0)
+
+
 def test_same_ticks_give_the_same_setpoints_whatever_came_before(planner_cfg, instructions):
     # given two planners with different histories before a scheduled start (one has been solving)
     def run(history_steps: int) -> list[np.ndarray]:

@@ -155,6 +155,12 @@ def test_only_frames_seen_on_both_sides_count():
     assert ex["per_joint"]["left_shoulder"]["euclidean"]["n"] == K - 8 - 4
     assert ex["per_joint"]["right_hip"]["euclidean"]["n"] == K - 8
     assert ex["frames_compared"] == K - 8
+    # and the joint-frames left out are counted by cause (4 joints): the source's 4 NaN targets,
+    # the output's 8 invisible frames x 4 joints; the rest compared
+    assert len(src.joint_names) == 4
+    assert ex["joint_frames_without_target"] == 4
+    assert ex["joint_frames_target_unseen"] == 32
+    assert ex["joint_frames_compared"] == 4 * K - 4 - 32
 
 
 def test_truth_visibility_and_frame_offset():

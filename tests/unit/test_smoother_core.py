@@ -277,6 +277,26 @@ def test_joint_unseen_for_longer_than_max_bridge_is_not_controlled():
     assert np.isfinite(smooth_joints(joints, conf, np.ones(F, bool), lam=1.0, width=640, height=360)).all()
 
 
+def test_joint_outside_the_image_is_not_controlled_in_that_frame():
+    # given a hip seen at y = 300 px (of 360) in frames 0-3 and 8-9, placed below the frame
+    # (y = 380 px, any confidence) in frames 4-5, and a low-confidence dropout inside the frame in 6-7
+    from cinetransfer.services.smoother.joints import outside_image, smooth_joints
+
+    F = 10
+    joints = np.full((F, 1, 2), [320.0, 300.0])
+    conf = np.full((F, 1), 0.9)
+    joints[4:6, 0, 1] = 380.0
+    conf[4] = 0.0
+    conf[6:8] = 0.0
+    assert outside_image(joints, 640, 360)[:, 0].tolist() == [False] * 4 + [True] * 2 + [False] * 4
+    out = smooth_joints(joints, conf, np.ones(F, bool), lam=1.0, width=640, height=360, max_gap=12)
+    # then it has no target where it is out of frame (not one pulled to the bottom edge, 360 px),
+    # the dropout inside the frame is bridged, and every target equals the constant observation
+    assert np.isnan(out[4:6, 0]).all()
+    assert np.isfinite(out[[0, 1, 2, 3, 6, 7, 8, 9], 0]).all()
+    np.testing.assert_allclose(out[[0, 3, 6, 9], 0], [[320.0, 300.0]] * 4, atol=1e-6)
+
+
 @pytest.mark.parametrize("scores,expect", [
     ([np.nan, .05, .06, .9, .05, .07], [3]),                  # a hard cut
     ([np.nan, .07, .06, .37, .08, .07, .06], [3]),            # a cut between similar palettes
