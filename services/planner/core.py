@@ -32,7 +32,7 @@ from cinetransfer.services.planner import constraints as C
 from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
 from cinetransfer.services.planner.cost import reciprocal_targets
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
-from cinetransfer.services.planner.solver import MpcSolver, SolveResult, StageData
+from cinetransfer.services.planner.solver import N_DOF, MpcSolver, SolveResult, StageData
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.facing import by_image_side
@@ -341,13 +341,15 @@ class Planner:
 
     def _dof_targets(self, now_ns: int, ins: M.Instructions, rows: list[int], x0: np.ndarray,
                      subj: PredictedSubject) -> tuple[np.ndarray, np.ndarray]:
-        """Depth-of-field targets (n, 5) of the stages and the subject distance along the planned
+        """Depth-of-field targets (n, N_DOF) of the stages and the subject distance along the planned
         camera (n,), from the predicted subject depth (the plan's state, or x0 with no plan)."""
         st, lay = self.cfg.structure, self.layout
         n, dt = len(rows), st.dt_s
         mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
         focus = np.asarray(ins.focus_in, dtype=bool)
-        dof = np.zeros((n, 5))
+        raw = np.asarray(ins.focus_raw, dtype=float) if ins.focus_raw is not None else np.zeros((0, 3))
+        absent = ~np.isfinite(raw) if raw.shape == focus.shape else np.zeros(focus.shape, dtype=bool)
+        dof = np.zeros((n, N_DOF))
         dref = np.zeros(n)
         for k, r in enumerate(rows):
             t = (k + 1) * dt
@@ -363,7 +365,8 @@ class Planner:
                 near, far = cam.desired_dof_limits(bool(focus[r, 0]), bool(focus[r, 1]), bool(focus[r, 2]),
                                                    depth, mu, defocus_when_none=st.defocus_when_none)
                 dof[k] = reciprocal_targets(near, far, near_foreground_m=st.near_foreground_m,
-                                            far_margin_inv_m=st.far_margin_inv_m)
+                                            far_margin_inv_m=st.far_margin_inv_m, fg_absent=bool(absent[r, 0]),
+                                            bg_absent=bool(absent[r, 2]))
         return dof, dref
 
     def _rows(self, now_ns: int, ins: M.Instructions, n: int, dt: float) -> tuple[list[int], int]:

@@ -111,16 +111,17 @@ def inverse_dof_limits(focal_mm, fnumber, focus_m, coc_mm):  # noqa: ANN001, ANN
     return 1.0 / focus_m + spread, 1.0 / focus_m - spread
 
 
-def dof_cost(inv_near, inv_far, distance_m, *, w_near, g_near, w_far, g_far, far_one_sided):  # noqa: ANN001, ANN201
-    """(d (1/D_n - g_n))^2 w_n + (d r_f)^2 w_f with r_f = 1/D_f - g_f, or max(0, that) if one-sided.
+def dof_cost(inv_near, inv_far, distance_m, *, w_near, g_near, w_far, g_far, far_one_sided,  # noqa: ANN001, ANN201
+             near_one_sided=0):
+    """(d r_n)^2 w_n + (d r_f)^2 w_f with r_n = 1/D_n - g_n, or min(0, that) if one-sided, and
+    r_f = 1/D_f - g_f, or max(0, that) if one-sided.
 
     g_* are the reciprocal targets 1/D*; w_* = 0 leaves a limit uncontrolled; far_one_sided in
-    {0, 1} selects 'far limit at or beyond the target' (used for D_f* = infinity with g_f < 0).
+    {0, 1} selects 'far limit at or beyond the target' (used for D_f* = infinity with g_f < 0);
+    near_one_sided 'near limit at or nearer than the target' (no foreground to keep blurred).
     """
-    e_n = distance_m * (inv_near - g_near)
-    r_f = inv_far - g_far
-    r_f = far_one_sided * ca.fmax(r_f, 0) + (1 - far_one_sided) * r_f
-    e_f = distance_m * r_f
+    e_n, e_f = dof_residuals(inv_near, inv_far, distance_m, g_near=g_near, g_far=g_far, far_one_sided=far_one_sided,
+                             near_one_sided=near_one_sided)
     return w_near * e_n * e_n + w_far * e_f * e_f
 
 
@@ -130,31 +131,38 @@ def look_cost(point_c):  # noqa: ANN001, ANN201
     return 1.0 - point_c[0] / n
 
 
-def reciprocal_targets(near_m: float, far_m: float, *, near_foreground_m: float,
-                       far_margin_inv_m: float) -> tuple[float, float, float, float, float]:
+def reciprocal_targets(near_m: float, far_m: float, *, near_foreground_m: float, far_margin_inv_m: float,
+                       fg_absent: bool = False, bg_absent: bool = False
+                       ) -> tuple[float, float, float, float, float, float]:
     """Map desired limits (D_n*, D_f*) from shared.camera.desired_dof_limits to cost parameters.
 
-    Returns (w_near_mask, g_near, w_far_mask, g_far, far_one_sided):
+    Returns (w_near_mask, g_near, w_far_mask, g_far, far_one_sided, near_one_sided):
     - D_n* = +inf: near uncontrolled (mask 0); D_n* = 0 (foreground in focus) is unreachable and
-      aims at near_foreground_m instead; otherwise g_n = 1 / D_n* (D_n* clamped to >= 0.1 m);
+      aims at near_foreground_m instead; otherwise g_n = 1 / D_n* (D_n* clamped to >= 0.1 m),
+      one-sided when the source shows no foreground (`fg_absent`): nothing in front of the
+      subject is to be kept out of focus, so a nearer limit costs nothing (else a foreground that
+      comes and goes pulled the focus between the 1 m target and the subject's, and the pull
+      crossed the hyperfocal distance);
     - D_f* = -inf: far uncontrolled; D_f* = +inf: one-sided 1/D_f <= -far_margin_inv_m;
-      otherwise g_f = 1 / D_f* (clamped to >= 0.1 m).
+      otherwise g_f = 1 / D_f* (clamped to >= 0.1 m), one-sided when the source shows no
+      background (`bg_absent`), likewise.
     """
     import math
 
+    near_one = 0.0
     if math.isinf(near_m) and near_m > 0:
         wn, gn = 0.0, 0.0
     elif near_m <= 0.0:
         wn, gn = 1.0, 1.0 / near_foreground_m
     else:
-        wn, gn = 1.0, 1.0 / max(near_m, 0.1)
+        wn, gn, near_one = 1.0, 1.0 / max(near_m, 0.1), float(fg_absent)
     if math.isinf(far_m) and far_m < 0:
         wf, gf, one = 0.0, 0.0, 0.0
     elif math.isinf(far_m):
         wf, gf, one = 1.0, -far_margin_inv_m, 1.0
     else:
-        wf, gf, one = 1.0, 1.0 / max(far_m, 0.1), 0.0
-    return wn, gn, wf, gf, one
+        wf, gf, one = 1.0, 1.0 / max(far_m, 0.1), float(bg_absent)
+    return wn, gn, wf, gf, one, near_one
 
 
 # --- residual forms (Gauss-Newton Hessian of the SQP solver; the cost itself is built from the terms above)
@@ -171,8 +179,11 @@ def look_residual(point_c):  # noqa: ANN001, ANN201
     return ca.vertcat(point_c[0] / n - 1.0, point_c[1] / n, point_c[2] / n)
 
 
-def dof_residuals(inv_near, inv_far, distance_m, *, g_near, g_far, far_one_sided):  # noqa: ANN001, ANN201
+def dof_residuals(inv_near, inv_far, distance_m, *, g_near, g_far, far_one_sided,  # noqa: ANN001, ANN201
+                  near_one_sided=0):
     """(e_n, e_f) of dof_cost, which is w_near e_n^2 + w_far e_f^2."""
+    r_n = inv_near - g_near
+    r_n = near_one_sided * ca.fmin(r_n, 0) + (1 - near_one_sided) * r_n
     r_f = inv_far - g_far
     r_f = far_one_sided * ca.fmax(r_f, 0) + (1 - far_one_sided) * r_f
-    return distance_m * (inv_near - g_near), distance_m * r_f
+    return distance_m * r_n, distance_m * r_f

@@ -122,16 +122,22 @@ class LoopLog:
         return float(np.mean(w_image * im + w_dof * np.asarray(self.dof_cost)))
 
 
-def _dof_error(depth: float, near: float, far: float, focus: tuple[bool, bool, bool], mu: float) -> float:
+def _dof_error(depth: float, near: float, far: float, focus: tuple[bool, bool, bool], mu: float,
+               absent: tuple[bool, bool, bool] = (False, False, False)) -> float:
+    """Squared DoF error against the focus booleans; as the planner aims (cost.reciprocal_targets),
+    a near (far) limit that only keeps an absent foreground (background) out of focus counts only
+    when it is too far (near)."""
     dn, df = cam.desired_dof_limits(*focus, depth, mu)
     d = max(depth, 0.5)
     e = 0.0
     if math.isfinite(dn):
-        e += (d * (1.0 / near - 1.0 / max(dn, 1.0))) ** 2
+        r = 1.0 / near - 1.0 / max(dn, 1.0)
+        e += (d * (min(r, 0.0) if absent[0] and dn > 0 else r)) ** 2
     if math.isinf(df) and df > 0:
         e += (d * max(0.0, 1.0 / far if math.isfinite(far) else 0.0)) ** 2
     elif math.isfinite(df):
-        e += (d * ((0.0 if math.isinf(far) else 1.0 / far) - 1.0 / max(df, 0.1))) ** 2
+        r = (0.0 if math.isinf(far) else 1.0 / far) - 1.0 / max(df, 0.1)
+        e += (d * (max(r, 0.0) if absent[2] else r)) ** 2
     return e
 
 
@@ -190,6 +196,9 @@ def run_closed_loop(planner: Planner, sim: SimLike, instructions: M.Instructions
         err = np.linalg.norm(pts[ok] - tgt[ok], axis=1) if ok.any() else np.array([np.nan])
         err = np.where(np.isfinite(err), err, 10.0)  # behind the camera: a large error, not NaN
         focus = tuple(bool(b) for b in instructions.focus_in[max(k, 0)])
+        raw = instructions.focus_raw
+        absent = tuple(bool(not np.isfinite(v)) for v in raw[max(k, 0)]) if raw is not None and len(raw) > k \
+            else (False, False, False)
         log.t_s.append(t)
         log.frame.append(k)
         log.plan_index.append(len(log.setpoints) - 1)
@@ -199,5 +208,5 @@ def run_closed_loop(planner: Planner, sim: SimLike, instructions: M.Instructions
         log.near_m.append(near)
         log.far_m.append(far)
         log.focus_in.append(focus)  # type: ignore[arg-type]
-        log.dof_cost.append(_dof_error(depth, near, far, focus, instructions.mu_m))  # type: ignore[arg-type]
+        log.dof_cost.append(_dof_error(depth, near, far, focus, instructions.mu_m, absent))  # type: ignore[arg-type]
     return log

@@ -47,7 +47,7 @@ from cinetransfer.services.planner.model import Layout, discrete_matrices, input
 
 log = logging.getLogger("cinetransfer.planner")
 
-N_DOF = 5  # per stage: w_near mask, g_near, w_far mask, g_far, far_one_sided
+N_DOF = 6  # per stage: w_near mask, g_near, w_far mask, g_far, far_one_sided, near_one_sided
 OK_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 BUDGET_STATUSES = ("Maximum_Iterations_Exceeded", "Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded")
 
@@ -63,7 +63,7 @@ class StageData:
     subject_velocity: np.ndarray  # (3,) [m/s], joints predicted at constant velocity
     targets: np.ndarray  # (N, E_max, 2) normalised image targets at stages 1..N (0 where unused)
     mask: np.ndarray  # (N, E_max) 1 = controlled joint at that stage, else 0
-    dof: np.ndarray  # (N, 5) see cost.reciprocal_targets
+    dof: np.ndarray  # (N, N_DOF) see cost.reciprocal_targets
     distance_ref: np.ndarray  # (N,) subject distance used to scale the DoF errors [m]
 
 
@@ -283,7 +283,7 @@ class MpcSolver:
         d = par.dof[k * N_DOF:(k + 1) * N_DOF]
         wts = par.wts
         jdof = J.dof_cost(inv_n, inv_f, par.dref[k], w_near=d[0] * wts["dof_near"], g_near=d[1],
-                          w_far=d[2] * wts["dof_far"], g_far=d[3], far_one_sided=d[4])
+                          w_far=d[2] * wts["dof_far"], g_far=d[3], far_one_sided=d[4], near_one_sided=d[5])
         un = u * par.u_scale
         du_n = (u - u_last) * par.u_scale
         vn = (x[lay.V] - par.vel) * par.v_scale  # relative to the subject: follow, don't wander
@@ -298,7 +298,8 @@ class MpcSolver:
                  + wts["soft_constraint"] * (ca.sum1(slack) + ca.sumsqr(slack)))
         terms.cost += dt * stage
         if s.solver != "ipopt":
-            e_n, e_f = J.dof_residuals(inv_n, inv_f, par.dref[k], g_near=d[1], g_far=d[3], far_one_sided=d[4])
+            e_n, e_f = J.dof_residuals(inv_n, inv_f, par.dref[k], g_near=d[1], g_far=d[3], far_one_sided=d[4],
+                                      near_one_sided=d[5])
             terms.resid += [ca.sqrt(0.5 * dt * wts["look"]) * J.look_residual(cc),
                             ca.sqrt(dt * d[0] * wts["dof_near"]) * e_n, ca.sqrt(dt * d[2] * wts["dof_far"]) * e_f]
             self._add_input_residuals(terms, wts, un=un, du_n=du_n, vn=vn, slack=slack,

@@ -147,13 +147,35 @@ def test_dof_cost_is_smooth_across_the_hyperfocal_distance():
     assert float(f1(h * 0.5)) > 0.0
 
 
+def test_absent_regions_make_their_limit_one_sided():
+    # the source shows no foreground (background): the near (far) limit that would keep it out of
+    # focus only has to be no farther (nearer) than the subject's
+    got = J.reciprocal_targets(5.0, 7.0, near_foreground_m=1.0, far_margin_inv_m=0.01, fg_absent=True, bg_absent=True)
+    assert got == pytest.approx((1, 1 / 5.0, 1, 1 / 7.0, 1, 1))
+    got = J.reciprocal_targets(0.0, math.inf, near_foreground_m=1.0, far_margin_inv_m=0.01, fg_absent=True)
+    assert got == pytest.approx((1, 1.0, 1, -0.01, 1, 0))  # a foreground in focus is not absent: unchanged
+
+
+def test_one_sided_near_term_by_hand():
+    # no foreground in the source, subject in focus from 1 m (g_n = 1/m): a near limit at or nearer
+    # than 1 m costs nothing, a near limit farther than that costs (d (1/D_n - g_n))^2
+    near = ca.SX.sym("inv_near")
+    c = ca.Function("c", [near], [J.dof_cost(near, 0.0, 6.0, w_near=1.0, g_near=1.0, w_far=0.0, g_far=0.0,
+                                             far_one_sided=0, near_one_sided=1)])
+    assert float(c(1.0 / 0.8)) == 0.0  # near limit at 0.8 m: in focus from 0.8 m on, 1 m included
+    assert float(c(1.0 / 2.0)) == pytest.approx((6.0 * (0.5 - 1.0)) ** 2)  # at 2 m: 9.0
+    two = ca.Function("c", [near], [J.dof_cost(near, 0.0, 6.0, w_near=1.0, g_near=1.0, w_far=0.0, g_far=0.0,
+                                               far_one_sided=0)])
+    assert float(two(1.0 / 0.8)) == pytest.approx((6.0 * 0.25) ** 2)  # two-sided: 2.25
+
+
 @pytest.mark.parametrize("focus, d, mu, expected", [
-    # (fg, subject, bg) -> (w_near, g_near, w_far, g_far, one_sided)  [DESIGN §1.2]
-    ((False, True, False), 6.0, 1.0, (1, 1 / 5.0, 1, 1 / 7.0, 0)),  # subject: D_n* = d - mu, D_f* = d + mu
-    ((False, False, True), 6.0, 1.0, (1, 1 / 7.0, 1, -0.01, 1)),  # background: D_n* = d + mu, D_f* = inf
-    ((True, False, False), 6.0, 1.0, (1, 1 / 1.0, 1, 1 / 5.0, 0)),  # foreground: D_n* = 0 -> 1 m, D_f* = d - mu
-    ((False, False, False), 6.0, 1.0, (0, 0, 0, 0, 0)),  # nothing controlled
-    ((True, True, True), 6.0, 1.0, (1, 1.0, 1, -0.01, 1)),  # everything: D_n* = 0, D_f* = inf
+    # (fg, subject, bg) -> (w_near, g_near, w_far, g_far, far_one_sided, near_one_sided)  [DESIGN §1.2]
+    ((False, True, False), 6.0, 1.0, (1, 1 / 5.0, 1, 1 / 7.0, 0, 0)),  # subject: D_n* = d - mu, D_f* = d + mu
+    ((False, False, True), 6.0, 1.0, (1, 1 / 7.0, 1, -0.01, 1, 0)),  # background: D_n* = d + mu, D_f* = inf
+    ((True, False, False), 6.0, 1.0, (1, 1 / 1.0, 1, 1 / 5.0, 0, 0)),  # foreground: D_n* = 0 -> 1 m, D_f* = d - mu
+    ((False, False, False), 6.0, 1.0, (0, 0, 0, 0, 0, 0)),  # nothing controlled
+    ((True, True, True), 6.0, 1.0, (1, 1.0, 1, -0.01, 1, 0)),  # everything: D_n* = 0 -> 1 m, D_f* = inf
 ])
 def test_reciprocal_targets(focus, d, mu, expected):
     near, far = cam.desired_dof_limits(*focus, d, mu)
@@ -257,3 +279,16 @@ def test_soft_constraint_rows_by_hand():
     x[lay.V] = [3.0, 0.0, 4.0]  # 5 m/s: 3 over
     rows = np.asarray(C.soft_constraints(x, np.array([0.5, 0, 0, 3.0]), np.zeros(3), lim)).ravel()
     np.testing.assert_allclose(rows, [0.0, 39.5, 3.0, 0.0], atol=1e-4)  # the slacks make up for it
+
+
+def test_loop_dof_error_treats_absent_regions_like_the_planner():
+    from cinetransfer.services.planner.scenarios import _dof_error
+
+    # subject in focus at 6 m (mu 1): near target 5 m, far target 7 m; the DoF is 2..inf
+    both = _dof_error(6.0, 2.0, math.inf, (False, True, False), 1.0)
+    assert both == pytest.approx((6 * (1 / 2 - 1 / 5)) ** 2 + (6 * (0 - 1 / 7)) ** 2)  # 3.24 + 0.735
+    # without a foreground or background in the source, a deeper DoF keeps nothing visible sharp
+    assert _dof_error(6.0, 2.0, math.inf, (False, True, False), 1.0, (True, False, True)) == 0.0
+    # but a DoF that does not reach the subject still counts
+    assert _dof_error(6.0, 5.5, 6.5, (False, True, False), 1.0, (True, False, True)) == pytest.approx(
+        (6 * (1 / 5.5 - 1 / 5)) ** 2 + (6 * (1 / 6.5 - 1 / 7)) ** 2)
