@@ -365,8 +365,7 @@ class Planner:
                 near, far = cam.desired_dof_limits(bool(focus[r, 0]), bool(focus[r, 1]), bool(focus[r, 2]),
                                                    depth, mu, defocus_when_none=st.defocus_when_none)
                 dof[k] = reciprocal_targets(near, far, near_foreground_m=st.near_foreground_m,
-                                            far_margin_inv_m=st.far_margin_inv_m, fg_absent=bool(absent[r, 0]),
-                                            bg_absent=bool(absent[r, 2]))
+                                            far_margin_inv_m=st.far_margin_inv_m, fg_absent=bool(absent[r, 0]))
         return dof, dref
 
     def _rows(self, now_ns: int, ins: M.Instructions, n: int, dt: float) -> tuple[list[int], int]:

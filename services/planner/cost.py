@@ -132,8 +132,7 @@ def look_cost(point_c):  # noqa: ANN001, ANN201
 
 
 def reciprocal_targets(near_m: float, far_m: float, *, near_foreground_m: float, far_margin_inv_m: float,
-                       fg_absent: bool = False, bg_absent: bool = False
-                       ) -> tuple[float, float, float, float, float, float]:
+                       fg_absent: bool = False) -> tuple[float, float, float, float, float, float]:
     """Map desired limits (D_n*, D_f*) from shared.camera.desired_dof_limits to cost parameters.
 
     Returns (w_near_mask, g_near, w_far_mask, g_far, far_one_sided, near_one_sided):
@@ -144,8 +143,8 @@ def reciprocal_targets(near_m: float, far_m: float, *, near_foreground_m: float,
       comes and goes pulled the focus between the 1 m target and the subject's, and the pull
       crossed the hyperfocal distance);
     - D_f* = -inf: far uncontrolled; D_f* = +inf: one-sided 1/D_f <= -far_margin_inv_m;
-      otherwise g_f = 1 / D_f* (clamped to >= 0.1 m), one-sided when the source shows no
-      background (`bg_absent`), likewise.
+      otherwise g_f = 1 / D_f* (clamped to >= 0.1 m). An absent background stays two-sided: made
+      one-sided likewise, tos_clip01 -> focus_hedge lost subject focus (truth 0.943 -> 0.924).
     """
     import math
 
@@ -161,7 +160,7 @@ def reciprocal_targets(near_m: float, far_m: float, *, near_foreground_m: float,
     elif math.isinf(far_m):
         wf, gf, one = 1.0, -far_margin_inv_m, 1.0
     else:
-        wf, gf, one = 1.0, 1.0 / max(far_m, 0.1), float(bg_absent)
+        wf, gf, one = 1.0, 1.0 / max(far_m, 0.1), 0.0
     return wn, gn, wf, gf, one, near_one
 
 

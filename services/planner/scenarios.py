@@ -125,8 +125,7 @@ class LoopLog:
 def _dof_error(depth: float, near: float, far: float, focus: tuple[bool, bool, bool], mu: float,
                absent: tuple[bool, bool, bool] = (False, False, False)) -> float:
     """Squared DoF error against the focus booleans; as the planner aims (cost.reciprocal_targets),
-    a near (far) limit that only keeps an absent foreground (background) out of focus counts only
-    when it is too far (near)."""
+    a near limit that only keeps an absent foreground out of focus counts only when it is too far."""
     dn, df = cam.desired_dof_limits(*focus, depth, mu)
     d = max(depth, 0.5)
     e = 0.0
@@ -136,8 +135,7 @@ def _dof_error(depth: float, near: float, far: float, focus: tuple[bool, bool, b
     if math.isinf(df) and df > 0:
         e += (d * max(0.0, 1.0 / far if math.isfinite(far) else 0.0)) ** 2
     elif math.isfinite(df):
-        r = (0.0 if math.isinf(far) else 1.0 / far) - 1.0 / max(df, 0.1)
-        e += (d * (max(r, 0.0) if absent[2] else r)) ** 2
+        e += (d * ((0.0 if math.isinf(far) else 1.0 / far) - 1.0 / max(df, 0.1))) ** 2
     return e
 
 

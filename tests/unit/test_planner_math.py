@@ -147,11 +147,11 @@ def test_dof_cost_is_smooth_across_the_hyperfocal_distance():
     assert float(f1(h * 0.5)) > 0.0
 
 
-def test_absent_regions_make_their_limit_one_sided():
-    # the source shows no foreground (background): the near (far) limit that would keep it out of
-    # focus only has to be no farther (nearer) than the subject's
-    got = J.reciprocal_targets(5.0, 7.0, near_foreground_m=1.0, far_margin_inv_m=0.01, fg_absent=True, bg_absent=True)
-    assert got == pytest.approx((1, 1 / 5.0, 1, 1 / 7.0, 1, 1))
+def test_an_absent_foreground_makes_the_near_limit_one_sided():
+    # the source shows no foreground: the near limit that would keep it out of focus only has to be
+    # no farther than the subject's
+    got = J.reciprocal_targets(5.0, 7.0, near_foreground_m=1.0, far_margin_inv_m=0.01, fg_absent=True)
+    assert got == pytest.approx((1, 1 / 5.0, 1, 1 / 7.0, 0, 1))
     got = J.reciprocal_targets(0.0, math.inf, near_foreground_m=1.0, far_margin_inv_m=0.01, fg_absent=True)
     assert got == pytest.approx((1, 1.0, 1, -0.01, 1, 0))  # a foreground in focus is not absent: unchanged
 
@@ -287,8 +287,9 @@ def test_loop_dof_error_treats_absent_regions_like_the_planner():
     # subject in focus at 6 m (mu 1): near target 5 m, far target 7 m; the DoF is 2..inf
     both = _dof_error(6.0, 2.0, math.inf, (False, True, False), 1.0)
     assert both == pytest.approx((6 * (1 / 2 - 1 / 5)) ** 2 + (6 * (0 - 1 / 7)) ** 2)  # 3.24 + 0.735
-    # without a foreground or background in the source, a deeper DoF keeps nothing visible sharp
-    assert _dof_error(6.0, 2.0, math.inf, (False, True, False), 1.0, (True, False, True)) == 0.0
+    # without a foreground in the source, a near limit nearer than the subject's keeps nothing sharp
+    assert _dof_error(6.0, 2.0, math.inf, (False, True, False), 1.0, (True, False, False)) == pytest.approx(
+        (6 * (0 - 1 / 7)) ** 2)
     # but a DoF that does not reach the subject still counts
-    assert _dof_error(6.0, 5.5, 6.5, (False, True, False), 1.0, (True, False, True)) == pytest.approx(
+    assert _dof_error(6.0, 5.5, 6.5, (False, True, False), 1.0, (True, False, False)) == pytest.approx(
         (6 * (1 / 5.5 - 1 / 5)) ** 2 + (6 * (1 / 6.5 - 1 / 7)) ** 2)
