@@ -347,8 +347,7 @@ class Planner:
         n, dt = len(rows), st.dt_s
         mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
         focus = np.asarray(ins.focus_in, dtype=bool)
-        raw = np.asarray(ins.focus_raw, dtype=float) if ins.focus_raw is not None else np.zeros((0, 3))
-        absent = ~np.isfinite(raw) if raw.shape == focus.shape else np.zeros(focus.shape, dtype=bool)
+        absent = absent_regions(ins)
         dof = np.zeros((n, N_DOF))
         dref = np.zeros(n)
         for k, r in enumerate(rows):
@@ -508,6 +507,14 @@ def predict_subject(subject: M.SubjectState, now_ns: int) -> PredictedSubject:
     ci = [names.index(j) for j in CENTRE_JOINTS if j in names and finite[names.index(j)]]
     centre = joints[ci].mean(axis=0) if ci else joints[finite].mean(axis=0)
     return PredictedSubject(names, joints, vel, finite, centre)
+
+
+def absent_regions(ins: M.Instructions) -> np.ndarray:
+    """(K, 3) bool: the region (foreground, subject, background) is absent from the source's frame
+    (its focus fraction is NaN); all False when the instructions carry no fractions."""
+    focus = np.asarray(ins.focus_in, dtype=bool)
+    raw = np.asarray(ins.focus_raw, dtype=float) if ins.focus_raw is not None else np.zeros((0, 3))
+    return ~np.isfinite(raw) if raw.shape == focus.shape else np.zeros(focus.shape, dtype=bool)
 
 
 def stage_targets(image_targets: np.ndarray, rows: list[int] | np.ndarray, ctrl: list[str], jmask: np.ndarray,

@@ -125,8 +125,8 @@ def state_bounds(layout: Layout, bounds: Bounds) -> tuple[np.ndarray, np.ndarray
     lo = np.full(layout.nx, -np.inf)
     hi = np.full(layout.nx, np.inf)
     lo[layout.V], hi[layout.V] = -bounds.speed_max_mps, bounds.speed_max_mps
-    vz = layout.V.start + 2
-    lo[vz], hi[vz] = -min(bounds.climb_max_mps, bounds.speed_max_mps), min(bounds.climb_max_mps, bounds.speed_max_mps)
+    vz, climb = layout.V.start + 2, min(bounds.climb_max_mps, bounds.speed_max_mps)
+    lo[vz], hi[vz] = -climb, climb
     lo[layout.PITCH], hi[layout.PITCH] = bounds.pitch_min_rad, bounds.pitch_max_rad
     if layout.control_roll:
         lo[layout.ROLL], hi[layout.ROLL] = -bounds.roll_max_rad, bounds.roll_max_rad

@@ -15,7 +15,7 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from cinetransfer.services.planner.core import Planner, instructions_from_arrays
+from cinetransfer.services.planner.core import Planner, absent_regions, instructions_from_arrays
 from cinetransfer.services.planner.kinematic_sim import KinematicScene, Subject, Walk
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
@@ -153,6 +153,7 @@ def run_closed_loop(planner: Planner, sim: SimLike, instructions: M.Instructions
     rate = rate_hz or planner.cfg.rate_hz
     period = 1.0 / rate
     names = list(instructions.joint_names)
+    absent_all = absent_regions(instructions)  # (K, 3): regions the source does not show
     fps = instructions.fps
     k_rows = instructions.image_targets.shape[0]
     if truth is None:
@@ -194,9 +195,7 @@ def run_closed_loop(planner: Planner, sim: SimLike, instructions: M.Instructions
         err = np.linalg.norm(pts[ok] - tgt[ok], axis=1) if ok.any() else np.array([np.nan])
         err = np.where(np.isfinite(err), err, 10.0)  # behind the camera: a large error, not NaN
         focus = tuple(bool(b) for b in instructions.focus_in[max(k, 0)])
-        raw = instructions.focus_raw
-        absent = tuple(bool(not np.isfinite(v)) for v in raw[max(k, 0)]) if raw is not None and len(raw) > k \
-            else (False, False, False)
+        absent = tuple(bool(b) for b in absent_all[max(k, 0)])
         log.t_s.append(t)
         log.frame.append(k)
         log.plan_index.append(len(log.setpoints) - 1)

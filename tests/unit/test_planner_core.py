@@ -1,11 +1,12 @@
 """Planner core: commands and timing, input checks, the failure policy (tail, then hold), no NaN."""
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from cinetransfer.services.planner import config as pc
-from cinetransfer.services.planner.core import Planner, instructions_from_arrays
+from cinetransfer.services.planner.core import Planner, absent_regions, instructions_from_arrays
 from cinetransfer.services.planner.kinematic_sim import KinematicSim
 from cinetransfer.services.planner.scenarios import reference_instructions, standing_shot, wrong_start_scene
 from cinetransfer.shared import codec
@@ -250,3 +251,13 @@ def test_instructions_with_no_or_absurd_targets_are_refused_and_held(planner, in
     sp = planner.step(T0, bad, sim.vehicle_state(T0), sim.subject_state(T0))
     assert sp.mode == "hold" and not sp.valid and "refused" in sp.solver_status
     assert_finite(sp)
+
+
+def test_absent_regions_are_the_nan_focus_fractions():
+    ins = instructions_from_arrays(targets=np.zeros((2, 1, 2)), joint_names=["nose"],
+                                   focus_in=[[False, True, True], [True, True, True]])
+    raw = np.array([[np.nan, 0.9, 1.0], [1.0, 0.8, np.nan]], dtype=np.float32)
+    np.testing.assert_array_equal(absent_regions(dataclasses.replace(ins, focus_raw=raw)),
+                                  [[True, False, False], [False, False, True]])
+    # no fractions: nothing is known to be absent
+    np.testing.assert_array_equal(absent_regions(dataclasses.replace(ins, focus_raw=None)), np.zeros((2, 3), bool))
