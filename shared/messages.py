@@ -196,7 +196,8 @@ class Instructions:
                                   doc="fraction of focused pixels b per region (foreground, subject, "
                                       "background), shape (K, 3); NaN = region absent")
     focus_smoothed: np.ndarray = array("float32", (None, 3), allow_nan=True,
-                                       doc="optimised B per region in [0, 1], shape (K, 3)")
+                                       doc="optimised B per region in [0, 1], shape (K, 3); NaN = no label (region "
+                                           "absent, or never measured in its shot)")
     focus_in: np.ndarray = array("bool", (None, 3), doc="region in focus (B > theta), shape (K, 3)")
     theta: float = doc("focus threshold on B", 0.5)
     mu_m: float = doc("depth-of-field margin mu [m] (DESIGN §1.2)", 1.0)

@@ -360,7 +360,8 @@ class Planner:
             depth = float(cam.world_to_camera(subj.centre + subj.vel * t, xk[lay.P], np.array([yaw, pitch, roll]))[0])
             depth = max(depth, 0.5)
             dref[k] = depth
-            if focus.shape[0] > r and focus.shape[1] == 3:
+            # a row with no region labelled (a shot without a focus measurement) leaves the lens free
+            if focus.shape[0] > r and focus.shape[1] == 3 and not absent[r].all():
                 near, far = cam.desired_dof_limits(bool(focus[r, 0]), bool(focus[r, 1]), bool(focus[r, 2]),
                                                    depth, mu, defocus_when_none=st.defocus_when_none)
                 dof[k] = reciprocal_targets(near, far, near_foreground_m=st.near_foreground_m,
@@ -510,11 +511,13 @@ def predict_subject(subject: M.SubjectState, now_ns: int) -> PredictedSubject:
 
 
 def absent_regions(ins: M.Instructions) -> np.ndarray:
-    """(K, 3) bool: the region (foreground, subject, background) is absent from the source's frame
-    (its focus fraction is NaN); all False when the instructions carry no fractions."""
+    """(K, 3) bool: the source has no focus label for the region (foreground, subject, background)
+    in the frame: its smoothed B is NaN, as the fidelity report reads it (the region is absent,
+    or its shot never measured it; a frame where the subject was bridged has labels from its
+    neighbours). All False when the instructions carry no smoothed B."""
     focus = np.asarray(ins.focus_in, dtype=bool)
-    raw = np.asarray(ins.focus_raw, dtype=float) if ins.focus_raw is not None else np.zeros((0, 3))
-    return ~np.isfinite(raw) if raw.shape == focus.shape else np.zeros(focus.shape, dtype=bool)
+    sm = np.asarray(ins.focus_smoothed, dtype=float) if ins.focus_smoothed is not None else np.zeros((0, 3))
+    return ~np.isfinite(sm) if sm.shape == focus.shape else np.zeros(focus.shape, dtype=bool)
 
 
 def stage_targets(image_targets: np.ndarray, rows: list[int] | np.ndarray, ctrl: list[str], jmask: np.ndarray,

@@ -241,13 +241,16 @@ def _focus(frames: list[FrameFeatures], track: _Track, cfg: SmootherConfig, *, f
     """Step 4: b per region, which regions exist, then B smoothed shot by shot."""
     b, present = raw_focus(frames, track.sel.visible, track.mask_idx)
     B = np.full_like(b, np.nan)
+    measured = np.zeros(b.shape, dtype=bool)
     for seg in shots_mod.segments(cuts):  # each shot's focus on its own: a cut may change it at once
         b_seg, _ = focus_mod.soft_shot(b[seg], theta=cfg.theta, floor=cfg.focus_soft_floor)  # soft footage
         B[seg] = focus_mod.smooth_focus(b_seg, method=cfg.focus_method, fps=fps,
                                         switch_prob_24=cfg.focus_switch_prob, sigma=cfg.focus_noise,
                                         lam_24=cfg.focus_smoothness, adaptive=cfg.focus_adaptive_levels)
-    any_focus = np.isfinite(b).any(axis=0)  # (3,) region measured at least once
-    B_out = np.where(present & any_focus[None, :] & np.isfinite(B), B, np.nan)
+        # A region never measured in its shot is unknown there, not "out of focus": the smoother's
+        # prior (B = 0.5) is no evidence (tos_clip01's morph frames asked to defocus everything).
+        measured[seg] = np.isfinite(b[seg]).any(axis=0)
+    B_out = np.where(present & measured & np.isfinite(B), B, np.nan)
     return _Focus(b, present, B, B_out, np.nan_to_num(B_out, nan=0.0) > cfg.theta)
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cinetransfer.services.planner import config as pc
-from cinetransfer.services.planner.core import Planner, absent_regions, instructions_from_arrays
+from cinetransfer.services.planner.core import Planner, absent_regions, instructions_from_arrays, predict_subject
 from cinetransfer.services.planner.kinematic_sim import KinematicSim
 from cinetransfer.services.planner.scenarios import reference_instructions, standing_shot, wrong_start_scene
 from cinetransfer.shared import codec
@@ -253,11 +253,29 @@ def test_instructions_with_no_or_absurd_targets_are_refused_and_held(planner, in
     assert_finite(sp)
 
 
-def test_absent_regions_are_the_nan_focus_fractions():
+def test_absent_regions_are_the_unlabelled_ones():
     ins = instructions_from_arrays(targets=np.zeros((2, 1, 2)), joint_names=["nose"],
                                    focus_in=[[False, True, True], [True, True, True]])
-    raw = np.array([[np.nan, 0.9, 1.0], [1.0, 0.8, np.nan]], dtype=np.float32)
-    np.testing.assert_array_equal(absent_regions(dataclasses.replace(ins, focus_raw=raw)),
+    smoothed = np.array([[np.nan, 0.9, 1.0], [1.0, 0.8, np.nan]], dtype=np.float32)
+    # a frame whose subject was bridged has no measured fraction but labels from its neighbours
+    raw = np.full((2, 3), np.nan, dtype=np.float32)
+    np.testing.assert_array_equal(absent_regions(dataclasses.replace(ins, focus_smoothed=smoothed, focus_raw=raw)),
                                   [[True, False, False], [False, False, True]])
-    # no fractions: nothing is known to be absent
-    np.testing.assert_array_equal(absent_regions(dataclasses.replace(ins, focus_raw=None)), np.zeros((2, 3), bool))
+    # no smoothed B: nothing is known to be absent
+    np.testing.assert_array_equal(absent_regions(dataclasses.replace(ins, focus_smoothed=None)), np.zeros((2, 3), bool))
+
+
+def test_a_row_without_focus_labels_leaves_the_lens_free(planner, instructions):
+    # given a style whose second half has no focus label at all (a shot the focus map could not read)
+    k = instructions.image_targets.shape[0]
+    sm = np.asarray(instructions.focus_smoothed, dtype=np.float32).copy()
+    sm[k // 2:] = np.nan
+    ins = dataclasses.replace(instructions, focus_smoothed=sm,
+                              focus_in=np.where(np.isfinite(sm), instructions.focus_in, False))
+    sim = KinematicSim(wrong_start_scene())
+    x0 = planner._measured_state(T0, sim.vehicle_state(T0))
+    subj = predict_subject(sim.subject_state(T0), T0)
+    dof, _ = planner._dof_targets(T0, ins, [0, k - 1], x0, subj)
+    # then the labelled row has depth-of-field targets and the unlabelled one none (weights 0)
+    assert dof[0, 0] + dof[0, 2] > 0
+    np.testing.assert_array_equal(dof[1], np.zeros(dof.shape[1]))

@@ -387,3 +387,22 @@ def test_soft_floor_one_turns_it_off():
     assert np.isnan(F.soft_shot(b, theta=0.5, floor=1.0)[1])
     with pytest.raises(ConfigError):
         SmootherConfig(focus_soft_floor=0.0).validate()
+
+
+def test_a_shot_without_focus_measurements_has_no_focus_labels():
+    # given two shots: the first with a focus map (subject sharp), the second with none (a flash or
+    # morph the focus map could not read)
+    from dataclasses import replace
+
+    b = np.array([200, 40, 300, 360.0])
+    m = person(b, 0.9)
+    fm = np.zeros((H // 2, W // 2), np.uint8)
+    fm[m.full_mask(W, H)[::2, ::2]] = 255
+    ms = [replace(measurement(i, [m], [skeleton_in(b)], fm if i < 24 else None),
+                  shot_change=0.9 if i == 24 else 0.05) for i in range(48)]
+    res = smooth_measurements(ms)
+    sm = res.instructions.focus_smoothed
+    # then the first shot is labelled (subject in focus) and the second is unknown, not "out of focus"
+    assert res.instructions.shot_start.nonzero()[0].tolist() == [0, 24]
+    assert np.isfinite(sm[:24, 1]).all() and res.instructions.focus_in[:24, 1].all()
+    assert np.isnan(sm[24:]).all() and not res.instructions.focus_in[24:].any()
