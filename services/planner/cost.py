@@ -178,25 +178,11 @@ def look_residual(point_c):  # noqa: ANN001, ANN201
     return ca.vertcat(point_c[0] / n - 1.0, point_c[1] / n, point_c[2] / n)
 
 
-#: how much steeper a limit's residual gets where it leaves a subject that is to be sharp out of
-#: the depth of field: the subject's focus is never traded for another region's (a one-frame
-#: foreground label pulled the focus off the subject for half a second, docs/planner.md)
-SUBJECT_FIRST = 100.0
-
-
 def dof_residuals(inv_near, inv_far, distance_m, *, g_near, g_far, far_one_sided,  # noqa: ANN001, ANN201
                   near_one_sided=0):
-    """(e_n, e_f) of dof_cost, which is w_near e_n^2 + w_far e_f^2.
-
-    The subject is to be sharp exactly when the targets bracket its distance d (g_n > 1/d > g_f,
-    cf. shared.camera.desired_dof_limits); then a near limit beyond d or a far limit before it adds
-    SUBJECT_FIRST times its overshoot past d to the residual."""
-    inv_d = 1.0 / distance_m
-    subject_in = ca.logic_and(g_near > inv_d, g_far < inv_d)
+    """(e_n, e_f) of dof_cost, which is w_near e_n^2 + w_far e_f^2."""
     r_n = inv_near - g_near
     r_n = near_one_sided * ca.fmin(r_n, 0) + (1 - near_one_sided) * r_n
-    r_n = r_n + subject_in * SUBJECT_FIRST * ca.fmin(inv_near - inv_d, 0)
     r_f = inv_far - g_far
     r_f = far_one_sided * ca.fmax(r_f, 0) + (1 - far_one_sided) * r_f
-    r_f = r_f + subject_in * SUBJECT_FIRST * ca.fmax(inv_far - inv_d, 0)
     return distance_m * r_n, distance_m * r_f

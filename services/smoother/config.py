@@ -56,6 +56,7 @@ class SmootherConfig:
     theta: float = 0.5  # region in focus when B > theta, (0, 1)
     # a shot where no region reaches theta is judged relative to its sharpest region (focus.soft_shot)
     focus_soft_floor: float = 0.1  # ... if that region reads at least this, (0, 1]; 1 = off
+    focus_min_run_s: float = 0.1  # a region labelled for a shorter run of frames has no label there [s], >= 0
     foreground_min_rows: float = 0.03  # foreground band (below the feet) exists when >= this fraction of the height
     #: b ignores a border band of each region this wide (fraction of the map width), [0, 0.2]
     focus_region_margin: float = 0.015
@@ -103,6 +104,7 @@ class SmootherConfig:
             ("cut_threshold", 0.0 < self.cut_threshold <= 1.0, "0 < value <= 1 (1 = never cut)"),
             ("cut_ratio", self.cut_ratio >= 1.0, ">= 1"),
             ("focus_soft_floor", 0.0 < self.focus_soft_floor <= 1.0, "0 < value <= 1 (1 = off)"),
+            ("focus_min_run_s", self.focus_min_run_s >= 0.0, ">= 0 (0 = off)"),
             ("focus_switch_prob", 0.0 < self.focus_switch_prob < 0.5, "0 < value < 0.5"),
             ("focus_region_margin", 0.0 <= self.focus_region_margin <= 0.2, "0 <= value <= 0.2"),
             ("foreground_min_rows", 0.0 <= self.foreground_min_rows < 1.0, "0 <= value < 1"),

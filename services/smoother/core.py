@@ -251,6 +251,7 @@ def _focus(frames: list[FrameFeatures], track: _Track, cfg: SmootherConfig, *, f
         # prior (B = 0.5) is no evidence (tos_clip01's morph frames asked to defocus everything).
         measured[seg] = np.isfinite(b[seg]).any(axis=0)
     B_out = np.where(present & measured & np.isfinite(B), B, np.nan)
+    B_out = focus_mod.drop_short_runs(B_out, min_run=math.ceil(cfg.focus_min_run_s * fps - 1e-9))
     return _Focus(b, present, B, B_out, np.nan_to_num(B_out, nan=0.0) > cfg.theta)
 
 

@@ -208,6 +208,24 @@ def soft_shot(b: np.ndarray, *, theta: float, floor: float, quantile: float = 0.
     return np.minimum(1.0, b / level), level
 
 
+def drop_short_runs(B: np.ndarray, *, min_run: int) -> np.ndarray:
+    """B (F, C) with every run of fewer than `min_run` consecutive labelled (finite) frames of a
+    column set to NaN. A region seen for a frame or two — a hand or a passing head at the edge, a
+    detection that flickers — gives no usable label: no lens follows it, and tos_clip01's two
+    one-frame foreground labels inside a shot that otherwise has none pulled the focus off the
+    subject for half a second."""
+    out = np.array(B, dtype=float, copy=True)
+    if min_run <= 1 or out.size == 0:
+        return out
+    for c in range(out.shape[1]):
+        ok = np.concatenate(([False], np.isfinite(out[:, c]), [False]))
+        edges = np.flatnonzero(ok[1:] != ok[:-1])  # starts and ends (exclusive) of the runs
+        for a, b in zip(edges[::2], edges[1::2]):
+            if b - a < min_run:
+                out[a:b, c] = np.nan
+    return out
+
+
 def smooth_focus(b: np.ndarray, *, method: str = "hmm", fps: float = 24.0, switch_prob_24: float = 0.02,
                  sigma: float = 0.25, lam_24: float = 4.0, adaptive: bool = False) -> np.ndarray:
     """B (F, C) from b (F, C) with the chosen method; NaN b (no measurement) bridged where possible."""

@@ -293,17 +293,3 @@ def test_loop_dof_error_treats_absent_regions_like_the_planner():
     # but a DoF that does not reach the subject still counts
     assert _dof_error(6.0, 5.5, 6.5, (False, True, False), 1.0, (True, False, False)) == pytest.approx(
         (6 * (1 / 5.5 - 1 / 5)) ** 2 + (6 * (1 / 6.5 - 1 / 7)) ** 2)
-
-
-def test_a_limit_that_leaves_a_sharp_subject_costs_much_more():
-    # subject in focus at 6 m (mu 1): targets near 5 m (g 1/5), far 7 m (g 1/7); the DoF is 2..5 m,
-    # so its far limit lies 1 m before the subject
-    e_n, e_f = J.dof_residuals(1 / 2, 1 / 5, 6.0, g_near=1 / 5, g_far=1 / 7, far_one_sided=0, near_one_sided=0)
-    assert float(e_n) == pytest.approx(6 * (1 / 2 - 1 / 5))  # the near limit keeps the subject: as before
-    assert float(e_f) == pytest.approx(6 * ((1 / 5 - 1 / 7) + J.SUBJECT_FIRST * (1 / 5 - 1 / 6)))
-    # the same DoF when only the background is wanted (near target 7 m: the subject is to be out)
-    e_n, e_f = J.dof_residuals(1 / 2, 1 / 5, 6.0, g_near=1 / 7, g_far=0.0, far_one_sided=1, near_one_sided=0)
-    assert (float(e_n), float(e_f)) == pytest.approx((6 * (1 / 2 - 1 / 7), 6 * (1 / 5)))
-    # a near limit beyond the subject (DoF 6.5..9 m) when foreground and subject are wanted (near 1 m)
-    e_n, _ = J.dof_residuals(1 / 6.5, 1 / 9, 6.0, g_near=1.0, g_far=1 / 7, far_one_sided=0, near_one_sided=0)
-    assert float(e_n) == pytest.approx(6 * ((1 / 6.5 - 1) + J.SUBJECT_FIRST * (1 / 6.5 - 1 / 6)))

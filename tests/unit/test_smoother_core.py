@@ -406,3 +406,13 @@ def test_a_shot_without_focus_measurements_has_no_focus_labels():
     assert res.instructions.shot_start.nonzero()[0].tolist() == [0, 24]
     assert np.isfinite(sm[:24, 1]).all() and res.instructions.focus_in[:24, 1].all()
     assert np.isnan(sm[24:]).all() and not res.instructions.focus_in[24:].any()
+
+
+def test_a_region_labelled_for_a_frame_or_two_has_no_label():
+    n = np.nan
+    B = np.array([[1.0, n], [n, 0.2], [0.9, 0.3], [0.8, n], [0.7, 0.1]])
+    out = F.drop_short_runs(B, min_run=3)
+    # column 0: a one-frame run, then a three-frame run; column 1: runs of two and one
+    np.testing.assert_array_equal(np.isnan(out), [[1, 1], [1, 1], [0, 1], [0, 1], [0, 1]])
+    np.testing.assert_array_equal(out[2:, 0], [0.9, 0.8, 0.7])
+    assert np.array_equal(F.drop_short_runs(B, min_run=1), B, equal_nan=True)  # off
