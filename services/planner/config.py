@@ -186,6 +186,11 @@ class Structure:
     warm_start: bool = True  # initial guess from the shifted last solution (baseline: False = cold)
     far_margin_inv_m: float = 0.01  # 'far limit at infinity' aims at 1/D_f <= -this [1/m] (s a bit past H)
     near_foreground_m: float = 1.0  # 'foreground in focus' aims at D_n = this [m] (D_n* = 0 is unreachable)
+    # a far limit that keeps the subject out of focus puts it beyond the depth of field of this
+    # circle of confusion [mm]: blur that is seen (the detector's focus estimator reads a defocus
+    # sigma of 1 px at 640 px as the edge, a 0.15 mm disc on this sensor; coc_mm, 0.05, is only the
+    # sharpness limit, and a subject just past it reads sharp: docs/planner.md "Visible defocus")
+    defocus_coc_mm: float = 0.2
     defocus_when_none: bool = True  # no region in focus -> D_f* = d - mu (DESIGN's table: uncontrolled)
     pinhole_half_angle_deg: float = 60.0  # J_im is the exact pinhole error within this angle of the axis,
     #                                       extended monotonically beyond (cost.project_extended), (30, 80)
@@ -228,6 +233,8 @@ class Structure:
             ("tol", 0 < self.tol < 1, "0 < tol < 1"),
             ("far_margin_inv_m", self.far_margin_inv_m >= 0, ">= 0"),
             ("near_foreground_m", self.near_foreground_m > 0, "> 0"),
+            ("defocus_coc_mm", positive(self.defocus_coc_mm) and self.defocus_coc_mm >= self.coc_mm,
+             "a finite value >= coc_mm"),
             ("pinhole_half_angle_deg", 30.0 < self.pinhole_half_angle_deg < 80.0, "30 < value < 80"),
         ]
 

@@ -30,7 +30,8 @@ import numpy as np
 
 from cinetransfer.services.planner import constraints as C
 from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
-from cinetransfer.services.planner.cost import reciprocal_targets
+from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject_out, reciprocal_targets,
+                                                subject_softness, switched_out)
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
 from cinetransfer.services.planner.solver import N_DOF, MpcSolver, SolveResult, StageData
 from cinetransfer.shared import camera as cam
@@ -310,7 +311,8 @@ class Planner:
         rows, frame = self._rows(now_ns, ins, n, dt)
         seen = self._seen_now(x0, jw[:len(ctrl)], jmask[:len(ctrl)])
         targets, mask = stage_targets(np.asarray(ins.image_targets, dtype=float), rows, ctrl, jmask, seen)
-        dof, dref = self._dof_targets(now_ns, ins, rows, x0, subj)
+        now_row = int(np.clip(frame - ins.first_frame, 0, ins.image_targets.shape[0] - 1))
+        dof, dref = self._dof_targets(now_ns, ins, rows, now_row, x0, subj)
         u_prev = self._u_prev
         if self._plan is not None:
             _, u_prev = self._plan.at((now_ns - self._plan.t0_ns) * 1e-9)
@@ -339,16 +341,20 @@ class Planner:
             raise ValueError("non-finite vehicle state")
         return x0
 
-    def _dof_targets(self, now_ns: int, ins: M.Instructions, rows: list[int], x0: np.ndarray,
+    def _dof_targets(self, now_ns: int, ins: M.Instructions, rows: list[int], now_row: int, x0: np.ndarray,
                      subj: PredictedSubject) -> tuple[np.ndarray, np.ndarray]:
         """Depth-of-field targets (n, N_DOF) of the stages and the subject distance along the planned
-        camera (n,), from the predicted subject depth (the plan's state, or x0 with no plan)."""
+        camera (n,), from the predicted subject depth (the plan's state, or x0 with no plan);
+        `now_row` is the instruction row followed now (visible defocus: cost.switched_out)."""
         st, lay = self.cfg.structure, self.layout
         n, dt = len(rows), st.dt_s
         mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
         focus = np.asarray(ins.focus_in, dtype=bool)
         absent = absent_regions(ins)
+        b_subject = smoothed_subject_focus(ins)
+        keeps_out = [far_keeps_subject_out(*row) for row in focus.tolist()] if focus.shape[-1:] == (3,) else []
         dof = np.zeros((n, N_DOF))
+        dof[:, 6] = 1.0  # the far limit's circle-of-confusion ratio (cost.defocus_ratio)
         dref = np.zeros(n)
         for k, r in enumerate(rows):
             t = (k + 1) * dt
@@ -364,8 +370,11 @@ class Planner:
             if focus.shape[0] > r and focus.shape[1] == 3 and not absent[r].all():
                 near, far = cam.desired_dof_limits(bool(focus[r, 0]), bool(focus[r, 1]), bool(focus[r, 2]),
                                                    depth, mu, defocus_when_none=st.defocus_when_none)
-                dof[k] = reciprocal_targets(near, far, near_foreground_m=st.near_foreground_m,
-                                            far_margin_inv_m=st.far_margin_inv_m, fg_absent=bool(absent[r, 0]))
+                dof[k, :6] = reciprocal_targets(near, far, near_foreground_m=st.near_foreground_m,
+                                                far_margin_inv_m=st.far_margin_inv_m, fg_absent=bool(absent[r, 0]))
+                soft = subject_softness(float(b_subject[r]), float(ins.theta)) if len(b_subject) > r else 1.0
+                dof[k, 6] = defocus_ratio(keeps_out[r] and switched_out(keeps_out, now_row, r),
+                                          st.defocus_coc_mm / st.coc_mm, soft)
         return dof, dref
 
     def _rows(self, now_ns: int, ins: M.Instructions, n: int, dt: float) -> tuple[list[int], int]:
@@ -518,6 +527,13 @@ def absent_regions(ins: M.Instructions) -> np.ndarray:
     focus = np.asarray(ins.focus_in, dtype=bool)
     sm = np.asarray(ins.focus_smoothed, dtype=float) if ins.focus_smoothed is not None else np.zeros((0, 3))
     return ~np.isfinite(sm) if sm.shape == focus.shape else np.zeros(focus.shape, dtype=bool)
+
+
+def smoothed_subject_focus(ins: M.Instructions) -> np.ndarray:
+    """(K,) the source's smoothed subject focus B per row; empty when the instructions carry none
+    (visible defocus then takes the subject as plainly soft: cost.subject_softness)."""
+    b = np.asarray(ins.focus_smoothed, dtype=float) if ins.focus_smoothed is not None else np.zeros((0, 3))
+    return b[:, 1] if b.ndim == 2 and b.shape[1] == 3 else np.zeros(0)
 
 
 def stage_targets(image_targets: np.ndarray, rows: list[int] | np.ndarray, ctrl: list[str], jmask: np.ndarray,

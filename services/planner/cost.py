@@ -16,6 +16,7 @@ The errors are scaled by the subject distance d, so d (1/D - 1/D*) is about the 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import casadi as ca
 
@@ -109,6 +110,51 @@ def inverse_dof_limits(focal_mm, fnumber, focus_m, coc_mm):  # noqa: ANN001, ANN
     h_minus_f = focal_mm * focal_mm / (fnumber * coc_mm) / 1000.0
     spread = (focus_m - f_m) / (focus_m * h_minus_f)
     return 1.0 / focus_m + spread, 1.0 / focus_m - spread
+
+
+def far_limit_for_circle(inv_near, inv_far, ratio):  # noqa: ANN001, ANN201
+    """1/D_f of the same lens for a circle of confusion `ratio` times larger.
+
+    In inverse depth the limits sit symmetrically about 1/s at 1/s +- spread, and the spread is
+    proportional to the circle of confusion (inverse_dof_limits), so this is exact.
+    """
+    return 0.5 * (inv_near + inv_far) - ratio * 0.5 * (inv_near - inv_far)
+
+
+def subject_softness(b_subject: float, theta: float) -> float:
+    """How far the source's smoothed subject focus B lies below the threshold theta, as a fraction
+    of theta (0 at or above it, 1 at B = 0); a subject absent from the source (NaN) counts as
+    plainly soft."""
+    if not math.isfinite(b_subject):
+        return 1.0
+    return min(max((theta - b_subject) / theta, 0.0), 1.0) if theta > 0 else 0.0
+
+
+def far_keeps_subject_out(b_fg: bool, b_subject: bool, b_bg: bool) -> bool:
+    """The far limit's target keeps the subject out of focus (D_f* = d - mu: only the foreground,
+    or nothing, in focus; shared.camera.desired_dof_limits)."""
+    return not (b_subject or b_bg)
+
+
+def defocus_ratio(keeps_out: bool, ratio: float, softness: float) -> float:
+    """Circle-of-confusion ratio of a stage's far limit: 1 + (ratio - 1) softness where the limit
+    keeps the subject out, so that its blur is one a viewer (and the detector's focus estimator)
+    sees, and a borderline label (softness near 0, subject_softness) does not swing the lens as far
+    as a plainly blurred subject; 1 elsewhere (a limit that keeps a region in focus uses the
+    sharpness criterion itself)."""
+    return 1.0 + (ratio - 1.0) * min(max(softness, 0.0), 1.0) if keeps_out else 1.0
+
+
+def switched_out(keeps_out: Sequence[bool], now_row: int, row: int) -> bool:
+    """Whether the style has already switched the subject out at the row followed now: every
+    instruction row from `now_row` to a stage's `row` keeps it out (`keeps_out`, per row).
+
+    Visible defocus is asked of such stages only. A switch still ahead is previewed with the
+    sharpness limit alone, whose least-squares plan crosses it on time; previewed with the larger
+    circle, the larger lens move is met half-way before the switch (the subject left the depth of
+    field 0.1-0.25 s early in the closed-loop dolly zoom), so the extra blur follows the switch.
+    """
+    return all(keeps_out[j] for j in range(now_row, row + 1))
 
 
 def dof_cost(inv_near, inv_far, distance_m, *, w_near, g_near, w_far, g_far, far_one_sided,  # noqa: ANN001, ANN201

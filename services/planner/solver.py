@@ -47,7 +47,8 @@ from cinetransfer.services.planner.model import Layout, discrete_matrices, input
 
 log = logging.getLogger("cinetransfer.planner")
 
-N_DOF = 6  # per stage: w_near mask, g_near, w_far mask, g_far, far_one_sided, near_one_sided
+N_DOF = 7  # per stage: w_near mask, g_near, w_far mask, g_far, far_one_sided, near_one_sided,
+#           the far limit's circle-of-confusion ratio (cost.defocus_ratio)
 OK_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 BUDGET_STATUSES = ("Maximum_Iterations_Exceeded", "Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded")
 
@@ -63,7 +64,7 @@ class StageData:
     subject_velocity: np.ndarray  # (3,) [m/s], joints predicted at constant velocity
     targets: np.ndarray  # (N, E_max, 2) normalised image targets at stages 1..N (0 where unused)
     mask: np.ndarray  # (N, E_max) 1 = controlled joint at that stage, else 0
-    dof: np.ndarray  # (N, N_DOF) see cost.reciprocal_targets
+    dof: np.ndarray  # (N, N_DOF) see cost.reciprocal_targets and cost.defocus_ratio
     distance_ref: np.ndarray  # (N,) subject distance used to scale the DoF errors [m]
 
 
@@ -279,8 +280,9 @@ class MpcSolver:
         f_mm = x[lay.F]
         im = self._image_term(terms, k, par, r=r, cam=cam, f_mm=f_mm, tk=tk)
         cc = ca.mtimes(r.T, centre - cam)
-        inv_n, inv_f = J.inverse_dof_limits(f_mm, x[lay.A], x[lay.S], s.coc_mm)
         d = par.dof[k * N_DOF:(k + 1) * N_DOF]
+        inv_n, inv_f = J.inverse_dof_limits(f_mm, x[lay.A], x[lay.S], s.coc_mm)
+        inv_f = J.far_limit_for_circle(inv_n, inv_f, d[6])
         wts = par.wts
         jdof = J.dof_cost(inv_n, inv_f, par.dref[k], w_near=d[0] * wts["dof_near"], g_near=d[1],
                           w_far=d[2] * wts["dof_far"], g_far=d[3], far_one_sided=d[4], near_one_sided=d[5])

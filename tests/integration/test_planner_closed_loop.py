@@ -12,8 +12,9 @@ from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.core import Planner
 from cinetransfer.services.planner.kinematic_sim import KinematicSim, Walk
 from cinetransfer.services.planner.model import input_bounds, state_bounds
-from cinetransfer.services.planner.scenarios import (dolly_zoom_shot, reference_instructions, run_closed_loop,
-                                                     standing_shot, wrong_start_scene)
+from cinetransfer.services.planner.scenarios import (ReferenceShot, dolly_zoom_shot, reference_instructions,
+                                                     run_closed_loop, standing_shot, wrong_start_scene)
+from cinetransfer.shared import camera as cam
 
 CFG = pc.PlannerConfig(max_solve_time_s=0.5)  # generous: the simulated clock waits for the solver here
 TOL = 1e-6
@@ -116,6 +117,37 @@ def test_dolly_zoom_with_a_focus_change(planner_factory):
     assert math.isinf(log.far_m[-1]) and log.depth_m[-1] < log.near_m[-1]
     # (distance and zoom are not both pinned down by four nearly coplanar joints: the planner may
     # frame the shot with less dolly and less zoom, so the lens path itself is not asserted)
+
+
+def test_visible_defocus_follows_the_switch_on_time(planner_factory):
+    # given the dolly zoom with the focus moving from the subject to nothing at 5 s, where the far
+    # limit keeps the subject out with the larger circle (docs/planner.md "Visible defocus")
+    scene = wrong_start_scene([Walk(0.0, 1e9, (0.0, 0.4, 0.0))])
+    dolly = dolly_zoom_shot(10.0)
+    shot = ReferenceShot(offset_m=dolly.offset_m, focal_mm=dolly.focal_mm,
+                         focus=lambda t: (False, True, False) if t < 5.0 else (False, False, False))
+    ins = reference_instructions(scene, shot, duration_s=10.0)
+    planner = planner_factory()
+    sim = KinematicSim(scene)
+    visible_far = []
+
+    def truth(s, names):
+        f_mm, focus_m, fnum = (float(v) for v in s.lens)
+        visible_far.append(cam.dof_limits_m(f_mm, fnum, focus_m, CFG.structure.defocus_coc_mm)[1])
+        near, far = s.dof_limits_m()
+        return s.image_points(names), s.subject_depth_m(), near, far
+    log = run_closed_loop(planner, sim, ins, duration_s=10.0, on_step=BoundsChecker(planner), truth=truth)
+    t, depth = np.asarray(log.t_s), np.asarray(log.depth_m)
+    assert np.max(np.asarray(log.image_error)[t >= 3.0]) < 0.02
+    # then the subject stays in the (0.05 mm) depth of field until the switch as with c alone (which
+    # leaves it at the 4.95 s sample): the larger lens move is not anticipated (previewed with the
+    # larger circle, the subject left at 4.85 s)
+    i_mid = int(np.argmin(np.abs(t - 4.9)))
+    assert log.near_m[i_mid] < depth[i_mid] < log.far_m[i_mid]
+    # and from 0.5 s after the switch it lies beyond the larger circle's depth of field: blur one sees
+    # (measured: 4 c from 5.05 s, 5.5 c from 5.3 s)
+    late = t >= 5.5
+    assert np.all(np.asarray(visible_far)[-len(t):][late] < depth[late])
 
 
 def test_subject_behind_the_camera_turns_round_without_flying_through(planner_factory):

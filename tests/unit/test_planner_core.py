@@ -275,7 +275,7 @@ def test_a_row_without_focus_labels_leaves_the_lens_free(planner, instructions):
     sim = KinematicSim(wrong_start_scene())
     x0 = planner._measured_state(T0, sim.vehicle_state(T0))
     subj = predict_subject(sim.subject_state(T0), T0)
-    dof, _ = planner._dof_targets(T0, ins, [0, k - 1], x0, subj)
+    dof, _ = planner._dof_targets(T0, ins, [0, k - 1], 0, x0, subj)
     # then the labelled row has depth-of-field targets and the unlabelled one none (weights 0)
     assert dof[0, 0] + dof[0, 2] > 0
-    np.testing.assert_array_equal(dof[1], np.zeros(dof.shape[1]))
+    np.testing.assert_array_equal(dof[1, :6], np.zeros(6))

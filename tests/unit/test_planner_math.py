@@ -183,6 +183,54 @@ def test_reciprocal_targets(focus, d, mu, expected):
     assert got == pytest.approx(expected)
 
 
+def test_far_limit_for_a_larger_circle_by_hand():
+    # given f = 50 mm, f/4, focus 5 m: H - f = 50^2 / (4 x 0.05) mm = 12.5 m, spread = 4.95 / (5 x 12.5)
+    inv_n, inv_f = (float(v) for v in J.inverse_dof_limits(50.0, 4.0, 5.0, 0.05))
+    assert (inv_n, inv_f) == pytest.approx((0.2 + 0.0792, 0.2 - 0.0792))
+    # when the circle is 4 x larger (0.2 mm), the spread is 4 x 0.0792 = 0.3168 about 1/s = 0.2:
+    # 1/D_f = -0.1168 (the far limit at infinity), as inverse_dof_limits computes it for 0.2 mm
+    assert float(J.far_limit_for_circle(inv_n, inv_f, 4.0)) == pytest.approx(-0.1168)
+    assert float(J.far_limit_for_circle(inv_n, inv_f, 4.0)) == pytest.approx(
+        float(J.inverse_dof_limits(50.0, 4.0, 5.0, 0.2)[1]))
+    # and a ratio of 1 leaves it as it is
+    assert float(J.far_limit_for_circle(inv_n, inv_f, 1.0)) == pytest.approx(inv_f)
+
+
+def test_defocus_ratio_follows_how_soft_the_source_subject_is():
+    # given theta 0.5: B = 0.44 is 0.06 / 0.5 = 0.12 below it, B = 0 all of it, B = 0.6 above it
+    assert J.subject_softness(0.44, 0.5) == pytest.approx(0.12)
+    assert J.subject_softness(0.0, 0.5) == 1.0 and J.subject_softness(0.6, 0.5) == 0.0
+    assert J.subject_softness(float("nan"), 0.5) == 1.0  # no subject in the source: plainly soft
+    # then a far limit that keeps the subject out asks for a 1 + 3 x 0.12 = 1.36 x circle, or the full 4 x;
+    # any other stage for the circle itself
+    assert J.defocus_ratio(True, 4.0, 0.12) == pytest.approx(1.36)
+    assert J.defocus_ratio(True, 4.0, 1.0) == 4.0 and J.defocus_ratio(False, 4.0, 1.0) == 1.0
+
+
+@pytest.mark.parametrize("focus, expected", [
+    # (fg, subject, bg): the far limit keeps the subject out where D_f* = d - mu
+    ((False, False, False), True),  # nothing in focus (defocus_when_none)
+    ((True, False, False), True),  # foreground only
+    ((False, False, True), False),  # background only: D_f* = inf (the near limit keeps the subject out)
+    ((False, True, False), False),
+    ((True, True, True), False),
+    ((True, False, True), False),  # fg and bg: D_f* = inf, the subject is not controlled
+])
+def test_far_keeps_subject_out(focus, expected):
+    assert J.far_keeps_subject_out(*focus) is expected
+
+
+def test_visible_defocus_only_once_the_switch_is_reached():
+    # given rows 2-4 keep the subject out (rows 0-1 and 5 keep it in)
+    keeps_out = [False, False, True, True, True, False]
+    # at row 1 the switch is still ahead: no stage gets the larger circle, not even rows 2-4
+    assert not J.switched_out(keeps_out, 1, 3)
+    # at row 2 it has happened: rows 2-4 do
+    assert J.switched_out(keeps_out, 2, 2) and J.switched_out(keeps_out, 2, 4)
+    # and a stage past the run (row 5, subject in again) does not
+    assert not J.switched_out(keeps_out, 3, 5)
+
+
 # ----------------------------------------------------------------------------- model
 @pytest.mark.parametrize("roll", [False, True])
 def test_model_step_is_exact_for_constant_inputs(roll):
