@@ -181,7 +181,8 @@ def _select(frames: list[FrameFeatures], cfg: SmootherConfig, *, fps: float, cut
                                          confidence_cost=cfg.confidence_cost, max_bridge_s=cfg.max_bridge_s,
                                          free_move=cfg.free_move * 24.0 / fps, continuity=cfg.continuity,
                                          reentry_cost=cfg.reentry_cost, cuts=cuts)
-        sel = subject_mod.extend_runs(frames, sel, min_iou=cfg.extend_min_iou) if cfg.extend_min_iou < 1 else sel
+        sel = subject_mod.extend_runs(frames, sel, min_iou=cfg.extend_min_iou, cuts=cuts) \
+            if cfg.extend_min_iou < 1 else sel
     if not sel.visible.any():
         raise SmootherInputError(f"no main subject found in {len(frames)} frames")
     return sel

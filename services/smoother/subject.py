@@ -256,19 +256,22 @@ def _iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return inter / np.maximum(ua, 1e-9)
 
 
-def extend_runs(feats: list[FrameFeatures], sel: Selection, *, min_iou: float = 0.5) -> Selection:
+def extend_runs(feats: list[FrameFeatures], sel: Selection, *, min_iou: float = 0.5,
+                cuts: np.ndarray | None = None) -> Selection:
     """Give frames the path left out (fast motion or a shape change made them costlier than a
     miss) the detection that overlaps the neighbouring chosen box by at least `min_iou`, when
     it is the only such detection: forwards, then backwards. Identity is kept: a detection of
     another person rarely overlaps the subject's previous box that much, and never uniquely in
-    a crowd."""
+    a crowd. Never across a cut (`cuts[f]`: frame f starts a shot): there the same place in the
+    image says nothing about who the subject is."""
     person = sel.person.copy()
     F = len(feats)
+    shot = np.cumsum(np.asarray(cuts, dtype=int)) if cuts is not None and len(cuts) == F else np.zeros(F, int)
 
     def grow(order: range, prev_of: int) -> None:
         for f in order:
             p = f + prev_of
-            if person[f] >= 0 or not 0 <= p < F or person[p] < 0 or feats[f].n_people == 0:
+            if person[f] >= 0 or not 0 <= p < F or person[p] < 0 or feats[f].n_people == 0 or shot[p] != shot[f]:
                 continue
             ov = _iou(feats[p].boxes[person[p]], feats[f].boxes)
             ok = np.flatnonzero(ov >= min_iou)

@@ -416,3 +416,20 @@ def test_a_region_labelled_for_a_frame_or_two_has_no_label():
     np.testing.assert_array_equal(np.isnan(out), [[1, 1], [1, 1], [0, 1], [0, 1], [0, 1]])
     np.testing.assert_array_equal(out[2:, 0], [0.9, 0.8, 0.7])
     assert np.array_equal(F.drop_short_runs(B, min_run=1), B, equal_nan=True)  # off
+
+
+def test_a_left_out_frame_is_not_filled_from_across_a_cut():
+    # given a selection that left out the first frame of a new shot, in which a bystander stands where
+    # the subject of the previous shot stood (and the new subject elsewhere)
+    from cinetransfer.services.smoother import subject as S
+
+    old, new = np.array([440, 100, 540, 400.0]), np.array([60, 100, 160, 400.0])
+    ms = [measurement(0, [person(old)], [skeleton_in(old)]),
+          measurement(1, [person(new), person(old + 4)], [skeleton_in(new), skeleton_in(old + 4, person_index=1)]),
+          measurement(2, [person(new)], [skeleton_in(new)])]
+    feats = features_from_measurements(ms, SmootherConfig())
+    sel = S.Selection(np.array([0, -1, 0]), np.array([True, False, True]), np.zeros(3, bool), 0.0)
+    # then without the cut the overlap with frame 0 fills it with the bystander; with the cut only its
+    # own shot's next frame counts, and it gets the new subject
+    assert S.extend_runs(feats, sel).person.tolist() == [0, 1, 0]
+    assert S.extend_runs(feats, sel, cuts=np.array([False, True, False])).person.tolist() == [0, 0, 0]
