@@ -131,6 +131,8 @@ class Weights:
     lens_rate_change: float = 0.2  # ((r_k - r_{k-1}) / r_max)^2 per s
     velocity: float = 0.5  # ((v - v_subject) / v_max)^2 per s: keeps the camera from sliding along
     #                        the dolly/zoom family of equally good framings (and the tracking lag that brings)
+    level: float = 10.0  # roll^2 per s [1/rad^2], with control_roll: the horizon stays level unless a
+    #                      tilted pose is worth it (17 deg of roll costs as much as ~0.035 error per joint)
     soft_constraint: float = 1000.0  # per (metre of violation) per s, plus the same per m^2: floor, ceiling, distance
 
     def validate(self) -> "Weights":

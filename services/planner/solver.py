@@ -297,13 +297,16 @@ class MpcSolver:
                  + wts["camera_rate_change"] * ca.sumsqr(du_n[cam_idx])
                  + wts["lens_rate_change"] * ca.sumsqr(du_n[lens_idx])
                  + wts["velocity"] * ca.sumsqr(vn)
-                 + wts["soft_constraint"] * (ca.sum1(slack) + ca.sumsqr(slack)))
+                 + wts["soft_constraint"] * (ca.sum1(slack) + ca.sumsqr(slack))
+                 + wts["level"] * roll * roll)
         terms.cost += dt * stage
         if s.solver != "ipopt":
             e_n, e_f = J.dof_residuals(inv_n, inv_f, par.dref[k], g_near=d[1], g_far=d[3], far_one_sided=d[4],
                                       near_one_sided=d[5])
             terms.resid += [ca.sqrt(0.5 * dt * wts["look"]) * J.look_residual(cc),
                             ca.sqrt(dt * d[0] * wts["dof_near"]) * e_n, ca.sqrt(dt * d[2] * wts["dof_far"]) * e_f]
+            if lay.control_roll:
+                terms.resid.append(ca.sqrt(dt * wts["level"]) * roll)
             self._add_input_residuals(terms, wts, un=un, du_n=du_n, vn=vn, slack=slack,
                                       majorised=(u * par.u_scale, u_last * par.u_scale) if majorise and k > 0
                                       else None)

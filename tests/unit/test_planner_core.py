@@ -279,3 +279,27 @@ def test_a_row_without_focus_labels_leaves_the_lens_free(planner, instructions):
     # then the labelled row has depth-of-field targets and the unlabelled one none (weights 0)
     assert dof[0, 0] + dof[0, 2] > 0
     np.testing.assert_array_equal(dof[1, :6], np.zeros(6))
+
+
+def _roll_after(level: float, tilt_deg: float) -> float:
+    """|camera roll| [deg] after 3 s of flying a standing shot whose targets are turned by tilt_deg."""
+    from cinetransfer.services.planner.scenarios import run_closed_loop
+
+    cfg = pc.PlannerConfig(max_solve_time_s=0.5, structure=pc.Structure(control_roll=True),
+                           weights=pc.Weights(level=level))
+    base = reference_instructions(wrong_start_scene(), standing_shot(), duration_s=3.0)
+    tg = np.asarray(base.image_targets, dtype=float)
+    c = np.nanmean(tg, axis=1, keepdims=True)
+    a = math.radians(tilt_deg)
+    rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+    tilted = dataclasses.replace(base, image_targets=((tg - c) @ rot.T + c).astype(np.float32))
+    log = run_closed_loop(Planner(cfg), KinematicSim(wrong_start_scene()), tilted, duration_s=3.0)
+    return abs(math.degrees(float(log.setpoints[-1].camera_ypr_rad[2])))
+
+
+def test_roll_follows_a_tilted_style_and_the_level_weight_keeps_the_horizon():
+    # given a style whose subject is turned by 10 degrees in the image, and camera roll controlled
+    free, default, level = _roll_after(0.0, 10.0), _roll_after(pc.Weights().level, 10.0), _roll_after(1e4, 10.0)
+    # then without the level cost the camera rolls to match it; the default weight rolls less, a huge one not at all
+    assert free > 5.0
+    assert level < 0.5 < default < free
