@@ -62,9 +62,42 @@ def _round_list(a: np.ndarray, digits: int = 5) -> list[float | None]:
     return [None if not math.isfinite(float(x)) else round(float(x), digits) for x in np.asarray(a, float)]
 
 
-def recording_facts(meta: dict[str, Any]) -> dict[str, Any]:
+#: camera roll [deg] from which the report says the horizon was tilted (the style does not
+#: measure the source camera's roll, so a rolled output departs from it: docs/planner.md)
+ROLL_NOTE_DEG = 1.0
+
+
+def camera_roll_deg(states: Sequence[M.VehicleState], frame_stamps_ns: Sequence[int]) -> dict[str, float] | None:
+    """|camera roll| [deg] at the recorded frames (each frame: the last vehicle state stamped at
+    or before it): median, 95th percentile and maximum; None when no frame has a state."""
+    st = sorted((int(s.stamp_ns), float(s.camera_ypr_rad[2])) for s in states)
+    stamps = np.array([t for t, _ in st], dtype=np.int64)
+    rolls = np.array([r for _, r in st])
+    idx = np.searchsorted(stamps, np.asarray(frame_stamps_ns, dtype=np.int64), side="right") - 1
+    r = np.degrees(np.abs(rolls[idx[idx >= 0]])) if stamps.size else np.zeros(0)
+    r = r[np.isfinite(r)]
+    if r.size == 0:
+        return None
+    p50, p95 = np.percentile(r, [50, 95])
+    return {"p50": round(float(p50), 2), "p95": round(float(p95), 2), "max": round(float(r.max()), 2)}
+
+
+def recorded_roll(recording: Path | str | None, truths: Sequence[M.GroundTruth]) -> dict[str, float] | None:
+    """camera_roll_deg at the recorded frames (the truths' stamps), from the run's vehicle states."""
+    if not recording or not truths:
+        return None
+    from cinetransfer.shared import codec
+    from cinetransfer.shared.runlog import RunReader
+
+    run = RunReader(recording)
+    states = [codec.decode(p, M.VehicleState) for topic in run.info.channels if topic.endswith("/vehicle/state")
+              for _, _, p in run.messages(topic)]  # by topic: the camera frames are not decoded
+    return camera_roll_deg(states, [t.stamp_ns for t in truths])
+
+
+def recording_facts(meta: dict[str, Any], roll: dict[str, float] | None = None) -> dict[str, Any]:
     """How the output was recorded, including whatever makes its numbers look better than a
-    user's case would (repeated frames, a short take): stated, never hidden."""
+    user's case would (repeated frames, a short take, a rolled camera): stated, never hidden."""
     k = meta.get("instruction_frames")
     rep = int(meta.get("repeated_frames") or 0)
     facts = {"clock": meta.get("clock_mode", "unknown"), "instruction_frames": k,
@@ -77,6 +110,11 @@ def recording_facts(meta: dict[str, Any]) -> dict[str, Any]:
                      "shaded on the time plots")
     if k and (meta.get("recorded_frames") or 0) < k:
         notes.append(f"the take is short: {meta.get('recorded_frames')} of {k} instruction frames recorded")
+    facts["camera_roll_deg"] = roll
+    if roll and roll["max"] >= ROLL_NOTE_DEG:
+        notes.append(f"the camera rolled to match the joints (|roll| median {roll['p50']:.1f} deg, 95th percentile "
+                     f"{roll['p95']:.1f}, max {roll['max']:.1f}): the source's horizon is not measured, so a "
+                     "tilted horizon is not part of its style; the joint errors include what the roll bought")
     facts["notes"] = notes
     return facts
 
@@ -186,7 +224,7 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
                    "output_video_info": vinfo, "source": {"path": source.source.path, "fps": source.fps,
                                                           "frames": int(source.image_targets.shape[0])}},
         "credit": credit,
-        "recording": recording_facts(meta),
+        "recording": recording_facts(meta, recorded_roll(recording, truths) if rec_info else None),
         "shots": per_shot(source, output, list(truths), output_fps, meta.get("takes")),
         "figures": sorted(figures),
         "figure_errors": fig_errors,

@@ -271,3 +271,23 @@ def test_repeated_frames_are_stated_in_the_report(tmp_path):
                       output_video=ov, meta=meta)
     assert s2["recording"]["notes"] == [] and "repeat the previous frame" not in \
         (tmp_path / "rep2" / "report.html").read_text()
+
+
+def test_camera_roll_at_the_recorded_frames_and_the_note_it_gives():
+    from cinetransfer.report.build import camera_roll_deg, recording_facts
+    from cinetransfer.shared import messages as M
+
+    def state(t, roll):
+        return M.VehicleState(stamp_ns=t, camera_ypr_rad=np.array([0.0, 0.0, roll]))
+
+    states = [state(20, -0.2), state(0, 0.0), state(10, 0.1)]  # any order
+    # frames at 5, 10, 15, 25 see the rolls 0, 0.1, 0.1, -0.2 rad; a frame before every state has none
+    roll = camera_roll_deg(states, [5, 10, 15, 25, -1])
+    deg = np.degrees([0.0, 0.1, 0.1, 0.2])
+    assert roll == {"p50": round(float(np.percentile(deg, 50)), 2), "p95": round(float(np.percentile(deg, 95)), 2),
+                    "max": round(float(deg.max()), 2)}
+    assert camera_roll_deg(states, [-5]) is None
+    # a rolled camera is said in the report's notes; a level one is not
+    meta = {"instruction_frames": 4, "recorded_frames": 4}
+    assert any("rolled" in n for n in recording_facts(meta, roll)["notes"])
+    assert recording_facts(meta, {"p50": 0.0, "p95": 0.0, "max": 0.0})["notes"] == []
