@@ -7,8 +7,10 @@ import cv2
 import numpy as np
 import pytest
 
-from cinetransfer.services.autopilot_bridge.sim.backend import SimBackend, load_scene
-from cinetransfer.services.autopilot_bridge.sim.renderer import Plane, Texture, View, draw_plane, label_pass
+from cinetransfer.services.autopilot_bridge.sim.backend import SceneRenderer, SimBackend, load_scene
+from cinetransfer.services.autopilot_bridge.sim.renderer import Plane, Texture, View, draw_plane, label_pass, upsample2
+from cinetransfer.services.detector.config import DetectorConfig
+from cinetransfer.services.detector.focus import FocusEstimator
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import codec
 from cinetransfer.shared import messages as M
@@ -283,3 +285,63 @@ def test_async_rendering_gives_the_same_frames_in_order():
     for f, t in zip(f_async, t_async):
         assert t.frame_index == f.index
         assert np.array_equal(f.image, by_index[f.index].image)
+
+
+def _contrast(row: np.ndarray, cycles_per_px: float) -> float:
+    """Amplitude of the sinusoid of a given frequency in a row of pixels (any phase)."""
+    x = np.arange(len(row))
+    r = row - row.mean()
+    return float(2 * np.hypot((r * np.cos(2 * np.pi * cycles_per_px * x)).mean(),
+                              (r * np.sin(2 * np.pi * cycles_per_px * x)).mean()))
+
+
+@pytest.mark.parametrize("border", [cv2.BORDER_CONSTANT, cv2.BORDER_REFLECT_101, cv2.BORDER_WRAP])
+def test_level_minus_one_holds_the_texels_and_the_lanczos_points_between_them(border):
+    tex = cv2.GaussianBlur(np.random.default_rng(3).integers(0, 255, (40, 60, 4), dtype=np.uint8), (0, 0), 1.0)
+    tex[..., 3] = 255
+    up = upsample2(tex, border)
+    assert up.shape == (79, 119, 4)
+    np.testing.assert_array_equal(up[::2, ::2], tex)
+    # the points between: what OpenCV's own Lanczos-4 resampling gives at texel j / 2 (same border)
+    p = 4
+    padded = cv2.copyMakeBorder(tex, p, p, p, p, border, value=0)
+    ref = cv2.warpAffine(padded, np.array([[2.0, 0.0, 0.0], [0.0, 2.0, 0.0]]), (2 * 68 - 1, 2 * 48 - 1),
+                         flags=cv2.INTER_LANCZOS4, borderMode=border)[2 * p:-2 * p, 2 * p:-2 * p]
+    assert np.abs(up.astype(int) - ref).max() <= 1
+
+
+def test_level_minus_one_of_a_hard_cut_out_keeps_colour_within_alpha():
+    tex = np.zeros((60, 60, 4), np.uint8)
+    cv2.circle(tex, (30, 30), 20, (255, 255, 255, 255), -1)  # hard edge: Lanczos rings on it
+    up = Texture.from_bgra(tex).magnified
+    assert (up[..., :3] <= up[..., 3:]).all()
+
+
+@pytest.mark.parametrize("cycles_per_texel", [0.1, 0.3, 0.4])
+def test_a_magnified_texture_keeps_its_contrast_and_gains_none(cycles_per_texel):
+    # vertical stripes on a plane in focus, one texel = 1.6 px (magnified, as the juggler seen close)
+    x = np.arange(300)
+    stripes = np.clip(128 + 100 * np.cos(2 * np.pi * cycles_per_texel * x), 0, 255).astype(np.uint8)
+    tex = np.repeat(np.repeat(stripes[None, :, None], 200, axis=0), 3, axis=2)
+    canvas = np.zeros((540, 960, 3), np.uint8)
+    info = draw_plane(canvas, view(), facing_plane(tex, 10.0, m_per_px=10.0 / 2020.0 * 1.6))
+    assert info.level == -1 and info.coc_px == 0.0
+    kept = _contrast(canvas[270, 300:660, 1].astype(float), cycles_per_texel / 1.6) / 100
+    # bilinear straight from the texture kept 0.97 / 0.74 / 0.57 (any magnification)
+    assert {0.1: 0.975, 0.3: 0.9, 0.4: 0.72}[cycles_per_texel] < kept < 1.02
+
+
+def test_the_juggler_seen_close_and_in_focus_reads_in_focus_to_the_detector():
+    # the focus_hedge juggler at 7 m through 70 mm: his cut-out magnified ~1.7x (tos_clip01's
+    # second shot); bilinear magnification read 0.45-0.6 of his pixels in focus in that transfer
+    rr = SceneRenderer(load_scene("focus_hedge"))
+    v = View(np.array([-7.0, 0.0, 1.0]), np.array([0.0, math.atan2(0.3, 7.0), 0.0]), 70.0, 7.0, 4.0,
+             960, 540, rr.sensor)
+    img, _ = rr.render(v, 0.0, truth=False)
+    subject = next(d for d in rr.last_draw if d.name == "subject")
+    assert subject.level == -1 and subject.coc_px < 1.0
+    planes, _ = rr.planes(v, 0.0)
+    _, mask = label_pass(v, planes, scale=0.5)
+    res = FocusEstimator(DetectorConfig()).estimate(img, person_mask=mask)
+    m = cv2.resize(mask.astype(np.uint8), res.prob.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+    assert (res.prob[m] >= 0.5).mean() > 0.65  # 0.74 (bilinear: 0.55)

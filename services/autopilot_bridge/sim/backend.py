@@ -92,6 +92,11 @@ class SceneRenderer:
             self._ground_period_m = (tiled.shape[1] * scene.ground.m_per_px, tiled.shape[0] * scene.ground.m_per_px)
         self._clip_tex = {id(f): Texture.from_bgra(f.texture, premultiplied=True)
                           for f in self.subject.clip.frames}
+        # the scenery's magnified levels now (up to ~60 ms each), not in the middle of a real-time
+        # take; the subject's cut-outs are small (a few ms) and make theirs on first use
+        for tex in [*self._layer_tex, self._ground_tex]:
+            if tex is not None:
+                tex.magnified  # noqa: B018 (a cached_property: computed here, once)
         self.last_draw: list[DrawInfo] = []
 
     # -- geometry --------------------------------------------------------------------------
