@@ -19,6 +19,9 @@ def main(argv: list[str]) -> int:
     p.add_argument("--to", dest="dst", required=True, metavar="KEY", help="key to publish on")
     p.add_argument("--name", default="relay", help="node name (default %(default)s)")
     p.add_argument("--queue", type=int, default=64, help="input queue length (drop-oldest)")
+    p.add_argument("--no-drop", action="store_true",
+                   help="block rather than drop when the link is congested (default: the destination key's "
+                        "policy from the dataflow; drop for a key outside it)")
     add_node_arguments(p)
     nodeconfig.add_config_arguments(p, "relay")
     try:
@@ -31,7 +34,7 @@ def main(argv: list[str]) -> int:
         p.error(str(e))
     with node:
         inbox = node.subscribe(args.src, maxlen=args.queue, policy="drop-oldest")
-        pub = node.publisher(args.dst)
+        pub = node.publisher(args.dst, block=True if args.no_drop else None)
         node.ready()
         while node.running:
             msg = inbox.get(timeout=0.2)

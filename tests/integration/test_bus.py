@@ -10,6 +10,7 @@ import threading
 
 import msgpack
 import pytest
+import zenoh
 
 from cinetransfer.shared import codec, zenoh_config
 from cinetransfer.shared import messages as M
@@ -63,6 +64,9 @@ def listener(listener_opts):
 
 
 PROBE_NODE = "route-probe"
+#: the test's own messages must all arrive: Zenoh's default for a put is to drop it when the link
+#: is congested (several large frames at once on a loaded machine)
+BLOCK = zenoh.CongestionControl.BLOCK
 
 
 def _is_probe(msg) -> bool:
@@ -72,12 +76,12 @@ def _is_probe(msg) -> bool:
 @pytest.fixture
 def relay(port, listener, tmp_path):
     proc = spawn("relay", "--rig", "t", "--from", "ct/t/in", "--to", "ct/t/out", "--health-period", "0.2",
-                 *connect_flags(port), log=tmp_path / "relay.log")
+                 "--no-drop", *connect_flags(port), log=tmp_path / "relay.log")
     wait_for(lambda: "relay" in listener.alive or proc.poll() is not None, what="relay liveliness")
     assert proc.poll() is None, (tmp_path / "relay.log").read_text()
     # Liveliness does not mean the relay's subscription has reached this publisher yet: on a loaded
     # machine the first messages were lost. Probe until one comes through (tests leave probes out).
-    pub = listener.session.declare_publisher("ct/t/in")
+    pub = listener.session.declare_publisher("ct/t/in", congestion_control=BLOCK)
     probe = codec.encode(M.Health(node=PROBE_NODE))
     wait_for(lambda: pub.put(probe) or listener.got("ct/t/out"), what="the relay's route")
     pub.undeclare()
@@ -87,7 +91,7 @@ def relay(port, listener, tmp_path):
 
 
 def test_every_message_type_round_trips_across_processes(listener, relay):
-    pub = listener.session.declare_publisher("ct/t/in")
+    pub = listener.session.declare_publisher("ct/t/in", congestion_control=BLOCK)
     sent = list(sample_messages())
     for msg in sent:
         pub.put(codec.encode(msg))
@@ -101,7 +105,7 @@ def test_every_message_type_round_trips_across_processes(listener, relay):
 
 
 def test_malformed_and_wrong_version_are_rejected_and_counted(listener, relay):
-    pub = listener.session.declare_publisher("ct/t/in")
+    pub = listener.session.declare_publisher("ct/t/in", congestion_control=BLOCK)
     good = codec.encode(M.Command(action="start"))
     _, header, _ = codec._split(good)
     header["v"] = 7
@@ -137,7 +141,7 @@ def test_config_error_names_the_field(tmp_path):
 
 
 def test_monitor_once_and_json(port, listener, relay):
-    pub = listener.session.declare_publisher("ct/t/in")
+    pub = listener.session.declare_publisher("ct/t/in", congestion_control=BLOCK)
     done = threading.Event()
 
     def feed():
