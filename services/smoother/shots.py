@@ -27,6 +27,14 @@ def find_cuts(scores: np.ndarray, *, threshold: float = 0.25, ratio: float = 3.0
     return cut
 
 
+def shot_index(cut: np.ndarray | None, n: int) -> np.ndarray:
+    """(n,) the shot each frame belongs to (0 for the first); all 0 without cuts or when `cut`
+    does not have one entry per frame."""
+    if cut is None or len(cut) != n:
+        return np.zeros(n, dtype=int)
+    return np.cumsum(np.asarray(cut, dtype=int))
+
+
 def segments(cut: np.ndarray) -> list[slice]:
     """The shots as slices of frames [start, stop)."""
     starts = [0, *np.flatnonzero(cut).tolist(), len(cut)]

@@ -40,6 +40,7 @@ import numpy as np
 
 from cinetransfer.services.smoother import qp
 from cinetransfer.services.smoother.features import FrameFeatures
+from cinetransfer.services.smoother.shots import shot_index
 
 # Detector track ids (the box-first backend's tracker follows each person by motion): a step along
 # one track counts its box change at SAME_TRACK_MOVE x, a step from one track to another costs
@@ -137,7 +138,7 @@ def _step_costs(c: _Candidates, src: np.ndarray, dst: np.ndarray, *, move_cost: 
     excess = np.where(tracked & ~switch, same_track_move * excess, excess)
     if cuts is not None and np.any(cuts):
         # Across a cut the subject may appear anywhere in the new shot: no continuity cost.
-        shot = np.cumsum(np.asarray(cuts, dtype=int))
+        shot = shot_index(cuts, len(cuts))
         across = shot[c.frame_of[dst]] != shot[c.frame_of[src]]
         excess = np.where(across, 0.0, excess)
         switch &= ~across
@@ -266,7 +267,7 @@ def extend_runs(feats: list[FrameFeatures], sel: Selection, *, min_iou: float = 
     image says nothing about who the subject is."""
     person = sel.person.copy()
     F = len(feats)
-    shot = np.cumsum(np.asarray(cuts, dtype=int)) if cuts is not None and len(cuts) == F else np.zeros(F, int)
+    shot = shot_index(cuts, F)
 
     def grow(order: range, prev_of: int) -> None:
         for f in order:
