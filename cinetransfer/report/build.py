@@ -28,13 +28,12 @@ REPORT_VERSION = 1
 VIDEO = "report_video.mp4"
 
 
-def _recording(path: Path | str) -> dict[str, Any]:
-    """Size and content of a run.mcap (RunFormatError, a ValueError, when it is not readable)."""
-    from cinetransfer.shared.runlog import RunReader, size_report
+def _recording(run: Any) -> dict[str, Any]:
+    """Size and content of a run.mcap (a shared.runlog.RunReader)."""
+    from cinetransfer.shared.runlog import size_report
 
-    run = RunReader(path)
     topics = {t: c["schema"] or c["encoding"] for t, c in sorted(run.info.channels.items())}
-    return {"path": str(path), **size_report(run.info), "topics": topics}
+    return {"path": str(run.path), **size_report(run.info), "topics": topics}
 
 
 def jsonable(v: Any) -> Any:
@@ -82,14 +81,13 @@ def camera_roll_deg(states: Sequence[M.VehicleState], frame_stamps_ns: Sequence[
     return {"p50": round(float(p50), 2), "p95": round(float(p95), 2), "max": round(float(r.max()), 2)}
 
 
-def recorded_roll(recording: Path | str | None, truths: Sequence[M.GroundTruth]) -> dict[str, float] | None:
-    """camera_roll_deg at the recorded frames (the truths' stamps), from the run's vehicle states."""
-    if not recording or not truths:
+def recorded_roll(run: Any, truths: Sequence[M.GroundTruth]) -> dict[str, float] | None:
+    """camera_roll_deg at the recorded frames (the truths' stamps), from the vehicle states of a
+    run.mcap (a shared.runlog.RunReader)."""
+    if not truths:
         return None
     from cinetransfer.shared import codec
-    from cinetransfer.shared.runlog import RunReader
 
-    run = RunReader(recording)
     states = [codec.decode(p, M.VehicleState) for topic in run.info.channels if topic.endswith("/vehicle/state")
               for _, _, p in run.messages(topic)]  # by topic: the camera frames are not decoded
     return camera_roll_deg(states, [t.stamp_ns for t in truths])
@@ -164,7 +162,10 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
     the recording is not a readable cinetransfer MCAP (shared.runlog.RunFormatError).
     """
     t0 = time.monotonic()
-    rec_info = _recording(recording) if recording else None
+    from cinetransfer.shared.runlog import RunReader
+
+    run = RunReader(recording) if recording else None  # RunFormatError (a ValueError) if unreadable
+    rec_info = _recording(run) if run else None
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
@@ -224,7 +225,7 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
                    "output_video_info": vinfo, "source": {"path": source.source.path, "fps": source.fps,
                                                           "frames": int(source.image_targets.shape[0])}},
         "credit": credit,
-        "recording": recording_facts(meta, recorded_roll(recording, truths) if rec_info else None),
+        "recording": recording_facts(meta, recorded_roll(run, truths) if run else None),
         "shots": per_shot(source, output, list(truths), output_fps, meta.get("takes")),
         "figures": sorted(figures),
         "figure_errors": fig_errors,
