@@ -47,6 +47,10 @@ class Peer:
             name = str(s.key_expr).split("/")[-1]
             (self.alive.add if s.kind == zenoh.SampleKind.PUT else self.alive.discard)(name)
 
+    def counters(self) -> dict:
+        with self.lock:
+            return dict(self.health.counters) if self.health else {}
+
     def rejected(self) -> int:
         with self.lock:
             return self.health.rejected if self.health else -1
@@ -125,9 +129,11 @@ def test_the_planner_refuses_instructions_nothing_can_fly(port, listener_opts, t
         for value in (np.nan, 1e6, -1e6):
             ins = instructions_from_arrays(targets=np.full((24, 2, 2), value), joint_names=["nose", "left_hip"])
             pub.put(codec.encode(ins))
-        wait_for(lambda: peer.rejected() >= 3, 10, what="unusable instructions counted as rejected")
-        with peer.lock:
-            counters = dict(peer.health.counters)
+        # the service's Health may carry the rejection before the planner's counters catch up: wait
+        # for a report that has both
+        wait_for(lambda: peer.rejected() >= 3 and "instructions_refused" in peer.counters(), 10,
+                 what="unusable instructions counted as rejected")
+        counters = peer.counters()
         assert counters["instructions_refused"] == 3
         assert counters["state"] != "recording"  # --autostart never started on them
         pub.undeclare()
