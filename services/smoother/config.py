@@ -45,6 +45,10 @@ class SmootherConfig:
     joint_smoothness: float = 0.1  # lambda of the joint QP's first-difference (paper's) term at 24 fps, > 0
     joint_accel_smoothness: float = 3.0  # lambda2 of our added second-difference term at 24 fps, >= 0
     min_joint_confidence: float = 0.1  # joints below this confidence count as missing, [0, 1)
+    #: a skeleton whose shoulders sit closer than this many head widths (ear to ear) to the ears ...
+    body_neck_min: float = 0.45
+    #: ... and are closer together than this many head widths has its body joints dropped (anatomy.py); 0 = off
+    body_span_min: float = 2.0
     # --- focus (DESIGN §1.1 step 4)
     focus_method: str = "hmm"  # 'hmm' (ours, default), 'viterbi', 'l2' (quadratic + threshold), 'literal'
     focus_pixel_threshold: float = 0.5  # focus-map probability above which a pixel counts as in focus, (0, 1)
@@ -88,7 +92,7 @@ class SmootherConfig:
         """(field, whether its value is allowed, what is allowed), in the order they are reported."""
         v = self.__dict__
         nonneg = ("move_cost", "free_move", "reentry_cost", "confidence_cost", "max_bridge_s",
-                  "joint_accel_smoothness", "box_accel_smoothness")
+                  "joint_accel_smoothness", "box_accel_smoothness", "body_neck_min", "body_span_min")
         positive = ("miss_cost", "box_smoothness", "joint_smoothness", "focus_noise", "focus_smoothness",
                     "mu_m", "default_fps", "window_s")
         return [

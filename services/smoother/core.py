@@ -43,7 +43,8 @@ class SmoothResult:
 def feature_options(cfg: SmootherConfig) -> dict[str, float]:
     """The config values `frame_features` takes."""
     return {"focus_pixel_threshold": cfg.focus_pixel_threshold, "foreground_min_rows": cfg.foreground_min_rows,
-            "min_person_confidence": cfg.min_person_confidence, "focus_margin": cfg.focus_region_margin}
+            "min_person_confidence": cfg.min_person_confidence, "focus_margin": cfg.focus_region_margin,
+            "body_neck_min": cfg.body_neck_min, "body_span_min": cfg.body_span_min}
 
 
 def features_from_measurements(measurements: Iterable[M.Measurement], cfg: SmootherConfig) -> list[FrameFeatures]:
