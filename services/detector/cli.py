@@ -82,7 +82,7 @@ class _Run:
             total = max(0, min(total, args.stop if args.stop is not None else total) - args.start)
         with MeasurementsWriter(out, source=info, detector=det.name, config=cfg,
                                 focus_map_scale=det.focus_map_scale(info.width, info.height)) as writer, \
-                tqdm(total=total or None, unit="frame", disable=args.no_progress, dynamic_ncols=True,
+                tqdm(total=total or None, unit="frame", disable=True if args.no_progress else None, dynamic_ncols=True,
                      desc=Path(args.source).name) as bar:
             for f in iter_frames(args.source, start=args.start, stop=args.stop, fps=args.fps):
                 m = det.process(f.image, f.index, f.stamp_ns, source=info.path, fps=f.fps)

@@ -66,7 +66,8 @@ def _progress(it: Iterable[Any], total: int | None, desc: str, enabled: bool) ->
         return it
     from tqdm import tqdm
 
-    return tqdm(it, total=total, desc=desc, unit="frame", file=sys.stderr, dynamic_ncols=True)
+    # disable=None: quiet when stderr is not a terminal (a log file, CI)
+    return tqdm(it, total=total, desc=desc, unit="frame", file=sys.stderr, dynamic_ncols=True, disable=None)
 
 
 def _finish(result: Any, out: Path, plot: Path | None, *, diagnostics: bool) -> None:

@@ -40,7 +40,7 @@ def measure_video(video: str | os.PathLike, *, detector_config: Any = None, stop
         from tqdm import tqdm
 
         it = tqdm(it, total=total or None, desc=f"extract {Path(video).name}", unit="frame", file=sys.stderr,
-                  dynamic_ncols=True)
+                  dynamic_ncols=True, disable=None)  # None: quiet when stderr is not a terminal
 
     def guarded() -> Iterator[Measurement]:
         try:

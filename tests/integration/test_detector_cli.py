@@ -60,3 +60,36 @@ def test_detect_corrupt_file_fails_clearly(tmp_path):
     assert r.returncode == 1 and "no such file" in r.stderr
     r = _detect(str(bad), "-o", str(tmp_path / "m.msgpack"), "--num-poses", "0")
     assert r.returncode == 2 and "num_poses" in r.stderr
+
+
+def test_progress_bar_only_on_a_terminal(tmp_path, data):
+    """Without --no-progress the bar is drawn on a terminal and left out of a log (stderr a pipe)."""
+    import fcntl
+    import os
+    import pty
+    import struct
+    import termios
+
+    args = [sys.executable, "-m", "cinetransfer", "detect", str(data / "davis_parkour_854x480.mp4"),
+            "-o", str(tmp_path / "m.msgpack"), "--stop", "3"]
+    piped = subprocess.run(args, capture_output=True, text=True, timeout=240)
+    assert piped.returncode == 0, piped.stderr[-2000:]
+    assert "3/3" not in piped.stderr and "frames/s" in piped.stderr  # the summary line stays
+    main, sub = pty.openpty()
+    fcntl.ioctl(sub, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))  # a 0-column pty draws no bar
+    try:
+        tty = subprocess.run(args, stdout=subprocess.DEVNULL, stderr=sub, timeout=240)
+        os.close(sub)
+        chunks = []
+        while True:
+            try:
+                chunk = os.read(main, 65536)
+            except OSError:  # EIO: the terminal's other end is closed and drained
+                break
+            if not chunk:
+                break
+            chunks.append(chunk)
+    finally:
+        os.close(main)
+    assert tty.returncode == 0
+    assert b"3/3" in b"".join(chunks)
