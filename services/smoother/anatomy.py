@@ -12,19 +12,31 @@ head's width w (ear to ear), judged only where both ears and both shoulders are 
 - span: shoulder to shoulder, over w. A real body: about 2.5 from the front; turned sideways the
   shoulders close up (0.53 on the vaulting runner), but then the neck is long in the image.
 
+- torso: from the shoulders' midpoint to the hips' midpoint, over the span (judged where both
+  shoulders and both hips are confident). A real body: 1.2-1.5 from the front, more when turned;
+  a camera looking down at 60 degrees halves it. Measured minimum on the juggler, parkour and
+  dance-twirl skeletons: 1.02; tos_clip01's close-ups: down to 0.03 (hips at the nose).
+
 A skeleton with both neck < `neck_min` and span < `span_min` has a head with no room for a body
-under it: its body joints (shoulders down) get confidence 0, i.e. missing, which the joint QP
-bridges like any undetected joint; its head joints are kept. Either bound 0 turns the check off.
-Measured with the default bounds (0.45, 2.0) on the detector's skeletons (box_first): juggler
-0 of 248, DAVIS parkour 0 of 108, DAVIS dance-twirl 2 of 406 (two seated spectators, not the
-dancer), tos_clip01 41 of 345 (close-ups of the actor's face and the robot).
+under it, and one with torso < `torso_min` a trunk with no room for its organs: either way its body
+joints (shoulders down) get confidence 0, i.e. missing, which the joint QP bridges like any
+undetected joint; its head joints are kept. A bound of 0 turns its rule off. Measured with the
+default bounds (neck 0.45 with span 2.0; torso 0.7) on the detector's skeletons (box_first):
+juggler 0 of 248, DAVIS parkour 0 of 108, DAVIS dance-twirl 2 of 406 (two seated spectators, not
+the dancer), tos_clip01 see docs/smoother.md §2. The cost: a real person seen from more than about
+55 degrees above (torso 1.3 x cos 55 = 0.75) is near the bound.
+
+The joint QP fills a joint from frames up to `max_bridge_s` away, so smoothed shoulders of one
+frame can meet hips bridged from another skeleton; `drop_short_trunks` applies the torso rule to
+the smoothed targets too and leaves such a row without hips and legs (the shoulders stay: in a
+close-up they are the joints nearer the frame).
 """
 from __future__ import annotations
 
 import numpy as np
 
 # COCO-17 indices
-L_EAR, R_EAR, L_SHOULDER, R_SHOULDER = 3, 4, 5, 6
+L_EAR, R_EAR, L_SHOULDER, R_SHOULDER, L_HIP, R_HIP = 3, 4, 5, 6, 11, 12
 FIRST_BODY_JOINT = 5  # shoulders, elbows, wrists, hips, knees, ankles follow
 
 
@@ -46,13 +58,41 @@ def head_body_ratios(joints: np.ndarray, conf: np.ndarray, min_confidence: float
     return np.where(judged, neck_px / w, nan), np.where(judged, span_px / w, nan)
 
 
+def torso_ratio(joints: np.ndarray, conf: np.ndarray, min_confidence: float = 0.5) -> np.ndarray:
+    """Shoulders' midpoint to hips' midpoint over the shoulder span, per skeleton (P,); NaN where a
+    shoulder or a hip is missing or below `min_confidence`."""
+    joints = np.asarray(joints, dtype=float).reshape(-1, 17, 2)
+    conf = np.asarray(conf, dtype=float).reshape(-1, 17)
+    need = [L_SHOULDER, R_SHOULDER, L_HIP, R_HIP]
+    judged = np.all(conf[:, need] >= min_confidence, axis=1) & np.all(np.isfinite(joints[:, need]), axis=(1, 2))
+    span = np.maximum(np.linalg.norm(joints[:, L_SHOULDER] - joints[:, R_SHOULDER], axis=1), 1e-6)
+    trunk = np.linalg.norm((joints[:, L_HIP] + joints[:, R_HIP] - joints[:, L_SHOULDER] - joints[:, R_SHOULDER]) / 2,
+                           axis=1)
+    return np.where(judged, trunk / span, np.nan)
+
+
 def drop_implausible_bodies(joints: np.ndarray, conf: np.ndarray, *, neck_min: float, span_min: float,
-                            min_confidence: float = 0.5) -> np.ndarray:
+                            torso_min: float = 0.0, min_confidence: float = 0.5) -> np.ndarray:
     """`conf` (P, 17) with the body joints of implausible skeletons set to 0 (a copy)."""
     out = np.array(conf, dtype=float, copy=True).reshape(-1, 17)
-    if neck_min <= 0 or span_min <= 0 or out.shape[0] == 0:
+    if out.shape[0] == 0:
         return out
-    neck, span = head_body_ratios(joints, out, min_confidence)
-    bad = (neck < neck_min) & (span < span_min)  # NaN compares False: not judged, kept
+    bad = np.zeros(out.shape[0], dtype=bool)
+    if neck_min > 0 and span_min > 0:
+        neck, span = head_body_ratios(joints, out, min_confidence)
+        bad |= (neck < neck_min) & (span < span_min)  # NaN compares False: not judged, kept
+    if torso_min > 0:
+        bad |= torso_ratio(joints, out, min_confidence) < torso_min
     out[bad, FIRST_BODY_JOINT:] = 0.0
+    return out
+
+
+def drop_short_trunks(joints: np.ndarray, torso_min: float) -> np.ndarray:
+    """Smoothed joints (F, 17, 2) with hips and legs NaN in the rows whose trunk is shorter than
+    `torso_min` shoulder spans (a copy; 0 = off)."""
+    out = np.array(joints, dtype=float, copy=True)
+    if torso_min <= 0 or out.shape[0] == 0:
+        return out
+    short = torso_ratio(out, np.ones(out.shape[:2])) < torso_min
+    out[short, L_HIP:] = np.nan
     return out

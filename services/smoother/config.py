@@ -49,6 +49,9 @@ class SmootherConfig:
     body_neck_min: float = 0.45
     #: ... and are closer together than this many head widths has its body joints dropped (anatomy.py); 0 = off
     body_span_min: float = 2.0
+    #: a skeleton whose hips are nearer its shoulders than this many shoulder spans has its body dropped,
+    #: a smoothed row its hips and legs; 0 = off
+    body_torso_min: float = 0.7
     # --- focus (DESIGN §1.1 step 4)
     focus_method: str = "hmm"  # 'hmm' (ours, default), 'viterbi', 'l2' (quadratic + threshold), 'literal'
     focus_pixel_threshold: float = 0.5  # focus-map probability above which a pixel counts as in focus, (0, 1)
@@ -92,7 +95,8 @@ class SmootherConfig:
         """(field, whether its value is allowed, what is allowed), in the order they are reported."""
         v = self.__dict__
         nonneg = ("move_cost", "free_move", "reentry_cost", "confidence_cost", "max_bridge_s",
-                  "joint_accel_smoothness", "box_accel_smoothness", "body_neck_min", "body_span_min")
+                  "joint_accel_smoothness", "box_accel_smoothness", "body_neck_min", "body_span_min",
+                  "body_torso_min")
         positive = ("miss_cost", "box_smoothness", "joint_smoothness", "focus_noise", "focus_smoothness",
                     "mu_m", "default_fps", "window_s")
         return [

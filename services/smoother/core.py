@@ -18,6 +18,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from cinetransfer.services.smoother import anatomy
 from cinetransfer.services.smoother import focus as focus_mod
 from cinetransfer.services.smoother import shots as shots_mod
 from cinetransfer.services.smoother import joints as joints_mod
@@ -44,7 +45,8 @@ def feature_options(cfg: SmootherConfig) -> dict[str, float]:
     """The config values `frame_features` takes."""
     return {"focus_pixel_threshold": cfg.focus_pixel_threshold, "foreground_min_rows": cfg.foreground_min_rows,
             "min_person_confidence": cfg.min_person_confidence, "focus_margin": cfg.focus_region_margin,
-            "body_neck_min": cfg.body_neck_min, "body_span_min": cfg.body_span_min}
+            "body_neck_min": cfg.body_neck_min, "body_span_min": cfg.body_span_min,
+            "body_torso_min": cfg.body_torso_min}
 
 
 def features_from_measurements(measurements: Iterable[M.Measurement], cfg: SmootherConfig) -> list[FrameFeatures]:
@@ -202,6 +204,7 @@ def _track_subject(frames: list[FrameFeatures], cfg: SmootherConfig, *, fps: flo
                                          min_confidence=cfg.min_joint_confidence,
                                          lam2=cfg.lam(cfg.joint_accel_smoothness, fps, order=2),
                                          max_gap=int(round(cfg.max_bridge_s * fps)), cuts=cuts)
+    sm_joints = anatomy.drop_short_trunks(sm_joints, cfg.body_torso_min)
     return _Track(sel, raw_box, box, mask_idx, skel_idx, raw_joints, joint_conf, sm_joints)
 
 

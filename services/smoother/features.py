@@ -134,9 +134,9 @@ def _track_id(t) -> int:
 
 def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foreground_min_rows: float = 0.03,
                    min_person_confidence: float = 0.0, focus_margin: float = 0.0, body_neck_min: float = 0.0,
-                   body_span_min: float = 0.0) -> FrameFeatures:
-    """Compute the FrameFeatures of one Measurement (pure). `body_neck_min`, `body_span_min`: the
-    anatomy check (anatomy.py; 0 = off)."""
+                   body_span_min: float = 0.0, body_torso_min: float = 0.0) -> FrameFeatures:
+    """Compute the FrameFeatures of one Measurement (pure). `body_*_min`: the anatomy check
+    (anatomy.py; 0 = off)."""
     W, H = int(m.width), int(m.height)
     people = [p for p in m.people if float(p.confidence) >= min_person_confidence
               and np.all(np.isfinite(p.box_xyxy)) and p.box_xyxy[2] > p.box_xyxy[0] and p.box_xyxy[3] > p.box_xyxy[1]]
@@ -155,7 +155,8 @@ def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foregr
     joints = np.array([np.asarray(s.keypoints_px, dtype=float) for s in sk]).reshape(P, N_JOINTS, 2)
     jconf = np.array([np.asarray(s.confidences, dtype=float) for s in sk]).reshape(P, N_JOINTS)
     jconf = np.where(np.isfinite(jconf), jconf, 0.0)
-    jconf = drop_implausible_bodies(joints, jconf, neck_min=body_neck_min, span_min=body_span_min)
+    jconf = drop_implausible_bodies(joints, jconf, neck_min=body_neck_min, span_min=body_span_min,
+                                   torso_min=body_torso_min)
     inside = joints_inside(crops, joints)
     # A skeleton that names its person counts as fully inside that person (detectors that give
     # both from one model know the pairing better than the mask test).

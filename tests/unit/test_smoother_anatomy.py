@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cinetransfer.services.smoother.anatomy import drop_implausible_bodies, head_body_ratios
+from cinetransfer.services.smoother.anatomy import drop_implausible_bodies, drop_short_trunks, head_body_ratios, torso_ratio
 from cinetransfer.services.smoother.features import frame_features
 from cinetransfer.services.smoother.synthetic import measurement, person, skeleton_in
 
@@ -69,3 +69,34 @@ def test_frame_features_applies_the_check_to_a_real_measurement_layout():
     f = frame_features(bad, body_neck_min=0.45, body_span_min=2.0)
     assert np.all(f.joint_conf[0, 5:] == 0) and np.all(f.joint_conf[0, :5] > 0)
     assert np.all(frame_features(bad).joint_conf[0, 5:] > 0)  # off by default in the pure function
+
+
+def with_hips(j: np.ndarray, hips: tuple[tuple[float, float], tuple[float, float]]) -> np.ndarray:
+    j = j.copy()
+    j[11], j[12] = hips
+    return j
+
+
+def test_torso_ratio_by_hand_and_the_torso_rule():
+    # shoulders (70,130)-(130,130): span 60, midpoint (100,130); hips midpoint (100,160): trunk 30 -> 0.5
+    j, c = skeleton((90, 110), 100, ((70, 130), (130, 130)))
+    j = with_hips(j, ((80, 160), (120, 160)))
+    assert torso_ratio(j[None], c[None])[0] == pytest.approx(0.5)
+    out = drop_implausible_bodies(j[None], c[None], neck_min=0.45, span_min=2.0, torso_min=0.7)[0]
+    assert np.all(out[5:] == 0.0) and np.all(out[:5] == 1.0)  # head fine (neck 1.5), trunk too short
+    long = with_hips(j, ((80, 220), (120, 220)))  # trunk 90 -> 1.5
+    assert np.all(drop_implausible_bodies(long[None], c[None], neck_min=0.45, span_min=2.0, torso_min=0.7) == 1.0)
+    c_hip = c.copy()
+    c_hip[11] = 0.2  # a hip not confident: the torso is not judged
+    assert np.isnan(torso_ratio(j[None], c_hip[None])[0])
+
+
+def test_smoothed_rows_with_a_short_trunk_lose_hips_and_legs():
+    j, _ = skeleton((90, 110), 100, ((70, 130), (130, 130)))
+    rows = np.stack([with_hips(j, ((80, 160), (120, 160))),   # trunk 0.5 spans: hips and legs dropped
+                     with_hips(j, ((80, 220), (120, 220))),   # 1.5: kept
+                     with_hips(j, ((np.nan, np.nan), (120, 160)))])  # one hip unknown: not judged
+    out = drop_short_trunks(rows, 0.7)
+    assert np.all(np.isnan(out[0, 11:])) and np.all(np.isfinite(out[0, :11]))
+    assert np.array_equal(out[1], rows[1]) and np.array_equal(out[2], rows[2], equal_nan=True)
+    assert np.array_equal(drop_short_trunks(rows, 0.0), rows, equal_nan=True)

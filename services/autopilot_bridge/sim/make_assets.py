@@ -197,7 +197,9 @@ def make_juggler(data: Path, out: Path) -> np.ndarray:
     # metric scale: the shot is locked off and he stays at about the same depth over the loop;
     # the standing height (max mask height over the loop) is the subject's height.
     px_height = float(np.max(heights))
-    target_px = 420.0  # cut-out height after resizing (keeps the assets small)
+    # cut-outs keep the clip's own resolution (scale 1; until issue 14 they were cut at 420 px, 0.66x,
+    # which a long lens framing him close magnified 2x, and the focus estimator read him soft)
+    target_px = px_height
     scale = target_px / px_height
     meta = {"source": "sam2_juggle_1280x720.mp4", "frames": [], "height_px_standing": target_px,
             "joint_names": "coco17", "note": "joints/anchor in cut-out pixels (x right, y down)"}

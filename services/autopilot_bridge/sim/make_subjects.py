@@ -40,7 +40,7 @@ from cinetransfer.services.autopilot_bridge.sim.make_assets import (ASSETS, COCO
 log = logging.getLogger("make_subjects")
 
 #: standing height / torso length (shoulder mid to hip mid), measured on the juggler's cut-outs
-#: (420 px tall, torso 121 px): keeps every subject on one scale convention.
+#: (then cut at 420 px tall, torso 121 px; the ratio holds at any size): keeps every subject on one scale convention.
 HEIGHT_PER_TORSO = 3.47
 #: ankle (the lower one) to the ground point of the cut-out, in torso lengths: the juggler's, median
 #: over his cut-outs (anchor = lowest mask pixel there: 0.36 torso below his lower ankle)
