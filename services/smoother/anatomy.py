@@ -40,7 +40,8 @@ L_EAR, R_EAR, L_SHOULDER, R_SHOULDER, L_HIP, R_HIP = 3, 4, 5, 6, 11, 12
 FIRST_BODY_JOINT = 5  # shoulders, elbows, wrists, hips, knees, ankles follow
 
 
-def head_body_ratios(joints: np.ndarray, conf: np.ndarray, min_confidence: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+def head_body_ratios(joints: np.ndarray, conf: np.ndarray,
+                     min_confidence: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
     """(neck, span) of each skeleton (P, 17, 2) over its head width (module docstring); NaN where
     an ear or a shoulder is missing or below `min_confidence`."""
     joints = np.asarray(joints, dtype=float).reshape(-1, 17, 2)

@@ -4,7 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cinetransfer.services.smoother.anatomy import drop_implausible_bodies, drop_short_trunks, head_body_ratios, torso_ratio
+from cinetransfer.services.smoother.anatomy import (drop_implausible_bodies, drop_short_trunks, head_body_ratios,
+                                                    torso_ratio)
 from cinetransfer.services.smoother.features import frame_features
 from cinetransfer.services.smoother.synthetic import measurement, person, skeleton_in
 
@@ -51,7 +52,8 @@ def test_unjudged_or_switched_off_keeps_everything():
     assert np.isnan(head_body_ratios(j[None], c_low[None])[0][0])
     assert np.all(drop_implausible_bodies(j[None], c_low[None], neck_min=0.45, span_min=2.0)[0] == c_low)
     assert np.all(drop_implausible_bodies(j[None], c[None], neck_min=0.0, span_min=2.0) == 1.0)
-    assert drop_implausible_bodies(np.zeros((0, 17, 2)), np.zeros((0, 17)), neck_min=0.45, span_min=2.0).shape == (0, 17)
+    empty = drop_implausible_bodies(np.zeros((0, 17, 2)), np.zeros((0, 17)), neck_min=0.45, span_min=2.0)
+    assert empty.shape == (0, 17)
 
 
 def test_frame_features_applies_the_check_to_a_real_measurement_layout():
