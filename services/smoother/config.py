@@ -49,6 +49,8 @@ class SmootherConfig:
     body_neck_min: float = 0.45
     #: ... and are closer together than this many head widths has its body joints dropped (anatomy.py); 0 = off
     body_span_min: float = 2.0
+    #: a joint with a target in fewer consecutive frames than this has none there [s], >= 0 (0 = off)
+    joint_min_run_s: float = 0.25
     #: a skeleton whose hips are nearer its shoulders than this many shoulder spans has its body dropped,
     #: a smoothed row its hips and legs; 0 = off
     body_torso_min: float = 0.7
@@ -113,6 +115,7 @@ class SmootherConfig:
             ("cut_ratio", self.cut_ratio >= 1.0, ">= 1"),
             ("focus_soft_floor", 0.0 < self.focus_soft_floor <= 1.0, "0 < value <= 1 (1 = off)"),
             ("focus_min_run_s", self.focus_min_run_s >= 0.0, ">= 0 (0 = off)"),
+            ("joint_min_run_s", self.joint_min_run_s >= 0.0, ">= 0 (0 = off)"),
             ("focus_switch_prob", 0.0 < self.focus_switch_prob < 0.5, "0 < value < 0.5"),
             ("focus_region_margin", 0.0 <= self.focus_region_margin <= 0.2, "0 <= value <= 0.2"),
             ("foreground_min_rows", 0.0 <= self.foreground_min_rows < 1.0, "0 <= value < 1"),

@@ -205,6 +205,11 @@ def _track_subject(frames: list[FrameFeatures], cfg: SmootherConfig, *, fps: flo
                                          lam2=cfg.lam(cfg.joint_accel_smoothness, fps, order=2),
                                          max_gap=int(round(cfg.max_bridge_s * fps)), cuts=cuts)
     sm_joints = anatomy.drop_short_trunks(sm_joints, cfg.body_torso_min)
+    # a joint seen for a few frames only (a skeleton found for 3 frames on tos_clip01's robot) is no
+    # target: no camera reframes in that time, and a plan anticipating it spoils the frames before
+    min_run = math.ceil(cfg.joint_min_run_s * fps - 1e-9)
+    flat = focus_mod.drop_short_runs(sm_joints.reshape(len(sm_joints), -1), min_run=min_run)
+    sm_joints = flat.reshape(sm_joints.shape)
     return _Track(sel, raw_box, box, mask_idx, skel_idx, raw_joints, joint_conf, sm_joints)
 
 

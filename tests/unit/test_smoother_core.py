@@ -433,3 +433,17 @@ def test_a_left_out_frame_is_not_filled_from_across_a_cut():
     # own shot's next frame counts, and it gets the new subject
     assert S.extend_runs(feats, sel).person.tolist() == [0, 1, 0]
     assert S.extend_runs(feats, sel, cuts=np.array([False, True, False])).person.tolist() == [0, 0, 0]
+
+
+def test_joints_seen_for_fewer_frames_than_joint_min_run_are_no_targets():
+    """A skeleton found for 3 frames (0.125 s) between long absences gives no targets (no camera
+    reframes in that time); one found for 8 frames does. The box path is not changed."""
+    ms = walking_sequence(80, flicker=False, focus=False)
+    for i in list(range(20, 40)) + list(range(43, 60)) + list(range(68, 80)):
+        ms[i] = measurement(i, [], [])
+    r = smooth_measurements(ms)
+    t = r.instructions.image_targets
+    assert np.isnan(t[40:43]).all() and np.isfinite(t[60:68]).all() and np.isfinite(t[:20]).all()
+    assert r.instructions.subject_visible[40:43].all()  # the subject is still there, its joints are not targets
+    off = smooth_measurements(ms, SmootherConfig(joint_min_run_s=0.0)).instructions.image_targets
+    assert np.isfinite(off[40:43]).all()
