@@ -210,10 +210,10 @@ def soft_shot(b: np.ndarray, *, theta: float, floor: float, quantile: float = 0.
 
 def drop_short_runs(B: np.ndarray, *, min_run: int) -> np.ndarray:
     """B (F, C) with every run of fewer than `min_run` consecutive labelled (finite) frames of a
-    column set to NaN (also used on joint coordinates, core._track_subject). A region seen for a frame or two — a hand or a passing head at the edge, a
-    detection that flickers — gives no usable label: no lens follows it, and tos_clip01's two
-    one-frame foreground labels inside a shot that otherwise has none pulled the focus off the
-    subject for half a second."""
+    column set to NaN (also used on joint coordinates, core._track_subject). A region seen for a
+    frame or two — a hand or a passing head at the edge, a detection that flickers — gives no usable
+    label: no lens follows it, and tos_clip01's two one-frame foreground labels inside a shot that
+    otherwise has none pulled the focus off the subject for half a second."""
     out = np.array(B, dtype=float, copy=True)
     if min_run <= 1 or out.size == 0:
         return out
