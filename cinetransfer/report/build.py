@@ -117,10 +117,23 @@ def recording_facts(meta: dict[str, Any], roll: dict[str, float] | None = None) 
     return facts
 
 
+def floor_facts(source: M.Instructions, truths: Sequence[M.GroundTruth], meta: dict[str, Any],
+                fid: Any) -> tuple[dict[str, Any], Any]:
+    """The truth joint error's floor (floor.py) for report.json, and the Floor (None if not computed)."""
+    from cinetransfer.report import floor as FL
+
+    by_index = (fid.summary.get("alignment") or {}).get("mode") == "index"
+    fl, why = FL.run_floor(source, list(truths), meta, aligned_by_index=by_index)
+    if fl is None:
+        return {"joint_error": None, "reason": why}, None
+    return {"joint_error": fl.mean(), "joint_frames": int(fl.counts.sum()), "model": FL.MODEL}, fl
+
+
 def per_shot(source: M.Instructions, output: M.Instructions | None, truths: list, output_fps: float | None,
-             takes: list[dict] | None = None) -> list[dict[str, Any]]:
+             takes: list[dict] | None = None, floor: Any = None) -> list[dict[str, Any]]:
     """Goals per shot of a multi-shot source (output frame k follows instruction row k), with the
-    take's settle figures when the recording was made one take per shot."""
+    take's settle figures when the recording was made one take per shot, and each shot's share of
+    the truth joint error's floor (`floor`: floor.Floor on the instruction rows, or None)."""
     from cinetransfer.services.smoother.instructions import slice_instructions
 
     # the takes as flown (very short shots are filmed on in the take before), else the source's shots
@@ -142,6 +155,7 @@ def per_shot(source: M.Instructions, output: M.Instructions | None, truths: list
         out.append({"shot": i, "rows": [a, b], "goals_met": h["goals_met"], "goals": h["goals"],
                     "joint_error_extraction": h["extraction"].get("joint_error_mean"),
                     "joint_error_truth": h["truth"].get("joint_error_mean"),
+                    "joint_error_floor_truth": floor.mean(slice(a, b)) if floor is not None else None,
                     "settle_limit_s": take.get("settle_limit_s"), "settle_s": take.get("settle_s"),
                     "settled": take.get("settled"), "error_at_take_start": take.get("error_at_take_start")})
     return out
@@ -190,6 +204,7 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
 
     fid = F.compute_fidelity(source, output, truths, output_fps=output_fps, output_frames=output_frames,
                              output_missing_reason=reason)
+    floor_summary, floor = floor_facts(source, truths, meta, fid)
     credit = str(meta.get("credit") or figs.credit_for(source_video))
     shot_rows = ([int(t["first_row"]) for t in meta["takes"]] if meta.get("takes") else
                  [a for a, _ in shot_segments(source)])[1:]
@@ -226,7 +241,8 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
                                                           "frames": int(source.image_targets.shape[0])}},
         "credit": credit,
         "recording": recording_facts(meta, recorded_roll(run, truths) if run else None),
-        "shots": per_shot(source, output, list(truths), output_fps, meta.get("takes")),
+        "truth_floor": floor_summary,
+        "shots": per_shot(source, output, list(truths), output_fps, meta.get("takes"), floor),
         "figures": sorted(figures),
         "figure_errors": fig_errors,
         "video": video, "video_error": video_error,

@@ -122,10 +122,12 @@ def _shots_table(summary: dict[str, Any]) -> str:
                   f"not within {_num(s['settle_limit_s'], 2)} s")
         rows.append(f"<tr><td>{s['shot'] + 1}</td><td>{s['rows'][0]}–{s['rows'][1] - 1}</td>"
                     f"<td>{_e(s['goals_met'])}</td><td>{_num(s.get('joint_error_extraction'))}</td>"
-                    f"<td>{_num(s.get('joint_error_truth'))}</td><td>{_e(settle)}</td>"
+                    f"<td>{_num(s.get('joint_error_truth'))}</td><td>{_num(s.get('joint_error_floor_truth'))}</td>"
+                    f"<td>{_e(settle)}</td>"
                     f"<td>{_num(s.get('error_at_take_start'))}</td></tr>")
     return ("<h2>Shots</h2><div class='card'><table><tr><th>shot</th><th>instruction frames</th><th>goals met</th>"
-            "<th>joint error (extr.)</th><th>joint error (truth)</th><th>settle</th><th>framing error at take start"
+            "<th>joint error (extr.)</th><th>joint error (truth)</th><th>floor (truth)</th><th>settle</th>"
+            "<th>framing error at take start"
             "</th></tr>" + "".join(rows) + "</table><p class='small'>Each shot of the source is flown as its own "
             "take after a settle phase in which the drone re-frames the shot's first frame; the edit joins the "
             "takes at the source's cuts (dashed lines on the plots).</p></div>")
@@ -180,6 +182,18 @@ def _joint_counts_note(summary: dict[str, Any]) -> str:
                          f"{js['joint_frames_target_unseen']} where the output does not show a joint the source "
                          "controls")
     return "<p class='small'>" + _e(". ".join(parts)) + ".</p>" if parts else ""
+
+
+def _floor_note(summary: dict[str, Any]) -> str:
+    """The truth joint error next to its floor (floor.py): how much of it the flight could have saved."""
+    fl = summary.get("truth_floor") or {}
+    if fl.get("joint_error") is None:
+        return (f"<p class='small'>Floor of the truth joint error: not computed ({_e(fl['reason'])}).</p>"
+                if fl.get("reason") else "")
+    flown = ((summary.get("truth") or {}).get("joints") or {}).get("overall", {}).get("euclidean", {}).get("mean")
+    return (f"<p class='small'><b>Floor of the truth joint error: {_num(fl['joint_error'])}</b> (flown: "
+            f"{_num(flown)}) — {_e(fl['model'])}, over the same {fl['joint_frames']} joint-frames. No "
+            "flight of this subject without roll gets below it; what is above it is the flight's.</p>")
 
 
 def _joint_table(summary: dict[str, Any]) -> str:
@@ -386,7 +400,8 @@ and ≥ {F.TRUTH_FOCUS_AGREEMENT_MIN:.0%}.</span>
 <div class="card">{_joint_table(summary)}
 <p class="small">Controlled joints: {_e(joints)}. Error = |output − source target| per axis and Euclidean,
 over frames where both sides see the joint; std is the population standard deviation.</p>
-{_joint_counts_note(summary)}</div>
+{_joint_counts_note(summary)}
+{_floor_note(summary)}</div>
 <h2>Focus-label agreement per region</h2>
 <div class="card">{_focus_table(summary)}
 <p class="small">Agreement = fraction of frames whose in-focus boolean equals the source's, over frames where

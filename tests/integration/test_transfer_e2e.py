@@ -190,6 +190,10 @@ def test_transfer_through_zenoh_processes(data, tmp_path, port, listener_opts):
     report = json.loads((out / "report.json").read_text())
     assert report["headline"]["truth"]["joint_error_mean"] == pytest.approx(float(np.mean(errs)), rel=1e-3)
     assert report["headline"]["extraction"]["available"] is True
+    # its floor (the best any camera could do with the dancer's poses) is computed on the same joint-frames
+    # and lies below what was flown
+    floor = report["truth_floor"]
+    assert floor["joint_frames"] == len(errs) and 0.0 <= floor["joint_error"] < float(np.mean(errs))
     # and the report's side-by-side video is H.264 and plays offline in headless Chromium, when there is one
     assert probe(out / "report_video.mp4")["frames"] == FRAMES
     assert report["recording_file"]["complete"] is True

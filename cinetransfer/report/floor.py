@@ -1,0 +1,144 @@
+"""How close could any camera have come? The joint error floor of a simulated run.
+
+The simulator films a billboard: a real person's cut-out that turns about the vertical axis to face
+the camera (sim/subject.py), posed as the footage has him at that instant. Seen by a pinhole camera
+without roll, the billboard's joints (X right, Y up, metres in its plane) land, to first order
+(weak perspective: the body small against its distance), at
+
+    x = a X + tx,   y = ty - b Y        (normalised image coordinates, y down)
+
+with a > 0 the scale (focal length over distance), and 0 <= b <= a W/H: the vertical scale shrinks
+by the cosine of the angle the camera looks up or down at him (W/H turns pixels square). Any camera
+position, aim and focal length gives some (a, b, tx, ty), so the least joint error over all of them
+is a lower bound of what any flight could reach with this subject: per frame, the minimum of the
+summed Euclidean errors over (a, b, tx, ty) — a small second-order cone program (cvxpy), left/right
+matched either way. The bound ignores dynamics, limits, the scene and the focus; a camera that
+rolls could do better (the report says whether the flight rolled).
+
+The floor uses the joint-frames the report's truth joint error uses (a source target and a joint
+the simulator shows), so "floor 0.028, flown 0.047" reads: 0.019 of the error is the flight's, the
+rest is the subject's body, which cannot take the source person's pose.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from cinetransfer.shared.facing import mirror_permutation
+
+
+@dataclass(frozen=True)
+class Floor:
+    per_frame: np.ndarray  # (N,) least summed joint error of each frame; NaN where nothing is compared
+    counts: np.ndarray  # (N,) compared joints of each frame
+
+    def mean(self, rows: slice = slice(None)) -> float:
+        """Mean least error per compared joint-frame over `rows` (NaN if none)."""
+        k = int(self.counts[rows].sum())
+        return float(np.nansum(self.per_frame[rows])) / k if k else float("nan")
+
+
+class _Fit:
+    """The per-frame cone program, compiled once (cvxpy parameters, DPP) for E joints. A joint that
+    is not compared has weight 0: its row of the residual is multiplied out (w x, w y, w t)."""
+
+    def __init__(self, n_joints: int, aspect: float):
+        import cvxpy as cp
+
+        self.q = cp.Parameter((n_joints, 2))  # w * billboard joints (X, Y) [m]
+        self.p = cp.Parameter((n_joints, 2))  # w * targets, normalised
+        self.w = cp.Parameter(n_joints, nonneg=True)  # 1 = compared, 0 = not
+        self.a, self.b, self.t = cp.Variable(), cp.Variable(), cp.Variable(2)
+        x = self.a * self.q[:, 0] + cp.multiply(self.w, self.t[0]) - self.p[:, 0]
+        y = cp.multiply(self.w, self.t[1]) - self.b * self.q[:, 1] - self.p[:, 1]
+        cons = [self.a >= 0, self.b >= 0, self.b <= aspect * self.a]
+        self.problem = cp.Problem(cp.Minimize(cp.sum(cp.norm(cp.vstack([x, y]), 2, axis=0))), cons)
+
+    def solve(self, q: np.ndarray, p: np.ndarray, w: np.ndarray) -> float:
+        self.q.value = np.nan_to_num(q) * w[:, None]
+        self.p.value = np.nan_to_num(p) * w[:, None]
+        self.w.value = w
+        self.problem.solve()
+        if self.problem.status not in ("optimal", "optimal_inaccurate"):
+            raise ValueError(f"floor fit failed: {self.problem.status}")
+        return max(float(self.problem.value), 0.0)
+
+
+def joint_error_floor(targets: np.ndarray, compared: np.ndarray, billboard: np.ndarray,
+                      joint_names: Sequence[str], aspect: float) -> Floor:
+    """targets (N, E, 2) normalised source targets, compared (N, E) bool (joint-frames the truth
+    error counts), billboard (N, E, 2) the subject's joints in his plane [m] (X right, Y up;
+    NaN = unknown), aspect = image width / height."""
+    n, e = compared.shape
+    fit = _Fit(e, aspect)
+    perm = mirror_permutation(joint_names)
+    per = np.full(n, np.nan)
+    counts = np.zeros(n, dtype=int)
+    for i in range(n):
+        w = (compared[i] & np.all(np.isfinite(billboard[i]), axis=1)).astype(float)
+        if not w.any():
+            continue
+        best = fit.solve(billboard[i], targets[i], w)
+        w_m = (compared[i] & np.all(np.isfinite(billboard[i][perm]), axis=1)).astype(float)
+        if np.array_equal(w_m, w) and not np.array_equal(perm, np.arange(e)):
+            best = min(best, fit.solve(billboard[i][perm], targets[i], w))  # left/right either way
+        per[i], counts[i] = best, int(w.sum())
+    return Floor(per, counts)
+
+
+def billboard_joints(scene: str, subject: str | None, stamps_ns: Sequence[int], epoch_ns: int,
+                     joint_names: Sequence[str]) -> tuple[np.ndarray, float]:
+    """((N, E, 2) the filmed subject's joints in his billboard's plane [m] (X right, Y up) at each
+    simulation stamp, as the simulator poses him; the rendered image's width / height). Scene by
+    name or path; `subject`: the run's library person. Raises SceneError if it cannot be loaded."""
+    from cinetransfer.services.autopilot_bridge.sim.scene import load_scene
+    from cinetransfer.services.autopilot_bridge.sim.subject import Subject
+    from cinetransfer.shared.messages import COCO17_NAMES
+
+    sc = load_scene(scene, subject=subject)
+    sub = Subject(sc.subject, sc.ground.z_m if sc.ground is not None else 0.0)
+    idx = [list(COCO17_NAMES).index(n) if n in COCO17_NAMES else -1 for n in joint_names]
+    out = np.full((len(stamps_ns), len(joint_names), 2), np.nan)
+    for i, stamp in enumerate(stamps_ns):
+        t = (int(stamp) - int(epoch_ns)) * 1e-9
+        pose = sub.script.pose_at(t)
+        frame = sub.frame_at(t, pose.action, float(np.hypot(*pose.velocity_mps[:2])))
+        ax, ay = frame.anchor_px
+        for e, j in enumerate(idx):
+            if j >= 0:
+                out[i, e] = ((frame.joints_px[j, 0] - ax) * sub.m_per_px, (ay - frame.joints_px[j, 1]) * sub.m_per_px)
+    return out, float(sc.camera.width) / float(sc.camera.height)
+
+
+#: how the floor is reached (the report states it next to the number)
+MODEL = ("the least truth joint error of any camera (anywhere, aimed anyhow, any focal length, no roll; no "
+         "dynamics, limits or scene) with this subject's pose at each frame; weak perspective, which misses the "
+         "simulator's own projection by ~0.002 (docs/report.md)")
+
+
+def run_floor(source, truths: Sequence, meta: dict, *, aligned_by_index: bool) -> tuple[Floor | None, str]:
+    """(the floor of a simulated run's truth joint error, why not) from its source instructions,
+    truths and meta (scene, subject, epoch_ns); None with a reason when it cannot be computed."""
+    from cinetransfer.report import fidelity as F
+
+    if not truths:
+        return None, "no ground truth"
+    if not meta.get("scene") or meta.get("epoch_ns") is None:
+        return None, "not a simulated run with a known scene and clock (meta: scene, epoch_ns)"
+    if not aligned_by_index:
+        return None, "source and output frame rates differ"
+    names = list(source.joint_names)
+    n = int(source.image_targets.shape[0])
+    S, T = F.instructions_track(source, names), F.truth_track(truths, names, n)
+    off = F.truth_frame_offset(truths)
+    stamps = np.zeros(n, dtype=np.int64)
+    for t in truths:
+        if 0 <= int(t.frame_index) - off < n:
+            stamps[int(t.frame_index) - off] = int(t.stamp_ns)
+    try:
+        bb, aspect = billboard_joints(str(meta["scene"]), meta.get("subject"), stamps, int(meta["epoch_ns"]), names)
+    except Exception as e:  # noqa: BLE001 - a scene file moved since the run: the report goes on without it
+        return None, f"the run's scene could not be loaded ({type(e).__name__}: {e})"
+    return joint_error_floor(S.xy, S.ok & T.ok, bb, names, aspect), ""

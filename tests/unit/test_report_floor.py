@@ -1,0 +1,89 @@
+"""The truth joint error's floor (report/floor.py): hand-computed fits and the simulator's own projection."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cinetransfer.report import fidelity as F
+from cinetransfer.report.floor import billboard_joints, joint_error_floor
+from cinetransfer.services.autopilot_bridge.sim.backend import SimBackend
+from cinetransfer.shared import messages as M
+
+NAMES = ["left_shoulder", "right_shoulder", "left_hip", "right_hip"]
+
+
+def floor_of(q, p, aspect=1.0, names=NAMES):
+    q, p = np.asarray(q, float)[None], np.asarray(p, float)[None]
+    return joint_error_floor(p, np.ones(p.shape[:2], bool), q, names, aspect)
+
+
+def test_a_scaled_and_shifted_pose_is_reached_exactly():
+    q = [[0.2, 1.4], [-0.2, 1.4], [0.15, 0.9], [-0.15, 0.9]]  # metres, Y up; left shoulder on the image right
+    p = [[0.5 + 0.1 * x, 0.6 - 0.1 * y] for x, y in q]
+    fl = floor_of(q, p)
+    assert fl.mean() == pytest.approx(0.0, abs=1e-5) and fl.counts[0] == 4
+
+
+def test_a_tilted_pair_costs_its_height_difference():
+    # shoulders level on the billboard (Y 0), tilted in the target by 0.1 in y: without roll both land on
+    # one row, so the summed error is at least |0.5 - 0.6| = 0.1, and x is met exactly: mean 0.05
+    fl = floor_of([[1.0, 0.0], [-1.0, 0.0]], [[0.6, 0.5], [0.4, 0.6]], names=NAMES[:2])
+    assert fl.mean() == pytest.approx(0.05, abs=1e-5)
+
+
+def test_looking_up_or_down_only_shortens_the_body():
+    # hips 1 m below the shoulders; the target wants them 0.4 below with shoulders 0.2 apart: a vertical
+    # scale 4x the horizontal one, which no view gives when the image is square (aspect 1) ...
+    q = [[0.5, 0.0], [-0.5, 0.0], [0.5, -1.0], [-0.5, -1.0]]
+    p = [[0.6, 0.3], [0.4, 0.3], [0.6, 0.7], [0.4, 0.7]]
+    assert floor_of(q, p, aspect=1.0).mean() > 0.05
+    # ... but a frame 4x wider than tall does (a, b = 0.2, 0.4: b <= 4 a)
+    assert floor_of(q, p, aspect=4.0).mean() == pytest.approx(0.0, abs=1e-5)
+    # squashing is always possible: the same hips 0.05 below
+    p_short = [[0.6, 0.3], [0.4, 0.3], [0.6, 0.35], [0.4, 0.35]]
+    assert floor_of(q, p_short, aspect=1.0).mean() == pytest.approx(0.0, abs=1e-5)
+
+
+def test_a_person_seen_from_behind_is_matched_left_for_right():
+    q = [[0.2, 1.4], [-0.2, 1.4], [0.15, 0.9], [-0.15, 0.9]]
+    p = [[0.5 - 0.1 * x, 0.6 - 0.1 * y] for x, y in q]  # mirrored: left shoulder on the image left
+    assert floor_of(q, p).mean() == pytest.approx(0.0, abs=1e-5)
+
+
+def test_uncompared_joints_do_not_count():
+    q = np.array([[[0.5, 0.0], [-0.5, 0.0], [0.5, -1.0], [-0.5, -1.0]]])
+    p = np.array([[[0.6, 0.3], [0.4, 0.3], [0.0, 0.0], [1.0, 1.0]]])  # hips far off, but not compared
+    fl = joint_error_floor(p, np.array([[True, True, False, False]]), q, NAMES, 16 / 9)
+    assert fl.mean() == pytest.approx(0.0, abs=1e-5) and fl.counts[0] == 2
+    none = joint_error_floor(p, np.zeros((1, 4), bool), q, NAMES, 16 / 9)
+    assert np.isnan(none.mean()) and np.isnan(none.per_frame[0])
+
+
+def test_the_simulators_own_truth_is_within_the_weak_perspective_residual():
+    """The simulator's truth joints, as targets, against the billboard poses billboard_joints
+    gives for the same stamps: a floor of ~0 (what is left is perspective)."""
+    sim = SimBackend("focus_hedge", epoch_ns=0, width=480, height=270)
+    sim.start()
+    p0 = np.array(sim.scene.vehicle.position_m)
+    # climb 2.5 m and look down on him, aimed at his middle 1 m above the origin (the vertical
+    # foreshortening the fit has to reproduce)
+    sim.apply(M.Setpoint(position_m=p0 + [1.5, 0.8, 2.5], camera_ypr_rad=np.array([-0.144, -0.42, 0.0]),
+                         lens=M.LensState(focal_length_mm=30.0, focus_distance_m=float("nan"), f_number=float("nan"))))
+    truths = []
+    for k in range(144):  # 6 s: the gimbal turns at once, the drone takes ~4 s to climb there
+        sim.step(k / 24)
+        truths += sim.truths()
+    truths = truths[-48:]
+    n = len(truths)
+    T = F.truth_track(truths, NAMES, n)
+    assert T.ok.all()  # he is in the picture
+    bb, aspect = billboard_joints("focus_hedge", None, [t.stamp_ns for t in truths], 0, NAMES)
+    assert aspect == pytest.approx(960 / 540)  # the scene's camera (the test renders smaller, same shape)
+    assert np.all(bb[:, :2, 1] > bb[:, 2:, 1] + 0.3)  # shoulders above hips, metres
+    assert np.all(bb[:, 0, 0] > bb[:, 1, 0])  # he faces the camera: his left shoulder on the image right
+    fl = joint_error_floor(T.xy, T.ok, bb, NAMES, aspect)
+    assert fl.mean() < 0.003 and fl.counts.sum() == T.ok.sum()
+    # the same poses a quarter second late (another juggling frame) are not reached exactly
+    late = joint_error_floor(T.xy[6:], T.ok[6:], bb[:-6], NAMES, aspect)
+    assert late.mean() > fl.mean()
+    assert M.COCO17_NAMES[5] == "left_shoulder"
