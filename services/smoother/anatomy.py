@@ -3,15 +3,14 @@
 A pose model shown a face close-up (shoulders below the frame) or a figure that is not a person
 (tos_clip01's robot) still returns shoulders and hips, often with high confidence. On tos_clip01's
 close-ups it puts the "shoulders" at the jaw and the "hips" at the nose; a camera made to follow
-them flew up 7 m to look down 47 degrees on a squashed torso. Two scale-free measures against the
-head's width w (ear to ear), judged only where both ears and both shoulders are confident:
+them flew up 7 m to look down 47 degrees on a squashed torso. Three scale-free measures, the first
+two against the head's width w (ear to ear), judged only where the joints they use are confident:
 
 - neck: the distance from the ears' midpoint to the shoulder line, over w. A real neck and lower
   head: about 1 (median 1.15-1.3 on the juggler and the dancer); it shrinks when the head bows or
   the camera looks down on it (a vaulting runner seen from behind and above: 0.22).
 - span: shoulder to shoulder, over w. A real body: about 2.5 from the front; turned sideways the
   shoulders close up (0.53 on the vaulting runner), but then the neck is long in the image.
-
 - torso: from the shoulders' midpoint to the hips' midpoint, over the span (judged where both
   shoulders and both hips are confident). A real body: 1.2-1.5 from the front, more when turned;
   a camera looking down at 60 degrees halves it. Measured minimum on the juggler, parkour and
