@@ -87,3 +87,23 @@ def test_the_simulators_own_truth_is_within_the_weak_perspective_residual():
     late = joint_error_floor(T.xy[6:], T.ok[6:], bb[:-6], NAMES, aspect)
     assert late.mean() > fl.mean()
     assert M.COCO17_NAMES[5] == "left_shoulder"
+
+
+def test_the_floor_says_why_when_it_cannot_be_computed():
+    from cinetransfer.report.floor import run_floor
+    from cinetransfer.services.planner.core import instructions_from_arrays
+
+    ins = instructions_from_arrays(targets=np.full((4, 4, 2), 0.5), joint_names=NAMES)
+    sim = SimBackend("focus_hedge", epoch_ns=0, width=160, height=90)
+    sim.start()
+    sim.step(0.0)
+    truths = sim.truths()
+    sim_meta = {"scene": "focus_hedge", "epoch_ns": 0}
+    assert run_floor(ins, [], sim_meta, aligned_by_index=True) == (None, "no ground truth")
+    assert "not a simulated run" in run_floor(ins, truths, {}, aligned_by_index=True)[1]
+    assert "frame rates differ" in run_floor(ins, truths, {"scene": "focus_hedge", "epoch_ns": 0},
+                                             aligned_by_index=False)[1]
+    fl, why = run_floor(ins, truths, {"scene": "no_such_scene", "epoch_ns": 0}, aligned_by_index=True)
+    assert fl is None and "could not be loaded" in why and "no_such_scene" in why
+    fl, why = run_floor(ins, truths, {"scene": "focus_hedge", "epoch_ns": 0}, aligned_by_index=True)
+    assert why == "" and fl.counts[0] == 4 and fl.counts[1:].sum() == 0
