@@ -217,7 +217,9 @@ def test_ctrl_c_stops_the_vehicle_and_keeps_the_recording(data, tmp_path):
     console = open(tmp_path / "console.log", "w")
     proc = subprocess.Popen([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
                              "--scene", "lawn_juggler", "-o", str(out), "--max-frames", "240", "--preroll", "1",
-                             "--rig", "ctrlc", "--pace", "0.5"],  # a take of 20 s or more, however fast the machine
+                             # a take of 50 s or more, however fast the machine: under two busy loops beside a
+                             # whole test run, 0.5 (20 s) once let the take end before the observer saw it start
+                             "--rig", "ctrlc", "--pace", "0.2"],
                             stdout=console, stderr=subprocess.STDOUT, text=True)
     try:
         # when the take is being recorded (watched on the bus as the deployment's read-only observer:
