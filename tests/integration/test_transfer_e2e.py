@@ -41,11 +41,13 @@ def frames_in_recording(out, rig: str) -> int:
 
 
 def wait_for_take(out, rig: str, proc, seconds_in: float, timeout: float = 300.0,
-                  frames_in: int | None = None) -> float:
+                  frames_in: int | None = None, then=None) -> float:
     """Block until the transfer's simulation has run `seconds_in` simulated seconds past its reset
     (seen on the bus as the deployment's observer), or, with `frames_in`, until its recording holds
-    that many camera frames (under heavy load the observer has seen the clock late: a take of 56 s
-    was over before it saw 2 s); returns how far the clock was seen."""
+    that many camera frames; then call `then()` at once. The observer runs in its own thread: under
+    heavy load (two busy loops beside a whole test run) opening or closing its session has taken
+    longer than the rest of a 56 s take. Returns how far the clock was seen (-1: not seen)."""
+    import threading
     import time
 
     from cinetransfer.shared import zenoh_config
@@ -56,32 +58,42 @@ def wait_for_take(out, rig: str, proc, seconds_in: float, timeout: float = 300.0
         time.sleep(0.1)
     opts = zenoh_config.deployment_options(out / "deploy" / "transfer.yaml", "observer", run_dir=out / "deploy")
     seen = {"t": -1.0}
+    done = threading.Event()
 
     def on_clock(sample):
         clk = codec.decode(sample.payload.to_bytes(), M.SimClock)
         if clk.epoch_ns > M.now_ns() + 300 * 10**9:  # the transfer's time zero lies far ahead of the wall clock
             seen["t"] = max(seen["t"], (clk.stamp_ns - clk.epoch_ns) * 1e-9)
 
-    session = None
-    while session is None:  # the credentials exist a moment before the router listens
-        assert proc.poll() is None and time.monotonic() < deadline, "the transfer ended before its router came up"
-        try:
-            session = zenoh_config.open_session(opts)
-        except Exception:  # noqa: BLE001 - zenoh.ZError: not listening yet
-            time.sleep(0.2)
-    with session:
-        sub = session.declare_subscriber(keys.SIM_CLOCK.key(rig), on_clock)
-        try:
-            next_look = 0.0
-            while seen["t"] < seconds_in:
-                assert proc.poll() is None and time.monotonic() < deadline, "the take ended before the interrupt"
-                if frames_in is not None and time.monotonic() >= next_look:
-                    next_look = time.monotonic() + 0.5
-                    if frames_in_recording(out, rig) >= frames_in:
-                        break
-                time.sleep(0.05)
-        finally:
-            sub.undeclare()
+    def observe() -> None:
+        while not done.is_set():  # the credentials exist a moment before the router listens
+            try:
+                session = zenoh_config.open_session(opts)
+            except Exception:  # noqa: BLE001 - zenoh.ZError: not listening yet
+                time.sleep(0.2)
+                continue
+            with session:
+                sub = session.declare_subscriber(keys.SIM_CLOCK.key(rig), on_clock)
+                done.wait()
+                sub.undeclare()
+            return
+
+    observer = threading.Thread(target=observe, daemon=True)
+    observer.start()
+    try:
+        next_look = 0.0
+        while seen["t"] < seconds_in:
+            assert proc.poll() is None and time.monotonic() < deadline, "the take ended before the interrupt"
+            if frames_in is not None and time.monotonic() >= next_look:
+                next_look = time.monotonic() + 0.5
+                if frames_in_recording(out, rig) >= frames_in:
+                    break
+            time.sleep(0.05)
+        if then is not None:
+            then()
+    finally:
+        done.set()
+        observer.join(10)  # a session slow to close is left to its daemon thread
     return seen["t"]
 
 
@@ -241,10 +253,14 @@ def test_ctrl_c_stops_the_vehicle_and_keeps_the_recording(data, tmp_path):
         # when the take is being recorded (watched on the bus as the deployment's read-only observer:
         # 1 s of the take has been simulated since the transfer's reset) ...
         # (or half the take's frames in the recording: preroll and settle frames included, still mid-take)
-        wait_for_take(out, "ctrlc", proc, seconds_in=1.0 + 1.0, frames_in=120)
-        state = json.loads((out / "deploy" / "state.json").read_text())
-        pids = [state["supervisor_pid"], *(v["pid"] for v in state["procs"].values())]
-        proc.send_signal(signal.SIGINT)  # ... Ctrl-C, and an impatient second one
+        pids: list[int] = []
+
+        def interrupt() -> None:
+            state = json.loads((out / "deploy" / "state.json").read_text())
+            pids.extend([state["supervisor_pid"], *(v["pid"] for v in state["procs"].values())])
+            proc.send_signal(signal.SIGINT)  # ... Ctrl-C, and an impatient second one
+
+        wait_for_take(out, "ctrlc", proc, seconds_in=1.0 + 1.0, frames_in=120, then=interrupt)
         time.sleep(0.2)
         proc.send_signal(signal.SIGINT)
         rc = proc.wait(120)
