@@ -32,26 +32,41 @@ def video_frames(path) -> list[np.ndarray]:
         out.append(img)
 
 
-def frames_in_recording(out, rig: str) -> int:
-    """Camera frames in the transfer's run.mcap so far (the reader stops at the write cut)."""
-    try:
-        return sum(1 for _ in read_run(out / "run.mcap", keys.FRAME.key(rig)))
-    except Exception:  # noqa: BLE001 - not written yet, or its header still being written
-        return 0
-
-
-def wait_for_frames(out, rig: str, proc, frames: int, then, timeout: float = 300.0) -> None:
-    """Block until the transfer's run.mcap holds `frames` camera frames, then call `then()` at once.
-    Read from the file, not watched on the bus: in a whole test run (quiet or loaded) opening a
-    Zenoh observer session in the test process took longer than a 56 s take, and the interrupt
-    came after the take."""
+def wait_for_take(out, rig: str, proc, seconds_in: float, timeout: float = 300.0) -> float:
+    """Block until the transfer's simulation has run `seconds_in` simulated seconds past its reset
+    (seen on the bus as the deployment's observer); returns how far it was."""
     import time
 
+    from cinetransfer.shared import zenoh_config
+
     deadline = time.monotonic() + timeout
-    while frames_in_recording(out, rig) < frames:
-        assert proc.poll() is None and time.monotonic() < deadline, "the take ended before the interrupt"
-        time.sleep(0.5)
-    then()
+    while not (out / "deploy" / "secrets" / "users.txt").is_file():
+        assert proc.poll() is None and time.monotonic() < deadline, "the transfer ended before its deployment came up"
+        time.sleep(0.1)
+    opts = zenoh_config.deployment_options(out / "deploy" / "transfer.yaml", "observer", run_dir=out / "deploy")
+    seen = {"t": -1.0}
+
+    def on_clock(sample):
+        clk = codec.decode(sample.payload.to_bytes(), M.SimClock)
+        if clk.epoch_ns > M.now_ns() + 300 * 10**9:  # the transfer's time zero lies far ahead of the wall clock
+            seen["t"] = max(seen["t"], (clk.stamp_ns - clk.epoch_ns) * 1e-9)
+
+    session = None
+    while session is None:  # the credentials exist a moment before the router listens
+        assert proc.poll() is None and time.monotonic() < deadline, "the transfer ended before its router came up"
+        try:
+            session = zenoh_config.open_session(opts)
+        except Exception:  # noqa: BLE001 - zenoh.ZError: not listening yet
+            time.sleep(0.2)
+    with session:
+        sub = session.declare_subscriber(keys.SIM_CLOCK.key(rig), on_clock)
+        try:
+            while seen["t"] < seconds_in:
+                assert proc.poll() is None and time.monotonic() < deadline, "the take ended before the interrupt"
+                time.sleep(0.05)
+        finally:
+            sub.undeclare()
+    return seen["t"]
 
 
 def busy_cores(n: int = 2) -> list[subprocess.Popen]:
@@ -202,20 +217,16 @@ def test_ctrl_c_stops_the_vehicle_and_keeps_the_recording(data, tmp_path):
     console = open(tmp_path / "console.log", "w")
     proc = subprocess.Popen([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
                              "--scene", "lawn_juggler", "-o", str(out), "--max-frames", "240", "--preroll", "1",
-                             # a take of 50 s or more, however fast the machine (the interrupt lands mid-take)
-                             "--rig", "ctrlc", "--pace", "0.2"],
+                             "--rig", "ctrlc", "--pace", "0.5"],  # a take of 20 s or more, however fast the machine
                             stdout=console, stderr=subprocess.STDOUT, text=True)
     try:
-        # when the take is being recorded (half its frames in run.mcap, pre-roll and settle frames
-        # included: mid-take) ...
-        pids: list[int] = []
-
-        def interrupt() -> None:
-            state = json.loads((out / "deploy" / "state.json").read_text())
-            pids.extend([state["supervisor_pid"], *(v["pid"] for v in state["procs"].values())])
-            proc.send_signal(signal.SIGINT)  # ... Ctrl-C, and an impatient second one
-
-        wait_for_frames(out, "ctrlc", proc, 120, interrupt)
+        # when the take is being recorded (watched on the bus as the deployment's read-only observer:
+        # 1 s of the take has been simulated since the transfer's reset) ...
+        take_s = wait_for_take(out, "ctrlc", proc, seconds_in=1.0 + 1.0)
+        assert take_s >= 2.0
+        state = json.loads((out / "deploy" / "state.json").read_text())
+        pids = [state["supervisor_pid"], *(v["pid"] for v in state["procs"].values())]
+        proc.send_signal(signal.SIGINT)  # ... Ctrl-C, and an impatient second one
         time.sleep(0.2)
         proc.send_signal(signal.SIGINT)
         rc = proc.wait(120)
