@@ -33,7 +33,6 @@ import argparse
 import collections
 import contextlib
 import dataclasses
-import faulthandler
 import json
 import logging
 import signal
@@ -48,8 +47,6 @@ from cinetransfer.shared import messages as M
 from cinetransfer.shared.zenoh_config import ZenohOptions, add_arguments, open_session, options_from_args
 
 NO_DROP_CAP = 100_000  # a no-drop queue past this is a bug upstream; it then drops and says so
-#: seconds after SIGINT/SIGTERM before a shutdown still running writes every thread's stack to stderr
-SHUTDOWN_STACKS_S = 8.0
 
 
 def add_node_arguments(parser: argparse.ArgumentParser, *, default_rig: str = "rig0") -> None:
@@ -268,14 +265,10 @@ class Node:
             self.session = None
         for sig, h in self._old_handlers.items():
             signal.signal(sig, h)
-        faulthandler.cancel_dump_traceback_later()
         self.log.info("stopped")
 
     def _on_signal(self, signum: int, _frame: object) -> None:
         self.log.info("received %s, shutting down", signal.Signals(signum).name)
-        # a shutdown still running after SHUTDOWN_STACKS_S writes every thread's stack to stderr (the
-        # node's log): a rare hang at exit (a bridge once, in ~15 full test runs) gets diagnosed, not killed blind
-        faulthandler.dump_traceback_later(SHUTDOWN_STACKS_S, exit=False)
         self.stop()
 
     def stop(self) -> None:
