@@ -174,27 +174,6 @@ def _already_stopping(_signum, _frame) -> None:
           file=sys.stderr)
 
 
-class HeldInterrupt:
-    """While the take is being closed, Ctrl-C cannot cut the stop short, but it is not lost either:
-    it is remembered (`.pressed`) and the caller ends the job as interrupted once the recording is
-    saved. (It used to be ignored: a Ctrl-C in the second the take ended was dropped and the job ran
-    on through the output's extraction and the report.)"""
-
-    def __init__(self) -> None:
-        self.pressed = False
-
-    def _on_sigint(self, signum, frame) -> None:  # noqa: ANN001
-        self.pressed = True
-        _already_stopping(signum, frame)
-
-    def __enter__(self) -> "HeldInterrupt":
-        self._old = signal.signal(signal.SIGINT, self._on_sigint)
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        signal.signal(signal.SIGINT, self._old)
-
-
 def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: float, realtime: bool,
         stall_s: float, meta: dict, publish_instructions: bool = True, settle_s: float = 3.0,
         one_take: bool = False, pace: float = 0.0, min_take_s: float = 0.5) -> Recorder:
@@ -217,14 +196,14 @@ def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: fl
         signal.signal(signal.SIGINT, _already_stopping)
         log.warning("interrupted: stopping the vehicle and keeping what was recorded")
     finally:
-        with HeldInterrupt() as held:  # the stop is never cut short
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)  # the stop is never cut short
+        try:
             cond.stop(sim_time=not realtime)
             time.sleep(0.3)
             rec.summaries = rec.close()
             cond.undeclare()
-        if held.pressed and not rec.interrupted:
-            rec.interrupted = True
-            log.warning("interrupted as the take ended: the recording is saved, the evaluation is skipped")
+        finally:
+            signal.signal(signal.SIGINT, old)
     return rec
 
 
