@@ -24,7 +24,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "sim-vehicle": ("cinetransfer.services.autopilot_bridge.sim_vehicle", "main",
                     "a simulated vehicle behind a real MAVLink endpoint"),
     # tools
-    "deploy": ("cinetransfer.deploy.supervisor", "main", "start/stop/inspect a set of nodes from a config"),
+    "deploy": ("cinetransfer.deploy.cli", "main", "start/stop/inspect a set of nodes from a config"),
     "monitor": ("cinetransfer.shared.monitor", "main", "live table of keys, rates and alive nodes"),
     "relay": ("cinetransfer.shared.relay", "main", "forward validated messages from one key to another"),
     "router": ("cinetransfer.shared.router", "main", "run a Zenoh router"),

@@ -13,7 +13,8 @@ import pytest
 import zenoh
 
 from cinetransfer.deploy import certs
-from cinetransfer.deploy.supervisor import load_config, prepare_security, security_flags
+from cinetransfer.deploy.config import load_config
+from cinetransfer.deploy.security import prepare_security, security_flags
 from cinetransfer.shared import access, keys
 from cinetransfer.shared.zenoh_config import ZenohOptions, free_tcp_port, open_session
 from conftest import spawn, stop, wait_for

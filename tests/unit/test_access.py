@@ -1,7 +1,8 @@
 """The access rules cover every topic, and insecure listeners are refused before anything starts."""
 import pytest
 
-from cinetransfer.deploy.supervisor import ConfigError, load_config, resolve_run_dir
+from cinetransfer.deploy.config import ConfigError, load_config
+from cinetransfer.deploy.rundir import resolve_run_dir
 from cinetransfer.shared import access, keys
 from cinetransfer.shared.zenoh_config import ZenohOptions
 

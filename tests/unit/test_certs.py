@@ -4,13 +4,13 @@ import stat
 from cryptography import x509
 from cryptography.x509.oid import NameOID
 
-from cinetransfer.deploy import certs, supervisor
+from cinetransfer.deploy import certs, cli
 from cinetransfer.shared import access
 
 
 def test_certs_cli_writes_a_private_ca_and_per_identity_certificates(tmp_path, capsys):
     out = tmp_path / "sec"
-    assert supervisor.main(["certs", str(out), "--host", "192.0.2.10", "--host", "drone.local"]) == 0
+    assert cli.main(["certs", str(out), "--host", "192.0.2.10", "--host", "drone.local"]) == 0
     assert stat.S_IMODE(out.stat().st_mode) == 0o700
     for f in out.iterdir():
         assert stat.S_IMODE(f.stat().st_mode) == 0o600, f
@@ -26,7 +26,7 @@ def test_certs_cli_writes_a_private_ca_and_per_identity_certificates(tmp_path, c
     assert set(access.USER_IDENTITIES) <= set(users) and len(set(users.values())) == len(users)
     # a second run does not silently replace the credentials
     before = (out / "users.txt").read_text()
-    assert supervisor.main(["certs", str(out)]) == 1
+    assert cli.main(["certs", str(out)]) == 1
     assert "--force" in capsys.readouterr().err and (out / "users.txt").read_text() == before
 
 
