@@ -6,13 +6,14 @@ configs that form one deployment against the declared dataflow (deploy/dataflow.
 """
 from __future__ import annotations
 
+import argparse
 import dataclasses
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from cinetransfer.shared import keys
+from cinetransfer.shared import keys, zenoh_config
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.nodeconfig import substitute_env
 from cinetransfer.shared.paths import named_yaml
@@ -88,15 +89,22 @@ def _zenoh_flags(z: dict, where: str) -> list[str]:
     return flags
 
 
-def _check_listeners(listen: list, where: str) -> None:
-    from cinetransfer.shared.zenoh_config import _is_local, endpoint_host
-
-    for ep in listen:
-        proto, host = endpoint_host(str(ep))
-        if proto not in ("tls", "quic") and not _is_local(proto, host):
-            raise ConfigError(f"{where}: listener {ep} would accept unauthenticated connections from the "
-                              f"network; listen on 127.0.0.1, or on tls/{host}:PORT (mutual TLS, see "
-                              f"docs/security.md)")
+def _check_exposure(z: dict, args: list[str], raw: dict, where: str) -> None:
+    """The exposure rule every Zenoh session passes (shared/exposure.py), checked on the config
+    before anything starts: its zenoh settings, the zenoh flags among its args, $CT_ZENOH_CONFIG.
+    A secure deployment gives each process its secrets, which turn on mutual TLS."""
+    sec = raw.get("security")
+    secure = not isinstance(sec, dict) or bool(sec.get("enabled", True))
+    parser = argparse.ArgumentParser(add_help=False, exit_on_error=False)
+    zenoh_config.add_arguments(parser)
+    try:
+        flags, _ = parser.parse_known_args(args)
+        zenoh_config.options_from_args(
+            flags, files=False, mode=str(z.get("mode", "peer")), listen=tuple(map(str, z.get("listen") or ())),
+            connect=tuple(map(str, z.get("connect") or ())), config_file=z.get("config") or None,
+            tls_mtls=bool(z.get("mtls") or secure))
+    except (ConfigError, argparse.ArgumentError) as e:
+        raise ConfigError(f"{where}: {e}") from None
 
 
 def _load_routers(raw: dict, path: Path) -> list[Proc]:
@@ -104,8 +112,9 @@ def _load_routers(raw: dict, path: Path) -> list[Proc]:
     for i, r in enumerate(raw.get("routers") or []):
         if not isinstance(r, dict) or "name" not in r:
             raise ConfigError(f"{path}: routers[{i}] needs a name")
-        argv = ["router", *_zenoh_flags({"mode": "router", **(r.get("zenoh") or {})}, f"routers[{i}]")]
-        _check_listeners((r.get("zenoh") or {}).get("listen") or [], f"{path}: routers[{i}]")
+        z = {"mode": "router", **(r.get("zenoh") or {})}
+        argv = ["router", *_zenoh_flags(z, f"routers[{i}]")]
+        _check_exposure(z, [], raw, f"{path}: routers[{i}] ({r['name']})")
         routers.append(Proc(str(r["name"]), "router", tuple(argv), r.get("identity")))
     return routers
 
@@ -126,6 +135,7 @@ def _load_node(n: Any, i: int, raw: dict, path: Path) -> Proc:
     z = {**((raw.get("defaults") or {}).get("zenoh") or {}), **(n.get("zenoh") or {})}
     argv = [str(n["command"]), *settings, *map(str, args), "--rig", str(raw.get("rig", "rig0")),
             *_zenoh_flags(z, f"nodes[{i}]")]
+    _check_exposure(z, list(map(str, args)), raw, f"{path}: nodes[{i}] ({n['name']})")
     return Proc(str(n["name"]), "node", tuple(argv), str(n.get("identity", n["name"])), str(n.get("role", n["name"])))
 
 
