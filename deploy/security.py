@@ -40,9 +40,9 @@ def prepare_security(cfg: DeployConfig, run_dir: Path) -> None:
     links = [ep for r in cfg.routers for i, ep in enumerate(r.argv) if i and r.argv[i - 1] in ("--listen", "--connect")
              and endpoint_host(ep)[0] in ("tls", "quic")]
     if links and cfg.secrets is None:
-        raise ConfigError(f"this deployment links hosts over TLS ({', '.join(links)}); every host needs the same "
-                          f"credentials: run 'cinetransfer deploy certs DIR --host <drone address>', copy DIR to "
-                          f"each host and set CT_SECRETS=DIR (docs/security.md)")
+        raise ConfigError(f"this deployment links hosts over TLS ({', '.join(links)}); the hosts need credentials "
+                          f"of one CA: run 'cinetransfer deploy certs DIR --host <drone address>', copy DIR/onboard "
+                          f"to the drone and set CT_SECRETS=DIR/ground or DIR/onboard (docs/security.md)")
     if cfg.secrets is None:
         certs.ensure(sec, users=identities(cfg))
     elif not (sec / certs.USERS_FILE).is_file():
