@@ -9,6 +9,8 @@ from __future__ import annotations
 import importlib
 import sys
 
+from cinetransfer.shared.errors import ConfigError, report_config_error
+
 #: name -> (module, function, one-line help)
 COMMANDS: dict[str, tuple[str, str, str]] = {
     # services (long-running Zenoh nodes)
@@ -24,7 +26,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "sim-vehicle": ("cinetransfer.services.autopilot_bridge.sim_vehicle", "main",
                     "a simulated vehicle behind a real MAVLink endpoint"),
     # tools
-    "deploy": ("cinetransfer.deploy.supervisor", "main", "start/stop/inspect a set of nodes from a config"),
+    "deploy": ("cinetransfer.deploy.cli", "main", "start/stop/inspect a set of nodes from a config"),
     "monitor": ("cinetransfer.shared.monitor", "main", "live table of keys, rates and alive nodes"),
     "relay": ("cinetransfer.shared.relay", "main", "forward validated messages from one key to another"),
     "router": ("cinetransfer.shared.router", "main", "run a Zenoh router"),
@@ -73,7 +75,10 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr)
             return 2
         raise
-    rc = getattr(mod, fn_name)(rest)
+    try:
+        rc = getattr(mod, fn_name)(rest)
+    except ConfigError as e:  # a bad setting found past a command's own checks: one line, exit 2
+        return report_config_error(e, f"cinetransfer {name}")
     return int(rc or 0)
 
 

@@ -13,8 +13,13 @@ certificate's common name. The router enforces, by key expression, with default 
 
 A router-to-router link carries every identity of the far side, so a link identity is the
 union of those (`LINKS`): the onboard router lets the ground router forward commands, never
-setpoints. The tables refer to the topic table in `keys`, so a new topic without a publisher
-here fails tests/unit/test_access.py.
+setpoints.
+
+Rights are bound to how a peer arrives: a user name counts only on a local link (plain TCP,
+which deploy and every node refuse off loopback), a certificate only on a TLS link. Over TLS a
+peer may do what its certificate's common name may do and nothing more, whatever user name and
+password it logs in with; the two subjects never add up. The tables refer to the topic table in
+`keys`, so a new topic without a publisher here fails tests/unit/test_access.py.
 """
 from __future__ import annotations
 
@@ -48,6 +53,18 @@ LINKS: dict[str, tuple[str, ...]] = {
 #: identities that get a password in users.txt / a certificate from `deploy certs`
 USER_IDENTITIES = (*NODE_IDENTITIES, *TOOL_IDENTITIES, *LINKS)
 CERT_IDENTITIES = (*LINKS, OPERATOR)
+#: which host of a split deployment holds whose secrets (`deploy certs` writes one folder each):
+#: its own identities' passwords, its router's certificate and key; the CA key stays on the ground.
+#: The onboard router also holds the ground link's password: it is the one that checks it.
+HOST_USERS: dict[str, tuple[str, ...]] = {
+    "ground": (*dict.fromkeys([*LINKS["ground"], *TOOL_IDENTITIES, "ground"]),),
+    "onboard": (*dict.fromkeys([*LINKS["onboard"], *TOOL_IDENTITIES, "onboard", "ground"]),),
+}
+#: (A ground tool reaches the drone through the ground router, so no operator certificate is needed there.)
+HOST_CERTS: dict[str, tuple[str, ...]] = {"ground": ("ground",), "onboard": ("onboard",)}
+#: the links a user name counts on (local only) and those a certificate counts on
+LOCAL_PROTOCOLS = ["tcp", "unixsock-stream"]
+TLS_PROTOCOLS = ["tls", "quic"]
 
 _ALL = f"{keys.ROOT}/**"
 _RECEIVE = ["put", "delete", "query"]  # egress: delivered to a subscriber / queryable
@@ -69,7 +86,8 @@ def access_control(*, grants: dict[str, list[str]] | None = None, links: bool = 
     """The Zenoh `access_control` object for a router: default deny, the rights above.
 
     `grants` adds keys an identity may publish (e.g. a test relay); with `links`, the rules also
-    admit the router-to-router link identities of LINKS (matched by certificate common name).
+    admit the certificate identities (routers of LINKS, a remote operator) on TLS links, by common
+    name. User-name subjects are limited to local links, so over TLS only the certificate counts.
     """
     grants = grants or {}
     users = list(dict.fromkeys([*NODE_IDENTITIES, *TOOL_IDENTITIES, *grants]))
@@ -100,10 +118,11 @@ def access_control(*, grants: dict[str, list[str]] | None = None, links: bool = 
         policies.append({"id": f"{subject_id}-policy", "rules": ids, "subjects": [subject_id]})
 
     for u in users:
-        add(u, {"usernames": [u]}, [u])
+        add(u, {"usernames": [u], "link_protocols": LOCAL_PROTOCOLS}, [u])
     if links:
-        for link, behind in LINKS.items():
-            add(f"link-{link}", {"cert_common_names": [link]}, list(behind))
+        for cn in CERT_IDENTITIES:
+            subject = {"cert_common_names": [cn], "link_protocols": TLS_PROTOCOLS}
+            add(f"cert-{cn}", subject, list(LINKS.get(cn, (cn,))))
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 

@@ -160,8 +160,10 @@ def _options(args: argparse.Namespace) -> zenoh_config.ZenohOptions:
     explicit = args.connect or args.listen or args.zenoh_config or os.environ.get(zenoh_config.ENV_CONFIG)
     if explicit and not args.deployment:
         return zenoh_config.options_from_args(args)
+    from cinetransfer.deploy import join  # a tool joining a deployment (monitor sits above deploy)
+
     try:
-        return zenoh_config.deployment_options(args.deployment or "local", args.identity or "observer")
+        return join.deployment_options(args.deployment or "local", args.identity or "observer")
     except ValueError:
         if args.deployment:
             raise

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import logging
 import signal
+import sys
 import threading
 
 from cinetransfer.shared import zenoh_config
@@ -26,7 +27,8 @@ def main(argv: list[str]) -> int:
     try:
         opts = zenoh_config.options_from_args(args, mode="router", listen=("tcp/127.0.0.1:7447",))
     except ValueError as e:
-        p.error(str(e))
+        print(f"cinetransfer router: config error: {e}", file=sys.stderr)
+        return 2
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

@@ -8,22 +8,24 @@ OFF (a peer would otherwise announce itself on every interface) and a peer liste
 Security (docs/security.md): with `secrets` (a folder from `cinetransfer deploy certs`) a
 process joins as `identity` with that identity's password, a router checks every joiner against
 the folder's users.txt, and tls/ endpoints use the folder's CA and the identity's certificate
-with mutual authentication. A listener that leaves the host must be tls/ or quic/ with mTLS;
-plain listeners are refused anywhere but on loopback. `deployment_options` is the one way for
-a tool to join a running deployment as a given identity.
+with mutual authentication. Every configuration, however it was given, is checked against the
+rule of shared/exposure.py (no listener off loopback without mutual TLS, no peer off loopback)
+before a session opens. To join a running deployment as a given
+identity, a tool uses cinetransfer.deploy.join (this bottom layer knows no deploy configs).
 """
 from __future__ import annotations
 
 import argparse
 import json
-import ipaddress
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import zenoh
 
+from cinetransfer.shared import exposure
 from cinetransfer.shared.errors import ConfigError
+from cinetransfer.shared.exposure import endpoint_host
 
 ENV_CONFIG = "CT_ZENOH_CONFIG"
 MODES = ("peer", "client", "router")
@@ -49,19 +51,26 @@ class ZenohOptions:
     access_control: str | None = None  # JSON file with a Zenoh `access_control` object (routers)
     extra: tuple[tuple[str, str], ...] = field(default=())  # (key, json5 value) pairs
 
-    def validate(self) -> None:
-        """Raises ConfigError (a ValueError) naming the option."""
+    def validate(self, *, files: bool = True) -> None:
+        """Raises ConfigError (a ValueError) naming the option.
+
+        Checks the effective configuration (file, environment and flags together) against the
+        exposure rule of shared/exposure.py. `files=False` skips the existence of credential
+        files that are made later (a deploy config is checked before `up` writes them).
+        """
         if self.mode not in MODES:
             raise ConfigError(f"zenoh mode {self.mode!r} is not one of {', '.join(MODES)}")
         for ep in (*self.listen, *self.connect):
             if "/" not in ep:
                 raise ConfigError(f"zenoh endpoint {ep!r} must look like 'tcp/127.0.0.1:7447'")
-        self._validate_files()
-        for ep in self.listen:
-            self._validate_listener(ep)
+        if self.config_file and not os.path.isfile(self.config_file):
+            raise ConfigError(f"zenoh configuration file {self.config_file!r} does not exist")
+        if files:
+            self._validate_files()
+        exposure.check(exposure.of_config(_assemble(self, credentials=False)))
 
     def _validate_files(self) -> None:
-        for p in (self.config_file, self.tls_root_ca, self.tls_cert, self.tls_key):
+        for p in (self.tls_root_ca, self.tls_cert, self.tls_key):
             if p and not os.path.isfile(p):
                 raise ConfigError(f"zenoh configuration file {p!r} does not exist")
         if bool(self.tls_cert) != bool(self.tls_key):
@@ -70,16 +79,6 @@ class ZenohOptions:
             raise ConfigError(f"secrets folder {self.secrets!r} does not exist (cinetransfer deploy certs DIR)")
         if self.access_control and not os.path.isfile(self.access_control):
             raise ConfigError(f"access-control file {self.access_control!r} does not exist")
-
-    def _validate_listener(self, ep: str) -> None:
-        proto, host = endpoint_host(ep)
-        if proto in ("tls", "quic"):
-            if not (self.tls_mtls or self.secrets):
-                raise ConfigError(f"listener {ep!r}: tls/quic listeners must require client certificates "
-                                  f"(--mtls, or --secrets DIR which implies it)")
-        elif not _is_local(proto, host):
-            raise ConfigError(f"listener {ep!r} would accept unauthenticated connections from the network; "
-                              f"listen on 127.0.0.1 or use tls/{host}:PORT with mTLS (docs/security.md)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -108,8 +107,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="router: file with the Zenoh access_control rules to enforce")
 
 
-def options_from_args(args: argparse.Namespace, **defaults: object) -> ZenohOptions:
-    """Build options: `defaults` (e.g. from a deploy config), then flags on top."""
+def options_from_args(args: argparse.Namespace, *, files: bool = True, **defaults: object) -> ZenohOptions:
+    """Build and validate options: `defaults` (e.g. from a deploy config), then flags on top
+    (`files=False`: credential files need not exist yet, see ZenohOptions.validate)."""
     base = ZenohOptions(**defaults)  # type: ignore[arg-type]
     upd: dict[str, object] = {}
     cfg = getattr(args, "zenoh_config", None) or os.environ.get(ENV_CONFIG) or base.config_file
@@ -127,34 +127,52 @@ def options_from_args(args: argparse.Namespace, **defaults: object) -> ZenohOpti
     if getattr(args, "connect", None):
         upd["connect"] = tuple(args.connect)
     opts = ZenohOptions(**{**base.__dict__, **upd})
-    opts.validate()
+    opts.validate(files=files)
     return opts
 
 
 def build_config(opts: ZenohOptions) -> zenoh.Config:
-    """The zenoh.Config for these options."""
+    """The zenoh.Config for these options (validated: see ZenohOptions.validate)."""
     opts.validate()
-    conf = zenoh.Config.from_file(opts.config_file) if opts.config_file else zenoh.Config()
+    return _assemble(opts, credentials=True)
+
+
+def _assemble(opts: ZenohOptions, *, credentials: bool) -> zenoh.Config:
+    """File, then options on top; `credentials`: also the password and access rules (read from files)."""
+    conf = _from_file(opts.config_file) if opts.config_file else zenoh.Config()
 
     def put(key: str, value: object) -> None:
         conf.insert_json5(key, json.dumps(value))
 
-    _put_links(opts, put)
-    _put_tls(opts, put)
-    if opts.access_control:
+    _put_links(opts, put, conf)
+    _put_tls(opts, put, credentials)
+    if credentials and opts.access_control:
         conf.insert_json5("access_control", Path(opts.access_control).read_text())
     for key, value in opts.extra:
-        conf.insert_json5(key, value)
+        try:
+            conf.insert_json5(key, value)
+        except zenoh.ZError as e:
+            raise ConfigError(f"zenoh setting {key} = {value}: {str(e).splitlines()[0]}") from None
     return conf
 
 
-def _put_links(opts: ZenohOptions, put) -> None:
+def _from_file(path: str) -> zenoh.Config:
+    try:
+        return zenoh.Config.from_file(path)
+    except zenoh.ZError as e:
+        raise ConfigError(f"zenoh configuration file {path}: {str(e).splitlines()[0]}") from None
+
+
+_ZENOH_DEFAULT_LISTEN = exposure.setting(zenoh.Config(), "listen/endpoints")  # every interface
+
+
+def _put_links(opts: ZenohOptions, put, conf: zenoh.Config) -> None:
     """Mode, scouting, endpoints and shared memory."""
     put("mode", opts.mode)
     put("scouting/multicast/enabled", opts.multicast_scouting)
     if opts.listen:
         put("listen/endpoints", list(opts.listen))
-    elif not opts.config_file and opts.mode == "peer":
+    elif opts.mode == "peer" and exposure.setting(conf, "listen/endpoints") == _ZENOH_DEFAULT_LISTEN:
         # Zenoh's default peer listens on every interface; stay on loopback unless asked.
         put("listen/endpoints", ["tcp/127.0.0.1:0"])
     if opts.connect:
@@ -164,20 +182,15 @@ def _put_links(opts: ZenohOptions, put) -> None:
         put("transport/shared_memory/transport_optimization/pool_size", SHM_POOL_BYTES)
 
 
-def _tls_files(opts: ZenohOptions, put) -> tuple[str | None, str | None, str | None, bool]:
+def _tls_files(opts: ZenohOptions, put, credentials: bool) -> tuple[str | None, str | None, str | None, bool]:
     """(root CA, certificate, key, mutual TLS): the options', completed from the secrets folder;
-    puts the user/password authentication of the secrets folder on the way."""
+    with `credentials`, puts the user/password authentication of the secrets folder on the way."""
     root_ca, cert, key, mtls = opts.tls_root_ca, opts.tls_cert, opts.tls_key, opts.tls_mtls
     if not opts.secrets:
         return root_ca, cert, key, mtls
-    from cinetransfer.shared import access
-
     sec = Path(opts.secrets)
-    if opts.mode == "router":
-        put("transport/auth/usrpwd/dictionary_file", str(sec / "users.txt"))
-    if opts.identity:
-        put("transport/auth/usrpwd/user", opts.identity)
-        put("transport/auth/usrpwd/password", access.read_password(sec, opts.identity))
+    if credentials:
+        _put_password(opts, sec, put)
     if any(endpoint_host(ep)[0] in ("tls", "quic") for ep in (*opts.listen, *opts.connect)):
         root_ca = root_ca or str(sec / "ca.pem")
         if not cert and opts.identity and (sec / f"{opts.identity}.pem").is_file():
@@ -186,8 +199,18 @@ def _tls_files(opts: ZenohOptions, put) -> tuple[str | None, str | None, str | N
     return root_ca, cert, key, mtls
 
 
-def _put_tls(opts: ZenohOptions, put) -> None:
-    root_ca, cert, key, mtls = _tls_files(opts, put)
+def _put_password(opts: ZenohOptions, sec: Path, put) -> None:
+    from cinetransfer.shared import access
+
+    if opts.mode == "router":
+        put("transport/auth/usrpwd/dictionary_file", str(sec / "users.txt"))
+    if opts.identity:
+        put("transport/auth/usrpwd/user", opts.identity)
+        put("transport/auth/usrpwd/password", access.read_password(sec, opts.identity))
+
+
+def _put_tls(opts: ZenohOptions, put, credentials: bool) -> None:
+    root_ca, cert, key, mtls = _tls_files(opts, put, credentials)
     if root_ca:
         put("transport/link/tls/root_ca_certificate", root_ca)
     if cert:
@@ -197,52 +220,6 @@ def _put_tls(opts: ZenohOptions, put) -> None:
         put("transport/link/tls/connect_private_key", key)
     if mtls:
         put("transport/link/tls/enable_mtls", True)
-
-
-def endpoint_host(endpoint: str) -> tuple[str, str]:
-    """('tcp', '127.0.0.1') for 'tcp/127.0.0.1:7447' (IPv6 brackets and ?/# suffixes removed)."""
-    proto, _, rest = endpoint.partition("/")
-    rest = rest.split("?", 1)[0].split("#", 1)[0]
-    host = rest.rsplit(":", 1)[0] if ":" in rest else rest
-    return proto.lower(), host.strip("[]")
-
-
-def _is_local(proto: str, host: str) -> bool:
-    if proto.startswith("unix"):
-        return True
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
-
-
-def deployment_options(config: str | os.PathLike, identity: str = "operator", *,
-                       run_dir: str | os.PathLike | None = None, **overrides: object) -> ZenohOptions:
-    """Options to join the deployment `config` (a shipped name or a YAML path) as `identity`.
-
-    Finds the deployment's router endpoint and secrets folder the way `cinetransfer deploy` does
-    (`run_dir` as given to `deploy up --run-dir`, else the per-config state folder); `overrides`
-    set further ZenohOptions fields, e.g. shared_memory=True. Identities: shared/access.py.
-    """
-    from cinetransfer.deploy import supervisor
-
-    cfg = supervisor.load_config(str(config))
-    rd = supervisor.resolve_run_dir(cfg, run_dir)
-    if not cfg.check_endpoint:
-        raise ValueError(f"deploy config {cfg.path} has no router endpoint to join")
-    base: dict[str, object] = {"mode": "client", "connect": (cfg.check_endpoint,), "identity": identity,
-                               "secrets": str(supervisor.secrets_dir(cfg, rd)) if cfg.secure else None}
-    opts = ZenohOptions(**{**base, **overrides})  # type: ignore[arg-type]
-    opts.validate()
-    return opts
-
-
-def open_as(config: str | os.PathLike, identity: str = "operator", *, run_dir: str | os.PathLike | None = None,
-            **overrides: object) -> zenoh.Session:
-    """Open a session on the deployment `config` as `identity` (see deployment_options)."""
-    return open_session(deployment_options(config, identity, run_dir=run_dir, **overrides))
 
 
 def free_tcp_port() -> int:
@@ -262,6 +239,6 @@ def open_session(opts: ZenohOptions) -> zenoh.Session:
     except zenoh.ZError as e:
         if opts.connect and not (opts.identity and opts.secrets):
             raise zenoh.ZError(f"{e} — if this is a secure deployment, its router admits only an identity with "
-                               f"its password: --identity NAME --secrets DIR, or zenoh_config.open_as() "
+                               f"its password: --identity NAME --secrets DIR, or deploy.join.open_as() "
                                f"(docs/security.md)") from None
         raise

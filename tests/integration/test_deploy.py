@@ -9,7 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from cinetransfer.deploy.supervisor import ConfigError, _pid_alive, alive_nodes, load_config
+from cinetransfer.deploy.cli import alive_nodes
+from cinetransfer.deploy.config import ConfigError, load_config
+from cinetransfer.deploy.rundir import pid_alive as _pid_alive
 from conftest import REPO, wait_for
 
 RELAYS = REPO / "tests" / "data" / "deploy" / "relays.yaml"
@@ -83,7 +85,7 @@ def test_deploy_relays_restart_and_down(port, tmp_path):
 @pytest.mark.slow
 def test_deploy_local_real_nodes_restart_and_down(port, tmp_path):
     """The shipped local config: router + bridge(sim) + detector + smoother + planner."""
-    from cinetransfer.deploy.supervisor import resolve_config_path
+    from cinetransfer.deploy.config import resolve_config_path
 
     run_supervised(resolve_config_path("local"), port, tmp_path, "smoother")
 
@@ -91,7 +93,7 @@ def test_deploy_local_real_nodes_restart_and_down(port, tmp_path):
 def test_concurrent_up_runs_one_deployment_and_down_from_elsewhere_stops_it(port, tmp_path, monkeypatch):
     """Two `up` at once: one wins, the other is refused; the run folder does not depend on the
     working directory, so `status` and `down` from another folder find every process."""
-    from cinetransfer.deploy.supervisor import resolve_run_dir, running_procs
+    from cinetransfer.deploy.rundir import resolve_run_dir, running_procs
 
     state_home = tmp_path / "state"
     env = {**os.environ, "CT_ROUTER_PORT": str(port), "CT_STATE_DIR": str(state_home)}
@@ -122,11 +124,12 @@ def test_concurrent_up_runs_one_deployment_and_down_from_elsewhere_stops_it(port
         assert st.returncode == 0 and "relay_b" in st.stdout, st.stdout + st.stderr
         # a tool joins the running deployment as an identity, found from the config alone, and
         # messages flow through both relays under the deployment's access rules
-        from cinetransfer.shared import codec, messages as M, zenoh_config
+        from cinetransfer.deploy import join
+        from cinetransfer.shared import codec, messages as M
 
         got = []
-        with zenoh_config.open_as(str(RELAYS), "observer") as watcher, \
-                zenoh_config.open_as(str(RELAYS), "operator") as op:
+        with join.open_as(str(RELAYS), "observer") as watcher, \
+                join.open_as(str(RELAYS), "operator") as op:
             sub = watcher.declare_subscriber("ct/t/b/out", lambda s: got.append(codec.decode(s.payload.to_bytes())))
             wait_for(lambda: op.put("ct/t/a/in", codec.encode(M.Command(action="ping"))) or got, timeout=60,
                      interval=0.2, what="a message through both relays")
@@ -144,7 +147,7 @@ def test_concurrent_up_runs_one_deployment_and_down_from_elsewhere_stops_it(port
 
 def test_down_finds_orphans_without_a_supervisor_or_state_file(port, tmp_path):
     """If the supervisor dies (SIGKILL) and its state file is lost, `down` still stops the nodes."""
-    from cinetransfer.deploy.supervisor import running_procs
+    from cinetransfer.deploy.rundir import running_procs
 
     env = {**os.environ, "CT_ROUTER_PORT": str(port)}
     run_dir = tmp_path / "run"
@@ -166,7 +169,7 @@ def test_down_finds_orphans_without_a_supervisor_or_state_file(port, tmp_path):
 
 def test_foreground_ctrl_c_stops_every_process(port, tmp_path):
     """Ctrl-C reaches `up --foreground` and its supervisor together; nothing may be orphaned."""
-    from cinetransfer.deploy.supervisor import running_procs
+    from cinetransfer.deploy.rundir import running_procs
 
     env = {**os.environ, "CT_ROUTER_PORT": str(port)}
     run_dir = tmp_path / "run"

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cinetransfer.deploy.supervisor import load_config
+from cinetransfer.deploy.config import load_config
 from cinetransfer.shared import nodeconfig
 from cinetransfer.shared.errors import ConfigError
 

@@ -13,7 +13,8 @@ import pytest
 import zenoh
 
 from cinetransfer.deploy import certs
-from cinetransfer.deploy.supervisor import load_config, prepare_security, security_flags
+from cinetransfer.deploy.config import load_config
+from cinetransfer.deploy.security import prepare_security, security_flags
 from cinetransfer.shared import access, keys
 from cinetransfer.shared.zenoh_config import ZenohOptions, free_tcp_port, open_session
 from conftest import spawn, stop, wait_for
@@ -144,53 +145,80 @@ def test_config_queries_are_answered_only_to_the_operator(local_router):
 
 @pytest.fixture
 def split(tmp_path, monkeypatch):
-    """The shipped onboard and ground routers on one host, linked over mutual TLS."""
+    """The shipped onboard and ground routers on one host, linked over mutual TLS, each with only
+    its own host's folder from `deploy certs` (yields that parent folder and the endpoints)."""
     sec = tmp_path / "secrets"
-    certs.generate(sec)
+    certs.generate_split(sec)
     p_onboard, p_link, p_ground = free_tcp_port(), free_tcp_port(), free_tcp_port()
-    monkeypatch.setenv("CT_SECRETS", str(sec))
     monkeypatch.setenv("CT_ONBOARD_PORT", str(p_link))
     procs = []
     try:
         for name, port in (("onboard", p_onboard), ("ground", p_ground)):
             monkeypatch.setenv("CT_ROUTER_PORT", str(port))
+            monkeypatch.setenv("CT_SECRETS", str(sec / name))
             cfg = load_config(name)
             run_dir = tmp_path / name
             run_dir.mkdir()
             prepare_security(cfg, run_dir)
             procs.append(start_router(cfg, run_dir, tmp_path, name))
-            wait_for(lambda: _try_open(client(f"tcp/127.0.0.1:{port}", "observer", sec)), what=f"{name} up").close()
+            wait_for(lambda: _try_open(client(f"tcp/127.0.0.1:{port}", "observer", sec / name)),
+                     what=f"{name} up").close()
         yield sec, f"tcp/127.0.0.1:{p_onboard}", f"tls/127.0.0.1:{p_link}", f"tcp/127.0.0.1:{p_ground}"
     finally:
         for p in reversed(procs):
             assert stop(p) == 0
 
 
+def _login(user: str, password: str) -> tuple[tuple[str, str], ...]:
+    return (("transport/auth/usrpwd/user", json.dumps(user)), ("transport/auth/usrpwd/password", json.dumps(password)))
+
+
+def send_until_seen(session: zenoh.Session, inbox: Inbox, key: str, payload: bytes) -> None:
+    """Publish until `inbox` has it (the first may go out before the subscription reached the router)."""
+    def sent() -> bool:
+        session.put(key, payload)
+        return inbox.has(key, payload)
+
+    wait_for(sent, timeout=60, interval=0.2, what=f"{payload!r} on {key}")
+
+
+def test_each_host_holds_only_its_own_passwords(split):
+    """The ground folder's passwords open the ground router, not the drone's: a stolen ground
+    station cannot join the onboard router as any local identity."""
+    sec, onboard, _, ground = split
+    open_session(client(ground, "operator", sec / "ground")).close()
+    with pytest.raises(zenoh.ZError):
+        open_session(client(onboard, "operator", sec / "ground"))
+    with pytest.raises(ValueError, match="no password for identity 'planner'"):
+        open_session(client(onboard, "planner", sec / "ground"))
+    open_session(client(onboard, "operator", sec / "onboard")).close()
+
+
 def test_tls_listener_refuses_clients_without_a_certificate_of_the_ca(split, tmp_path):
     sec, _, link, _ = split
+    gsec = sec / "ground"
     # with the deployment's certificate: joins
-    open_session(client(link, "ground", sec)).close()
+    open_session(client(link, "ground", gsec)).close()
     # the right user and password, and it trusts the CA, but shows no certificate: refused
-    pw = access.read_password(sec, "ground")
-    creds = (("transport/auth/usrpwd/user", '"ground"'), ("transport/auth/usrpwd/password", json.dumps(pw)))
+    creds = _login("ground", access.read_password(gsec, "ground"))
     with pytest.raises(zenoh.ZError):
-        open_session(client(link, None, None, tls_root_ca=str(sec / "ca.pem"), extra=creds))
+        open_session(client(link, None, None, tls_root_ca=str(gsec / "ca.pem"), extra=creds))
     # the same with a certificate of another CA: refused
     other = tmp_path / "other"
     certs.generate(other)
     with pytest.raises(zenoh.ZError):
-        open_session(client(link, None, None, tls_root_ca=str(sec / "ca.pem"), tls_cert=str(other / "ground.pem"),
+        open_session(client(link, None, None, tls_root_ca=str(gsec / "ca.pem"), tls_cert=str(other / "ground.pem"),
                             tls_key=str(other / "ground-key.pem"), tls_mtls=True, extra=creds))
     # control: the same explicit options with the deployment's own certificate do join
-    open_session(client(link, None, None, tls_root_ca=str(sec / "ca.pem"), tls_cert=str(sec / "ground.pem"),
-                        tls_key=str(sec / "ground-key.pem"), tls_mtls=True, extra=creds)).close()
+    open_session(client(link, None, None, tls_root_ca=str(gsec / "ca.pem"), tls_cert=str(gsec / "ground.pem"),
+                        tls_key=str(gsec / "ground-key.pem"), tls_mtls=True, extra=creds)).close()
 
 
 def test_across_the_link_the_ground_may_command_but_not_set_points(split):
     sec, onboard, link, ground = split
     sp, vcmd = keys.SETPOINT.key(RIG), keys.BRIDGE_COMMAND.key(RIG)
-    with open_session(client(onboard, "autopilot_bridge", sec)) as bridge_s, \
-            open_session(client(ground, "operator", sec)) as op:
+    with open_session(client(onboard, "autopilot_bridge", sec / "onboard")) as bridge_s, \
+            open_session(client(ground, "operator", sec / "ground")) as op:
         bridge = Inbox(bridge_s)
         # given: the link is up and the bridge's subscription reached the ground router
         n = iter(range(10**6))
@@ -201,10 +229,10 @@ def test_across_the_link_the_ground_may_command_but_not_set_points(split):
 
         wait_for(prime, timeout=60, interval=0.2, what="operator command across the link")
         # when: a ground node (authenticated on the ground router) tries to set points
-        attack_then_barrier(ground, sec, "detector", bridge, [(sp, b"bad-setpoint-detector")])
+        attack_then_barrier(ground, sec / "ground", "detector", bridge, [(sp, b"bad-setpoint-detector")])
         # when: a client holding the ground router's own certificate and password joins the onboard
         # router's TLS listener directly: it is the ground link, which may command but not set points
-        with open_session(client(link, "ground", sec)) as fake_ground:
+        with open_session(client(link, "ground", sec / "ground")) as fake_ground:
             fake_ground.put(sp, b"bad-setpoint-link")
             fake_ground.put(vcmd, b"link-command")
             wait_for(lambda: bridge.has(vcmd, b"link-command"), timeout=30, what="command from the link")
@@ -212,3 +240,30 @@ def test_across_the_link_the_ground_may_command_but_not_set_points(split):
         op.put(vcmd, b"good-command-1")
         wait_for(lambda: bridge.has(vcmd, b"good-command-1"), timeout=30, what="operator command")
         assert [p for p in bridge.payloads() if p.startswith(b"bad-")] == []
+
+
+@pytest.mark.parametrize("user, key, payload", [
+    ("planner", keys.SETPOINT, b"bad-setpoint-as-planner"),
+    ("autopilot_bridge", keys.VEHICLE_STATE, b"bad-state-as-bridge"),
+])
+def test_over_tls_the_certificate_not_the_user_name_decides(split, user, key, payload):
+    """The ground certificate logging in as an onboard identity (with that identity's real
+    password, the worst case) gets the ground link's rights: no setpoint, no vehicle state."""
+    sec, onboard, link, _ = split
+    gsec, osec = sec / "ground", sec / "onboard"
+    k, vcmd = key.key(RIG), keys.BRIDGE_COMMAND.key(RIG)
+    borrowed = client(link, None, None, tls_root_ca=str(gsec / "ca.pem"), tls_cert=str(gsec / "ground.pem"),
+                      tls_key=str(gsec / "ground-key.pem"), tls_mtls=True,
+                      extra=_login(user, access.read_password(osec, user)))
+    with open_session(client(onboard, "observer", osec)) as watch_s:
+        watch = Inbox(watch_s)
+        # control: the same user name and password on the router's local listener may publish it
+        with open_session(client(onboard, user, osec)) as local:
+            send_until_seen(local, watch, k, b"local-" + payload)
+        # when: over TLS, with the ground certificate, it publishes, then a command (the ground's right)
+        with open_session(borrowed) as s:
+            s.put(k, payload)
+            s.put(vcmd, b"barrier-" + payload)
+            wait_for(lambda: watch.has(vcmd, b"barrier-" + payload), timeout=30, what="the link's command")
+        # then: the command it may send arrived after the forged message would have; the forgery did not
+        assert not watch.has(k, payload)

@@ -1,7 +1,8 @@
 """The access rules cover every topic, and insecure listeners are refused before anything starts."""
 import pytest
 
-from cinetransfer.deploy.supervisor import ConfigError, load_config, resolve_run_dir
+from cinetransfer.deploy.config import ConfigError, load_config
+from cinetransfer.deploy.rundir import resolve_run_dir
 from cinetransfer.shared import access, keys
 from cinetransfer.shared.zenoh_config import ZenohOptions
 
@@ -29,10 +30,20 @@ def test_acl_denies_by_default_and_links_carry_only_their_side():
     acl = access.access_control()
     assert acl["enabled"] and acl["default_permission"] == "deny"
     rules = {r["id"]: r for r in acl["rules"]}
-    ground_put = rules["link-ground:put"]["key_exprs"]
+    ground_put = rules["cert-ground:put"]["key_exprs"]
     assert "ct/*/vehicle/command" in ground_put and "ct/*/planner/setpoint" not in ground_put
-    assert "ct/*/planner/setpoint" in rules["link-onboard:put"]["key_exprs"]
-    assert {"id": "link-ground", "cert_common_names": ["ground"]} in acl["subjects"]
+    assert "ct/*/planner/setpoint" in rules["cert-onboard:put"]["key_exprs"]
+
+
+def test_a_user_name_counts_only_on_local_links_and_a_certificate_only_on_tls():
+    """Subjects never overlap on one link, so rights are never the union of user and certificate."""
+    subjects = access.access_control()["subjects"]
+    for s in subjects:
+        if s.get("usernames"):
+            assert s["link_protocols"] == ["tcp", "unixsock-stream"] and "cert_common_names" not in s, s
+        else:
+            assert s["cert_common_names"] and s["link_protocols"] == ["tls", "quic"] and "usernames" not in s, s
+    assert {"id": "cert-ground", "cert_common_names": ["ground"], "link_protocols": ["tls", "quic"]} in subjects
 
 
 @pytest.mark.parametrize("ep", ["tcp/0.0.0.0:7448", "tcp/192.0.2.10:7448", "udp/[::]:7448"])

@@ -4,13 +4,39 @@ import stat
 from cryptography import x509
 from cryptography.x509.oid import NameOID
 
-from cinetransfer.deploy import certs, supervisor
+from cinetransfer.deploy import certs, cli
 from cinetransfer.shared import access
 
 
-def test_certs_cli_writes_a_private_ca_and_per_identity_certificates(tmp_path, capsys):
+def _users(folder) -> dict[str, str]:
+    return dict(line.split(":", 1) for line in (folder / "users.txt").read_text().splitlines())
+
+
+def test_certs_cli_writes_one_folder_per_host_with_only_its_secrets(tmp_path):
     out = tmp_path / "sec"
-    assert supervisor.main(["certs", str(out), "--host", "192.0.2.10", "--host", "drone.local"]) == 0
+    assert cli.main(["certs", str(out), "--host", "192.0.2.10"]) == 0
+    ground, onboard = out / "ground", out / "onboard"
+    assert sorted(f.name for f in ground.iterdir()) == ["ca-key.pem", "ca.pem", "ground-key.pem", "ground.pem",
+                                                        "users.txt"]
+    # the drone gets no CA key and no other host's key
+    assert sorted(f.name for f in onboard.iterdir()) == ["ca.pem", "onboard-key.pem", "onboard.pem", "users.txt"]
+    for folder in (out, ground, onboard):
+        assert stat.S_IMODE(folder.stat().st_mode) == 0o700
+    g, o = _users(ground), _users(onboard)
+    # each host knows only the passwords of what runs on it (its tools with passwords of their own)
+    assert not {"planner", "autopilot_bridge", "onboard"} & set(g)
+    assert not {"source", "detector", "smoother", "camera"} & set(o)
+    assert g["operator"] != o["operator"] and g["observer"] != o["observer"]
+    # the onboard router checks the ground link's login, so it holds that one password
+    assert g["ground"] == o["ground"]
+    ca = x509.load_pem_x509_certificate((ground / "ca.pem").read_bytes())
+    assert (onboard / "ca.pem").read_bytes() == (ground / "ca.pem").read_bytes()
+    x509.load_pem_x509_certificate((onboard / "onboard.pem").read_bytes()).verify_directly_issued_by(ca)
+
+
+def test_certs_cli_one_host_writes_a_private_ca_and_per_identity_certificates(tmp_path, capsys):
+    out = tmp_path / "sec"
+    assert cli.main(["certs", str(out), "--one-host", "--host", "192.0.2.10", "--host", "drone.local"]) == 0
     assert stat.S_IMODE(out.stat().st_mode) == 0o700
     for f in out.iterdir():
         assert stat.S_IMODE(f.stat().st_mode) == 0o600, f
@@ -26,7 +52,7 @@ def test_certs_cli_writes_a_private_ca_and_per_identity_certificates(tmp_path, c
     assert set(access.USER_IDENTITIES) <= set(users) and len(set(users.values())) == len(users)
     # a second run does not silently replace the credentials
     before = (out / "users.txt").read_text()
-    assert supervisor.main(["certs", str(out)]) == 1
+    assert cli.main(["certs", str(out), "--one-host"]) == 1
     assert "--force" in capsys.readouterr().err and (out / "users.txt").read_text() == before
 
 

@@ -39,7 +39,7 @@ def test_wheel_is_namespaced_and_importable(tmp_path):
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     code = ("import sys; sys.path.insert(0, sys.argv[1]); import cinetransfer.shared.codec as c, "
-            "cinetransfer.deploy.supervisor as d; print(c.__file__); print(d.load_config('local').name)")
+            "cinetransfer.deploy.config as d; print(c.__file__); print(d.load_config('local').name)")
     r = subprocess.run([sys.executable, "-c", code, str(site)], capture_output=True, text=True, timeout=120,
                        cwd=tmp_path)
     assert r.returncode == 0, r.stderr
