@@ -4,7 +4,8 @@ A live table of keys with rate, size, age and a one-line decoded summary, plus t
 whose liveliness tokens are present. `--json` streams every decoded message as one JSON line
 (for scripts); `--once` collects for `--duration` seconds, prints one snapshot and exits.
 `--foxglove` serves the same topics live over the Foxglove WebSocket protocol instead (images,
-transforms and camera calibration included; shared/foxglove_live.py), on 127.0.0.1:`--port`.
+transforms and camera calibration included; shared/foxglove_live.py), on 127.0.0.1:`--port`;
+on any other address only with an access token (`--token-file` or CINETRANSFER_FOXGLOVE_TOKEN).
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ import zenoh
 from cinetransfer.shared import codec, keys, zenoh_config
 
 RATE_WINDOW_S = 5.0
+TOKEN_ENV = "CINETRANSFER_FOXGLOVE_TOKEN"
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 
 
@@ -180,8 +182,11 @@ def main(argv: list[str]) -> int:
                    help="serve the topics live over the Foxglove WebSocket protocol (open ws://HOST:PORT in Foxglove)")
     p.add_argument("--port", type=int, default=8765, help="Foxglove WebSocket port (default %(default)s)")
     p.add_argument("--host", default="127.0.0.1",
-                   help="Foxglove WebSocket address (default %(default)s: this machine only; the server has no "
-                        "authentication, so think twice before listening on another interface)")
+                   help="Foxglove WebSocket address (default %(default)s: this machine only; any other address "
+                        "needs an access token)")
+    p.add_argument("--token-file", default=None, metavar="FILE",
+                   help=f"Foxglove access token (first line of FILE; or ${TOKEN_ENV}): clients connect with "
+                        "ws://HOST:PORT/?token=TOKEN or 'Authorization: Bearer TOKEN'")
     p.add_argument("--deployment", default=None, metavar="CONFIG",
                    help="join this running deployment (config name or file) as the read-only 'observer' "
                         "(default, when no endpoint is given: local)")
@@ -217,12 +222,32 @@ def main(argv: list[str]) -> int:
     return 0
 
 
+def foxglove_token(path: str | None) -> str | None:
+    """The access token: the first line of `path`, else $CINETRANSFER_FOXGLOVE_TOKEN, else None."""
+    if path:
+        try:
+            token = open(path, encoding="utf-8").readline().strip()
+        except OSError as e:
+            raise ValueError(f"cannot read the token file: {e}") from None
+        if not token:
+            raise ValueError(f"the token file {path} is empty")
+        return token
+    return os.environ.get(TOKEN_ENV, "").strip() or None
+
+
 def _serve_foxglove(opts: zenoh_config.ZenohOptions, args: argparse.Namespace, stop: threading.Event) -> int:
+    from cinetransfer.foxglove_front import check_exposure
     from cinetransfer.shared.foxglove_live import FoxgloveLive
 
+    try:
+        token = foxglove_token(args.token_file)
+        check_exposure(args.host, token)
+    except ValueError as e:
+        print(f"cinetransfer monitor: {e}", file=sys.stderr)
+        return 2
     with zenoh_config.open_session(opts) as session:
         try:
-            live = FoxgloveLive(session, args.keyexpr, host=args.host, port=args.port)
+            live = FoxgloveLive(session, args.keyexpr, host=args.host, port=args.port, token=token)
         except RuntimeError as e:  # the port is taken, say
             print(f"cinetransfer monitor: cannot serve Foxglove on {args.host}:{args.port}: {e}", file=sys.stderr)
             return 1
