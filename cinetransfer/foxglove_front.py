@@ -199,5 +199,9 @@ class FoxgloveFront:
 
     def close(self) -> None:
         self._closed.set()
+        try:
+            self._sock.shutdown(socket.SHUT_RDWR)  # wakes the accept() in progress; close() alone does not
+        except OSError:
+            pass
         self._sock.close()
         self._thread.join(5.0)

@@ -106,5 +106,6 @@ def main(argv: list[str]) -> int:
         finally:
             rec.close()
     size = out.stat().st_size
-    print(f"recorded {rec.written} messages ({rec.writer.errors} kept as raw bytes) to {out}: {size / 1e6:.2f} MB")
+    print(f"recorded {rec.written} messages of the rig ({rec.writer.errors} kept as raw bytes) to {out}: "
+          f"{size / 1e6:.2f} MB")
     return 0

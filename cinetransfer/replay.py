@@ -76,16 +76,15 @@ def _play_once(run: RunReader, out: _Publishers, *, only: list[str], speed: floa
     """Publish the recording's messages (those whose key contains one of `only`, if given, logged
     between `start` and `end` seconds after its first message) once, at `speed` times their
     recorded pace (0: as fast as possible)."""
-    t_first = None
-    t0 = time.monotonic()
+    t_first, t0 = None, 0.0
     for t_ns, key, payload in tqdm(run.messages(), desc="replay", unit="msg", disable=None):
         t_rel = (t_ns - run.info.start_ns) / 1e9
         if end is not None and t_rel > end:
             break
         if t_rel < start or (only and not any(o in key for o in only)):
             continue
-        if t_first is None:
-            t_first = t_ns
+        if t_first is None:  # the pace counts from the window's first message, not from reading up to it
+            t_first, t0 = t_ns, time.monotonic()
         if speed > 0:
             delay = t0 + (t_ns - t_first) / 1e9 / speed - time.monotonic()
             if delay > 0:
