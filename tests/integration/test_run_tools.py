@@ -5,6 +5,7 @@ import json
 import subprocess
 import sys
 import threading
+import time
 
 import numpy as np
 
@@ -68,22 +69,33 @@ def test_echo_prints_a_window_of_one_channel_as_json_lines(tmp_path):
 def test_replay_plays_only_the_window(tmp_path, port, listener_opts):
     _timed_run(tmp_path / "run.mcap")
     got: list[int] = []
+    at: list[float] = []
     lock = threading.Lock()
     with zenoh_config.open_session(listener_opts) as s:
         def on(sample):
             with lock:
                 got.append(codec.decode(sample.payload.to_bytes()).seq)
+                at.append(time.monotonic())
         sub = s.declare_subscriber("ct/w/vehicle/state", on)
         proc = spawn("replay", str(tmp_path / "run.mcap"), "--rig", "w", "--start", "2", "--end", "3", "--loop",
                      *connect_flags(port), log=tmp_path / "replay.log")
         try:
             # looping, every message of the window comes round again, whenever the subscription got known
-            wait_for(lambda: {4, 5, 6} <= set(got), timeout=60, interval=0.1, what="the window's messages")
+            wait_for(lambda: _one_whole_pass(got) >= 0, timeout=90, interval=0.1, what="one whole pass of the window")
         finally:
             rc = stop(proc)
             sub.undeclare()
     assert rc == 0, (tmp_path / "replay.log").read_text()[-2000:]
     assert set(got) == {4, 5, 6}, got
+    # at its recorded pace: the window spans 1 s from its own first message (a loaded machine only
+    # stretches it), however long reading up to the window took
+    i = _one_whole_pass(got)
+    assert at[i + 2] - at[i] >= 0.9, at[i:i + 3]
+
+
+def _one_whole_pass(seqs: list[int]) -> int:
+    """Index where 4, 5, 6 arrive in a row, or -1."""
+    return next((i for i in range(len(seqs) - 2) if seqs[i:i + 3] == [4, 5, 6]), -1)
 
 
 def test_record_writes_a_live_rig_with_the_transfers_writer(tmp_path, port, listener_opts):
