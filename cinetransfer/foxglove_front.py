@@ -9,7 +9,8 @@ a credential is configured and not presented, renames an offered `foxglove.webso
 `foxglove.sdk.v1` on the way in and back on the way out, then copies bytes both ways untouched.
 
 The credential is a bearer token: `Authorization: Bearer TOKEN` or `?token=TOKEN` in the URL
-(a browser's WebSocket cannot set headers; Foxglove takes the URL as typed).
+(a browser's WebSocket cannot set headers; Foxglove takes the URL as typed). With a certificate
+and key (`tls`) the front speaks TLS (`wss://`), so the token does not cross the network in clear.
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ import hmac
 import ipaddress
 import logging
 import socket
+import ssl
 import threading
 from urllib.parse import parse_qs, urlsplit
 
@@ -143,13 +145,26 @@ def _pump(src: socket.socket, dst: socket.socket) -> None:
                 pass
 
 
+def tls_context(cert: str, key: str) -> ssl.SSLContext:
+    """A server TLS context from PEM files; ValueError with the reason if they do not load."""
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+    ctx.minimum_version = ssl.TLSVersion.TLSv1_2
+    try:
+        ctx.load_cert_chain(cert, key)
+    except (OSError, ssl.SSLError) as e:
+        raise ValueError(f"cannot load the TLS certificate {cert} / key {key}: {e}") from None
+    return ctx
+
+
 class FoxgloveFront:
     """Listens on (host, port) and hands each accepted client to the SDK server on
     127.0.0.1:`backend_port` (see the module doc). `port` 0 picks a free port (`self.port`)."""
 
-    def __init__(self, backend_port: int, host: str = "127.0.0.1", port: int = 8765, token: str | None = None) -> None:
+    def __init__(self, backend_port: int, host: str = "127.0.0.1", port: int = 8765, token: str | None = None,
+                 tls: tuple[str, str] | None = None) -> None:
         check_exposure(host, token)
         self.backend_port, self.token = backend_port, token or None
+        self._tls = tls_context(*tls) if tls else None
         self.refused = 0
         self._sock = socket.create_server((host, port), family=socket.AF_INET6 if ":" in host else socket.AF_INET,
                                           reuse_port=False)
@@ -169,9 +184,11 @@ class FoxgloveFront:
     def _serve(self, client: socket.socket, addr: tuple) -> None:
         try:
             client.settimeout(HANDSHAKE_TIMEOUT_S)
+            if self._tls is not None:
+                client = self._tls.wrap_socket(client, server_side=True)
             head, rest = _read_head(client)
             request, chosen = rewrite_request(head, self.token)
-        except (HandshakeError, OSError) as e:
+        except (HandshakeError, OSError) as e:  # ssl.SSLError is an OSError
             self.refused += 1
             log.warning("refused a Foxglove client from %s: %s", addr[0], e)
             if isinstance(e, HandshakeError):

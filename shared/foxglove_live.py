@@ -7,7 +7,8 @@ foxglove.CameraCalibration. In Foxglove: Open connection -> Foxglove WebSocket -
 ws://127.0.0.1:8765.
 
 Clients reach it through cinetransfer/foxglove_front.py, which accepts both subprotocol names
-(`foxglove.sdk.v1` and `foxglove.websocket.v1`) and, off loopback, requires an access token.
+(`foxglove.sdk.v1` and `foxglove.websocket.v1`), off loopback requires an access token, and with
+a certificate and key serves `wss://`.
 Capabilities advertised: `time` (the vehicle's clock: each VehicleState's stamp, simulation time
 in lockstep) and `connectionGraph` (the live nodes, from their liveliness tokens, with the keys
 deploy/dataflow.yaml says they publish and subscribe).
@@ -38,7 +39,8 @@ class FoxgloveLive:
     """Serves everything matching `keyexpr` over the Foxglove WebSocket protocol."""
 
     def __init__(self, session: Any, keyexpr: str, *, host: str = "127.0.0.1", port: int = 8765,
-                 jpeg_quality: int = runlog.JPEG_QUALITY, token: str | None = None) -> None:
+                 jpeg_quality: int = runlog.JPEG_QUALITY, token: str | None = None,
+                 tls: tuple[str, str] | None = None) -> None:
         import foxglove
         from foxglove.websocket import Capability
 
@@ -53,9 +55,11 @@ class FoxgloveLive:
                                             server_listener=self.graph)
         self.graph.server = self.server
         try:
-            self.front = FoxgloveFront(self.server.port, host=host, port=port, token=token)
-        except OSError as e:
+            self.front = FoxgloveFront(self.server.port, host=host, port=port, token=token, tls=tls)
+        except (OSError, ValueError) as e:
             self.server.stop()
+            if isinstance(e, ValueError):
+                raise
             raise RuntimeError(str(e)) from e
         self.port = self.front.port
         self.jpeg_quality = jpeg_quality

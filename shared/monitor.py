@@ -187,6 +187,9 @@ def main(argv: list[str]) -> int:
     p.add_argument("--token-file", default=None, metavar="FILE",
                    help=f"Foxglove access token (first line of FILE; or ${TOKEN_ENV}): clients connect with "
                         "ws://HOST:PORT/?token=TOKEN or 'Authorization: Bearer TOKEN'")
+    p.add_argument("--foxglove-cert", default=None, metavar="PEM",
+                   help="serve Foxglove over TLS (wss://) with this certificate (with --foxglove-key)")
+    p.add_argument("--foxglove-key", default=None, metavar="PEM", help="the certificate's private key")
     p.add_argument("--deployment", default=None, metavar="CONFIG",
                    help="join this running deployment (config name or file) as the read-only 'observer' "
                         "(default, when no endpoint is given: local)")
@@ -242,16 +245,23 @@ def _serve_foxglove(opts: zenoh_config.ZenohOptions, args: argparse.Namespace, s
     try:
         token = foxglove_token(args.token_file)
         check_exposure(args.host, token)
+        if bool(args.foxglove_cert) != bool(args.foxglove_key):
+            raise ValueError("--foxglove-cert and --foxglove-key go together")
+        tls = (args.foxglove_cert, args.foxglove_key) if args.foxglove_cert else None
     except ValueError as e:
         print(f"cinetransfer monitor: {e}", file=sys.stderr)
         return 2
     with zenoh_config.open_session(opts) as session:
         try:
-            live = FoxgloveLive(session, args.keyexpr, host=args.host, port=args.port, token=token)
+            live = FoxgloveLive(session, args.keyexpr, host=args.host, port=args.port, token=token, tls=tls)
         except RuntimeError as e:  # the port is taken, say
             print(f"cinetransfer monitor: cannot serve Foxglove on {args.host}:{args.port}: {e}", file=sys.stderr)
             return 1
-        print(f"serving {args.keyexpr} to Foxglove at ws://{args.host}:{live.port} (Ctrl-C to stop)", flush=True)
+        except ValueError as e:  # a certificate that does not load
+            print(f"cinetransfer monitor: {e}", file=sys.stderr)
+            return 2
+        scheme = "wss" if tls else "ws"
+        print(f"serving {args.keyexpr} to Foxglove at {scheme}://{args.host}:{live.port} (Ctrl-C to stop)", flush=True)
         try:
             stop.wait()
         finally:

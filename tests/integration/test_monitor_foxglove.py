@@ -150,13 +150,13 @@ def test_monitor_serves_the_rig_to_a_foxglove_websocket_client(port, listener_op
 
 @pytest.fixture
 def live_server(listener_opts):
-    """A FoxgloveLive in this process on a real Zenoh session; yields a factory (host, token)."""
+    """A FoxgloveLive in this process on a real Zenoh session; yields a factory (host, token, tls)."""
     from cinetransfer.shared.foxglove_live import FoxgloveLive
 
     made = []
     with open_session(listener_opts) as s:
-        def make(host: str = "127.0.0.1", token: str | None = None):
-            made.append(FoxgloveLive(s, "ct/live/**", host=host, port=0, token=token))
+        def make(host: str = "127.0.0.1", token: str | None = None, tls=None):
+            made.append(FoxgloveLive(s, "ct/live/**", host=host, port=0, token=token, tls=tls))
             return made[-1]
         yield make
         for live in made:
@@ -200,3 +200,23 @@ def test_monitor_refuses_a_public_address_without_a_token(port):
                          timeout=120, env={k: v for k, v in os.environ.items() if k != "CINETRANSFER_FOXGLOVE_TOKEN"})
     assert out.returncode == 2, out.stderr
     assert "not loopback and no access token" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_with_a_certificate_the_server_speaks_tls(live_server, tmp_path):
+    import ssl
+
+    from cinetransfer.deploy import certs
+
+    certs.generate(tmp_path / "secrets", hosts=["127.0.0.1"])
+    pem, key = tmp_path / "secrets" / "ground.pem", tmp_path / "secrets" / "ground-key.pem"
+    live = live_server(host="0.0.0.0", token="s3cret-token", tls=(str(pem), str(key)))
+    trust = ssl.create_default_context(cafile=str(tmp_path / "secrets" / "ca.pem"))
+    with _connect(f"wss://127.0.0.1:{live.port}/?token=s3cret-token", ssl=trust) as ws:
+        assert ws.subprotocol == "foxglove.websocket.v1"
+        assert _recv_op(ws, "serverInfo")["name"] == "cinetransfer"
+    # plain ws:// is not spoken, and a certificate that does not load is a clear error
+    from websockets.exceptions import InvalidMessage
+    with pytest.raises((InvalidMessage, ConnectionError, EOFError)):
+        _connect(f"ws://127.0.0.1:{live.port}/?token=s3cret-token")
+    with pytest.raises(ValueError, match="cannot load the TLS certificate"):
+        live_server(tls=(str(key), str(key)))
