@@ -2,8 +2,11 @@
 
 Rerun opens run.mcap itself (video, transforms and calibration come through), but our JSON
 channels arrive there as raw bytes. This export writes a Rerun recording (.rrd) with one scalar
-series per value, each on the timelines `log_time` (when the recorder got it) and `stamp` (the
-message's own time, simulation time in lockstep):
+series per value, each on the timelines Rerun's own MCAP import uses, `message_log_time` (when
+the recorder got it) and `message_publish_time` (the message's own stamp, simulation time in
+lockstep), so that they line up with the video, the transforms and the calibration, which the
+same .rrd carries under ct/RIG/... as Rerun imports them from the MCAP (`--scalars-only` leaves
+them out):
 
 - RIG/vehicle/position/{x,y,z}, RIG/vehicle/velocity/{x,y,z}, RIG/vehicle/camera/{yaw,pitch,roll}
 - RIG/lens/{focal_length_mm,focus_distance_m,f_number} (the lens as measured)
@@ -175,15 +178,25 @@ def _add_joint_errors(series: dict[str, Series], truths: list, followed: dict[st
             series[f"{rig}/joint_error/{joint}"].add(log_ns, stamp, err, int(truth.get("frame_index", -1)))
 
 
-def write_rrd(series: dict[str, Series], path: Path, recording_name: str) -> None:
+#: Rerun's MCAP decoders that turn our Foxglove channels into video, transforms and a pinhole
+MCAP_DECODERS = ("foxglove", "protobuf")
+LOG_TIME, PUBLISH_TIME = "message_log_time", "message_publish_time"  # the timelines of Rerun's MCAP import
+
+
+def write_rrd(series: dict[str, Series], path: Path, recording_name: str, mcap: RunReader | None = None) -> None:
+    """Write the series (and, given `mcap`, its video, transforms and calibration) to `path`."""
     import rerun as rr
 
     rec = rr.RecordingStream("cinetransfer", send_properties=True)
     rec.save(path)
     rec.send_recording_name(recording_name)
+    if mcap is not None:
+        from rerun.chunk import McapReader
+
+        rec.send_chunks(McapReader(mcap.path, decoders=list(MCAP_DECODERS), recover=not mcap.info.complete).stream())
     for entity, s in sorted(series.items()):
-        indexes = [rr.TimeColumn("log_time", timestamp=np.asarray(s.log_ns, "datetime64[ns]")),
-                   rr.TimeColumn("stamp", timestamp=np.asarray(s.stamp_ns, "datetime64[ns]"))]
+        indexes = [rr.TimeColumn(LOG_TIME, timestamp=np.asarray(s.log_ns, "datetime64[ns]")),
+                   rr.TimeColumn(PUBLISH_TIME, timestamp=np.asarray(s.stamp_ns, "datetime64[ns]"))]
         if "/joint_error/" in entity:
             indexes.append(rr.TimeColumn("frame", sequence=s.frame))
         rec.send_columns(entity, indexes=indexes, columns=rr.Scalars.columns(scalars=np.asarray(s.values)))
@@ -207,6 +220,8 @@ def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="cinetransfer rerun", description=__doc__.splitlines()[0])
     p.add_argument("log", help="a recording (run.mcap)")
     p.add_argument("-o", "--output", default=None, metavar="RUN.rrd", help="where to write (default: beside the log)")
+    p.add_argument("--scalars-only", action="store_true",
+                   help="leave out the video, transforms and calibration (Rerun's import of the MCAP)")
     p.add_argument("--style", default=None, metavar="style.json",
                    help="the instructions flown, for the joint errors (default: style.json beside the log, if there)")
     args = p.parse_args(argv)
@@ -222,12 +237,13 @@ def main(argv: list[str]) -> int:
         run = RunReader(log)
         instr = _instructions(log, args.style)
         series = collect(run, instr)
-        write_rrd(series, out, str(log))
+        write_rrd(series, out, str(log), mcap=None if args.scalars_only else run)
     except (OSError, RunFormatError, ValueError) as e:
         print(f"cinetransfer rerun: {e}", file=sys.stderr)
         return 2
     errors = sum(1 for k in series if "/joint_error/" in k)
     points = sum(len(s.values) for s in series.values())
     print(f"wrote {out}: {len(series)} scalar series, {points} points"
-          + (f" ({errors} joint-error series)" if instr is not None else " (no style.json: no joint errors)"))
+          + (f" ({errors} joint-error series)" if instr is not None else " (no style.json: no joint errors)")
+          + ("" if args.scalars_only else "; with the video, transforms and calibration"))
     return 0

@@ -58,7 +58,8 @@ def _run(tmp_path, n: int = 10):
     with RunWriter(tmp_path / "run.mcap", {"started": "test"}) as w:
         for i in range(n):
             stamp, lens = 100 * S + i * S // 24, M.LensState(focal_length_mm=35.0, focus_distance_m=i + 1.0,
-                                                              f_number=4.0)
+                                                              f_number=4.0, sensor_width_mm=23.76,
+                                                              sensor_height_mm=13.365)
             w.write("ct/r/vehicle/state", codec.encode(M.VehicleState(
                 stamp_ns=stamp, position_m=np.array([float(i), 0.0, 2.0]), lens=lens)), t_ns=S + i * S // 10)
             w.write("ct/r/planner/setpoint", codec.encode(M.Setpoint(
@@ -70,20 +71,25 @@ def _run(tmp_path, n: int = 10):
             w.write("ct/r/sim/truth", codec.encode(M.GroundTruth(
                 stamp_ns=stamp, frame_index=i, joints_norm=joints, joints_visible=np.isfinite(joints[:, 0]))),
                 t_ns=S + i * S // 10 + 2)
+            frame = M.Frame(stamp_ns=stamp, index=i, fps=24.0, lens=lens, image=np.full((48, 64, 3), 20 * i, np.uint8))
+            w.write("ct/r/camera/frame", codec.encode(frame), t_ns=S + i * S // 10 + 3)
     save_style(tmp_path / "style.json", _instructions(n))
 
 
-def _scalars(rrd) -> dict[str, list[float]]:
+def _contents(rrd) -> tuple[dict[str, list[float]], dict[str, set[str]]]:
+    """(scalar series by entity in stamp order, column names by entity) of an .rrd, read by rerun-sdk."""
     from rerun.chunk import RrdReader
 
     out: dict[str, list[float]] = {}
+    columns: dict[str, set[str]] = {}
     for chunk in RrdReader(rrd).stream().collect().stream():
         rb = chunk.to_record_batch()
+        columns.setdefault(chunk.entity_path, set()).update(rb.schema.names)
         if "Scalars:scalars" in rb.schema.names:
             col = rb.column("Scalars:scalars").to_pylist()
-            order = np.argsort(rb.column("stamp").to_numpy())
+            order = np.argsort(rb.column("message_publish_time").to_numpy())
             out.setdefault(chunk.entity_path, []).extend(col[int(i)][0] for i in order)
-    return out
+    return out, columns
 
 
 def test_the_export_opens_in_rerun_with_every_value_as_scalars(tmp_path):
@@ -92,7 +98,7 @@ def test_the_export_opens_in_rerun_with_every_value_as_scalars(tmp_path):
     r = subprocess.run([sys.executable, "-m", "cinetransfer", "rerun", str(tmp_path / "run.mcap")],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
-    s = _scalars(tmp_path / "run.rrd")
+    s, columns = _contents(tmp_path / "run.rrd")
     assert s["/r/vehicle/position/x"] == [float(i) for i in range(10)]
     assert s["/r/lens/focus_distance_m"] == [i + 1.0 for i in range(10)]
     assert s["/r/setpoint/position/z"] == [2.0 + i for i in range(10)]
@@ -101,6 +107,11 @@ def test_the_export_opens_in_rerun_with_every_value_as_scalars(tmp_path):
     assert s["/r/joint_error/left_shoulder"] == pytest.approx([0.01 * i for i in range(10)], abs=1e-6)
     assert s["/r/joint_error/right_shoulder"] == pytest.approx([0.0] * 10, abs=1e-6)
     assert s["/r/joint_error/mean"] == pytest.approx([0.005 * i for i in range(10)], abs=1e-6)
+    # on the timelines of Rerun's MCAP import, beside the video, the transforms and the calibration it imports
+    assert {"message_log_time", "message_publish_time", "frame"} <= columns["/r/joint_error/mean"]
+    assert "VideoStream:sample" in columns["/ct/r/camera/frame"]
+    assert "Transform3D:translation" in columns["/ct/r/tf/drone"]
+    assert "Pinhole:image_from_camera" in columns["/ct/r/camera/frame/calibration"]
 
 
 def test_rerun_export_refuses_a_foreign_file_in_one_line(tmp_path):
