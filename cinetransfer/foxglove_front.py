@@ -17,6 +17,7 @@ from __future__ import annotations
 import hmac
 import ipaddress
 import logging
+import select
 import socket
 import ssl
 import threading
@@ -128,21 +129,29 @@ def _refuse(sock: socket.socket, e: HandshakeError) -> None:
         pass
 
 
-def _pump(src: socket.socket, dst: socket.socket) -> None:
+def _relay(client: socket.socket, backend: socket.socket) -> None:
+    """Copy bytes both ways until either side closes. One thread per connection touches both
+    sockets: a TLS socket must not be read and written from two threads at once."""
+    socks = [client, backend]
     try:
         while True:
-            data = src.recv(65536)
-            if not data:
-                break
-            dst.sendall(data)
+            ready = [s for s in socks if isinstance(s, ssl.SSLSocket) and s.pending()]
+            if not ready:
+                ready, _, _ = select.select(socks, [], [])
+            for src in ready:
+                data = src.recv(65536)
+                if not data:
+                    return
+                (backend if src is client else client).sendall(data)
     except OSError:
         pass
     finally:
-        for s in (src, dst):
+        for s in socks:
             try:
                 s.shutdown(socket.SHUT_RDWR)
             except OSError:
                 pass
+            s.close()
 
 
 def tls_context(cert: str, key: str) -> ssl.SSLContext:
@@ -207,12 +216,7 @@ class FoxgloveFront:
         client.settimeout(None)
         backend.settimeout(None)
         log.info("Foxglove client from %s connected (%s)", addr[0], chosen)
-        out = threading.Thread(target=_pump, args=(backend, client), name="foxglove-out", daemon=True)
-        out.start()
-        _pump(client, backend)
-        out.join()
-        client.close()
-        backend.close()
+        _relay(client, backend)
 
     def close(self) -> None:
         self._closed.set()

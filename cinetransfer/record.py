@@ -79,7 +79,7 @@ def main(argv: list[str]) -> int:
     try:
         if out.exists() and not args.force:
             raise ValueError(f"{out} exists (--force overwrites it)")
-        opts = monitor._options(args)
+        opts = monitor.observer_options(args)
     except ValueError as e:
         print(f"cinetransfer record: {e}", file=sys.stderr)
         return 2

@@ -156,7 +156,7 @@ def _size(n: int) -> str:
     return f"{n:.1f} GB"
 
 
-def _options(args: argparse.Namespace) -> zenoh_config.ZenohOptions:
+def observer_options(args: argparse.Namespace) -> zenoh_config.ZenohOptions:
     """With no endpoint or config file given, join a deployment (`local` by default: `deploy up
     local` listens on tcp/127.0.0.1:7447) as the read-only observer, with its credentials."""
     explicit = args.connect or args.listen or args.zenoh_config or os.environ.get(zenoh_config.ENV_CONFIG)
@@ -196,7 +196,7 @@ def main(argv: list[str]) -> int:
     zenoh_config.add_arguments(p)
     args = p.parse_args(argv)
     try:
-        opts = _options(args)
+        opts = observer_options(args)
     except ValueError as e:
         p.error(str(e))
     stop = threading.Event()
