@@ -38,6 +38,10 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "transfer": ("cinetransfer.transfer", "main", "source video -> recorded shot + fidelity report"),
     "command": ("cinetransfer.command", "main", "send one command (play, start, stop, hold, ...) as the operator"),
     "replay": ("cinetransfer.replay", "main", "republish a recorded run on Zenoh"),
+    "info": ("cinetransfer.runinfo", "main", "summarise a recording: channels, counts, rates, takes"),
+    "echo": ("cinetransfer.echo", "main", "print a recorded channel's messages as JSON lines"),
+    "record": ("cinetransfer.record", "main", "record live keys of a running rig into an MCAP file"),
+    "rerun": ("cinetransfer.rerun_export", "main", "export a recording's plottable values to Rerun (.rrd)"),
     "report": ("cinetransfer.report.cli", "main", "build a fidelity report from a run folder"),
     "docs": ("cinetransfer.shared.docgen", "main", "generate docs/messages.md from the schemas"),
 }

@@ -4,7 +4,8 @@ For monitoring and re-plotting: `cinetransfer monitor` (or any node) sees the re
 as if the run were live: every message of the rig goes out on its key in our codec again
 (frames rebuilt from their JPEG, so lossy; see docs/recording.md). `--rig` rewrites the rig
 segment of every key so that a replay never collides with a live vehicle; `--speed` scales time;
-`--only` keeps keys containing a string.
+`--only` keeps keys containing a string; `--start`/`--end` replay a window (seconds from the
+recording's first message, as `cinetransfer info` and `echo` count them).
 """
 from __future__ import annotations
 
@@ -38,7 +39,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="rig name to publish under (default %(default)s; '' keeps the recorded one)")
     p.add_argument("--speed", type=float, default=1.0, help="time scale (2 = twice as fast; 0 = as fast as possible)")
     p.add_argument("--only", action="append", default=[], help="replay only keys containing this (repeatable)")
-    p.add_argument("--loop", action="store_true", help="start again at the end")
+    p.add_argument("--start", type=float, default=0.0, metavar="S",
+                   help="begin S seconds after the recording's first message (default %(default)s)")
+    p.add_argument("--end", type=float, default=None, metavar="S",
+                   help="stop S seconds after the recording's first message (default: its end)")
+    p.add_argument("--loop", action="store_true", help="start again at the end (of the window)")
     p.add_argument("--salvage", action="store_true",
                    help="a recording cut inside a record: replay the messages before the cut instead of refusing")
     p.add_argument("--log-level", default="INFO")
@@ -66,16 +71,20 @@ class _Publishers:
             pub.undeclare()
 
 
-def _play_once(run: RunReader, out: _Publishers, *, only: list[str], speed: float) -> None:
-    """Publish the recording's messages (those whose key contains one of `only`, if given) once,
-    at `speed` times their recorded pace (0: as fast as possible)."""
-    t_first = None
-    t0 = time.monotonic()
+def _play_once(run: RunReader, out: _Publishers, *, only: list[str], speed: float, start: float = 0.0,
+               end: float | None = None) -> None:
+    """Publish the recording's messages (those whose key contains one of `only`, if given, logged
+    between `start` and `end` seconds after its first message) once, at `speed` times their
+    recorded pace (0: as fast as possible)."""
+    t_first, t0 = None, 0.0
     for t_ns, key, payload in tqdm(run.messages(), desc="replay", unit="msg", disable=None):
-        if only and not any(o in key for o in only):
+        t_rel = (t_ns - run.info.start_ns) / 1e9
+        if end is not None and t_rel > end:
+            break
+        if t_rel < start or (only and not any(o in key for o in only)):
             continue
-        if t_first is None:
-            t_first = t_ns
+        if t_first is None:  # the pace counts from the window's first message, not from reading up to it
+            t_first, t0 = t_ns, time.monotonic()
         if speed > 0:
             delay = t0 + (t_ns - t_first) / 1e9 / speed - time.monotonic()
             if delay > 0:
@@ -89,6 +98,8 @@ def main(argv: list[str]) -> int:
     try:
         run = RunReader(args.log, salvage=args.salvage)
         opts = zenoh_config.options_from_args(args)
+        if args.end is not None and args.end < args.start:
+            raise ValueError(f"--end {args.end} comes before --start {args.start}")
     except (OSError, RunFormatError, ValueError) as e:
         print(f"cinetransfer replay: {e}", file=sys.stderr)
         return 2
@@ -99,9 +110,10 @@ def main(argv: list[str]) -> int:
     with zenoh_config.open_session(opts) as s:
         out = _Publishers(s, args.rig)
         try:
-            _play_once(run, out, only=args.only, speed=args.speed)
+            window = {"only": args.only, "speed": args.speed, "start": args.start, "end": args.end}
+            _play_once(run, out, **window)
             while args.loop:
-                _play_once(run, out, only=args.only, speed=args.speed)
+                _play_once(run, out, **window)
         except KeyboardInterrupt:
             log.info("interrupted")
         except RunFormatError as e:

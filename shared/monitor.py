@@ -4,7 +4,8 @@ A live table of keys with rate, size, age and a one-line decoded summary, plus t
 whose liveliness tokens are present. `--json` streams every decoded message as one JSON line
 (for scripts); `--once` collects for `--duration` seconds, prints one snapshot and exits.
 `--foxglove` serves the same topics live over the Foxglove WebSocket protocol instead (images,
-transforms and camera calibration included; shared/foxglove_live.py), on 127.0.0.1:`--port`.
+transforms and camera calibration included; shared/foxglove_live.py), on 127.0.0.1:`--port`;
+on any other address only with an access token (`--token-file` or CINETRANSFER_FOXGLOVE_TOKEN).
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ import zenoh
 from cinetransfer.shared import codec, keys, zenoh_config
 
 RATE_WINDOW_S = 5.0
+TOKEN_ENV = "CINETRANSFER_FOXGLOVE_TOKEN"
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 
 
@@ -154,7 +156,7 @@ def _size(n: int) -> str:
     return f"{n:.1f} GB"
 
 
-def _options(args: argparse.Namespace) -> zenoh_config.ZenohOptions:
+def observer_options(args: argparse.Namespace) -> zenoh_config.ZenohOptions:
     """With no endpoint or config file given, join a deployment (`local` by default: `deploy up
     local` listens on tcp/127.0.0.1:7447) as the read-only observer, with its credentials."""
     explicit = args.connect or args.listen or args.zenoh_config or os.environ.get(zenoh_config.ENV_CONFIG)
@@ -182,15 +184,21 @@ def main(argv: list[str]) -> int:
                    help="serve the topics live over the Foxglove WebSocket protocol (open ws://HOST:PORT in Foxglove)")
     p.add_argument("--port", type=int, default=8765, help="Foxglove WebSocket port (default %(default)s)")
     p.add_argument("--host", default="127.0.0.1",
-                   help="Foxglove WebSocket address (default %(default)s: this machine only; the server has no "
-                        "authentication, so think twice before listening on another interface)")
+                   help="Foxglove WebSocket address (default %(default)s: this machine only; any other address "
+                        "needs an access token)")
+    p.add_argument("--token-file", default=None, metavar="FILE",
+                   help=f"Foxglove access token (first line of FILE; or ${TOKEN_ENV}): clients connect with "
+                        "ws://HOST:PORT/?token=TOKEN or 'Authorization: Bearer TOKEN'")
+    p.add_argument("--foxglove-cert", default=None, metavar="PEM",
+                   help="serve Foxglove over TLS (wss://) with this certificate (with --foxglove-key)")
+    p.add_argument("--foxglove-key", default=None, metavar="PEM", help="the certificate's private key")
     p.add_argument("--deployment", default=None, metavar="CONFIG",
                    help="join this running deployment (config name or file) as the read-only 'observer' "
                         "(default, when no endpoint is given: local)")
     zenoh_config.add_arguments(p)
     args = p.parse_args(argv)
     try:
-        opts = _options(args)
+        opts = observer_options(args)
     except ValueError as e:
         p.error(str(e))
     stop = threading.Event()
@@ -219,16 +227,43 @@ def main(argv: list[str]) -> int:
     return 0
 
 
+def foxglove_token(path: str | None) -> str | None:
+    """The access token: the first line of `path`, else $CINETRANSFER_FOXGLOVE_TOKEN, else None."""
+    if path:
+        try:
+            token = open(path, encoding="utf-8").readline().strip()
+        except OSError as e:
+            raise ValueError(f"cannot read the token file: {e}") from None
+        if not token:
+            raise ValueError(f"the token file {path} is empty")
+        return token
+    return os.environ.get(TOKEN_ENV, "").strip() or None
+
+
 def _serve_foxglove(opts: zenoh_config.ZenohOptions, args: argparse.Namespace, stop: threading.Event) -> int:
+    from cinetransfer.foxglove_front import check_exposure
     from cinetransfer.shared.foxglove_live import FoxgloveLive
 
+    try:
+        token = foxglove_token(args.token_file)
+        check_exposure(args.host, token)
+        if bool(args.foxglove_cert) != bool(args.foxglove_key):
+            raise ValueError("--foxglove-cert and --foxglove-key go together")
+        tls = (args.foxglove_cert, args.foxglove_key) if args.foxglove_cert else None
+    except ValueError as e:
+        print(f"cinetransfer monitor: {e}", file=sys.stderr)
+        return 2
     with zenoh_config.open_session(opts) as session:
         try:
-            live = FoxgloveLive(session, args.keyexpr, host=args.host, port=args.port)
+            live = FoxgloveLive(session, args.keyexpr, host=args.host, port=args.port, token=token, tls=tls)
         except RuntimeError as e:  # the port is taken, say
             print(f"cinetransfer monitor: cannot serve Foxglove on {args.host}:{args.port}: {e}", file=sys.stderr)
             return 1
-        print(f"serving {args.keyexpr} to Foxglove at ws://{args.host}:{live.port} (Ctrl-C to stop)", flush=True)
+        except ValueError as e:  # a certificate that does not load
+            print(f"cinetransfer monitor: {e}", file=sys.stderr)
+            return 2
+        scheme = "wss" if tls else "ws"
+        print(f"serving {args.keyexpr} to Foxglove at {scheme}://{args.host}:{live.port} (Ctrl-C to stop)", flush=True)
         try:
             stop.wait()
         finally:

@@ -320,6 +320,12 @@ class RunInfo:
     channels: dict[str, dict[str, Any]] = field(default_factory=dict)  #: topic -> {schema, encoding, count, role}
     bytes: int = 0
     frame_stamps: list[int] = field(default_factory=list)  #: stamps of the camera frames (ct/RIG/camera/frame)
+    start_ns: int = 0  #: log time of the first message (0: none)
+    end_ns: int = 0  #: log time of the last message
+
+    def duration_s(self) -> float:
+        """Wall seconds from the first message to the last (log times)."""
+        return (self.end_ns - self.start_ns) / 1e9 if self.messages else 0.0
 
     @property
     def frames(self) -> int:
@@ -456,7 +462,8 @@ class RunReader:
                 s = schemas.get(rec.schema_id)
                 self.info.channels.setdefault(rec.topic, {
                     "schema": s.name if s else "", "encoding": rec.message_encoding,
-                    "schema_encoding": s.encoding if s else "", "role": rec.metadata.get(ROLE, ""), "count": 0})
+                    "schema_encoding": s.encoding if s else "", "role": rec.metadata.get(ROLE, ""), "count": 0,
+                    "first_ns": 0, "last_ns": 0})
             elif isinstance(rec, Metadata) and rec.name == META_NAME:
                 seen_meta = True
                 if rec.metadata.get("format") != FORMAT:
@@ -470,8 +477,7 @@ class RunReader:
                 ch = chans.get(rec.channel_id)
                 if ch is None:
                     raise RunFormatError(f"{self.path}: message on unknown channel {rec.channel_id}")
-                self.info.channels[ch.topic]["count"] += 1
-                self.info.messages += 1
+                self._count(self.info.channels[ch.topic], rec.log_time)
                 if ch.metadata.get(ROLE) in ("frame-image", "frame-video") and ch.topic.endswith("/camera/frame"):
                     self.info.frame_stamps.append(rec.publish_time)
             elif isinstance(rec, Footer):
@@ -481,9 +487,33 @@ class RunReader:
             raise RunFormatError(f"{self.path}: an MCAP file, but not a cinetransfer recording (no "
                                  f"'{META_NAME}' metadata; schemas: {', '.join(names) or 'none'})")
 
+    def _count(self, ch: dict[str, Any], t_ns: int) -> None:
+        ch["first_ns"] = t_ns if ch["count"] == 0 else min(ch["first_ns"], t_ns)
+        ch["last_ns"] = t_ns if ch["count"] == 0 else max(ch["last_ns"], t_ns)
+        ch["count"] += 1
+        self.info.start_ns = t_ns if self.info.messages == 0 else min(self.info.start_ns, t_ns)
+        self.info.end_ns = t_ns if self.info.messages == 0 else max(self.info.end_ns, t_ns)
+        self.info.messages += 1
+
     @property
     def meta(self) -> dict[str, Any]:
         return self.info.meta
+
+    def records(self) -> Iterator[tuple[Any, Any, Any]]:
+        """(message record, its channel record, its schema record or None) of every message as
+        stored, derived channels included (for tools that show the recording as it is)."""
+        from mcap.records import Channel, Message, Schema
+
+        schemas: dict[int, Any] = {}
+        chans: dict[int, Any] = {}
+        for rec in _records(self.path, self.salvage):
+            if isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                chans[rec.id] = rec
+            elif isinstance(rec, Message):
+                ch = chans[rec.channel_id]
+                yield rec, ch, schemas.get(ch.schema_id)
 
     def messages(self, key_prefix: str = "") -> Iterator[tuple[int, str, bytes]]:
         """(log_time_ns, key, payload): our codec bytes for every message of the rig, frames rebuilt
