@@ -6,6 +6,7 @@ One secrets folder serves a whole deployment (every host of a split deployment g
     ca-key.pem                  the CA's private key (keep it off the vehicle; only needed to add certs)
     <identity>.pem, -key.pem    certificate (CN = identity) and key, for routers and remote tools
     users.txt                   `identity:password` lines: the routers' user/password dictionary
+    mavlink-signing.key         the MAVLink 2 signing key of the vehicle link (docs/mavlink.md)
 
 Keys and passwords are written 0600 in a 0700 folder; nothing is overwritten unless --force.
 Certificates carry `localhost`, 127.0.0.1 and every --host as subject alternative names, since
@@ -23,6 +24,7 @@ from pathlib import Path
 
 from cinetransfer.shared import access
 from cinetransfer.shared.atomic import atomic_write
+from cinetransfer.shared.signing_key import write_signing_key
 
 CA_NAME = "cinetransfer-ca"
 VALID_DAYS = 825  # the longest validity most TLS stacks accept for a leaf certificate
@@ -107,6 +109,7 @@ def generate(out: Path, *, identities: tuple[str, ...] = access.CERT_IDENTITIES,
     names = dict.fromkeys([*access.USER_IDENTITIES, *users])
     _write_private(out / USERS_FILE, "".join(f"{u}:{secrets.token_urlsafe(24)}\n" for u in names).encode())
     written.append(out / USERS_FILE)
+    written.append(write_signing_key(out))
     return written
 
 

@@ -109,6 +109,14 @@ def test_an_axis_never_acknowledged_becomes_unsupported_and_is_not_sent_again():
     assert set(cam.unsupported) == {"f_number", "focus_distance_m"}
 
 
+def test_deploy_certs_writes_a_signing_key(tmp_path):
+    from cinetransfer.deploy.certs import generate
+
+    files = generate(tmp_path / "secrets", identities=())
+    key = tmp_path / "secrets" / "mavlink-signing.key"
+    assert key in files and key.stat().st_mode & 0o777 == 0o600 and len(read_signing_key(key)) == 32
+
+
 def test_signing_key_file_round_trip_and_errors(tmp_path):
     path = write_signing_key(tmp_path)
     assert oct(path.stat().st_mode & 0o777) == "0o600" and len(read_signing_key(path)) == 32
