@@ -160,3 +160,16 @@ def test_a_forged_future_timestamp_does_not_lock_out_the_genuine_stream():
     replay = rx.parse_buffer(_frame(good, 10**12 + 2, 3.0)) or []  # same timestamp again: a replay
     assert all(m.get_type() == "BAD_DATA" for m in replay)
     assert rx.signing.reject_count == 2
+
+
+def test_mavlink_config_refuses_a_bad_key_and_bad_retries(tmp_path):
+    from cinetransfer.services.autopilot_bridge.config import MavlinkConfig
+
+    with pytest.raises(ConfigError, match="cannot be read"):
+        MavlinkConfig(signing_key_file=str(tmp_path / "missing.key"))
+    with pytest.raises(ConfigError, match="command_retries"):
+        MavlinkConfig(command_retries=-1)
+    with pytest.raises(ConfigError, match="focal_length_range_mm"):
+        MavlinkConfig(focal_length_range_mm=(500.0, 30.0))
+    assert MavlinkConfig(signing_key_file=str(write_signing_key(tmp_path))).command_retries == 3
+
