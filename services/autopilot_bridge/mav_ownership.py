@@ -9,7 +9,8 @@
       └───────────── any state ──land──▶ landing (never left by itself) ◀┘
 
 Only an `engage` command (or --engage at start, --reengage after a link loss) puts the bridge in
-`engaging`, the one state in which it switches modes and arms. From `released` and `landing` it
+`engaging`, the one state in which it switches modes and arms; after ENGAGE_ATTEMPTS rounds of
+those commands without success it gives up (`released`, reason 'engage not taken'). From `released` and `landing` it
 never switches the vehicle back to OFFBOARD/GUIDED on its own, whatever the HEARTBEAT says.
 
 Landing: MAV_CMD_NAV_LAND, resent a bounded number of times without an acknowledgement; refused
@@ -23,6 +24,8 @@ from __future__ import annotations
 import logging
 
 IDLE, ENGAGING, ENGAGED, RELEASED, LANDING = "idle", "engaging", "engaged", "released", "landing"
+#: engaging sends its mode / arming commands at most this many times (about once a second)
+ENGAGE_ATTEMPTS = 15
 
 
 class Ownership:
@@ -32,6 +35,7 @@ class Ownership:
         self.state = ENGAGING if engage_on_start else IDLE
         self.reason = "--engage" if engage_on_start else ""
         self.land = ""
+        self.attempts = 0
         self.reengage = reengage_after_link_loss
         self.log = logging.getLogger("cinetransfer.autopilot_bridge.mavlink")
 
@@ -41,7 +45,18 @@ class Ownership:
         self.state, self.reason = state, reason
 
     def engage(self) -> None:
+        self.attempts = 0
         self._to(ENGAGING, "engage command")
+
+    def attempted(self) -> None:
+        """One round of mode / arming commands sent while engaging; too many and the bridge gives up."""
+        if self.state != ENGAGING:
+            return
+        self.attempts += 1
+        if self.attempts > ENGAGE_ATTEMPTS:
+            self._to(RELEASED, f"engage not taken after {ENGAGE_ATTEMPTS} attempts")
+            self.log.error("the vehicle did not enter OFFBOARD/GUIDED armed after %d attempts: released",
+                           ENGAGE_ATTEMPTS)
 
     def disarm(self) -> None:
         if self.state != LANDING:

@@ -485,6 +485,13 @@ class MavlinkBackend(VehiclePort):
         return "GUIDED" if self.autopilot == "ardupilot" else "OFFBOARD"
 
     def _engage_step(self, now: float) -> None:
+        """Mode and arming commands while engaging; a step that sent any is one bounded attempt."""
+        sent = self.counters["mav_commands_sent"]
+        self._engage_commands(now)
+        if self.counters["mav_commands_sent"] > sent:
+            self.owner.attempted()
+
+    def _engage_commands(self, now: float) -> None:
         if now < self._next_engage:
             return
         self._next_engage = now + 1.0

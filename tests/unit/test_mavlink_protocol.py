@@ -67,6 +67,20 @@ def test_ownership_never_takes_the_vehicle_back_by_itself():
     assert o3.state == "released" and o3.reason == "link lost"
 
 
+def test_engaging_is_given_up_after_a_bounded_number_of_attempts():
+    from cinetransfer.services.autopilot_bridge.mav_ownership import ENGAGE_ATTEMPTS
+
+    o = Ownership(engage_on_start=True, reengage_after_link_loss=False)
+    for _ in range(ENGAGE_ATTEMPTS):
+        o.attempted()
+    assert o.engaging
+    o.attempted()
+    assert o.state == "released" and o.reason == f"engage not taken after {ENGAGE_ATTEMPTS} attempts"
+    o.engage()
+    o.attempted()
+    assert o.engaging and o.attempts == 1
+
+
 def camera(sent):
     rc = CommandRetries(lambda c, p, comp, conf: sent.append((c, p[:3], comp)), retries=2, interval_s=1.0)
     return rc, CameraLink(R, rc, component=100, focal_range_mm=(30.0, 500.0), sensor_width_mm=23.76,
