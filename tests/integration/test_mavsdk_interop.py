@@ -167,3 +167,65 @@ def test_mavsdk_ground_station_flies_the_sim_vehicle():
     assert proc.returncode == 0, text
     assert "param MIS_TAKEOFF_ALT = 3" in text and "take-off to 3.0 m" in text and "-> OFFBOARD" in text
     assert "landed: disarmed" in text
+
+
+def test_the_bridge_service_reports_the_unsupported_aperture_and_the_land_over_zenoh(port, listener_opts, tmp_path):
+    """The same MAVSDK autopilot under the real `autopilot_bridge` process: what the backend found
+    reaches VehicleState and Health on the bus."""
+    import threading
+
+    from conftest import connect_flags, spawn, stop
+
+    from cinetransfer.shared import codec, keys, zenoh_config
+
+    rig, udp = "mv", free_udp_port()
+    ap = MavsdkAutopilot(f"udpin://127.0.0.1:{udp}")
+    session = zenoh_config.open_session(listener_opts)
+    seen: dict[str, object] = {}
+    lock = threading.Lock()
+
+    def keep(name, cls):
+        def cb(sample):
+            msg = codec.decode(sample.payload.to_bytes(), cls)
+            with lock:
+                seen[name] = msg
+        return cb
+
+    subs = [session.declare_subscriber(keys.VEHICLE_STATE.key(rig), keep("state", M.VehicleState)),
+            session.declare_subscriber(keys.health(rig, "autopilot_bridge"), keep("health", M.Health))]
+    sp_pub = session.declare_publisher(keys.SETPOINT.key(rig))
+    cmd_pub = session.declare_publisher(keys.BRIDGE_COMMAND.key(rig))
+    br = spawn("autopilot_bridge", "--rig", rig, "--backend", "mavlink", "--mavlink", f"udpout:127.0.0.1:{udp}",
+               "--engage", "--health-period", "0.2", "--connect-timeout", "60", *connect_flags(port),
+               log=tmp_path / "bridge.log")
+
+    def latest(name):
+        with lock:
+            return seen.get(name)
+
+    def stream() -> None:
+        sp = M.Setpoint(stamp_ns=time.time_ns(), position_m=np.array([1.0, 1.0, 4.0]), camera_ypr_rad=np.zeros(3),
+                        lens=M.LensState(focal_length_mm=50.0, focus_distance_m=8.0, f_number=4.0))
+        sp_pub.put(codec.encode(sp))
+
+    def counters() -> dict:
+        h = latest("health")
+        return dict(h.counters) if h is not None else {}
+
+    try:
+        wait_for(lambda: (latest("state") is not None and latest("state").lens_unsupported == ["f_number"]
+                          and counters().get("mav_lens_unsupported") == "f_number"), 120,
+                 "aperture unsupported in VehicleState and Health", stream)
+        st = latest("state")
+        assert st.lens.focal_length_mm == pytest.approx(50.0) and st.lens.focus_distance_m == pytest.approx(8.0)
+        cmd_pub.put(codec.encode(M.Command(stamp_ns=time.time_ns(), action="land")))
+        wait_for(lambda: counters().get("mav_land") == "landing" and latest("state").mode == "LAND", 120,
+                 "the land taken, in Health", stream)
+        assert counters()["mav_owner"] == "landing" and counters()["mav_commands_given_up"] == 2
+    finally:
+        rc = stop(br)
+        for d in (*subs, sp_pub, cmd_pub):
+            d.undeclare()
+        session.close()
+        ap.close()
+    assert rc == 0, (tmp_path / "bridge.log").read_text()[-3000:]
