@@ -98,6 +98,7 @@ class SimVehicle:
         self.events: collections.deque[str] = collections.deque(maxlen=200)
         self.paused_link = False  # tests: drop all traffic in both directions
         self.services = StandardServices(self)
+        self.last_sender = (0, 0)  # (system, component) of the COMMAND_LONG being handled
 
     # ------------------------------------------------------------------ helpers
     def _ms(self, now: float) -> int:
@@ -183,6 +184,7 @@ class SimVehicle:
             return
         if msg.target_component not in AUTOPILOT_COMPONENTS:
             return
+        self.last_sender = (msg.get_srcSystem(), msg.get_srcComponent())
         result = self._command(int(msg.command), p, now)
         self.conn.mav.command_ack_send(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
         self.stats["acks_sent"] += 1
@@ -230,6 +232,7 @@ class SimVehicle:
             R.MAV_CMD_REQUEST_MESSAGE: lambda p, now: self.services.request_message(int(p[0]), now),
             R.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
                 lambda p, now: self.services.request_message(R.MAVLINK_MSG_ID_AUTOPILOT_VERSION, now),
+            R.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE: lambda p, now: self.services.configure_gimbal(p, self.last_sender),
         }
         handler = handlers.get(cmd)
         return R.MAV_RESULT_UNSUPPORTED if handler is None else handler(p, now)

@@ -12,8 +12,8 @@
   zoom by focal length or by range, focus in metres, aperture (DO_DIGICAM_CONFIGURE param3),
   CAMERA_FOV_STATUS; commands addressed to it are acknowledged by it.
 - A gimbal manager on the autopilot component: GIMBAL_MANAGER_INFORMATION (the profile's pitch and
-  roll ranges) and GIMBAL_MANAGER_STATUS (5 Hz) for the gimbal device the vehicle carries (id 1,
-  not a MAVLink component of its own).
+  roll ranges), DO_GIMBAL_MANAGER_CONFIGURE (primary control) and GIMBAL_MANAGER_STATUS (5 Hz)
+  for the gimbal device the vehicle carries (id 1, not a MAVLink component of its own).
 """
 from __future__ import annotations
 
@@ -63,6 +63,7 @@ class StandardServices:
                                      veh.model.dyn.limits.max_speed_xy_mps, veh.model.dyn.limits.max_speed_z_mps)
         self.next_camera_hb = 0.0
         self.next_gimbal_status = 0.0
+        self.gimbal_primary = (0, 0)  # (system, component) in control of the gimbal; (0, 0) = nobody
 
     # ------------------------------------------------------------------ helpers
     @contextlib.contextmanager
@@ -161,6 +162,18 @@ class StandardServices:
             self._ms(), b"cinetransfer", b"sim-vehicle gimbal", b"", 0, 0, 0, caps, 0, -lim.roll_max_rad,
             lim.roll_max_rad, lim.pitch_min_rad, lim.pitch_max_rad, -math.pi, math.pi, GIMBAL_DEVICE_ID)
 
+    def configure_gimbal(self, p: list[float], sender: tuple[int, int]) -> int:
+        """MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE: who has primary control (-1 unchanged, -2 the
+        sender, -3 nobody); secondary control is not emulated."""
+        sysid, compid = int(p[0]), int(p[1])
+        if sysid == -2 or compid == -2:
+            self.gimbal_primary = sender
+        elif sysid == -3 or compid == -3:
+            self.gimbal_primary = (0, 0)
+        elif sysid >= 0 and compid >= 0:
+            self.gimbal_primary = (sysid, compid)
+        return R.MAV_RESULT_ACCEPTED
+
     # ------------------------------------------------------------------ camera component
     def camera_command(self, cmd: int, p: list[float], now: float) -> int:
         """A COMMAND_LONG addressed to the camera; returns its MAV_RESULT."""
@@ -221,4 +234,4 @@ class StandardServices:
         if now >= self.next_gimbal_status:
             self.next_gimbal_status = now + 0.2
             veh.conn.mav.gimbal_manager_status_send(self._ms(), R.GIMBAL_MANAGER_FLAGS_YAW_LOCK, GIMBAL_DEVICE_ID,
-                                                    0, 0, 0, 0)
+                                                    *self.gimbal_primary, 0, 0)

@@ -6,7 +6,7 @@
    acknowledges) resent a bounded number of times and then unsupported, land taken (MAVSDK
    ignores NAV_LAND; the land mode it takes) and never followed by a switch back to OFFBOARD.
 2. MAVSDK as a ground station flies `cinetransfer sim-vehicle` (a real process): parameters,
-   version, camera and gimbal listed, arm, take-off, offboard, land.
+   version, camera and gimbal listed, the gimbal pointed, arm, take-off, offboard, land.
 All over real UDP on 127.0.0.1.
 """
 from __future__ import annotations
@@ -148,6 +148,14 @@ def test_mavsdk_ground_station_flies_the_sim_vehicle():
                  "camera and gimbal listed")
         cam = camera.camera_list().cameras[0]
         assert cam.component_id == 100 and cam.model_name == "sim-vehicle camera"
+        # the gimbal, as a ground station points it: take control, pitch -30 deg, yaw 45 deg (north-east)
+        from mavsdk.plugins.gimbal import ControlMode, GimbalMode, SendMode
+
+        gid = gimbal.gimbal_list().gimbals[0].gimbal_id
+        gimbal.take_control(gid, ControlMode.PRIMARY)
+        gimbal.set_angles(gid, 0.0, -30.0, 45.0, GimbalMode.YAW_LOCK, SendMode.ONCE)
+        wait_for(lambda: abs(gimbal.get_attitude(gid).euler_angle_forward.pitch_deg + 30.0) < 0.5
+                 and abs(gimbal.get_attitude(gid).euler_angle_north.yaw_deg - 45.0) < 0.5, 60, "gimbal pointed")
 
         telemetry, action, offboard = Telemetry(system), Action(system), Offboard(system)
         action.arm()
