@@ -2,7 +2,8 @@
 
 - Ids: the vehicle is `target_system` / `target_component` when configured, else the first
   autopilot HEARTBEAT's. Messages from other systems, and from components of the vehicle's system
-  that are neither its autopilot, its camera nor a gimbal, are ignored and counted.
+  that are neither its autopilot, its camera nor a camera or gimbal component id, are ignored and
+  counted.
 - Address (udpin): a listening UDP socket hears anyone who can reach its port. The first source
   address that sends the vehicle's HEARTBEAT becomes the only one heard and the only one sent to
   (pymavlink would otherwise answer every address that ever wrote to the port); datagrams from
@@ -17,8 +18,9 @@ import errno
 import socket
 from typing import Any
 
-#: MAV_COMP_ID_GIMBAL and MAV_COMP_ID_GIMBAL2..6: gimbal devices may report their own attitude
-GIMBAL_COMPONENTS = frozenset({154, 171, 172, 173, 174, 175})
+#: MAV_COMP_ID_CAMERA..CAMERA6, MAV_COMP_ID_GIMBAL and GIMBAL2..6: the vehicle's payload may speak
+#: for itself (a camera's telemetry is heard before its HEARTBEAT names it the camera)
+PAYLOAD_COMPONENTS = frozenset({100, 101, 102, 103, 104, 105, 154, 171, 172, 173, 174, 175})
 
 
 class VehicleLock:
@@ -80,7 +82,7 @@ class VehicleLock:
         if self.system == 0:
             return False
         if system == self.system and (component in (self.component, camera_component)
-                                      or component in GIMBAL_COMPONENTS):
+                                      or component in PAYLOAD_COMPONENTS):
             return True
         self.foreign["system" if system != self.system else "component"] += 1
         return False
