@@ -100,7 +100,9 @@ def test_udpin_locks_to_the_vehicles_address_and_ignores_a_local_spoofer():
         backend.close()
         out = stop(veh)
     assert report["sent"] > 100 and report["received"] == 0  # nothing was sent to the spoofer
-    assert h["mav_foreign_address"] == report["sent"]  # every spoofed datagram dropped and counted
+    # every spoofed datagram that reached the socket is dropped and counted (on a loaded machine the
+    # kernel may drop a few from a full receive buffer before the backend reads them)
+    assert 0.9 * report["sent"] <= h["mav_foreign_address"] <= report["sent"]
     assert h["mav_mode_lost"] == 0 and h["mav_owner"] == "engaged" and h["mav_mode"] == "OFFBOARD"
     worst = max(float(np.linalg.norm(s.position_m - target)) for s in states)
     assert worst < 0.3, f"a state moved {worst:.1f} m towards the spoofed position"
@@ -139,7 +141,7 @@ def test_signed_link_drops_unsigned_and_wrongly_signed_messages(tmp_path):
         intruder.close()
         backend.close()
         out = stop(veh)
-    assert h["mav_signing"] and h["mav_signature_rejected"] == sent
+    assert h["mav_signing"] and 0.9 * sent <= h["mav_signature_rejected"] <= sent  # (as above)
     assert h["mav_mode_lost"] == 0 and h["mav_owner"] == "engaged"
     assert max(float(np.linalg.norm(s.position_m - target)) for s in states) < 0.3
     # (the backend was not stepped while the intruder waited: the vehicle left OFFBOARD for its hold)
