@@ -187,3 +187,10 @@ def test_mavlink_config_refuses_a_bad_key_and_bad_retries(tmp_path):
         MavlinkConfig(focal_length_range_mm=(500.0, 30.0))
     assert MavlinkConfig(signing_key_file=str(write_signing_key(tmp_path))).command_retries == 3
 
+
+
+def test_the_bridge_zooms_by_range_over_its_vehicle_profiles_focal_lengths():
+    from cinetransfer.services.autopilot_bridge.service import build_parser, config_from_args
+
+    cfg = config_from_args(build_parser().parse_args(["--backend", "mavlink", "--vehicle", "inspire3"]))
+    assert cfg.mavlink.focal_length_range_mm == (17.0, 28.0)  # deploy/vehicles/inspire3.yaml's zoom lens
