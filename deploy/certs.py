@@ -7,13 +7,15 @@ A split deployment gets one folder per host, each holding only what that host ne
                     users.txt: passwords of the ground nodes, the tools and the ground link
     DIR/onboard/    ca.pem, onboard.pem + onboard-key.pem (its router),
                     users.txt: passwords of the onboard nodes, its own tools, and the ground link's
-                    (the onboard router is the one that checks it)
+                    (the onboard router is the one that checks it),
+                    mavlink-signing.key: the MAVLink 2 signing key of the vehicle link (docs/mavlink.md)
 
 so a stolen ground folder holds no password an onboard node joins with, and a stolen drone holds
 no CA key. `--one-host` writes a single folder with every identity (what `deploy up local`
 generates for itself):
 
-    ca.pem, ca-key.pem, <identity>.pem + -key.pem, users.txt (`identity:password` lines)
+    ca.pem, ca-key.pem, <identity>.pem + -key.pem, users.txt (`identity:password` lines),
+    mavlink-signing.key
 
 Keys and passwords are written 0600 in a 0700 folder; nothing is overwritten unless --force.
 Certificates carry `localhost`, 127.0.0.1 and every --host as subject alternative names, since
@@ -31,6 +33,7 @@ from pathlib import Path
 
 from cinetransfer.shared import access
 from cinetransfer.shared.atomic import atomic_write
+from cinetransfer.shared.signing_key import write_signing_key
 
 CA_NAME = "cinetransfer-ca"
 VALID_DAYS = 825  # the longest validity most TLS stacks accept for a leaf certificate
@@ -146,6 +149,7 @@ def generate(out: Path, *, identities: tuple[str, ...] = access.CERT_IDENTITIES,
     for ident in identities:
         written += ca.issue(out, ident, list(hosts or []))
     written.append(_write_users(out, _passwords([*access.USER_IDENTITIES, *users])))
+    written.append(write_signing_key(out))
     return written
 
 
@@ -165,6 +169,7 @@ def generate_split(out: Path, *, hosts: list[str] | None = None, force: bool = F
         for ident in access.HOST_CERTS[h]:
             written += ca.issue(folder, ident, list(hosts or []))
         written.append(_write_users(folder, passwords[h]))
+    written.append(write_signing_key(folders["onboard"]))  # the bridge signs the vehicle link onboard
     return written
 
 

@@ -233,7 +233,7 @@ class Setpoint:
 class VehicleState:
     """Where the vehicle, its gimbal and its lens are (world frame)."""
 
-    SCHEMA_VERSION: ClassVar[int] = 2  # 2: envelope_breach
+    SCHEMA_VERSION: ClassVar[int] = 3  # 2: envelope_breach; 3: lens_unsupported
     MIN_SCHEMA_VERSION: ClassVar[int] = 1
     stamp_ns: int = doc("time of the state estimate [ns]", 0)
     seq: int = doc("sequence number", 0)
@@ -249,6 +249,9 @@ class VehicleState:
     backend: str = doc("'sim' or 'mavlink'", "")
     envelope_breach: bool = doc("the measured position is outside the bridge's geofence or altitude band; "
                                 "the bridge is flying it back inside", False, since=2)
+    lens_unsupported: list[str] = doc("lens axes the camera takes no command for ('focal_length_mm', "
+                                      "'focus_distance_m', 'f_number'): the planner keeps them fixed",
+                                      default_factory=list, since=3)
 
 
 @dataclass(frozen=True, eq=False)

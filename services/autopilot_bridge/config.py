@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from cinetransfer.shared.errors import ConfigError
+from cinetransfer.shared.signing_key import read_signing_key
 from cinetransfer.shared.vehicle import VehicleProfile
 
 GEOFENCE_SHAPES = ("cylinder", "box")
@@ -215,11 +216,20 @@ class MavlinkConfig:
     sensor_width_mm: float = 23.76
     sensor_height_mm: float = 13.365
     coc_mm: float = 0.05
+    #: the lens's focal-length range [mm] (the vehicle profile's): zoom by range (0..100 %) maps onto it.
+    focal_length_range_mm: tuple[float, float] = (30.0, 500.0)
+    #: a lens or land command without acknowledgement is resent this many times, every
+    #: command_retry_s [s]; then a lens axis is unsupported, a land falls back to the land mode.
+    command_retries: int = 3
+    command_retry_s: float = 1.0
+    #: MAVLink 2 signing key file ('cinetransfer deploy certs' writes mavlink-signing.key); '' = unsigned.
+    signing_key_file: str = ""
 
     def __post_init__(self) -> None:
         self.validate()
 
     def validate(self) -> None:
+        self._validate_camera_and_retries()
         if not self.url or not isinstance(self.url, str):
             raise ConfigError("mavlink url must be a pymavlink connection string, e.g. udpin:0.0.0.0:14540")
         if self.autopilot not in AUTOPILOTS:
@@ -249,6 +259,20 @@ class MavlinkConfig:
         _positive("sensor_width_mm", self.sensor_width_mm)
         _positive("sensor_height_mm", self.sensor_height_mm)
         _positive("coc_mm", self.coc_mm)
+
+    def _validate_camera_and_retries(self) -> None:
+        if len(self.focal_length_range_mm) != 2:
+            raise ConfigError("focal_length_range_mm needs 2 values (min, max)")
+        _range("focal_length_range_mm[0]", self.focal_length_range_mm[0], "focal_length_range_mm[1]",
+               self.focal_length_range_mm[1])
+        if not isinstance(self.command_retries, int) or isinstance(self.command_retries, bool) or \
+                not 0 <= self.command_retries <= 20:
+            raise ConfigError(f"command_retries = {self.command_retries!r}: must be an integer in 0..20")
+        _positive("command_retry_s", self.command_retry_s)
+        if not isinstance(self.signing_key_file, str):
+            raise ConfigError("signing_key_file must be a path (or '' for unsigned MAVLink)")
+        if self.signing_key_file:
+            read_signing_key(self.signing_key_file)  # a missing or malformed key is refused at start
 
 
 @dataclass(frozen=True)

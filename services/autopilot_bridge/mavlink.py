@@ -9,17 +9,17 @@ Out (to the vehicle):
   at `setpoint_rate_hz` — also while holding (the hold target is where the vehicle was), so PX4
   stays in OFFBOARD and can be switched into it at any time;
 - gimbal: GIMBAL_MANAGER_SET_ATTITUDE, earth-frame quaternion with GIMBAL_MANAGER_FLAGS_YAW_LOCK;
-- lens (DESIGN §5): MAV_CMD_SET_CAMERA_ZOOM (531) ZOOM_TYPE_FOCAL_LENGTH [mm],
-  MAV_CMD_SET_CAMERA_FOCUS (532) FOCUS_TYPE_METERS [m], MAV_CMD_DO_DIGICAM_CONFIGURE (202)
-  param3 = f-stop; each sent when the commanded value changes, at most `lens_command_rate_hz`;
+- lens (DESIGN §5): the camera protocol (mav_camera.py): zoom, focus and aperture commands to the
+  camera component, acknowledged or resent a bounded number of times, then the axis unsupported;
 - mode and arming: MAV_CMD_DO_SET_MODE (PX4 OFFBOARD = main mode 6; ArduCopter GUIDED = 4),
-  MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_NAV_TAKEOFF (ArduPilot, when landed), MAV_CMD_NAV_LAND;
+  MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_NAV_TAKEOFF (ArduPilot, when landed), MAV_CMD_NAV_LAND
+  (mav_ownership.py: who flies the vehicle, and the land's bounded retries);
 - MAV_CMD_SET_MESSAGE_INTERVAL for the telemetry below (and REQUEST_DATA_STREAM for ArduPilot).
 
 In (into VehicleState): HEARTBEAT (mode, armed, link), LOCAL_POSITION_NED, ATTITUDE,
-GIMBAL_DEVICE_ATTITUDE_STATUS, CAMERA_FOV_STATUS (focal length from the horizontal field of view
-and the sensor width), COMMAND_ACK (the lens values of an accepted command become the reported
-focus distance / f-number: MAVLink has no message that reports them in metres / f-stops).
+GIMBAL_DEVICE_ATTITUDE_STATUS, CAMERA_INFORMATION / CAMERA_FOV_STATUS / CAMERA_SETTINGS (the lens,
+mav_camera.py), COMMAND_ACK. Only from the configured vehicle (mav_lock.py: ids, the udpin source
+address, MAVLink 2 signing when a key is configured); everything else is dropped and counted.
 
 Frames: world ENU z-up <-> local NED (see enu_ned.py). The vehicle's yaw is set to the camera's
 yaw (the multirotor faces the shot); the gimbal gets the full earth-frame attitude.
@@ -46,8 +46,14 @@ import numpy as np
 
 from cinetransfer.services.autopilot_bridge import enu_ned as F
 from cinetransfer.services.autopilot_bridge.config import MavlinkConfig
+from cinetransfer.services.autopilot_bridge.mav_camera import LENS_AXES, CameraLink
+from cinetransfer.services.autopilot_bridge.mav_commands import CommandRetries, InFlight
+from cinetransfer.services.autopilot_bridge.mav_lock import VehicleLock
+from cinetransfer.services.autopilot_bridge.mav_ownership import Ownership
 from cinetransfer.services.autopilot_bridge.port import VehiclePort
+from cinetransfer.services.autopilot_bridge.signing import enable_signing
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.signing_key import read_signing_key
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
@@ -61,8 +67,6 @@ if mavlink.WIRE_PROTOCOL_VERSION != "2.0":  # pragma: no cover - env forced to v
 TYPEMASK_POS_VEL_YAW = (mavlink.POSITION_TARGET_TYPEMASK_AX_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_AY_IGNORE
                         | mavlink.POSITION_TARGET_TYPEMASK_AZ_IGNORE
                         | mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE)
-LENS_COMMANDS = (mavlink.MAV_CMD_SET_CAMERA_ZOOM, mavlink.MAV_CMD_SET_CAMERA_FOCUS,
-                 mavlink.MAV_CMD_DO_DIGICAM_CONFIGURE)
 RESULT_NAMES = {v: k for k, v in vars(mavlink).items() if k.startswith("MAV_RESULT_") and isinstance(v, int)}
 
 
@@ -118,8 +122,8 @@ class MavlinkBackend(VehiclePort):
         self.log = logging.getLogger("cinetransfer.autopilot_bridge.mavlink")
         self.conn: Any = None
         self.t0 = clock()
-        self.target_system = cfg.target_system
-        self.target_component = cfg.target_component
+        self.lock = VehicleLock(cfg.target_system, cfg.target_component)
+        self.signing_key = read_signing_key(cfg.signing_key_file) if cfg.signing_key_file else None
         self.autopilot = cfg.autopilot if cfg.autopilot != "auto" else ""
         self.origin = np.asarray(cfg.local_origin_m, dtype=float)
         # link
@@ -136,8 +140,6 @@ class MavlinkBackend(VehiclePort):
         self.pos_stamp_ns = 0
         self.rpy_ned = np.zeros(3)  # roll, pitch, yaw (NED)
         self.gimbal_ypr: np.ndarray | None = None  # world camera yaw, pitch, roll
-        self.focal_from_fov_mm = math.nan
-        self.lens_acked = {"focal_length_mm": math.nan, "focus_distance_m": math.nan, "f_number": math.nan}
         # what we command
         self.sp_pos_ned: np.ndarray | None = None
         self.sp_vel_ned = np.zeros(3)
@@ -145,27 +147,45 @@ class MavlinkBackend(VehiclePort):
         self.gimbal_target: np.ndarray | None = None
         self.gimbal_sent: np.ndarray | None = None
         self.gimbal_sent_s = -1e9
-        self.lens_sent: dict[str, float] = {}
-        self.lens_sent_s: dict[str, float] = {}
         self.holding = True
         self.stream_since_s: float | None = None
-        self.want_engaged = cfg.engage_on_start
-        self.engaged = False
+        self.owner = Ownership(cfg.engage_on_start, cfg.reengage_after_link_loss)
         self.takeoff_sent = False
         self._next_hb = self._next_sp = self._next_engage = self._next_arm = 0.0
         # commands and acks
         self.pending: dict[int, tuple[float, tuple[float, ...]]] = {}
+        self.retries = CommandRetries(self._send_command_long, retries=cfg.command_retries,
+                                      interval_s=cfg.command_retry_s)
+        self.camera = CameraLink(mavlink, self.retries, component=cfg.camera_component,
+                                 focal_range_mm=cfg.focal_length_range_mm, sensor_width_mm=cfg.sensor_width_mm,
+                                 min_gap_s=1.0 / cfg.lens_command_rate_hz, request=self._request_message)
         self.acks: dict[int, Ack] = {}
         self.ack_rtts_ms: collections.deque[float] = collections.deque(maxlen=200)
         self.counters: collections.Counter[str] = collections.Counter(
             {"mav_setpoints_sent": 0, "mav_commands_sent": 0, "mav_acks_accepted": 0, "mav_acks_failed": 0,
-             "mav_link_losses": 0, "mav_reopens": 0, "mav_mode_lost": 0, "mav_heartbeats_rx": 0})
+             "mav_link_losses": 0, "mav_reopens": 0, "mav_mode_lost": 0, "mav_heartbeats_rx": 0,
+             "mav_commands_given_up": 0})
+
+    @property
+    def target_system(self) -> int:
+        return self.lock.system
+
+    @property
+    def target_component(self) -> int:
+        return self.lock.component
+
+    @property
+    def engaged(self) -> bool:
+        return self.owner.engaged
 
     # ------------------------------------------------------------------ lifecycle
     def _open(self) -> None:
         self.close()
         self.conn = connect(self.cfg.url, source_system=self.cfg.source_system,
                             source_component=self.cfg.source_component, baud=self.cfg.baud_rate)
+        self.lock.attach(self.conn)
+        if self.signing_key is not None:
+            enable_signing(self.conn, self.signing_key)
 
     def start(self) -> None:
         self._open()
@@ -224,12 +244,14 @@ class MavlinkBackend(VehiclePort):
         t = msg.get_type()
         if t == "BAD_DATA":
             return
-        src = msg.get_srcSystem()
-        if t == "HEARTBEAT":
-            if self._is_vehicle_heartbeat(msg, src):
-                self._on_heartbeat(msg, now)
+        src, comp = msg.get_srcSystem(), msg.get_srcComponent()
+        if t == "HEARTBEAT" and self._is_vehicle_heartbeat(msg, src, comp):
+            self.lock.lock_address()
+            self._on_heartbeat(msg, now)
             return
-        if self.target_system and src != self.target_system:
+        if t == "HEARTBEAT" and src == self.lock.system and msg.type == mavlink.MAV_TYPE_CAMERA:
+            self.camera.on_heartbeat(msg, comp)  # the camera of the vehicle (first one heard)
+        if not self.lock.accepts(src, comp, self.camera.component) or t == "HEARTBEAT":
             return
         if self.link_up:
             self.last_rx_s = now  # any message from the vehicle keeps the link alive
@@ -240,18 +262,16 @@ class MavlinkBackend(VehiclePort):
     #: the handler of each message type the bridge reads from the vehicle (besides HEARTBEAT)
     _TELEMETRY = {"LOCAL_POSITION_NED": "_on_position", "ATTITUDE": "_on_attitude",
                   "GIMBAL_DEVICE_ATTITUDE_STATUS": "_on_gimbal_status", "CAMERA_FOV_STATUS": "_on_fov",
+                  "CAMERA_INFORMATION": "_on_camera_information", "CAMERA_SETTINGS": "_on_camera_settings",
                   "COMMAND_ACK": "_on_ack", "STATUSTEXT": "_on_statustext"}
 
-    def _is_vehicle_heartbeat(self, msg: Any, src: int) -> bool:
+    def _is_vehicle_heartbeat(self, msg: Any, src: int, comp: int) -> bool:
         """A HEARTBEAT of the vehicle (the first autopilot heard becomes the target); not one of a
         ground station, another companion, a gimbal or a camera."""
-        if msg.type in (mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER) or \
-                msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
+        if msg.type in (mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_TYPE_CAMERA,
+                        mavlink.MAV_TYPE_GIMBAL) or msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
             return False
-        if self.target_system == 0:
-            self.target_system = src
-            self.target_component = self.target_component or msg.get_srcComponent()
-        return src == self.target_system
+        return self.lock.is_vehicle_heartbeat(src, comp)
 
     def _on_position(self, msg: Any, now: float) -> None:
         self.pos_ned = np.array([msg.x, msg.y, msg.z], dtype=float)
@@ -263,9 +283,13 @@ class MavlinkBackend(VehiclePort):
         self.rpy_ned = np.array([msg.roll, msg.pitch, msg.yaw], dtype=float)
 
     def _on_fov(self, msg: Any, _now: float) -> None:
-        hfov = float(msg.hfov)
-        if math.isfinite(hfov) and 0.0 < hfov < 180.0:
-            self.focal_from_fov_mm = self.cfg.sensor_width_mm / (2.0 * math.tan(math.radians(hfov) / 2.0))
+        self.camera.on_fov(msg)
+
+    def _on_camera_information(self, msg: Any, _now: float) -> None:
+        self.camera.on_information(msg)
+
+    def _on_camera_settings(self, msg: Any, _now: float) -> None:
+        self.camera.on_settings(msg)
 
     def _on_statustext(self, msg: Any, _now: float) -> None:
         self.log.info("vehicle: %s", msg.text)
@@ -290,16 +314,13 @@ class MavlinkBackend(VehiclePort):
             self.link_up = True
             self.log.info("link up (mode %s, %s)", self.mode, "armed" if self.armed else "disarmed")
             self._request_telemetry()
-        ext = self.external_mode
-        if self.engaged and (self.mode != ext or not self.armed):
-            self.engaged = False
-            self.want_engaged = False
+        was_engaged = self.owner.engaged
+        if self.owner.on_vehicle(self.mode, self.armed, self.external_mode):
             self.counters["mav_mode_lost"] += 1
-            self.log.warning("vehicle left %s (now %s, %s): not taking control back", ext, self.mode,
-                             "armed" if self.armed else "disarmed")
-        elif not self.engaged and self.mode == ext and self.armed:
-            self.engaged = True
-            self.log.info("engaged: %s, armed", ext)
+            self.log.warning("vehicle left %s (now %s, %s): not taking control back", self.external_mode,
+                             self.mode, "armed" if self.armed else "disarmed")
+        elif self.owner.engaged and not was_engaged:
+            self.log.info("engaged: %s, armed", self.external_mode)
 
     def _on_gimbal_status(self, msg: Any, _now: float) -> None:
         try:
@@ -318,6 +339,10 @@ class MavlinkBackend(VehiclePort):
         cmd, result = int(msg.command), int(msg.result)
         if result == mavlink.MAV_RESULT_IN_PROGRESS:
             return
+        f = self.retries.on_ack(cmd, msg.get_srcComponent())
+        if f is not None:
+            self._on_retried_ack(f, result, now)
+            return
         sent = self.pending.pop(cmd, None)
         if sent is None:
             return
@@ -327,14 +352,8 @@ class MavlinkBackend(VehiclePort):
         if ack.accepted:
             self.counters["mav_acks_accepted"] += 1
             p = sent[1]
-            if cmd == mavlink.MAV_CMD_SET_CAMERA_ZOOM:
-                self.lens_acked["focal_length_mm"] = p[1]
-            elif cmd == mavlink.MAV_CMD_SET_CAMERA_FOCUS:
-                self.lens_acked["focus_distance_m"] = p[1]
-            elif cmd == mavlink.MAV_CMD_DO_DIGICAM_CONFIGURE:
-                self.lens_acked["f_number"] = p[2]
             # provisional until the next HEARTBEAT confirms it (saves a second when engaging)
-            elif cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+            if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
                 self.armed = p[0] >= 0.5
             elif cmd == mavlink.MAV_CMD_DO_SET_MODE and self.autopilot == "px4":
                 self.mode = F.px4_mode_name(F.px4_custom_mode(int(p[1]), int(p[2])))
@@ -343,6 +362,43 @@ class MavlinkBackend(VehiclePort):
         else:
             self.counters["mav_acks_failed"] += 1
             self.log.warning("command %d refused: %s", cmd, ack.result_name)
+
+    def _on_retried_ack(self, f: InFlight, result: int, now: float) -> None:
+        """The answer to a lens or land command (sent with bounded retries)."""
+        ok = result == mavlink.MAV_RESULT_ACCEPTED
+        self.counters["mav_acks_accepted" if ok else "mav_acks_failed"] += 1
+        ack = self.acks[f.command] = Ack(f.command, result, f.sent_s, self.clock(), f.params)
+        self.ack_rtts_ms.append(ack.rtt_ms)
+        if f.key in LENS_AXES:
+            self.camera.on_ack(f, result, now)
+        elif ok and self.owner.land in ("sent", "mode sent"):
+            self.owner.land = "accepted"
+        elif not ok:
+            self.log.warning("%s refused: %s", f.key, RESULT_NAMES.get(result, result))
+            self._land_fallback(f, f"refused: {RESULT_NAMES.get(result, result)}", now)
+
+    def _on_given_up(self, f: InFlight, now: float) -> None:
+        self.counters["mav_commands_given_up"] += 1
+        self.log.warning("command %d (%s) not acknowledged after %d tries: giving up", f.command, f.key, f.tries)
+        if f.key in LENS_AXES:
+            self.camera.on_gave_up(f)
+        else:
+            self._land_fallback(f, f"not acknowledged after {f.tries} tries", now)
+
+    def _land_fallback(self, f: InFlight, why: str, now: float) -> None:
+        """NAV_LAND was not taken: ask for the land mode instead; that not taken either, report it."""
+        if not self.owner.landing or self.owner.land == "landing":
+            return
+        if f.key == "land":
+            self.owner.land = "mode sent"
+            ardu = self.autopilot == "ardupilot"
+            mode = (F.ACM_MODES["LAND"], 0) if ardu else (F.PX4_MAIN["AUTO"], F.PX4_AUTO_SUB["LAND"])
+            self.retries.send("land_mode", mavlink.MAV_CMD_DO_SET_MODE,
+                              (mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, *mode), self.target_component, now)
+            self.log.warning("NAV_LAND %s: asking for the land mode", why)
+        else:
+            self.owner.land = f"not taken: NAV_LAND and the land mode {why}"
+            self.log.error("land not taken: %s", self.owner.land)
 
     # ------------------------------------------------------------------ send
     def _ms(self) -> int:
@@ -356,9 +412,19 @@ class MavlinkBackend(VehiclePort):
         """COMMAND_LONG to the vehicle (7 params; missing ones are 0); the ack is matched later."""
         p = tuple(float(x) for x in params) + (0.0,) * (7 - len(params))
         comp = self.target_component if component is None else component
-        self.conn.mav.command_long_send(self.target_system, comp, command, 0, *p)
+        self._send_command_long(command, p, comp, 0)
         self.pending[command] = (self.clock(), p)
+
+    def _send_command_long(self, command: int, params: tuple[float, ...], component: int, confirmation: int) -> None:
+        if self.conn is None:
+            return
+        comp = component or self.target_component
+        self.conn.mav.command_long_send(self.target_system, comp, command, confirmation, *params)
         self.counters["mav_commands_sent"] += 1
+
+    def _request_message(self, msg_id: int, component: int) -> None:
+        """MAV_CMD_REQUEST_MESSAGE (its ack is not tracked: several share one command id)."""
+        self._send_command_long(mavlink.MAV_CMD_REQUEST_MESSAGE, (msg_id, 0, 0, 0, 0, 0, 0), component, 0)
 
     def wait_ack(self, command: int, timeout_s: float = 2.0) -> Ack | None:
         """Poll until the COMMAND_ACK of `command` arrives (tests, benchmarks, start-up)."""
@@ -384,6 +450,16 @@ class MavlinkBackend(VehiclePort):
         if self.autopilot == "ardupilot":
             self.conn.mav.request_data_stream_send(self.target_system, self.target_component,
                                                    mavlink.MAV_DATA_STREAM_ALL, int(hz), 1)
+        self._request_camera_telemetry()
+
+    def _request_camera_telemetry(self) -> None:
+        """The lens read-back comes from the camera itself (when it is not the autopilot)."""
+        comp = self.camera.component
+        if not comp or comp == self.target_component or self.conn is None:
+            return
+        self.conn.mav.command_long_send(self.target_system, comp, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                        mavlink.MAVLINK_MSG_ID_CAMERA_FOV_STATUS, 2e5, 0, 0, 0, 0, 0)
+        self.camera.on_link_up()
 
     def _send_setpoint(self) -> None:
         assert self.sp_pos_ned is not None
@@ -404,23 +480,18 @@ class MavlinkBackend(VehiclePort):
         self.gimbal_sent = self.gimbal_target.copy()
         self.gimbal_sent_s = now
 
-    def _send_lens(self, name: str, value: float, now: float) -> None:
-        comp = self.cfg.camera_component or self.target_component
-        if name == "focal_length_mm":
-            self.send_command(mavlink.MAV_CMD_SET_CAMERA_ZOOM, mavlink.ZOOM_TYPE_FOCAL_LENGTH, value, component=comp)
-        elif name == "focus_distance_m":
-            self.send_command(mavlink.MAV_CMD_SET_CAMERA_FOCUS, mavlink.FOCUS_TYPE_METERS, value, component=comp)
-        else:
-            # DO_DIGICAM_CONFIGURE: param1 mode, param2 shutter, param3 aperture (f-stop); 0 = unchanged
-            self.send_command(mavlink.MAV_CMD_DO_DIGICAM_CONFIGURE, 0, 0, value, component=comp)
-        self.lens_sent[name] = value
-        self.lens_sent_s[name] = now
-
     @property
     def external_mode(self) -> str:
         return "GUIDED" if self.autopilot == "ardupilot" else "OFFBOARD"
 
     def _engage_step(self, now: float) -> None:
+        """Mode and arming commands while engaging; a step that sent any is one bounded attempt."""
+        sent = self.counters["mav_commands_sent"]
+        self._engage_commands(now)
+        if self.counters["mav_commands_sent"] > sent:
+            self.owner.attempted()
+
+    def _engage_commands(self, now: float) -> None:
         if now < self._next_engage:
             return
         self._next_engage = now + 1.0
@@ -457,25 +528,19 @@ class MavlinkBackend(VehiclePort):
 
     # ------------------------------------------------------------------ VehiclePort
     def apply(self, setpoint: M.Setpoint) -> None:
+        if self.owner.landing:
+            self.hold()  # a land was asked for: never fly the plan again on our own
+            return
         self.holding = False
         self.sp_pos_ned = F.enu_to_ned(np.asarray(setpoint.position_m, float) - self.origin)
         self.sp_vel_ned = F.enu_to_ned(setpoint.velocity_mps)
         ypr = np.asarray(setpoint.camera_ypr_rad, float)
         self.sp_yaw_ned = F.yaw_enu_to_ned(float(ypr[0]))
         self.gimbal_target = ypr.copy()
-        now = self.clock()
-        min_gap = 1.0 / self.cfg.lens_command_rate_hz
-        lens = setpoint.lens
-        for name, eps in (("focal_length_mm", 0.5), ("focus_distance_m", 0.02), ("f_number", 0.05)):
-            v = float(getattr(lens, name))
-            if not math.isfinite(v):
-                continue
-            last = self.lens_sent.get(name)
-            if last is not None and abs(v - last) <= eps * (1.0 if name != "focus_distance_m" else max(1.0, last)):
-                continue
-            if now - self.lens_sent_s.get(name, -1e9) < min_gap:
-                continue  # rate limit: the next apply() sends the newest value
-            self._send_lens(name, v, now)
+        if self.link_up:
+            now = self.clock()
+            for axis in LENS_AXES:
+                self.camera.want(axis, float(getattr(setpoint.lens, axis)), now)
 
     def hold(self) -> None:
         self.holding = True
@@ -488,21 +553,23 @@ class MavlinkBackend(VehiclePort):
         if self.conn is None:
             return False
         if action == "engage":
-            self.want_engaged = True
+            self.owner.engage()
             self.takeoff_sent = False
             self._next_engage = 0.0
         elif action == "arm":
             self.send_command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
         elif action == "disarm":
-            self.want_engaged = False
+            self.owner.disarm()
             self.send_command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0)
         elif action == "takeoff":
             alt = float(args.get("altitude_m", self.cfg.takeoff_altitude_m))
             self.send_command(mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, 0, 0, alt)
         elif action == "land":
-            self.want_engaged = False
-            self.engaged = False
-            self.send_command(mavlink.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan, 0, 0, 0)
+            self.owner.start_land()
+            self.retries.cancel("land_mode")
+            self.retries.send("land", mavlink.MAV_CMD_NAV_LAND, (0, 0, 0, math.nan, 0, 0, 0), self.target_component,
+                              self.clock())
+            self.hold()
         else:
             return False
         return True
@@ -520,7 +587,10 @@ class MavlinkBackend(VehiclePort):
         if not self.link_up:
             return
         self._stream(now)
-        if self.want_engaged:
+        for f in self.retries.step(now):
+            self._on_given_up(f, now)
+        # ArduCopter is GUIDED and armed before its take-off: engaging ends with the climb
+        if self.owner.engaging or (self.owner.engaged and self.autopilot == "ardupilot"):
             self._engage_step(now)
 
     def _keep_link(self, now: float) -> bool:
@@ -529,8 +599,7 @@ class MavlinkBackend(VehiclePort):
         if self.link_up and (self.last_rx_s is None or now - self.last_rx_s > self.cfg.link_timeout_s):
             self.link_up = False
             self.counters["mav_link_losses"] += 1
-            self.engaged = False
-            self.want_engaged = self.want_engaged and self.cfg.reengage_after_link_loss
+            self.owner.on_link_lost()
             self.stream_since_s = None
             self.last_reopen_s = now
             self.log.warning("link lost: nothing from the vehicle for %.1f s", self.cfg.link_timeout_s)
@@ -548,7 +617,7 @@ class MavlinkBackend(VehiclePort):
 
     def _stream(self, now: float) -> None:
         """What flows while the link is up: the position setpoint at its rate, the gimbal target
-        when it changed (or once a second), lens commands that were never acked again."""
+        when it changed (or once a second)."""
         if self.sp_pos_ned is None and self.pos_ned is not None:
             self.hold()  # stream 'stay here' from the start
         if self.sp_pos_ned is not None and now >= self._next_sp and not self._taking_off_while_holding():
@@ -560,15 +629,6 @@ class MavlinkBackend(VehiclePort):
                 self.gimbal_sent is None or now - self.gimbal_sent_s > 1.0
                 or (np.max(np.abs(self.gimbal_target - self.gimbal_sent)) > 1e-3 and now - self.gimbal_sent_s > 0.05)):
             self._send_gimbal(now)
-        for name in list(self.lens_sent):
-            cmd = self._LENS_COMMANDS[name]
-            if cmd in self.pending and now - self.pending[cmd][0] > 1.0:
-                self._send_lens(name, self.lens_sent[name], now)
-
-    #: the MAVLink command that sets each lens value (its ack is awaited in `pending`)
-    _LENS_COMMANDS = {"focal_length_mm": mavlink.MAV_CMD_SET_CAMERA_ZOOM,
-                      "focus_distance_m": mavlink.MAV_CMD_SET_CAMERA_FOCUS,
-                      "f_number": mavlink.MAV_CMD_DO_DIGICAM_CONFIGURE}
 
     def vehicle_state(self) -> M.VehicleState:
         now = self.clock()
@@ -578,18 +638,22 @@ class MavlinkBackend(VehiclePort):
         roll, pitch, yaw = (float(x) for x in self.rpy_ned)
         att = np.array([F.yaw_ned_to_enu(yaw), pitch, roll])
         cam = self.gimbal_ypr if self.gimbal_ypr is not None else np.array([att[0], 0.0, 0.0])
-        focal = self.focal_from_fov_mm if math.isfinite(self.focal_from_fov_mm) else self.lens_acked["focal_length_mm"]
-        lens = M.LensState(focal_length_mm=focal, focus_distance_m=self.lens_acked["focus_distance_m"],
-                           f_number=self.lens_acked["f_number"], sensor_width_mm=self.cfg.sensor_width_mm,
-                           sensor_height_mm=self.cfg.sensor_height_mm, coc_mm=self.cfg.coc_mm)
+        focal, focus, f_number = self.camera.lens()
+        lens = M.LensState(focal_length_mm=focal, focus_distance_m=focus, f_number=f_number,
+                           sensor_width_mm=self.cfg.sensor_width_mm, sensor_height_mm=self.cfg.sensor_height_mm,
+                           coc_mm=self.cfg.coc_mm)
         return M.VehicleState(stamp_ns=self.pos_stamp_ns or M.now_ns(), valid=bool(self.link_up and fresh),
                               position_m=pos, velocity_mps=vel, attitude_ypr_rad=att, camera_ypr_rad=cam.copy(),
-                              lens=lens, mode=self.mode, armed=self.armed, holding=self.holding, backend="mavlink")
+                              lens=lens, mode=self.mode, armed=self.armed, holding=self.holding, backend="mavlink",
+                              lens_unsupported=sorted(self.camera.unsupported))
 
     def health_counters(self) -> dict[str, Any]:
         out: dict[str, Any] = dict(self.counters)
         out.update(mav_link=self.link_up, mav_mode=self.mode, mav_armed=self.armed, mav_engaged=self.engaged,
-                   mav_autopilot=self.autopilot)
+                   mav_autopilot=self.autopilot, mav_owner=self.owner.state, mav_owner_reason=self.owner.reason,
+                   mav_land=self.owner.land, mav_signing=self.signing_key is not None)
+        out.update(self.camera.counters())
+        out.update(self.lock.counters(self.conn))
         if self.ack_rtts_ms:
             out["mav_ack_rtt_ms_median"] = float(np.median(self.ack_rtts_ms))
         return out

@@ -153,7 +153,7 @@ def config_from_args(args: argparse.Namespace) -> BridgeConfig:
     vehicle = load_vehicle(sections["bridge"].get("vehicle") or None)
     cam = vehicle.camera
     mav = {"sensor_width_mm": cam.sensor_width_mm, "sensor_height_mm": cam.sensor_height_mm, "coc_mm": cam.coc_mm,
-           **sections["mavlink"]}
+           "focal_length_range_mm": tuple(vehicle.lens.focal_length_mm), **sections["mavlink"]}
     try:
         safety = SafetyConfig.from_vehicle(vehicle, **sections["safety"])
         return BridgeConfig(safety=safety, mavlink=MavlinkConfig(**mav), **sections["bridge"])

@@ -17,6 +17,9 @@ It emulates just enough of PX4 (or ArduCopter with --autopilot ardupilot) for th
   (ZOOM_TYPE_FOCAL_LENGTH), MAV_CMD_SET_CAMERA_FOCUS (FOCUS_TYPE_METERS),
   MAV_CMD_DO_DIGICAM_CONFIGURE (param3 = f-stop), MAV_CMD_GET_HOME_POSITION (-> HOME_POSITION);
   other commands get MAV_RESULT_UNSUPPORTED;
+- the standard services of sim_vehicle_services.py: parameters, REQUEST_MESSAGE (HOME_POSITION,
+  AUTOPILOT_VERSION, GIMBAL_MANAGER_INFORMATION), a camera component (100) and a gimbal manager;
+- MAVLink 2 signing with --signing-key FILE (then unsigned messages are ignored);
 - PX4 OFFBOARD semantics: switching into OFFBOARD is refused (TEMPORARILY_REJECTED) unless
   setpoints are streaming; in OFFBOARD, a stream that stops for `--offboard-timeout` (0.5 s,
   i.e. below 2 Hz) makes the vehicle leave OFFBOARD and hold (AUTO.LOITER);
@@ -43,16 +46,20 @@ import numpy as np
 
 from cinetransfer.services.autopilot_bridge import enu_ned as F
 from cinetransfer.services.autopilot_bridge.mavlink import connect, mavlink
+from cinetransfer.services.autopilot_bridge.signing import enable_signing
+from cinetransfer.services.autopilot_bridge.sim_vehicle_services import CAMERA_COMPONENT, StandardServices
 from cinetransfer.shared.dynamics import DynamicsLimits
 from cinetransfer.services.autopilot_bridge.vehicle_model import SimDynamicsAdapter
 from cinetransfer.shared import nodeconfig
 from cinetransfer.shared.errors import ConfigError, report_config_error
+from cinetransfer.shared.signing_key import read_signing_key
 from cinetransfer.shared.vehicle import VehicleProfile, add_vehicle_argument, load_vehicle
 
 log = logging.getLogger("cinetransfer.sim_vehicle")
 
 R = mavlink  # short alias for constants
-CAMERA_COMPONENTS = (0, R.MAV_COMP_ID_AUTOPILOT1, R.MAV_COMP_ID_CAMERA, R.MAV_COMP_ID_GIMBAL)
+#: commands addressed to these are the autopilot's (it forwards lens commands to its camera)
+AUTOPILOT_COMPONENTS = (0, R.MAV_COMP_ID_AUTOPILOT1, R.MAV_COMP_ID_GIMBAL)
 
 
 class SimVehicle:
@@ -60,7 +67,7 @@ class SimVehicle:
 
     def __init__(self, url: str, *, autopilot: str = "px4", system_id: int = 1, start_enu=(0.0, 0.0, 0.0),
                  rate_hz: float = 100.0, telemetry_hz: float = 50.0, offboard_timeout_s: float = 0.5,
-                 vehicle: VehicleProfile | None = None) -> None:
+                 vehicle: VehicleProfile | None = None, signing_key: bytes | None = None) -> None:
         if autopilot not in ("px4", "ardupilot"):
             raise ValueError(f"autopilot {autopilot!r} must be 'px4' or 'ardupilot'")
         self.url, self.autopilot = url, autopilot
@@ -69,6 +76,8 @@ class SimVehicle:
         vehicle = vehicle or load_vehicle()
         self.sensor_w, self.sensor_h = vehicle.camera.sensor_width_mm, vehicle.camera.sensor_height_mm
         self.conn = connect(url, source_system=system_id, source_component=R.MAV_COMP_ID_AUTOPILOT1)
+        if signing_key is not None:
+            enable_signing(self.conn, signing_key)
         self.model: Any = SimDynamicsAdapter(start_enu, limits=DynamicsLimits.from_vehicle(vehicle))
         self.home_enu = np.array([start_enu[0], start_enu[1], 0.0])
         self.mode = "LOITER"  # PX4 AUTO.LOITER ('Hold') / ArduCopter LOITER
@@ -88,6 +97,8 @@ class SimVehicle:
         self.sp_times: collections.deque[float] = collections.deque(maxlen=2000)
         self.events: collections.deque[str] = collections.deque(maxlen=200)
         self.paused_link = False  # tests: drop all traffic in both directions
+        self.services = StandardServices(self)
+        self.last_sender = (0, 0)  # (system, component) of the COMMAND_LONG being handled
 
     # ------------------------------------------------------------------ helpers
     def _ms(self, now: float) -> int:
@@ -147,7 +158,8 @@ class SimVehicle:
             return
         handler = {"SET_MODE": self._rx_set_mode, "COMMAND_LONG": self._rx_command,
                    "SET_POSITION_TARGET_LOCAL_NED": self._setpoint,
-                   "GIMBAL_MANAGER_SET_ATTITUDE": self._rx_gimbal}.get(t)
+                   "GIMBAL_MANAGER_SET_ATTITUDE": self._rx_gimbal, "PARAM_REQUEST_LIST": self._rx_param,
+                   "PARAM_REQUEST_READ": self._rx_param, "PARAM_SET": self._rx_param}.get(t)
         if handler is not None and msg.target_system in (0, self.conn.mav.srcSystem):
             # only COMMAND_LONG may be broadcast (target 0); the others must name this vehicle
             if msg.target_system == self.conn.mav.srcSystem or t == "COMMAND_LONG":
@@ -160,11 +172,20 @@ class SimVehicle:
         if name:
             self._set_mode(name, now)
 
+    def _rx_param(self, msg: Any, now: float) -> None:
+        if msg.target_component in AUTOPILOT_COMPONENTS:
+            self.services.on_param_message(msg)
+
     def _rx_command(self, msg: Any, now: float) -> None:
-        if msg.target_component not in CAMERA_COMPONENTS:
+        p = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7]
+        if msg.target_component == CAMERA_COMPONENT:
+            self.services.ack_as_camera(msg, self.services.camera_command(int(msg.command), p, now))
+            self.stats["acks_sent"] += 1
             return
-        result = self._command(int(msg.command), [msg.param1, msg.param2, msg.param3, msg.param4,
-                                                  msg.param5, msg.param6, msg.param7], now)
+        if msg.target_component not in AUTOPILOT_COMPONENTS:
+            return
+        self.last_sender = (msg.get_srcSystem(), msg.get_srcComponent())
+        result = self._command(int(msg.command), p, now)
         self.conn.mav.command_ack_send(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
         self.stats["acks_sent"] += 1
 
@@ -208,6 +229,10 @@ class SimVehicle:
             R.MAV_CMD_GET_HOME_POSITION: self._cmd_home, R.MAV_CMD_SET_MESSAGE_INTERVAL: self._cmd_interval,
             R.MAV_CMD_SET_CAMERA_ZOOM: self._cmd_zoom, R.MAV_CMD_SET_CAMERA_FOCUS: self._cmd_focus,
             R.MAV_CMD_DO_DIGICAM_CONFIGURE: self._cmd_digicam, R.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW: self._cmd_pitchyaw,
+            R.MAV_CMD_REQUEST_MESSAGE: lambda p, now: self.services.request_message(int(p[0]), now),
+            R.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+                lambda p, now: self.services.request_message(R.MAVLINK_MSG_ID_AUTOPILOT_VERSION, now),
+            R.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE: lambda p, now: self.services.configure_gimbal(p, self.last_sender),
         }
         handler = handlers.get(cmd)
         return R.MAV_RESULT_UNSUPPORTED if handler is None else handler(p, now)
@@ -235,7 +260,7 @@ class SimVehicle:
         m = self.model
         if not m.armed:
             return R.MAV_RESULT_DENIED
-        alt = float(p[6]) if math.isfinite(p[6]) and p[6] > 0 else 2.5
+        alt = float(p[6]) if math.isfinite(p[6]) and p[6] > 0 else self.services.takeoff_altitude_m
         m.track(np.array([m.position_m[0], m.position_m[1], m.ground_z_m + alt]), np.zeros(3), None)
         self.taking_off = True
         self.takeoff_alt_m = m.ground_z_m + alt
@@ -287,7 +312,7 @@ class SimVehicle:
         return R.MAV_RESULT_ACCEPTED
 
     # ------------------------------------------------------------------ send
-    def _send_home(self, now: float) -> None:
+    def _send_home(self, now: float = 0.0) -> None:
         """HOME_POSITION: local NED of the start point (no GPS: lat/lon/alt 0)."""
         x, y, z = (float(v) for v in F.enu_to_ned(self.home_enu))
         self.conn.mav.home_position_send(0, 0, 0, x, y, z, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0,
@@ -318,8 +343,10 @@ class SimVehicle:
                 hfov = math.degrees(2 * math.atan(self.sensor_w / (2 * m.focal_length_mm)))
                 vfov = math.degrees(2 * math.atan(self.sensor_h / (2 * m.focal_length_mm)))
                 q = F.camera_ypr_to_quat_ned(m.camera_ypr_rad)
-                mav.camera_fov_status_send(ms, 0, 0, 0, 0, 0, 0, q, hfov, vfov)
+                with self.services.as_camera() as cam:
+                    cam.camera_fov_status_send(ms, 0, 0, 0, 0, 0, 0, q, hfov, vfov)
             self.stats[f"tx_{name}"] += 1
+        self.services.send_periodic(now)
 
     # ------------------------------------------------------------------ loop
     def _failsafes(self, now: float) -> None:
@@ -424,6 +451,8 @@ def main(argv: list[str]) -> int:
                     help="LOCAL_POSITION_NED / ATTITUDE rate [Hz] (default %(default)s)")
     ap.add_argument("--offboard-timeout", type=float, default=0.5,
                     help="PX4: leave OFFBOARD when no setpoint for this long [s] (default %(default)s)")
+    ap.add_argument("--signing-key", default="", metavar="FILE",
+                    help="MAVLink 2 signing key (cinetransfer deploy certs writes mavlink-signing.key)")
     add_vehicle_argument(ap)
     ap.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     nodeconfig.add_config_arguments(ap, "sim-vehicle")
@@ -434,6 +463,7 @@ def main(argv: list[str]) -> int:
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"sim-vehicle.{name} (--{name.replace('_', '-')}): must be > 0, got {v}")
         vehicle = load_vehicle(args.vehicle)
+        key = read_signing_key(args.signing_key) if args.signing_key else None
     except ConfigError as e:
         return report_config_error(e, "cinetransfer sim-vehicle")
     logging.basicConfig(level=getattr(logging, args.log_level),
@@ -448,8 +478,9 @@ def main(argv: list[str]) -> int:
     signal.signal(signal.SIGTERM, on_signal)
     veh = SimVehicle(args.mavlink, autopilot=args.autopilot, system_id=args.system_id, start_enu=args.start,
                      rate_hz=args.rate, telemetry_hz=args.telemetry_rate, offboard_timeout_s=args.offboard_timeout,
-                     vehicle=vehicle)
-    log.info("sim-vehicle (%s) on %s, start %s", args.autopilot, args.mavlink, args.start)
+                     vehicle=vehicle, signing_key=key)
+    log.info("sim-vehicle (%s) on %s, start %s%s", args.autopilot, args.mavlink, args.start,
+             ", MAVLink 2 signed" if key else "")
     try:
         veh.run(stop)
     finally:

@@ -30,6 +30,7 @@ import numpy as np
 
 from cinetransfer.services.planner import constraints as C
 from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
+from cinetransfer.services.planner.lens_axes import pinned_bounds
 from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject_out, reciprocal_targets,
                                                 subject_softness, switched_out)
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
@@ -99,6 +100,7 @@ class Planner:
         self._hold_pose: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._u_prev = np.zeros(self.layout.nu)
         self._last_lens = np.array([50.0, 10.0, 4.0])
+        self._pinned: tuple[tuple[str, ...], Bounds] = ((), self.solver.bounds)  # (axes held fixed, free bounds)
         self.counters: dict[str, object] = {
             "state": self.state, "instruction_frame": -1, "finished": False, "solves": 0, "failures": 0,
             "consecutive_failures": 0, "holds": 0, "tail": False, "solver_status": "", "solve_ms": float("nan"),
@@ -113,7 +115,17 @@ class Planner:
         self.solver.set_weights(weights)
 
     def set_bounds(self, bounds: Bounds) -> None:
+        self._pinned = ((), bounds)
         self.solver.set_bounds(bounds)
+
+    def _hold_unsupported_lens(self, vehicle: M.VehicleState, lens: np.ndarray) -> None:
+        """Lens axes the camera takes no command for are planned fixed where they are (lens_axes.py)."""
+        axes = tuple(sorted(getattr(vehicle, "lens_unsupported", None) or ()))
+        if axes != self._pinned[0]:
+            free = self._pinned[1]
+            self._pinned = (axes, free)
+            self.solver.set_bounds(pinned_bounds(free, axes, lens))
+            log.info("lens axes held fixed: %s", ", ".join(axes) or "none")
 
     def refuse_instructions(self, ins: M.Instructions) -> str:
         """Why these instructions must not be flown ('' = fine); counted. See `unusable_targets`."""
@@ -335,6 +347,7 @@ class Planner:
         if lay.control_roll:
             x0[lay.ROLL] = ypr[2]
         lens = _finite_lens(vehicle.lens, self._last_lens)
+        self._hold_unsupported_lens(vehicle, lens)
         x0[lay.F], x0[lay.S], x0[lay.A] = lens
         x0, _ = C.clamp_state(lay, self.solver.bounds, x0, self.cfg.clamp_tolerance)
         if not np.all(np.isfinite(x0)):

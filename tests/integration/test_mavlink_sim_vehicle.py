@@ -248,3 +248,64 @@ def test_tcp_link_is_reopened_after_the_vehicle_restarts():
     finally:
         backend.close()
         stop_vehicle(proc)
+
+
+def test_sim_vehicle_answers_requests_parameters_and_camera_commands():
+    """What a ground station asks of an autopilot, asked with raw pymavlink (no bridge code)."""
+    from cinetransfer.services.autopilot_bridge.mavlink import connect
+
+    port = free_udp_port()
+    proc = spawn_vehicle(port, "--start", "0,0,3")
+    gcs = connect(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190)
+
+    def ask(send, want, timeout=20.0, match=lambda m: True):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            send()
+            t_end = time.monotonic() + 0.5
+            while time.monotonic() < t_end:
+                m = gcs.recv_match(type=want, blocking=True, timeout=0.1)
+                if m is not None and match(m):
+                    return m
+        raise AssertionError(f"no {want}")
+
+    def command(comp, cmd, *p, want=("COMMAND_ACK",)):
+        while gcs.recv_match(blocking=False) is not None:
+            pass  # answers to earlier (repeated) requests are not this one's
+        params = list(p) + [0.0] * (7 - len(p))
+        return ask(lambda: gcs.mav.command_long_send(1, comp, cmd, 0, *params), list(want),
+                   match=lambda m: m.get_type() != "COMMAND_ACK" or (m.command == cmd and m.get_srcComponent() == comp))
+
+    try:
+        # first: no answer to an earlier REQUEST_MESSAGE can be taken for this one's
+        assert command(1, mavlink.MAV_CMD_REQUEST_MESSAGE, 999).result == mavlink.MAV_RESULT_UNSUPPORTED
+        home = command(1, mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_HOME_POSITION,
+                       want=("HOME_POSITION",))
+        assert home.z == pytest.approx(0.0)  # NED of the start point on the ground below (0, 0, 3)
+        ver = command(1, mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
+                      want=("AUTOPILOT_VERSION",))
+        assert ver.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+        info = command(100, mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_CAMERA_INFORMATION,
+                       want=("CAMERA_INFORMATION",))
+        assert info.get_srcComponent() == 100 and info.flags & mavlink.CAMERA_CAP_FLAGS_HAS_BASIC_ZOOM
+        # zoom by range on the camera: 50 % of 30-500 mm = 265 mm, read back from CAMERA_SETTINGS
+        ack = command(100, mavlink.MAV_CMD_SET_CAMERA_ZOOM, mavlink.ZOOM_TYPE_RANGE, 50.0)
+        assert ack.result == mavlink.MAV_RESULT_ACCEPTED and ack.get_srcComponent() == 100
+        settings = ask(lambda: gcs.mav.command_long_send(1, 100, mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
+                                                         mavlink.MAVLINK_MSG_ID_CAMERA_SETTINGS, 0, 0, 0, 0, 0, 0),
+                       "CAMERA_SETTINGS", match=lambda m: abs(m.zoomLevel - 50.0) < 0.5)
+        assert settings.get_srcComponent() == 100
+        # parameters: one read, one set, a read-only one left alone
+        p = ask(lambda: gcs.mav.param_request_read_send(1, 1, b"MIS_TAKEOFF_ALT", -1), "PARAM_VALUE")
+        assert p.param_id == "MIS_TAKEOFF_ALT" and p.param_value == pytest.approx(2.5)
+        p = ask(lambda: gcs.mav.param_set_send(1, 1, b"COM_OF_LOSS_T", 1.0, mavlink.MAV_PARAM_TYPE_REAL32),
+                "PARAM_VALUE", match=lambda m: m.param_id == "COM_OF_LOSS_T")
+        assert p.param_value == pytest.approx(1.0)
+        p = ask(lambda: gcs.mav.param_set_send(1, 1, b"MPC_XY_VEL_MAX", 99.0, mavlink.MAV_PARAM_TYPE_REAL32),
+                "PARAM_VALUE", match=lambda m: m.param_id == "MPC_XY_VEL_MAX")
+        assert p.param_value != pytest.approx(99.0)
+    finally:
+        gcs.close()
+        rc, out = stop_vehicle(proc)
+    assert rc == 0, out
+    assert "param COM_OF_LOSS_T = 1" in out

@@ -18,8 +18,9 @@ def test_certs_cli_writes_one_folder_per_host_with_only_its_secrets(tmp_path):
     ground, onboard = out / "ground", out / "onboard"
     assert sorted(f.name for f in ground.iterdir()) == ["ca-key.pem", "ca.pem", "ground-key.pem", "ground.pem",
                                                         "users.txt"]
-    # the drone gets no CA key and no other host's key
-    assert sorted(f.name for f in onboard.iterdir()) == ["ca.pem", "onboard-key.pem", "onboard.pem", "users.txt"]
+    # the drone gets no CA key and no other host's key; it signs the vehicle link, so the MAVLink key is there only
+    assert sorted(f.name for f in onboard.iterdir()) == ["ca.pem", "mavlink-signing.key", "onboard-key.pem",
+                                                         "onboard.pem", "users.txt"]
     for folder in (out, ground, onboard):
         assert stat.S_IMODE(folder.stat().st_mode) == 0o700
     g, o = _users(ground), _users(onboard)
