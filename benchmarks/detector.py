@@ -31,7 +31,7 @@ from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.services.detector.core import Detector
 from cinetransfer.services.detector.focus import FocusEstimator
 from cinetransfer.services.detector.hog_people import HogPeople
-from cinetransfer.services.detector.sources import iter_frames
+from cinetransfer.shared.frame_sources import iter_frames
 
 RESOLUTIONS = ((640, 360), (1280, 720))
 

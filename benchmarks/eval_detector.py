@@ -37,7 +37,7 @@ def _frames(det: Detector, path):
 
 
 def _iter(det: Detector, path, times):
-    from cinetransfer.services.detector.sources import iter_frames
+    from cinetransfer.shared.frame_sources import iter_frames
 
     for f in iter_frames(path):
         t = time.perf_counter()

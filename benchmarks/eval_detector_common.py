@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from cinetransfer.shared.boxes import box_iou  # noqa: F401 - used by the evaluation scripts
-from cinetransfer.shared.data import data_dir as shared_data_dir
+from cinetransfer.data import data_dir as shared_data_dir
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"

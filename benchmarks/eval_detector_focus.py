@@ -25,7 +25,7 @@ import numpy as np
 from eval_detector_common import data_dir, davis_masks, write_result
 from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.services.detector.focus import FocusEstimator
-from cinetransfer.services.detector.sources import iter_frames
+from cinetransfer.shared.frame_sources import iter_frames
 
 CONDITIONS = ("none", "background", "subject", "foreground", "all")
 SIGMAS = (1.5, 2.5, 3.5, 5.0)

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cinetransfer.shared.data import data_dir
+from cinetransfer.data import data_dir
 
 HERE = Path(__file__).resolve().parent
 CLIP = "sam2_juggle_1280x720.mp4"
@@ -90,11 +90,11 @@ def proportion(joints: np.ndarray, aspect: float = 1.0) -> float:
 
 
 def fly_weights(style_path: Path, scene: str, subject: str, weights: dict[str, float]) -> dict:
-    from cinetransfer.services.planner.cli import make_sim, state_truth
+    from cinetransfer.plan import make_sim, state_truth
     from cinetransfer.services.planner.config import PlannerConfig
     from cinetransfer.services.planner.core import Planner
     from cinetransfer.services.planner.scenarios import run_closed_loop
-    from cinetransfer.services.smoother.instructions import load_style
+    from cinetransfer.shared.instructions import load_style
 
     ins = load_style(style_path)
     cfg = PlannerConfig(joint_weights=tuple(sorted(weights.items())))
@@ -164,7 +164,7 @@ def main() -> int:
             subprocess.run([sys.executable, "-m", "cinetransfer", "extract", str(src), "-o", str(style),
                             *(["--max-frames", str(args.max_frames)] if args.max_frames else [])], check=True,
                            capture_output=True)
-        from cinetransfer.services.smoother.instructions import load_style
+        from cinetransfer.shared.instructions import load_style
 
         ins = load_style(style)
         tg = np.asarray(ins.image_targets, float)

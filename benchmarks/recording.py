@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cinetransfer.shared.data import data_dir
+from cinetransfer.data import data_dir
 
 HERE = Path(__file__).resolve().parent
 WARMUP, SAMPLES = 5, 60
@@ -51,7 +51,7 @@ def per_channel_bytes(path: Path) -> dict[str, int]:
 
 def views_cost(path: Path) -> dict:
     """Milliseconds per message of shared.runlog.views on recorded camera frames and vehicle states."""
-    from cinetransfer.shared import runlog
+    from cinetransfer import runlog
 
     picked: dict[str, list[tuple[str, bytes]]] = {"frame": [], "vehicle_state": []}
     for _, key, payload in runlog.read_run(path):
@@ -102,7 +102,7 @@ def main() -> int:
         if r.returncode != 0:
             sys.exit(f"transfer failed (exit {r.returncode}):\n{r.stderr[-3000:]}")
     from cinetransfer.report.browser_check import BrowserError, check, verdict
-    from cinetransfer.shared.runlog import RunReader, size_report
+    from cinetransfer.runlog import RunReader, size_report
     from cinetransfer.shared.video import probe
 
     t = time.monotonic()

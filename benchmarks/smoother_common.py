@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from cinetransfer.shared.data import data_dir as shared_data_dir
+from cinetransfer.data import data_dir as shared_data_dir
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"

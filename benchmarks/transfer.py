@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from cinetransfer.report.truthfile import read_truths
-from cinetransfer.shared.data import data_dir
+from cinetransfer.data import data_dir
 
 HERE = Path(__file__).resolve().parent
 

@@ -25,19 +25,19 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
                     "a simulated vehicle behind a real MAVLink endpoint"),
     # tools
     "deploy": ("cinetransfer.deploy.supervisor", "main", "start/stop/inspect a set of nodes from a config"),
-    "monitor": ("cinetransfer.shared.monitor", "main", "live table of keys, rates and alive nodes"),
-    "relay": ("cinetransfer.shared.relay", "main", "forward validated messages from one key to another"),
-    "router": ("cinetransfer.shared.router", "main", "run a Zenoh router"),
+    "monitor": ("cinetransfer.monitor", "main", "live table of keys, rates and alive nodes"),
+    "relay": ("cinetransfer.relay", "main", "forward validated messages from one key to another"),
+    "router": ("cinetransfer.router", "main", "run a Zenoh router"),
     "detect": ("cinetransfer.services.detector.cli", "main", "measure a video: people, joints, focus"),
     "smooth": ("cinetransfer.services.smoother.cli", "smooth_main", "measurements -> style.json"),
     "extract": ("cinetransfer.services.smoother.cli", "extract_main", "video -> style.json (detect + smooth)"),
     "plot": ("cinetransfer.services.smoother.cli", "plot_main", "plot a style.json"),
-    "plan": ("cinetransfer.services.planner.cli", "main", "fly a style.json in the simulator, in-process"),
+    "plan": ("cinetransfer.plan", "main", "fly a style.json in the simulator, in-process"),
     "transfer": ("cinetransfer.transfer", "main", "source video -> recorded shot + fidelity report"),
     "command": ("cinetransfer.command", "main", "send one command (play, start, stop, hold, ...) as the operator"),
     "replay": ("cinetransfer.replay", "main", "republish a recorded run on Zenoh"),
     "report": ("cinetransfer.report.cli", "main", "build a fidelity report from a run folder"),
-    "docs": ("cinetransfer.shared.docgen", "main", "generate docs/messages.md from the schemas"),
+    "docs": ("cinetransfer.docgen", "main", "generate docs/messages.md from the schemas"),
 }
 
 

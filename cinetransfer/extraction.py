@@ -101,7 +101,7 @@ def _final_instructions(topic, msg, path: str) -> M.Instructions | None:
 def source_style(args, src: Path, out: Path, session) -> tuple[Path, M.Instructions]:
     """The source's style, written to OUTDIR/style.json: from --style, or extracted by the
     dataflow's own services."""
-    from cinetransfer.services.smoother.instructions import load_style, save_style
+    from cinetransfer.shared.instructions import load_style, save_style
 
     style_path = out / "style.json"
     if args.style:

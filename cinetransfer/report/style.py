@@ -1,6 +1,6 @@
 """Accept a style as a file path or as an `Instructions` message (the report's only adapter).
 
-Paths are read with the smoother's own loader (`services/smoother/instructions.py`,
+Paths are read with the smoother's own loader (`shared/instructions.py`,
 `load_style_file`), so the report refuses exactly what the rest of the project refuses.
 """
 from __future__ import annotations
@@ -28,7 +28,7 @@ def load_style_any(style: StyleLike) -> tuple[M.Instructions, dict[str, Any]]:
         diag = getattr(style, "diagnostics", None)
         return inner, dict(diag) if isinstance(diag, dict) else {}
     if isinstance(style, (str, os.PathLike)):
-        from cinetransfer.services.smoother.instructions import load_style_file
+        from cinetransfer.shared.instructions import load_style_file
 
         p = Path(style)
         try:

@@ -119,7 +119,7 @@ def _wait_matching(node, pub, timeout_s: float) -> None:
 
 
 def run_file(node, det, args, stats: _Stats) -> int:
-    from cinetransfer.services.detector.sources import FrameSourceError, iter_frames
+    from cinetransfer.shared.frame_sources import FrameSourceError, iter_frames
 
     path = args.video or args.images
     pub = node.publisher(keys.MEASUREMENT)

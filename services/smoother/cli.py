@@ -71,7 +71,7 @@ def _progress(it: Iterable[Any], total: int | None, desc: str, enabled: bool) ->
 
 
 def _finish(result: Any, out: Path, plot: Path | None, *, diagnostics: bool) -> None:
-    from cinetransfer.services.smoother import instructions as I
+    from cinetransfer.shared import instructions as I
 
     warnings = tuple(getattr(result, "warnings", ()))
     for w in warnings:
@@ -102,7 +102,7 @@ def smooth_main(argv: list[str]) -> int:
         cfg = config_from_args(args)
     except ConfigError as e:
         return report_config_error(e, "cinetransfer smooth")
-    from cinetransfer.services.detector.measurements_file import (MeasurementsFileError, iter_measurements,
+    from cinetransfer.shared.measurements_file import (MeasurementsFileError, iter_measurements,
                                                                   read_header, read_measurements)
     from cinetransfer.services.smoother.core import SmootherInputError, features_from_measurements, smooth_sequence
 
@@ -154,7 +154,7 @@ def extract_main(argv: list[str]) -> int:
         print(f"cinetransfer extract: --cuts: {e}", file=sys.stderr)
         return 2
     from cinetransfer.services.smoother.core import SmootherInputError, smooth_sequence
-    from cinetransfer.services.smoother.extract import ExtractError, extract_features
+    from cinetransfer.extract import ExtractError, extract_features
 
     try:
         feats, source = extract_features(args.video, cfg, measurements_path=args.measurements, stop=args.stop,
@@ -174,7 +174,7 @@ def plot_main(argv: list[str]) -> int:
     ap.add_argument("--joint", default="chest", help="joint to plot: 'chest' or a COCO-17 name")
     ap.add_argument("--title", default=None)
     args = ap.parse_args(argv)
-    from cinetransfer.services.smoother.instructions import StyleFileError, load_style_file
+    from cinetransfer.shared.instructions import StyleFileError, load_style_file
     from cinetransfer.services.smoother.plot import plot_style, summary
 
     out = args.output or args.style.with_suffix(".png")

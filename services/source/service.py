@@ -96,7 +96,7 @@ class Player:
         return p, stop
 
     def _probe(self, path: Path) -> M.SourceInfo:
-        from cinetransfer.services.detector.sources import FrameSourceError, probe
+        from cinetransfer.shared.frame_sources import FrameSourceError, probe
 
         try:
             return probe(path, hash_file=True)
@@ -111,7 +111,7 @@ class Player:
             self.node.sleep(0.1)
 
     def _stream(self, path: Path, stop: int | None, info: M.SourceInfo) -> tuple[int, str]:
-        from cinetransfer.services.detector.sources import FrameSourceError, iter_frames
+        from cinetransfer.shared.frame_sources import FrameSourceError, iter_frames
 
         credit = Credit(self.args.window)
         self.node.counters.update(state="playing", source=str(path))

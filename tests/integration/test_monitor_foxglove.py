@@ -9,7 +9,8 @@ import time
 
 import numpy as np
 
-from cinetransfer.shared import codec, runlog
+from cinetransfer import runlog
+from cinetransfer.shared import codec
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.zenoh_config import open_session
 from conftest import connect_flags, free_port, spawn, stop, wait_for

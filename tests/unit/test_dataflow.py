@@ -3,7 +3,7 @@ and the monitor derive from it."""
 import pytest
 
 from cinetransfer.shared import access, dataflow, keys
-from cinetransfer.shared.monitor import silent_keys
+from cinetransfer.monitor import silent_keys
 
 
 def test_every_topic_is_written_and_every_input_is_a_topic():

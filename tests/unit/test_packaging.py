@@ -5,7 +5,7 @@ import zipfile
 
 import pytest
 
-from cinetransfer.shared import docgen
+from cinetransfer import docgen
 from conftest import REPO
 
 
@@ -47,7 +47,7 @@ def test_wheel_is_namespaced_and_importable(tmp_path):
 
 
 def test_readme_node_table_is_generated_from_the_dataflow():
-    from cinetransfer.shared import docgen
+    from cinetransfer import docgen
 
     text = (REPO / "README.md").read_text()
     assert text == docgen.readme_with_nodes(text), \

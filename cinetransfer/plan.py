@@ -165,7 +165,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--json", metavar="FILE", default=None, help="write the per-step log and summary as JSON")
     args = p.parse_args(argv)
 
-    from cinetransfer.services.smoother.instructions import StyleFileError, load_style
+    from cinetransfer.shared.instructions import StyleFileError, load_style
 
     try:
         ins = load_style(args.style)

@@ -4,7 +4,7 @@ A live table of keys with rate, size, age and a one-line decoded summary, plus t
 whose liveliness tokens are present. `--json` streams every decoded message as one JSON line
 (for scripts); `--once` collects for `--duration` seconds, prints one snapshot and exits.
 `--foxglove` serves the same topics live over the Foxglove WebSocket protocol instead (images,
-transforms and camera calibration included; shared/foxglove_live.py), on 127.0.0.1:`--port`.
+transforms and camera calibration included; cinetransfer/foxglove_live.py), on 127.0.0.1:`--port`.
 """
 from __future__ import annotations
 
@@ -218,7 +218,7 @@ def main(argv: list[str]) -> int:
 
 
 def _serve_foxglove(opts: zenoh_config.ZenohOptions, args: argparse.Namespace, stop: threading.Event) -> int:
-    from cinetransfer.shared.foxglove_live import FoxgloveLive
+    from cinetransfer.foxglove_live import FoxgloveLive
 
     with zenoh_config.open_session(opts) as session:
         try:

@@ -1,7 +1,7 @@
 """The rig's topics live in Foxglove: `cinetransfer monitor --foxglove [--port P]`.
 
 A Foxglove WebSocket server (foxglove-sdk, on 127.0.0.1 by default) carries the same channels a
-recording has (shared/runlog.py `views`): our messages as JSON with their generated schemas,
+recording has (cinetransfer/runlog.py `views`): our messages as JSON with their generated schemas,
 camera frames as foxglove.CompressedImage (JPEG), poses as foxglove.FrameTransform, the lens as
 foxglove.CameraCalibration. In Foxglove: Open connection -> Foxglove WebSocket ->
 ws://127.0.0.1:8765.
@@ -17,7 +17,7 @@ import threading
 import time
 from typing import Any
 
-from cinetransfer.shared import runlog
+from cinetransfer import runlog
 
 log = logging.getLogger("cinetransfer.monitor.foxglove")
 

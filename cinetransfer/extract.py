@@ -26,7 +26,7 @@ def measure_video(video: str | os.PathLike, *, detector_config: Any = None, stop
     try:
         from cinetransfer.services.detector.config import DetectorConfig
         from cinetransfer.services.detector.core import Detector, DetectorError
-        from cinetransfer.services.detector.sources import FrameSourceError, probe
+        from cinetransfer.shared.frame_sources import FrameSourceError, probe
     except ImportError as e:  # pragma: no cover - a build without the detector
         raise ExtractError(f"the detector is not available in this build ({e})") from None
     try:
@@ -63,7 +63,7 @@ def extract_features(video: str | os.PathLike, cfg: SmootherConfig, *,
     writer = None
     try:
         if measurements_path is not None:
-            from cinetransfer.services.detector.measurements_file import MeasurementsWriter
+            from cinetransfer.shared.measurements_file import MeasurementsWriter
 
             writer = MeasurementsWriter(measurements_path, source=source, detector=det.name, config=det.cfg,
                                         focus_map_scale=det.focus_map_scale(source.width, source.height))
