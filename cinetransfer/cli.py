@@ -30,7 +30,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "router": ("cinetransfer.router", "main", "run a Zenoh router"),
     "detect": ("cinetransfer.services.detector.cli", "main", "measure a video: people, joints, focus"),
     "smooth": ("cinetransfer.services.smoother.cli", "smooth_main", "measurements -> style.json"),
-    "extract": ("cinetransfer.services.smoother.cli", "extract_main", "video -> style.json (detect + smooth)"),
+    "extract": ("cinetransfer.extract", "main", "video -> style.json (detect + smooth)"),
     "plot": ("cinetransfer.services.smoother.cli", "plot_main", "plot a style.json"),
     "plan": ("cinetransfer.plan", "main", "fly a style.json in the simulator, in-process"),
     "transfer": ("cinetransfer.transfer", "main", "source video -> recorded shot + fidelity report"),

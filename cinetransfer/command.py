@@ -16,6 +16,7 @@ import argparse
 import sys
 import time
 
+from cinetransfer.deploy import join
 from cinetransfer.shared import codec, keys, zenoh_config
 from cinetransfer.shared import messages as M
 
@@ -56,7 +57,7 @@ def main(argv: list[str]) -> int:
     a = p.parse_args(argv)
     try:
         cmd_args = parse_args_kv(a.args)
-        opts = zenoh_config.deployment_options(a.deployment, "operator")
+        opts = join.deployment_options(a.deployment, "operator")
     except ValueError as e:
         print(f"cinetransfer command: {e}", file=sys.stderr)
         return 2

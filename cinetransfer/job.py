@@ -14,6 +14,7 @@ from typing import Iterator
 
 import yaml
 
+from cinetransfer.deploy import join
 from cinetransfer.shared import keys, zenoh_config
 
 log = logging.getLogger("cinetransfer.transfer")
@@ -66,7 +67,7 @@ def deployment(args, out: Path) -> Iterator[zenoh_config.ZenohOptions]:
     """The session options of the transfer's deployment: `--deployment` or `--connect` join a
     running one; otherwise one is started under OUTDIR/deploy and stopped again on leaving."""
     if args.deployment:
-        yield zenoh_config.deployment_options(args.deployment, "operator", shared_memory=True)
+        yield join.deployment_options(args.deployment, "operator", shared_memory=True)
         return
     if args.connect:
         yield zenoh_config.options_from_args(args, mode="client")
@@ -79,7 +80,7 @@ def deployment(args, out: Path) -> Iterator[zenoh_config.ZenohOptions]:
             "starting nodes")
     try:
         # the deployment is secure by default: join as the operator with its generated credentials
-        yield zenoh_config.deployment_options(cfg_path, "operator", run_dir=deploy_dir, shared_memory=True)
+        yield join.deployment_options(cfg_path, "operator", run_dir=deploy_dir, shared_memory=True)
     finally:
         run_cli(["deploy", "down", str(cfg_path), "--run-dir", str(deploy_dir)], "stopping nodes")
         # the run's generated credentials are worthless once its router is gone: don't keep them

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from cinetransfer.deploy import join
 from cinetransfer.shared import codec, keys, zenoh_config
 
 RATE_WINDOW_S = 5.0
@@ -161,7 +162,7 @@ def _options(args: argparse.Namespace) -> zenoh_config.ZenohOptions:
     if explicit and not args.deployment:
         return zenoh_config.options_from_args(args)
     try:
-        return zenoh_config.deployment_options(args.deployment or "local", args.identity or "observer")
+        return join.deployment_options(args.deployment or "local", args.identity or "observer")
     except ValueError:
         if args.deployment:
             raise

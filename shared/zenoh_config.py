@@ -9,8 +9,8 @@ Security (docs/security.md): with `secrets` (a folder from `cinetransfer deploy 
 process joins as `identity` with that identity's password, a router checks every joiner against
 the folder's users.txt, and tls/ endpoints use the folder's CA and the identity's certificate
 with mutual authentication. A listener that leaves the host must be tls/ or quic/ with mTLS;
-plain listeners are refused anywhere but on loopback. `deployment_options` is the one way for
-a tool to join a running deployment as a given identity.
+plain listeners are refused anywhere but on loopback. deploy/join.py is the one way for a tool
+to join a running deployment as a given identity.
 """
 from __future__ import annotations
 
@@ -218,33 +218,6 @@ def _is_local(proto: str, host: str) -> bool:
         return False
 
 
-def deployment_options(config: str | os.PathLike, identity: str = "operator", *,
-                       run_dir: str | os.PathLike | None = None, **overrides: object) -> ZenohOptions:
-    """Options to join the deployment `config` (a shipped name or a YAML path) as `identity`.
-
-    Finds the deployment's router endpoint and secrets folder the way `cinetransfer deploy` does
-    (`run_dir` as given to `deploy up --run-dir`, else the per-config state folder); `overrides`
-    set further ZenohOptions fields, e.g. shared_memory=True. Identities: shared/access.py.
-    """
-    from cinetransfer.deploy import supervisor
-
-    cfg = supervisor.load_config(str(config))
-    rd = supervisor.resolve_run_dir(cfg, run_dir)
-    if not cfg.check_endpoint:
-        raise ValueError(f"deploy config {cfg.path} has no router endpoint to join")
-    base: dict[str, object] = {"mode": "client", "connect": (cfg.check_endpoint,), "identity": identity,
-                               "secrets": str(supervisor.secrets_dir(cfg, rd)) if cfg.secure else None}
-    opts = ZenohOptions(**{**base, **overrides})  # type: ignore[arg-type]
-    opts.validate()
-    return opts
-
-
-def open_as(config: str | os.PathLike, identity: str = "operator", *, run_dir: str | os.PathLike | None = None,
-            **overrides: object) -> zenoh.Session:
-    """Open a session on the deployment `config` as `identity` (see deployment_options)."""
-    return open_session(deployment_options(config, identity, run_dir=run_dir, **overrides))
-
-
 def free_tcp_port() -> int:
     """A TCP port on 127.0.0.1 that is free right now (for a router or peer started next)."""
     import socket
@@ -262,6 +235,6 @@ def open_session(opts: ZenohOptions) -> zenoh.Session:
     except zenoh.ZError as e:
         if opts.connect and not (opts.identity and opts.secrets):
             raise zenoh.ZError(f"{e} — if this is a secure deployment, its router admits only an identity with "
-                               f"its password: --identity NAME --secrets DIR, or zenoh_config.open_as() "
+                               f"its password: --identity NAME --secrets DIR, or deploy.join.open_as() "
                                f"(docs/security.md)") from None
         raise

@@ -70,7 +70,7 @@ def _progress(it: Iterable[Any], total: int | None, desc: str, enabled: bool) ->
     return tqdm(it, total=total, desc=desc, unit="frame", file=sys.stderr, dynamic_ncols=True, disable=None)
 
 
-def _finish(result: Any, out: Path, plot: Path | None, *, diagnostics: bool) -> None:
+def write_result(result: Any, out: Path, plot: Path | None, *, diagnostics: bool) -> None:
     from cinetransfer.shared import instructions as I
 
     warnings = tuple(getattr(result, "warnings", ()))
@@ -127,43 +127,7 @@ def smooth_main(argv: list[str]) -> int:
     except (MeasurementsFileError, SmootherInputError) as e:
         print(f"cinetransfer smooth: {e}", file=sys.stderr)
         return 1
-    _finish(result, args.output, args.plot, diagnostics=not args.no_diagnostics)
-    return 0
-
-
-def extract_main(argv: list[str]) -> int:
-    ap = argparse.ArgumentParser(prog="cinetransfer extract",
-                                 description="video -> style.json (detector and smoother in one process)")
-    ap.add_argument("video", help="source video file (or image folder)")
-    ap.add_argument("-o", "--output", type=Path, default=Path("style.json"), help="style file to write")
-    ap.add_argument("--measurements", type=Path, default=None, help="also keep the measurements in this file")
-    ap.add_argument("--plot", type=Path, default=None, help="also draw the style to this image")
-    ap.add_argument("--no-diagnostics", action="store_true", help="leave the raw per-frame measures out")
-    ap.add_argument("--quiet", action="store_true", help="no progress bar")
-    ap.add_argument("--stop", type=int, default=None, help="stop after this many frames")
-    ap.add_argument("--cuts", default=None, metavar="ROWS",
-                    help="rows where shots begin, comma-separated, instead of finding them ('' = one shot)")
-    add_config_arguments(ap)
-    args = ap.parse_args(argv)
-    try:
-        cfg = config_from_args(args)
-        cuts = None if args.cuts is None else [int(r) for r in args.cuts.split(",") if r.strip()]
-    except ConfigError as e:
-        return report_config_error(e, "cinetransfer extract")
-    except ValueError as e:  # --cuts is not a list of row numbers
-        print(f"cinetransfer extract: --cuts: {e}", file=sys.stderr)
-        return 2
-    from cinetransfer.services.smoother.core import SmootherInputError, smooth_sequence
-    from cinetransfer.extract import ExtractError, extract_features
-
-    try:
-        feats, source = extract_features(args.video, cfg, measurements_path=args.measurements, stop=args.stop,
-                                         progress=not args.quiet)
-        result = smooth_sequence(feats, cfg, source=source, known_cuts=cuts)
-    except (ExtractError, SmootherInputError) as e:
-        print(f"cinetransfer extract: {e}", file=sys.stderr)
-        return 1
-    _finish(result, args.output, args.plot, diagnostics=not args.no_diagnostics)
+    write_result(result, args.output, args.plot, diagnostics=not args.no_diagnostics)
     return 0
 
 

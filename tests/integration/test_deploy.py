@@ -122,11 +122,12 @@ def test_concurrent_up_runs_one_deployment_and_down_from_elsewhere_stops_it(port
         assert st.returncode == 0 and "relay_b" in st.stdout, st.stdout + st.stderr
         # a tool joins the running deployment as an identity, found from the config alone, and
         # messages flow through both relays under the deployment's access rules
-        from cinetransfer.shared import codec, messages as M, zenoh_config
+        from cinetransfer.deploy import join
+        from cinetransfer.shared import codec, messages as M
 
         got = []
-        with zenoh_config.open_as(str(RELAYS), "observer") as watcher, \
-                zenoh_config.open_as(str(RELAYS), "operator") as op:
+        with join.open_as(str(RELAYS), "observer") as watcher, \
+                join.open_as(str(RELAYS), "operator") as op:
             sub = watcher.declare_subscriber("ct/t/b/out", lambda s: got.append(codec.decode(s.payload.to_bytes())))
             wait_for(lambda: op.put("ct/t/a/in", codec.encode(M.Command(action="ping"))) or got, timeout=60,
                      interval=0.2, what="a message through both relays")

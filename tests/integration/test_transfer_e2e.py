@@ -37,13 +37,14 @@ def wait_for_take(out, rig: str, proc, seconds_in: float, timeout: float = 300.0
     (seen on the bus as the deployment's observer); returns how far it was."""
     import time
 
+    from cinetransfer.deploy import join
     from cinetransfer.shared import zenoh_config
 
     deadline = time.monotonic() + timeout
     while not (out / "deploy" / "secrets" / "users.txt").is_file():
         assert proc.poll() is None and time.monotonic() < deadline, "the transfer ended before its deployment came up"
         time.sleep(0.1)
-    opts = zenoh_config.deployment_options(out / "deploy" / "transfer.yaml", "observer", run_dir=out / "deploy")
+    opts = join.deployment_options(out / "deploy" / "transfer.yaml", "observer", run_dir=out / "deploy")
     seen = {"t": -1.0}
 
     def on_clock(sample):
