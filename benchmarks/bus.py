@@ -7,7 +7,7 @@ Latency: the sender stamps CLOCK_MONOTONIC (shared by all processes on Linux) in
 message; the receiver decodes and subtracts. Paced at 1 kHz so that queueing does not count.
 Throughput: the sender publishes encoded raw frames as fast as the link takes them
 (congestion control BLOCK); the receiver decodes each (zero-copy view) and counts.
-Goals (issue 3): small-message p99 < 1 ms; 720p frames >= 200/s.
+Goals: small-message p99 < 1 ms; 720p frames >= 200/s.
 """
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ resolution it times, over a fixed number of frames after a warm-up:
 Prints median / p95 / max latency per frame, throughput (frames/s) and CPU use (process CPU
 time / wall time: 2.0 = both cores busy) and CPU time per frame (independent of other load:
 on an idle 2-core machine frames/s can reach at most 2000 / CPU-ms).
-          goal (issue 16): >= 24 frames/s at 1280x720 (one person), >= 10 frames/s on TUD
+          goal (detector speed): >= 24 frames/s at 1280x720 (one person), >= 10 frames/s on TUD
 
     python benchmarks/detector.py [--frames 100] [--warmup 10]
 

@@ -8,7 +8,7 @@
                                                              goal mean box IoU >= 0.75, mask >= 0.6
 - TUD-Stadtmitte: person recall and precision at box IoU >= 0.5 (greedy matching by confidence).
                                                  goal recall >= 0.75 at precision >= 0.90
-  (issue 16; the mediapipe backend reached 0.189 / 0.876: `--set backend="'mediapipe'"`)
+  (the mediapipe backend reached 0.189 / 0.876: `--set backend="'mediapipe'"`)
 
     python benchmarks/eval_detector.py [--only juggler davis tud] [--set key=value ...]
 

@@ -5,7 +5,7 @@ meet on another body (per-joint weights).
     python benchmarks/eval_transfer_subjects.py [--max-frames 0] [--scenes open_country focus_hedge]
                                                 [--subjects dancer runner walker] [--skip-transfers]
 
-Part 1 (issue 15 goal: truth joint error <= 0.035 and truth focus agreement >= 95 % per region,
+Part 1 (other-subject goal: truth joint error <= 0.035 and truth focus agreement >= 95 % per region,
 each subject x scene): `cinetransfer transfer` of sam2_juggle_1280x720.mp4 with `--subject NAME`
 (real processes over Zenoh, simulation time, every frame rendered); the style is extracted once
 and reused (`--style`). Reported per run: the report's headline (truth and extraction) and the

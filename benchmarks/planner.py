@@ -24,7 +24,7 @@ the 2.5 Hz baseline, flies its scenario again, up to 10 runs, and the times are 
 iterations, over-budget solves (vs 40 ms), the tracking cost on the simulator's true state
 (mean over time of 200 * sum_e |im_e - im*_e|^2 + 5 * depth-of-field error, scenarios.LoopLog)
 and the image error after 3 s. Then ratios to the
-baseline and a verdict against the goal (issue 19): N = 20, dt 0.1: wall p95 <= 5 ms, >= 10x faster
+baseline and a verdict against the goal: N = 20, dt 0.1: wall p95 <= 5 ms, >= 10x faster
 than the baseline at p95, tracking cost within 2 % of the IPOPT reference on every scenario.
 CPU times are the better guide on a busy machine (the load average is printed).
 Writes benchmarks/results/planner.json.

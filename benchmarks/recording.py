@@ -1,4 +1,4 @@
-"""Recording benchmark (issue 17): how big is run.mcap per second of flight, what does recording
+"""Recording benchmark: how big is run.mcap per second of flight, what does recording
 cost, and does the report's video play in a browser.
 
     python benchmarks/recording.py [--source CLIP] [--scene open_country] [--max-frames 240] [--run DIR]

@@ -5,7 +5,7 @@
 For each scene and resolution the camera flies a slow sideways arc while zooming and pulling
 focus (so that nothing can be cached between frames) and SimBackend.step renders every frame
 at 24 fps of simulated time, ground truth included (label pass) and without it. Reports the
-median, p95 and max time per frame and the resulting frames/s. Goal (issue 7): >= 30 fps at
+median, p95 and max time per frame and the resulting frames/s. Goal: >= 30 fps at
 960x540. Wall time is what counts; CPU time (both OpenCV threads) is printed too, because on a
 shared machine it is less disturbed by other load. Writes benchmarks/results/render.json (commit, machine,
 config, figures).

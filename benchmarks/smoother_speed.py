@@ -8,7 +8,7 @@ in the service it is paid as each measurement arrives). Timed: the whole optimis
 `smooth_sequence` (selection, box QP, mask/skeleton choice, joint QP over 17 joints x 2, focus
 HMM, instructions); and the literal formulation of the same three problems with casadi/IPOPT
 (bilinear main-subject NLP, joint QP, focus QP), problem build included, as Gekko would.
-Goal (issue 5): 300 frames < 20 ms total, >= 20x faster than the literal baseline.
+Goal: 300 frames < 20 ms total, >= 20x faster than the literal baseline.
 """
 from __future__ import annotations
 

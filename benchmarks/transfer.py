@@ -7,7 +7,7 @@ Runs `cinetransfer transfer` twice (the second time with the first run's style.j
 `--busy` processes spin on the CPU), prints per run: total wall time and its ratio to the clip's
 duration, the flight's wall time per simulated second, the render and solve time per step (from
 the nodes' Health), the planner's over-budget solves; then compares the two recordings (ground
-truth and video) frame by frame. Goal (issue 11): ratio <= 3 on 2 cores, identical results. The
+truth and video) frame by frame. Goal: ratio <= 3 on 2 cores, identical results. The
 verdict judges the flight (pre-roll included), the part simulation time governs, and prints the
 whole command's ratio (two style extractions and the report included) beside it, met or not.
 Writes benchmarks/results/transfer.json.

@@ -1,4 +1,4 @@
-"""Issue 13, point 6: result files are whole or absent, truncated inputs are said out loud,
+"""Result files are whole or absent, truncated inputs are said out loud,
 and instructions nothing can fly are refused (by `load_style` and by the planner)."""
 from __future__ import annotations
 
