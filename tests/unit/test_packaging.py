@@ -53,3 +53,19 @@ def test_readme_node_table_is_generated_from_the_dataflow():
     assert text == docgen.readme_with_nodes(text), \
         "README's node table is stale: run `cinetransfer docs nodes --readme README.md`"
     assert "`source/frame`" in text  # the table is really there
+
+
+def test_package_data_and_package_dirs_name_files_that_exist():
+    import tomllib
+
+    tool = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    dirs = tool["package-dir"]
+    for pkg in tool["packages"]:
+        top = next(k for k in sorted(dirs, key=len, reverse=True) if pkg == k or pkg.startswith(k + "."))
+        folder = REPO / dirs[top] / pkg[len(top):].lstrip(".").replace(".", "/")
+        assert (folder / "__init__.py").is_file(), f"package {pkg}: {folder}/__init__.py missing"
+    for pkg, patterns in tool["package-data"].items():
+        top = next(k for k in sorted(dirs, key=len, reverse=True) if pkg == k or pkg.startswith(k + "."))
+        folder = REPO / dirs[top] / pkg[len(top):].lstrip(".").replace(".", "/")
+        for pattern in patterns:
+            assert list(folder.glob(pattern)), f"package-data {pkg}: {pattern} matches nothing in {folder}"
