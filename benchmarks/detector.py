@@ -26,7 +26,7 @@ import time
 import cv2
 import numpy as np
 
-from eval_detector_common import data_dir, write_result
+from eval_detector_common import data_dir, stats, write_result
 from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.services.detector.core import Detector
 from cinetransfer.services.detector.focus import FocusEstimator
@@ -52,15 +52,15 @@ def _time(fn, frames, warmup: int) -> dict:
     # On 2 idle cores a frame takes at least the caller thread's CPU time and at least half the
     # process's: a load-independent estimate of the quiet-machine rate (upper bound, perfect overlap).
     idle_ms = 1e3 * max(main, cpu / 2) / len(frames)
-    return {"fps": len(frames) / wall, "ms_median": float(np.median(lat_ms)),
-            "ms_p95": float(np.percentile(lat_ms, 95)),
-            "ms_max": float(lat_ms.max()), "cpu_cores_used": cpu / wall, "cpu_ms_per_frame": 1e3 * cpu / len(frames),
+    return {"fps": len(frames) / wall, "latency_ms": stats(lat_ms), "cpu_cores_used": cpu / wall,
+            "cpu_ms_per_frame": 1e3 * cpu / len(frames),
             "caller_thread_cpu_ms_per_frame": 1e3 * main / len(frames), "idle_estimate_fps": 1e3 / idle_ms}
 
 
 def _line(name: str, r: dict) -> str:
-    return (f"  {name:<34} {r['fps']:6.1f} frames/s   median {r['ms_median']:6.1f} ms   p95 {r['ms_p95']:6.1f} ms   "
-            f"max {r['ms_max']:6.1f} ms   cores {r['cpu_cores_used']:.2f}   CPU {r['cpu_ms_per_frame']:5.1f} ms/frame "
+    lat = r["latency_ms"]
+    return (f"  {name:<34} {r['fps']:6.1f} frames/s   median {lat['median']:6.1f} ms   p95 {lat['p95']:6.1f} ms   "
+            f"max {lat['max']:6.1f} ms   cores {r['cpu_cores_used']:.2f}   CPU {r['cpu_ms_per_frame']:5.1f} ms/frame "
             f"(caller {r['caller_thread_cpu_ms_per_frame']:5.1f})   idle est. {r['idle_estimate_fps']:5.1f} frames/s")
 
 

@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import platform
 import subprocess
 import sys
 import tempfile
@@ -36,6 +35,11 @@ from pathlib import Path
 import numpy as np
 
 from cinetransfer.data import data_dir
+
+try:
+    from harness import write_result
+except ImportError:  # imported as the benchmarks package
+    from benchmarks.harness import write_result
 
 HERE = Path(__file__).resolve().parent
 CLIP = "sam2_juggle_1280x720.mp4"
@@ -134,11 +138,7 @@ def main() -> int:
     ap.add_argument("--out", default=str(HERE / "results" / "eval_transfer_subjects.json"))
     args = ap.parse_args()
     src = data_dir() / CLIP
-    res: dict = {"commit": subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                                          cwd=HERE).stdout.strip(),
-                 "machine": {"node": platform.node(), "cpus": __import__("os").cpu_count(),
-                             "python": platform.python_version()},
-                 "source": CLIP, "max_frames": args.max_frames, "transfers": {}, "weights": {}}
+    res: dict = {"source": CLIP, "max_frames": args.max_frames, "transfers": {}, "weights": {}}
     with tempfile.TemporaryDirectory(prefix="ct_eval_subj_") as tmp:
         tmp = Path(tmp)
         style = Path(args.style) if args.style else None
@@ -188,8 +188,7 @@ def main() -> int:
                       f"{k}: {v['per_joint']} mean {v['mean']} (by name {v['mean_by_name']}, by image side in "
                       f"{v['frames_by_image_side']}/{v['frames']})" for k, v in row.items() if isinstance(v, dict)),
                   flush=True)
-    Path(args.out).write_text(json.dumps(res, indent=1) + "\n")
-    print(f"wrote {args.out}")
+    print(f"wrote {write_result(args.out, res)}")
     return 0
 
 

@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -28,6 +26,11 @@ import numpy as np
 
 from cinetransfer.report.truthfile import read_truths
 from cinetransfer.data import data_dir
+
+try:
+    from harness import write_result
+except ImportError:  # imported as the benchmarks package
+    from benchmarks.harness import write_result
 
 HERE = Path(__file__).resolve().parent
 
@@ -117,12 +120,10 @@ def main() -> int:
     print(f"verdict: flight (pre-roll included) {flight_ratio:.2f} x the clip (goal <= 3), whole command "
           f"{ratio:.2f} x (source and output extraction included: {'<= 3' if ratio <= 3 else 'NOT <= 3'}), "
           f"identical results {identical} -> {'goal met' if ok else 'goal NOT met'} for the flight")
-    res = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform()}, "clip_s": clip_s,
+    res = {"clip_s": clip_s,
            "quiet": quiet, "busy": loaded, "busy_processes": args.busy, "agreement": same, "goal_met": ok,
            "ratio_total": ratio, "ratio_flight": flight_ratio}
-    out = HERE / "results" / "transfer.json"
-    out.parent.mkdir(exist_ok=True)
-    out.write_text(json.dumps(res, indent=2, default=str))
+    print(f"wrote {write_result('transfer', res)}")
     return 0 if ok else 1
 
 
