@@ -7,12 +7,26 @@ top-level section (`planner:`) or, without one, the whole file. `${VAR}` and `${
 are substituted from the environment as the supervisor does. Each node turns the section into
 its validated dataclasses and lets flags override it; every error is a
 shared.errors.ConfigError naming the field.
+
+The config idiom: a node's config is one frozen dataclass whose fields are `setting(...)`s, each
+carrying its flag, unit, range and help. `add_settings_arguments` makes the flags from it and
+`config_from_args` builds the config: code defaults, then the deploy config's `settings`, then
+the flags given.
+
+    @dataclass(frozen=True)
+    class SourceConfig:
+        window: int = setting(8, flag="--window", unit="frames", range=">= 1", help="frames ahead")
+
+    add_config_arguments(ap, "source"); add_settings_arguments(ap, SourceConfig, "source")
+    cfg = config_from_args(SourceConfig, ap.parse_args(argv), "source")
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import re
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -118,3 +132,126 @@ def _flag_value(node: str, key: str, action: argparse.Action, value: Any) -> Any
     if action.choices is not None and out not in action.choices:
         raise ConfigError(f"{where}: must be one of {list(action.choices)}, got {value!r}")
     return out
+
+
+# -- config dataclasses whose fields carry their flag, unit, range and help ---------------------
+
+@dataclass(frozen=True)
+class Setting:
+    """What a config field says about itself: its flag (None: settings file only), unit, allowed
+    range ('[a, b]', '(a, b)', '[a, b)', '>= a', '> a'; checked by `validated`), choices and help."""
+
+    flag: str | None = None
+    unit: str | None = None
+    range: str | None = None
+    choices: tuple[Any, ...] | None = None
+    help: str = ""
+    metavar: str | None = None
+
+
+def setting(default: Any, *, flag: str | None = None, unit: str | None = None, range: str | None = None,
+            choices: tuple[Any, ...] | None = None, help: str = "", metavar: str | None = None) -> Any:
+    """A dataclass field with its `Setting` (see the module's config idiom)."""
+    return field(default=default, metadata={"setting": Setting(flag, unit, range, choices and tuple(choices),
+                                                               help, metavar)})
+
+
+def setting_of(f: dataclasses.Field) -> Setting | None:
+    return f.metadata.get("setting")
+
+
+def add_settings_arguments(parser: argparse.ArgumentParser, cls: type, title: str, *,
+                           skip: tuple[str, ...] = ()) -> None:
+    """One flag per field of `cls` that names one (but the fields in `skip`, e.g. a node's own
+    flags on a batch tool); each defaults to None (overrides only when given)."""
+    defaults = cls()
+    g = parser.add_argument_group(title)
+    for f in dataclasses.fields(cls):
+        s = setting_of(f)
+        if s is None or s.flag is None or f.name in skip:
+            continue
+        default = getattr(defaults, f.name)
+        text = s.help + (f" [{s.unit}]" if s.unit else "") + (f", {s.range}" if s.range else "")
+        if isinstance(default, bool):
+            g.add_argument(s.flag, dest=f.name, action="store_const", const=not s.flag.startswith("--no-"),
+                           default=None, help=text)
+            continue
+        kind = _csv if isinstance(default, tuple) else (type(default) if default is not None else str)
+        metavar = s.metavar or (s.unit.upper() if s.unit and s.unit.isalpha() else None)
+        g.add_argument(s.flag, dest=f.name, type=kind, default=None, choices=s.choices, metavar=metavar,
+                       help=f"{text} (default {_shown(default)})")
+
+
+def settings_from(cls: type, section: dict[str, Any], node: str, base: Any = None) -> Any:
+    """`base` (default: the code defaults) with a settings mapping (a deploy config's `settings`):
+    keys are field names; unknown keys and bad values are ConfigErrors naming the field."""
+    names = [f.name for f in dataclasses.fields(cls)]
+    unknown = sorted(set(section) - set(names))
+    if unknown:
+        raise ConfigError(f"{node} config: unknown field(s) {unknown}; allowed: {sorted(names)}")
+    values = {k: tuple(v) if isinstance(v, list) else v for k, v in section.items()}
+    try:
+        return validated(dataclasses.replace(base if base is not None else cls(), **values), node)
+    except TypeError as e:  # a value of the wrong kind
+        raise ConfigError(f"{node} config: {e}") from None
+
+
+def config_from_args(cls: type, args: argparse.Namespace, node: str, base: Any = None,
+                     settings: bool = True) -> Any:
+    """The node's config: code defaults (or `base`), then its settings (`--config`/`--section`,
+    when `settings`), then the flags that were given. Raises ConfigError naming the field."""
+    cfg = settings_from(cls, args_section(args, node) if settings else {}, node, base)
+    given = {f.name: getattr(args, f.name) for f in dataclasses.fields(cls)
+             if (s := setting_of(f)) is not None and s.flag and getattr(args, f.name, None) is not None}
+    return validated(dataclasses.replace(cfg, **given), node) if given else cfg
+
+
+def validated(cfg: Any, node: str) -> Any:
+    """Each field within its Setting's range and choices, then the class's own `validate()`."""
+    for f in dataclasses.fields(cfg):
+        s, v = setting_of(f), getattr(cfg, f.name)
+        if s is None:
+            continue
+        if s.choices is not None and v not in s.choices:
+            raise ConfigError(f"{node} config: {f.name}={v!r} is invalid; allowed: "
+                              + " | ".join(map(str, s.choices)))
+        if s.range and not _in_range(v, s.range):
+            raise ConfigError(f"{node} config: {f.name}={v!r} is invalid; allowed: {s.range}")
+    check = getattr(cfg, "validate", None)
+    return check() if callable(check) else cfg
+
+
+_RANGE = re.compile(r"^([\[(])\s*(\S+)\s*,\s*(\S+)\s*([\])])$|^(>=|>|<=|<)\s*(\S+)$")
+
+
+def _in_range(v: Any, text: str) -> bool:
+    m = _RANGE.match(text.strip())
+    if m is None:
+        raise ValueError(f"range {text!r}: write '[a, b]', '(a, b)', '>= a' or '> a'")
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        return False
+    if m.group(5):
+        bound = float(m.group(6))
+        return {">=": x >= bound, ">": x > bound, "<=": x <= bound, "<": x < bound}[m.group(5)]
+    lo, hi = float(m.group(2)), float(m.group(3))
+    return (x >= lo if m.group(1) == "[" else x > lo) and (x <= hi if m.group(4) == "]" else x < hi)
+
+
+def _csv(text: str) -> tuple[str, ...]:
+    return tuple(s.strip() for s in text.split(",") if s.strip())
+
+
+def _shown(default: Any) -> str:
+    if isinstance(default, tuple):
+        return ",".join(map(str, default))
+    return str(default) if default != "" else "none"
+
+
+def describe(cls: type) -> list[dict[str, Any]]:
+    """Every field of a config class: name, flag, unit, range, default, help (docs and tests)."""
+    d = cls()
+    return [{"field": f.name, "flag": s.flag if s else None, "unit": s.unit if s else None,
+             "range": s.range if s else None, "default": getattr(d, f.name), "help": s.help if s else ""}
+            for f in dataclasses.fields(cls) for s in [setting_of(f)]]

@@ -23,7 +23,7 @@ import logging
 import sys
 import time
 
-from cinetransfer.services.detector.config import add_config_arguments, config_from_args, from_dict
+from cinetransfer.services.detector.config import add_config_arguments, config_from_args
 from cinetransfer.shared import keys, nodeconfig
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.errors import ConfigError, report_config_error
@@ -215,7 +215,7 @@ def main(argv: list[str]) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
     try:
-        cfg = config_from_args(args, from_dict(nodeconfig.args_section(args, NAME)))
+        cfg = config_from_args(args)
     except ConfigError as e:
         return report_config_error(e, "cinetransfer detector")
     if args.queue < 1:

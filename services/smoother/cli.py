@@ -14,51 +14,21 @@ import time
 from pathlib import Path
 from typing import Any, Iterable
 
-from cinetransfer.services.smoother.config import FOCUS_METHODS, SUBJECT_METHODS, SmootherConfig
+from cinetransfer.services.smoother.config import STREAMING_FIELDS, SmootherConfig
+from cinetransfer.shared import nodeconfig
 from cinetransfer.shared.errors import ConfigError, report_config_error
 
 log = logging.getLogger("cinetransfer.smoother")
 
 
 def add_config_arguments(ap: argparse.ArgumentParser) -> None:
-    """Smoother flags; each is None unless given, so that it overrides only what it names."""
-    d = SmootherConfig()
-    g = ap.add_argument_group("smoother")
-    g.add_argument("--joints", default=None,
-                   help=f"comma-separated COCO-17 joints to control (default {','.join(d.joints)})")
-    g.add_argument("--subject-method", choices=SUBJECT_METHODS, default=None,
-                   help=f"main-subject selection (default {d.subject_method}; 'literal' = paper's NLP via IPOPT)")
-    g.add_argument("--focus-method", choices=FOCUS_METHODS, default=None,
-                   help=f"focus smoothing (default {d.focus_method}; see docs/smoother.md)")
-    g.add_argument("--box-smoothness", type=float, default=None,
-                   help=f"box QP first-difference weight at 24 fps (default {d.box_smoothness})")
-    g.add_argument("--box-accel-smoothness", type=float, default=None,
-                   help=f"box QP second-difference weight at 24 fps (default {d.box_accel_smoothness})")
-    g.add_argument("--joint-smoothness", type=float, default=None,
-                   help=f"joint QP first-difference weight at 24 fps (default {d.joint_smoothness})")
-    g.add_argument("--joint-accel-smoothness", type=float, default=None,
-                   help=f"joint QP second-difference weight at 24 fps; 0 = the paper's QP "
-                        f"(default {d.joint_accel_smoothness})")
-    g.add_argument("--theta", type=float, default=None, help=f"focus threshold on B (default {d.theta})")
-    g.add_argument("--mu", type=float, default=None, help=f"depth-of-field margin mu [m] (default {d.mu_m})")
-    g.add_argument("--max-bridge", type=float, default=None,
-                   help=f"longest detector dropout bridged [s] (default {d.max_bridge_s})")
+    """The smoother's flags for the batch tools (its config fields that name one, but streaming)."""
+    nodeconfig.add_settings_arguments(ap, SmootherConfig, "smoother", skip=STREAMING_FIELDS)
 
 
-#: flag dest -> SmootherConfig field
-_FLAG_FIELDS = {"subject_method": "subject_method", "focus_method": "focus_method", "box_smoothness": "box_smoothness",
-                "joint_smoothness": "joint_smoothness", "box_accel_smoothness": "box_accel_smoothness",
-                "joint_accel_smoothness": "joint_accel_smoothness", "theta": "theta", "mu": "mu_m",
-                "max_bridge": "max_bridge_s"}
-
-
-def config_from_args(args: argparse.Namespace, base: SmootherConfig | None = None) -> SmootherConfig:
-    """`base` (the code defaults, or the node's settings) with the flags that were given."""
-    base = base or SmootherConfig()
-    upd = {f: getattr(args, dest) for dest, f in _FLAG_FIELDS.items() if getattr(args, dest, None) is not None}
-    if getattr(args, "joints", None) is not None:
-        upd["joints"] = tuple(j.strip() for j in str(args.joints).split(",") if j.strip())
-    return base.replace(**upd)
+def config_from_args(args: argparse.Namespace) -> SmootherConfig:
+    """The code defaults with the flags that were given."""
+    return nodeconfig.config_from_args(SmootherConfig, args, "smoother")
 
 
 def _progress(it: Iterable[Any], total: int | None, desc: str, enabled: bool) -> Iterable[Any]:
