@@ -26,6 +26,7 @@ from cinetransfer.services.planner.scenarios import LoopLog, run_closed_loop
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.vehicle import VehicleProfile, add_vehicle_argument, load_vehicle
+from cinetransfer.shared.instructions import StyleFileError, load_style
 
 
 class BridgeSimAdapter:
@@ -165,7 +166,6 @@ def main(argv: list[str]) -> int:
     p.add_argument("--json", metavar="FILE", default=None, help="write the per-step log and summary as JSON")
     args = p.parse_args(argv)
 
-    from cinetransfer.shared.instructions import StyleFileError, load_style
 
     try:
         ins = load_style(args.style)

@@ -28,6 +28,7 @@ from cinetransfer.shared import keys, nodeconfig
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.errors import ConfigError, report_config_error
 from cinetransfer.shared.node import add_node_arguments, node_from_args
+from cinetransfer.shared.frame_sources import FrameSourceError, iter_frames
 
 NAME = "detector"
 log = logging.getLogger(f"cinetransfer.{NAME}")
@@ -119,8 +120,6 @@ def _wait_matching(node, pub, timeout_s: float) -> None:
 
 
 def run_file(node, det, args, stats: _Stats) -> int:
-    from cinetransfer.shared.frame_sources import FrameSourceError, iter_frames
-
     path = args.video or args.images
     pub = node.publisher(keys.MEASUREMENT)
     fpub = None if args.no_publish_frames else node.publisher(keys.SOURCE_FRAME)

@@ -15,8 +15,12 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from cinetransfer.services.smoother.config import STREAMING_FIELDS, SmootherConfig
+from cinetransfer.shared import instructions as I
 from cinetransfer.shared import nodeconfig
 from cinetransfer.shared.errors import ConfigError, report_config_error
+from cinetransfer.shared.instructions import StyleFileError, load_style_file
+from cinetransfer.shared.measurements_file import (MeasurementsFileError, iter_measurements, read_header,
+                                                   read_measurements)
 
 log = logging.getLogger("cinetransfer.smoother")
 
@@ -41,8 +45,6 @@ def _progress(it: Iterable[Any], total: int | None, desc: str, enabled: bool) ->
 
 
 def write_result(result: Any, out: Path, plot: Path | None, *, diagnostics: bool) -> None:
-    from cinetransfer.shared import instructions as I
-
     warnings = tuple(getattr(result, "warnings", ()))
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
@@ -72,8 +74,6 @@ def smooth_main(argv: list[str]) -> int:
         cfg = config_from_args(args)
     except ConfigError as e:
         return report_config_error(e, "cinetransfer smooth")
-    from cinetransfer.shared.measurements_file import (MeasurementsFileError, iter_measurements,
-                                                                  read_header, read_measurements)
     from cinetransfer.services.smoother.core import SmootherInputError, features_from_measurements, smooth_sequence
 
     try:
@@ -108,7 +108,6 @@ def plot_main(argv: list[str]) -> int:
     ap.add_argument("--joint", default="chest", help="joint to plot: 'chest' or a COCO-17 name")
     ap.add_argument("--title", default=None)
     args = ap.parse_args(argv)
-    from cinetransfer.shared.instructions import StyleFileError, load_style_file
     from cinetransfer.services.smoother.plot import plot_style, summary
 
     out = args.output or args.style.with_suffix(".png")

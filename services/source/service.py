@@ -24,6 +24,7 @@ from cinetransfer.shared import keys, nodeconfig
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.errors import ConfigError, report_config_error
 from cinetransfer.shared.node import Presence, add_node_arguments, node_from_args
+from cinetransfer.shared.frame_sources import FrameSourceError, iter_frames, probe
 
 NAME = "source"
 log = logging.getLogger(f"cinetransfer.{NAME}")
@@ -94,8 +95,6 @@ class Player:
         return p, stop
 
     def _probe(self, path: Path) -> M.SourceInfo:
-        from cinetransfer.shared.frame_sources import FrameSourceError, probe
-
         try:
             return probe(path, hash_file=True)
         except (FrameSourceError, OSError) as e:
@@ -109,8 +108,6 @@ class Player:
             self.node.sleep(0.1)
 
     def _stream(self, path: Path, stop: int | None, info: M.SourceInfo) -> tuple[int, str]:
-        from cinetransfer.shared.frame_sources import FrameSourceError, iter_frames
-
         credit = Credit(self.cfg.window)
         self.node.counters.update(state="playing", source=str(path))
         self.acks.drain()  # measurements of an earlier play are no credit for this one
