@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -33,17 +32,11 @@ from cinetransfer.services.autopilot_bridge.sim_vehicle import SimVehicle
 from cinetransfer.shared import messages as M
 
 try:
-    from harness import stats, write_result
+    from harness import free_udp_port, stats, write_result
 except ImportError:  # imported as the benchmarks package
-    from benchmarks.harness import stats, write_result
+    from benchmarks.harness import free_udp_port, stats, write_result
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def bench_safety(n: int) -> dict:

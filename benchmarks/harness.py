@@ -17,6 +17,7 @@ import json
 import math
 import os
 import platform
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -60,6 +61,13 @@ def stats(values: Iterable[float], *, digits: int | None = None) -> dict[str, fl
            "min": a.min(), "max": a.max()}
     return {"n": int(a.size), **{k: round(float(v), digits) if digits is not None else float(v)
                                  for k, v in out.items()}}
+
+
+def free_udp_port() -> int:
+    """A UDP port on 127.0.0.1 that is free right now (a benchmark's MAVLink endpoints)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 def result_path(name_or_path: str | os.PathLike) -> Path:

@@ -213,12 +213,12 @@ def run_subscriber(node, det, args, stats: _Stats) -> int:
 def main(argv: list[str]) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
+    if args.queue < 1:
+        ap.error("--queue must be >= 1")
     try:
         cfg = config_from_args(args)
     except ConfigError as e:
         return report_config_error(e, "cinetransfer detector")
-    if args.queue < 1:
-        ap.error("--queue must be >= 1")
     node = node_from_args(NAME, args, config=cfg)
     from cinetransfer.services.detector.core import Detector, DetectorError
 
