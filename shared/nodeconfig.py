@@ -189,11 +189,24 @@ def settings_from(cls: type, section: dict[str, Any], node: str, base: Any = Non
     unknown = sorted(set(section) - set(names))
     if unknown:
         raise ConfigError(f"{node} config: unknown field(s) {unknown}; allowed: {sorted(names)}")
-    values = {k: tuple(v) if isinstance(v, list) else v for k, v in section.items()}
+    base = base if base is not None else cls()
+    values = {k: _typed(node, k, v, getattr(base, k)) for k, v in section.items()}
     try:
-        return validated(dataclasses.replace(base if base is not None else cls(), **values), node)
-    except TypeError as e:  # a value of the wrong kind
+        return validated(dataclasses.replace(base, **values), node)
+    except TypeError as e:  # a value of the wrong kind the check above let through
         raise ConfigError(f"{node} config: {e}") from None
+
+
+def _typed(node: str, name: str, v: Any, default: Any) -> Any:
+    """`v` as the kind of value the field's default is (a list for a tuple, an int for a float)."""
+    kinds = {bool: "true or false", int: "an integer", float: "a number", str: "a string", tuple: "a list"}
+    want = next((k for k in kinds if isinstance(default, k)), None)
+    ok = {None: True, bool: isinstance(v, bool), tuple: isinstance(v, (list, tuple)), str: isinstance(v, str),
+          int: isinstance(v, int) and not isinstance(v, bool),
+          float: isinstance(v, (int, float)) and not isinstance(v, bool)}[want]
+    if not ok:
+        raise ConfigError(f"{node} config: {name}={v!r} is invalid; allowed: {kinds[want]}")
+    return tuple(v) if want is tuple else float(v) if want is float else v
 
 
 def config_from_args(cls: type, args: argparse.Namespace, node: str, base: Any = None,

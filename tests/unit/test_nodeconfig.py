@@ -50,7 +50,9 @@ def test_defaults_then_settings_then_flags(tmp_path):
 
 @pytest.mark.parametrize("settings, field", [({"window": 0}, "window"), ({"rate_hz": 0}, "rate_hz"),
                                              ({"rate_hz": 50.5}, "rate_hz"), ({"mode": "c"}, "mode"),
-                                             ({"windw": 3}, "windw"), ({"window": 101}, "window")])
+                                             ({"windw": 3}, "windw"), ({"window": 101}, "window"),
+                                             ({"window": 2.5}, "window"), ({"focus": "yes"}, "focus"),
+                                             ({"rate_hz": "fast"}, "rate_hz"), ({"names": "p"}, "names")])
 def test_a_bad_setting_is_a_config_error_naming_the_field(settings, field):
     with pytest.raises(ConfigError, match=field):
         nodeconfig.settings_from(DemoConfig, settings, "demo")
