@@ -149,11 +149,14 @@ class Setting:
     metavar: str | None = None
 
 
-def setting(default: Any, *, flag: str | None = None, unit: str | None = None, range: str | None = None,
-            choices: tuple[Any, ...] | None = None, help: str = "", metavar: str | None = None) -> Any:
+def setting(default: Any = dataclasses.MISSING, *, flag: str | None = None, unit: str | None = None,
+            range: str | None = None, choices: tuple[Any, ...] | None = None, help: str = "",
+            metavar: str | None = None, default_factory: Any = dataclasses.MISSING) -> Any:
     """A dataclass field with its `Setting` (see the module's config idiom)."""
-    return field(default=default, metadata={"setting": Setting(flag, unit, range, choices and tuple(choices),
-                                                               help, metavar)})
+    meta = {"setting": Setting(flag, unit, range, choices and tuple(choices), help, metavar)}
+    if default_factory is not dataclasses.MISSING:
+        return field(default_factory=default_factory, metadata=meta)
+    return field(default=default, metadata=meta)
 
 
 def setting_of(f: dataclasses.Field) -> Setting | None:
@@ -162,37 +165,56 @@ def setting_of(f: dataclasses.Field) -> Setting | None:
 
 def add_settings_arguments(parser: argparse.ArgumentParser, cls: type, title: str, *,
                            skip: tuple[str, ...] = ()) -> None:
-    """One flag per field of `cls` that names one (but the fields in `skip`, e.g. a node's own
-    flags on a batch tool); each defaults to None (overrides only when given)."""
-    defaults = cls()
+    """One flag per field of `cls` that names one, groups (a field holding a config dataclass)
+    included, but the fields in `skip` (e.g. a node's own flags on a batch tool). Each flag
+    defaults to None: it overrides only when given."""
     g = parser.add_argument_group(title)
-    for f in dataclasses.fields(cls):
-        s = setting_of(f)
-        if s is None or s.flag is None or f.name in skip:
+    for path, s, default in _flagged(cls()):
+        if path in skip:
             continue
-        default = getattr(defaults, f.name)
         text = s.help + (f" [{s.unit}]" if s.unit else "") + (f", {s.range}" if s.range else "")
         if isinstance(default, bool):
-            g.add_argument(s.flag, dest=f.name, action="store_const", const=not s.flag.startswith("--no-"),
-                           default=None, help=text)
+            g.add_argument(s.flag, dest=path, action="store_const", const=not default, default=None, help=text)
             continue
         kind = _csv if isinstance(default, tuple) else (type(default) if default is not None else str)
         metavar = s.metavar or (s.unit.upper() if s.unit and s.unit.isalpha() else None)
-        g.add_argument(s.flag, dest=f.name, type=kind, default=None, choices=s.choices, metavar=metavar,
+        g.add_argument(s.flag, dest=path, type=kind, default=None, choices=s.choices, metavar=metavar,
                        help=f"{text} (default {_shown(default)})")
 
 
-def settings_from(cls: type, section: dict[str, Any], node: str, base: Any = None) -> Any:
+def _flagged(cfg: Any, prefix: str = "") -> list[tuple[str, Setting, Any]]:
+    """(dotted field path, Setting, default) of every field with a flag, groups included."""
+    out = []
+    for f in dataclasses.fields(cfg):
+        v, s = getattr(cfg, f.name), setting_of(f)
+        if dataclasses.is_dataclass(v):
+            out += _flagged(v, f"{prefix}{f.name}.")
+        elif s is not None and s.flag:
+            out.append((f"{prefix}{f.name}", s, v))
+    return out
+
+
+def settings_from(cls: type, section: dict[str, Any], node: str, base: Any = None, prefix: str = "") -> Any:
     """`base` (default: the code defaults) with a settings mapping (a deploy config's `settings`):
-    keys are field names; unknown keys and bad values are ConfigErrors naming the field."""
+    keys are field names, a group's a mapping of its own; unknown keys and bad values are
+    ConfigErrors naming the field."""
     names = [f.name for f in dataclasses.fields(cls)]
     unknown = sorted(set(section) - set(names))
     if unknown:
-        raise ConfigError(f"{node} config: unknown field(s) {unknown}; allowed: {sorted(names)}")
+        raise ConfigError(f"{node} config: unknown field(s) {[prefix + k for k in unknown]}; "
+                          f"allowed: {sorted(names)}")
     base = base if base is not None else cls()
-    values = {k: _typed(node, k, v, getattr(base, k)) for k, v in section.items()}
+    values = {}
+    for k, v in section.items():
+        current = getattr(base, k)
+        if dataclasses.is_dataclass(current):
+            if not isinstance(v, dict):
+                raise ConfigError(f"{node} config: {prefix}{k} must be a mapping")
+            values[k] = settings_from(type(current), v, node, current, f"{prefix}{k}.")
+        else:
+            values[k] = _typed(node, prefix + k, v, current)
     try:
-        return validated(dataclasses.replace(base, **values), node)
+        return validated(dataclasses.replace(base, **values), node, prefix)
     except TypeError as e:  # a value of the wrong kind the check above let through
         raise ConfigError(f"{node} config: {e}") from None
 
@@ -210,28 +232,50 @@ def _typed(node: str, name: str, v: Any, default: Any) -> Any:
 
 
 def config_from_args(cls: type, args: argparse.Namespace, node: str, base: Any = None,
-                     settings: bool = True) -> Any:
-    """The node's config: code defaults (or `base`), then its settings (`--config`/`--section`,
-    when `settings`), then the flags that were given. Raises ConfigError naming the field."""
-    cfg = settings_from(cls, args_section(args, node) if settings else {}, node, base)
-    given = {f.name: getattr(args, f.name) for f in dataclasses.fields(cls)
-             if (s := setting_of(f)) is not None and s.flag and getattr(args, f.name, None) is not None}
-    return validated(dataclasses.replace(cfg, **given), node) if given else cfg
+                     section: dict[str, Any] | None = None) -> Any:
+    """The node's config: code defaults (or `base`), then its settings (`section`, else read
+    from `--config`/`--section`), then the flags that were given. Raises ConfigError naming
+    the field."""
+    cfg = settings_from(cls, args_section(args, node) if section is None else section, node, base)
+    given: dict[str, Any] = {}
+    for path, _, _ in _flagged(cfg):
+        v = getattr(args, path, None)
+        if v is not None:
+            given[path] = v
+    return validated(_replace_path(cfg, given), node) if given else cfg
 
 
-def validated(cfg: Any, node: str) -> Any:
-    """Each field within its Setting's range and choices, then the class's own `validate()`."""
+def _replace_path(cfg: Any, changes: dict[str, Any]) -> Any:
+    """dataclasses.replace with dotted paths into groups: {'structure.dt_s': 0.2}."""
+    top: dict[str, Any] = {}
+    groups: dict[str, dict[str, Any]] = {}
+    for path, v in changes.items():
+        head, _, rest = path.partition(".")
+        if rest:
+            groups.setdefault(head, {})[rest] = v
+        else:
+            top[head] = v
+    top.update({g: _replace_path(getattr(cfg, g), sub) for g, sub in groups.items()})
+    return dataclasses.replace(cfg, **top)
+
+
+def validated(cfg: Any, node: str, prefix: str = "") -> Any:
+    """Each field (groups included) within its Setting's range and choices, then the class's own
+    `validate()`."""
     for f in dataclasses.fields(cfg):
         s, v = setting_of(f), getattr(cfg, f.name)
+        if dataclasses.is_dataclass(v):
+            validated(v, node, f"{prefix}{f.name}.")
         if s is None:
             continue
         if s.choices is not None and v not in s.choices:
-            raise ConfigError(f"{node} config: {f.name}={v!r} is invalid; allowed: "
+            raise ConfigError(f"{node} config: {prefix}{f.name}={v!r} is invalid; allowed: "
                               + " | ".join(map(str, s.choices)))
         if s.range and not _in_range(v, s.range):
-            raise ConfigError(f"{node} config: {f.name}={v!r} is invalid; allowed: {s.range}")
+            raise ConfigError(f"{node} config: {prefix}{f.name}={v!r} is invalid; allowed: {s.range}")
     check = getattr(cfg, "validate", None)
-    return check() if callable(check) else cfg
+    out = check() if callable(check) else None
+    return cfg if out is None else out
 
 
 _RANGE = re.compile(r"^([\[(])\s*(\S+)\s*,\s*(\S+)\s*([\])])$|^(>=|>|<=|<)\s*(\S+)$")

@@ -77,12 +77,39 @@ def test_flags_carry_unit_range_and_default_in_their_help():
     assert rows["file_only"]["flag"] is None
 
 
+@dataclass(frozen=True)
+class Inner:
+    steps: int = setting(15, flag="--steps", range="[1, 100]", help="stages")
+    tol: float = 1e-5
+
+
+@dataclass(frozen=True)
+class Outer:
+    inner: Inner = dataclasses.field(default_factory=Inner)
+    rate_hz: float = setting(20.0, flag="--rate", unit="Hz", range="(0, 200]", help="rate")
+
+
+def test_groups_take_a_mapping_of_their_own_and_their_flags_reach_into_them(tmp_path):
+    ap = argparse.ArgumentParser()
+    nodeconfig.add_settings_arguments(ap, Outer, "outer")
+    cfg = nodeconfig.config_from_args(Outer, ap.parse_args(["--steps", "7"]), "outer",
+                                      section={"inner": {"tol": 1e-3}, "rate_hz": 10})
+    assert cfg == Outer(inner=Inner(steps=7, tol=1e-3), rate_hz=10.0)
+    with pytest.raises(ConfigError, match=r"inner\.steps=0"):
+        nodeconfig.settings_from(Outer, {"inner": {"steps": 0}}, "outer")
+    with pytest.raises(ConfigError, match=r"\['inner\.stps'\]"):
+        nodeconfig.settings_from(Outer, {"inner": {"stps": 3}}, "outer")
+    with pytest.raises(ConfigError, match="inner must be a mapping"):
+        nodeconfig.settings_from(Outer, {"inner": 3}, "outer")
+
+
 def _node_configs():
     from cinetransfer.services.detector.config import DetectorConfig
     from cinetransfer.services.smoother.config import SmootherConfig
+    from cinetransfer.services.planner.config import PlannerConfig, Structure
     from cinetransfer.services.source.config import SourceConfig
 
-    return [SourceConfig, DetectorConfig, SmootherConfig]
+    return [SourceConfig, DetectorConfig, SmootherConfig, PlannerConfig, Structure]
 
 
 @pytest.mark.parametrize("cls", _node_configs(), ids=lambda c: c.__name__)
