@@ -147,13 +147,14 @@ class Setting:
     choices: tuple[Any, ...] | None = None
     help: str = ""
     metavar: str | None = None
+    const: Any = None  # a flag that takes no value and sets this one (a bool's flag sets `not default`)
 
 
 def setting(default: Any = dataclasses.MISSING, *, flag: str | None = None, unit: str | None = None,
             range: str | None = None, choices: tuple[Any, ...] | None = None, help: str = "",
-            metavar: str | None = None, default_factory: Any = dataclasses.MISSING) -> Any:
+            metavar: str | None = None, const: Any = None, default_factory: Any = dataclasses.MISSING) -> Any:
     """A dataclass field with its `Setting` (see the module's config idiom)."""
-    meta = {"setting": Setting(flag, unit, range, choices and tuple(choices), help, metavar)}
+    meta = {"setting": Setting(flag, unit, range, choices and tuple(choices), help, metavar, const)}
     if default_factory is not dataclasses.MISSING:
         return field(default_factory=default_factory, metadata=meta)
     return field(default=default, metadata=meta)
@@ -168,16 +169,20 @@ def add_settings_arguments(parser: argparse.ArgumentParser, cls: type, title: st
     """One flag per field of `cls` that names one, groups (a field holding a config dataclass)
     included, but the fields in `skip` (e.g. a node's own flags on a batch tool). Each flag
     defaults to None: it overrides only when given."""
-    g = parser.add_argument_group(title)
+    groups: dict[str, Any] = {}
     for path, s, default in _flagged(cls()):
         if path in skip:
             continue
+        group = path.rpartition(".")[0]
+        g = groups.get(group) or groups.setdefault(group, parser.add_argument_group(group or title))
         text = s.help + (f" [{s.unit}]" if s.unit else "") + (f", {s.range}" if s.range else "")
-        if isinstance(default, bool):
-            g.add_argument(s.flag, dest=path, action="store_const", const=not default, default=None, help=text)
+        if isinstance(default, bool) or s.const is not None:
+            const = (not default) if s.const is None else s.const
+            g.add_argument(s.flag, dest=path, action="store_const", const=const, default=None, help=text)
             continue
-        kind = _csv if isinstance(default, tuple) else (type(default) if default is not None else str)
-        metavar = s.metavar or (s.unit.upper() if s.unit and s.unit.isalpha() else None)
+        kind = _tuple_of(default) if isinstance(default, tuple) else (type(default) if default is not None else str)
+        metavar = s.metavar or (None if s.choices else s.unit.upper() if s.unit and s.unit.isalpha()
+                                else path.rpartition(".")[2].upper())
         g.add_argument(s.flag, dest=path, type=kind, default=None, choices=s.choices, metavar=metavar,
                        help=f"{text} (default {_shown(default)})")
 
@@ -298,6 +303,22 @@ def _in_range(v: Any, text: str) -> bool:
 
 def _csv(text: str) -> tuple[str, ...]:
     return tuple(s.strip() for s in text.split(",") if s.strip())
+
+
+def _tuple_of(default: tuple[Any, ...]) -> Any:
+    """A flag's parser for a tuple field: names, or as many numbers as the default holds."""
+    if not default or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in default):
+        return _csv
+
+    def numbers(text: str) -> tuple[float, ...]:
+        try:
+            vals = tuple(float(x) for x in text.split(","))
+        except ValueError:
+            vals = ()
+        if len(vals) != len(default):
+            raise argparse.ArgumentTypeError(f"expected {len(default)} comma-separated numbers, got {text!r}")
+        return vals
+    return numbers
 
 
 def _shown(default: Any) -> str:

@@ -104,12 +104,14 @@ def test_groups_take_a_mapping_of_their_own_and_their_flags_reach_into_them(tmp_
 
 
 def _node_configs():
+    from cinetransfer.services.autopilot_bridge.config import BridgeConfig, MavlinkConfig, SafetyConfig
     from cinetransfer.services.detector.config import DetectorConfig
     from cinetransfer.services.smoother.config import SmootherConfig
     from cinetransfer.services.planner.config import PlannerConfig, Structure
     from cinetransfer.services.source.config import SourceConfig
 
-    return [SourceConfig, DetectorConfig, SmootherConfig, PlannerConfig, Structure]
+    return [SourceConfig, DetectorConfig, SmootherConfig, PlannerConfig, Structure, BridgeConfig, SafetyConfig,
+            MavlinkConfig]
 
 
 @pytest.mark.parametrize("cls", _node_configs(), ids=lambda c: c.__name__)
