@@ -170,7 +170,7 @@ def add_settings_arguments(parser: argparse.ArgumentParser, cls: type, title: st
     included, but the fields in `skip` (e.g. a node's own flags on a batch tool). Each flag
     defaults to None: it overrides only when given."""
     groups: dict[str, Any] = {}
-    for path, s, default in _flagged(cls()):
+    for path, s, default in _flagged(cls):
         if path in skip:
             continue
         group = path.rpartition(".")[0]
@@ -188,15 +188,23 @@ def add_settings_arguments(parser: argparse.ArgumentParser, cls: type, title: st
 
 
 def _flagged(cfg: Any, prefix: str = "") -> list[tuple[str, Setting, Any]]:
-    """(dotted field path, Setting, default) of every field with a flag, groups included."""
+    """(dotted field path, Setting, value) of every field with a flag, groups included; for a
+    class, its defaults (a class whose defaults alone are not valid, e.g. a camera without a
+    source, still lists its flags)."""
     out = []
     for f in dataclasses.fields(cfg):
-        v, s = getattr(cfg, f.name), setting_of(f)
+        v, s = _value(cfg, f), setting_of(f)
         if dataclasses.is_dataclass(v):
             out += _flagged(v, f"{prefix}{f.name}.")
         elif s is not None and s.flag:
             out.append((f"{prefix}{f.name}", s, v))
     return out
+
+
+def _value(cfg: Any, f: dataclasses.Field) -> Any:
+    if not isinstance(cfg, type):
+        return getattr(cfg, f.name)
+    return f.default_factory() if f.default is dataclasses.MISSING else f.default  # type: ignore[misc]
 
 
 def settings_from(cls: type, section: dict[str, Any], node: str, base: Any = None, prefix: str = "") -> Any:
