@@ -16,10 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -34,19 +31,12 @@ from cinetransfer.services.autopilot_bridge.mavlink import MavlinkBackend, mavli
 from cinetransfer.services.autopilot_bridge.sim_vehicle import SimVehicle
 from cinetransfer.shared import messages as M
 
+try:
+    from harness import free_udp_port, stats, write_result
+except ImportError:  # imported as the benchmarks package
+    from benchmarks.harness import free_udp_port, stats, write_result
+
 REPO = Path(__file__).resolve().parents[1]
-
-
-def stats(xs) -> dict:
-    a = np.asarray(xs, float)
-    return {"n": int(a.size), "median": float(np.median(a)), "p95": float(np.percentile(a, 95)),
-            "max": float(a.max())}
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def bench_safety(n: int) -> dict:
@@ -143,15 +133,10 @@ def main() -> int:
     ap.add_argument("--stream-seconds", type=float, default=10.0)
     ap.add_argument("--out", default=str(REPO / "benchmarks" / "results" / "bridge.json"))
     args = ap.parse_args()
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
-                            text=True).stdout.strip()
-    res = {"commit": commit, "machine": platform.node(), "cpus": os.cpu_count(),
-           "load_avg": os.getloadavg(), "python": platform.python_version(),
-           "safety": bench_safety(args.samples * 10), "mavlink_udp": bench_rtt(args.samples),
+    res = {"safety": bench_safety(args.samples * 10), "mavlink_udp": bench_rtt(args.samples),
            "setpoint_stream": bench_stream(args.stream_seconds)}
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(res, indent=1))
     print(json.dumps(res, indent=1))
+    print(f"wrote {write_result(args.out, res)}")
     return 0
 
 

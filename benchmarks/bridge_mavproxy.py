@@ -22,8 +22,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
-import socket
 import subprocess
 import sys
 import tempfile
@@ -33,13 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
+try:
+    from harness import free_udp_port, stats, write_result
+except ImportError:  # imported as the benchmarks package
+    from benchmarks.harness import free_udp_port, stats, write_result
+
 REPO = Path(__file__).resolve().parents[1]
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def vehicle(port: int) -> subprocess.Popen:
@@ -172,8 +169,7 @@ def part_b(exe: str, work: Path) -> dict:
             ack = be.wait_ack(mavlink.MAV_CMD_SET_CAMERA_FOCUS)
             if ack is not None:
                 rtts.append(ack.rtt_ms)
-        result["ack_rtt_ms_via_mavproxy"] = {"median": float(np.median(rtts)), "max": float(np.max(rtts)),
-                                             "n": len(rtts)} if rtts else None
+        result["ack_rtt_ms_via_mavproxy"] = stats(rtts) if rtts else None
         result["backend_counters"] = be.health_counters()
         result["mavproxy_saw_offboard"] = mp.wait_for("OFFBOARD", 2)
         result["mavproxy_saw_armed"] = mp.wait_for("ARMED", 1)
@@ -198,11 +194,10 @@ def main() -> int:
                          text=True).stdout
     with tempfile.TemporaryDirectory() as a, tempfile.TemporaryDirectory() as b:
         res = {"mavproxy": next((ln for ln in ver.splitlines() if ln.startswith("Version")), "?"),
-               "machine": platform.node(), "part_a_gcs": part_a(args.mavproxy, Path(a)),
+               "part_a_gcs": part_a(args.mavproxy, Path(a)),
                "part_b_router": part_b(args.mavproxy, Path(b))}
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(res, indent=1, default=str))
     print(json.dumps(res, indent=1, default=str))
+    print(f"wrote {write_result(args.out, res)}")
     return 0
 
 

@@ -7,14 +7,12 @@ Latency: the sender stamps CLOCK_MONOTONIC (shared by all processes on Linux) in
 message; the receiver decodes and subtracts. Paced at 1 kHz so that queueing does not count.
 Throughput: the sender publishes encoded raw frames as fast as the link takes them
 (congestion control BLOCK); the receiver decodes each (zero-copy view) and counts.
-Goals (issue 3): small-message p99 < 1 ms; 720p frames >= 200/s.
+Goals: small-message p99 < 1 ms; 720p frames >= 200/s.
 """
 from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import subprocess
 import sys
 import threading
@@ -26,6 +24,11 @@ import zenoh
 
 from cinetransfer.shared import codec, zenoh_config
 from cinetransfer.shared import messages as M
+
+try:
+    from harness import stats, write_result
+except ImportError:  # imported as the benchmarks package
+    from benchmarks.harness import stats, write_result
 
 
 def receiver(port: int, kind: str, n: int, shm: bool) -> None:
@@ -114,26 +117,20 @@ def main() -> int:
     if a.role == "rx":
         receiver(a.port, a.kind, a.n, a.shm)
         return 0
-    results: dict = {"machine": platform.node(), "cpus": os.cpu_count(), "python": platform.python_version(),
-                     "commit": subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                                              text=True).stdout.strip()}
+    results: dict = {}
     small = run("small", a.samples, shm=False)
-    lat = np.array(small["lat_us"])
-    results["small"] = {"bytes": small["size"], "n": int(lat.size), "median_us": float(np.median(lat)),
-                        "p95_us": float(np.percentile(lat, 95)), "p99_us": float(np.percentile(lat, 99)),
-                        "max_us": float(lat.max())}
-    print(f"small message ({small['size']} B, peer-to-peer, encode+send+receive+decode), n={lat.size}: "
-          f"median {results['small']['median_us']:.0f} us, p95 {results['small']['p95_us']:.0f} us, "
-          f"p99 {results['small']['p99_us']:.0f} us, max {results['small']['max_us']:.0f} us "
-          f"-> goal p99 < 1000 us: {'MET' if results['small']['p99_us'] < 1000 else 'MISSED'}")
+    lat = stats(small["lat_us"])
+    results["small"] = {"bytes": small["size"], "latency_us": lat}
+    print(f"small message ({small['size']} B, peer-to-peer, encode+send+receive+decode), n={lat['n']}: "
+          f"median {lat['median']:.0f} us, p95 {lat['p95']:.0f} us, p99 {lat['p99']:.0f} us, max {lat['max']:.0f} us "
+          f"-> goal p99 < 1000 us: {'MET' if lat['p99'] < 1000 else 'MISSED'}")
     for shm in (False, True):
         r = run("frame", a.frames, shm=shm)
         name = "frames_shm" if shm else "frames_tcp"
         results[name] = {"bytes": r["size"], "n": r["count"], "fps": r["fps"]}
         print(f"1280x720 raw frames over {'shared memory' if shm else 'TCP loopback'} ({r['size'] / 1e6:.2f} MB each), "
               f"n={r['count']}: {r['fps']:.0f} frames/s -> goal >= 200/s: {'MET' if r['fps'] >= 200 else 'MISSED'}")
-    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(a.out).write_text(json.dumps(results, indent=2))
+    print(f"wrote {write_result(a.out, results)}")
     return 0
 
 

@@ -11,7 +11,7 @@ resolution it times, over a fixed number of frames after a warm-up:
 Prints median / p95 / max latency per frame, throughput (frames/s) and CPU use (process CPU
 time / wall time: 2.0 = both cores busy) and CPU time per frame (independent of other load:
 on an idle 2-core machine frames/s can reach at most 2000 / CPU-ms).
-          goal (issue 16): >= 24 frames/s at 1280x720 (one person), >= 10 frames/s on TUD
+          goal (detector speed): >= 24 frames/s at 1280x720 (one person), >= 10 frames/s on TUD
 
     python benchmarks/detector.py [--frames 100] [--warmup 10]
 
@@ -26,12 +26,12 @@ import time
 import cv2
 import numpy as np
 
-from eval_detector_common import data_dir, write_result
+from eval_detector_common import data_dir, stats, write_result
 from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.services.detector.core import Detector
 from cinetransfer.services.detector.focus import FocusEstimator
 from cinetransfer.services.detector.hog_people import HogPeople
-from cinetransfer.services.detector.sources import iter_frames
+from cinetransfer.shared.frame_sources import iter_frames
 
 RESOLUTIONS = ((640, 360), (1280, 720))
 
@@ -52,15 +52,15 @@ def _time(fn, frames, warmup: int) -> dict:
     # On 2 idle cores a frame takes at least the caller thread's CPU time and at least half the
     # process's: a load-independent estimate of the quiet-machine rate (upper bound, perfect overlap).
     idle_ms = 1e3 * max(main, cpu / 2) / len(frames)
-    return {"fps": len(frames) / wall, "ms_median": float(np.median(lat_ms)),
-            "ms_p95": float(np.percentile(lat_ms, 95)),
-            "ms_max": float(lat_ms.max()), "cpu_cores_used": cpu / wall, "cpu_ms_per_frame": 1e3 * cpu / len(frames),
+    return {"fps": len(frames) / wall, "latency_ms": stats(lat_ms), "cpu_cores_used": cpu / wall,
+            "cpu_ms_per_frame": 1e3 * cpu / len(frames),
             "caller_thread_cpu_ms_per_frame": 1e3 * main / len(frames), "idle_estimate_fps": 1e3 / idle_ms}
 
 
 def _line(name: str, r: dict) -> str:
-    return (f"  {name:<34} {r['fps']:6.1f} frames/s   median {r['ms_median']:6.1f} ms   p95 {r['ms_p95']:6.1f} ms   "
-            f"max {r['ms_max']:6.1f} ms   cores {r['cpu_cores_used']:.2f}   CPU {r['cpu_ms_per_frame']:5.1f} ms/frame "
+    lat = r["latency_ms"]
+    return (f"  {name:<34} {r['fps']:6.1f} frames/s   median {lat['median']:6.1f} ms   p95 {lat['p95']:6.1f} ms   "
+            f"max {lat['max']:6.1f} ms   cores {r['cpu_cores_used']:.2f}   CPU {r['cpu_ms_per_frame']:5.1f} ms/frame "
             f"(caller {r['caller_thread_cpu_ms_per_frame']:5.1f})   idle est. {r['idle_estimate_fps']:5.1f} frames/s")
 
 

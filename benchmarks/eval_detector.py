@@ -8,7 +8,7 @@
                                                              goal mean box IoU >= 0.75, mask >= 0.6
 - TUD-Stadtmitte: person recall and precision at box IoU >= 0.5 (greedy matching by confidence).
                                                  goal recall >= 0.75 at precision >= 0.90
-  (issue 16; the mediapipe backend reached 0.189 / 0.876: `--set backend="'mediapipe'"`)
+  (the mediapipe backend reached 0.189 / 0.876: `--set backend="'mediapipe'"`)
 
     python benchmarks/eval_detector.py [--only juggler davis tud] [--set key=value ...]
 
@@ -37,7 +37,7 @@ def _frames(det: Detector, path):
 
 
 def _iter(det: Detector, path, times):
-    from cinetransfer.services.detector.sources import iter_frames
+    from cinetransfer.shared.frame_sources import iter_frames
 
     for f in iter_frames(path):
         t = time.perf_counter()

@@ -1,19 +1,15 @@
-"""Shared helpers of the detector evaluation scripts (data paths, ground truth, result files)."""
+"""Shared helpers of the detector evaluation scripts (data paths, ground truth; result files and
+statistics come from harness.py)."""
 from __future__ import annotations
 
-import json
-import os
-import platform
-import subprocess
-import time
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
 
 from cinetransfer.shared.boxes import box_iou  # noqa: F401 - used by the evaluation scripts
-from cinetransfer.shared.data import data_dir as shared_data_dir
+from cinetransfer.data import data_dir as shared_data_dir
+from harness import stats, write_result  # noqa: F401 - the evaluation scripts' statistics and result files
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
@@ -58,18 +54,3 @@ def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.logical_and(a, b).sum() / u) if u else 0.0
 
 
-def git_commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True,
-                              timeout=5).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return ""
-
-
-def write_result(name: str, payload: dict[str, Any]) -> Path:
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    out = RESULTS / f"{name}.json"
-    meta = {"commit": git_commit(), "machine": platform.node(), "cpus": os.cpu_count(),
-            "load_avg_1min": os.getloadavg()[0], "time": time.strftime("%Y-%m-%dT%H:%M:%S")}
-    out.write_text(json.dumps({"meta": meta, **payload}, indent=2, default=float))
-    return out

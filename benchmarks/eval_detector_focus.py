@@ -22,10 +22,10 @@ import time
 import cv2
 import numpy as np
 
-from eval_detector_common import data_dir, davis_masks, write_result
+from eval_detector_common import data_dir, davis_masks, stats, write_result
 from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.services.detector.focus import FocusEstimator
-from cinetransfer.services.detector.sources import iter_frames
+from cinetransfer.shared.frame_sources import iter_frames
 
 CONDITIONS = ("none", "background", "subject", "foreground", "all")
 SIGMAS = (1.5, 2.5, 3.5, 5.0)
@@ -96,8 +96,7 @@ def evaluate(cfg: DetectorConfig, clips: list[str], stride: int = 1, verbose: bo
         "error_by_condition": {c: float(np.mean(v)) for c, v in by_cond.items() if v},
         "pixel_accuracy": float(np.mean(acc)),
         "in_focus_iou": float(np.mean(ious)),
-        "ms_median": 1e3 * float(np.median(times)),
-        "ms_p95": 1e3 * float(np.percentile(times, 95)),
+        "ms": stats(1e3 * np.asarray(times)),
     }
     if verbose:
         _print_summary(out, clips, stride, masks_from)
@@ -144,7 +143,7 @@ def _print_summary(out: dict, clips: list[str], stride: int, masks_from: str) ->
         print(f"  condition {c:<10} mean error {v:.3f}")
     print(f"  pixel accuracy {out['pixel_accuracy']:.3f}, in-focus IoU {out['in_focus_iou']:.3f}")
     what = "pose + focus" if masks_from == "detector" else "focus"
-    print(f"  {what} time median {out['ms_median']:.1f} ms, p95 {out['ms_p95']:.1f} ms (854x480 input)")
+    print(f"  {what} time median {out['ms']['median']:.1f} ms, p95 {out['ms']['p95']:.1f} ms (854x480 input)")
 
 
 def main() -> None:

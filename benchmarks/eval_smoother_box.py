@@ -35,14 +35,14 @@ except ImportError:
 
 
 def cached_measurements(video: str, fallback: str = "none") -> list[M.Measurement]:
-    from cinetransfer.services.detector.measurements_file import read_measurements
-    from cinetransfer.services.smoother.extract import measure_video
+    from cinetransfer.shared.measurements_file import read_measurements
+    from cinetransfer.extract import measure_video
 
     CACHE.mkdir(parents=True, exist_ok=True)
     path = CACHE / (os.path.basename(video) + ("" if fallback == "none" else f".{fallback}") + ".msgpack")
     if not path.exists():
         from cinetransfer.services.detector.config import DetectorConfig
-        from cinetransfer.services.detector.measurements_file import MeasurementsWriter
+        from cinetransfer.shared.measurements_file import MeasurementsWriter
 
         ms, source, det = measure_video(video, progress=True,
                                         detector_config=DetectorConfig(person_fallback=fallback))

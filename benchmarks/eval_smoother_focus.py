@@ -11,7 +11,7 @@ gives the focus map (told the person mask, as Detector.analyse does); the person
 mask (so only the focus chain is measured).
 Error: |value - truth| per region over the frames where the region exists (truth 1 = in focus),
 mean and std, for the raw fraction b and for B from every focus method; also the share of frames
-where B > theta agrees with the truth. Goal (issue 5): optimised error <= the paper's Table II
+where B > theta agrees with the truth. Goal: optimised error <= the paper's Table II
 (background 0.027-0.057, subject 0.039-0.061), and ours better than the printed formula.
 """
 from __future__ import annotations

@@ -10,7 +10,7 @@ off, low confidence), 10% of joints missing, 4% of frames with no detection at a
 1-6 frames), confidences in [0.5, 1] for good joints. Error: the chest (mid-point of the
 shoulders) in normalised image coordinates, |x/W - x*/W| and |y/H - y*/H|, mean and std over
 frames (raw: frames where the detector gave both shoulders; optimised: every frame).
-Goal (issue 5): optimised below raw in every case, and <= the paper's Table I (chest mean x 0.065,
+Goal: optimised below raw in every case, and <= the paper's Table I (chest mean x 0.065,
 y 0.055).
 """
 from __future__ import annotations

@@ -5,7 +5,7 @@ meet on another body (per-joint weights).
     python benchmarks/eval_transfer_subjects.py [--max-frames 0] [--scenes open_country focus_hedge]
                                                 [--subjects dancer runner walker] [--skip-transfers]
 
-Part 1 (issue 15 goal: truth joint error <= 0.035 and truth focus agreement >= 95 % per region,
+Part 1 (other-subject goal: truth joint error <= 0.035 and truth focus agreement >= 95 % per region,
 each subject x scene): `cinetransfer transfer` of sam2_juggle_1280x720.mp4 with `--subject NAME`
 (real processes over Zenoh, simulation time, every frame rendered); the style is extracted once
 and reused (`--style`). Reported per run: the report's headline (truth and extraction) and the
@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import platform
 import subprocess
 import sys
 import tempfile
@@ -35,7 +34,12 @@ from pathlib import Path
 
 import numpy as np
 
-from cinetransfer.shared.data import data_dir
+from cinetransfer.data import data_dir
+
+try:
+    from harness import write_result
+except ImportError:  # imported as the benchmarks package
+    from benchmarks.harness import write_result
 
 HERE = Path(__file__).resolve().parent
 CLIP = "sam2_juggle_1280x720.mp4"
@@ -90,11 +94,11 @@ def proportion(joints: np.ndarray, aspect: float = 1.0) -> float:
 
 
 def fly_weights(style_path: Path, scene: str, subject: str, weights: dict[str, float]) -> dict:
-    from cinetransfer.services.planner.cli import make_sim, state_truth
+    from cinetransfer.plan import make_sim, state_truth
     from cinetransfer.services.planner.config import PlannerConfig
     from cinetransfer.services.planner.core import Planner
     from cinetransfer.services.planner.scenarios import run_closed_loop
-    from cinetransfer.services.smoother.instructions import load_style
+    from cinetransfer.shared.instructions import load_style
 
     ins = load_style(style_path)
     cfg = PlannerConfig(joint_weights=tuple(sorted(weights.items())))
@@ -134,11 +138,7 @@ def main() -> int:
     ap.add_argument("--out", default=str(HERE / "results" / "eval_transfer_subjects.json"))
     args = ap.parse_args()
     src = data_dir() / CLIP
-    res: dict = {"commit": subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                                          cwd=HERE).stdout.strip(),
-                 "machine": {"node": platform.node(), "cpus": __import__("os").cpu_count(),
-                             "python": platform.python_version()},
-                 "source": CLIP, "max_frames": args.max_frames, "transfers": {}, "weights": {}}
+    res: dict = {"source": CLIP, "max_frames": args.max_frames, "transfers": {}, "weights": {}}
     with tempfile.TemporaryDirectory(prefix="ct_eval_subj_") as tmp:
         tmp = Path(tmp)
         style = Path(args.style) if args.style else None
@@ -164,7 +164,7 @@ def main() -> int:
             subprocess.run([sys.executable, "-m", "cinetransfer", "extract", str(src), "-o", str(style),
                             *(["--max-frames", str(args.max_frames)] if args.max_frames else [])], check=True,
                            capture_output=True)
-        from cinetransfer.services.smoother.instructions import load_style
+        from cinetransfer.shared.instructions import load_style
 
         ins = load_style(style)
         tg = np.asarray(ins.image_targets, float)
@@ -188,8 +188,7 @@ def main() -> int:
                       f"{k}: {v['per_joint']} mean {v['mean']} (by name {v['mean_by_name']}, by image side in "
                       f"{v['frames_by_image_side']}/{v['frames']})" for k, v in row.items() if isinstance(v, dict)),
                   flush=True)
-    Path(args.out).write_text(json.dumps(res, indent=1) + "\n")
-    print(f"wrote {args.out}")
+    print(f"wrote {write_result(args.out, res)}")
     return 0
 
 

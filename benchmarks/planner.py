@@ -24,7 +24,7 @@ the 2.5 Hz baseline, flies its scenario again, up to 10 runs, and the times are 
 iterations, over-budget solves (vs 40 ms), the tracking cost on the simulator's true state
 (mean over time of 200 * sum_e |im_e - im*_e|^2 + 5 * depth-of-field error, scenarios.LoopLog)
 and the image error after 3 s. Then ratios to the
-baseline and a verdict against the goal (issue 19): N = 20, dt 0.1: wall p95 <= 5 ms, >= 10x faster
+baseline and a verdict against the goal: N = 20, dt 0.1: wall p95 <= 5 ms, >= 10x faster
 than the baseline at p95, tracking cost within 2 % of the IPOPT reference on every scenario.
 CPU times are the better guide on a busy machine (the load average is printed).
 Writes benchmarks/results/planner.json.
@@ -33,10 +33,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
-import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -48,6 +45,11 @@ from cinetransfer.services.planner.core import Planner
 from cinetransfer.services.planner.kinematic_sim import KinematicSim, Walk
 from cinetransfer.services.planner.scenarios import dolly_zoom_shot, reference_instructions, run_closed_loop, \
     standing_shot, wrong_start_scene
+
+try:
+    from harness import stats, write_result
+except ImportError:  # imported as the benchmarks package
+    from benchmarks.harness import stats, write_result
 
 SCENARIOS = ("dolly", "standing")
 
@@ -71,11 +73,6 @@ def scenario(name: str, duration_s: float):
     return scene, reference_instructions(scene, standing_shot(), duration_s=duration_s)
 
 
-def _stats(v: list[float]) -> dict:
-    a = np.asarray(v, dtype=float)
-    return {"median": float(np.median(a)), "p95": float(np.percentile(a, 95)), "max": float(np.max(a))}
-
-
 def run(name: str, cfg: pc.PlannerConfig, scen: str, duration_s: float) -> dict:
     """One configuration on one scenario, flown until MIN_TIMED_SOLVES steady solves are timed
     (at most MAX_RUNS runs; every run is the same closed loop, so the figures other than times are
@@ -87,7 +84,7 @@ def run(name: str, cfg: pc.PlannerConfig, scen: str, duration_s: float) -> dict:
         wall += again["_wall"]
         cpu += again["_cpu"]
         runs += 1
-    r.update(runs=runs, timed_solves=len(wall), wall_ms=_stats(wall), cpu_ms=_stats(cpu),
+    r.update(runs=runs, timed_solves=len(wall), wall_ms=stats(wall), cpu_ms=stats(cpu),
              over_budget=int(np.sum(np.asarray(wall) > BUDGET_S * 1e3)))
     return r
 
@@ -213,21 +210,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} CPUs"
           + (": wall times are inflated; CPU times are the better guide" if load[0] > 0.5 * (os.cpu_count() or 1)
              else ""))
-    try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                                cwd=Path(__file__).resolve().parent, timeout=10).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        commit = ""
-    meta = {"commit": commit, "machine": platform.node(), "platform": platform.platform(),
-            "python": sys.version.split()[0], "cpus": os.cpu_count(), "load_avg": os.getloadavg(),
-            "duration_s": args.duration, "warmup_solves_excluded": WARMUP,
-            "config_default": dataclasses.asdict(pc.PlannerConfig())}
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out + ".part"
-    with open(tmp, "w", encoding="utf-8") as fh:
-        json.dump({"meta": meta, "results": results, "goal_met_by": goal}, fh, indent=1, default=str)
-    os.replace(tmp, args.out)
-    print(f"wrote {args.out}")
+    config = {"duration_s": args.duration, "warmup_solves_excluded": WARMUP,
+              "config_default": dataclasses.asdict(pc.PlannerConfig())}
+    print(f"wrote {write_result(args.out, {'config': config, 'results': results, 'goal_met_by': goal})}")
     return 0
 
 

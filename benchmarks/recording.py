@@ -1,4 +1,4 @@
-"""Recording benchmark (issue 17): how big is run.mcap per second of flight, what does recording
+"""Recording benchmark: how big is run.mcap per second of flight, what does recording
 cost, and does the report's video play in a browser.
 
     python benchmarks/recording.py [--source CLIP] [--scene open_country] [--max-frames 240] [--run DIR]
@@ -18,25 +18,22 @@ import argparse
 import collections
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 
-from cinetransfer.shared.data import data_dir
+from cinetransfer.data import data_dir
+
+try:
+    from harness import stats, write_result
+except ImportError:  # imported as the benchmarks package
+    from benchmarks.harness import stats, write_result
 
 HERE = Path(__file__).resolve().parent
 WARMUP, SAMPLES = 5, 60
-
-
-def stats(xs: list[float]) -> dict:
-    a = np.asarray(xs, float)
-    return {"n": len(a), "median": round(float(np.median(a)), 3), "p95": round(float(np.percentile(a, 95)), 3),
-            "max": round(float(a.max()), 3)}
 
 
 def per_channel_bytes(path: Path) -> dict[str, int]:
@@ -51,7 +48,7 @@ def per_channel_bytes(path: Path) -> dict[str, int]:
 
 def views_cost(path: Path) -> dict:
     """Milliseconds per message of shared.runlog.views on recorded camera frames and vehicle states."""
-    from cinetransfer.shared import runlog
+    from cinetransfer import runlog
 
     picked: dict[str, list[tuple[str, bytes]]] = {"frame": [], "vehicle_state": []}
     for _, key, payload in runlog.read_run(path):
@@ -70,7 +67,7 @@ def views_cost(path: Path) -> dict:
             runlog.views(key, payload, video=streams if video else None)
             if i >= WARMUP:
                 times.append((time.perf_counter() - t) * 1e3)
-        out[name + "_ms"] = stats(times) if times else None
+        out[name + "_ms"] = stats(times, digits=3) if times else None
     return out
 
 
@@ -102,7 +99,7 @@ def main() -> int:
         if r.returncode != 0:
             sys.exit(f"transfer failed (exit {r.returncode}):\n{r.stderr[-3000:]}")
     from cinetransfer.report.browser_check import BrowserError, check, verdict
-    from cinetransfer.shared.runlog import RunReader, size_report
+    from cinetransfer.runlog import RunReader, size_report
     from cinetransfer.shared.video import probe
 
     t = time.monotonic()
@@ -115,11 +112,7 @@ def main() -> int:
     elif transfer_s is not None:
         (run / "bench_transfer_s.txt").write_text(str(transfer_s))
     result = {
-        "benchmark": "recording", "issue": 17,
-        "commit": subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                                 cwd=HERE).stdout.strip(),
-        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "python": platform.python_version(),
-                    "loadavg_before": [round(x, 2) for x in load_before]},
+        "load_avg_before": [round(x, 2) for x in load_before],
         "config": {"scene": args.scene, "max_frames": args.max_frames, "run": str(args.run or "fresh transfer")},
         "transfer_wall_s": transfer_s,
         "meta": {k: v for k, v in json.loads((run / "meta.json").read_text()).items()
@@ -141,9 +134,7 @@ def main() -> int:
                               "report_html_bytes": (run / "report.html").stat().st_size}
     except BrowserError as e:
         result["chromium"] = {"error": str(e)}
-    result["machine"]["loadavg_after"] = [round(x, 2) for x in os.getloadavg()]
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
+    print(f"wrote {write_result(args.out, result)}")
     m = result["mcap"]
     print(f"run.mcap: {m['bytes'] / 1e6:.2f} MB for {m['flight_s']:.2f} s of flight ({m['camera_frames']} camera "
           f"frames) = {m['mb_per_flight_s']:.3f} MB/s "

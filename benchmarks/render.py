@@ -5,7 +5,7 @@
 For each scene and resolution the camera flies a slow sideways arc while zooming and pulling
 focus (so that nothing can be cached between frames) and SimBackend.step renders every frame
 at 24 fps of simulated time, ground truth included (label pass) and without it. Reports the
-median, p95 and max time per frame and the resulting frames/s. Goal (issue 7): >= 30 fps at
+median, p95 and max time per frame and the resulting frames/s. Goal: >= 30 fps at
 960x540. Wall time is what counts; CPU time (both OpenCV threads) is printed too, because on a
 shared machine it is less disturbed by other load. Writes benchmarks/results/render.json (commit, machine,
 config, figures).
@@ -13,11 +13,8 @@ config, figures).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
-import platform
-import subprocess
 import time
 from pathlib import Path
 
@@ -27,15 +24,12 @@ import numpy as np
 from cinetransfer.services.autopilot_bridge.sim.backend import SimBackend
 from cinetransfer.shared import messages as M
 
+try:
+    from harness import stats, write_result
+except ImportError:  # imported as the benchmarks package
+    from benchmarks.harness import stats, write_result
+
 RESOLUTIONS = ((960, 540), (1280, 720))
-
-
-def commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                              cwd=Path(__file__).parent, check=False).stdout.strip()
-    except OSError:
-        return ""
 
 
 def measure(scene: str, width: int, height: int, samples: int, warmup: int, truth: bool) -> dict:
@@ -63,12 +57,9 @@ def measure(scene: str, width: int, height: int, samples: int, warmup: int, trut
         if k >= warmup:
             times.append(dt * 1e3)
             cpu.append(dc * 1e3)
-    a = np.array(times)
-    med = float(np.median(a))
+    ms = stats(times, digits=2)
     return {"scene": scene, "width": width, "height": height, "truth": truth, "samples": samples,
-            "ms_median": round(med, 2), "ms_p95": round(float(np.percentile(a, 95)), 2),
-            "ms_max": round(float(a.max()), 2), "fps_median": round(1000.0 / med, 1),
-            "cpu_ms_median": round(float(np.median(cpu)), 2)}
+            "ms": ms, "fps_median": round(1000.0 / ms["median"], 1), "cpu_ms": stats(cpu, digits=2)}
 
 
 def main() -> int:
@@ -84,22 +75,17 @@ def main() -> int:
             for truth in (True, False):
                 r = measure(scene, w, h, args.samples, args.warmup, truth)
                 rows.append(r)
-                print(f"{scene:14s} {w}x{h} truth={'yes' if truth else 'no ':3s}  median {r['ms_median']:6.1f} ms "
-                      f"p95 {r['ms_p95']:6.1f} max {r['ms_max']:6.1f}  -> {r['fps_median']:5.1f} fps "
-                      f"(CPU {r['cpu_ms_median']:5.1f} ms/frame, both threads)")
+                print(f"{scene:14s} {w}x{h} truth={'yes' if truth else 'no ':3s}  median {r['ms']['median']:6.1f} ms "
+                      f"p95 {r['ms']['p95']:6.1f} max {r['ms']['max']:6.1f}  -> {r['fps_median']:5.1f} fps "
+                      f"(CPU {r['cpu_ms']['median']:5.1f} ms/frame, both threads)")
     goal = [r for r in rows if r["width"] == 960 and r["truth"]]
     worst = min(r["fps_median"] for r in goal)
     print(f"goal >= 30 fps at 960x540 (with ground truth): worst scene {worst:.1f} fps -> "
           f"{'MET' if worst >= 30 else 'NOT MET'}")
-    load = os.getloadavg()
-    out = {"benchmark": "sim", "commit": commit(), "machine": {"platform": platform.platform(),
-           "cpus": os.cpu_count(), "loadavg_at_end": [round(x, 2) for x in load],
-           "opencv_threads": cv2.getNumThreads()},
-           "config": {"samples": args.samples, "warmup": args.warmup, "fps_sim": 24}, "results": rows,
+    out = {"config": {"samples": args.samples, "warmup": args.warmup, "fps_sim": 24,
+                      "opencv_threads": cv2.getNumThreads()}, "results": rows,
            "goal_fps_960x540": 30, "worst_fps_960x540": worst}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(out, indent=1))
-    print(f"wrote {args.out}  (load average {load[0]:.2f} on {os.cpu_count()} CPUs)")
+    print(f"wrote {write_result(args.out, out)}  (load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs)")
     return 0
 
 

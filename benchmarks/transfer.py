@@ -7,7 +7,7 @@ Runs `cinetransfer transfer` twice (the second time with the first run's style.j
 `--busy` processes spin on the CPU), prints per run: total wall time and its ratio to the clip's
 duration, the flight's wall time per simulated second, the render and solve time per step (from
 the nodes' Health), the planner's over-budget solves; then compares the two recordings (ground
-truth and video) frame by frame. Goal (issue 11): ratio <= 3 on 2 cores, identical results. The
+truth and video) frame by frame. Goal: ratio <= 3 on 2 cores, identical results. The
 verdict judges the flight (pre-roll included), the part simulation time governs, and prints the
 whole command's ratio (two style extractions and the report included) beside it, met or not.
 Writes benchmarks/results/transfer.json.
@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -27,7 +25,12 @@ from pathlib import Path
 import numpy as np
 
 from cinetransfer.report.truthfile import read_truths
-from cinetransfer.shared.data import data_dir
+from cinetransfer.data import data_dir
+
+try:
+    from harness import write_result
+except ImportError:  # imported as the benchmarks package
+    from benchmarks.harness import write_result
 
 HERE = Path(__file__).resolve().parent
 
@@ -117,12 +120,10 @@ def main() -> int:
     print(f"verdict: flight (pre-roll included) {flight_ratio:.2f} x the clip (goal <= 3), whole command "
           f"{ratio:.2f} x (source and output extraction included: {'<= 3' if ratio <= 3 else 'NOT <= 3'}), "
           f"identical results {identical} -> {'goal met' if ok else 'goal NOT met'} for the flight")
-    res = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform()}, "clip_s": clip_s,
+    res = {"clip_s": clip_s,
            "quiet": quiet, "busy": loaded, "busy_processes": args.busy, "agreement": same, "goal_met": ok,
            "ratio_total": ratio, "ratio_flight": flight_ratio}
-    out = HERE / "results" / "transfer.json"
-    out.parent.mkdir(exist_ok=True)
-    out.write_text(json.dumps(res, indent=2, default=str))
+    print(f"wrote {write_result('transfer', res)}")
     return 0 if ok else 1
 
 

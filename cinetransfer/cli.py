@@ -27,14 +27,14 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
                     "a simulated vehicle behind a real MAVLink endpoint"),
     # tools
     "deploy": ("cinetransfer.deploy.cli", "main", "start/stop/inspect a set of nodes from a config"),
-    "monitor": ("cinetransfer.shared.monitor", "main", "live table of keys, rates and alive nodes"),
-    "relay": ("cinetransfer.shared.relay", "main", "forward validated messages from one key to another"),
-    "router": ("cinetransfer.shared.router", "main", "run a Zenoh router"),
+    "monitor": ("cinetransfer.monitor", "main", "live table of keys, rates and alive nodes"),
+    "relay": ("cinetransfer.relay", "main", "forward validated messages from one key to another"),
+    "router": ("cinetransfer.router", "main", "run a Zenoh router"),
     "detect": ("cinetransfer.services.detector.cli", "main", "measure a video: people, joints, focus"),
     "smooth": ("cinetransfer.services.smoother.cli", "smooth_main", "measurements -> style.json"),
-    "extract": ("cinetransfer.services.smoother.cli", "extract_main", "video -> style.json (detect + smooth)"),
+    "extract": ("cinetransfer.extract", "main", "video -> style.json (detect + smooth)"),
     "plot": ("cinetransfer.services.smoother.cli", "plot_main", "plot a style.json"),
-    "plan": ("cinetransfer.services.planner.cli", "main", "fly a style.json in the simulator, in-process"),
+    "plan": ("cinetransfer.plan", "main", "fly a style.json in the simulator, in-process"),
     "transfer": ("cinetransfer.transfer", "main", "source video -> recorded shot + fidelity report"),
     "command": ("cinetransfer.command", "main", "send one command (play, start, stop, hold, ...) as the operator"),
     "replay": ("cinetransfer.replay", "main", "republish a recorded run on Zenoh"),
@@ -43,7 +43,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "record": ("cinetransfer.record", "main", "record live keys of a running rig into an MCAP file"),
     "rerun": ("cinetransfer.rerun_export", "main", "export a recording's plottable values to Rerun (.rrd)"),
     "report": ("cinetransfer.report.cli", "main", "build a fidelity report from a run folder"),
-    "docs": ("cinetransfer.shared.docgen", "main", "generate docs/messages.md from the schemas"),
+    "docs": ("cinetransfer.docgen", "main", "generate docs/messages.md from the schemas"),
 }
 
 

@@ -16,7 +16,7 @@ from typing import Any, Iterator
 
 import zenoh
 
-from cinetransfer.shared.runlog import RAW_ENCODING, RunFormatError, RunReader, _protobuf_class
+from cinetransfer.runlog import RAW_ENCODING, RunFormatError, RunReader, _protobuf_class
 
 
 def key_matcher(key: str) -> Any:

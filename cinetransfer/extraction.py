@@ -14,6 +14,7 @@ from tqdm import tqdm
 from cinetransfer.job import TransferError
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.instructions import load_style, save_style
 
 log = logging.getLogger("cinetransfer.transfer")
 
@@ -101,8 +102,6 @@ def _final_instructions(topic, msg, path: str) -> M.Instructions | None:
 def source_style(args, src: Path, out: Path, session) -> tuple[Path, M.Instructions]:
     """The source's style, written to OUTDIR/style.json: from --style, or extracted by the
     dataflow's own services."""
-    from cinetransfer.services.smoother.instructions import load_style, save_style
-
     style_path = out / "style.json"
     if args.style:
         shutil.copyfile(args.style, style_path)

@@ -73,7 +73,7 @@ def shot_schedule(style: M.Instructions, *, preroll_s: float, settle_s: float, o
     first after the pre-roll) in which the planner frames the shot's first instruction frame.
     A shot shorter than `min_take_s` (a flash cut, frames of a morph) is filmed on in the take
     before it: a re-framing pause for a few frames would cost more than it gives."""
-    from cinetransfer.services.smoother.instructions import shot_segments
+    from cinetransfer.shared.instructions import shot_segments
 
     fps = float(style.fps)
     k = style.image_targets.shape[0]

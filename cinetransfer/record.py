@@ -1,7 +1,7 @@
 """`cinetransfer record KEYEXPR -o RUN.mcap`: record a running rig, outside a transfer.
 
 Everything matching KEYEXPR goes into an MCAP file through the writer a transfer's recording
-uses (shared/runlog.py `RunWriter`: the same channels, schemas, H.264 frames and metadata), so
+uses (cinetransfer/runlog.py `RunWriter`: the same channels, schemas, H.264 frames and metadata), so
 `info`, `echo`, `replay`, Foxglove and Rerun read it alike. It joins a deployment the way
 `monitor` does (the read-only 'observer' of `--deployment`, local by default) unless an endpoint
 is given, and records until Ctrl-C (or SIGTERM), `--duration` seconds or `--count` messages;
@@ -18,8 +18,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from cinetransfer.shared import keys, monitor, zenoh_config
-from cinetransfer.shared.runlog import RunWriter
+from cinetransfer import monitor
+from cinetransfer.shared import keys, zenoh_config
+from cinetransfer.runlog import RunWriter
 
 
 class LiveRecording:

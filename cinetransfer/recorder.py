@@ -1,5 +1,5 @@
 """The recorder of a transfer: every message of the rig into the recording (run.mcap, see
-shared/runlog.py), the take's frames into output.mp4 (H.264) and their ground truth into a list,
+cinetransfer/runlog.py), the take's frames into output.mp4 (H.264) and their ground truth into a list,
 each frame in its slot.
 
 The Zenoh callback only enqueues (key, payload, receive time); one worker thread writes the
@@ -21,7 +21,7 @@ import numpy as np
 
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
-from cinetransfer.shared.runlog import RunWriter
+from cinetransfer.runlog import RunWriter
 from cinetransfer.shared.video import H264Writer
 from cinetransfer.take import Placed, TakeAssembler, TakeSummary
 

@@ -18,7 +18,7 @@ from tqdm import tqdm
 
 from cinetransfer.shared import keys, zenoh_config
 from cinetransfer.shared.node import setup_logging
-from cinetransfer.shared.runlog import RunFormatError, RunReader
+from cinetransfer.runlog import RunFormatError, RunReader
 
 log = logging.getLogger("cinetransfer.replay")
 

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from cinetransfer.shared.runlog import RunFormatError, RunReader
+from cinetransfer.runlog import RunFormatError, RunReader
 
 AXES = ("x", "y", "z")
 ANGLES = ("yaw", "pitch", "roll")
@@ -205,7 +205,7 @@ def write_rrd(series: dict[str, Series], path: Path, recording_name: str, mcap: 
 
 
 def _instructions(run_path: Path, style: str | None) -> Any | None:
-    from cinetransfer.services.smoother.instructions import StyleFileError, load_style_file
+    from cinetransfer.shared.instructions import StyleFileError, load_style_file
 
     path = Path(style) if style else run_path.parent / "style.json"
     if not style and not path.is_file():

@@ -11,7 +11,7 @@ import json
 import sys
 from typing import Any
 
-from cinetransfer.shared.runlog import RunFormatError, RunReader
+from cinetransfer.runlog import RunFormatError, RunReader
 
 COMMAND_SCHEMA = "cinetransfer.Command"
 

@@ -35,7 +35,7 @@ def prepare_security(cfg: DeployConfig, run_dir: Path) -> None:
     from cinetransfer.shared import access
 
     sec = secrets_dir(cfg, run_dir)
-    from cinetransfer.shared.zenoh_config import endpoint_host
+    from cinetransfer.shared.exposure import endpoint_host
 
     links = [ep for r in cfg.routers for i, ep in enumerate(r.argv) if i and r.argv[i - 1] in ("--listen", "--connect")
              and endpoint_host(ep)[0] in ("tls", "quic")]

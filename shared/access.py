@@ -47,7 +47,7 @@ NODE_IDENTITIES = tuple(n.name for n in dataflow.load().nodes.values()
 TOOL_IDENTITIES = (OPERATOR, OBSERVER)
 #: router-to-router links: the link identity (certificate CN) and the identities behind it
 LINKS: dict[str, tuple[str, ...]] = {
-    "ground": ("source", "detector", "smoother", "output_detector", "camera", OPERATOR, OBSERVER),
+    "ground": ("source", "detector", "file_detector", "smoother", "output_detector", "camera", OPERATOR, OBSERVER),
     "onboard": ("planner", "autopilot_bridge"),
 }
 #: identities that get a password in users.txt / a certificate from `deploy certs`

@@ -13,7 +13,7 @@ Mapping (field by field, following the dataclass annotations and `array(...)` me
   {"shape", "dtype", "base64"} holding the raw bytes (bool bit-packed), which keeps them small.
 
 `Frame` is the exception: its image goes on a foxglove CompressedImage channel, so its JSON form
-(`FrameInfo`) has every field but `image` (see shared/runlog.py).
+(`FrameInfo`) has every field but `image` (see cinetransfer/runlog.py).
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Payloads from issue 13's attacks, built byte for byte, shared by the contract and integration tests."""
+"""Payloads of the hostile-input attacks, built byte for byte, shared by the contract and integration tests."""
 from __future__ import annotations
 
 import struct
@@ -10,7 +10,7 @@ DEEP_ARGS_DEPTH = 500
 
 def deep_args_command(depth: int = DEEP_ARGS_DEPTH) -> bytes:
     """The 576-byte Command whose `args` nest 500 lists deep: it raised RecursionError in the
-    codec's `_plain` and ended the bridge, planner and smoother loops (issue 13, point 1)."""
+    codec's `_plain` and ended the bridge, planner and smoother loops."""
     v: object = 1
     for _ in range(depth):
         v = [v]

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from cinetransfer.shared.data import data_dir
+from cinetransfer.data import data_dir
 from cinetransfer.shared.zenoh_config import ZenohOptions, free_tcp_port
 
 REPO = Path(__file__).resolve().parents[1]

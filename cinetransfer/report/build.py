@@ -18,7 +18,7 @@ from cinetransfer.report import fidelity as F
 from cinetransfer.report import figures as figs
 from cinetransfer.report.html import write_html
 from cinetransfer.report.style import StyleLike, StyleLoadError, load_style_any
-from cinetransfer.services.smoother.instructions import shot_segments
+from cinetransfer.shared.instructions import shot_segments, slice_instructions
 from cinetransfer.shared import messages as M
 
 log = logging.getLogger("cinetransfer.report")
@@ -30,7 +30,7 @@ VIDEO = "report_video.mp4"
 
 def _recording(run: Any) -> dict[str, Any]:
     """Size and content of a run.mcap (a shared.runlog.RunReader)."""
-    from cinetransfer.shared.runlog import size_report
+    from cinetransfer.runlog import size_report
 
     topics = {t: c["schema"] or c["encoding"] for t, c in sorted(run.info.channels.items())}
     return {"path": str(run.path), **size_report(run.info), "topics": topics}
@@ -134,8 +134,6 @@ def per_shot(source: M.Instructions, output: M.Instructions | None, truths: list
     """Goals per shot of a multi-shot source (output frame k follows instruction row k), with the
     take's settle figures when the recording was made one take per shot, and each shot's share of
     the truth joint error's floor (`floor`: floor.Floor on the instruction rows, or None)."""
-    from cinetransfer.services.smoother.instructions import slice_instructions
-
     # the takes as flown (very short shots are filmed on in the take before), else the source's shots
     segs = [(int(t["first_row"]), int(t["end_row"])) for t in takes] if takes else shot_segments(source)
     if len(segs) < 2:
@@ -176,7 +174,7 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
     the recording is not a readable cinetransfer MCAP (shared.runlog.RunFormatError).
     """
     t0 = time.monotonic()
-    from cinetransfer.shared.runlog import RunReader
+    from cinetransfer.runlog import RunReader
 
     run = RunReader(recording) if recording else None  # RunFormatError (a ValueError) if unreadable
     rec_info = _recording(run) if run else None

@@ -1,6 +1,6 @@
 """Style fidelity: how closely a recorded shot follows the source's instructions (pure numpy).
 
-Two measures, as issue 8 asks:
+Two measures:
 
 - **by extraction** — the same style extraction run on the recorded output video gives a second
   `Instructions`; its controlled-joint targets and focus booleans are compared with the source's
@@ -27,7 +27,7 @@ planner aims them (shared/facing.py; decided by which way each view faces, never
 error). The number of such frames (`frames_by_image_side`) and the error with left/right matched by
 name (`euclidean_by_name`) are kept next to it, and the report states both.
 
-Goals (issue 8): by extraction, mean joint error <= 0.05 and focus agreement >= 90 % per region;
+Goals: by extraction, mean joint error <= 0.05 and focus agreement >= 90 % per region;
 by ground truth, <= 0.03 and >= 95 %. The joint goal uses the Euclidean error pooled over the
 controlled joints and frames (stricter than either axis alone).
 
@@ -47,7 +47,7 @@ from cinetransfer.shared.facing import faces_opposite, mirror_permutation
 
 REGIONS: tuple[str, ...] = M.FOCUS_REGIONS
 
-#: goal thresholds from issue 8
+#: goal thresholds (docs/report.md)
 EXTRACTION_JOINT_ERROR_MAX = 0.05
 EXTRACTION_FOCUS_AGREEMENT_MIN = 0.90
 TRUTH_JOINT_ERROR_MAX = 0.03

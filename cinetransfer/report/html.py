@@ -102,7 +102,7 @@ def _goals_table(summary: dict[str, Any]) -> str:
         op = {"<=": "≤", ">=": "≥"}.get(g["op"], g["op"])
         rows.append(f"<tr><td class='l'>{_e(g['label'])}</td><td>{val}</td><td>{_e(op)} {thr}</td>"
                     f"<td class='{_status_cls(g['status'])}'>{_e(g['status'])}</td></tr>")
-    return ("<table><tr><th class='l'>goal (issue 8)</th><th>reached</th><th>target</th><th>status</th></tr>"
+    return ("<table><tr><th class='l'>goal</th><th>reached</th><th>target</th><th>status</th></tr>"
             + "".join(rows) + "</table>")
 
 
@@ -386,7 +386,7 @@ def render_html(summary: dict[str, Any], figures: dict[str, Path], *, meta: dict
 <div class="card">
 <span class="badge met">{n_met} met</span><span class="badge missed">{n_missed} missed</span>
 <span class="badge na">{n_na} not measurable</span>
-<span class="small">Goals of issue 8: by extraction on the output, mean joint error ≤ {F.EXTRACTION_JOINT_ERROR_MAX}
+<span class="small">Fidelity goals: by extraction on the output, mean joint error ≤ {F.EXTRACTION_JOINT_ERROR_MAX}
 and focus agreement ≥ {F.EXTRACTION_FOCUS_AGREEMENT_MIN:.0%} per region; by ground truth ≤ {F.TRUTH_JOINT_ERROR_MAX}
 and ≥ {F.TRUTH_FOCUS_AGREEMENT_MIN:.0%}.</span>
 </div>

@@ -1,6 +1,6 @@
 """Accept a style as a file path or as an `Instructions` message (the report's only adapter).
 
-Paths are read with the smoother's own loader (`services/smoother/instructions.py`,
+Paths are read with the smoother's own loader (`shared/instructions.py`,
 `load_style_file`), so the report refuses exactly what the rest of the project refuses.
 """
 from __future__ import annotations
@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any, Union
 
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.instructions import load_style_file
 
 StyleLike = Union[str, os.PathLike, M.Instructions, Any]
 
@@ -28,8 +29,6 @@ def load_style_any(style: StyleLike) -> tuple[M.Instructions, dict[str, Any]]:
         diag = getattr(style, "diagnostics", None)
         return inner, dict(diag) if isinstance(diag, dict) else {}
     if isinstance(style, (str, os.PathLike)):
-        from cinetransfer.services.smoother.instructions import load_style_file
-
         p = Path(style)
         try:
             sf = load_style_file(p)

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from cinetransfer.shared import keys, nodeconfig
+from cinetransfer.shared.nodeconfig import setting
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.errors import ConfigError, report_config_error
 from cinetransfer.shared.node import add_node_arguments, node_from_args
@@ -43,16 +44,19 @@ class CameraConfig:
 
     source: str = ""  #: device index ('0'), URL or file path
     kind: str = "video"  #: 'device', 'url' or 'video'
-    loop: bool = False  #: restart a file at its end
-    realtime: bool = True  #: pace a file at its nominal fps
-    fps: float = 0.0  #: override the nominal rate [Hz]; 0 = the source's
-    max_frames: int = 0  #: stop after this many frames; 0 = no limit
-    queue_len: int = 2  #: reader -> publisher queue (drop-oldest)
-    jpeg_quality: int = 0  #: 0 = raw frames (one host), 1..100 = JPEG (radio links)
-    width: int = 0  #: resize to this width [px] (height keeps the aspect); 0 = as captured
-    focal_length_mm: float = math.nan  #: static lens (NaN = take the lens from VehicleState)
-    focus_distance_m: float = math.nan
-    f_number: float = math.nan
+    loop: bool = setting(False, flag="--loop", help="restart a file at its end")
+    realtime: bool = setting(True, flag="--as-fast-as-possible",
+                             help="do not pace a file at its fps (frames may then be dropped)")
+    fps: float = setting(0.0, flag="--fps", unit="Hz", help="override the nominal frame rate; 0 = the source's")
+    max_frames: int = setting(0, flag="--max-frames", help="stop after N frames (0 = no limit)")
+    queue_len: int = setting(2, flag="--queue", help="reader queue length (drop-oldest)")
+    jpeg_quality: int = setting(0, flag="--jpeg", metavar="QUALITY",
+                                help="publish JPEG of this quality (radio links); 0 = raw frames (one host)")
+    width: int = setting(0, flag="--width", unit="px", help="resize to this width (0 = as captured)")
+    #: a static lens (NaN = take the lens from VehicleState)
+    focal_length_mm: float = setting(math.nan, flag="--focal-length", unit="mm", help="static lens: focal length")
+    focus_distance_m: float = setting(math.nan, flag="--focus", unit="m", help="static lens: focus distance")
+    f_number: float = setting(math.nan, flag="--f-number", help="static lens: f-number")
 
     def __post_init__(self) -> None:
         if self.kind not in ("device", "url", "video") or not self.source:
@@ -72,54 +76,28 @@ class CameraConfig:
 
 
 _SOURCES = ("device", "url", "video")
-#: flag dest -> CameraConfig field (a flag that was given overrides the node's settings)
-_FLAG_FIELDS = {"loop": "loop", "fps": "fps", "max_frames": "max_frames", "queue": "queue_len",
-                "jpeg": "jpeg_quality", "width": "width", "focal_length": "focal_length_mm",
-                "focus": "focus_distance_m", "f_number": "f_number"}
-_FIELD_TYPES = {"loop": bool, "realtime": bool, "fps": float, "max_frames": int, "queue_len": int,
-                "jpeg_quality": int, "width": int, "focal_length_mm": float, "focus_distance_m": float,
-                "f_number": float}
-
-
-def settings_fields(d: dict[str, Any]) -> dict[str, Any]:
-    """CameraConfig fields from the node's settings (shared/nodeconfig.py): one of device/url/video
-    as the source, the other fields by name; unknown keys and values of the wrong kind are refused."""
-    unknown = sorted(set(d) - set(_SOURCES) - set(_FIELD_TYPES))
-    if unknown:
-        allowed = sorted(_SOURCES + tuple(_FIELD_TYPES))
-        raise ConfigError(f"camera config: unknown field(s) {unknown}; allowed: {allowed}")
-    out: dict[str, Any] = {}
-    given = [k for k in _SOURCES if d.get(k) is not None]
-    if len(given) > 1:
-        raise ConfigError(f"camera config: give one source, not {given}")
-    if given:
-        out["kind"], out["source"] = given[0], str(d[given[0]])
-    for k, t in _FIELD_TYPES.items():
-        if k in d:
-            out[k] = _typed(k, d[k], t)
-    return out
-
-
-def _typed(name: str, v: Any, t: type) -> Any:
-    if t is bool:
-        if not isinstance(v, bool):
-            raise ConfigError(f"camera.{name}: must be true or false, got {v!r}")
-        return v
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or (t is int and v != int(v)):
-        raise ConfigError(f"camera.{name}: must be {'an integer' if t is int else 'a number'}, got {v!r}")
-    return t(v)
 
 
 def config_from_args(args: argparse.Namespace, settings: dict[str, Any]) -> CameraConfig:
-    """The node's settings, then the flags that were given."""
-    f = settings_fields(settings)
+    """The node's settings, then the flags that were given: the source is one of device/url/video
+    (a source flag replaces the file's), the other fields are the config idiom's
+    (shared/nodeconfig.py)."""
+    settings = dict(settings)
+    allowed = sorted({*_SOURCES, *(f.name for f in dataclasses.fields(CameraConfig))} - {"kind", "source"})
+    unknown = sorted(set(settings) - set(allowed))
+    if unknown:  # before the source check: a misspelt 'video' is named as such
+        raise ConfigError(f"camera config: unknown field(s) {unknown}; allowed: {allowed}")
+    given = [k for k in _SOURCES if settings.get(k) is not None]
+    if len(given) > 1:
+        raise ConfigError(f"camera config: give one source, not {given}")
+    kind, source = (given[0], str(settings[given[0]])) if given else ("video", "")
+    for k in _SOURCES:
+        settings.pop(k, None)
     flag_source = [k for k in _SOURCES if getattr(args, k, None) is not None]
     if flag_source:
-        f["kind"], f["source"] = flag_source[0], str(getattr(args, flag_source[0]))
-    f.update({field: getattr(args, dest) for dest, field in _FLAG_FIELDS.items() if getattr(args, dest) is not None})
-    if args.as_fast_as_possible:
-        f["realtime"] = False
-    return CameraConfig(**f)
+        kind, source = flag_source[0], str(getattr(args, flag_source[0]))
+    return nodeconfig.config_from_args(CameraConfig, args, NODE_NAME, base=CameraConfig(source=source, kind=kind),
+                                       section=settings)
 
 
 class FrameReader:
@@ -232,17 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--device", help="video device index (e.g. 0)")
     src.add_argument("--url", help="stream URL (rtsp://, http://, udp://; anything OpenCV/FFmpeg reads)")
     src.add_argument("--video", help="video file")
-    ap.add_argument("--loop", action="store_true", default=None, help="restart a file at its end")
-    ap.add_argument("--as-fast-as-possible", action="store_true",
-                    help="do not pace a file at its fps (frames may then be dropped)")
-    ap.add_argument("--fps", type=float, default=None, help="override the nominal frame rate [Hz]")
-    ap.add_argument("--max-frames", type=int, default=None, help="stop after N frames (0 = no limit)")
-    ap.add_argument("--queue", type=int, default=None, help="reader queue length (drop-oldest)")
-    ap.add_argument("--jpeg", type=int, default=None, metavar="QUALITY", help="publish JPEG of this quality (radio)")
-    ap.add_argument("--width", type=int, default=None, help="resize to this width [px]")
-    ap.add_argument("--focal-length", type=float, default=None, metavar="MM", help="static lens: focal length")
-    ap.add_argument("--focus", type=float, default=None, metavar="M", help="static lens: focus distance")
-    ap.add_argument("--f-number", type=float, default=None, help="static lens: f-number")
+    nodeconfig.add_settings_arguments(ap, CameraConfig, "camera")
     add_node_arguments(ap)
     return ap
 

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from cinetransfer.shared.errors import ConfigError
+from cinetransfer.shared.nodeconfig import setting
 from cinetransfer.shared.signing_key import read_signing_key
 from cinetransfer.shared.vehicle import VehicleProfile
 
@@ -56,28 +57,33 @@ class SafetyConfig:
     """
 
     #: home point [m], world frame: centre of the geofence; altitudes are measured from its z.
-    home_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    home_m: tuple[float, float, float] = setting((0.0, 0.0, 0.0), flag="--home", unit="m", metavar="X,Y,Z",
+                                                 help="geofence centre, world frame")
     #: 'cylinder' (radius around home, in x/y) or 'box' (x/y half-extents around home).
-    geofence_shape: str = "cylinder"
+    geofence_shape: str = setting("cylinder", flag="--geofence", choices=GEOFENCE_SHAPES, help="geofence shape")
     #: cylinder radius [m] (shape 'cylinder'), 1..10000.
-    geofence_radius_m: float = 60.0
+    geofence_radius_m: float = setting(60.0, flag="--geofence-radius", unit="m", metavar="M",
+                                       help="cylinder radius around home")
     #: box half-extents (x, y) [m] around home (shape 'box').
-    geofence_half_extent_m: tuple[float, float] = (60.0, 60.0)
+    geofence_half_extent_m: tuple[float, float] = setting((60.0, 60.0), flag="--geofence-half-extent", unit="m",
+                                                          metavar="X,Y", help="box half-extents around home")
     #: altitude band above home [m]: setpoints below/above are clamped.
-    altitude_min_m: float = 1.0
-    altitude_max_m: float = 40.0
+    altitude_min_m: float = setting(1.0, flag="--alt-min", unit="m", metavar="M", help="altitude band above home")
+    altitude_max_m: float = setting(40.0, flag="--alt-max", unit="m", metavar="M", help="altitude band above home")
     #: speed limit [m/s]: clamps the velocity feed-forward AND how fast the commanded position
     #: may move (a jump in the position setpoint is approached at this speed).
-    max_speed_mps: float = 2.0
+    max_speed_mps: float = setting(2.0, flag="--max-speed", unit="m/s", metavar="M/S", help="speed limit")
     #: vertical speed limit [m/s] (the vehicle's climb/descent rate): clamps the vertical velocity
     #: feed-forward and how fast the commanded position may move up or down.
     max_climb_mps: float = 1.0
     #: acceleration limit [m/s^2]: clamps the acceleration feed-forward and the change of the
     #: velocity feed-forward between ticks.
-    max_accel_mps2: float = 1.2
+    max_accel_mps2: float = setting(1.2, flag="--max-accel", unit="m/s^2", metavar="M/S2",
+                                    help="acceleration limit")
     #: minimum horizontal distance [m] between the commanded position and the subject's centre
     #: (CineMPC: 2 m, DESIGN §4); 0 disables.
-    min_subject_distance_m: float = 2.0
+    min_subject_distance_m: float = setting(2.0, flag="--min-subject-distance", unit="m", metavar="M",
+                                            help="minimum horizontal distance to the subject; 0 disables")
     #: subject state older than this [s] is ignored by the distance rule.
     subject_timeout_s: float = 1.0
     #: camera pitch band [rad] (positive = looking up) and |roll| limit [rad].
@@ -92,7 +98,8 @@ class SafetyConfig:
     f_number_min: float = 1.0
     f_number_max: float = 22.0
     #: watchdog [s]: no fresh accepted setpoint for this long -> hold position.
-    watchdog_timeout_s: float = 0.5
+    watchdog_timeout_s: float = setting(0.5, flag="--watchdog", unit="s", metavar="S",
+                                        help="hold when no fresh setpoint for this long")
     #: the measured vehicle counts as outside the envelope (geofence or altitude band) once it is
     #: more than this [m] beyond it (tracking noise at the fence is not a breach), 0..10.
     breach_tolerance_m: float = 0.25
@@ -175,21 +182,22 @@ class MavlinkConfig:
 
     #: pymavlink connection string: 'udpin:0.0.0.0:14540' (listen), 'udpout:127.0.0.1:14550'
     #: (send first), 'tcp:127.0.0.1:5760', '/dev/ttyACM0' (serial, see baud_rate).
-    url: str = "udpin:127.0.0.1:14540"
+    url: str = setting("udpin:127.0.0.1:14540", flag="--mavlink", metavar="URL", help="pymavlink connection string")
     baud_rate: int = 921600
     #: 'px4' (OFFBOARD), 'ardupilot' (GUIDED) or 'auto' (from the vehicle's HEARTBEAT).
-    autopilot: str = "auto"
+    autopilot: str = setting("auto", flag="--autopilot", choices=AUTOPILOTS, help="autopilot flavour")
     #: our own MAVLink ids (an onboard computer: MAV_COMP_ID_ONBOARD_COMPUTER = 191).
     source_system: int = 245
     source_component: int = 191
     #: vehicle ids; 0 = take them from the first autopilot HEARTBEAT.
-    target_system: int = 0
+    target_system: int = setting(0, flag="--target-system", help="vehicle system id; 0 = from its HEARTBEAT")
     target_component: int = 0
     #: camera / gimbal component ids; 0 = send to the autopilot component (it forwards).
     camera_component: int = 0
     gimbal_device_id: int = 0
     #: rate of the SET_POSITION_TARGET_LOCAL_NED stream [Hz] (PX4 OFFBOARD needs > 2 Hz).
-    setpoint_rate_hz: float = 20.0
+    setpoint_rate_hz: float = setting(20.0, flag="--setpoint-rate", unit="Hz", metavar="HZ",
+                                      help="rate of the setpoint stream")
     #: most lens commands (zoom / focus / aperture) sent per second, per parameter [Hz].
     lens_command_rate_hz: float = 5.0
     #: rate of our HEARTBEAT [Hz].
@@ -198,16 +206,20 @@ class MavlinkConfig:
     telemetry_rate_hz: float = 50.0
     #: nothing (HEARTBEAT or telemetry) from the vehicle for this long [s] -> link lost
     #: (VehicleState invalid, hold). The link comes back with the next HEARTBEAT.
-    link_timeout_s: float = 1.5
+    link_timeout_s: float = setting(1.5, flag="--link-timeout", unit="s", metavar="S",
+                                    help="nothing from the vehicle for this long: link lost")
     #: link lost for this long [s] -> close and reopen the connection (then every period).
     reopen_period_s: float = 3.0
     #: wait at most this long [s] in start() for the first HEARTBEAT.
-    connect_timeout_s: float = 10.0
+    connect_timeout_s: float = setting(10.0, flag="--connect-timeout", unit="s", metavar="S",
+                                       help="wait this long at start for the first HEARTBEAT")
     #: after a link loss, re-enter OFFBOARD/GUIDED by itself once the link is back (else wait
     #: for an 'engage' command).
-    reengage_after_link_loss: bool = False
+    reengage_after_link_loss: bool = setting(False, flag="--reengage",
+                                             help="re-enter OFFBOARD/GUIDED by itself after a link loss")
     #: arm and switch to OFFBOARD/GUIDED on start (also: the 'engage' bridge command).
-    engage_on_start: bool = False
+    engage_on_start: bool = setting(False, flag="--engage",
+                                    help="arm and enter OFFBOARD/GUIDED at start (else wait for an 'engage' command)")
     #: ArduPilot needs a take-off when landed before GUIDED position targets move it [m].
     takeoff_altitude_m: float = 3.0
     #: offset of the autopilot's local NED origin in the world frame [m] (ENU, z up).
@@ -280,29 +292,35 @@ class BridgeConfig:
     """The autopilot_bridge node."""
 
     #: 'sim' (built-in simulator, the default) or 'mavlink' (flight controller / sim-vehicle).
-    backend: str = "sim"
+    backend: str = setting("sim", flag="--backend", choices=BACKENDS, help="vehicle backend")
     #: simulator scene: a bundled scene name or a path to a scene file (sim backend only).
-    scene: str = "lawn_juggler"
+    scene: str = setting("lawn_juggler", flag="--scene", help="simulator scene name or file (sim backend)")
     #: simulator subject: a person from the subject library in place of the scene's own ('' = the scene's).
-    subject: str = ""
+    subject: str = setting("", flag="--subject", help="simulator subject from the library in place of the scene's")
     #: vehicle profile (deploy/vehicles NAME or a path; '' = the default): the simulator flies it;
     #: `safety` and `mavlink`'s sensor are built from it by the service.
     vehicle: str = ""
     #: control loop rate [Hz]: setpoints are checked, the backend stepped and state published.
-    rate_hz: float = 50.0
+    rate_hz: float = setting(50.0, flag="--rate", unit="Hz", metavar="HZ", help="control loop rate")
     #: publish frames as JPEG of this quality (1..100) for a radio link; 0 = raw (one host).
-    jpeg_quality: int = 0
+    jpeg_quality: int = setting(0, flag="--jpeg", metavar="QUALITY",
+                                help="publish frames as JPEG of this quality (radio links); 0 = raw")
     #: publish VehicleState every n-th tick (1 = every tick).
     state_every_n: int = 1
     #: sim backend: 'lockstep' (the bridge owns simulation time, steps wait for the planner,
     #: no frame is ever skipped) or 'realtime' (wall clock, late frames skipped and counted).
-    sim_clock: str = "lockstep"
+    sim_clock: str = setting("lockstep", flag="--realtime", const="realtime",
+                             help="sim backend: run on the wall clock (frames may be skipped) instead of owning "
+                                  "simulation time in lockstep with the planner")
     #: sim clock: simulated seconds per control step (one planner setpoint per step).
-    step_s: float = 0.05
+    step_s: float = setting(0.05, flag="--step", unit="s", metavar="S",
+                            help="sim clock: simulated seconds per control step (0.05 = the planner's 20 Hz)")
     #: sim clock: simulated seconds per wall second to aim at; 0 = as fast as possible.
-    pace: float = 1.0
+    pace: float = setting(1.0, flag="--pace", metavar="X",
+                          help="sim clock: simulated seconds per wall second to aim at (0 = as fast as possible)")
     #: sim clock: longest wall wait [s] for the planner's setpoint of a step (counted when hit).
-    setpoint_wait_s: float = 30.0
+    setpoint_wait_s: float = setting(30.0, flag="--setpoint-wait", unit="s", metavar="S",
+                                     help="sim clock: longest wall wait for the planner's setpoint of a step")
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
 

@@ -26,7 +26,7 @@ import time
 from typing import Any
 
 from cinetransfer.services.autopilot_bridge.config import (
-    AUTOPILOTS, BACKENDS, GEOFENCE_SHAPES, BridgeConfig, ConfigError, MavlinkConfig, SafetyConfig)
+    BridgeConfig, ConfigError, MavlinkConfig, SafetyConfig)
 from cinetransfer.services.autopilot_bridge.core import BridgeCore
 from cinetransfer.services.autopilot_bridge.port import VehiclePort
 from cinetransfer.shared import keys, nodeconfig
@@ -41,124 +41,36 @@ SIM_MAX_FRAME_LAG_S = 0.2
 
 
 # ----------------------------------------------------------------------------- config
-def _floats(n: int):
-    def parse(text: str) -> tuple[float, ...]:
-        try:
-            vals = tuple(float(x) for x in text.split(","))
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {n} comma-separated numbers, got {text!r}") from None
-        if len(vals) != n:
-            raise argparse.ArgumentTypeError(f"expected {n} comma-separated numbers, got {text!r}")
-        return vals
-    return parse
-
-
-#: flag dest -> (config section, field)
-_FLAG_FIELDS = {
-    "backend": ("bridge", "backend"), "scene": ("bridge", "scene"), "subject": ("bridge", "subject"),
-    "rate": ("bridge", "rate_hz"),
-    "jpeg": ("bridge", "jpeg_quality"), "realtime": ("bridge", "sim_clock"), "step": ("bridge", "step_s"),
-    "pace": ("bridge", "pace"), "setpoint_wait": ("bridge", "setpoint_wait_s"),
-    "home": ("safety", "home_m"), "geofence": ("safety", "geofence_shape"),
-    "geofence_radius": ("safety", "geofence_radius_m"), "geofence_half_extent": ("safety", "geofence_half_extent_m"),
-    "alt_min": ("safety", "altitude_min_m"), "alt_max": ("safety", "altitude_max_m"),
-    "max_speed": ("safety", "max_speed_mps"), "max_accel": ("safety", "max_accel_mps2"),
-    "min_subject_distance": ("safety", "min_subject_distance_m"), "watchdog": ("safety", "watchdog_timeout_s"),
-    "mavlink": ("mavlink", "url"), "autopilot": ("mavlink", "autopilot"), "engage": ("mavlink", "engage_on_start"),
-    "reengage": ("mavlink", "reengage_after_link_loss"), "link_timeout": ("mavlink", "link_timeout_s"),
-    "setpoint_rate": ("mavlink", "setpoint_rate_hz"), "target_system": ("mavlink", "target_system"),
-    "connect_timeout": ("mavlink", "connect_timeout_s"),
-}
-
-
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="cinetransfer autopilot_bridge",
                                  description="vehicle bridge: safety layer + built-in simulator or MAVLink")
     nodeconfig.add_config_arguments(ap, NODE_NAME)
     add_vehicle_argument(ap)
-    g = ap.add_argument_group("bridge")
-    g.add_argument("--backend", choices=BACKENDS, default=None, help="vehicle backend (default sim)")
-    g.add_argument("--scene", default=None, help="simulator scene name or file (sim backend)")
-    g.add_argument("--subject", default=None, help="simulator subject from the library in place of the scene's")
-    g.add_argument("--rate", type=float, default=None, metavar="HZ", help="control loop rate (default 50)")
-    g.add_argument("--jpeg", type=int, default=None, metavar="QUALITY",
-                   help="publish frames as JPEG of this quality (for radio links); default raw")
-    g.add_argument("--realtime", action="store_const", const="realtime", default=None,
-                   help="sim backend: run on the wall clock (frames may be skipped) instead of owning "
-                        "simulation time in lockstep with the planner")
-    g.add_argument("--step", type=float, default=None, metavar="S",
-                   help="sim clock: simulated seconds per control step (default 0.05 = the planner's 20 Hz)")
-    g.add_argument("--pace", type=float, default=None, metavar="X",
-                   help="sim clock: simulated seconds per wall second to aim at (default 1; 0 = as fast as possible)")
-    g.add_argument("--setpoint-wait", type=float, default=None, metavar="S",
-                   help="sim clock: longest wall wait for the planner's setpoint of a step (default 30)")
-    s = ap.add_argument_group("safety")
-    s.add_argument("--home", type=_floats(3), default=None, metavar="X,Y,Z", help="geofence centre [m], world")
-    s.add_argument("--geofence", choices=GEOFENCE_SHAPES, default=None, help="geofence shape (default cylinder)")
-    s.add_argument("--geofence-radius", type=float, default=None, metavar="M")
-    s.add_argument("--geofence-half-extent", type=_floats(2), default=None, metavar="X,Y")
-    s.add_argument("--alt-min", type=float, default=None, metavar="M", help="altitude band above home")
-    s.add_argument("--alt-max", type=float, default=None, metavar="M")
-    s.add_argument("--max-speed", type=float, default=None, metavar="M/S")
-    s.add_argument("--max-accel", type=float, default=None, metavar="M/S2")
-    s.add_argument("--min-subject-distance", type=float, default=None, metavar="M")
-    s.add_argument("--watchdog", type=float, default=None, metavar="S",
-                   help="hold when no fresh setpoint for this long (default 0.5)")
-    m = ap.add_argument_group("mavlink")
-    m.add_argument("--mavlink", default=None, metavar="URL", help="pymavlink connection string")
-    m.add_argument("--autopilot", choices=AUTOPILOTS, default=None)
-    m.add_argument("--engage", action="store_true", default=None,
-                   help="arm and enter OFFBOARD/GUIDED at start (else wait for an 'engage' command)")
-    m.add_argument("--reengage", action="store_true", default=None,
-                   help="re-enter OFFBOARD/GUIDED by itself after a link loss")
-    m.add_argument("--link-timeout", type=float, default=None, metavar="S")
-    m.add_argument("--setpoint-rate", type=float, default=None, metavar="HZ")
-    m.add_argument("--target-system", type=int, default=None)
-    m.add_argument("--connect-timeout", type=float, default=None, metavar="S")
+    nodeconfig.add_settings_arguments(ap, BridgeConfig, "bridge")
     add_node_arguments(ap)
     return ap
-
-
-def _tuplify(d: dict[str, Any]) -> dict[str, Any]:
-    return {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
-
-
-def _sections(settings: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """The node's settings split into bridge fields and the safety: / mavlink: sub-sections.
-
-    Bridge fields stand at the top (a deploy config's `settings`) or under `bridge:` (a file of
-    the bridge's own)."""
-    settings = dict(settings)
-    out: dict[str, dict[str, Any]] = {}
-    for sec in ("bridge", "safety", "mavlink"):
-        vals = settings.pop(sec, None) or {}
-        if not isinstance(vals, dict):
-            raise ConfigError(f"autopilot_bridge config: {sec} must be a mapping")
-        out[sec] = _tuplify(vals)
-    out["bridge"].update(_tuplify(settings))
-    return out
 
 
 def config_from_args(args: argparse.Namespace) -> BridgeConfig:
     """The vehicle profile's limits, then the node's settings (shared/nodeconfig.py), then flags.
 
-    Raises ConfigError naming the field."""
-    sections = _sections(nodeconfig.args_section(args, NODE_NAME))
-    for dest, (sec, fld) in _FLAG_FIELDS.items():
-        v = getattr(args, dest, None)
-        if v is not None:
-            sections[sec][fld] = v
+    Bridge fields stand at the top of the settings (a deploy config) or under `bridge:` (a file
+    of the bridge's own), beside the `safety:` and `mavlink:` groups. Raises ConfigError naming
+    the field."""
+    section = nodeconfig.args_section(args, NODE_NAME)
+    bridge = section.pop("bridge", None) or {}
+    if not isinstance(bridge, dict):
+        raise ConfigError(f"{NODE_NAME} config: bridge must be a mapping")
+    section.update(bridge)
     if getattr(args, "vehicle", None):
-        sections["bridge"]["vehicle"] = args.vehicle
-    vehicle = load_vehicle(sections["bridge"].get("vehicle") or None)
+        section["vehicle"] = args.vehicle
+    vehicle = load_vehicle(section.get("vehicle") or None)
     cam = vehicle.camera
-    mav = {"sensor_width_mm": cam.sensor_width_mm, "sensor_height_mm": cam.sensor_height_mm, "coc_mm": cam.coc_mm,
-           "focal_length_range_mm": tuple(vehicle.lens.focal_length_mm), **sections["mavlink"]}
-    try:
-        safety = SafetyConfig.from_vehicle(vehicle, **sections["safety"])
-        return BridgeConfig(safety=safety, mavlink=MavlinkConfig(**mav), **sections["bridge"])
-    except TypeError as e:  # unknown field name in the file
-        raise ConfigError(f"autopilot_bridge config: {e}") from None
+    base = BridgeConfig(safety=SafetyConfig.from_vehicle(vehicle),
+                        mavlink=MavlinkConfig(sensor_width_mm=cam.sensor_width_mm,
+                                              sensor_height_mm=cam.sensor_height_mm, coc_mm=cam.coc_mm,
+                                              focal_length_range_mm=tuple(vehicle.lens.focal_length_mm)))
+    return nodeconfig.config_from_args(BridgeConfig, args, NODE_NAME, base=base, section=section)
 
 
 # ----------------------------------------------------------------------------- backends

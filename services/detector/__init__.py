@@ -1,6 +1,6 @@
 """Detector: people (box, confidence, mask), COCO-17 skeletons and an in-focus map per frame.
 
-Public API (imported lazily, so `import cinetransfer.services.detector.measurements_file` stays light):
+Public API (imported lazily, so `import cinetransfer.shared.measurements_file` stays light):
 
     from cinetransfer.services.detector import Detector, DetectorConfig, iter_frames
     from cinetransfer.services.detector import read_measurements, write_measurements
@@ -16,14 +16,16 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+_FRAMES = "cinetransfer.shared.frame_sources"
+_MEAS = "cinetransfer.shared.measurements_file"
 _EXPORTS = {
     "Detector": "core", "DetectorError": "core",
     "DetectorConfig": "config", "ConfigError": "config",
-    "iter_frames": "sources", "probe": "sources", "FrameSourceError": "sources", "SourceFrame": "sources",
-    "read_measurements": "measurements_file", "write_measurements": "measurements_file",
-    "iter_measurements": "measurements_file", "read_header": "measurements_file",
-    "MeasurementsWriter": "measurements_file", "MeasurementsFile": "measurements_file",
-    "MeasurementsFileError": "measurements_file",
+    "iter_frames": _FRAMES, "probe": _FRAMES, "FrameSourceError": _FRAMES, "SourceFrame": _FRAMES,
+    "read_measurements": _MEAS, "write_measurements": _MEAS,
+    "iter_measurements": _MEAS, "read_header": _MEAS,
+    "MeasurementsWriter": _MEAS, "MeasurementsFile": _MEAS,
+    "MeasurementsFileError": _MEAS,
     "FocusEstimator": "focus",
 }
 __all__ = sorted(_EXPORTS)
@@ -33,4 +35,4 @@ def __getattr__(name: str) -> Any:
     mod = _EXPORTS.get(name)
     if mod is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(importlib.import_module(f"{__name__}.{mod}"), name)
+    return getattr(importlib.import_module(mod if "." in mod else f"{__name__}.{mod}"), name)

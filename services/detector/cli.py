@@ -16,6 +16,8 @@ from typing import Any
 
 from cinetransfer.services.detector.config import add_config_arguments, config_from_args
 from cinetransfer.shared.errors import ConfigError, report_config_error
+from cinetransfer.shared.frame_sources import FrameSourceError, iter_frames, probe
+from cinetransfer.shared.measurements_file import MeasurementsWriter
 
 log = logging.getLogger("cinetransfer.detector")
 
@@ -47,7 +49,6 @@ def _start(args: argparse.Namespace) -> tuple[Any, Any, Path, Any] | int:
         log.error("--start/--stop: need 0 <= start < stop")
         return 2
     from cinetransfer.services.detector.core import Detector, DetectorError
-    from cinetransfer.services.detector.sources import FrameSourceError, probe
 
     try:
         info = probe(args.source, hash_file=args.hash, fps=args.fps)
@@ -73,9 +74,6 @@ class _Run:
 
     def measure(self, args: argparse.Namespace, cfg: Any, info: Any, out: Path, det: Any) -> None:
         from tqdm import tqdm
-
-        from cinetransfer.services.detector.measurements_file import MeasurementsWriter
-        from cinetransfer.services.detector.sources import iter_frames
 
         total = info.n_frames
         if total:
@@ -110,7 +108,6 @@ def main(argv: list[str]) -> int:
     if isinstance(started, int):
         return started
     cfg, info, out, det = started
-    from cinetransfer.services.detector.sources import FrameSourceError
 
     run, rc = _Run(), 0
     try:

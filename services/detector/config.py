@@ -5,7 +5,9 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-from cinetransfer.shared.errors import ConfigError
+from cinetransfer.shared import nodeconfig
+from cinetransfer.shared.errors import ConfigError  # noqa: F401 (callers import it from here)
+from cinetransfer.shared.nodeconfig import setting
 
 BACKENDS = ("box_first", "mediapipe", "torchvision")
 LANDMARK_MODELS = ("full", "heavy")
@@ -20,11 +22,14 @@ class DetectorConfig:
     Pose (people, masks, skeletons):
     """
 
-    backend: str = "box_first"  # 'box_first' (SSD boxes, then landmarks per box; models from npm at install),
+    backend: str = setting("box_first", flag="--backend", choices=BACKENDS, help="pose backend")
+    #                             'box_first' (SSD boxes, then landmarks per box; models from npm at install),
     #                             'mediapipe' (face-anchored landmarker from the wheel) or 'torchvision' (user weights)
     # --- box_first backend (box_first.py): if its models are not installed it reports itself
     #     unavailable and the detector runs the mediapipe backend instead
-    bf_landmark_model: str = "full"  # landmark model per box: 'full' (~12 ms/person) or 'heavy' (~40 ms/person)
+    bf_landmark_model: str = setting("full", flag="--landmark-model", choices=LANDMARK_MODELS,
+                                     help="box_first: landmark model per person box: 'full' (~12 ms/person) "
+                                          "or 'heavy' (~40 ms/person)")
     bf_score_threshold: float = 0.35  # SSD Person score threshold, (0, 1) (scores are compressed: 0.5 misses most)
     bf_score_full: float = 0.55  # SSD score that counts as a certain person (confidence scale), > bf_score_threshold
     bf_nms_iou: float = 0.5  # SSD boxes overlapping more than this (IoU) are one, (0, 1]
@@ -39,13 +44,17 @@ class DetectorConfig:
     bf_track_iou: float = 0.3  # a person overlapping one of the previous frame this much keeps its track id, (0, 1]
     bf_threads: int = 1  # LiteRT threads per model (the other core runs the focus map), 1..4
     # --- mediapipe backend
-    num_poses: int = 6  # most people reported per frame, 1..20
+    num_poses: int = setting(6, flag="--num-poses", range="[1, 20]", help="max people per frame")
     min_detection_confidence: float = 0.3  # person-detector score threshold, [0, 1]
     min_presence_confidence: float = 0.3  # landmark presence threshold to keep a tracked pose, [0, 1]
     min_tracking_confidence: float = 0.3  # tracking threshold (video mode), [0, 1]
-    running_mode: str = "video"  # 'video' (temporal tracking; needs increasing stamps) or 'image'
-    upscale_max_side_px: int = 0  # run pose on the frame upscaled so its long side is this (0 = off)
-    tiles: int = 0  # extra pass over N overlapping vertical tiles (small/far people), 0 = off, 0..4
+    running_mode: str = setting("video", flag="--running-mode", choices=RUNNING_MODES,
+                                help="mediapipe mode: 'video' tracks over frames (needs increasing stamps)")
+    upscale_max_side_px: int = setting(0, flag="--upscale", unit="px", metavar="PX",
+                                       help="run pose on the frame upscaled to this long side, for small "
+                                            "people (0 = off)")
+    tiles: int = setting(0, flag="--tiles", range="[0, 4]",
+                         help="extra pose pass over N overlapping vertical tiles (small, far people); 0 = off")
     mask_threshold: float = 0.5  # segmentation probability that counts as person, (0, 1)
     # masks snapped to image edges within this radius, cut to the pieces holding the person's joints
     mask_refine_radius_px: int = 3  # (subject_mask.py) [px], 0 = off, 0..20
@@ -54,24 +63,29 @@ class DetectorConfig:
     min_box_height_px: int = 8  # ignore people smaller than this [px]
     # --- fallback person detector (any backend): finds people the pose model misses (back views,
     #     crowds) as box-only detections; costs ~50-90 ms/frame on one core, so off by default
-    person_fallback: str = "none"  # 'none' or 'hog' (OpenCV's built-in HOG pedestrian detector)
+    person_fallback: str = setting("none", flag="--fallback", choices=FALLBACKS,
+                                   help="extra person detector for people the pose model misses "
+                                        "('hog': OpenCV's HOG pedestrian detector)")
     hog_work_height_px: int = 384  # frames are downscaled to this height for HOG [px]
     hog_min_score: float = 0.0  # HOG SVM margin threshold (higher = fewer, surer boxes)
     hog_box_shrink_xy: tuple[float, float] = (0.5, 0.8)  # HOG window -> person box, about its centre
     fallback_overlap: float = 0.3  # a fallback box overlapping a pose person this much (IoU) is dropped
     # --- torchvision backend (user-supplied checkpoints; see torchvision_backend.py)
-    tv_mask_checkpoint: str = ""  # Mask R-CNN state_dict file ('' = none)
-    tv_keypoint_checkpoint: str = ""  # Keypoint R-CNN state_dict file ('' = none)
+    tv_mask_checkpoint: str = setting("", flag="--mask-checkpoint", metavar="FILE",
+                                      help="torchvision Mask R-CNN state_dict (backend torchvision; '' = none)")
+    tv_keypoint_checkpoint: str = setting("", flag="--keypoint-checkpoint", metavar="FILE",
+                                          help="torchvision Keypoint R-CNN state_dict (backend torchvision)")
     tv_mask_arch: str = "maskrcnn_resnet50_fpn"  # or 'maskrcnn_resnet50_fpn_v2'
     tv_keypoint_arch: str = "keypointrcnn_resnet50_fpn"
     tv_person_label: int = 1  # class index of 'person' in the checkpoint (COCO: 1)
     tv_score_threshold: float = 0.5  # keep detections scoring at least this, [0, 1]
     tv_min_size_px: int = 800  # torchvision's resize (short side) [px]
     tv_max_size_px: int = 1333  # torchvision's resize (long side cap) [px]
-    tv_device: str = "cpu"  # torch device ('cpu', 'cuda', 'cuda:1', ...)
+    tv_device: str = setting("cpu", flag="--device", help="torch device for the torchvision backend")
     # --- focus (Zhuo & Sim 2011 edge-based defocus; no weights)
-    focus: bool = True  # compute the focus map
-    focus_work_width_px: int = 640  # width the estimator works at (frames are downscaled to it)
+    focus: bool = setting(True, flag="--no-focus", help="skip the focus map")
+    focus_work_width_px: int = setting(640, flag="--focus-width", unit="px", range="[32, 4096]", metavar="PX",
+                                       help="focus estimator working width (frames are downscaled to it)")
     focus_map_width_px: int = 160  # width of the published focus map [px] (height keeps the aspect)
     focus_reblur_sigma_px: float = 1.0  # re-blur Gaussian sigma sigma0 [work px]
     focus_sigma_threshold_px: float = 1.0  # defocus sigma at which P(in focus) = 0.5 [work px]
@@ -80,7 +94,8 @@ class DetectorConfig:
     focus_propagation_sigma_px: float = 10.0  # spatial scale of sparse-to-dense propagation [work px]
     focus_no_edge_prior: float = 0.3  # P(in focus) where no edge is near (flat or very blurred areas)
     # --- execution
-    threads: int = 2  # 1 = sequential; 2 = focus in parallel with pose (uses both cores)
+    threads: int = setting(2, flag="--threads", choices=(1, 2),
+                           help="1 = sequential; 2 = focus and pose in parallel (uses both cores)")
 
     def validate(self) -> "DetectorConfig":
         def need(cond: bool, name: str, allowed: str) -> None:
@@ -141,55 +156,10 @@ class DetectorConfig:
 
 
 def add_config_arguments(parser: Any) -> None:
-    """Flags for the commonly changed parameters; each is None unless given (it overrides only that)."""
-    d = DetectorConfig()
-    g = parser.add_argument_group("detector")
-    g.add_argument("--backend", choices=BACKENDS, default=None, help=f"pose backend (default {d.backend})")
-    g.add_argument("--landmark-model", choices=LANDMARK_MODELS, default=None,
-                   help=f"box_first: landmark model per person box (default {d.bf_landmark_model})")
-    g.add_argument("--num-poses", type=int, default=None, help=f"max people per frame (default {d.num_poses})")
-    g.add_argument("--running-mode", choices=RUNNING_MODES, default=None,
-                   help=f"mediapipe mode: 'video' tracks over frames (default {d.running_mode})")
-    g.add_argument("--upscale", type=int, default=None, metavar="PX",
-                   help="run pose on the frame upscaled to this long side, for small people (0 = off)")
-    g.add_argument("--tiles", type=int, default=None, help="extra pose pass over N tiles (0 = off)")
-    g.add_argument("--fallback", choices=FALLBACKS, default=None,
-                   help=f"extra person detector for people the pose model misses (default {d.person_fallback})")
-    g.add_argument("--no-focus", action="store_true", default=None, help="skip the focus map")
-    g.add_argument("--focus-width", type=int, default=None, metavar="PX",
-                   help=f"focus estimator working width (default {d.focus_work_width_px})")
-    g.add_argument("--threads", type=int, default=None, choices=(1, 2),
-                   help=f"2 = focus and pose in parallel (default {d.threads})")
-    g.add_argument("--mask-checkpoint", default=None, metavar="FILE",
-                   help="torchvision Mask R-CNN state_dict (backend torchvision)")
-    g.add_argument("--keypoint-checkpoint", default=None, metavar="FILE",
-                   help="torchvision Keypoint R-CNN state_dict (backend torchvision)")
-    g.add_argument("--device", default=None, help=f"torch device for the torchvision backend (default {d.tv_device})")
+    """The detector's flags: its config fields that name one (shared/nodeconfig.py)."""
+    nodeconfig.add_settings_arguments(parser, DetectorConfig, "detector")
 
 
-#: flag dest -> DetectorConfig field
-_FLAG_FIELDS = {"backend": "backend", "landmark_model": "bf_landmark_model", "num_poses": "num_poses",
-                "running_mode": "running_mode", "upscale": "upscale_max_side_px", "tiles": "tiles",
-                "fallback": "person_fallback", "focus_width": "focus_work_width_px", "threads": "threads",
-                "mask_checkpoint": "tv_mask_checkpoint", "keypoint_checkpoint": "tv_keypoint_checkpoint",
-                "device": "tv_device"}
-
-
-def config_from_args(args: Any, base: DetectorConfig | None = None) -> DetectorConfig:
-    """`base` (the defaults, or the node's settings) with the flags that were given."""
-    upd = {f: getattr(args, dest) for dest, f in _FLAG_FIELDS.items() if getattr(args, dest, None) is not None}
-    if getattr(args, "no_focus", None):
-        upd["focus"] = False
-    return dataclasses.replace(base or DetectorConfig(), **upd).validate()
-
-
-def from_dict(d: dict) -> DetectorConfig:
-    """From a settings mapping (a deploy config's `settings`, shared/nodeconfig.py); unknown keys are errors."""
-    names = {f.name for f in dataclasses.fields(DetectorConfig)}
-    unknown = sorted(set(d) - names)
-    if unknown:
-        raise ConfigError(f"detector config: unknown field(s) {unknown}; allowed: {sorted(names)}")
-    try:
-        return DetectorConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}).validate()
-    except TypeError as e:  # a value of the wrong kind
-        raise ConfigError(f"detector config: {e}") from None
+def config_from_args(args: Any) -> DetectorConfig:
+    """The code defaults, then the node's settings (if the parser has --config), then the flags given."""
+    return nodeconfig.config_from_args(DetectorConfig, args, "detector")

@@ -26,7 +26,7 @@ import numpy as np
 from cinetransfer.services.detector import shots, subject_mask
 from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.services.detector.focus import FocusEstimator, FocusResult
-from cinetransfer.services.detector.sources import iter_frames
+from cinetransfer.shared.frame_sources import iter_frames
 from cinetransfer.shared.messages import LensState, Measurement, PersonDetection, Skeleton
 
 log = logging.getLogger("cinetransfer.detector")

@@ -23,11 +23,12 @@ import logging
 import sys
 import time
 
-from cinetransfer.services.detector.config import add_config_arguments, config_from_args, from_dict
+from cinetransfer.services.detector.config import add_config_arguments, config_from_args
 from cinetransfer.shared import keys, nodeconfig
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.errors import ConfigError, report_config_error
 from cinetransfer.shared.node import add_node_arguments, node_from_args
+from cinetransfer.shared.frame_sources import FrameSourceError, iter_frames
 
 NAME = "detector"
 log = logging.getLogger(f"cinetransfer.{NAME}")
@@ -119,8 +120,6 @@ def _wait_matching(node, pub, timeout_s: float) -> None:
 
 
 def run_file(node, det, args, stats: _Stats) -> int:
-    from cinetransfer.services.detector.sources import FrameSourceError, iter_frames
-
     path = args.video or args.images
     pub = node.publisher(keys.MEASUREMENT)
     fpub = None if args.no_publish_frames else node.publisher(keys.SOURCE_FRAME)
@@ -214,12 +213,12 @@ def run_subscriber(node, det, args, stats: _Stats) -> int:
 def main(argv: list[str]) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
-    try:
-        cfg = config_from_args(args, from_dict(nodeconfig.args_section(args, NAME)))
-    except ConfigError as e:
-        return report_config_error(e, "cinetransfer detector")
     if args.queue < 1:
         ap.error("--queue must be >= 1")
+    try:
+        cfg = config_from_args(args)
+    except ConfigError as e:
+        return report_config_error(e, "cinetransfer detector")
     node = node_from_args(NAME, args, config=cfg)
     from cinetransfer.services.detector.core import Detector, DetectorError
 

@@ -24,6 +24,7 @@ from cinetransfer.shared.camera import COC_MM, SENSOR_HEIGHT_MM, SENSOR_WIDTH_MM
 
 
 from cinetransfer.shared.errors import ConfigError
+from cinetransfer.shared.nodeconfig import setting
 from cinetransfer.shared.paths import cache_dir
 from cinetransfer.shared.vehicle import VehicleProfile
 
@@ -161,8 +162,9 @@ def default_cache_dir() -> str:
 class Structure:
     """Structural options: changing any of these builds another NLP."""
 
-    horizon_steps: int = 15  # N, stages of the horizon, 1..100
-    dt_s: float = 0.1  # step of the horizon [s], (0, 1]; N * dt = horizon length
+    horizon_steps: int = setting(15, flag="--horizon", range="[1, 100]", metavar="N", help="N, stages of the horizon")
+    dt_s: float = setting(0.1, flag="--dt", unit="s", range="(0, 1]", metavar="S",
+                          help="step of the horizon; N * dt = horizon length")
     max_joints: int = 8  # E_max: controlled joints the NLP holds (extra ones are ignored and counted)
     control_roll: bool = False  # camera roll as a state with a rate input (else fixed at 0)
     sensor_width_mm: float = SENSOR_WIDTH_MM  # for the projection (CineMPC's 16:9 "Digital Film")
@@ -178,8 +180,10 @@ class Structure:
     #                                cost's cross-stage Hessian terms (11 + 11: ~35 % faster, same optimum, but
     #                                a larger steady framing error in the benchmark)
     expand: bool = True  # expand the MX graph to SX (CineMPC-like baseline: False)
-    codegen: bool = False  # generate C for the NLP functions, compile once, cache under cache_dir
-    cache_dir: str = field(default_factory=default_cache_dir)
+    codegen: bool = setting(False, flag="--codegen",
+                            help="generate and compile the NLP in C once (cached under the cache dir)")
+    cache_dir: str = setting(default_factory=default_cache_dir, flag="--cache-dir", metavar="DIR",
+                             help="where generated solvers are cached")
     compiler: str = "gcc"  # C compiler for codegen
     compile_flags: tuple[str, ...] = ("-O1", "-fPIC", "-shared")
     max_iter: int = 60  # IPOPT iterations per warm-started solve, >= 1
@@ -248,8 +252,10 @@ class PlannerConfig:
     structure: Structure = field(default_factory=Structure)
     bounds: Bounds = field(default_factory=Bounds)
     weights: Weights = field(default_factory=Weights)
-    rate_hz: float = 20.0  # setpoints published per second (one solve each), (0, 200]
-    max_solve_time_s: float = 0.04  # IPOPT wall-time budget per warm-started solve [s], > 0 (<= 1 / rate_hz)
+    rate_hz: float = setting(20.0, flag="--rate", unit="Hz", range="(0, 200]", metavar="HZ",
+                             help="setpoints published per second (one solve each)")
+    max_solve_time_s: float = setting(0.04, flag="--max-solve-time", unit="s", range="> 0", metavar="S",
+                                      help="IPOPT wall-time budget per warm-started solve (<= 1 / rate_hz)")
     max_cold_solve_time_s: float = 0.25  # budget of a cold solve (first one, after a hold) [s], >= the above
     accept_suboptimal: bool = True  # a solve stopped by max_iter / time with a feasible iterate is used
     feasibility_tol: float = 1e-4  # constraint violation under which such an iterate counts as feasible
@@ -257,7 +263,9 @@ class PlannerConfig:
     setpoint_lead_s: float = 0.1  # the setpoint is the plan at now + lead [s] (covers tracking lag), >= 0
     max_input_age_s: float = 0.5  # vehicle/subject state older than this is stale -> hold [s], > 0
     clamp_tolerance: float = 0.05  # measured state outside a hard bound by <= this fraction of the range is clamped
-    autostart: bool = False  # start the recording when the first instructions arrive (else wait for 'start')
+    autostart: bool = setting(False, flag="--autostart",
+                              help="start recording when the first instructions arrive (else wait for a 'start' "
+                                   "command)")
     mu_default_m: float = 1.0  # DoF margin when the instructions carry none (mu <= 0) [m]
     #: per-joint factors on the image term, ((COCO-17 name, factor >= 0), ...); unnamed joints 1.
     #: How the planner trades joint targets it cannot all meet (another body): docs/planner.md.
@@ -323,6 +331,14 @@ def replace(cfg: PlannerConfig, **changes: Any) -> PlannerConfig:
     return dataclasses.replace(cfg, **top)
 
 
+def joint_weights_from(d: dict[Any, Any]) -> tuple[tuple[str, float], ...]:
+    """`joint_weights` as a file writes it ({name: factor}), sorted by name."""
+    try:
+        return tuple(sorted((str(k), float(v)) for k, v in d.items()))
+    except (TypeError, ValueError):
+        raise ConfigError(f"planner config: joint_weights={d!r} is invalid; allowed: COCO-17 name: number") from None
+
+
 def from_dict(d: dict[str, Any], vehicle: VehicleProfile | None = None) -> PlannerConfig:
     """Config from a nested dict (e.g. a YAML 'planner' section); unknown keys are errors.
 
@@ -343,7 +359,7 @@ def from_dict(d: dict[str, Any], vehicle: VehicleProfile | None = None) -> Plann
             sub["compile_flags"] = tuple(sub["compile_flags"])
         kw[g] = dataclasses.replace(getattr(base, g), **sub)
     if isinstance(d.get("joint_weights"), dict):
-        d["joint_weights"] = tuple(sorted((str(k), float(v)) for k, v in d["joint_weights"].items()))
+        d["joint_weights"] = joint_weights_from(d["joint_weights"])
     names = {f.name for f in dataclasses.fields(PlannerConfig)}
     unknown = set(d) - names
     if unknown:

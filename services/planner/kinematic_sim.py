@@ -3,7 +3,7 @@
 The vehicle is the built-in simulator's own (shared/dynamics.py, limits
 from the vehicle profile): a saturated velocity loop with a first-order lag under a position
 loop, a rate-limited gimbal and lens, so the planner is tested against the same machine the
-bridge's simulator flies (issue 18: one dynamics model).
+bridge's simulator flies (one dynamics model).
 The subject is a COCO-17 skeleton that stands or walks (constant-velocity segments, limbs
 swinging with the stride), so the planner's constant-velocity prediction is good but not exact.
 

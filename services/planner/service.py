@@ -34,40 +34,19 @@ log = logging.getLogger("cinetransfer.planner")
 def add_config_arguments(p: argparse.ArgumentParser) -> None:
     nodeconfig.add_config_arguments(p, "planner")
     add_vehicle_argument(p)
-    p.add_argument("--rate", type=float, default=None, metavar="HZ", help="setpoints per second (default 20)")
-    p.add_argument("--horizon", type=int, default=None, metavar="N", help="horizon steps (default 15)")
-    p.add_argument("--dt", type=float, default=None, metavar="S", help="horizon step [s] (default 0.1)")
-    p.add_argument("--codegen", action="store_true", default=None,
-                   help="generate and compile the NLP in C (cached under the cache dir)")
-    p.add_argument("--cache-dir", default=None, help="where generated solvers are cached")
-    p.add_argument("--max-solve-time", type=float, default=None, metavar="S", help="IPOPT wall-time budget per solve")
-    p.add_argument("--autostart", action="store_true", default=None,
-                   help="start recording when the first instructions arrive (else wait for a 'start' command)")
+    nodeconfig.add_settings_arguments(p, pc.PlannerConfig, "planner")
 
 
 def config_from_args(args: argparse.Namespace) -> pc.PlannerConfig:
     """The vehicle profile's bounds, then the node's settings (shared/nodeconfig.py), then flags (STYLE §5).
 
     The settings may name the vehicle (`vehicle: NAME|PATH`); --vehicle overrides it."""
-    base = nodeconfig.args_section(args, "planner")
-    vehicle = load_vehicle(getattr(args, "vehicle", None) or base.pop("vehicle", None))
-    cfg = pc.from_dict(base, vehicle=vehicle)
-    upd: dict[str, Any] = {}
-    if args.rate is not None:
-        upd["rate_hz"] = args.rate
-    if args.horizon is not None:
-        upd["structure.horizon_steps"] = args.horizon
-    if args.dt is not None:
-        upd["structure.dt_s"] = args.dt
-    if args.codegen:
-        upd["structure.codegen"] = True
-    if args.cache_dir:
-        upd["structure.cache_dir"] = args.cache_dir
-    if args.max_solve_time is not None:
-        upd["max_solve_time_s"] = args.max_solve_time
-    if args.autostart:
-        upd["autostart"] = True
-    return pc.replace(cfg, **upd).validate()
+    section = nodeconfig.args_section(args, "planner")
+    vehicle = load_vehicle(getattr(args, "vehicle", None) or section.pop("vehicle", None))
+    if isinstance(section.get("joint_weights"), dict):  # {name: factor} in a file
+        section["joint_weights"] = pc.joint_weights_from(section["joint_weights"])
+    base = pc.with_vehicle(pc.PlannerConfig(), vehicle)
+    return nodeconfig.config_from_args(pc.PlannerConfig, args, "planner", base=base, section=section)
 
 
 #: in simulation time, how long to wait for the state of a clock tick before solving without it [s]

@@ -14,51 +14,25 @@ import time
 from pathlib import Path
 from typing import Any, Iterable
 
-from cinetransfer.services.smoother.config import FOCUS_METHODS, SUBJECT_METHODS, SmootherConfig
+from cinetransfer.services.smoother.config import STREAMING_FIELDS, SmootherConfig
+from cinetransfer.shared import instructions as I
+from cinetransfer.shared import nodeconfig
 from cinetransfer.shared.errors import ConfigError, report_config_error
+from cinetransfer.shared.instructions import StyleFileError, load_style_file
+from cinetransfer.shared.measurements_file import (MeasurementsFileError, iter_measurements, read_header,
+                                                   read_measurements)
 
 log = logging.getLogger("cinetransfer.smoother")
 
 
 def add_config_arguments(ap: argparse.ArgumentParser) -> None:
-    """Smoother flags; each is None unless given, so that it overrides only what it names."""
-    d = SmootherConfig()
-    g = ap.add_argument_group("smoother")
-    g.add_argument("--joints", default=None,
-                   help=f"comma-separated COCO-17 joints to control (default {','.join(d.joints)})")
-    g.add_argument("--subject-method", choices=SUBJECT_METHODS, default=None,
-                   help=f"main-subject selection (default {d.subject_method}; 'literal' = paper's NLP via IPOPT)")
-    g.add_argument("--focus-method", choices=FOCUS_METHODS, default=None,
-                   help=f"focus smoothing (default {d.focus_method}; see docs/smoother.md)")
-    g.add_argument("--box-smoothness", type=float, default=None,
-                   help=f"box QP first-difference weight at 24 fps (default {d.box_smoothness})")
-    g.add_argument("--box-accel-smoothness", type=float, default=None,
-                   help=f"box QP second-difference weight at 24 fps (default {d.box_accel_smoothness})")
-    g.add_argument("--joint-smoothness", type=float, default=None,
-                   help=f"joint QP first-difference weight at 24 fps (default {d.joint_smoothness})")
-    g.add_argument("--joint-accel-smoothness", type=float, default=None,
-                   help=f"joint QP second-difference weight at 24 fps; 0 = the paper's QP "
-                        f"(default {d.joint_accel_smoothness})")
-    g.add_argument("--theta", type=float, default=None, help=f"focus threshold on B (default {d.theta})")
-    g.add_argument("--mu", type=float, default=None, help=f"depth-of-field margin mu [m] (default {d.mu_m})")
-    g.add_argument("--max-bridge", type=float, default=None,
-                   help=f"longest detector dropout bridged [s] (default {d.max_bridge_s})")
+    """The smoother's flags for the batch tools (its config fields that name one, but streaming)."""
+    nodeconfig.add_settings_arguments(ap, SmootherConfig, "smoother", skip=STREAMING_FIELDS)
 
 
-#: flag dest -> SmootherConfig field
-_FLAG_FIELDS = {"subject_method": "subject_method", "focus_method": "focus_method", "box_smoothness": "box_smoothness",
-                "joint_smoothness": "joint_smoothness", "box_accel_smoothness": "box_accel_smoothness",
-                "joint_accel_smoothness": "joint_accel_smoothness", "theta": "theta", "mu": "mu_m",
-                "max_bridge": "max_bridge_s"}
-
-
-def config_from_args(args: argparse.Namespace, base: SmootherConfig | None = None) -> SmootherConfig:
-    """`base` (the code defaults, or the node's settings) with the flags that were given."""
-    base = base or SmootherConfig()
-    upd = {f: getattr(args, dest) for dest, f in _FLAG_FIELDS.items() if getattr(args, dest, None) is not None}
-    if getattr(args, "joints", None) is not None:
-        upd["joints"] = tuple(j.strip() for j in str(args.joints).split(",") if j.strip())
-    return base.replace(**upd)
+def config_from_args(args: argparse.Namespace) -> SmootherConfig:
+    """The code defaults with the flags that were given."""
+    return nodeconfig.config_from_args(SmootherConfig, args, "smoother")
 
 
 def _progress(it: Iterable[Any], total: int | None, desc: str, enabled: bool) -> Iterable[Any]:
@@ -70,9 +44,7 @@ def _progress(it: Iterable[Any], total: int | None, desc: str, enabled: bool) ->
     return tqdm(it, total=total, desc=desc, unit="frame", file=sys.stderr, dynamic_ncols=True, disable=None)
 
 
-def _finish(result: Any, out: Path, plot: Path | None, *, diagnostics: bool) -> None:
-    from cinetransfer.services.smoother import instructions as I
-
+def write_result(result: Any, out: Path, plot: Path | None, *, diagnostics: bool) -> None:
     warnings = tuple(getattr(result, "warnings", ()))
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
@@ -102,8 +74,6 @@ def smooth_main(argv: list[str]) -> int:
         cfg = config_from_args(args)
     except ConfigError as e:
         return report_config_error(e, "cinetransfer smooth")
-    from cinetransfer.services.detector.measurements_file import (MeasurementsFileError, iter_measurements,
-                                                                  read_header, read_measurements)
     from cinetransfer.services.smoother.core import SmootherInputError, features_from_measurements, smooth_sequence
 
     try:
@@ -127,43 +97,7 @@ def smooth_main(argv: list[str]) -> int:
     except (MeasurementsFileError, SmootherInputError) as e:
         print(f"cinetransfer smooth: {e}", file=sys.stderr)
         return 1
-    _finish(result, args.output, args.plot, diagnostics=not args.no_diagnostics)
-    return 0
-
-
-def extract_main(argv: list[str]) -> int:
-    ap = argparse.ArgumentParser(prog="cinetransfer extract",
-                                 description="video -> style.json (detector and smoother in one process)")
-    ap.add_argument("video", help="source video file (or image folder)")
-    ap.add_argument("-o", "--output", type=Path, default=Path("style.json"), help="style file to write")
-    ap.add_argument("--measurements", type=Path, default=None, help="also keep the measurements in this file")
-    ap.add_argument("--plot", type=Path, default=None, help="also draw the style to this image")
-    ap.add_argument("--no-diagnostics", action="store_true", help="leave the raw per-frame measures out")
-    ap.add_argument("--quiet", action="store_true", help="no progress bar")
-    ap.add_argument("--stop", type=int, default=None, help="stop after this many frames")
-    ap.add_argument("--cuts", default=None, metavar="ROWS",
-                    help="rows where shots begin, comma-separated, instead of finding them ('' = one shot)")
-    add_config_arguments(ap)
-    args = ap.parse_args(argv)
-    try:
-        cfg = config_from_args(args)
-        cuts = None if args.cuts is None else [int(r) for r in args.cuts.split(",") if r.strip()]
-    except ConfigError as e:
-        return report_config_error(e, "cinetransfer extract")
-    except ValueError as e:  # --cuts is not a list of row numbers
-        print(f"cinetransfer extract: --cuts: {e}", file=sys.stderr)
-        return 2
-    from cinetransfer.services.smoother.core import SmootherInputError, smooth_sequence
-    from cinetransfer.services.smoother.extract import ExtractError, extract_features
-
-    try:
-        feats, source = extract_features(args.video, cfg, measurements_path=args.measurements, stop=args.stop,
-                                         progress=not args.quiet)
-        result = smooth_sequence(feats, cfg, source=source, known_cuts=cuts)
-    except (ExtractError, SmootherInputError) as e:
-        print(f"cinetransfer extract: {e}", file=sys.stderr)
-        return 1
-    _finish(result, args.output, args.plot, diagnostics=not args.no_diagnostics)
+    write_result(result, args.output, args.plot, diagnostics=not args.no_diagnostics)
     return 0
 
 
@@ -174,7 +108,6 @@ def plot_main(argv: list[str]) -> int:
     ap.add_argument("--joint", default="chest", help="joint to plot: 'chest' or a COCO-17 name")
     ap.add_argument("--title", default=None)
     args = ap.parse_args(argv)
-    from cinetransfer.services.smoother.instructions import StyleFileError, load_style_file
     from cinetransfer.services.smoother.plot import plot_style, summary
 
     out = args.output or args.style.with_suffix(".png")

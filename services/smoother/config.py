@@ -11,11 +11,14 @@ from dataclasses import dataclass
 
 from cinetransfer.shared.errors import ConfigError  # noqa: F401 (callers import it from here)
 from cinetransfer.shared.messages import COCO17_NAMES
+from cinetransfer.shared.nodeconfig import setting
 
 DEFAULT_JOINTS: tuple[str, ...] = ("left_shoulder", "right_shoulder", "left_hip", "right_hip")
 FOCUS_METHODS = ("hmm", "viterbi", "l2", "literal")
 SUBJECT_METHODS = ("viterbi", "literal")
 REFERENCE_FPS = 24.0
+#: flags of the streaming node only (the batch tools `smooth` and `extract` have no stream)
+STREAMING_FIELDS = ("window_s", "history_s", "publish_period_s", "end_idle_s")
 
 
 @dataclass(frozen=True)
@@ -23,9 +26,12 @@ class SmootherConfig:
     """Every tunable of the smoother, with units and allowed ranges."""
 
     # --- controlled joints (DESIGN §1.2)
-    joints: tuple[str, ...] = DEFAULT_JOINTS  # COCO-17 names of the E controlled joints
+    joints: tuple[str, ...] = setting(DEFAULT_JOINTS, flag="--joints",
+                                      help="comma-separated COCO-17 names of the E controlled joints")
     # --- main subject (DESIGN §1.1 step 1)
-    subject_method: str = "viterbi"  # 'viterbi' (exact DP + box QP) or 'literal' (paper's bilinear NLP, IPOPT)
+    subject_method: str = setting("viterbi", flag="--subject-method", choices=SUBJECT_METHODS,
+                                  help="main-subject selection: 'viterbi' (exact DP + box QP) or "
+                                       "'literal' (the paper's bilinear NLP, IPOPT)")
     min_person_confidence: float = 0.05  # detections below this are ignored, [0, 1)
     move_cost: float = 100.0  # continuity: cost per (box change / box size - free_move)^2 per frame, >= 0
     free_move: float = 0.0  # box change per frame (at 24 fps, relative to the box diagonal) that costs nothing, >= 0
@@ -35,15 +41,20 @@ class SmootherConfig:
     confidence_cost: float = 0.2  # cost of a detection of confidence c is confidence_cost * (1 - c), >= 0
     #: after selection, re-admit a left-out detection overlapping the chosen box this much (1 = off)
     extend_min_iou: float = 0.5
-    max_bridge_s: float = 0.5  # longest detector dropout bridged as 'visible' [s], >= 0
+    max_bridge_s: float = setting(0.5, flag="--max-bridge", unit="s", range=">= 0",
+                                  help="longest detector dropout bridged as 'visible'")
     cut_threshold: float = 0.25  # shot-change score that can start a new shot, (0, 1]; 1 = never cut
     cut_ratio: float = 3.0  # ... if also this many times the median score of its +-5 neighbours, >= 1
     #: lambda of the box QP's first-difference term at 24 fps (data weights: confidences), > 0
-    box_smoothness: float = 0.02
-    box_accel_smoothness: float = 0.1  # lambda2 of the box QP's second-difference term at 24 fps, >= 0
+    box_smoothness: float = setting(0.02, flag="--box-smoothness", range="> 0",
+                                    help="box QP first-difference weight at 24 fps")
+    box_accel_smoothness: float = setting(0.1, flag="--box-accel-smoothness", range=">= 0",
+                                          help="box QP second-difference weight (lambda2) at 24 fps")
     # --- joints (DESIGN §1.1 step 3)
-    joint_smoothness: float = 0.1  # lambda of the joint QP's first-difference (paper's) term at 24 fps, > 0
-    joint_accel_smoothness: float = 3.0  # lambda2 of our added second-difference term at 24 fps, >= 0
+    joint_smoothness: float = setting(0.1, flag="--joint-smoothness", range="> 0",
+                                      help="joint QP first-difference (the paper's) weight at 24 fps")
+    joint_accel_smoothness: float = setting(3.0, flag="--joint-accel-smoothness", range=">= 0",
+                                            help="joint QP second-difference weight at 24 fps; 0 = the paper's QP")
     min_joint_confidence: float = 0.1  # joints below this confidence count as missing, [0, 1)
     #: a skeleton whose shoulders sit closer than this many head widths (ear to ear) to the ears ...
     body_neck_min: float = 0.45
@@ -55,28 +66,35 @@ class SmootherConfig:
     #: a smoothed row its hips and legs; 0 = off
     body_torso_min: float = 0.7
     # --- focus (DESIGN §1.1 step 4)
-    focus_method: str = "hmm"  # 'hmm' (ours, default), 'viterbi', 'l2' (quadratic + threshold), 'literal'
+    focus_method: str = setting("hmm", flag="--focus-method", choices=FOCUS_METHODS,
+                                help="focus smoothing: 'hmm' (ours), 'viterbi', 'l2' (quadratic + threshold), "
+                                     "'literal'; see docs/smoother.md")
     focus_pixel_threshold: float = 0.5  # focus-map probability above which a pixel counts as in focus, (0, 1)
     #: HMM: fit the in/out levels of b per region from the sequence (see focus.fit_levels)
     focus_adaptive_levels: bool = False
     focus_switch_prob: float = 0.02  # HMM: probability per frame (at 24 fps) that a region changes state, (0, 0.5)
     focus_noise: float = 0.25  # HMM: std of the measured fraction b around its state (0 or 1), > 0
     focus_smoothness: float = 4.0  # 'l2' method: lambda at 24 fps, > 0
-    theta: float = 0.5  # region in focus when B > theta, (0, 1)
+    theta: float = setting(0.5, flag="--theta", range="(0, 1)", help="a region is in focus when B > theta")
     # a shot where no region reaches theta is judged relative to its sharpest region (focus.soft_shot)
     focus_soft_floor: float = 0.1  # ... if that region reads at least this, (0, 1]; 1 = off
     focus_min_run_s: float = 0.1  # a region labelled for a shorter run of frames has no label there [s], >= 0
     foreground_min_rows: float = 0.03  # foreground band (below the feet) exists when >= this fraction of the height
     #: b ignores a border band of each region this wide (fraction of the map width), [0, 0.2]
     focus_region_margin: float = 0.015
-    mu_m: float = 1.0  # depth-of-field margin mu [m] written into the instructions, > 0
+    mu_m: float = setting(1.0, flag="--mu", unit="m", range="> 0",
+                          help="depth-of-field margin mu written into the instructions")
     # --- timing
     default_fps: float = 24.0  # used when the measurements carry no frame rate [Hz], > 0
     # --- streaming service
-    window_s: float = 10.0  # streaming: instructions window published (newest frames) [s], > 0
-    history_s: float = 60.0  # streaming: frames of history the window solve uses [s], >= window_s
-    publish_period_s: float = 0.25  # streaming: at most one window per period [s]; lag bound, (0, 0.5]
-    end_idle_s: float = 3.0  # end of stream after this long without measurements [s]; 0 = only on command
+    window_s: float = setting(10.0, flag="--window", unit="s", range="> 0",
+                              help="streaming window: the newest frames each published instructions cover")
+    history_s: float = setting(60.0, flag="--history", unit="s", range="> 0",
+                               help="history used by each window solve, >= window_s")
+    publish_period_s: float = setting(0.25, flag="--publish-period", unit="s", range="(0, 0.5]",
+                                      help="at most one window per period (the lag bound)")
+    end_idle_s: float = setting(3.0, flag="--end-idle", unit="s", range=">= 0",
+                                help="end of stream after this long without measurements; 0 = only on command")
 
     def validate(self) -> "SmootherConfig":
         if not self.joints:
@@ -123,19 +141,6 @@ class SmootherConfig:
             ("publish_period_s", 0.0 < self.publish_period_s <= 0.5, "0 < value <= 0.5 (the lag bound)"),
             ("end_idle_s", self.end_idle_s >= 0.0, ">= 0"),
         ]
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "SmootherConfig":
-        """From a settings mapping (a deploy config's `settings`, shared/nodeconfig.py); unknown keys are errors."""
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ConfigError(f"smoother config: unknown field(s) {unknown}; allowed: {sorted(names)}")
-        d = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
-        try:
-            return cls(**d).validate()
-        except TypeError as e:  # a value of the wrong kind
-            raise ConfigError(f"smoother config: {e}") from None
 
     def replace(self, **changes: object) -> "SmootherConfig":
         return dataclasses.replace(self, **changes).validate()

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from cinetransfer.services.smoother.instructions import StyleFile, diag_array
+from cinetransfer.shared.instructions import StyleFile, diag_array
 from cinetransfer.shared.messages import COCO17_NAMES, FOCUS_REGIONS
 
 BOX_NAMES = ("x0", "y0", "x1", "y1")

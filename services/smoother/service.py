@@ -15,7 +15,6 @@ import argparse
 import dataclasses
 import time
 
-from cinetransfer.services.smoother.cli import add_config_arguments, config_from_args
 from cinetransfer.services.smoother.config import SmootherConfig
 from cinetransfer.services.smoother.core import SmootherInputError
 from cinetransfer.services.smoother.stream import StreamState
@@ -28,31 +27,19 @@ END_ACTIONS = ("end", "stop", "finish")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    d = SmootherConfig()
     ap = argparse.ArgumentParser(prog="cinetransfer smoother", description="run the smoother node")
     add_node_arguments(ap)
     nodeconfig.add_config_arguments(ap, "smoother")
-    add_config_arguments(ap)
-    ap.add_argument("--window", type=float, default=None, help=f"streaming window [s] (default {d.window_s})")
-    ap.add_argument("--history", type=float, default=None,
-                    help=f"history used by each window solve [s] (default {d.history_s})")
-    ap.add_argument("--publish-period", type=float, default=None,
-                    help=f"at most one window per period [s], <= 0.5 (default {d.publish_period_s})")
-    ap.add_argument("--end-idle", type=float, default=None,
-                    help="end of stream after this long without measurements [s]; 0 = only on command "
-                         f"(default {d.end_idle_s})")
+    nodeconfig.add_settings_arguments(ap, SmootherConfig, "smoother")
     return ap
 
 
 def node_config(args: argparse.Namespace) -> SmootherConfig:
     """Code defaults, then the node's settings (shared/nodeconfig.py), then flags."""
-    cfg = config_from_args(args, SmootherConfig.from_dict(nodeconfig.args_section(args, "smoother")))
-    upd = {f: getattr(args, dest) for dest, f in (("window", "window_s"), ("history", "history_s"),
-                                                  ("publish_period", "publish_period_s"), ("end_idle", "end_idle_s"))
-           if getattr(args, dest) is not None}
-    if args.window is not None:  # a longer window takes the history with it
-        upd["history_s"] = max(upd.get("history_s", cfg.history_s), args.window)
-    return cfg.replace(**upd)
+    if args.window_s is not None:  # a longer window takes the history with it
+        base = nodeconfig.settings_from(SmootherConfig, nodeconfig.args_section(args, "smoother"), "smoother")
+        args.history_s = max(args.history_s or base.history_s, args.window_s)
+    return nodeconfig.config_from_args(SmootherConfig, args, "smoother")
 
 
 class SmootherLoop:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from cinetransfer.services.smoother.config import SmootherConfig
 from cinetransfer.services.smoother.core import SmootherInputError, feature_options, smooth_sequence
 from cinetransfer.services.smoother.features import FrameFeatures, frame_features
-from cinetransfer.services.smoother.instructions import slice_instructions
+from cinetransfer.shared.instructions import slice_instructions
 from cinetransfer.shared import messages as M
 
 

@@ -18,11 +18,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+from cinetransfer.services.source.config import SourceConfig
 from cinetransfer.services.source.credit import Credit
 from cinetransfer.shared import keys, nodeconfig
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.errors import ConfigError, report_config_error
 from cinetransfer.shared.node import Presence, add_node_arguments, node_from_args
+from cinetransfer.shared.frame_sources import FrameSourceError, iter_frames, probe
 
 NAME = "source"
 log = logging.getLogger(f"cinetransfer.{NAME}")
@@ -38,19 +40,16 @@ def build_parser() -> argparse.ArgumentParser:
     add_node_arguments(ap)
     ap.add_argument("--video", metavar="PATH", help="play this file once at start, then exit")
     ap.add_argument("--stop", type=int, default=None, help="(--video) play only the first N frames")
-    ap.add_argument("--window", type=int, default=8, help="frames ahead of the detector (default %(default)s)")
-    ap.add_argument("--wait-detector", type=float, default=120.0, metavar="S",
-                    help="wait this long for a detector before giving up on a play (default %(default)s)")
-    ap.add_argument("--stall", type=float, default=300.0, metavar="S",
-                    help="end with an error when the detector acknowledges nothing for this long (default %(default)s)")
+    nodeconfig.add_config_arguments(ap, NAME)
+    nodeconfig.add_settings_arguments(ap, SourceConfig, NAME)
     return ap
 
 
 class Player:
     """Plays one file at a time onto the source key, paced by the detector's credit."""
 
-    def __init__(self, node: Any, args: argparse.Namespace) -> None:
-        self.node, self.args = node, args
+    def __init__(self, node: Any, cfg: SourceConfig) -> None:
+        self.node, self.cfg = node, cfg
         self.frame_pub = node.publisher(keys.SOURCE_FRAME, block=True)
         self.end_pub = node.publisher(keys.SOURCE_END)
         self.cmd_in = node.subscribe(keys.SOURCE_COMMAND)
@@ -96,24 +95,20 @@ class Player:
         return p, stop
 
     def _probe(self, path: Path) -> M.SourceInfo:
-        from cinetransfer.services.detector.sources import FrameSourceError, probe
-
         try:
             return probe(path, hash_file=True)
         except (FrameSourceError, OSError) as e:
             raise SourceError(str(e)) from None
 
     def _await_detector(self) -> None:
-        deadline = time.monotonic() + self.args.wait_detector
+        deadline = time.monotonic() + self.cfg.wait_detector_s
         while not self.detector.alive:
             if time.monotonic() > deadline or not self.node.running:
-                raise SourceError(f"no detector alive on rig {self.node.rig!r} after {self.args.wait_detector:g} s")
+                raise SourceError(f"no detector alive on rig {self.node.rig!r} after {self.cfg.wait_detector_s:g} s")
             self.node.sleep(0.1)
 
     def _stream(self, path: Path, stop: int | None, info: M.SourceInfo) -> tuple[int, str]:
-        from cinetransfer.services.detector.sources import FrameSourceError, iter_frames
-
-        credit = Credit(self.args.window)
+        credit = Credit(self.cfg.window)
         self.node.counters.update(state="playing", source=str(path))
         self.acks.drain()  # measurements of an earlier play are no credit for this one
         try:
@@ -139,8 +134,8 @@ class Player:
             self._count(credit)
             if credit.acked != n:
                 last_progress = time.monotonic()
-            elif time.monotonic() - last_progress > self.args.stall:
-                raise SourceError(f"the detector acknowledged no frame for {self.args.stall:g} s")
+            elif time.monotonic() - last_progress > self.cfg.stall_s:
+                raise SourceError(f"the detector acknowledged no frame for {self.cfg.stall_s:g} s")
             if self._stop_requested() or not self.node.running:
                 return False
             self.node.wait(0.05)
@@ -160,22 +155,15 @@ class Player:
         self.detector.undeclare()
 
 
-#: the source's settings (a deploy config's nodes[].settings) -> its flags
-SETTINGS = {"window": "window", "wait_detector_s": "wait_detector", "stall_s": "stall"}
-
-
 def main(argv: list[str]) -> int:
-    ap = build_parser()
-    nodeconfig.add_config_arguments(ap, NAME)
+    args = build_parser().parse_args(argv)
     try:
-        args = nodeconfig.parse_with_settings(ap, argv, NAME, SETTINGS)
-        if args.window < 1:
-            raise ConfigError(f"source config: window = {args.window}: must be >= 1")
+        cfg = nodeconfig.config_from_args(SourceConfig, args, NAME)
     except ConfigError as e:
         return report_config_error(e, "cinetransfer source")
     node = node_from_args(NAME, args)
     with node:
-        player = Player(node, args)
+        player = Player(node, cfg)
         node.ready()
         try:
             if args.video:

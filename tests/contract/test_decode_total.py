@@ -1,4 +1,4 @@
-"""Decoding is total (issue 13, point 1): whatever bytes arrive, `codec.decode` returns a message
+"""Decoding is total: whatever bytes arrive, `codec.decode` returns a message
 or raises DecodeError — never RecursionError, MemoryError, TypeError... — and every node's
 handler takes whatever decodes without raising. Fuzzed with hypothesis over deep, huge and odd
 msgpack, bounded in run time (fixed example counts, derandomised, no deadline)."""

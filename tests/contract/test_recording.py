@@ -10,7 +10,8 @@ import typing
 import jsonschema
 import pytest
 
-from cinetransfer.shared import codec, jsonmsg, runlog
+from cinetransfer import runlog
+from cinetransfer.shared import codec, jsonmsg
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.codec import _hints
 from test_codec import assert_same, sample_messages
@@ -129,7 +130,8 @@ def test_foreign_and_damaged_files_get_a_clear_error(tmp_path):
 
 INTERRUPTED = """
 import os, signal, sys, numpy as np
-from cinetransfer.shared import codec, runlog
+from cinetransfer import runlog
+from cinetransfer.shared import codec
 from cinetransfer.shared import messages as M
 w = runlog.RunWriter(sys.argv[1], {}, flush_s=0.0)
 img = np.zeros((54, 96, 3), np.uint8)
@@ -166,7 +168,7 @@ def test_an_interrupted_run_leaves_a_recording_the_reader_opens(tmp_path):
 def test_report_refuses_a_run_folder_whose_recording_is_damaged_or_foreign(tmp_path):
     # given a run folder (a style and a synthetic output) whose run.mcap is cut, or someone else's
     from cinetransfer.report import synth
-    from cinetransfer.services.smoother.instructions import save_style
+    from cinetransfer.shared.instructions import save_style
 
     run = tmp_path / "run"
     run.mkdir()

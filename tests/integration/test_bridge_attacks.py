@@ -1,4 +1,4 @@
-"""Issue 13's attacks replayed at a real autopilot_bridge process over real Zenoh, flying a real
+"""The hostile-input attacks replayed at a real autopilot_bridge process over real Zenoh, flying a real
 `cinetransfer sim-vehicle` over MAVLink/UDP: each one now fails safely, visibly (Health,
 VehicleState) and without ending the bridge. Synchronised on received samples and on the
 vehicle's own log, never on sleeps."""

@@ -7,7 +7,7 @@ import sys
 import numpy as np
 import pytest
 
-from cinetransfer.services.smoother.instructions import load_style
+from cinetransfer.shared.instructions import load_style
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.zenoh_config import open_session

@@ -6,7 +6,7 @@ import sys
 
 import cv2
 
-from cinetransfer.services.detector.measurements_file import read_measurements
+from cinetransfer.shared.measurements_file import read_measurements
 
 
 def _detect(*args: str, timeout: float = 240) -> subprocess.CompletedProcess:

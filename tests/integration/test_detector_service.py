@@ -5,7 +5,7 @@ import threading
 
 import zenoh
 
-from cinetransfer.services.detector.sources import iter_frames
+from cinetransfer.shared.frame_sources import iter_frames
 from cinetransfer.shared import codec, keys, zenoh_config
 from cinetransfer.shared import messages as M
 from conftest import connect_flags, spawn, stop, wait_for

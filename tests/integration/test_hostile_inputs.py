@@ -1,4 +1,4 @@
-"""Hostile inputs at the planner and the smoother as real processes over real Zenoh (issue 13):
+"""Hostile inputs at the planner and the smoother as real processes over real Zenoh:
 the 576-byte deep-args Command, which used to end both loops, is counted in Health.rejected and
 each keeps working (the planner keeps publishing setpoints; the smoother still answers 'end' with
 the final instructions); instructions nothing can fly are refused by the planner. SIGINT then

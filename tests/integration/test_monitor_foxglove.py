@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 from websockets.exceptions import InvalidStatus
 
-from cinetransfer.shared import codec, runlog
+from cinetransfer import runlog
+from cinetransfer.shared import codec
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.zenoh_config import open_session
 from conftest import connect_flags, free_port, spawn, stop, wait_for
@@ -151,7 +152,7 @@ def test_monitor_serves_the_rig_to_a_foxglove_websocket_client(port, listener_op
 @pytest.fixture
 def live_server(listener_opts):
     """A FoxgloveLive in this process on a real Zenoh session; yields a factory (host, token, tls)."""
-    from cinetransfer.shared.foxglove_live import FoxgloveLive
+    from cinetransfer.foxglove_live import FoxgloveLive
 
     made = []
     with open_session(listener_opts) as s:

@@ -5,7 +5,7 @@ import sys
 
 from cinetransfer.services.planner.kinematic_sim import SCENES
 from cinetransfer.services.planner.scenarios import dolly_zoom_shot, reference_instructions
-from cinetransfer.services.smoother.instructions import save_style
+from cinetransfer.shared.instructions import save_style
 
 
 def test_plan_flies_a_style_file_and_prints_achieved_vs_desired(tmp_path):

@@ -5,7 +5,7 @@ import numpy as np
 
 from cinetransfer.shared import codec, zenoh_config
 from cinetransfer.shared import messages as M
-from cinetransfer.shared.runlog import RunWriter
+from cinetransfer.runlog import RunWriter
 from conftest import connect_flags, spawn, wait_for
 
 

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from cinetransfer.rerun_export import Followed, joint_errors, setpoint_values, vehicle_values
-from cinetransfer.services.smoother.instructions import save_style
+from cinetransfer.shared.instructions import save_style
 from cinetransfer.shared import codec
 from cinetransfer.shared import messages as M
-from cinetransfer.shared.runlog import RunWriter
+from cinetransfer.runlog import RunWriter
 
 S = 1_000_000_000
 NAMES = ["left_shoulder", "right_shoulder"]

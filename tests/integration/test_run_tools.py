@@ -11,7 +11,7 @@ import numpy as np
 
 from cinetransfer.shared import codec, zenoh_config
 from cinetransfer.shared import messages as M
-from cinetransfer.shared.runlog import RunReader, RunWriter
+from cinetransfer.runlog import RunReader, RunWriter
 from conftest import connect_flags, spawn, stop, wait_for
 
 S = 1_000_000_000

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from cinetransfer.report.truthfile import read_truths
-from cinetransfer.services.smoother.instructions import load_style
+from cinetransfer.shared.instructions import load_style
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
-from cinetransfer.shared.runlog import RunReader, read_run, size_report
+from cinetransfer.runlog import RunReader, read_run, size_report
 from cinetransfer.shared.video import probe
 
 FRAMES = 36  # 1.5 s of the 24 fps clip
@@ -293,7 +293,7 @@ def test_realtime_take_states_its_repeats_or_fails_when_short(data, tmp_path):
 
 @pytest.mark.slow
 def test_a_three_shot_source_is_flown_as_three_takes_cut_at_the_source_cuts(data, tmp_path):
-    from cinetransfer.services.smoother.instructions import save_style
+    from cinetransfer.shared.instructions import save_style
 
     # given a style of three shots (cuts at rows 12 and 24): one extracted from real frames, cut
     first = tmp_path / "first"

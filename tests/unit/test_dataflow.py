@@ -3,7 +3,7 @@ and the monitor derive from it."""
 import pytest
 
 from cinetransfer.shared import access, dataflow, keys
-from cinetransfer.shared.monitor import silent_keys
+from cinetransfer.monitor import silent_keys
 
 
 def test_every_topic_is_written_and_every_input_is_a_topic():
@@ -48,3 +48,42 @@ def test_command_tool_parses_typed_arguments():
         {"path": "/a b.mp4", "stop": 120, "preroll_s": 2.5, "fast": True}
     with pytest.raises(ValueError, match="NAME=VALUE"):
         parse_args_kv(["oops"])
+
+
+def _cli_module_path(command: str) -> str:
+    """The source file `cinetransfer COMMAND` runs (pyproject's package-dir mapping)."""
+    from cinetransfer.cli import COMMANDS
+
+    parts = COMMANDS[command][0].split(".")
+    root = {"shared": "shared", "services": "services", "deploy": "deploy"}.get(parts[1], "cinetransfer")
+    rest = parts[2:] if root != "cinetransfer" else parts[1:]
+    return "/".join([root, *rest]) + ".py"
+
+
+def test_the_cli_and_the_dataflow_list_the_same_nodes():
+    """Every declared node is a CLI command running the module the dataflow names, and every CLI
+    command that joins the bus as a node (shared.node's node_from_args) is declared."""
+    from conftest import REPO
+
+    from cinetransfer.cli import COMMANDS
+
+    flow = dataflow.load()
+    for n in flow.nodes.values():
+        command = n.command.split()[0]
+        assert command in COMMANDS, f"dataflow node {n.name} runs `cinetransfer {command}`, which the CLI lacks"
+        assert _cli_module_path(command) == n.module, f"{n.name}: the CLI runs {_cli_module_path(command)}"
+    declared = {n.command.split()[0] for n in flow.nodes.values()}
+    joins = {c for c in COMMANDS if (REPO / _cli_module_path(c)).is_file()
+             and "node_from_args(" in (REPO / _cli_module_path(c)).read_text()}
+    assert {"source", "detector", "smoother", "planner", "autopilot_bridge", "camera", "relay"} <= joins
+    assert joins - declared == set(), f"CLI nodes missing from deploy/dataflow.yaml: {sorted(joins - declared)}"
+
+
+def test_dataflow_declares_the_mavlink_subject_input_and_the_file_detector():
+    flow = dataflow.load()
+    assert keys.SUBJECT_STATE in flow.nodes["autopilot_bridge"].inputs
+    assert keys.SOURCE_FRAME in flow.nodes["file_detector"].outputs
+    # a file played by the detector itself sends no end-of-stream: the smoother ends on idle
+    assert flow.check(["file_detector", "smoother", "planner", "autopilot_bridge"]) == \
+        ["smoother reads detector/end but no node of the deployment writes it"]
+    assert "2 writers" in " ".join(flow.check(["source", "file_detector", "detector"]))

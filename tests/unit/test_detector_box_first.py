@@ -20,9 +20,9 @@ from cinetransfer.services.detector import box_models
 from cinetransfer.services.detector.box_first import BoxFirstPose, BoxFirstUnavailable, ssd_anchors
 from cinetransfer.services.detector.config import ConfigError, DetectorConfig
 from cinetransfer.services.detector.core import Detector
-from cinetransfer.services.detector.sources import iter_frames
+from cinetransfer.shared.frame_sources import iter_frames
 from cinetransfer.shared.boxes import box_iou
-from cinetransfer.shared.data import data_dir as shared_data_dir
+from cinetransfer.data import data_dir as shared_data_dir
 
 REASON = "box-first models not installed (npm missing at ./setup.sh): " + box_models.available()[1]
 needs_models = pytest.mark.skipif(not box_models.available()[0], reason=REASON)
@@ -134,7 +134,7 @@ def test_detect_logs_the_fallback(tmp_path, data):
                        env={**os.environ, "CT_DETECTOR_MODELS": str(tmp_path / "none")})
     assert r.returncode == 0, r.stderr[-2000:]
     assert "box_first backend unavailable" in r.stderr
-    from cinetransfer.services.detector.measurements_file import read_measurements
+    from cinetransfer.shared.measurements_file import read_measurements
 
     assert read_measurements(out).header.detector == "mediapipe (box_first unavailable)"
 

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from cinetransfer.shared.data import data_dir as shared_data_dir
+from cinetransfer.data import data_dir as shared_data_dir
 
 from cinetransfer.services.detector import pose_bundle
 from cinetransfer.services.detector.config import ConfigError, DetectorConfig
@@ -16,7 +16,7 @@ from cinetransfer.services.detector.core import Detector, people_mask
 from cinetransfer.services.detector.focus import FocusEstimator
 from cinetransfer.services.detector.overlay import draw
 from cinetransfer.services.detector.pose_mediapipe import BLAZEPOSE_TO_COCO17
-from cinetransfer.services.detector.sources import FrameSourceError, iter_frames, probe
+from cinetransfer.shared.frame_sources import FrameSourceError, iter_frames, probe
 from cinetransfer.shared import codec
 from cinetransfer.shared.messages import Measurement
 

@@ -8,7 +8,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from cinetransfer.services.detector import measurements_file as mf
+from cinetransfer.shared import measurements_file as mf
 from cinetransfer.shared.messages import LensState, Measurement, PersonDetection, Skeleton, SourceInfo
 
 

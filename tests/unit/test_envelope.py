@@ -1,4 +1,4 @@
-"""The envelope holds on the vehicle, commands are bounded by it, and time is checked (issue 13,
+"""The envelope holds on the vehicle, commands are bounded by it, and time is checked (
 points 2 and 3): the bridge core driven against the real simulator backend's dynamics, in
 simulated time (no wall clock, so the results do not depend on the machine's speed)."""
 from __future__ import annotations
@@ -164,7 +164,7 @@ def sim():
 
 @pytest.mark.parametrize("acc", [(0.0, 0.0, 0.0), (500.0, 500.0, 500.0)])
 def test_given_100hz_setpoints_far_outside_with_a_large_feed_forward_then_the_vehicle_stays_inside(sim, acc):
-    """The attack of issue 13: setpoints at (5000, 5000, 10000) with a large velocity (and
+    """The envelope attack: setpoints at (5000, 5000, 10000) with a large velocity (and
     acceleration) feed-forward, 100 Hz. Before: the vehicle settled at r = 62.45 m, z = 41.73 m
     against 60 / 40."""
     attack = sp(pos=(5000.0, 5000.0, 10000.0), vel=(500.0, 500.0, 500.0), acceleration_mps2=np.array(acc))

@@ -5,7 +5,7 @@ import zipfile
 
 import pytest
 
-from cinetransfer.shared import docgen
+from cinetransfer import docgen
 from conftest import REPO
 
 
@@ -47,9 +47,25 @@ def test_wheel_is_namespaced_and_importable(tmp_path):
 
 
 def test_readme_node_table_is_generated_from_the_dataflow():
-    from cinetransfer.shared import docgen
+    from cinetransfer import docgen
 
     text = (REPO / "README.md").read_text()
     assert text == docgen.readme_with_nodes(text), \
         "README's node table is stale: run `cinetransfer docs nodes --readme README.md`"
     assert "`source/frame`" in text  # the table is really there
+
+
+def test_package_data_and_package_dirs_name_files_that_exist():
+    import tomllib
+
+    tool = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    dirs = tool["package-dir"]
+    for pkg in tool["packages"]:
+        top = next(k for k in sorted(dirs, key=len, reverse=True) if pkg == k or pkg.startswith(k + "."))
+        folder = REPO / dirs[top] / pkg[len(top):].lstrip(".").replace(".", "/")
+        assert (folder / "__init__.py").is_file(), f"package {pkg}: {folder}/__init__.py missing"
+    for pkg, patterns in tool["package-data"].items():
+        top = next(k for k in sorted(dirs, key=len, reverse=True) if pkg == k or pkg.startswith(k + "."))
+        folder = REPO / dirs[top] / pkg[len(top):].lstrip(".").replace(".", "/")
+        for pattern in patterns:
+            assert list(folder.glob(pattern)), f"package-data {pkg}: {pattern} matches nothing in {folder}"

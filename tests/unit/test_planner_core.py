@@ -239,7 +239,7 @@ def test_same_ticks_give_the_same_setpoints_whatever_came_before(planner_cfg, in
 
 @pytest.mark.parametrize("value", [np.nan, 1e6, -1e6])
 def test_instructions_with_no_or_absurd_targets_are_refused_and_held(planner, instructions, value):
-    """Issue 13: a style whose targets are all NaN or at ±1e6 used to fly in 'track' mode."""
+    """A style whose targets are all NaN or at ±1e6 used to fly in 'track' mode."""
     import dataclasses
 
     bad = dataclasses.replace(instructions, image_targets=np.full_like(instructions.image_targets, value))

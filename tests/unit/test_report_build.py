@@ -16,7 +16,7 @@ from cinetransfer.report import build_report, synth
 from cinetransfer.report import cli as report_cli
 from cinetransfer.report.figures import credit_for, read_frames
 from cinetransfer.report.truthfile import TruthFileError, TruthWriter, read_truths, write_truths
-from cinetransfer.services.smoother.instructions import save_style
+from cinetransfer.shared.instructions import save_style
 from cinetransfer.shared import codec
 from cinetransfer.shared import messages as M
 

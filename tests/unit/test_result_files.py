@@ -1,4 +1,4 @@
-"""Issue 13, point 6: result files are whole or absent, truncated inputs are said out loud,
+"""Result files are whole or absent, truncated inputs are said out loud,
 and instructions nothing can fly are refused (by `load_style` and by the planner)."""
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from cinetransfer.services.detector.measurements_file import write_measurements
-from cinetransfer.services.smoother import instructions as I
+from cinetransfer.shared.measurements_file import write_measurements
+from cinetransfer.shared import instructions as I
 from cinetransfer.services.smoother.cli import smooth_main
 from cinetransfer.services.smoother.core import smooth_measurements
 from cinetransfer.services.smoother.synthetic import walking_sequence

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cinetransfer.services.smoother import instructions as I
+from cinetransfer.shared import instructions as I
 from cinetransfer.services.smoother.cli import plot_main, smooth_main
 from cinetransfer.services.smoother.core import smooth_measurements
 from cinetransfer.services.smoother.synthetic import measurement, walking_sequence
@@ -75,7 +75,7 @@ def test_not_json_is_refused(tmp_path):
 
 def test_docs_schema_is_the_generated_one():
     on_disk = json.loads((REPO / "docs" / "instructions.schema.json").read_text())
-    assert on_disk == I.json_schema(), "regenerate: python -m cinetransfer.services.smoother.instructions " \
+    assert on_disk == I.json_schema(), "regenerate: python -m cinetransfer.shared.instructions " \
                                        "--write-schema docs/instructions.schema.json"
 
 
@@ -93,7 +93,7 @@ def test_window_slice(result):
 
 
 def test_smooth_and_plot_command_lines(tmp_path, capsys):
-    from cinetransfer.services.detector.measurements_file import write_measurements
+    from cinetransfer.shared.measurements_file import write_measurements
 
     mpath = tmp_path / "m.msgpack"
     write_measurements(mpath, walking_sequence(48), source=M.SourceInfo(path="synthetic.mp4", width=640, height=480,
@@ -108,7 +108,7 @@ def test_smooth_and_plot_command_lines(tmp_path, capsys):
 
 
 def test_smooth_command_line_no_person_is_a_clear_error(tmp_path, capsys):
-    from cinetransfer.services.detector.measurements_file import write_measurements
+    from cinetransfer.shared.measurements_file import write_measurements
 
     mpath = tmp_path / "empty.msgpack"
     write_measurements(mpath, [measurement(i) for i in range(5)])

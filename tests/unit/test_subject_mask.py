@@ -8,8 +8,8 @@ import pytest
 from cinetransfer.services.detector import subject_mask
 from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.services.detector.core import Detector
-from cinetransfer.services.detector.sources import iter_frames
-from cinetransfer.shared.data import data_dir
+from cinetransfer.shared.frame_sources import iter_frames
+from cinetransfer.data import data_dir
 from cinetransfer.shared.messages import PersonDetection, Skeleton
 
 FRAME = 30  # the runner fully in view

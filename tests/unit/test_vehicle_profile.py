@@ -85,7 +85,7 @@ def test_a_broken_profile_is_refused_naming_the_field(tmp_path):
 @pytest.mark.parametrize("name", vehicle_names())
 def test_planner_harness_and_sim_vehicle_fly_one_dynamics_model(name):
     """The planner's closed-loop harness and the MAVLink sim-vehicle integrate the simulator's
-    VehicleDynamics with the same limits (issue 18: one dynamics model)."""
+    VehicleDynamics with the same limits (one dynamics model)."""
     from cinetransfer.services.planner.kinematic_sim import KinematicSim
     from cinetransfer.shared.dynamics import VehicleDynamics
 

@@ -197,7 +197,7 @@ def make_juggler(data: Path, out: Path) -> np.ndarray:
     # metric scale: the shot is locked off and he stays at about the same depth over the loop;
     # the standing height (max mask height over the loop) is the subject's height.
     px_height = float(np.max(heights))
-    # cut-outs keep the clip's own resolution (scale 1; until issue 14 they were cut at 420 px, 0.66x,
+    # cut-outs keep the clip's own resolution (scale 1; until the multi-shot work they were cut at 420 px, 0.66x,
     # which a long lens framing him close magnified 2x, and the focus estimator read him soft)
     target_px = px_height
     scale = target_px / px_height

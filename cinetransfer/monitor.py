@@ -4,7 +4,7 @@ A live table of keys with rate, size, age and a one-line decoded summary, plus t
 whose liveliness tokens are present. `--json` streams every decoded message as one JSON line
 (for scripts); `--once` collects for `--duration` seconds, prints one snapshot and exits.
 `--foxglove` serves the same topics live over the Foxglove WebSocket protocol instead (images,
-transforms and camera calibration included; shared/foxglove_live.py), on 127.0.0.1:`--port`;
+transforms and camera calibration included; cinetransfer/foxglove_live.py), on 127.0.0.1:`--port`;
 on any other address only with an access token (`--token-file` or CINETRANSFER_FOXGLOVE_TOKEN).
 """
 from __future__ import annotations
@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from cinetransfer.deploy import join
 from cinetransfer.shared import codec, keys, zenoh_config
 
 RATE_WINDOW_S = 5.0
@@ -162,7 +163,6 @@ def observer_options(args: argparse.Namespace) -> zenoh_config.ZenohOptions:
     explicit = args.connect or args.listen or args.zenoh_config or os.environ.get(zenoh_config.ENV_CONFIG)
     if explicit and not args.deployment:
         return zenoh_config.options_from_args(args)
-    from cinetransfer.deploy import join  # a tool joining a deployment (monitor sits above deploy)
 
     try:
         return join.deployment_options(args.deployment or "local", args.identity or "observer")
@@ -242,7 +242,7 @@ def foxglove_token(path: str | None) -> str | None:
 
 def _serve_foxglove(opts: zenoh_config.ZenohOptions, args: argparse.Namespace, stop: threading.Event) -> int:
     from cinetransfer.foxglove_front import check_exposure
-    from cinetransfer.shared.foxglove_live import FoxgloveLive
+    from cinetransfer.foxglove_live import FoxgloveLive
 
     try:
         token = foxglove_token(args.token_file)

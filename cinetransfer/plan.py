@@ -26,6 +26,7 @@ from cinetransfer.services.planner.scenarios import LoopLog, run_closed_loop
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.vehicle import VehicleProfile, add_vehicle_argument, load_vehicle
+from cinetransfer.shared.instructions import StyleFileError, load_style
 
 
 class BridgeSimAdapter:
@@ -164,16 +165,13 @@ def main(argv: list[str]) -> int:
     p.add_argument("--every", type=float, default=0.5, metavar="S", help="print a line every S seconds")
     p.add_argument("--json", metavar="FILE", default=None, help="write the per-step log and summary as JSON")
     args = p.parse_args(argv)
-
-    from cinetransfer.services.smoother.instructions import StyleFileError, load_style
-
     try:
         ins = load_style(args.style)
         from cinetransfer.services.planner.service import config_from_args
 
-        ns = argparse.Namespace(config=args.config, section="planner", vehicle=args.vehicle, rate=args.rate,
-                                horizon=args.horizon, dt=args.dt, codegen=None, cache_dir=None, max_solve_time=None,
-                                autostart=None)
+        ns = argparse.Namespace(config=args.config, section="planner", vehicle=args.vehicle,
+                                **{"rate_hz": args.rate, "structure.horizon_steps": args.horizon,
+                                   "structure.dt_s": args.dt})
         cfg = config_from_args(ns)
         # in-process the simulated clock waits for the solver: give it room (budget = 10 periods)
         cfg = dataclasses.replace(cfg, max_solve_time_s=max(cfg.max_solve_time_s, 10.0 / cfg.rate_hz))

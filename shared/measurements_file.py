@@ -18,7 +18,7 @@ complete record and, unless `strict=True`, ignores a partial last one (it report
 
 Usage::
 
-    from cinetransfer.services.detector.measurements_file import read_measurements, write_measurements
+    from cinetransfer.shared.measurements_file import read_measurements, write_measurements
 
     mf = read_measurements("measurements.msgpack")
     mf.header.source.fps, mf.header.source.width

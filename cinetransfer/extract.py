@@ -1,18 +1,21 @@
 """Detector + smoother features in one process: a video file in, per-frame features out.
 
-Used by `cinetransfer extract` and the evaluation scripts. The detector (services/detector) is
-imported only here, lazily, so the rest of the smoother runs without MediaPipe installed.
+`cinetransfer extract` (`main`) and the evaluation scripts use it. It joins two services, so it
+lives above them; the detector is imported lazily, so loading this module stays light.
 """
 from __future__ import annotations
 
+import argparse
 import os
 import sys
 from pathlib import Path
 from typing import Any, Iterator
 
+from cinetransfer.services.smoother.cli import add_config_arguments, config_from_args, write_result
 from cinetransfer.services.smoother.config import SmootherConfig
-from cinetransfer.services.smoother.core import feature_options
+from cinetransfer.services.smoother.core import SmootherInputError, feature_options, smooth_sequence
 from cinetransfer.services.smoother.features import FrameFeatures, frame_features
+from cinetransfer.shared.errors import ConfigError, report_config_error
 from cinetransfer.shared.messages import Measurement, SourceInfo
 
 
@@ -26,7 +29,7 @@ def measure_video(video: str | os.PathLike, *, detector_config: Any = None, stop
     try:
         from cinetransfer.services.detector.config import DetectorConfig
         from cinetransfer.services.detector.core import Detector, DetectorError
-        from cinetransfer.services.detector.sources import FrameSourceError, probe
+        from cinetransfer.shared.frame_sources import FrameSourceError, probe
     except ImportError as e:  # pragma: no cover - a build without the detector
         raise ExtractError(f"the detector is not available in this build ({e})") from None
     try:
@@ -63,7 +66,7 @@ def extract_features(video: str | os.PathLike, cfg: SmootherConfig, *,
     writer = None
     try:
         if measurements_path is not None:
-            from cinetransfer.services.detector.measurements_file import MeasurementsWriter
+            from cinetransfer.shared.measurements_file import MeasurementsWriter
 
             writer = MeasurementsWriter(measurements_path, source=source, detector=det.name, config=det.cfg,
                                         focus_map_scale=det.focus_map_scale(source.width, source.height))
@@ -78,3 +81,36 @@ def extract_features(video: str | os.PathLike, cfg: SmootherConfig, *,
     if not feats:
         raise ExtractError(f"{video}: no frame could be read")
     return feats, source
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="cinetransfer extract",
+                                 description="video -> style.json (detector and smoother in one process)")
+    ap.add_argument("video", help="source video file (or image folder)")
+    ap.add_argument("-o", "--output", type=Path, default=Path("style.json"), help="style file to write")
+    ap.add_argument("--measurements", type=Path, default=None, help="also keep the measurements in this file")
+    ap.add_argument("--plot", type=Path, default=None, help="also draw the style to this image")
+    ap.add_argument("--no-diagnostics", action="store_true", help="leave the raw per-frame measures out")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    ap.add_argument("--stop", type=int, default=None, help="stop after this many frames")
+    ap.add_argument("--cuts", default=None, metavar="ROWS",
+                    help="rows where shots begin, comma-separated, instead of finding them ('' = one shot)")
+    add_config_arguments(ap)
+    args = ap.parse_args(argv)
+    try:
+        cfg = config_from_args(args)
+        cuts = None if args.cuts is None else [int(r) for r in args.cuts.split(",") if r.strip()]
+    except ConfigError as e:
+        return report_config_error(e, "cinetransfer extract")
+    except ValueError as e:  # --cuts is not a list of row numbers
+        print(f"cinetransfer extract: --cuts: {e}", file=sys.stderr)
+        return 2
+    try:
+        feats, source = extract_features(args.video, cfg, measurements_path=args.measurements, stop=args.stop,
+                                         progress=not args.quiet)
+        result = smooth_sequence(feats, cfg, source=source, known_cuts=cuts)
+    except (ExtractError, SmootherInputError) as e:
+        print(f"cinetransfer extract: {e}", file=sys.stderr)
+        return 1
+    write_result(result, args.output, args.plot, diagnostics=not args.no_diagnostics)
+    return 0

@@ -1,7 +1,7 @@
 """The rig's topics live in Foxglove: `cinetransfer monitor --foxglove [--port P]`.
 
 A Foxglove WebSocket server (foxglove-sdk) carries the same channels a recording has
-(shared/runlog.py `views`): our messages as JSON with their generated schemas, camera frames as
+(cinetransfer/runlog.py `views`): our messages as JSON with their generated schemas, camera frames as
 foxglove.CompressedImage (JPEG), poses as foxglove.FrameTransform, the lens as
 foxglove.CameraCalibration. In Foxglove: Open connection -> Foxglove WebSocket ->
 ws://127.0.0.1:8765.
@@ -26,7 +26,8 @@ from typing import Any
 
 from foxglove.websocket import ServerListener
 
-from cinetransfer.shared import jsonmsg, keys, runlog
+from cinetransfer import runlog
+from cinetransfer.shared import jsonmsg, keys
 from cinetransfer.shared import messages as M
 
 log = logging.getLogger("cinetransfer.monitor.foxglove")

@@ -11,7 +11,7 @@ an optional "diagnostics" section (raw per-frame measures for plots and evaluati
     }
 
 The JSON Schema is `json_schema()` (docs/instructions.schema.json is generated from it by
-`python -m cinetransfer.services.smoother.instructions --write-schema docs/instructions.schema.json`).
+`python -m cinetransfer.shared.instructions --write-schema docs/instructions.schema.json`).
 `load_style` checks the format name and version first (a wrong version is refused with the
 version this build reads), then the schema, then the shapes and values through the message codec.
 """
