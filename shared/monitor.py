@@ -13,7 +13,6 @@ import collections
 import dataclasses
 import json
 import os
-import signal
 import sys
 import threading
 import time
@@ -23,6 +22,7 @@ import numpy as np
 import zenoh
 
 from cinetransfer.shared import codec, keys, zenoh_config
+from cinetransfer.shared.stopsignal import StopSignal
 
 RATE_WINDOW_S = 5.0
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
@@ -191,9 +191,7 @@ def main(argv: list[str]) -> int:
         opts = _options(args)
     except ValueError as e:
         p.error(str(e))
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = StopSignal().install()  # a handler that sets an Event can deadlock (stopsignal.py)
     if args.foxglove:
         return _serve_foxglove(opts, args, stop)
     with zenoh_config.open_session(opts) as session:
@@ -217,7 +215,7 @@ def main(argv: list[str]) -> int:
     return 0
 
 
-def _serve_foxglove(opts: zenoh_config.ZenohOptions, args: argparse.Namespace, stop: threading.Event) -> int:
+def _serve_foxglove(opts: zenoh_config.ZenohOptions, args: argparse.Namespace, stop: StopSignal) -> int:
     from cinetransfer.shared.foxglove_live import FoxgloveLive
 
     with zenoh_config.open_session(opts) as session:

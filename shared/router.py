@@ -8,11 +8,10 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
-import threading
 
 from cinetransfer.shared import zenoh_config
 from cinetransfer.shared.node import setup_logging
+from cinetransfer.shared.stopsignal import StopSignal
 
 log = logging.getLogger("cinetransfer.router")
 
@@ -27,9 +26,7 @@ def main(argv: list[str]) -> int:
         opts = zenoh_config.options_from_args(args, mode="router", listen=("tcp/127.0.0.1:7447",))
     except ValueError as e:
         p.error(str(e))
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = StopSignal().install()  # a handler that sets an Event can deadlock (stopsignal.py)
     with zenoh_config.open_session(opts) as session:
         log.info("router %s listening on %s", session.info.zid(), ", ".join(opts.listen) or "(config file)")
         stop.wait()
