@@ -21,6 +21,7 @@ from cinetransfer.job import TransferError
 from cinetransfer.recorder import Recorder, Take, Window
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.stopsignal import StopSignal
 from cinetransfer.take import TakeSummary, require_complete
 
 log = logging.getLogger("cinetransfer.transfer")
@@ -196,14 +197,17 @@ def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: fl
         signal.signal(signal.SIGINT, _already_stopping)
         log.warning("interrupted: stopping the vehicle and keeping what was recorded")
     finally:
-        old = signal.signal(signal.SIGINT, signal.SIG_IGN)  # the stop is never cut short
+        held = StopSignal().install((signal.SIGINT,))  # the stop is never cut short; a Ctrl-C now is kept
         try:
             cond.stop(sim_time=not realtime)
             time.sleep(0.3)
             rec.summaries = rec.close()
             cond.undeclare()
         finally:
-            signal.signal(signal.SIGINT, old)
+            held.restore()
+        if held.is_set() and not rec.interrupted:
+            rec.interrupted = True
+            log.warning("interrupted as the take closed: the recording is kept, nothing is evaluated")
     return rec
 
 

@@ -139,10 +139,6 @@ def _evaluate(out: Path, src: Path, style_path: Path, rec: Recorder, meta: dict)
                         recording=out / "run.mcap")
 
 
-def _terminate(_signum, _frame) -> None:
-    raise KeyboardInterrupt  # SIGTERM (a CI timeout, `kill`): stop the vehicle and the nodes as Ctrl-C does
-
-
 def _argument_problem(args, src: Path) -> str | None:
     """What is wrong with the command line before anything starts (None: nothing)."""
     if not src.is_file():
@@ -197,6 +193,9 @@ def _terminate(_signum, _frame) -> None:
 
 def main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
+    # Ctrl-C must stop the vehicle however the command was started: a shell script that runs it in
+    # the background (`cmd &`) hands it SIGINT ignored, and Python then installs no handler at all
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, _terminate)
     setup_logging(args.log_level)
     src, out = Path(args.source), Path(args.outdir)

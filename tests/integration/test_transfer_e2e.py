@@ -218,7 +218,10 @@ def test_ctrl_c_stops_the_vehicle_and_keeps_the_recording(data, tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
                              "--scene", "lawn_juggler", "-o", str(out), "--max-frames", "240", "--preroll", "1",
                              "--rig", "ctrlc", "--pace", "0.5"],  # a take of 20 s or more, however fast the machine
-                            stdout=console, stderr=subprocess.STDOUT, text=True)
+                            stdout=console, stderr=subprocess.STDOUT, text=True,
+                            # started as a script's background job is (`cmd &`: SIGINT ignored, which the
+                            # child inherits): the Ctrl-C must stop the take all the same
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     try:
         # when the take is being recorded (watched on the bus as the deployment's read-only observer:
         # 1 s of the take has been simulated since the transfer's reset) ...
