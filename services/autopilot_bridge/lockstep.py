@@ -87,7 +87,8 @@ class SimClockLoop:
     def run(self) -> None:
         try:
             while self.node.running:
-                self.run_step()
+                with self.node.guard(self.clock_pub.key, "simulation step"):  # no exception ends the loop
+                    self.run_step()
         finally:
             self.planner.undeclare()
 

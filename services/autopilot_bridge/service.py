@@ -314,6 +314,11 @@ class Bridge:
         self.node.healthy = bool(self.link_up and self.vehicle is not None and self.vehicle.valid
                                  and not self.breach)
 
+    def guarded_tick(self) -> None:
+        """`tick`, where an exception costs the tick (counted, logged), never the loop."""
+        with self.node.guard("control", "control tick"):
+            self.tick()
+
     def tick(self) -> None:
         """One real-time control step on the monotonic clock."""
         now = time.monotonic()
@@ -359,7 +364,7 @@ def main(argv: list[str]) -> int:
                 loop.run()
             else:
                 node.ready()
-                call_periodically(1.0 / cfg.rate_hz, node, bridge.tick)
+                call_periodically(1.0 / cfg.rate_hz, node, bridge.guarded_tick)
         finally:
             backend.hold()
             backend.close()
