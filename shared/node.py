@@ -54,11 +54,20 @@ NO_DROP_CAP = 100_000  # a no-drop queue past this is a bug upstream; it then dr
 
 def add_node_arguments(parser: argparse.ArgumentParser, *, default_rig: str = "rig0") -> None:
     """Flags every node takes: rig, logging, health period, and the Zenoh flags."""
-    parser.add_argument("--rig", default=default_rig, help="rig (vehicle) name used in keys (default %(default)s)")
+    parser.add_argument("--rig", default=default_rig, type=rig_name,
+                        help="rig (vehicle) name used in keys (default %(default)s)")
     parser.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     parser.add_argument("--health-period", type=float, default=1.0, metavar="S",
                         help="seconds between Health messages (default %(default)s)")
     add_arguments(parser)
+
+
+def rig_name(text: str) -> str:
+    """argparse type of a rig name: one clear usage error instead of a traceback from the first key."""
+    try:
+        return keys.rig_name(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def setup_logging(level: str = "INFO") -> None:
@@ -170,10 +179,12 @@ class Presence:
 
     def __init__(self, session: zenoh.Session, rig: str, node: str) -> None:
         self.alive = False
+        self.losses = 0  #: times the token went away (a restart between two looks still counts)
         self._sub = session.liveliness().declare_subscriber(keys.alive(rig, node), self._on, history=True)
 
-    def _on(self, sample: zenoh.Sample) -> None:  # Zenoh thread: only flips a flag
+    def _on(self, sample: zenoh.Sample) -> None:  # Zenoh thread: only flips a flag and counts
         self.alive = sample.kind == zenoh.SampleKind.PUT
+        self.losses += not self.alive
 
     def undeclare(self) -> None:
         self._sub.undeclare()
