@@ -168,6 +168,11 @@ def test_transfer_through_zenoh_processes(data, tmp_path, port, listener_opts):
 
     meta = json.loads((out / "meta.json").read_text())
     assert meta["recorded_frames"] == FRAMES == meta["instruction_frames"]
+    # the recording starts at the flight's time zero: frame 0, stamped then, none from before the reset
+    recorded = [codec.decode(p, M.Frame) for _, _, p in read_run(out / "run.mcap", keys.FRAME.key("e2e"))]
+    assert recorded[0].index == 0 and recorded[0].stamp_ns == meta["epoch_ns"]
+    assert [f.index for f in recorded] == list(range(len(recorded)))
+    assert min(t.stamp_ns for t in read_truths(out / "truth.msgpack")) >= meta["epoch_ns"]
     # in simulation time every instruction frame is its own render: nothing repeated or missing
     assert meta["clock_mode"] == "lockstep"
     assert meta["repeated_frames"] == 0 and meta["missing_frames"] == 0 and meta["truth_frames"] == FRAMES
