@@ -15,6 +15,7 @@ the payload (zero-copy). Boolean arrays are bit-packed; a Frame image may be sen
 and raises `DecodeError` — one error type for every malformed or unsupported payload. Decoding
 is total: the header is bounded in size (MAX_HEADER_BYTES), nesting depth (MAX_DEPTH) and element
 count (MAX_ELEMENTS) before any field is looked at, arrays in element count (MAX_ARRAY_ELEMENTS),
+JPEG images in pixels (MAX_JPEG_PIXELS, read from the JPEG's header before decoding),
 and any other exception raised while decoding (a bug, a library's odd error type) is turned
 into a DecodeError too, so a receiver needs to catch exactly one type.
 Unknown fields are ignored (a newer sender may add fields); missing fields are an error, except
