@@ -37,7 +37,7 @@ def test_a_planner_killed_mid_take_makes_a_degraded_take_that_exits_3(data, tmp_
     faults = meta["faults"]
     assert faults["degraded"] is True
     take = faults["takes"][0]
-    assert take["planner_restarts"] >= 1 or take["planner_silence_s"] > 3.0, take
+    assert take["planner_restarts"] >= 1, take  # (the supervisor restarts it within the take)
     # the vehicle held from the kill on: most of the take's remaining ~3 s
     assert take["hold_share"] > 0.1 and take["hold_s"] > 0.4, take
 

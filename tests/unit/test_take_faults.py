@@ -22,8 +22,8 @@ def test_judge_marks_long_holds_and_lost_planners():
     assert held.degraded and held.hold_s == 1.8 and "60%" in held.reasons[0]
     lost = T.judge(T.TakeFaults(take=1, planner_restarts=1), duration_s=3.0)
     assert lost.degraded and lost.reasons == ["the planner restarted 1 time(s)"]
-    silent = T.judge(T.TakeFaults(take=1, planner_silence_s=3.5), duration_s=3.0)
-    assert silent.degraded and "silent for 3.5 s" in silent.reasons[0]
+    # a long silence is wall time (a loaded machine): reported, never judged
+    assert not T.judge(T.TakeFaults(take=1, planner_silence_s=30.0), duration_s=3.0).degraded
 
 
 def test_a_degraded_take_reports_no_goal_as_met():
