@@ -78,3 +78,15 @@ def test_transfer_into_a_file_is_refused(data, tmp_path):
     f.write_text("keep me")
     one_line_error(cli("transfer", str(data / "sam2_juggle_1280x720.mp4"), "-o", str(f)), 2, "not a folder")
     assert f.read_text() == "keep me"
+
+
+@pytest.mark.slow
+def test_a_truncated_source_is_an_error_not_a_short_style(data, tmp_path):
+    # the first quarter of a faststart MP4: its header still declares all 247 frames
+    whole = (data / "sam2_juggle_1280x720.mp4").read_bytes()
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(whole[:len(whole) // 4])
+    r = subprocess.run([sys.executable, "-m", "cinetransfer", "transfer", str(cut), "-o", str(tmp_path / "out"),
+                        "--rig", "cut", "--no-eval"], capture_output=True, text=True, timeout=900)
+    last = one_line_error(r, 1, "truncated or damaged", "of the 247 frames", "--max-frames")
+    assert not (tmp_path / "out" / "meta.json").exists(), last  # nothing was flown
