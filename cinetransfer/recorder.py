@@ -8,7 +8,8 @@ slot; the truth of a slot is the truth of the frame it shows (joined at close, w
 they came in). Which recorded frame is slot k is set by `arm(Window)`: in simulation time by
 the camera frame index within the takes, on the wall clock by the frame stamp.
 
-A full disk (any write error) stops the recording at once: `failure` says why, the worker frees
+A full disk (any write error, or less than LOW_SPACE_BYTES left: a chunk cut in half by a real
+ENOSPC would damage the file) stops the recording at once: `failure` says why, the worker frees
 a reserve it set aside at the start (`RESERVE_BYTES`, so that closing has room) and closes
 run.mcap and output.mp4 so that they stay readable; the flight sees `failure` and ends.
 """
@@ -16,10 +17,12 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import logging
 import os
 import queue
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +36,9 @@ from cinetransfer.take import Placed, TakeAssembler, TakeSummary
 
 log = logging.getLogger("cinetransfer.recorder")
 RESERVE_BYTES = 8 * 2**20  #: set aside at the start, freed on a write error: room to close the files
+#: less free space than this (beside the reserve) is a full disk: stop before a write is cut in half
+LOW_SPACE_BYTES = 4 * 2**20
+SPACE_LOOK_S = 0.2  #: how often the free space is looked at
 RESERVE = ".reserve"
 
 
@@ -81,6 +87,7 @@ class Recorder:
         #: the write error that stopped the recording (None: none)
         self.failure: OSError | None = None
         self.closed_cleanly = True  #: False: a file could not be closed after `failure`
+        self._space_seen = -1e9
         self.frame_key, self.truth_key = keys.FRAME.key(rig), keys.SIM_TRUTH.key(rig)
         self.clock_key = keys.SIM_CLOCK.key(rig)
         self.health: dict[str, M.Health] = {}
@@ -130,9 +137,20 @@ class Recorder:
         if self.failure is not None:
             return
         try:
+            self._check_space()
             self.log.write(key, payload)
         except OSError as e:
             self._fail(e)
+
+    def _check_space(self) -> None:
+        """ENOSPC before the disk is really full: a chunk cut by a real ENOSPC would damage the file."""
+        now = time.monotonic()
+        if now - self._space_seen < SPACE_LOOK_S:
+            return
+        self._space_seen = now
+        st = os.statvfs(self.outdir)
+        if st.f_bavail * st.f_frsize < LOW_SPACE_BYTES:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self.outdir))
 
     def _fail(self, e: OSError) -> None:
         """Stop recording at the first write error: free the reserve, close the files readable."""
