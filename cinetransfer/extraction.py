@@ -14,8 +14,10 @@ from tqdm import tqdm
 from cinetransfer.job import TransferError
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.node import Presence
 
 log = logging.getLogger("cinetransfer.transfer")
+EXTRACTION_NODES = ("source", "detector", "smoother")
 
 
 class StyleTap:
@@ -26,6 +28,8 @@ class StyleTap:
         self.q: queue.SimpleQueue = queue.SimpleQueue()
         self.measured = 0
         self.played: int | None = None  #: frames the detector measured, from its end-of-stream message
+        #: the extraction's nodes, watched: one that dies is named at once, not after the stall timeout
+        self.nodes = {n: Presence(session, rig, n) for n in EXTRACTION_NODES}
         topics = (keys.INSTRUCTIONS, keys.SOURCE_END, keys.DETECTOR_END)
         self._subs = [session.declare_subscriber(t.key(rig), lambda s, t=t: self.q.put((t, s.payload.to_bytes())))
                       for t in topics]
@@ -48,6 +52,8 @@ class StyleTap:
     def close(self) -> None:
         for s in self._subs:
             s.undeclare()
+        for p in self.nodes.values():
+            p.undeclare()
 
 
 def extract_on_dataflow(session, rig: str, src: Path, stop: int | None, stall_s: float) -> M.Instructions:
@@ -78,6 +84,10 @@ def _await_final(tap: StyleTap, path: str, stall_s: float) -> M.Instructions:
             topic, msg = tap.next(0.2)
             bar.n = tap.measured
             bar.refresh()
+            dead = [n for n, p in tap.nodes.items() if p.losses]
+            if dead:
+                raise TransferError(f"extraction: the {dead[0]} node died (its liveliness token went away); "
+                                    f"see OUTDIR/deploy/{dead[0]}.log")
             if topic is None:
                 if time.monotonic() - last > stall_s:
                     raise TransferError(f"extraction stalled: nothing from the source, detector or smoother for "

@@ -89,3 +89,61 @@ def test_a_bridge_killed_mid_take_is_named_at_once_and_the_recording_is_kept(dat
     assert 0 < meta["recorded_frames"] < 96 and "autopilot_bridge" in meta["error"]
     assert meta["truth_frames"] == len(read_truths(out / "truth.msgpack")) > 0
     assert RunReader(out / "run.mcap").info.complete
+
+
+@pytest.mark.slow
+def test_a_detector_killed_during_the_extraction_is_named_at_once(data, tmp_path):
+    import time
+
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
+                             "--scene", "lawn_juggler", "-o", str(out), "--rig", "nodetector", "--no-eval"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        # given the extraction under way (the detector has measured frames of the 247-frame clip) ...
+        wait_for_measurements(out, "nodetector", proc)
+        state = out / "deploy" / "state.json"
+        os.kill(json.loads(state.read_text())["procs"]["detector"]["pid"], signal.SIGKILL)  # ... the detector dies
+        killed = time.monotonic()
+        _, err = proc.communicate(timeout=600)
+        seen_s = time.monotonic() - killed
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    # then the transfer names it in one line, long before the stall timeout (300 s)
+    assert proc.returncode == 1, err[-3000:]
+    last = err.strip().splitlines()[-1]
+    assert last == "cinetransfer transfer: extraction: the detector node died (its liveliness token went away); " \
+                   "see OUTDIR/deploy/detector.log", err[-3000:]
+    assert seen_s < 120, seen_s  # (the deployment's shutdown is most of it)
+
+
+def wait_for_measurements(out, rig: str, proc, timeout: float = 300.0) -> None:
+    """Block until the detector of the transfer's deployment has published a measurement (seen on
+    the bus as the deployment's read-only observer)."""
+    import threading
+    import time
+
+    from cinetransfer.shared import keys, zenoh_config
+
+    deadline = time.monotonic() + timeout
+    while not (out / "deploy" / "secrets" / "users.txt").is_file():
+        assert proc.poll() is None and time.monotonic() < deadline, "the transfer ended before its deployment came up"
+        time.sleep(0.1)
+    opts = zenoh_config.deployment_options(out / "deploy" / "transfer.yaml", "observer", run_dir=out / "deploy")
+    seen = threading.Event()
+    session = None
+    while session is None:  # the credentials exist a moment before the router listens
+        assert proc.poll() is None and time.monotonic() < deadline, "the transfer ended before its router came up"
+        try:
+            session = zenoh_config.open_session(opts)
+        except Exception:  # noqa: BLE001 - zenoh.ZError: not listening yet
+            time.sleep(0.2)
+    with session:
+        sub = session.declare_subscriber(keys.MEASUREMENT.key(rig), lambda _s: seen.set())
+        try:
+            while not seen.wait(0.1):
+                assert proc.poll() is None and time.monotonic() < deadline, "the extraction ended first"
+        finally:
+            sub.undeclare()
