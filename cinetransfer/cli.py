@@ -3,10 +3,16 @@
 Subcommands are registered lazily (module path + function) so that `cinetransfer --help`
 stays fast and a service's heavy imports (torch, mediapipe, casadi) load only when used.
 Each target is `main(argv: list[str]) -> int`.
+
+Exit codes, for every command: 0 done; 1 an error (one line on stderr: a file that cannot be
+written, no deployment to talk to, ...); 2 a bad command line; 130 interrupted. `transfer` adds 3
+(a degraded take, docs/transfer.md). No user's mistake prints a traceback; CT_DEBUG=1 shows it.
 """
 from __future__ import annotations
 
+import errno
 import importlib
+import os
 import sys
 
 from cinetransfer.shared.errors import ConfigError, report_config_error
@@ -58,7 +64,10 @@ def _usage() -> str:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] in ("-h", "--help", "help"):
+    if not argv:  # a command is required: say so, and fail like any other bad command line
+        print(_usage(), file=sys.stderr)
+        return 2
+    if argv[0] in ("-h", "--help", "help"):
         print(_usage())
         return 0
     if argv[0] == "--version":
@@ -79,11 +88,37 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr)
             return 2
         raise
+    return _run(name, getattr(mod, fn_name), rest)
+
+
+def _run(name: str, fn, rest: list[str]) -> int:
+    """Run a command; what the user's environment got wrong is one line and an exit code, not a traceback."""
     try:
-        rc = getattr(mod, fn_name)(rest)
+        return int(fn(rest) or 0)
+    except KeyboardInterrupt:
+        print(f"cinetransfer {name}: interrupted", file=sys.stderr)
+        return 130
     except ConfigError as e:  # a bad setting found past a command's own checks: one line, exit 2
         return report_config_error(e, f"cinetransfer {name}")
-    return int(rc or 0)
+    except Exception as e:  # noqa: BLE001 - filtered below: only the user-facing kinds become one line
+        line = user_error(e)
+        if line is None or os.environ.get("CT_DEBUG"):
+            raise
+        print(f"cinetransfer {name}: {line}", file=sys.stderr)
+        return 1
+
+
+def user_error(e: BaseException) -> str | None:
+    """One line for an error of the user's environment (a file system refusal, no deployment to talk
+    to); None for anything else (a bug: its traceback is worth seeing)."""
+    if isinstance(e, OSError):
+        what = e.strerror or errno.errorcode.get(e.errno or 0, "") or str(e)
+        where = f": {e.filename}" if e.filename else ""
+        return f"{what}{where}"
+    if type(e).__name__ == "ZError" and type(e).__module__.split(".")[0] == "zenoh":
+        return (f"cannot use the bus: {e} (is the deployment running and reachable? "
+                "see 'cinetransfer deploy status CONFIG')")
+    return None
 
 
 if __name__ == "__main__":

@@ -15,8 +15,10 @@ from cinetransfer.job import TransferError
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.instructions import load_style, save_style
+from cinetransfer.shared.node import Presence
 
 log = logging.getLogger("cinetransfer.transfer")
+EXTRACTION_NODES = ("source", "detector", "smoother")
 
 
 class StyleTap:
@@ -26,6 +28,9 @@ class StyleTap:
     def __init__(self, session, rig: str) -> None:
         self.q: queue.SimpleQueue = queue.SimpleQueue()
         self.measured = 0
+        self.played: int | None = None  #: frames the detector measured, from its end-of-stream message
+        #: the extraction's nodes, watched: one that dies is named at once, not after the stall timeout
+        self.nodes = {n: Presence(session, rig, n) for n in EXTRACTION_NODES}
         topics = (keys.INSTRUCTIONS, keys.SOURCE_END, keys.DETECTOR_END)
         self._subs = [session.declare_subscriber(t.key(rig), lambda s, t=t: self.q.put((t, s.payload.to_bytes())))
                       for t in topics]
@@ -48,6 +53,8 @@ class StyleTap:
     def close(self) -> None:
         for s in self._subs:
             s.undeclare()
+        for p in self.nodes.values():
+            p.undeclare()
 
 
 def extract_on_dataflow(session, rig: str, src: Path, stop: int | None, stall_s: float) -> M.Instructions:
@@ -59,7 +66,11 @@ def extract_on_dataflow(session, rig: str, src: Path, stop: int | None, stall_s:
     try:
         args = {"path": path, **({"stop": int(stop)} if stop else {})}
         cmd.put(codec.encode(M.Command(stamp_ns=M.now_ns(), action="play", args=args)))
-        return _await_final(tap, path, stall_s)
+        style = _await_final(tap, path, stall_s)
+        problem = shortfall(tap.played, declared_frames(src), stop)
+        if problem:
+            raise TransferError(f"{src}: {problem}")
+        return style
     finally:
         cmd.undeclare()
         tap.close()
@@ -74,18 +85,22 @@ def _await_final(tap: StyleTap, path: str, stall_s: float) -> M.Instructions:
             topic, msg = tap.next(0.2)
             bar.n = tap.measured
             bar.refresh()
+            dead = [n for n, p in tap.nodes.items() if p.losses]
+            if dead:
+                raise TransferError(f"extraction: the {dead[0]} node died (its liveliness token went away); "
+                                    f"see OUTDIR/deploy/{dead[0]}.log")
             if topic is None:
                 if time.monotonic() - last > stall_s:
                     raise TransferError(f"extraction stalled: nothing from the source, detector or smoother for "
                                         f"{stall_s:.0f} s (see OUTDIR/deploy/*.log)")
                 continue
             last = time.monotonic()
-            final = _final_instructions(topic, msg, path)
+            final = _final_instructions(tap, topic, msg, path)
             if final is not None:
                 return final
 
 
-def _final_instructions(topic, msg, path: str) -> M.Instructions | None:
+def _final_instructions(tap: StyleTap, topic, msg, path: str) -> M.Instructions | None:
     """One message of the extraction: the final instructions for `path`, or None (keep waiting);
     TransferError when the source node could not play it."""
     if msg is None or msg.source.path != path:
@@ -94,9 +109,35 @@ def _final_instructions(topic, msg, path: str) -> M.Instructions | None:
         raise TransferError(f"the source node could not play {path}: {msg.reason}")
     if topic is keys.DETECTOR_END:
         log.info("detector: %d frames measured (%s)", msg.frames, msg.reason)
+        tap.played = int(msg.frames)
     if topic is keys.INSTRUCTIONS and msg.final:
         return msg
     return None
+
+
+def declared_frames(src: Path) -> int | None:
+    """The frame count the video's container declares (its header, nothing decoded), or None."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(src))
+    try:
+        n = cap.get(cv2.CAP_PROP_FRAME_COUNT) if cap.isOpened() else 0
+    finally:
+        cap.release()
+    return int(n) if n and n > 0 else None
+
+
+def shortfall(played: int | None, declared: int | None, stop: int | None) -> str | None:
+    """What is wrong when the source delivered clearly fewer frames than its container declares (a
+    truncated or damaged file): a style of the first rows only would be a silent partial result.
+    Containers estimate their count (a frame or two, 2 %): within that, nothing is said."""
+    if played is None or declared is None:
+        return None
+    expected = min(declared, stop) if stop else declared
+    if expected - played <= max(2, 0.02 * expected):
+        return None
+    return (f"the video is truncated or damaged: {played} of the {expected} frames its header declares could be "
+            f"read; repair it, or pass --max-frames {played} to use what can be read")
 
 
 def source_style(args, src: Path, out: Path, session) -> tuple[Path, M.Instructions]:

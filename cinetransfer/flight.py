@@ -21,9 +21,12 @@ from cinetransfer.job import TransferError
 from cinetransfer.recorder import Recorder, Take, Window
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.node import Presence
+from cinetransfer.shared.stopsignal import StopSignal
 from cinetransfer.take import TakeSummary, require_complete
 
 log = logging.getLogger("cinetransfer.transfer")
+LIVELINESS_LOOK_S = 0.5  # how often the take looks at the bridge's liveliness between frames
 
 
 class Conductor:
@@ -53,17 +56,35 @@ class Conductor:
             p.undeclare()
 
 
-def _progress(rec: Recorder, k: int, stall_s: float, *, what: str) -> None:
-    """Wait until the take's k frames are recorded, with a progress bar; TransferError if no
-    frame arrives for `stall_s` wall seconds (a node died or hangs)."""
+def _progress(rec: Recorder, k: int, stall_s: float, *, what: str, bridge: Presence | None = None) -> None:
+    """Wait until the take's k frames are recorded, with a progress bar; TransferError at once
+    when the bridge's liveliness token goes away (it died: its simulation is lost), or when no
+    frame arrives for `stall_s` wall seconds (a node hangs)."""
+    losses = bridge.losses if bridge is not None else 0
     with tqdm(total=k, desc="recording", unit="frame", disable=None) as bar:
         while rec.frames_written < k:
             n = rec.frames_written
-            if not rec.wait(lambda: rec.frames_written != n, stall_s):
-                raise TransferError(f"{what}: no frame for {stall_s:.0f} s after {n} of {k} "
-                                    "(see OUTDIR/deploy/*.log)")
+            stall_at = time.monotonic() + stall_s
+            while not rec.wait(lambda: rec.frames_written != n or rec.failure is not None,
+                               min(LIVELINESS_LOOK_S, stall_s)):
+                if bridge is not None and bridge.losses != losses:
+                    raise TransferError(f"{what}: the autopilot_bridge node died after {n} of {k} frames (its "
+                                        "liveliness token went away); what was recorded is kept in OUTDIR "
+                                        "(see OUTDIR/deploy/autopilot_bridge.log)")
+                if time.monotonic() >= stall_at:
+                    raise TransferError(f"{what}: no frame for {stall_s:.0f} s after {n} of {k} "
+                                        "(see OUTDIR/deploy/*.log)")
+            if rec.failure is not None:
+                raise TransferError(_write_failure(rec, n, k))
             bar.n = min(rec.frames_written, k)
             bar.refresh()
+
+
+def _write_failure(rec: Recorder, n: int, k: int) -> str:
+    e = rec.failure
+    what = f"{e.strerror or e}" + (f" ({e.filename})" if getattr(e, "filename", None) else "")
+    kept = "closed readable" if rec.closed_cleanly else "not all of it could be closed (see the log)"
+    return f"cannot write the recording: {what}; it stopped after {n} of {k} frames, {kept}, in OUTDIR"
 
 
 def shot_schedule(style: M.Instructions, *, preroll_s: float, settle_s: float, one_take: bool,
@@ -101,7 +122,8 @@ def merge_short(segments: list[tuple[int, int]], min_len: int) -> list[tuple[int
 
 
 def fly_sim_time(style: M.Instructions, rec: Recorder, cond: Conductor, *, preroll_s: float, settle_s: float,
-                 one_take: bool, stall_s: float, pace: float = 0.0, min_take_s: float = 0.5) -> dict:
+                 one_take: bool, stall_s: float, pace: float = 0.0, min_take_s: float = 0.5,
+                 bridge: Presence | None = None) -> dict:
     """The flight in simulation time: reset the simulation to a fresh time zero, let the planner
     start each take exactly on schedule (a settle phase on its first frame, then its frames),
     record every frame of every take; the edit joins the takes at the source's cuts."""
@@ -116,7 +138,7 @@ def fly_sim_time(style: M.Instructions, rec: Recorder, cond: Conductor, *, prero
              "/".join(str(t["end_row"] - t["first_row"]) for t in takes), fps,
              "/".join(str(t["settle_frames"]) for t in takes))
     cond.to_bridge("reset", epoch_ns=epoch, fps=fps, pace=float(pace))
-    _progress(rec, k, stall_s, what="simulation")
+    _progress(rec, k, stall_s, what="simulation", bridge=bridge)
     return {"clock": "simulation (lockstep)", "epoch_ns": epoch, "preroll_frames": takes[0]["settle_frames"],
             "takes": takes, "one_take": one_take}
 
@@ -151,7 +173,7 @@ def _schedule_takes(style: M.Instructions, rec: Recorder, cond: Conductor, takes
 
 
 def fly_realtime(style: M.Instructions, rec: Recorder, cond: Conductor, *, preroll_s: float,
-                 stall_s: float, **_unused) -> dict:
+                 stall_s: float, bridge: Presence | None = None, **_unused) -> dict:
     """The take on the wall clock (a --realtime simulator or a real vehicle): frames are slotted
     by their stamp; a slot the camera skipped repeats the previous frame (counted, reported)."""
     k = style.image_targets.shape[0]
@@ -163,7 +185,7 @@ def fly_realtime(style: M.Instructions, rec: Recorder, cond: Conductor, *, prero
     rec.arm(Window(exact=False, n_slots=k, fps=float(style.fps), t0_ns=M.now_ns()))
     cond.to_planner("resume")
     try:
-        _progress(rec, k, min(stall_s, k / style.fps + 5.0), what="real-time take")
+        _progress(rec, k, min(stall_s, k / style.fps + 5.0), what="real-time take", bridge=bridge)
     except TransferError as e:
         log.error("%s", e)  # judged with the take below: a short take exits non-zero
     return {"clock": "wall (real time)"}
@@ -181,14 +203,18 @@ def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: fl
     instructions already; a style given as a file is published here (`publish_instructions`)."""
     rec = Recorder(session, rig, outdir, meta)
     cond = Conductor(session, rig)
+    bridge = Presence(session, rig, "autopilot_bridge")  # its death is seen at once, not after the stall timeout
     if publish_instructions:
         cond.instructions.put(codec.encode(replace(style, stamp_ns=M.now_ns(), final=True)))
         time.sleep(0.3)
     try:
         how = (fly_realtime if realtime else fly_sim_time)(style, rec, cond, preroll_s=preroll_s, stall_s=stall_s,
                                                            settle_s=settle_s, one_take=one_take, pace=pace,
-                                                           min_take_s=min_take_s)
+                                                           min_take_s=min_take_s, bridge=bridge)
         meta.update(how)
+    except TransferError as e:
+        e.flight = (style, rec)  # what was recorded is saved by the caller before it reports the error
+        raise
     except KeyboardInterrupt:
         rec.interrupted = True
         # from here on Ctrl-C only says what is happening: the vehicle is told to hold, the nodes
@@ -196,14 +222,18 @@ def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: fl
         signal.signal(signal.SIGINT, _already_stopping)
         log.warning("interrupted: stopping the vehicle and keeping what was recorded")
     finally:
-        old = signal.signal(signal.SIGINT, signal.SIG_IGN)  # the stop is never cut short
+        held = StopSignal().install((signal.SIGINT,))  # the stop is never cut short; a Ctrl-C now is kept
         try:
             cond.stop(sim_time=not realtime)
             time.sleep(0.3)
             rec.summaries = rec.close()
             cond.undeclare()
+            bridge.undeclare()
         finally:
-            signal.signal(signal.SIGINT, old)
+            held.restore()
+        if held.is_set() and not rec.interrupted:
+            rec.interrupted = True
+            log.warning("interrupted as the take closed: the recording is kept, nothing is evaluated")
     return rec
 
 

@@ -14,7 +14,6 @@ import collections
 import dataclasses
 import json
 import os
-import signal
 import sys
 import threading
 import time
@@ -25,6 +24,7 @@ import zenoh
 
 from cinetransfer.deploy import join
 from cinetransfer.shared import codec, keys, zenoh_config
+from cinetransfer.shared.stopsignal import StopSignal
 
 RATE_WINDOW_S = 5.0
 TOKEN_ENV = "CINETRANSFER_FOXGLOVE_TOKEN"
@@ -201,9 +201,7 @@ def main(argv: list[str]) -> int:
         opts = observer_options(args)
     except ValueError as e:
         p.error(str(e))
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = StopSignal().install()  # a handler that sets an Event can deadlock (stopsignal.py)
     if args.foxglove:
         return _serve_foxglove(opts, args, stop)
     with zenoh_config.open_session(opts) as session:
@@ -240,7 +238,7 @@ def foxglove_token(path: str | None) -> str | None:
     return os.environ.get(TOKEN_ENV, "").strip() or None
 
 
-def _serve_foxglove(opts: zenoh_config.ZenohOptions, args: argparse.Namespace, stop: threading.Event) -> int:
+def _serve_foxglove(opts: zenoh_config.ZenohOptions, args: argparse.Namespace, stop: StopSignal) -> int:
     from cinetransfer.foxglove_front import check_exposure
     from cinetransfer.foxglove_live import FoxgloveLive
 

@@ -7,13 +7,22 @@ recording, decodes what it needs and feeds a `TakeAssembler` that gives each cam
 slot; the truth of a slot is the truth of the frame it shows (joined at close, whatever order
 they came in). Which recorded frame is slot k is set by `arm(Window)`: in simulation time by
 the camera frame index within the takes, on the wall clock by the frame stamp.
+
+A full disk (any write error, or less than LOW_SPACE_BYTES left: a chunk cut in half by a real
+ENOSPC would damage the file) stops the recording at once: `failure` says why, the worker frees
+a reserve it set aside at the start (`RESERVE_BYTES`, so that closing has room) and closes
+run.mcap and output.mp4 so that they stay readable; the flight sees `failure` and ends.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import errno
 import logging
+import os
 import queue
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +35,11 @@ from cinetransfer.shared.video import H264Writer
 from cinetransfer.take import Placed, TakeAssembler, TakeSummary
 
 log = logging.getLogger("cinetransfer.recorder")
+RESERVE_BYTES = 8 * 2**20  #: set aside at the start, freed on a write error: room to close the files
+#: less free space than this (beside the reserve) is a full disk: stop before a write is cut in half
+LOW_SPACE_BYTES = 4 * 2**20
+SPACE_LOOK_S = 0.2  #: how often the free space is looked at
+RESERVE = ".reserve"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,7 +82,12 @@ class Recorder:
 
     def __init__(self, session: Any, rig: str, outdir: Path, meta: dict) -> None:
         self.outdir = outdir
+        _reserve(outdir / RESERVE)  # OSError (no space even for that): the run stops before it flies
         self.log = RunWriter(outdir / "run.mcap", meta)
+        #: the write error that stopped the recording (None: none)
+        self.failure: OSError | None = None
+        self.closed_cleanly = True  #: False: a file could not be closed after `failure`
+        self._space_seen = -1e9
         self.frame_key, self.truth_key = keys.FRAME.key(rig), keys.SIM_TRUTH.key(rig)
         self.clock_key = keys.SIM_CLOCK.key(rig)
         self.health: dict[str, M.Health] = {}
@@ -101,16 +120,60 @@ class Recorder:
             if item is None:
                 return
             key, payload = item
-            self.log.write(key, payload)
+            keep = True
             try:
-                self._handle(key, payload)
+                keep = self._handle(key, payload)
             except codec.DecodeError:
                 self.undecodable += 1
+            except OSError as e:  # writing output.mp4: the disk is full
+                self._fail(e)
             except Exception:  # noqa: BLE001 - a bad message must not end the recording
                 log.exception("recorder: could not handle a message on %s", key)
                 self.undecodable += 1
+            if keep:
+                self._write(key, payload)
 
-    def _handle(self, key: str, payload: bytes) -> None:
+    def _write(self, key: str, payload: bytes) -> None:
+        if self.failure is not None:
+            return
+        try:
+            self._check_space()
+            self.log.write(key, payload)
+        except OSError as e:
+            self._fail(e)
+
+    def _check_space(self) -> None:
+        """ENOSPC before the disk is really full: a chunk cut by a real ENOSPC would damage the file."""
+        now = time.monotonic()
+        if now - self._space_seen < SPACE_LOOK_S:
+            return
+        self._space_seen = now
+        st = os.statvfs(self.outdir)
+        if st.f_bavail * st.f_frsize < LOW_SPACE_BYTES:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self.outdir))
+
+    def _fail(self, e: OSError) -> None:
+        """Stop recording at the first write error: free the reserve, close the files readable."""
+        log.error("recording stopped: %s", e)
+        self.failure = e
+        with contextlib.suppress(OSError):
+            os.unlink(self.outdir / RESERVE)
+        for f in (self._video, self.log):
+            if f is not None:
+                try:
+                    f.close()
+                except Exception as ce:  # noqa: BLE001 - closing is best effort once the disk is full
+                    self.closed_cleanly = False
+                    log.error("could not close %s after the write error: %s", type(f).__name__, ce)
+        self._video = None
+        with self._progress:
+            self._progress.notify_all()
+
+    def _handle(self, key: str, payload: bytes) -> bool:
+        """Take one message in; False for a camera frame or truth from before the flight's time zero
+        (the free-running simulation before its reset), which the recording leaves out."""
+        if key in (self.frame_key, self.truth_key):
+            return self.failure is None and self._handle_take(key, payload)
         if "/health/" in key:
             h = codec.decode(payload, M.Health)
             with self._progress:
@@ -121,14 +184,21 @@ class Recorder:
             with self._progress:
                 self.last_clock = clk
                 self._progress.notify_all()
-        elif key in (self.frame_key, self.truth_key) and self._window is not None:
-            msg = codec.decode(payload)
-            if isinstance(msg, M.Frame):
-                self._place_frame(msg)
-            elif isinstance(msg, M.GroundTruth):
-                start = self._window.epoch_ns if self._window.exact else self._window.t0_ns
-                if msg.stamp_ns >= start - 10**9:  # (real time: the frame shown first may be a bit older)
-                    self.timeline_truths[int(msg.frame_index)] = msg
+        return True
+
+    def _handle_take(self, key: str, payload: bytes) -> bool:
+        if self._window is None:
+            return False  # not armed: no take yet
+        msg = codec.decode(payload)
+        # (real time: the frame shown first may be a bit older than the window)
+        start = self._window.epoch_ns if self._window.exact else self._window.t0_ns - 10**9
+        if not isinstance(msg, (M.Frame, M.GroundTruth)) or msg.stamp_ns < start:
+            return False
+        if isinstance(msg, M.Frame):
+            self._place_frame(msg)
+        else:
+            self.timeline_truths[int(msg.frame_index)] = msg
+        return True
 
     def _place_frame(self, frame: M.Frame) -> None:
         slot = self._window.slot(frame.stamp_ns, frame.index) if self._window else None
@@ -168,9 +238,12 @@ class Recorder:
         self._sub.undeclare()
         self._q.put(None)
         self._worker.join()
-        if self._video is not None:
-            self._video.close()
-        self.log.close()
+        if self.failure is None:
+            if self._video is not None:
+                self._video.close()
+            self.log.close()
+        with contextlib.suppress(OSError):
+            os.unlink(self.outdir / RESERVE)
         if self._frames is None:
             return None, None
         return self._frames.finish(), self._truth_summary()
@@ -188,3 +261,16 @@ class Recorder:
         summary.written = len(self.truths)
         summary.missing_slots += list(range(len(self._shown), summary.n_slots))
         return summary
+
+
+def _reserve(path: Path) -> None:
+    """Set RESERVE_BYTES of disk aside (really allocated, not a sparse file)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    try:
+        os.posix_fallocate(fd, 0, RESERVE_BYTES)
+    except OSError:
+        os.close(fd)
+        os.unlink(path)
+        raise
+    os.close(fd)
+

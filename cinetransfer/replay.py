@@ -32,12 +32,25 @@ def rewrite_rig(key: str, rig: str | None) -> str:
     return "/".join(parts)
 
 
+
+def _speed(text: str) -> float:
+    """--speed: a finite number >= 0 (a negative or NaN pace has no meaning)."""
+    import math
+
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
+    return v
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="cinetransfer replay", description=__doc__.splitlines()[0])
     p.add_argument("log", help="a recording (OUTDIR/run.mcap written by `cinetransfer transfer`)")
     p.add_argument("--rig", default="replay",
                    help="rig name to publish under (default %(default)s; '' keeps the recorded one)")
-    p.add_argument("--speed", type=float, default=1.0, help="time scale (2 = twice as fast; 0 = as fast as possible)")
+    p.add_argument("--speed", type=_speed, default=1.0, help="time scale (2 = twice as fast; 0 = as fast as possible)")
     p.add_argument("--only", action="append", default=[], help="replay only keys containing this (repeatable)")
     p.add_argument("--start", type=float, default=0.0, metavar="S",
                    help="begin S seconds after the recording's first message (default %(default)s)")

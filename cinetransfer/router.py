@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
-import threading
 
 from cinetransfer.shared import zenoh_config
 from cinetransfer.shared.node import setup_logging
+from cinetransfer.shared.stopsignal import StopSignal
 
 log = logging.getLogger("cinetransfer.router")
 
@@ -29,9 +28,7 @@ def main(argv: list[str]) -> int:
     except ValueError as e:
         print(f"cinetransfer router: config error: {e}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = StopSignal().install()  # a handler that sets an Event can deadlock (stopsignal.py)
     with zenoh_config.open_session(opts) as session:
         log.info("router %s listening on %s", session.info.zid(), ", ".join(opts.listen) or "(config file)")
         stop.wait()

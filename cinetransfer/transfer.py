@@ -34,20 +34,27 @@ from pathlib import Path
 
 import zenoh
 
+from cinetransfer.deploy.config import load_config
 from cinetransfer.extraction import source_style
 from cinetransfer.flight import check_take, fly, take_meta
 from cinetransfer.flight import merge_short as merge_short  # re-exported: callers import the schedule from here
 from cinetransfer.flight import shot_schedule as shot_schedule
 from cinetransfer.job import JOB_NODES, TransferError, deployment, run_cli, wait_alive
+from cinetransfer.lease import TakeLease
 from cinetransfer.recorder import Recorder
+from cinetransfer.shared import keys
 from cinetransfer.shared import messages as M
 from cinetransfer.shared import zenoh_config
 from cinetransfer.shared.atomic import atomic_write
+from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.node import setup_logging
 from cinetransfer.shared.vehicle import add_vehicle_argument
 from cinetransfer.take import MissingFramesError
 
 log = logging.getLogger("cinetransfer.transfer")
+#: exit code of a run whose take was degraded (held too long, lost its planner): everything is
+#: recorded and reported, but the flight is not the instructions' (docs/transfer.md, exit codes)
+EXIT_DEGRADED = 3
 
 
 def _subjects() -> list[str]:
@@ -65,7 +72,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default: the scene's own)")
     p.add_argument("-o", "--outdir", required=True, help="output folder")
     add_vehicle_argument(p)
-    p.add_argument("--rig", default="transfer", help="rig name (default %(default)s)")
+    p.add_argument("--rig", default=None,
+                   help="rig name (default: the deployment's rig with --deployment, else 'transfer')")
     p.add_argument("--preroll", type=float, default=5.0,
                    help="seconds (simulated) to settle on frame 0 before recording (default %(default)s)")
     p.add_argument("--max-frames", type=int, default=0, help="use only the first N frames of the source (0 = all)")
@@ -103,7 +111,8 @@ def write_json(path: Path, data: dict) -> None:
 def _job(args, src: Path, out: Path, meta: dict, timings: dict) -> tuple[Path, M.Instructions, Recorder]:
     """Bring up (or join) the deployment, extract the style on it, fly the take, bring it down."""
     t = time.monotonic()
-    with deployment(args, out) as opts, zenoh_config.open_session(opts) as session:
+    with deployment(args, out) as opts, zenoh_config.open_session(opts) as session, \
+            TakeLease(session, args.rig):  # one take at a time on the rig: a second one is refused here
         needed = {"planner", "autopilot_bridge"} if args.style else set(JOB_NODES)
         wait_alive(session, args.rig, needed, 180)
         timings["start_nodes_s"] = time.monotonic() - t
@@ -139,14 +148,12 @@ def _evaluate(out: Path, src: Path, style_path: Path, rec: Recorder, meta: dict)
                         recording=out / "run.mcap")
 
 
-def _terminate(_signum, _frame) -> None:
-    raise KeyboardInterrupt  # SIGTERM (a CI timeout, `kill`): stop the vehicle and the nodes as Ctrl-C does
-
-
 def _argument_problem(args, src: Path) -> str | None:
     """What is wrong with the command line before anything starts (None: nothing)."""
     if not src.is_file():
         return f"source video {src} does not exist"
+    if Path(args.outdir).exists() and not Path(args.outdir).is_dir():
+        return f"-o {args.outdir}: exists and is not a folder"
     if not (0.0 <= args.pace <= 1000.0 and args.settle >= 0.0 and args.preroll >= 0.0):
         return "--pace must be in 0..1000, --settle and --preroll >= 0"
     if args.subject and (args.deployment or getattr(args, "connect", None)):
@@ -155,9 +162,35 @@ def _argument_problem(args, src: Path) -> str | None:
     return None
 
 
+def _resolve_rig(args) -> str | None:
+    """The rig: --rig, else the joined deployment's own (`deploy up local` runs rig0), else 'transfer'.
+    Returns what is wrong (a --rig that is not the deployment's, an unknown deployment) or None."""
+    try:
+        keys.rig_name(args.rig or "transfer")
+    except ValueError as e:
+        return f"--rig: {e}"
+    if not args.deployment:
+        args.rig = args.rig or "transfer"
+        return None
+    try:
+        rig = load_config(args.deployment).rig
+    except (ConfigError, OSError) as e:
+        return f"--deployment {args.deployment}: {e}"
+    if args.rig and args.rig != rig:
+        return f"--rig {args.rig} is not the rig of deployment {args.deployment} ({rig}); leave --rig out"
+    args.rig = rig
+    return None
+
+
 def _save_take(out: Path, style: M.Instructions, rec: Recorder, meta: dict, realtime: bool) -> None:
     """What the take holds (meta.json, with each take's settle time) and its truth (truth.msgpack)."""
     meta.update(take_meta(rec, style, realtime))
+    if meta.get("takes") and meta.get("epoch_ns") is not None and (out / "run.mcap").is_file():
+        from cinetransfer import take_faults
+
+        faults = take_faults.take_faults(out / "run.mcap", meta["rig"], meta["takes"], epoch_ns=int(meta["epoch_ns"]),
+                                         fps=float(style.fps))
+        meta["faults"] = take_faults.summary(faults)
     if meta.get("takes"):
         from cinetransfer.shots import settle_report
 
@@ -171,7 +204,13 @@ def _save_take(out: Path, style: M.Instructions, rec: Recorder, meta: dict, real
 def _transfer(args, src: Path, out: Path, meta: dict, t_start: float) -> int:
     """The job's steps in order: deployment and flight, the take saved and judged, the evaluation."""
     timings: dict[str, float] = {}
-    style_path, style, rec = _job(args, src, out, meta, timings)
+    try:
+        style_path, style, rec = _job(args, src, out, meta, timings)
+    except TransferError as e:
+        if getattr(e, "flight", None) is not None:  # the flight failed: keep what it recorded
+            meta["error"] = str(e)
+            _save_take(out, *e.flight, meta, args.realtime)
+        raise
     _save_take(out, style, rec, meta, args.realtime)
     if meta["interrupted"]:
         print(f"recorded {meta['recorded_frames']} frames to {out / 'output.mp4'} (interrupted)")
@@ -179,7 +218,7 @@ def _transfer(args, src: Path, out: Path, meta: dict, t_start: float) -> int:
     check_take(meta, rec, args.realtime)
     if args.no_eval:
         print(f"recorded {meta['recorded_frames']} frames to {out / 'output.mp4'} (no evaluation)")
-        return 0
+        return _degraded(meta)
     t = time.monotonic()
     summary = _evaluate(out, src, style_path, rec, meta)
     timings["extract_output_s"] = time.monotonic() - t
@@ -188,7 +227,16 @@ def _transfer(args, src: Path, out: Path, meta: dict, t_start: float) -> int:
     write_json(out / "meta.json", meta)
     print(json.dumps(summary.get("headline", summary), indent=2, default=str)[:3000])
     print(f"\nreport: {(out / 'report.html').resolve()}  ({timings['total_s']:.0f} s in all)")
-    return 0
+    return _degraded(meta)
+
+
+def _degraded(meta: dict) -> int:
+    """EXIT_DEGRADED, with one line saying why, when a take was not flown as instructed; else 0."""
+    faults = meta.get("faults") or {}
+    if not faults.get("degraded"):
+        return 0
+    print(f"cinetransfer transfer: degraded take, goals not met: {'; '.join(faults['reasons'])}", file=sys.stderr)
+    return EXIT_DEGRADED
 
 
 def _terminate(_signum, _frame) -> None:
@@ -197,21 +245,29 @@ def _terminate(_signum, _frame) -> None:
 
 def main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
+    # Ctrl-C must stop the vehicle however the command was started: a shell script that runs it in
+    # the background (`cmd &`) hands it SIGINT ignored, and Python then installs no handler at all
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, _terminate)
     setup_logging(args.log_level)
     src, out = Path(args.source), Path(args.outdir)
-    problem = _argument_problem(args, src)
-    if problem:
+    problem = _argument_problem(args, src) or _resolve_rig(args)
+    people = _people(src, args) if not problem else {}
+    problem = problem or people.pop("problem", None)
+    if problem:  # refused before anything is made: no folder, no process
         print(f"cinetransfer transfer: {problem}", file=sys.stderr)
         return 2
-    out.mkdir(parents=True, exist_ok=True)
+    created = not out.exists()
     t_start = time.monotonic()
-    meta: dict = {"source": str(src), "scene": args.scene, "rig": args.rig, **_people(src, args),
+    meta: dict = {"source": str(src), "scene": args.scene, "rig": args.rig, **people,
                   "started": time.strftime("%Y-%m-%d %H:%M:%S")}
     try:
+        out.mkdir(parents=True, exist_ok=True)
         return _transfer(args, src, out, meta, t_start)
     except (TransferError, MissingFramesError, ValueError, OSError, zenoh.ZError) as e:
         print(f"cinetransfer transfer: {e}", file=sys.stderr)
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # a run refused before it wrote anything leaves nothing behind
         return 1
     except KeyboardInterrupt:  # outside the flight (extraction, start-up): nothing is flying yet
         print(f"cinetransfer transfer: interrupted; what was written is in {out}", file=sys.stderr)
@@ -226,7 +282,7 @@ def _people(src: Path, args) -> dict:
         sub = load_scene(args.scene, subject=args.subject).subject.clip
         info = subject_info(sub)
     except SceneError as e:
-        raise SystemExit(f"cinetransfer transfer: {e}") from None
+        return {"problem": str(e)}
     same = src.name == info.get("source")
     return {"subject": sub, "target_person": info.get("person", sub), "target_source": info.get("source", ""),
             "target_credit": info.get("credit", ""), "same_person_as_source": same}

@@ -250,7 +250,8 @@ def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="cinetransfer deploy", description=__doc__.splitlines()[0],
                                 epilog="'cinetransfer deploy certs DIR' creates a CA, certificates and passwords "
                                        "for a secure split deployment (docs/security.md).")
-    sub = p.add_subparsers(dest="cmd", required=True)
+    # the metavar lists the public commands: the internal '_supervise' has no help row and no mention
+    sub = p.add_subparsers(dest="cmd", required=True, metavar="{up,down,status,logs,certs,check}")
 
     def common(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("config", help="config name (local, ground, onboard) or path to a YAML file")
@@ -276,7 +277,7 @@ def main(argv: list[str]) -> int:
     lg.add_argument("-n", "--lines", type=int, default=50)
     sub.add_parser("certs", help="create a CA, per-node certificates and passwords in DIR")
     sub.add_parser("check", help="check configs (one deployment) against the declared dataflow")
-    sv = sub.add_parser("_supervise", help=argparse.SUPPRESS)
+    sv = sub.add_parser("_supervise")
     common(sv)
     sv.add_argument("--lock-fd", type=int, default=None)
     sv.add_argument("--owner-pid", type=int, default=None)

@@ -5,7 +5,8 @@ the deployment's `users.txt`); a router joins another router over mutual TLS, id
 certificate's common name. The router enforces, by key expression, with default *deny*:
 
 - every authenticated identity may subscribe to `ct/**`, receive what it subscribed to, and
-  declare its own liveliness token, health key and `config` queryable;
+  declare its own liveliness token, health key and `config` queryable (`operator` also the
+  take lease, `ct/{rig}/lease/*`: one take at a time per rig);
 - only the identities in `PUBLISHERS` may publish a topic: the outputs each node declares in
   deploy/dataflow.yaml (only the planner publishes setpoints; only `operator` sends vehicle and
   planner commands);
@@ -78,7 +79,8 @@ def rights(identity: str, grants: dict[str, list[str]] | None = None) -> dict[st
     own = [f"{keys.ROOT}/*/health/{identity}"]
     return {"put": [*put, *own],
             "query": [f"{keys.ROOT}/*/*/config"] if identity in CONFIG_READERS else [],
-            "liveliness_token": [f"{keys.ROOT}/*/alive/{identity}"],
+            "liveliness_token": [f"{keys.ROOT}/*/alive/{identity}",
+                                 *([f"{keys.ROOT}/*/lease/*"] if identity == OPERATOR else [])],
             "declare_queryable": [f"{keys.ROOT}/*/{identity}/config"]}
 
 

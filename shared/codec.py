@@ -15,6 +15,7 @@ the payload (zero-copy). Boolean arrays are bit-packed; a Frame image may be sen
 and raises `DecodeError` — one error type for every malformed or unsupported payload. Decoding
 is total: the header is bounded in size (MAX_HEADER_BYTES), nesting depth (MAX_DEPTH) and element
 count (MAX_ELEMENTS) before any field is looked at, arrays in element count (MAX_ARRAY_ELEMENTS),
+JPEG images in pixels (MAX_JPEG_PIXELS, read from the JPEG's header before decoding),
 and any other exception raised while decoding (a bug, a library's odd error type) is turned
 into a DecodeError too, so a receiver needs to catch exactly one type.
 Unknown fields are ignored (a newer sender may add fields); missing fields are an error, except
@@ -50,6 +51,10 @@ MAX_HEADER_BYTES = 16 << 20
 MAX_DEPTH = 32  # the deepest real header (Instructions -> source -> ...) nests about 6
 MAX_ELEMENTS = 1_000_000  # scalars, lists and maps in one header, all together
 MAX_ARRAY_ELEMENTS = 1 << 28  # 4K RGB is 2.5e7
+#: largest JPEG image decoded, in pixels (8K UHD is 3.3e7): its size is read from the JPEG's own
+#: header and checked, with the message's declared shape, before a byte of it is decoded
+MAX_JPEG_PIXELS = 40_000_000
+_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
 
 
 class CodecError(ValueError):
@@ -270,9 +275,39 @@ def _bits_array(data: memoryview, _dt: Any, shape: list[int], count: int, where:
     return np.unpackbits(np.frombuffer(data, dtype=np.uint8), count=count).astype(bool).reshape(shape)
 
 
+def jpeg_size(data: bytes | memoryview) -> tuple[int, int] | None:
+    """(height, width) from a JPEG's frame header, without decoding it; None if there is none."""
+    b = bytes(data[:1 << 20])  # the frame header comes before the image data, near the start
+    if b[:2] != b"\xff\xd8":
+        return None
+    i = 2
+    while i + 4 <= len(b):
+        if b[i] != 0xFF:
+            return None
+        m = b[i + 1]
+        if m == 0xFF:  # fill byte
+            i += 1
+            continue
+        if m in (0x01, *range(0xD0, 0xD8)):  # markers without a length
+            i += 2
+            continue
+        if m in _SOF:
+            return (int.from_bytes(b[i + 5:i + 7], "big"), int.from_bytes(b[i + 7:i + 9], "big")) \
+                if i + 9 <= len(b) else None
+        if m == 0xDA:  # image data began without a frame header
+            return None
+        i += 2 + int.from_bytes(b[i + 2:i + 4], "big")
+    return None
+
+
 def _jpeg_array(data: memoryview, _dt: Any, shape: list[int], _count: int, where: str) -> np.ndarray:
     import cv2
 
+    size = jpeg_size(data)
+    if size is None or len(shape) != 3 or shape[2] != 3 or list(size) != shape[:2]:
+        raise DecodeError(f"{where}: JPEG header size {size} does not match the declared shape {shape}")
+    if size[0] * size[1] > MAX_JPEG_PIXELS:
+        raise DecodeError(f"{where}: JPEG image of {size[1]}x{size[0]} exceeds the limit of {MAX_JPEG_PIXELS} pixels")
     arr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
     if arr is None or list(arr.shape) != shape:
         raise DecodeError(f"{where}: corrupt JPEG image")

@@ -128,6 +128,10 @@ def instructions_from_dict(d: dict[str, Any]) -> M.Instructions:
     return instr
 
 
+#: the highest style frame rate: the simulated camera's (and the bridge's 'reset') range is (0, 240] fps
+MAX_STYLE_FPS = 240.0
+
+
 def check_consistent(instr: M.Instructions) -> None:
     """Row counts agree, E = len(joint_names), joints are COCO-17 names."""
     K = instr.image_targets.shape[0]
@@ -143,6 +147,9 @@ def check_consistent(instr: M.Instructions) -> None:
     for j in instr.joint_names:
         if j not in M.COCO17_NAMES:
             raise StyleFileError(f"joint {j!r} is not a COCO-17 name")
+    if not 0 < instr.fps <= MAX_STYLE_FPS:
+        raise StyleFileError(f"fps {instr.fps:g} is outside the camera's range (0, {MAX_STYLE_FPS:g}]: "
+                             "the vehicle's camera films at the style's frame rate")
     if not (instr.fps > 0 and abs(instr.frame_duration_s * instr.fps - 1.0) < 1e-6):
         raise StyleFileError(f"fps {instr.fps} and frame_duration_s {instr.frame_duration_s} disagree")
 
@@ -181,7 +188,8 @@ def json_schema() -> dict[str, Any]:
             "seq": {"type": "integer", "minimum": 0},
             "valid": {"type": "boolean"},
             "source": source,
-            "fps": {"type": "number", "exclusiveMinimum": 0},
+            "fps": {"type": "number", "exclusiveMinimum": 0, "maximum": MAX_STYLE_FPS,
+                    "description": "instruction (and camera) frame rate; the camera flies at this rate"},
             "frame_duration_s": {"type": "number", "exclusiveMinimum": 0},
             "first_frame": {"type": "integer", "minimum": 0},
             "final": {"type": "boolean"},

@@ -16,6 +16,11 @@ ROOT = "ct"
 _NAME = re.compile(r"^[A-Za-z0-9_\-]+$")
 
 
+def rig_name(part: str) -> str:
+    """`part` if it is a valid rig name; ValueError saying what is wrong otherwise."""
+    return _check(part, "rig name")
+
+
 def _check(part: str, what: str) -> str:
     if not _NAME.match(part):
         raise ValueError(f"invalid {what} {part!r}: use letters, digits, '_' or '-'")
@@ -93,6 +98,11 @@ def config(rig: str, node: str) -> str:
 
 def all_alive(rig: str = "*") -> str:
     return f"{ROOT}/{rig}/alive/*"
+
+
+def lease(rig: str, holder: str = "*") -> str:
+    """Key of the liveliness token a take holds on its rig (one take at a time: cinetransfer/lease.py)."""
+    return f"{ROOT}/{_check(rig, 'rig name')}/lease/{holder if holder == '*' else _check(holder, 'lease holder')}"
 
 
 def everything(rig: str = "*") -> str:

@@ -15,13 +15,16 @@
 What it gives a service:
 - a Zenoh session opened from shared flags and closed on exit (a session left open can hang
   the interpreter at exit);
-- SIGINT/SIGTERM → `node.running` becomes False → the service leaves its loop and exits 0;
+- SIGINT/SIGTERM → `node.running` becomes False → the service leaves its loop and exits 0
+  (the handler only stores a flag: shared/stopsignal.py says why; waits poll it every 0.1 s);
 - subscribers whose callbacks only enqueue raw payloads into bounded queues (drop-oldest for
   frames and states, no-drop for commands); decoding happens in the service thread, and a
   payload that fails to decode is counted as rejected, logged (rate-limited) and skipped;
 - `node.guard(key)`: a block that handles one message, where any exception is counted as a
   rejection and logged with the key instead of ending the loop;
 - publishers that stamp `seq` and count what they send;
+- `node.consistent()`: a block (one control tick, say) during which no Health report is taken,
+  so a report never holds half of a tick's counts (a rejection without its own counter);
 - a liveliness token `ct/{rig}/alive/{node}` and a Health message every `health_period_s` on
   `ct/{rig}/health/{node}` (received, rejected, dropped, published, latency, last error, and
   node-specific counters);
@@ -35,7 +38,6 @@ import contextlib
 import dataclasses
 import json
 import logging
-import signal
 import threading
 import time
 from typing import Any, Callable, Iterator
@@ -44,6 +46,7 @@ import zenoh
 
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.stopsignal import StopSignal
 from cinetransfer.shared.zenoh_config import ZenohOptions, add_arguments, open_session, options_from_args
 
 NO_DROP_CAP = 100_000  # a no-drop queue past this is a bug upstream; it then drops and says so
@@ -51,11 +54,20 @@ NO_DROP_CAP = 100_000  # a no-drop queue past this is a bug upstream; it then dr
 
 def add_node_arguments(parser: argparse.ArgumentParser, *, default_rig: str = "rig0") -> None:
     """Flags every node takes: rig, logging, health period, and the Zenoh flags."""
-    parser.add_argument("--rig", default=default_rig, help="rig (vehicle) name used in keys (default %(default)s)")
+    parser.add_argument("--rig", default=default_rig, type=rig_name,
+                        help="rig (vehicle) name used in keys (default %(default)s)")
     parser.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     parser.add_argument("--health-period", type=float, default=1.0, metavar="S",
                         help="seconds between Health messages (default %(default)s)")
     add_arguments(parser)
+
+
+def rig_name(text: str) -> str:
+    """argparse type of a rig name: one clear usage error instead of a traceback from the first key."""
+    try:
+        return keys.rig_name(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def setup_logging(level: str = "INFO") -> None:
@@ -167,10 +179,12 @@ class Presence:
 
     def __init__(self, session: zenoh.Session, rig: str, node: str) -> None:
         self.alive = False
+        self.losses = 0  #: times the token went away (a restart between two looks still counts)
         self._sub = session.liveliness().declare_subscriber(keys.alive(rig, node), self._on, history=True)
 
-    def _on(self, sample: zenoh.Sample) -> None:  # Zenoh thread: only flips a flag
+    def _on(self, sample: zenoh.Sample) -> None:  # Zenoh thread: only flips a flag and counts
         self.alive = sample.kind == zenoh.SampleKind.PUT
+        self.losses += not self.alive
 
     def undeclare(self) -> None:
         self._sub.undeclare()
@@ -214,7 +228,7 @@ class Node:
         self.session: zenoh.Session | None = None
         self._stop = threading.Event()
         self._cond = threading.Condition()
-        self._health_lock = threading.Lock()
+        self._health_lock = threading.RLock()
         self._received = self._rejected = self._dropped = self._published = 0
         self._latencies: collections.deque[float] = collections.deque(maxlen=1000)
         self.last_error = ""
@@ -230,13 +244,12 @@ class Node:
         self._health_thread: threading.Thread | None = None
         self._t0 = time.monotonic()
         self._install_signals = install_signal_handlers
-        self._old_handlers: dict[int, Any] = {}
+        self._signals: StopSignal | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def __enter__(self) -> "Node":
         if self._install_signals and threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._old_handlers[sig] = signal.signal(sig, self._on_signal)
+            self._signals = StopSignal().install()
         self.session = open_session(self.zopts)
         self._health_pub = Publisher(self, keys.health(self.rig, self.name), None, drop=True)
         self._decls.append(self.session.declare_queryable(keys.config(self.rig, self.name), self._on_config_query))
@@ -263,13 +276,9 @@ class Node:
         if self.session is not None:
             self.session.close()
             self.session = None
-        for sig, h in self._old_handlers.items():
-            signal.signal(sig, h)
+        if self._signals is not None:
+            self._signals.restore()
         self.log.info("stopped")
-
-    def _on_signal(self, signum: int, _frame: object) -> None:
-        self.log.info("received %s, shutting down", signal.Signals(signum).name)
-        self.stop()
 
     def stop(self) -> None:
         self._stop.set()
@@ -278,11 +287,16 @@ class Node:
 
     @property
     def running(self) -> bool:
+        if self._signals is not None and self._signals.is_set() and not self._stop.is_set():
+            self.log.info("received %s, shutting down", self._signals.name())  # here, not in the handler
+            self.stop()
         return not self._stop.is_set()
 
     def sleep(self, seconds: float) -> bool:
         """Sleep unless stopped; returns `running`."""
-        self._stop.wait(seconds)
+        deadline = time.monotonic() + seconds
+        while self.running and (left := deadline - time.monotonic()) > 0:
+            self._stop.wait(min(left, 0.1))  # a signal only sets a flag: look at it every 0.1 s
         return self.running
 
     def ready(self) -> None:
@@ -318,7 +332,7 @@ class Node:
         """Block until any inbox receives something, the node stops, or `timeout` passes."""
         with self._cond:
             if self.running and not any(len(i) for i in self._inboxes):
-                self._cond.wait(timeout)
+                self._cond.wait(min(timeout, 0.1))  # callers loop; a signal is seen within 0.1 s
 
     def decode(self, payload: bytes, msg_type: type | None, key: str = "?") -> Any:
         try:
@@ -370,6 +384,12 @@ class Node:
             yield
         finally:
             self._latencies.append((time.perf_counter() - t) * 1e3)
+
+    @contextlib.contextmanager
+    def consistent(self) -> Iterator[None]:
+        """No Health report is taken inside this block: counts updated together are reported together."""
+        with self._health_lock:
+            yield
 
     def record_latency_ms(self, ms: float) -> None:
         self._latencies.append(ms)

@@ -159,6 +159,29 @@ def per_shot(source: M.Instructions, output: M.Instructions | None, truths: list
     return out
 
 
+def _judge_by_faults(summary: dict[str, Any], faults: dict[str, Any] | None) -> None:
+    """The headline states what happened in the takes (holds, planner restarts, over-budget solves,
+    watchdog holds); in a degraded take no goal is reported as met (cinetransfer/take_faults.py)."""
+    if not faults:
+        return
+    head = summary["headline"]
+    head["take"] = {k: faults.get(k) for k in ("degraded", "reasons", "hold_s", "planner_restarts",
+                                               "over_budget_solves", "watchdog_holds", "max_hold_share")}
+    head["take"]["per_take"] = faults.get("takes", [])
+    if not faults.get("degraded"):
+        return
+    for g in summary.get("goals", []):
+        if g["status"] == "met":
+            g["status"] = "void (degraded take)"
+    head["goals"] = {g["id"]: g["status"] for g in summary.get("goals", [])}
+    judged = sum(g["status"] != "n/a" for g in summary.get("goals", []))
+    head["goals_met"] = f"0/{judged} (degraded take)"
+    for shot, tf in zip(summary.get("shots", []), faults.get("takes", [])):
+        shot["faults"] = tf
+        if tf.get("degraded"):
+            shot["goals_met"] = f"0/{shot['goals_met'].split('/')[-1]} (degraded)"
+
+
 def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLike | None,
                  truths: Sequence[M.GroundTruth], source_video: Path | str | None,
                  output_video: Path | str | None, meta: dict[str, Any] | None = None,
@@ -250,6 +273,7 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
                       "joint_error_truth": _round_list(s["error_truth"])},
         "meta": meta,
     }
+    _judge_by_faults(summary, meta.get("faults"))
     summary = jsonable(summary)
     write_html(outdir / "report.html", summary, figures, meta=summary["meta"], figure_errors=fig_errors,
                credit=credit, embed=embed_images, video=(outdir / VIDEO) if video else None,

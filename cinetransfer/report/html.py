@@ -340,6 +340,10 @@ def render_html(summary: dict[str, Any], figures: dict[str, Path], *, meta: dict
         m = summary.get(measure) or {}
         if not m.get("available"):
             warn.append(f"<div class='card warn'><b>{what}: not available.</b> {_e(m.get('reason') or '')}</div>")
+    faults = (summary.get("headline") or {}).get("take") or {}
+    if faults.get("degraded"):
+        warn.append("<div class='card warn'><b>Degraded take: no goal counts as met.</b> "
+                    f"{_e('; '.join(faults.get('reasons', [])))}</div>")
     rec = summary.get("recording") or {}
     for note in rec.get("notes", []):
         warn.append(f"<div class='card warn'><b>Recording:</b> {_e(note)}</div>")

@@ -87,7 +87,8 @@ class SimClockLoop:
     def run(self) -> None:
         try:
             while self.node.running:
-                self.run_step()
+                with self.node.guard(self.clock_pub.key, "simulation step"):  # no exception ends the loop
+                    self.run_step()
         finally:
             self.planner.undeclare()
 
@@ -106,9 +107,21 @@ class SimClockLoop:
                                           period_s=self.period_ns * 1e-9, lockstep=lockstep, pace=self.pace))
             self.counters["frames_published"] += self._frames()
         sps = self._await_setpoint(t_ns) if lockstep else self._setpoints_on_clock(t_ns)
+        with node.consistent():  # one Health report holds a whole step or none of it
+            if not self._advance(t_ns, sps, lockstep):
+                return
+            self._step_ms.append((time.perf_counter() - t_wall) * 1e3)
+            ms = sorted(self._step_ms)
+            self.counters["step_wall_ms_p50"] = round(ms[len(ms) // 2], 2)
+            node.counters.update(self.counters, pace=self.pace)
+        self._wait_for_pace()
+
+    def _advance(self, t_ns: int, sps: list[M.Setpoint], lockstep: bool) -> bool:
+        """Commands, setpoints and the vehicle from t to t + period; False if a reset started over."""
+        node, bridge = self.node, self.bridge
         with node.timed():
             if self._commands():  # a reset starts this step over at the new time zero
-                return
+                return False
             t_s = self._sim_s(t_ns)
             bridge.handle_setpoints(sps, t_s, t_ns)
             h = self.period_ns * 1e-9 / self.n_sub
@@ -119,11 +132,7 @@ class SimClockLoop:
         self.counters.update(sim_steps=self.counters["sim_steps"] + 1, sim_time_s=round(self._sim_s(t_ns), 3),
                              lockstep=lockstep)
         bridge.update_health()
-        self._step_ms.append((time.perf_counter() - t_wall) * 1e3)
-        ms = sorted(self._step_ms)
-        self.counters["step_wall_ms_p50"] = round(ms[len(ms) // 2], 2)
-        node.counters.update(self.counters, pace=self.pace)
-        self._wait_for_pace()
+        return True
 
     def _sim_s(self, t_ns: int) -> float:
         return (t_ns - self.epoch_ns) * 1e-9

@@ -121,6 +121,9 @@ class Bridge:
         self.ticks = 0
         self.decision_hold = True
         self.breach = False
+        #: the link as the tick's decision saw it: state, Health and hold reason all use this one sample
+        #: (the backend's own flag flips on its reader thread, between two reads of one tick)
+        self.link_up = bool(backend.connected)
 
     def reset_core(self) -> None:
         """Forget setpoints, holds and rate limits (the simulation started over)."""
@@ -167,7 +170,8 @@ class Bridge:
     def control(self, now: float, step_to: float | None = None) -> None:
         """Decide track/hold at `now`, drive the backend, advance it to `step_to` (default now)."""
         backend = self.backend
-        dec = self.core.tick(now, vehicle=self.vehicle, connected=backend.connected)
+        self.link_up = bool(backend.connected)
+        dec = self.core.tick(now, vehicle=self.vehicle, connected=self.link_up)
         if dec.hold:
             if dec.changed:
                 log.info("holding: %s", dec.reason)
@@ -186,7 +190,7 @@ class Bridge:
     def _refresh_vehicle(self) -> None:
         vs = self.backend.vehicle_state()
         self.vehicle = dataclasses.replace(vs, holding=self.decision_hold, envelope_breach=self.breach,
-                                           valid=bool(vs.valid and self.backend.connected))
+                                           valid=bool(vs.valid and self.link_up))
 
     def publish_state(self, stamp_ns: int | None = None) -> None:
         """Vehicle (and simulated subject) state; `stamp_ns` restamps them with the clock tick."""
@@ -217,22 +221,29 @@ class Bridge:
         extra = getattr(self.backend, "health_counters", None)
         if callable(extra):
             counters.update(extra())
-        counters["connected"] = self.backend.connected
+        counters["connected"] = self.link_up
         self.node.counters.update(counters)
-        self.node.healthy = bool(self.backend.connected and self.vehicle is not None and self.vehicle.valid
+        self.node.healthy = bool(self.link_up and self.vehicle is not None and self.vehicle.valid
                                  and not self.breach)
+
+    def guarded_tick(self) -> None:
+        """`tick`, where an exception costs the tick (counted, logged), never the loop."""
+        with self.node.guard("control", "control tick"):
+            self.tick()
 
     def tick(self) -> None:
         """One real-time control step on the monotonic clock."""
         now = time.monotonic()
-        with self.node.timed():
-            self.handle_commands(self.cmd_in.drain())
-            self.handle_setpoints(self.sp_in.drain(), now, M.now_ns())
-            self.control(now)
-            self.publish_state()
-            self.publish_frames()
-        self.ticks += 1
-        self.update_health()
+        # one Health report holds a whole tick or none of it (a rejection and its own counter together)
+        with self.node.consistent():
+            with self.node.timed():
+                self.handle_commands(self.cmd_in.drain())
+                self.handle_setpoints(self.sp_in.drain(), now, M.now_ns())
+                self.control(now)
+                self.publish_state()
+                self.publish_frames()
+            self.ticks += 1
+            self.update_health()
 
 
 def main(argv: list[str]) -> int:
@@ -265,7 +276,7 @@ def main(argv: list[str]) -> int:
                 loop.run()
             else:
                 node.ready()
-                call_periodically(1.0 / cfg.rate_hz, node, bridge.tick)
+                call_periodically(1.0 / cfg.rate_hz, node, bridge.guarded_tick)
         finally:
             backend.hold()
             backend.close()

@@ -37,8 +37,6 @@ import collections
 import logging
 import math
 import select
-import signal
-import threading
 import time
 from typing import Any
 
@@ -49,6 +47,7 @@ from cinetransfer.services.autopilot_bridge.mavlink import connect, mavlink
 from cinetransfer.services.autopilot_bridge.signing import enable_signing
 from cinetransfer.services.autopilot_bridge.sim_vehicle_services import CAMERA_COMPONENT, StandardServices
 from cinetransfer.shared.dynamics import DynamicsLimits
+from cinetransfer.shared.stopsignal import StopSignal
 from cinetransfer.services.autopilot_bridge.vehicle_model import SimDynamicsAdapter
 from cinetransfer.shared import nodeconfig
 from cinetransfer.shared.errors import ConfigError, report_config_error
@@ -388,7 +387,7 @@ class SimVehicle:
         if not self.paused_link:
             self._send_due(now)
 
-    def run(self, stop: threading.Event) -> None:
+    def run(self, stop: StopSignal) -> None:
         """Step at `rate_hz`, and at once whenever bytes arrive (commands are answered without
         waiting for the next physics tick)."""
         period = 1.0 / self.rate_hz
@@ -468,14 +467,7 @@ def main(argv: list[str]) -> int:
         return report_config_error(e, "cinetransfer sim-vehicle")
     logging.basicConfig(level=getattr(logging, args.log_level),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    stop = threading.Event()
-
-    def on_signal(signum: int, _frame: object) -> None:
-        log.info("received %s, stopping", signal.Signals(signum).name)
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    stop = StopSignal().install()  # a handler that sets an Event can deadlock (stopsignal.py)
     veh = SimVehicle(args.mavlink, autopilot=args.autopilot, system_id=args.system_id, start_enu=args.start,
                      rate_hz=args.rate, telemetry_hz=args.telemetry_rate, offboard_timeout_s=args.offboard_timeout,
                      vehicle=vehicle, signing_key=key)
@@ -483,6 +475,7 @@ def main(argv: list[str]) -> int:
              ", MAVLink 2 signed" if key else "")
     try:
         veh.run(stop)
+        log.info("received %s, stopping", stop.name())
     finally:
         veh.close()
         log.info("stopped (rx setpoints %d, acks sent %d)", veh.stats["rx_SET_POSITION_TARGET_LOCAL_NED"],

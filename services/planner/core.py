@@ -266,6 +266,12 @@ class Planner:
     def _solve(self, now_ns: int, vehicle: M.VehicleState, data: StageData, frame: int) -> M.Setpoint:
         """Solve from the staged data and follow the new plan, or fall back when the solve fails."""
         shift = 0.0 if self._plan is None else (now_ns - self._plan.t0_ns) * 1e-9
+        if not 0.0 <= shift <= self.solver.n * self.solver.dt:
+            # the clock jumped (a simulation reset, a bridge restart): the last plan says nothing about now
+            log.warning("clock moved %+.3f s since the last plan (a jump, or a long pause): warm start reset", shift)
+            self.counters["warm_start_resets"] = int(self.counters.get("warm_start_resets", 0)) + 1
+            self.solver.reset()
+            self._plan, shift = None, 0.0
         try:
             res = self.solver.solve(data, shift_s=shift)
         except (ValueError, RuntimeError) as e:  # non-finite parameters, an exception inside casadi

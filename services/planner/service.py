@@ -78,13 +78,18 @@ class PlannerShell:
     def run(self) -> None:
         period = 1.0 / self.cfg.rate_hz
         while self.node.running and not self.sim_time:
-            call_periodically(period, self.node, self._wall_tick, until=lambda: len(self.clk_in) > 0)
+            call_periodically(period, self.node, self._guarded_wall_tick, until=lambda: len(self.clk_in) > 0)
             if len(self.clk_in):
                 self._enter_sim_time()
         while self.node.running:
             tick = self.clk_in.get(timeout=0.2)
             if tick is not None:
-                self._sim_tick(tick)
+                with self.node.guard(self.clk_in.key, "clock tick"):  # no exception ever ends the loop
+                    self._sim_tick(tick)
+
+    def _guarded_wall_tick(self) -> None:
+        with self.node.guard("wall clock", "control step"):
+            self._wall_tick()
 
     def _enter_sim_time(self) -> None:
         log.info("simulation clock seen: following it (solve budget lifted, over-budget solves counted)")

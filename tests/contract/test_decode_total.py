@@ -337,3 +337,27 @@ def test_detector_handles_whatever_decodes():
 
         run()
     assert stats.processed > 10  # the fuzz reached the detector, not only the codec
+
+
+def test_a_jpeg_is_sized_from_its_header_before_it_is_decoded():
+    import time
+
+    import cv2
+
+    from cinetransfer.shared import codec
+
+    ok, buf = cv2.imencode(".jpg", np.full((10, 20, 3), 128, np.uint8))
+    small = buf.tobytes()
+    assert codec.jpeg_size(small) == (10, 20)
+    assert codec._jpeg_array(memoryview(small), "uint8", [10, 20, 3], 600, "f").shape == (10, 20, 3)
+    # a small file whose frame header declares 30000 x 30000 (what cost the detector 28 s and 5.4 GB)
+    sof = next(i for i in range(2, len(small) - 1) if small[i] == 0xFF and small[i + 1] == 0xC0)
+    bomb = small[:sof + 5] + (30000).to_bytes(2, "big") * 2 + small[sof + 9:]
+    assert codec.jpeg_size(bomb) == (30000, 30000)
+    t = time.perf_counter()
+    with pytest.raises(codec.DecodeError, match="exceeds the limit of 40000000 pixels"):
+        codec._jpeg_array(memoryview(bomb), "uint8", [30000, 30000, 3], 30000 * 30000 * 3, "f")
+    with pytest.raises(codec.DecodeError, match="does not match the declared shape"):
+        codec._jpeg_array(memoryview(bomb), "uint8", [10, 20, 3], 600, "f")  # the header lies about it
+    assert time.perf_counter() - t < 0.5  # nothing was decoded
+    assert codec.jpeg_size(b"not a jpeg") is None

@@ -169,6 +169,11 @@ def test_transfer_through_zenoh_processes(data, tmp_path, port, listener_opts):
 
     meta = json.loads((out / "meta.json").read_text())
     assert meta["recorded_frames"] == FRAMES == meta["instruction_frames"]
+    # the recording starts at the flight's time zero: frame 0, stamped then, none from before the reset
+    recorded = [codec.decode(p, M.Frame) for _, _, p in read_run(out / "run.mcap", keys.FRAME.key("e2e"))]
+    assert recorded[0].index == 0 and recorded[0].stamp_ns == meta["epoch_ns"]
+    assert [f.index for f in recorded] == list(range(len(recorded)))
+    assert min(t.stamp_ns for t in read_truths(out / "truth.msgpack")) >= meta["epoch_ns"]
     # in simulation time every instruction frame is its own render: nothing repeated or missing
     assert meta["clock_mode"] == "lockstep"
     assert meta["repeated_frames"] == 0 and meta["missing_frames"] == 0 and meta["truth_frames"] == FRAMES
@@ -219,7 +224,10 @@ def test_ctrl_c_stops_the_vehicle_and_keeps_the_recording(data, tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
                              "--scene", "lawn_juggler", "-o", str(out), "--max-frames", "240", "--preroll", "1",
                              "--rig", "ctrlc", "--pace", "0.5"],  # a take of 20 s or more, however fast the machine
-                            stdout=console, stderr=subprocess.STDOUT, text=True)
+                            stdout=console, stderr=subprocess.STDOUT, text=True,
+                            # started as a script's background job is (`cmd &`: SIGINT ignored, which the
+                            # child inherits): the Ctrl-C must stop the take all the same
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     try:
         # when the take is being recorded (watched on the bus as the deployment's read-only observer:
         # 1 s of the take has been simulated since the transfer's reset) ...

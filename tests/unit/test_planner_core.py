@@ -303,3 +303,22 @@ def test_roll_follows_a_tilted_style_and_the_level_weight_keeps_the_horizon():
     # then without the level cost the camera rolls to match it; the default weight rolls less, a huge one not at all
     assert free > 5.0
     assert level < 0.5 < default < free
+
+
+@pytest.mark.parametrize("jump_s", [-600.0, 600.0])
+def test_a_clock_jump_resets_the_warm_start_instead_of_failing(planner, instructions, jump_s):
+    # given a planner tracking on a clock (a few solves: it has a plan to warm-start from)
+    sim = KinematicSim(wrong_start_scene())
+    planner.command(M.Command(action="start"), T0)
+    for i in range(3):
+        now = T0 + i * S // 20
+        sp = planner.step(now, instructions, sim.vehicle_state(now), sim.subject_state(now))
+    assert sp.mode == "track" and planner.counters.get("warm_start_resets", 0) == 0
+    # when the clock jumps (a bridge restart puts the simulation 600 s back; a pause, far ahead)
+    now = T0 + int(jump_s * S)
+    sim = KinematicSim(wrong_start_scene())
+    sp = planner.step(now, instructions, sim.vehicle_state(now), sim.subject_state(now))
+    # then the step solves from a cold start (it used to raise IndexError on the way back)
+    assert sp.stamp_ns == now and sp.mode == "track" and sp.valid, sp.solver_status
+    assert_finite(sp)
+    assert planner.counters["warm_start_resets"] == 1

@@ -120,3 +120,14 @@ def test_smooth_command_line_no_person_is_a_clear_error(tmp_path, capsys):
 def test_bad_joint_name_is_a_usage_error(tmp_path, capsys):
     assert smooth_main([str(tmp_path / "none.msgpack"), "--joints", "chest"]) == 2
     assert "COCO-17" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("fps", [1000.0, 240.5])
+def test_a_style_faster_than_the_camera_is_refused_when_read(tmp_path, result, fps):
+    import dataclasses
+
+    bad = dataclasses.replace(result.instructions, fps=fps, frame_duration_s=1.0 / fps)
+    path = tmp_path / "fast.json"
+    path.write_text(json.dumps(I.style_to_dict(bad, result.diagnostics)))
+    with pytest.raises(I.StyleFileError, match=r"fps.*240"):
+        I.load_style(path)

@@ -1,0 +1,92 @@
+"""Every bad input a user can give the command line: one clear line on stderr, a documented exit
+code, no traceback, and nothing left behind. Real `cinetransfer` processes."""
+import subprocess
+import sys
+
+import pytest
+
+from cinetransfer.shared.zenoh_config import free_tcp_port
+
+
+def cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    import os
+
+    return subprocess.run([sys.executable, "-m", "cinetransfer", *args], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, **(env or {})})
+
+
+def one_line_error(r: subprocess.CompletedProcess, rc: int, *words: str) -> str:
+    assert r.returncode == rc, (r.returncode, r.stdout[-1000:], r.stderr[-2000:])
+    assert "Traceback" not in r.stderr + r.stdout, r.stderr
+    last = r.stderr.strip().splitlines()[-1]
+    assert last.startswith("cinetransfer"), r.stderr
+    for w in words:
+        assert w in last, (w, last)
+    return last
+
+
+def test_a_bare_command_fails_with_the_usage():
+    r = cli()
+    assert r.returncode == 2 and "usage: cinetransfer COMMAND" in r.stderr
+
+
+@pytest.mark.parametrize("args, words", [
+    (("deploy", "up", "local", "--run-dir", "/proc/x"), ("/proc/x",)),
+    (("deploy", "certs", "/proc/x"), ("/proc/x",)),
+])
+def test_unwritable_folders_are_one_line(tmp_path, args, words):
+    r = cli(*args, env={"CT_STATE_DIR": str(tmp_path / "state")})
+    one_line_error(r, 1, *words)
+    assert len(r.stderr.strip().splitlines()) <= 2, r.stderr  # (deploy may say what it was doing first)
+
+
+@pytest.mark.parametrize("args, words", [
+    (("planner", "--rig", "bad/rig"), ("invalid rig name 'bad/rig'",)),
+    (("replay", "run.mcap", "--speed", "-1"), ("--speed", ">= 0")),
+])
+def test_bad_flags_are_usage_errors(args, words):
+    one_line_error(cli(*args), 2, *words)
+
+
+def test_deploy_help_shows_only_public_commands():
+    r = cli("deploy", "--help")
+    assert r.returncode == 0 and "SUPPRESS" not in r.stdout and "_supervise" not in r.stdout
+
+
+def test_monitor_without_a_running_deployment_says_so_in_one_line():
+    r = cli("monitor", "--mode", "client", "--connect", f"tcp/127.0.0.1:{free_tcp_port()}", "--once")
+    one_line_error(r, 1, "cannot use the bus", "is the deployment running")
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+@pytest.mark.parametrize("extra, words", [
+    (("--scene", "no_such_scene"), ("no_such_scene",)),
+    (("--subject", "nobody"), ("nobody",)),
+    (("--rig", "bad/rig"), ("--rig", "bad/rig")),
+    (("--deployment", "no_such_deployment"), ("no_such_deployment",)),
+])
+def test_transfer_refusals_leave_no_folder(data, tmp_path, extra, words):
+    out = tmp_path / "out"
+    r = cli("transfer", str(data / "sam2_juggle_1280x720.mp4"), "-o", str(out), *extra)
+    one_line_error(r, 2, *words)
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not out.exists()
+
+
+def test_transfer_into_a_file_is_refused(data, tmp_path):
+    f = tmp_path / "a_file"
+    f.write_text("keep me")
+    one_line_error(cli("transfer", str(data / "sam2_juggle_1280x720.mp4"), "-o", str(f)), 2, "not a folder")
+    assert f.read_text() == "keep me"
+
+
+@pytest.mark.slow
+def test_a_truncated_source_is_an_error_not_a_short_style(data, tmp_path):
+    # the first quarter of a faststart MP4: its header still declares all 247 frames
+    whole = (data / "sam2_juggle_1280x720.mp4").read_bytes()
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(whole[:len(whole) // 4])
+    r = subprocess.run([sys.executable, "-m", "cinetransfer", "transfer", str(cut), "-o", str(tmp_path / "out"),
+                        "--rig", "cut", "--no-eval"], capture_output=True, text=True, timeout=900)
+    last = one_line_error(r, 1, "truncated or damaged", "of the 247 frames", "--max-frames")
+    assert not (tmp_path / "out" / "meta.json").exists(), last  # nothing was flown

@@ -1,0 +1,149 @@
+"""A take is judged by what happened in it: real transfers, real node processes, a real fault."""
+import json
+import os
+import signal
+import subprocess
+import sys
+
+import pytest
+from test_transfer_e2e import wait_for_take
+
+
+@pytest.mark.slow
+def test_a_planner_killed_mid_take_makes_a_degraded_take_that_exits_3(data, tmp_path):
+    out = tmp_path / "run"
+    console = open(tmp_path / "console.log", "w")
+    proc = subprocess.Popen([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
+                             "--scene", "lawn_juggler", "-o", str(out), "--max-frames", "96", "--preroll", "1",
+                             "--rig", "killed", "--pace", "0.5", "--no-eval"],  # a take of 8 s or more
+                            stdout=console, stderr=subprocess.STDOUT, text=True)
+    try:
+        # given a take under way (1 s of it simulated) ...
+        wait_for_take(out, "killed", proc, seconds_in=1.0 + 1.0)
+        state = json.loads((out / "deploy" / "state.json").read_text())
+        os.kill(state["procs"]["planner"]["pid"], signal.SIGKILL)  # ... the planner dies (the supervisor restarts it)
+        rc = proc.wait(600)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        console.close()
+    log = (tmp_path / "console.log").read_text()
+    # then every frame is still recorded, but the take is degraded, says why, and exits 3
+    assert rc == 3, log[-3000:]
+    assert "degraded take" in log and "planner" in log.splitlines()[-1], log[-2000:]
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["recorded_frames"] == 96
+    faults = meta["faults"]
+    assert faults["degraded"] is True
+    take = faults["takes"][0]
+    assert take["planner_restarts"] >= 1, take  # (the supervisor restarts it within the take)
+    # the vehicle held from the kill on: most of the take's remaining ~3 s
+    assert take["hold_share"] > 0.1 and take["hold_s"] > 0.4, take
+
+
+@pytest.mark.slow
+def test_an_undisturbed_take_is_not_degraded(data, tmp_path):
+    out = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
+                        "--scene", "lawn_juggler", "-o", str(out), "--max-frames", "24", "--preroll", "1",
+                        "--rig", "calm", "--no-eval"], capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    faults = json.loads((out / "meta.json").read_text())["faults"]
+    take = faults["takes"][0]
+    assert faults["degraded"] is False and faults["reasons"] == []
+    assert take["hold_share"] == 0.0 and take["planner_restarts"] == 0 and take["watchdog_holds"] == 0, take
+
+
+@pytest.mark.slow
+def test_a_bridge_killed_mid_take_is_named_at_once_and_the_recording_is_kept(data, tmp_path):
+    import time
+
+    from cinetransfer.report.truthfile import read_truths
+    from cinetransfer.runlog import RunReader
+
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
+                             "--scene", "lawn_juggler", "-o", str(out), "--max-frames", "96", "--preroll", "1",
+                             "--rig", "nobridge", "--pace", "0.5", "--no-eval"],  # stall timeout: the default 300 s
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for_take(out, "nobridge", proc, seconds_in=1.0 + 1.0)
+        state = json.loads((out / "deploy" / "state.json").read_text())
+        os.kill(state["procs"]["autopilot_bridge"]["pid"], signal.SIGKILL)
+        killed = time.monotonic()
+        _, err = proc.communicate(timeout=600)
+        seen_s = time.monotonic() - killed
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    # then the transfer names the dead node in one line, long before the stall timeout ...
+    assert proc.returncode == 1, err[-3000:]
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("cinetransfer transfer:") and "autopilot_bridge node died" in last, err[-3000:]
+    assert "Traceback" not in err
+    assert seen_s < 120, seen_s  # (the deployment's shutdown is most of it; the stall timeout is 300 s)
+    # ... and keeps everything recorded so far, readable as it is
+    meta = json.loads((out / "meta.json").read_text())
+    assert 0 < meta["recorded_frames"] < 96 and "autopilot_bridge" in meta["error"]
+    assert meta["truth_frames"] == len(read_truths(out / "truth.msgpack")) > 0
+    assert RunReader(out / "run.mcap").info.complete
+
+
+@pytest.mark.slow
+def test_a_detector_killed_during_the_extraction_is_named_at_once(data, tmp_path):
+    import time
+
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
+                             "--scene", "lawn_juggler", "-o", str(out), "--rig", "nodetector", "--no-eval"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        # given the extraction under way (the detector has measured frames of the 247-frame clip) ...
+        wait_for_measurements(out, "nodetector", proc)
+        state = out / "deploy" / "state.json"
+        os.kill(json.loads(state.read_text())["procs"]["detector"]["pid"], signal.SIGKILL)  # ... the detector dies
+        killed = time.monotonic()
+        _, err = proc.communicate(timeout=600)
+        seen_s = time.monotonic() - killed
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    # then the transfer names it in one line, long before the stall timeout (300 s)
+    assert proc.returncode == 1, err[-3000:]
+    last = err.strip().splitlines()[-1]
+    assert last == "cinetransfer transfer: extraction: the detector node died (its liveliness token went away); " \
+                   "see OUTDIR/deploy/detector.log", err[-3000:]
+    assert seen_s < 120, seen_s  # (the deployment's shutdown is most of it)
+
+
+def wait_for_measurements(out, rig: str, proc, timeout: float = 300.0) -> None:
+    """Block until the detector of the transfer's deployment has published a measurement (seen on
+    the bus as the deployment's read-only observer)."""
+    import threading
+    import time
+
+    from cinetransfer.shared import keys, zenoh_config
+
+    deadline = time.monotonic() + timeout
+    while not (out / "deploy" / "secrets" / "users.txt").is_file():
+        assert proc.poll() is None and time.monotonic() < deadline, "the transfer ended before its deployment came up"
+        time.sleep(0.1)
+    opts = zenoh_config.deployment_options(out / "deploy" / "transfer.yaml", "observer", run_dir=out / "deploy")
+    seen = threading.Event()
+    session = None
+    while session is None:  # the credentials exist a moment before the router listens
+        assert proc.poll() is None and time.monotonic() < deadline, "the transfer ended before its router came up"
+        try:
+            session = zenoh_config.open_session(opts)
+        except Exception:  # noqa: BLE001 - zenoh.ZError: not listening yet
+            time.sleep(0.2)
+    with session:
+        sub = session.declare_subscriber(keys.MEASUREMENT.key(rig), lambda _s: seen.set())
+        try:
+            while not seen.wait(0.1):
+                assert proc.poll() is None and time.monotonic() < deadline, "the extraction ended first"
+        finally:
+            sub.undeclare()
