@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from cinetransfer.shared.camera import COC_MM
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.vehicle import VehicleProfile
 
@@ -214,7 +215,7 @@ class MavlinkConfig:
     #: camera sensor [mm]: converts CAMERA_FOV_STATUS's field of view to a focal length.
     sensor_width_mm: float = 23.76
     sensor_height_mm: float = 13.365
-    coc_mm: float = 0.05
+    coc_mm: float = COC_MM  # the vehicle profile's (derived from the sensor width)
 
     def __post_init__(self) -> None:
         self.validate()

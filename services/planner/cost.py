@@ -126,6 +126,11 @@ def far_limit_for_circle(inv_near, inv_far, ratio):  # noqa: ANN001, ANN201
     return 0.5 * (inv_near + inv_far) - ratio * 0.5 * (inv_near - inv_far)
 
 
+def near_limit_for_circle(inv_near, inv_far, ratio):  # noqa: ANN001, ANN201
+    """1/D_n of the same lens for a circle of confusion `ratio` times larger (as far_limit_for_circle)."""
+    return 0.5 * (inv_near + inv_far) + ratio * 0.5 * (inv_near - inv_far)
+
+
 def subject_softness(b_subject: float, theta: float) -> float:
     """How far the source's smoothed subject focus B lies below the threshold theta, as a fraction
     of theta (0 at or above it, 1 at B = 0); a subject absent from the source (NaN) counts as
@@ -139,6 +144,12 @@ def far_keeps_subject_out(b_fg: bool, b_subject: bool, b_bg: bool) -> bool:
     """The far limit's target keeps the subject out of focus (D_f* = d - mu: only the foreground,
     or nothing, in focus; shared.camera.desired_dof_limits)."""
     return not (b_subject or b_bg)
+
+
+def near_keeps_subject_out(b_fg: bool, b_subject: bool, b_bg: bool) -> bool:
+    """The near limit's target keeps the subject out of focus (D_n* = d + mu: only the background
+    in focus; shared.camera.desired_dof_limits)."""
+    return b_bg and not (b_fg or b_subject)
 
 
 def defocus_ratio(keeps_out: bool, ratio: float, softness: float) -> float:
@@ -240,8 +251,8 @@ def dof_residuals(inv_near, inv_far, distance_m, *, g_near, g_far, far_one_sided
 
 
 # --- the NLP's stages, built from the terms above (MpcSolver builds its NLP once from these)
-N_DOF = 7  # per stage: w_near mask, g_near, w_far mask, g_far, far_one_sided, near_one_sided,
-#           the far limit's circle-of-confusion ratio (defocus_ratio)
+N_DOF = 8  # per stage: w_near mask, g_near, w_far mask, g_far, far_one_sided, near_one_sided,
+#           the far and the near limit's circle-of-confusion ratios (defocus_ratio)
 
 
 class ParamLayout:
@@ -348,8 +359,9 @@ class StageBuilder:
         im = self._image_term(terms, k, par, r=r, cam=cam, f_mm=f_mm, tk=tk)
         cc = ca.mtimes(r.T, centre - cam)
         d = par.dof[k * N_DOF:(k + 1) * N_DOF]
-        inv_n, inv_f = inverse_dof_limits(f_mm, x[lay.A], x[lay.S], s.coc_mm)
-        inv_f = far_limit_for_circle(inv_n, inv_f, d[6])
+        inv_n0, inv_f0 = inverse_dof_limits(f_mm, x[lay.A], x[lay.S], s.plan_coc_mm)
+        inv_f = far_limit_for_circle(inv_n0, inv_f0, d[6])
+        inv_n = near_limit_for_circle(inv_n0, inv_f0, d[7])
         wts = par.wts
         jdof = dof_cost(inv_n, inv_f, par.dref[k], w_near=d[0] * wts["dof_near"], g_near=d[1],
                           w_far=d[2] * wts["dof_far"], g_far=d[3], far_one_sided=d[4], near_one_sided=d[5])

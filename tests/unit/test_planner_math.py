@@ -106,12 +106,12 @@ def test_dof_hand_computed():
     # given f = 50 mm, A = 4, c = 0.05 mm: H = 2500 / 0.2 + 50 = 12550 mm
     h = 12.55
     assert float(J.hyperfocal_m(50.0, 4.0, 0.05)) == pytest.approx(h)
-    assert cam.hyperfocal_m(50.0, 4.0) == pytest.approx(h)
+    assert cam.hyperfocal_m(50.0, 4.0, 0.05) == pytest.approx(h)
     # when focused at 5 m: D_n = 5 (12.55 - 0.05) / (12.55 + 5 - 0.1) = 62.5 / 17.45, D_f = 62.5 / 7.55
     inv_n, inv_f = (float(v) for v in J.inverse_dof_limits(50.0, 4.0, 5.0, 0.05))
     assert 1 / inv_n == pytest.approx(62.5 / 17.45, rel=1e-12)
     assert 1 / inv_f == pytest.approx(62.5 / 7.55, rel=1e-12)
-    near, far = cam.dof_limits_m(50.0, 4.0, 5.0)
+    near, far = cam.dof_limits_m(50.0, 4.0, 5.0, 0.05)
     assert (near, far) == pytest.approx((62.5 / 17.45, 62.5 / 7.55), rel=1e-12)
 
 
