@@ -375,7 +375,9 @@ class Planner:
                 near, far = cam.desired_dof_limits(bool(focus[r, 0]), bool(focus[r, 1]), bool(focus[r, 2]),
                                                    depth, mu, defocus_when_none=st.defocus_when_none)
                 dof[k, :6] = reciprocal_targets(near, far, near_foreground_m=st.near_foreground_m,
-                                                far_margin_inv_m=st.far_margin_inv_m, fg_absent=bool(absent[r, 0]))
+                                                far_margin_inv_m=st.far_margin_inv_m,
+                                                # a near limit that keeps the subject out stays two-sided
+                                                fg_absent=bool(absent[r, 0]) and not near_out[r])
                 soft = subject_softness(float(b_subject[r]), float(ins.theta)) if len(b_subject) > r else 1.0
                 dof[k, 6] = defocus_ratio(keeps_out[r] and switched_out(keeps_out, now_row, r), ratio, soft)
                 dof[k, 7] = defocus_ratio(near_out[r] and switched_out(near_out, now_row, r), ratio, soft)
