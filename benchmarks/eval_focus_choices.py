@@ -1,7 +1,7 @@
 """Every focus choice filmed: sources with known focus choices transferred, focus agreement per region.
 
     python benchmarks/eval_focus_choices.py [--clip davis_parkour] [--choices ...] [--scene focus_hedge]
-                                            [--work DIR] [--max-frames 0]
+                                            [--work DIR] [--max-frames 0] [--json FILE]
 
 Each choice of benchmarks/focus_sources.py (subject soft, background soft, rack focus halfway,
 foreground sharp, all sharp) is made from the DAVIS clip and its masks, then flown with
@@ -71,6 +71,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--scene", default="focus_hedge")
     ap.add_argument("--work", type=Path, default=Path("runs/eval_focus_choices"))
     ap.add_argument("--max-frames", type=int, default=0)
+    ap.add_argument("--json", type=Path, default=HERE / "results" / "eval_focus_choices.json", help="results file")
     args = ap.parse_args(argv)
     results = {}
     print(f"{'source':34s} {'region':10s} labels  truth  extraction")
@@ -92,8 +93,8 @@ def main(argv: list[str]) -> int:
     load = os.getloadavg()[0]
     doc = {"machine": platform.platform(), "load_average_1min": load, "clip": args.clip, "scene": args.scene,
            "goal": {"truth_min": TRUTH_MIN, "extraction_min": EXTRACTION_MIN}, "results": results}
-    (HERE / "results").mkdir(exist_ok=True)
-    (HERE / "results" / "eval_focus_choices.json").write_text(json.dumps(doc, indent=1))
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(doc, indent=1))
     return 0
 
 
