@@ -20,10 +20,31 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: CineMPC's "Digital Film 16:9" sensor [mm], image size [px], circle of confusion [mm].
+#: CineMPC's "Digital Film 16:9" sensor [mm].
 SENSOR_WIDTH_MM = 23.76
 SENSOR_HEIGHT_MM = 13.365
-COC_MM = 0.05
+
+#: Gaussian sigma per blur-circle diameter (a uniform disc of diameter d rendered as a Gaussian of
+#: per-axis std d/4): how the simulator draws defocus, and how a blur sigma reads as a circle.
+SIGMA_PER_DIAMETER = 0.25
+#: Where "in focus" ends: the defocus sigma, as a fraction of the frame width, at which the
+#: detector's focus estimator flips (mean in-focus probability of a blurred textured frame 0.5).
+#: Measured on the simulator's backdrop, hedge and lawn textures and two DAVIS frames at 640, 960
+#: and 1280 px: 0.79-1.10 px at the estimator's 640 px work width, median 0.9 (docs/planner.md
+#: "One definition of in focus"; tests/unit/test_focus_definition.py keeps the measurement).
+FOCUS_FLIP_SIGMA_PER_WIDTH = 0.9 / 640
+
+
+def coc_mm_for_sensor(sensor_width_mm: float) -> float:
+    """The circle of confusion [mm] of a sensor `sensor_width_mm` wide: the blur disc whose sigma
+    is the focus estimator's flip, whatever the output resolution (the estimator works at a fixed
+    fraction of the frame width). The one definition of "in focus": the planner's depth-of-field
+    targets, the simulator's truth and the report all use it."""
+    return FOCUS_FLIP_SIGMA_PER_WIDTH / SIGMA_PER_DIAMETER * sensor_width_mm
+
+
+#: the circle of confusion of CineMPC's sensor [mm] (0.134)
+COC_MM = coc_mm_for_sensor(SENSOR_WIDTH_MM)
 
 
 @dataclass(frozen=True)

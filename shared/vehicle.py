@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from cinetransfer.shared.camera import coc_mm_for_sensor
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.paths import named_yaml
 
@@ -67,10 +68,18 @@ class CameraSpec:
     sensor_height_mm: float
     width_px: int
     height_px: int
-    coc_mm: float = 0.05  # circle of confusion for the depth of field
+
+    @property
+    def coc_mm(self) -> float:
+        """Circle of confusion for the depth of field [mm]: not a setting but the one definition of
+        "in focus", derived from the sensor width (shared.camera.coc_mm_for_sensor)."""
+        return coc_mm_for_sensor(self.sensor_width_mm)
 
     @classmethod
     def parse(cls, d: Any, where: str = "camera") -> "CameraSpec":
+        if isinstance(d, dict) and "coc_mm" in d:
+            raise ConfigError(f"{where}.coc_mm: not a setting any more: the circle of confusion is derived from "
+                              "sensor_width_mm and the focus estimator (docs/configuration.md); remove the line")
         d = _fields(where, d, cls)
         vals = {k: _num(f"{where}.{k}", v, positive=True) for k, v in d.items()}
         for k in ("width_px", "height_px"):

@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from cinetransfer.shared.camera import COC_MM
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.nodeconfig import setting
 from cinetransfer.shared.signing_key import read_signing_key
@@ -227,7 +228,7 @@ class MavlinkConfig:
     #: camera sensor [mm]: converts CAMERA_FOV_STATUS's field of view to a focal length.
     sensor_width_mm: float = 23.76
     sensor_height_mm: float = 13.365
-    coc_mm: float = 0.05
+    coc_mm: float = COC_MM  # the vehicle profile's (derived from the sensor width)
     #: the lens's focal-length range [mm] (the vehicle profile's): zoom by range (0..100 %) maps onto it.
     focal_length_range_mm: tuple[float, float] = (30.0, 500.0)
     #: a lens or land command without acknowledgement is resent this many times, every

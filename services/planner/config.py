@@ -192,14 +192,20 @@ class Structure:
     warm_start: bool = True  # initial guess from the shifted last solution (baseline: False = cold)
     far_margin_inv_m: float = 0.01  # 'far limit at infinity' aims at 1/D_f <= -this [1/m] (s a bit past H)
     near_foreground_m: float = 1.0  # 'foreground in focus' aims at D_n = this [m] (D_n* = 0 is unreachable)
-    # a far limit that keeps the subject out of focus puts it beyond the depth of field of this
-    # circle of confusion [mm]: blur that is seen (the detector's focus estimator reads a defocus
-    # sigma of 1 px at 640 px as the edge, a 0.15 mm disc on this sensor; coc_mm, 0.05, is only the
-    # sharpness limit, and a subject just past it reads sharp: docs/planner.md "Visible defocus")
-    defocus_coc_mm: float = 0.2
+    # margins either side of coc_mm, the one definition of in focus (where the focus estimator flips;
+    # docs/planner.md "One definition of in focus"): a region kept in focus is planned inside the depth
+    # of field of coc_mm x sharp_coc_ratio (0.05 mm on CineMPC's sensor), a subject kept out beyond
+    # that of coc_mm x defocus_coc_ratio (0.2 mm): blur that is seen ("Visible defocus")
+    sharp_coc_ratio: float = 0.375
+    defocus_coc_ratio: float = 1.5
     defocus_when_none: bool = True  # no region in focus -> D_f* = d - mu (DESIGN's table: uncontrolled)
     pinhole_half_angle_deg: float = 60.0  # J_im is the exact pinhole error within this angle of the axis,
     #                                       extended monotonically beyond (cost.project_extended), (30, 80)
+
+    @property
+    def plan_coc_mm(self) -> float:
+        """The circle of confusion the planner's depth-of-field limits are computed for [mm]."""
+        return self.coc_mm * self.sharp_coc_ratio
 
     @property
     def nx(self) -> int:
@@ -239,8 +245,8 @@ class Structure:
             ("tol", 0 < self.tol < 1, "0 < tol < 1"),
             ("far_margin_inv_m", self.far_margin_inv_m >= 0, ">= 0"),
             ("near_foreground_m", self.near_foreground_m > 0, "> 0"),
-            ("defocus_coc_mm", positive(self.defocus_coc_mm) and self.defocus_coc_mm >= self.coc_mm,
-             "a finite value >= coc_mm"),
+            ("sharp_coc_ratio", 0 < self.sharp_coc_ratio <= 1, "0 < value <= 1"),
+            ("defocus_coc_ratio", 1 <= self.defocus_coc_ratio <= 20, "1 <= value <= 20"),
             ("pinhole_half_angle_deg", 30.0 < self.pinhole_half_angle_deg < 80.0, "30 < value < 80"),
         ]
 

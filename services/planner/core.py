@@ -31,7 +31,8 @@ import numpy as np
 from cinetransfer.services.planner import constraints as C
 from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
 from cinetransfer.services.planner.lens_axes import pinned_bounds
-from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject_out, reciprocal_targets,
+from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject_out, near_keeps_subject_out,
+                                                reciprocal_targets,
                                                 subject_softness, switched_out)
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
 from cinetransfer.services.planner.solver import N_DOF, MpcSolver, SolveResult, StageData
@@ -371,9 +372,12 @@ class Planner:
         focus = np.asarray(ins.focus_in, dtype=bool)
         absent = absent_regions(ins)
         b_subject = smoothed_subject_focus(ins)
-        keeps_out = [far_keeps_subject_out(*row) for row in focus.tolist()] if focus.shape[-1:] == (3,) else []
+        rows3 = focus.tolist() if focus.shape[-1:] == (3,) else []
+        keeps_out = [far_keeps_subject_out(*row) for row in rows3]
+        near_out = [near_keeps_subject_out(*row) for row in rows3]
+        ratio = st.defocus_coc_ratio / st.sharp_coc_ratio
         dof = np.zeros((n, N_DOF))
-        dof[:, 6] = 1.0  # the far limit's circle-of-confusion ratio (cost.defocus_ratio)
+        dof[:, 6:8] = 1.0  # the far and near limits' circle-of-confusion ratios (cost.defocus_ratio)
         dref = np.zeros(n)
         for k, r in enumerate(rows):
             t = (k + 1) * dt
@@ -390,10 +394,12 @@ class Planner:
                 near, far = cam.desired_dof_limits(bool(focus[r, 0]), bool(focus[r, 1]), bool(focus[r, 2]),
                                                    depth, mu, defocus_when_none=st.defocus_when_none)
                 dof[k, :6] = reciprocal_targets(near, far, near_foreground_m=st.near_foreground_m,
-                                                far_margin_inv_m=st.far_margin_inv_m, fg_absent=bool(absent[r, 0]))
+                                                far_margin_inv_m=st.far_margin_inv_m,
+                                                # a near limit that keeps the subject out stays two-sided
+                                                fg_absent=bool(absent[r, 0]) and not near_out[r])
                 soft = subject_softness(float(b_subject[r]), float(ins.theta)) if len(b_subject) > r else 1.0
-                dof[k, 6] = defocus_ratio(keeps_out[r] and switched_out(keeps_out, now_row, r),
-                                          st.defocus_coc_mm / st.coc_mm, soft)
+                dof[k, 6] = defocus_ratio(keeps_out[r] and switched_out(keeps_out, now_row, r), ratio, soft)
+                dof[k, 7] = defocus_ratio(near_out[r] and switched_out(near_out, now_row, r), ratio, soft)
         return dof, dref
 
     def _rows(self, now_ns: int, ins: M.Instructions, n: int, dt: float) -> tuple[list[int], int]:

@@ -17,8 +17,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 import casadi as ca
+
+from cinetransfer.services.planner import constraints as C
+from cinetransfer.services.planner.config import WEIGHT_NAMES, Structure
+from cinetransfer.services.planner.model import Layout
 
 
 def rotation_ypr(yaw, pitch, roll=0.0):  # noqa: ANN001, ANN201 - casadi or float
@@ -121,6 +126,11 @@ def far_limit_for_circle(inv_near, inv_far, ratio):  # noqa: ANN001, ANN201
     return 0.5 * (inv_near + inv_far) - ratio * 0.5 * (inv_near - inv_far)
 
 
+def near_limit_for_circle(inv_near, inv_far, ratio):  # noqa: ANN001, ANN201
+    """1/D_n of the same lens for a circle of confusion `ratio` times larger (as far_limit_for_circle)."""
+    return 0.5 * (inv_near + inv_far) + ratio * 0.5 * (inv_near - inv_far)
+
+
 def subject_softness(b_subject: float, theta: float) -> float:
     """How far the source's smoothed subject focus B lies below the threshold theta, as a fraction
     of theta (0 at or above it, 1 at B = 0); a subject absent from the source (NaN) counts as
@@ -134,6 +144,12 @@ def far_keeps_subject_out(b_fg: bool, b_subject: bool, b_bg: bool) -> bool:
     """The far limit's target keeps the subject out of focus (D_f* = d - mu: only the foreground,
     or nothing, in focus; shared.camera.desired_dof_limits)."""
     return not (b_subject or b_bg)
+
+
+def near_keeps_subject_out(b_fg: bool, b_subject: bool, b_bg: bool) -> bool:
+    """The near limit's target keeps the subject out of focus (D_n* = d + mu: only the background
+    in focus; shared.camera.desired_dof_limits)."""
+    return b_bg and not (b_fg or b_subject)
 
 
 def defocus_ratio(keeps_out: bool, ratio: float, softness: float) -> float:
@@ -232,3 +248,184 @@ def dof_residuals(inv_near, inv_far, distance_m, *, g_near, g_far, far_one_sided
     r_f = inv_far - g_far
     r_f = far_one_sided * ca.fmax(r_f, 0) + (1 - far_one_sided) * r_f
     return distance_m * r_n, distance_m * r_f
+
+
+# --- the NLP's stages, built from the terms above (MpcSolver builds its NLP once from these)
+N_DOF = 8  # per stage: w_near mask, g_near, w_far mask, g_far, far_one_sided, near_one_sided,
+#           the far and the near limit's circle-of-confusion ratios (defocus_ratio)
+
+
+class ParamLayout:
+    """Offsets of the pieces of the parameter vector p."""
+
+    def __init__(self, s: Structure) -> None:
+        lay = Layout(s.control_roll)
+        e, n = s.max_joints, s.horizon_steps
+        sizes = [("u_prev", lay.nu), ("joints", 3 * e), ("centre", 3), ("subj_vel", 3),
+                 ("targets", n * e * 2), ("mask", n * e), ("dof", n * N_DOF), ("dref", n),
+                 ("weights", len(WEIGHT_NAMES)), ("u_scale", lay.nu), ("v_scale", 1), ("soft", C.N_SOFT)]
+        self.slices: dict[str, slice] = {}
+        off = 0
+        for name, size in sizes:
+            self.slices[name] = slice(off, off + size)
+            off += size
+        self.size = off
+
+
+@dataclass
+class NlpTerms:
+    """What the stages of the NLP add up to: cost, constraint rows (NLP and stage-wise QP forms),
+    Gauss-Newton residuals, and the input-change residuals (exact; majorised)."""
+
+    cost: object = 0
+    g: list = field(default_factory=list)
+    g_ocp: list = field(default_factory=list)
+    resid: list = field(default_factory=list)
+    du_exact: list = field(default_factory=list)
+    du_major: list = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class NlpParams:
+    """The pieces of the parameter vector p, as symbols (see ParamLayout)."""
+
+    u_prev: object
+    joints0: object  #: (3, E): column j = joint j
+    centre0: object
+    vel: object
+    targets: object
+    mask: object
+    dof: object
+    dref: object
+    wts: dict
+    u_scale: object
+    v_scale: object
+    soft: object  #: the soft constraints' limits (constraints.soft_limits)
+
+    @classmethod
+    def of(cls, p, sl: dict[str, slice], e: int) -> NlpParams:
+        return cls(u_prev=p[sl["u_prev"]], joints0=ca.reshape(p[sl["joints"]], 3, e), centre0=p[sl["centre"]],
+                   vel=p[sl["subj_vel"]], targets=p[sl["targets"]], mask=p[sl["mask"]], dof=p[sl["dof"]],
+                   dref=p[sl["dref"]], wts={name: p[sl["weights"]][i] for i, name in enumerate(WEIGHT_NAMES)},
+                   u_scale=p[sl["u_scale"]], v_scale=p[sl["v_scale"]][0], soft=p[sl["soft"]])
+
+
+class StageBuilder:
+    """The stages of the NLP (dynamics, soft constraints, cost and the SQP's residuals) from the
+    decision vector w and the parameter symbols, for a structure, its layout and dynamics matrices."""
+
+    def __init__(self, s: Structure, layout: Layout, dt: float, ab_dm: tuple) -> None:
+        self.s, self.layout, self.dt, self.e, self._ab_dm = s, layout, dt, s.max_joints, ab_dm
+
+    def terms(self, w, par: NlpParams, v_copy, *, aug: bool, majorise: bool) -> NlpTerms:  # noqa: ANN001
+        """Every stage's terms; `aug`: stage k >= 1 takes its previous input from v_copy (the SQP)."""
+        lay, n = self.layout, self.s.horizon_steps
+        nx, nu = lay.nx, lay.nu
+        blk = nu + nx + C.N_SOFT
+        terms = NlpTerms()
+        x_prev = w[0:nx]
+        u_last = par.u_prev
+        for k in range(n):
+            off = nx + k * blk
+            u, x, slack = w[off:off + nu], w[off + nu:off + nu + nx], w[off + nu + nx:off + blk]
+            self._add_stage(terms, k, par, x_prev=x_prev, u_last=u_last, u=u, x=x, slack=slack, majorise=majorise)
+            x_prev, u_last = x, (v_copy[k * nu:(k + 1) * nu] if aug and k < n - 1 else u)
+        return terms
+
+    def _input_groups(self) -> tuple[list[int], list[int], list[int]]:
+        """Indices of the input vector: accelerations, camera rates, lens rates."""
+        lay = self.layout
+        return list(range(0, 3)), list(range(3, lay.F_RATE)), list(range(lay.F_RATE, lay.nu))
+
+    def _add_stage(self, terms: NlpTerms, k: int, par: NlpParams, *, x_prev, u_last, u, x, slack,
+                   majorise: bool) -> None:
+        """Stage k+1 of the NLP: its dynamics and soft constraints (in both forms), its cost and,
+        for the SQP, its Gauss-Newton residuals."""
+        s, lay, dt = self.s, self.layout, self.dt
+        a_dm, b_dm = self._ab_dm
+        tk = (k + 1) * dt
+        terms.g.append(x - (ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)))
+        centre = par.centre0 + par.vel * tk
+        terms.g.append(C.soft_constraints(x, slack, centre, par.soft))
+        # the same rows in the stage-wise form of the QP (x_{k+1} through the dynamics; equal wherever
+        # the dynamics hold, which every SQP iterate after the first satisfies exactly)
+        x_pred = ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)
+        terms.g_ocp += [x_pred - x, C.soft_constraints(x_pred, slack, centre, par.soft)]
+
+        yaw, pitch, roll = lay.angles(x)
+        cam = x[lay.P]
+        r = rotation_ypr(yaw, pitch, roll)
+        f_mm = x[lay.F]
+        im = self._image_term(terms, k, par, r=r, cam=cam, f_mm=f_mm, tk=tk)
+        cc = ca.mtimes(r.T, centre - cam)
+        d = par.dof[k * N_DOF:(k + 1) * N_DOF]
+        inv_n0, inv_f0 = inverse_dof_limits(f_mm, x[lay.A], x[lay.S], s.plan_coc_mm)
+        inv_f = far_limit_for_circle(inv_n0, inv_f0, d[6])
+        inv_n = near_limit_for_circle(inv_n0, inv_f0, d[7])
+        wts = par.wts
+        jdof = dof_cost(inv_n, inv_f, par.dref[k], w_near=d[0] * wts["dof_near"], g_near=d[1],
+                          w_far=d[2] * wts["dof_far"], g_far=d[3], far_one_sided=d[4], near_one_sided=d[5])
+        un = u * par.u_scale
+        du_n = (u - u_last) * par.u_scale
+        vn = (x[lay.V] - par.vel) * par.v_scale  # relative to the subject: follow, don't wander
+        acc_idx, cam_idx, lens_idx = self._input_groups()
+        stage = (wts["image"] * im + wts["look"] * look_cost(cc) + jdof
+                 + wts["accel"] * ca.sumsqr(un[acc_idx]) + wts["camera_rate"] * ca.sumsqr(un[cam_idx])
+                 + wts["lens_rate"] * ca.sumsqr(un[lens_idx])
+                 + wts["accel_change"] * ca.sumsqr(du_n[acc_idx])
+                 + wts["camera_rate_change"] * ca.sumsqr(du_n[cam_idx])
+                 + wts["lens_rate_change"] * ca.sumsqr(du_n[lens_idx])
+                 + wts["velocity"] * ca.sumsqr(vn)
+                 + wts["soft_constraint"] * (ca.sum1(slack) + ca.sumsqr(slack))
+                 + wts["level"] * roll * roll)
+        terms.cost += dt * stage
+        if s.solver != "ipopt":
+            e_n, e_f = dof_residuals(inv_n, inv_f, par.dref[k], g_near=d[1], g_far=d[3], far_one_sided=d[4],
+                                      near_one_sided=d[5])
+            terms.resid += [ca.sqrt(0.5 * dt * wts["look"]) * look_residual(cc),
+                            ca.sqrt(dt * d[0] * wts["dof_near"]) * e_n, ca.sqrt(dt * d[2] * wts["dof_far"]) * e_f]
+            if lay.control_roll:
+                terms.resid.append(ca.sqrt(dt * wts["level"]) * roll)
+            self._add_input_residuals(terms, wts, un=un, du_n=du_n, vn=vn, slack=slack,
+                                      majorised=(u * par.u_scale, u_last * par.u_scale) if majorise and k > 0
+                                      else None)
+
+    def _image_term(self, terms: NlpTerms, k: int, par: NlpParams, *, r, cam, f_mm, tk):
+        """The image cost of stage k+1: the predicted joints projected through the planned camera,
+        against their targets (weighted by the mask); for the SQP, their residuals too."""
+        s, e, dt = self.s, self.e, self.dt
+        im = 0
+        for j in range(e):
+            pj = par.joints0[:, j] + par.vel * tk
+            pc = ca.mtimes(r.T, pj - cam)
+            ti = (k * e + j) * 2
+            err2 = joint_image_error(pc, par.targets[ti], par.targets[ti + 1], f_mm, s.sensor_width_mm,
+                                       s.sensor_height_mm, theta0_rad=math.radians(s.pinhole_half_angle_deg))
+            im += par.mask[k * e + j] * err2
+            if s.solver != "ipopt":
+                ru, rv = joint_image_residual(pc, par.targets[ti], par.targets[ti + 1], f_mm, s.sensor_width_mm,
+                                                s.sensor_height_mm,
+                                                theta0_rad=math.radians(s.pinhole_half_angle_deg))
+                sw = ca.sqrt(dt * par.wts["image"] * par.mask[k * e + j])
+                terms.resid += [sw * ru, sw * rv]
+        return im
+
+    def _add_input_residuals(self, terms: NlpTerms, wts: dict, *, un, du_n, vn, slack,
+                             majorised: tuple | None) -> None:
+        """Residuals of the input, velocity and slack costs; the input-change ones exact, and
+        majorised (`majorised` = (u, u_last) scaled: each side on its own) for HPIPM's warm iterations."""
+        dt = self.dt
+        acc_idx, cam_idx, lens_idx = self._input_groups()
+        terms_ = [("accel", un[acc_idx]), ("camera_rate", un[cam_idx]), ("lens_rate", un[lens_idx]),
+                  ("velocity", vn), ("soft_constraint", slack)]
+        exact = [("accel_change", du_n[acc_idx]), ("camera_rate_change", du_n[cam_idx]),
+                 ("lens_rate_change", du_n[lens_idx])]
+        major = exact
+        if majorised is not None:
+            major = [(name, vec[idx]) for name, idx in (("accel_change", acc_idx),
+                                                        ("camera_rate_change", cam_idx),
+                                                        ("lens_rate_change", lens_idx))
+                     for vec in majorised]
+        terms.resid += [ca.sqrt(dt * wts[name]) * vec for name, vec in terms_]
+        terms.du_exact += [ca.sqrt(dt * wts[name]) * vec for name, vec in exact]
+        terms.du_major += [ca.sqrt(dt * wts[name]) * vec for name, vec in major]

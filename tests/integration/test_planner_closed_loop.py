@@ -133,7 +133,8 @@ def test_visible_defocus_follows_the_switch_on_time(planner_factory):
 
     def truth(s, names):
         f_mm, focus_m, fnum = (float(v) for v in s.lens)
-        visible_far.append(cam.dof_limits_m(f_mm, fnum, focus_m, CFG.structure.defocus_coc_mm)[1])
+        st = CFG.structure
+        visible_far.append(cam.dof_limits_m(f_mm, fnum, focus_m, st.coc_mm * st.defocus_coc_ratio)[1])
         near, far = s.dof_limits_m()
         return s.image_points(names), s.subject_depth_m(), near, far
     log = run_closed_loop(planner, sim, ins, duration_s=10.0, on_step=BoundsChecker(planner), truth=truth)

@@ -281,6 +281,24 @@ def test_a_row_without_focus_labels_leaves_the_lens_free(planner, instructions):
     np.testing.assert_array_equal(dof[1, :6], np.zeros(6))
 
 
+def test_only_the_background_in_focus_keeps_the_subject_out_by_the_near_limit(planner, instructions):
+    # given a style that wants only the background in focus and shows no foreground
+    k = instructions.image_targets.shape[0]
+    sm = np.tile(np.array([np.nan, 0.0, 1.0], dtype=np.float32), (k, 1))
+    ins = dataclasses.replace(instructions, focus_smoothed=sm, focus_raw=sm,
+                              focus_in=np.tile([False, False, True], (k, 1)))
+    sim = KinematicSim(wrong_start_scene())
+    x0 = planner._measured_state(T0, sim.vehicle_state(T0))
+    subj = predict_subject(sim.subject_state(T0), T0)
+    dof, dref = planner._dof_targets(T0, ins, [0, 1], 0, x0, subj)
+    st = planner.cfg.structure
+    # then the near limit aims beyond the subject (d + mu), two-sided although no foreground is shown
+    # (one-sided it would let the limit come nearer, the subject back in focus), with the larger circle
+    assert dof[0, 0] == 1.0 and dof[0, 1] == pytest.approx(1.0 / (dref[0] + ins.mu_m))
+    assert dof[0, 5] == 0.0
+    assert dof[0, 7] == pytest.approx(st.defocus_coc_ratio / st.sharp_coc_ratio) and dof[0, 6] == 1.0
+
+
 def _roll_after(level: float, tilt_deg: float) -> float:
     """|camera roll| [deg] after 3 s of flying a standing shot whose targets are turned by tilt_deg."""
     from cinetransfer.services.planner.scenarios import run_closed_loop

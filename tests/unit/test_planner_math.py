@@ -106,12 +106,12 @@ def test_dof_hand_computed():
     # given f = 50 mm, A = 4, c = 0.05 mm: H = 2500 / 0.2 + 50 = 12550 mm
     h = 12.55
     assert float(J.hyperfocal_m(50.0, 4.0, 0.05)) == pytest.approx(h)
-    assert cam.hyperfocal_m(50.0, 4.0) == pytest.approx(h)
+    assert cam.hyperfocal_m(50.0, 4.0, 0.05) == pytest.approx(h)
     # when focused at 5 m: D_n = 5 (12.55 - 0.05) / (12.55 + 5 - 0.1) = 62.5 / 17.45, D_f = 62.5 / 7.55
     inv_n, inv_f = (float(v) for v in J.inverse_dof_limits(50.0, 4.0, 5.0, 0.05))
     assert 1 / inv_n == pytest.approx(62.5 / 17.45, rel=1e-12)
     assert 1 / inv_f == pytest.approx(62.5 / 7.55, rel=1e-12)
-    near, far = cam.dof_limits_m(50.0, 4.0, 5.0)
+    near, far = cam.dof_limits_m(50.0, 4.0, 5.0, 0.05)
     assert (near, far) == pytest.approx((62.5 / 17.45, 62.5 / 7.55), rel=1e-12)
 
 
@@ -218,6 +218,27 @@ def test_defocus_ratio_follows_how_soft_the_source_subject_is():
 ])
 def test_far_keeps_subject_out(focus, expected):
     assert J.far_keeps_subject_out(*focus) is expected
+
+
+@pytest.mark.parametrize("focus, expected", [
+    # (fg, subject, bg): the near limit keeps the subject out where D_n* = d + mu
+    ((False, False, True), True),  # background only: focus beyond the subject
+    ((False, False, False), False), ((True, False, False), False), ((False, True, False), False),
+    ((True, True, True), False), ((True, False, True), False), ((False, True, True), False),
+])
+def test_near_keeps_subject_out(focus, expected):
+    assert J.near_keeps_subject_out(*focus) is expected
+
+
+def test_near_limit_for_a_larger_circle_hand_computed():
+    # given f = 50 mm, A = 4, focused at 5 m with c = 0.05 mm: 1/D_n = 17.45 / 62.5, 1/D_f = 7.55 / 62.5
+    inv_n, inv_f = 17.45 / 62.5, 7.55 / 62.5
+    # then for a 4 x circle the near limit sits 4 spreads nearer than 1/s = 0.2: 0.2 + 4 x 0.0792 = 0.5168
+    assert float(J.near_limit_for_circle(inv_n, inv_f, 4.0)) == pytest.approx(0.2 + 4 * (17.45 - 12.5) / 62.5)
+    # which is the near limit shared.camera gives for c = 0.2 mm
+    assert float(J.near_limit_for_circle(inv_n, inv_f, 4.0)) == pytest.approx(
+        1.0 / cam.dof_limits_m(50.0, 4.0, 5.0, 0.2)[0], rel=1e-9)
+    assert float(J.near_limit_for_circle(inv_n, inv_f, 1.0)) == pytest.approx(inv_n)
 
 
 def test_visible_defocus_only_once_the_switch_is_reached():

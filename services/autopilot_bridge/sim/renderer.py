@@ -30,8 +30,8 @@ import numpy as np
 from cinetransfer.shared import camera as cam
 
 NEAR_M = 0.05
-#: Gaussian sigma per blur-circle diameter (uniform disc of diameter d: per-axis std d/4).
-SIGMA_PER_DIAMETER = 0.25
+#: Gaussian sigma per blur-circle diameter (the lens model's: shared.camera)
+SIGMA_PER_DIAMETER = cam.SIGMA_PER_DIAMETER
 MIN_SIGMA_PX = 0.35
 #: blur-circle step [px] between ground bands, and the most bands.
 BAND_COC_STEP_PX = 2.0

@@ -16,6 +16,7 @@ from typing import Any
 
 import yaml
 
+from cinetransfer.shared import camera as cam
 from cinetransfer.shared.dynamics import DynamicsLimits
 from cinetransfer.shared.vehicle import VehicleProfile
 
@@ -111,7 +112,7 @@ class CameraSpec:
     fps: float = 24.0
     sensor_width_mm: float = 23.76
     sensor_height_mm: float = 13.365
-    coc_mm: float = 0.05
+    coc_mm: float = cam.COC_MM  # derived from the sensor width (shared.camera.coc_mm_for_sensor), not a key
 
 
 @dataclass(frozen=True)
@@ -185,13 +186,13 @@ class Scene:
 
 def _parse_camera(d: dict) -> CameraSpec:
     w = "camera"
-    _known(d, w, {"width", "height", "fps", "sensor_width_mm", "sensor_height_mm", "coc_mm"})
+    _known(d, w, {"width", "height", "fps", "sensor_width_mm", "sensor_height_mm"})
     width = int(_num(d, "width", w, 960, lo=32, hi=7680))
     height = int(_num(d, "height", w, 540, lo=32, hi=4320))
-    return CameraSpec(width=width, height=height, fps=_num(d, "fps", w, 24.0, lo=1, hi=240),
-                      sensor_width_mm=_num(d, "sensor_width_mm", w, 23.76, positive=True),
+    sensor_w = _num(d, "sensor_width_mm", w, 23.76, positive=True)
+    return CameraSpec(width=width, height=height, fps=_num(d, "fps", w, 24.0, lo=1, hi=240), sensor_width_mm=sensor_w,
                       sensor_height_mm=_num(d, "sensor_height_mm", w, 13.365, positive=True),
-                      coc_mm=_num(d, "coc_mm", w, 0.05, positive=True))
+                      coc_mm=cam.coc_mm_for_sensor(sensor_w))
 
 
 def _parse_vehicle(d: dict) -> VehicleSpec:
@@ -391,6 +392,6 @@ def with_vehicle(scene: Scene, vehicle: VehicleProfile) -> Scene:
     """`scene` flown by `vehicle` (shared/vehicle.py): its limits (the scene's `limits:` keeps only
     the simulated autopilot's time constants and gains) and its camera sensor. The rendered image
     keeps the scene's size."""
-    cam = dataclasses.replace(scene.camera, sensor_width_mm=vehicle.camera.sensor_width_mm,
+    camera = dataclasses.replace(scene.camera, sensor_width_mm=vehicle.camera.sensor_width_mm,
                               sensor_height_mm=vehicle.camera.sensor_height_mm, coc_mm=vehicle.camera.coc_mm)
-    return dataclasses.replace(scene, limits=DynamicsLimits.from_vehicle(vehicle, scene.limits), camera=cam)
+    return dataclasses.replace(scene, limits=DynamicsLimits.from_vehicle(vehicle, scene.limits), camera=camera)
