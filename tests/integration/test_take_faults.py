@@ -113,7 +113,8 @@ def kill_node_then_wait(proc, out, node: str, when) -> tuple[str, float]:
     finally:
         if proc.poll() is None:
             proc.kill()
-            proc.wait()
+        if not proc.stderr.closed:  # a step failed before communicate(): close the pipes, or a later test trips on them
+            proc.communicate()
 
 
 def wait_for_measurements(out, rig: str, proc, timeout: float = 300.0) -> None:
