@@ -12,9 +12,11 @@ the default is DEFAULT_VEHICLE (CineMPC's camera, DESIGN §4).
 The YAML states angles in degrees (rates in deg/s); the dataclasses hold radians.
 
 `VehicleProfile.limits()` flattens a profile into the one spelling of each limit (LIMIT_NAMES: the
-profile's own names, a [min, max] pair split into `_min_` / `_max_`). Those three config
-dataclasses name their limit fields so: `from_vehicle` fills them (`vehicle_fields`) and their code
-defaults are read from the default profile (`profile_default`), so no number is typed twice.
+profile's own names, a [min, max] pair split into `_min_` / `_max_`). The limit groups at the end
+(MotionLimits, LensLimits, ...) declare each limit once as a config field under that name, its
+default read from the default profile (`profile_field`); the planner's, the safety layer's and the
+simulator's configs inherit the groups they bound and `from_vehicle` fills them (`vehicle_fields`),
+so no number and no name is typed twice.
 """
 from __future__ import annotations
 
