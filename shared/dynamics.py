@@ -27,15 +27,16 @@ import numpy as np
 from cinetransfer.shared.angles import wrap_angle
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.nodeconfig import renamed_aliases
-from cinetransfer.shared.vehicle import (GimbalLimits, GimbalRateLimits, LensLimits, LensRateLimits, MotionLimits,
-                                         VehicleProfile, vehicle_fields)
+from cinetransfer.shared.limits import (GimbalLimits, GimbalRateLimits, LensLimits, LensRateLimits, MotionLimits,
+                                        vehicle_fields)
+from cinetransfer.shared.vehicle import VehicleProfile
 
 
 @dataclass(frozen=True)
 class DynamicsLimits(LensRateLimits, LensLimits, GimbalRateLimits, GimbalLimits, MotionLimits):
     """Limits and time constants of the simulated vehicle.
 
-    The limits (declared once in shared/vehicle.py) come from the vehicle profile (`from_vehicle`);
+    The limits (declared once in shared/limits.py) come from the vehicle profile (`from_vehicle`);
     the defaults are the default profile's (deploy/vehicles/cinempc.yaml, CineMPC's camera, DESIGN
     §4). The time constants and gains are the simulated autopilot's own. SETTING_ALIASES are the
     earlier spellings a scene's `limits:` may use."""

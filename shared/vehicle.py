@@ -11,22 +11,18 @@ the default is DEFAULT_VEHICLE (CineMPC's camera, DESIGN §4).
 
 The YAML states angles in degrees (rates in deg/s); the dataclasses hold radians.
 
-`VehicleProfile.limits()` flattens a profile into the one spelling of each limit (LIMIT_NAMES: the
-profile's own names, a [min, max] pair split into `_min_` / `_max_`). The limit groups at the end
-(MotionLimits, LensLimits, ...) declare each limit once as a config field under that name, its
-default read from the default profile (`profile_field`); the planner's, the safety layer's and the
-simulator's configs inherit the groups they bound and `from_vehicle` fills them (`vehicle_fields`),
-so no number and no name is typed twice.
+`VehicleProfile.limits()` flattens a profile into the one spelling of each limit (the profile's
+own names, a [min, max] pair split into `_min_` / `_max_`); shared/limits.py turns them into config
+fields.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from cinetransfer.shared.camera import coc_mm_for_sensor
 from cinetransfer.shared.errors import ConfigError
@@ -200,7 +196,7 @@ class VehicleProfile:
     path: str = ""
 
     def limits(self) -> dict[str, Any]:
-        """Every limit under its one name (LIMIT_NAMES), in SI units and radians."""
+        """Every limit under its one name (shared/limits.LIMIT_NAMES), in SI units and radians."""
         lens, gim, mo, env = self.lens, self.gimbal, self.motion, self.envelope
         return {"speed_max_mps": mo.speed_max_mps, "climb_max_mps": mo.climb_max_mps,
                 "accel_max_mps2": mo.accel_max_mps2,
@@ -265,37 +261,6 @@ def load_vehicle(name_or_path: str | None = None) -> VehicleProfile:
     return _CACHE[key]
 
 
-LIMIT_NAMES: tuple[str, ...] = (
-    "speed_max_mps", "climb_max_mps", "accel_max_mps2", "geofence_shape", "geofence_radius_m",
-    "geofence_half_extent_m", "altitude_min_m", "altitude_max_m", "min_subject_distance_m",
-    "pitch_min_rad", "pitch_max_rad", "roll_max_rad", "yaw_rate_radps", "pitch_rate_radps", "roll_rate_radps",
-    "focal_length_min_mm", "focal_length_max_mm", "focal_rate_mmps", "focus_distance_min_m",
-    "focus_distance_max_m", "focus_rate_mps", "f_number_min", "f_number_max", "f_number_rate_ps")
-
-
-def vehicle_fields(cls: type, v: VehicleProfile) -> dict[str, Any]:
-    """The limits of `v` that config dataclass `cls` has a field for, by field name."""
-    limits = v.limits()
-    return {f.name: limits[f.name] for f in dataclasses.fields(cls) if f.name in limits}
-
-
-def profile_default(name: str) -> Callable[[], Any]:
-    """A dataclass default_factory: limit `name` of the default profile (read when first needed)."""
-    if name not in LIMIT_NAMES:
-        raise ValueError(f"{name!r} is not a vehicle limit; the limits: {', '.join(LIMIT_NAMES)}")
-    return lambda: _default_limits()[name]
-
-
-def profile_field(name: str) -> Any:
-    """A dataclass field whose default is limit `name` of the default profile."""
-    return dataclasses.field(default_factory=profile_default(name))
-
-
-@functools.cache
-def _default_limits() -> dict[str, Any]:
-    return load_vehicle().limits()
-
-
 def _vehicle_arg(text: str) -> str:
     """--vehicle's type: the name or path as given, once the profile loads (argparse exits 2 otherwise)."""
     try:
@@ -308,53 +273,3 @@ def _vehicle_arg(text: str) -> str:
 def add_vehicle_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vehicle", default=None, metavar="NAME|PATH", type=_vehicle_arg,
                    help=f"vehicle profile (deploy/vehicles: {', '.join(vehicle_names())}; default {DEFAULT_VEHICLE})")
-
-
-# -- the limits as config fields, each declared once under its one name ------------------------
-# The planner's Bounds, the bridge's SafetyConfig and the simulator's DynamicsLimits are built from
-# the groups they bound; a field's default is the default profile's number.
-
-@dataclass(frozen=True)
-class MotionLimits:
-    speed_max_mps: float = profile_field("speed_max_mps")  # horizontal speed [m/s]
-    climb_max_mps: float = profile_field("climb_max_mps")  # vertical speed [m/s]
-    accel_max_mps2: float = profile_field("accel_max_mps2")  # [m/s^2]
-
-
-@dataclass(frozen=True)
-class EnvelopeLimits:
-    altitude_min_m: float = profile_field("altitude_min_m")  # camera height band above home [m]
-    altitude_max_m: float = profile_field("altitude_max_m")
-    min_subject_distance_m: float = profile_field("min_subject_distance_m")  # horizontal, camera to subject [m]
-
-
-@dataclass(frozen=True)
-class GimbalLimits:
-    pitch_min_rad: float = profile_field("pitch_min_rad")  # camera pitch band [rad], positive = looking up
-    pitch_max_rad: float = profile_field("pitch_max_rad")
-    roll_max_rad: float = profile_field("roll_max_rad")  # |roll| [rad]
-
-
-@dataclass(frozen=True)
-class GimbalRateLimits:
-    yaw_rate_radps: float = profile_field("yaw_rate_radps")  # [rad/s]
-    pitch_rate_radps: float = profile_field("pitch_rate_radps")
-    roll_rate_radps: float = profile_field("roll_rate_radps")
-
-
-@dataclass(frozen=True)
-class LensLimits:
-    focal_length_min_mm: float = profile_field("focal_length_min_mm")  # focal length range [mm]
-    focal_length_max_mm: float = profile_field("focal_length_max_mm")
-    focus_distance_min_m: float = profile_field("focus_distance_min_m")  # minimum focus distance to "infinity" [m]
-    focus_distance_max_m: float = profile_field("focus_distance_max_m")
-    f_number_min: float = profile_field("f_number_min")
-    f_number_max: float = profile_field("f_number_max")
-
-
-@dataclass(frozen=True)
-class LensRateLimits:
-    focal_rate_mmps: float = profile_field("focal_rate_mmps")  # [mm/s]
-    focus_rate_mps: float = profile_field("focus_rate_mps")  # [m/s]
-    f_number_rate_ps: float = profile_field("f_number_rate_ps")  # [1/s]
-

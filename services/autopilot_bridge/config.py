@@ -19,8 +19,9 @@ from typing import Any, ClassVar
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.nodeconfig import setting
 from cinetransfer.shared.signing_key import read_signing_key
-from cinetransfer.shared.vehicle import (GEOFENCE_SHAPES, EnvelopeLimits, GimbalLimits, LensLimits, MotionLimits,
-                                         VehicleProfile, load_vehicle, profile_default, vehicle_fields)
+from cinetransfer.shared.limits import (EnvelopeLimits, GimbalLimits, LensLimits, MotionLimits, profile_default,
+                                        vehicle_fields)
+from cinetransfer.shared.vehicle import GEOFENCE_SHAPES, VehicleProfile, load_vehicle
 
 BACKENDS = ("sim", "mavlink")
 AUTOPILOTS = ("auto", "px4", "ardupilot")
@@ -53,7 +54,7 @@ class SafetyConfig(LensLimits, GimbalLimits, EnvelopeLimits, MotionLimits):
     profile (`from_vehicle`, shared/vehicle.py): the planner plans within the same numbers and
     the simulator flies them. The defaults are the default profile's (deploy/vehicles/cinempc.yaml).
     The planner bounds each axis of v and a; the safety layer bounds their norm (what the
-    simulated autopilot saturates too). The limit fields are declared once in shared/vehicle.py
+    simulated autopilot saturates too). The limit fields are declared once in shared/limits.py
     under the profile's names; the ones with a flag are declared again here for it.
     SETTING_ALIASES are the earlier spellings settings files may use.
 

@@ -24,8 +24,9 @@ from cinetransfer.shared.camera import COC_MM, SENSOR_HEIGHT_MM, SENSOR_WIDTH_MM
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.nodeconfig import renamed_aliases, setting
 from cinetransfer.shared.paths import cache_dir
-from cinetransfer.shared.vehicle import (EnvelopeLimits, GimbalLimits, GimbalRateLimits, LensLimits, LensRateLimits,
-                                         MotionLimits, VehicleProfile, vehicle_fields)
+from cinetransfer.shared.limits import (EnvelopeLimits, GimbalLimits, GimbalRateLimits, LensLimits, LensRateLimits,
+                                        MotionLimits, vehicle_fields)
+from cinetransfer.shared.vehicle import VehicleProfile
 
 
 def _bad(section: str, name: str, value: Any, allowed: str) -> ConfigError:
@@ -36,7 +37,7 @@ def _bad(section: str, name: str, value: Any, allowed: str) -> ConfigError:
 class Bounds(LensRateLimits, LensLimits, GimbalRateLimits, GimbalLimits, EnvelopeLimits, MotionLimits):
     """Limits of the vehicle, gimbal and lens (runtime parameters: no rebuild when changed).
 
-    Every field is a limit of the vehicle profile, declared once in shared/vehicle.py under the
+    Every field is a limit of the vehicle profile, declared once in shared/limits.py under the
     profile's name; the defaults are the default profile's.
 
     Velocity and acceleration are bounded per world axis (hard; the vertical speed at the climb

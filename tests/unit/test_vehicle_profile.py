@@ -11,9 +11,11 @@ from cinetransfer.shared.dynamics import DynamicsLimits
 from cinetransfer.services.autopilot_bridge.vehicle_model import SimDynamicsAdapter
 from cinetransfer.services.planner import config as pc
 from cinetransfer.shared.errors import CinetransferError, ConfigError
+from cinetransfer.shared import limits as limits_module
 from cinetransfer.shared import vehicle as vehicle_module
 from cinetransfer.shared.nodeconfig import settings_from
-from cinetransfer.shared.vehicle import LIMIT_NAMES, VehicleProfile, load_vehicle, vehicle_fields, vehicle_names
+from cinetransfer.shared.limits import LIMIT_NAMES, vehicle_fields
+from cinetransfer.shared.vehicle import VehicleProfile, load_vehicle, vehicle_names
 
 
 CONFIGS = (pc.Bounds, SafetyConfig, DynamicsLimits)
@@ -25,6 +27,7 @@ def limit_fields(cls: type) -> list[str]:
 
 def test_each_limit_has_one_spelling_the_profiles():
     """The three configs name a limit as the profile does; no earlier spelling is a field any more."""
+    assert set(load_vehicle().limits()) == set(LIMIT_NAMES)
     retired = {old for cls in CONFIGS for old in cls.SETTING_ALIASES}
     for cls in CONFIGS:
         names = {f.name for f in dataclasses.fields(cls)}
@@ -77,14 +80,14 @@ def test_the_code_defaults_are_read_from_the_default_profile(monkeypatch):
     for cls in CONFIGS:
         assert {n: getattr(cls(), n) for n in limit_fields(cls)} == vehicle_fields(cls, load_vehicle("cinempc"))
     monkeypatch.setattr(vehicle_module, "DEFAULT_VEHICLE", "inspire3")
-    vehicle_module._default_limits.cache_clear()
+    limits_module._default_limits.cache_clear()
     try:
         for cls in CONFIGS:
             got = {n: getattr(cls(), n) for n in limit_fields(cls)}
             assert got == vehicle_fields(cls, load_vehicle("inspire3")), cls.__name__
     finally:
         monkeypatch.undo()
-        vehicle_module._default_limits.cache_clear()
+        limits_module._default_limits.cache_clear()
 
 
 @pytest.mark.parametrize("cls, old, new", [(cls, old, new) for cls in CONFIGS
