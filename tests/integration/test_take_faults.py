@@ -6,7 +6,7 @@ import subprocess
 import sys
 
 import pytest
-from test_transfer_e2e import wait_for_take
+from test_transfer_e2e import observer_session, wait_for_take
 
 
 @pytest.mark.slow
@@ -57,7 +57,6 @@ def test_an_undisturbed_take_is_not_degraded(data, tmp_path):
 
 @pytest.mark.slow
 def test_a_bridge_killed_mid_take_is_named_at_once_and_the_recording_is_kept(data, tmp_path):
-    import time
 
     from cinetransfer.report.truthfile import read_truths
     from cinetransfer.runlog import RunReader
@@ -67,17 +66,8 @@ def test_a_bridge_killed_mid_take_is_named_at_once_and_the_recording_is_kept(dat
                              "--scene", "lawn_juggler", "-o", str(out), "--max-frames", "96", "--preroll", "1",
                              "--rig", "nobridge", "--pace", "0.5", "--no-eval"],  # stall timeout: the default 300 s
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        wait_for_take(out, "nobridge", proc, seconds_in=1.0 + 1.0)
-        state = json.loads((out / "deploy" / "state.json").read_text())
-        os.kill(state["procs"]["autopilot_bridge"]["pid"], signal.SIGKILL)
-        killed = time.monotonic()
-        _, err = proc.communicate(timeout=600)
-        seen_s = time.monotonic() - killed
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    err, seen_s = kill_node_then_wait(proc, out, "autopilot_bridge",
+                                      lambda: wait_for_take(out, "nobridge", proc, seconds_in=1.0 + 1.0))
     # then the transfer names the dead node in one line, long before the stall timeout ...
     assert proc.returncode == 1, err[-3000:]
     last = err.strip().splitlines()[-1]
@@ -93,24 +83,13 @@ def test_a_bridge_killed_mid_take_is_named_at_once_and_the_recording_is_kept(dat
 
 @pytest.mark.slow
 def test_a_detector_killed_during_the_extraction_is_named_at_once(data, tmp_path):
-    import time
 
     out = tmp_path / "run"
     proc = subprocess.Popen([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
                              "--scene", "lawn_juggler", "-o", str(out), "--rig", "nodetector", "--no-eval"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        # given the extraction under way (the detector has measured frames of the 247-frame clip) ...
-        wait_for_measurements(out, "nodetector", proc)
-        state = out / "deploy" / "state.json"
-        os.kill(json.loads(state.read_text())["procs"]["detector"]["pid"], signal.SIGKILL)  # ... the detector dies
-        killed = time.monotonic()
-        _, err = proc.communicate(timeout=600)
-        seen_s = time.monotonic() - killed
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    # given the extraction under way (the detector has measured frames of the 247-frame clip), the detector dies
+    err, seen_s = kill_node_then_wait(proc, out, "detector", lambda: wait_for_measurements(out, "nodetector", proc))
     # then the transfer names it in one line, long before the stall timeout (300 s)
     assert proc.returncode == 1, err[-3000:]
     last = err.strip().splitlines()[-1]
@@ -119,28 +98,35 @@ def test_a_detector_killed_during_the_extraction_is_named_at_once(data, tmp_path
     assert seen_s < 120, seen_s  # (the deployment's shutdown is most of it)
 
 
+def kill_node_then_wait(proc, out, node: str, when) -> tuple[str, float]:
+    """Once `when()` returns, SIGKILL the deployment's `node`; the transfer's stderr and the seconds
+    it took to end after the kill."""
+    import time
+
+    try:
+        when()
+        state = json.loads((out / "deploy" / "state.json").read_text())
+        os.kill(state["procs"][node]["pid"], signal.SIGKILL)
+        killed = time.monotonic()
+        _, err = proc.communicate(timeout=600)
+        return err, time.monotonic() - killed
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 def wait_for_measurements(out, rig: str, proc, timeout: float = 300.0) -> None:
     """Block until the detector of the transfer's deployment has published a measurement (seen on
     the bus as the deployment's read-only observer)."""
     import threading
     import time
 
-    from cinetransfer.shared import keys, zenoh_config
+    from cinetransfer.shared import keys
 
     deadline = time.monotonic() + timeout
-    while not (out / "deploy" / "secrets" / "users.txt").is_file():
-        assert proc.poll() is None and time.monotonic() < deadline, "the transfer ended before its deployment came up"
-        time.sleep(0.1)
-    opts = zenoh_config.deployment_options(out / "deploy" / "transfer.yaml", "observer", run_dir=out / "deploy")
     seen = threading.Event()
-    session = None
-    while session is None:  # the credentials exist a moment before the router listens
-        assert proc.poll() is None and time.monotonic() < deadline, "the transfer ended before its router came up"
-        try:
-            session = zenoh_config.open_session(opts)
-        except Exception:  # noqa: BLE001 - zenoh.ZError: not listening yet
-            time.sleep(0.2)
-    with session:
+    with observer_session(out, proc, deadline) as session:
         sub = session.declare_subscriber(keys.MEASUREMENT.key(rig), lambda _s: seen.set())
         try:
             while not seen.wait(0.1):

@@ -32,19 +32,32 @@ def video_frames(path) -> list[np.ndarray]:
         out.append(img)
 
 
-def wait_for_take(out, rig: str, proc, seconds_in: float, timeout: float = 300.0) -> float:
-    """Block until the transfer's simulation has run `seconds_in` simulated seconds past its reset
-    (seen on the bus as the deployment's observer); returns how far it was."""
+def observer_session(out, proc, deadline: float):
+    """A Zenoh session on the transfer's own deployment as its read-only observer, opened as soon as
+    its router listens (the credentials exist a moment before it does)."""
     import time
 
     from cinetransfer.deploy import join
     from cinetransfer.shared import zenoh_config
 
-    deadline = time.monotonic() + timeout
     while not (out / "deploy" / "secrets" / "users.txt").is_file():
         assert proc.poll() is None and time.monotonic() < deadline, "the transfer ended before its deployment came up"
         time.sleep(0.1)
     opts = join.deployment_options(out / "deploy" / "transfer.yaml", "observer", run_dir=out / "deploy")
+    while True:
+        assert proc.poll() is None and time.monotonic() < deadline, "the transfer ended before its router came up"
+        try:
+            return zenoh_config.open_session(opts)
+        except Exception:  # noqa: BLE001 - zenoh.ZError: not listening yet
+            time.sleep(0.2)
+
+
+def wait_for_take(out, rig: str, proc, seconds_in: float, timeout: float = 300.0) -> float:
+    """Block until the transfer's simulation has run `seconds_in` simulated seconds past its reset
+    (seen on the bus as the deployment's observer); returns how far it was."""
+    import time
+
+    deadline = time.monotonic() + timeout
     seen = {"t": -1.0}
 
     def on_clock(sample):
@@ -52,14 +65,7 @@ def wait_for_take(out, rig: str, proc, seconds_in: float, timeout: float = 300.0
         if clk.epoch_ns > M.now_ns() + 300 * 10**9:  # the transfer's time zero lies far ahead of the wall clock
             seen["t"] = max(seen["t"], (clk.stamp_ns - clk.epoch_ns) * 1e-9)
 
-    session = None
-    while session is None:  # the credentials exist a moment before the router listens
-        assert proc.poll() is None and time.monotonic() < deadline, "the transfer ended before its router came up"
-        try:
-            session = zenoh_config.open_session(opts)
-        except Exception:  # noqa: BLE001 - zenoh.ZError: not listening yet
-            time.sleep(0.2)
-    with session:
+    with observer_session(out, proc, deadline) as session:
         sub = session.declare_subscriber(keys.SIM_CLOCK.key(rig), on_clock)
         try:
             while seen["t"] < seconds_in:
