@@ -34,6 +34,7 @@ from cinetransfer.services.autopilot_bridge.sim.scene import LayerSpec, Scene, S
 from cinetransfer.services.autopilot_bridge.sim.subject import Subject
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.focus_regions import FOREGROUND_MIN_ROWS, feet_row, region_masks
 
 __all__ = ["SimBackend", "SceneRenderer", "load_scene", "SceneError"]
 
@@ -220,12 +221,12 @@ class SceneRenderer:
                           (NEAR_M, math.inf))
             lab_planes.append(p)
         depth, subj = label_pass(view, lab_planes)
-        d_s = geo["subject_depth_m"]
-        fg = (~subj) & (depth < d_s)
-        bg = (~subj) & (depth >= d_s)
+        # the regions as the style reads them from a video (shared.focus_regions), not by depth
+        min_rows = int(math.ceil(FOREGROUND_MIN_ROWS * subj.shape[0]))
+        regions = region_masks(subj if subj.any() else None, feet_row(subj), min_rows, subj.shape)
         infocus = (depth >= near) & (depth <= far)
         present, frac, inv_depth = [], [], []
-        for region in (fg, subj, bg):
+        for region in regions:
             n = int(region.sum())
             ok = n >= REGION_MIN_FRACTION * region.size
             present.append(ok)
