@@ -76,9 +76,9 @@ def dof_inverse(focal_mm: float, f_number: np.ndarray, focus_m: np.ndarray,
 
 def in_focus_share(inv_depth: np.ndarray, inv_far: np.ndarray, inv_near: np.ndarray) -> np.ndarray:
     """Share of a region's depth sample inside each depth of field: (S,) samples, (G,) settings -> (G,)."""
-    d = np.asarray(inv_depth, float)[None, :]
-    inside = (d >= inv_far[:, None]) & (d <= inv_near[:, None])
-    return inside.mean(axis=1)
+    d = np.sort(np.asarray(inv_depth, float))
+    inside = np.searchsorted(d, inv_near, side="right") - np.searchsorted(d, inv_far, side="left")
+    return inside / d.size
 
 
 def _reaches(share: np.ndarray, sharp: bool) -> np.ndarray:
@@ -211,15 +211,18 @@ def unreachable_labels(lens: Lens, asked: np.ndarray, present: np.ndarray,
     region's inverse depths [1/m] (0 = infinity). Regions absent or without depths are skipped."""
     asked = np.asarray(asked, bool)
     inv_depth = np.asarray(inv_depth, float)
-    n_range, s_range = lens.f_number, lens.focus_m
+    n, s = _settings(lens, lens.f_number, lens.focus_m)
+    inv_far, inv_near = dof_inverse(lens.focal_mm, n, s, lens.coc_mm)
+    granted = np.ones(n.shape, bool)  # the settings that give every label granted so far
     kept: list[int] = []
     out: list[Unreachable] = []
     for r in PRIORITY:
         if not present[r] or inv_depth.shape[1] == 0 or not np.isfinite(inv_depth[r]).all():
             continue
-        n_ok, _ = _any(lens, n_range, s_range, kept + [r], asked, inv_depth)
-        if n_ok.size:
+        with_r = granted & _reaches(in_focus_share(inv_depth[r], inv_far, inv_near), bool(asked[r]))
+        if with_r.any():
             kept.append(r)
+            granted = with_r
         else:
             out.append(_why(lens, r, kept, asked, inv_depth))
     return out
