@@ -219,7 +219,7 @@ def test_truth_carries_each_regions_depths_the_focal_length_and_the_lens_range()
     lim = sim.scene.limits
     # then the report has what it needs to tell which labels any lens could give
     assert gt.focal_length_mm == pytest.approx(35.0)
-    assert list(gt.lens_limits) == pytest.approx([lim.focus_min_m, lim.focus_max_m, lim.f_number_min,
+    assert list(gt.lens_limits) == pytest.approx([lim.focus_distance_min_m, lim.focus_distance_max_m, lim.f_number_min,
                                                   lim.f_number_max])
     inv = gt.region_inverse_depth
     assert inv.shape == (3, 20) and np.isfinite(inv).all()
