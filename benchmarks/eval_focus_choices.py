@@ -10,8 +10,11 @@ per source and region (foreground, subject, background):
 - labels: the style extracted from the source against the known labels (how well the source was read);
 - truth: the simulator's region focus (one definition of in focus: shared.camera.COC_MM) against
   the extracted style, as the report computes it;
-- extraction: the style extracted from the output against the source's, as the report computes it.
-Goal: truth >= 0.90 and extraction >= 0.85 for every region present.
+- extraction: the style extracted from the output against the source's, as the report computes it;
+- both again over the frames within the lens's reach (the report's `agreement_reachable`: the frames
+  where no focus distance and f-number of the lens gives the source's label left out), and how many
+  frames were left out, with the report's reason for each run of them.
+Goal: truth >= 0.90 and extraction >= 0.85 for every region present, over the reachable frames.
 Writes benchmarks/results/eval_focus_choices.json.
 """
 from __future__ import annotations
@@ -56,7 +59,11 @@ def transfer(src: Path, scene: str, out: Path, max_frames: int) -> dict:
     rep = json.loads((out / "report.json").read_text())
     h = rep["headline"]
     return {"wall_s": round(time.monotonic() - t, 1), "goals_met": h["goals_met"],
-            "truth": h["truth"].get("focus_agreement"), "extraction": h["extraction"].get("focus_agreement")}
+            "truth": h["truth"].get("focus_agreement"), "extraction": h["extraction"].get("focus_agreement"),
+            "truth_reachable": h["truth"].get("focus_agreement_reachable"),
+            "extraction_reachable": h["extraction"].get("focus_agreement_reachable"),
+            "unreachable_frames": (rep.get("focus_reach") or {}).get("unreachable_frames"),
+            "unreachable_runs": (rep.get("focus_reach") or {}).get("runs")}
 
 
 def _fmt(v: float | None) -> str:
@@ -73,7 +80,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--json", type=Path, default=HERE / "results" / "eval_focus_choices.json", help="results file")
     args = ap.parse_args(argv)
     results = {}
-    print(f"{'source':34s} {'region':10s} labels  truth  extraction")
+    print(f"{'source':34s} {'region':10s} labels  truth  extraction  | reachable frames: truth  extraction  (out)")
     for choice in args.choices:
         src = focus_sources.make(args.clip, choice, args.work / "sources")
         out = args.work / src.stem
@@ -86,9 +93,13 @@ def main(argv: list[str]) -> int:
             continue
         for r in REGIONS:
             t, e = res["truth"].get(r), res["extraction"].get(r)
-            met = (t is None or t >= TRUTH_MIN) and (e is None or e >= EXTRACTION_MIN)
-            print(f"{src.stem:34s} {r:10s} {_fmt(res['labels'][r])}  {_fmt(t)}  {_fmt(e)}"
-                  f"      {'ok' if met else 'MISSED'}")
+            tr, er = (res.get("truth_reachable") or {}).get(r), (res.get("extraction_reachable") or {}).get(r)
+            met = (tr is None or tr >= TRUTH_MIN) and (er is None or er >= EXTRACTION_MIN)
+            out_n = (res.get("unreachable_frames") or {}).get(r, 0)
+            print(f"{src.stem:34s} {r:10s} {_fmt(res['labels'][r])}  {_fmt(t)}  {_fmt(e)}       |"
+                  f"                  {_fmt(tr)}  {_fmt(er)}       ({out_n})  {'ok' if met else 'MISSED'}")
+        for run in res.get("unreachable_runs") or []:
+            print(f"    out of reach: {run['region']} frames {run['first_frame']}-{run['last_frame']}: {run['reason']}")
     write_result(args.json, {"clip": args.clip, "scene": args.scene,
                              "goal": {"truth_min": TRUTH_MIN, "extraction_min": EXTRACTION_MIN}, "results": results})
     return 0

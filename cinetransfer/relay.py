@@ -7,34 +7,64 @@ wrong schema versions in its Health), re-encodes and republishes.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+from dataclasses import dataclass
+from typing import ClassVar
 
 from cinetransfer.shared import codec, nodeconfig
 from cinetransfer.shared.errors import ConfigError, report_config_error
 from cinetransfer.shared.node import add_node_arguments, node_from_args
+from cinetransfer.shared.nodeconfig import setting
+
+NODE = "relay"
+
+
+@dataclass(frozen=True)
+class RelayConfig:
+    """The relay's settings (shared/nodeconfig.py): defaults, then `--config`, then flags."""
+
+    #: the keys settings files wrote before (named like the flags; `from` is a Python keyword)
+    SETTING_ALIASES: ClassVar[dict[str, str]] = {"from": "from_key", "to": "to_key", "src": "from_key",
+                                                 "dst": "to_key", "no-drop": "no_drop"}
+
+    from_key: str = setting("", flag="--from", metavar="KEYEXPR", help="key expression to read (required)")
+    to_key: str = setting("", flag="--to", metavar="KEY", help="key to publish on (required)")
+    name: str = setting("relay", flag="--name", metavar="NAME", help="node name")
+    queue: int = setting(64, flag="--queue", range=">= 1", metavar="N", help="input queue length (drop-oldest)")
+    no_drop: bool = setting(False, flag="--no-drop",
+                            help="block rather than drop when the link is congested (default: the destination "
+                                 "key's policy from the dataflow; drop for a key outside it)")
+
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = nodeconfig.settings_parser(RelayConfig, NODE, "cinetransfer relay", __doc__.splitlines()[0])
+    add_node_arguments(p)
+    return p
+
+
+def config_from_args(args: argparse.Namespace) -> RelayConfig:
+    """Defaults, then the settings (`--config`), then the flags; both keys must be given by then."""
+    cfg = nodeconfig.config_from_args(RelayConfig, args, NODE)
+    for name, flag in (("from_key", "--from"), ("to_key", "--to")):
+        if not getattr(cfg, name):
+            raise ConfigError(f"{NODE} config: {name} ({flag}) is required")
+    return cfg
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="cinetransfer relay", description=__doc__.splitlines()[0])
-    p.add_argument("--from", dest="src", required=True, metavar="KEYEXPR", help="key expression to read")
-    p.add_argument("--to", dest="dst", required=True, metavar="KEY", help="key to publish on")
-    p.add_argument("--name", default="relay", help="node name (default %(default)s)")
-    p.add_argument("--queue", type=int, default=64, help="input queue length (drop-oldest)")
-    p.add_argument("--no-drop", action="store_true",
-                   help="block rather than drop when the link is congested (default: the destination key's "
-                        "policy from the dataflow; drop for a key outside it)")
-    add_node_arguments(p)
-    nodeconfig.add_config_arguments(p, "relay")
+    p = build_parser()
+    args = p.parse_args(argv)
     try:
-        args = nodeconfig.parse_with_settings(p, argv, "relay")
+        cfg = config_from_args(args)
+        node = node_from_args(cfg.name, args, config=dataclasses.asdict(cfg))
     except ConfigError as e:
         return report_config_error(e, "cinetransfer relay")
-    try:
-        node = node_from_args(args.name, args, config=vars(args))
-    except ValueError as e:
+    except ValueError as e:  # a bad bus option (--connect, ...)
         p.error(str(e))
     with node:
-        inbox = node.subscribe(args.src, maxlen=args.queue, policy="drop-oldest")
-        pub = node.publisher(args.dst, block=True if args.no_drop else None)
+        inbox = node.subscribe(cfg.from_key, maxlen=cfg.queue, policy="drop-oldest")
+        pub = node.publisher(cfg.to_key, block=True if cfg.no_drop else None)
         node.ready()
         while node.running:
             msg = inbox.get(timeout=0.2)

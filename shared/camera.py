@@ -35,6 +35,11 @@ SIGMA_PER_DIAMETER = 0.25
 FOCUS_FLIP_SIGMA_PER_WIDTH = 0.9 / 640
 
 
+#: a region (foreground, subject, background) is "in focus" when at least this share of its pixels
+#: lies inside the depth of field: the simulator's truth and the report's reachability use it.
+REGION_IN_FOCUS_SHARE = 0.5
+
+
 def coc_mm_for_sensor(sensor_width_mm: float) -> float:
     """The circle of confusion [mm] of a sensor `sensor_width_mm` wide: the blur disc whose sigma
     is the focus estimator's flip, whatever the output resolution (the estimator works at a fixed

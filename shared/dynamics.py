@@ -20,42 +20,35 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields, replace
+from typing import ClassVar
 
 import numpy as np
 
 from cinetransfer.shared.angles import wrap_angle
 from cinetransfer.shared.errors import ConfigError
+from cinetransfer.shared.nodeconfig import renamed_aliases
+from cinetransfer.shared.limits import (GimbalLimits, GimbalRateLimits, LensLimits, LensRateLimits, MotionLimits,
+                                        vehicle_fields)
 from cinetransfer.shared.vehicle import VehicleProfile
 
 
 @dataclass(frozen=True)
-class DynamicsLimits:
+class DynamicsLimits(LensRateLimits, LensLimits, GimbalRateLimits, GimbalLimits, MotionLimits):
     """Limits and time constants of the simulated vehicle.
 
-    The limits come from the vehicle profile (`from_vehicle`, shared/vehicle.py); the defaults
-    are the default profile's (deploy/vehicles/cinempc.yaml, CineMPC's camera, DESIGN §4). The
-    time constants and gains are the simulated autopilot's own."""
+    The limits (declared once in shared/limits.py) come from the vehicle profile (`from_vehicle`);
+    the defaults are the default profile's (deploy/vehicles/cinempc.yaml, CineMPC's camera, DESIGN
+    §4). The time constants and gains are the simulated autopilot's own. SETTING_ALIASES are the
+    earlier spellings a scene's `limits:` may use."""
 
-    max_speed_xy_mps: float = 2.0
-    max_speed_z_mps: float = 1.0
-    max_accel_mps2: float = 1.2
+    SETTING_ALIASES: ClassVar[dict[str, str]] = {
+        "max_speed_xy_mps": "speed_max_mps", "max_speed_z_mps": "climb_max_mps", "max_accel_mps2": "accel_max_mps2",
+        "yaw_rate_rps": "yaw_rate_radps", "pitch_rate_rps": "pitch_rate_radps", "roll_rate_rps": "roll_rate_radps",
+        "focal_min_mm": "focal_length_min_mm", "focal_max_mm": "focal_length_max_mm",
+        "focus_min_m": "focus_distance_min_m", "focus_max_m": "focus_distance_max_m"}
+
     lag_tau_s: float = 0.25
     position_gain_per_s: float = 1.0
-    yaw_rate_rps: float = math.radians(86.0)
-    pitch_rate_rps: float = math.radians(86.0)
-    roll_rate_rps: float = math.radians(57.0)
-    pitch_min_rad: float = math.radians(-90.0)
-    pitch_max_rad: float = math.radians(30.0)
-    roll_max_rad: float = math.radians(17.2)
-    focal_min_mm: float = 30.0
-    focal_max_mm: float = 500.0
-    focal_rate_mmps: float = 20.0
-    focus_min_m: float = 0.5
-    focus_max_m: float = 100.0
-    focus_rate_mps: float = 15.0
-    f_number_min: float = 1.0
-    f_number_max: float = 22.0
-    f_number_rate_ps: float = 3.0
     substep_s: float = 0.005
 
     def __post_init__(self) -> None:
@@ -67,7 +60,7 @@ class DynamicsLimits:
                 raise ConfigError(f"limits.{f.name}: must be > 0, got {v!r}")
         if not self.pitch_min_rad < self.pitch_max_rad:
             raise ConfigError("limits: pitch_min_rad must be < pitch_max_rad")
-        for lo, hi in (("focal_min_mm", "focal_max_mm"), ("focus_min_m", "focus_max_m"),
+        for lo, hi in (("focal_length_min_mm", "focal_length_max_mm"), ("focus_distance_min_m", "focus_distance_max_m"),
                        ("f_number_min", "f_number_max")):
             if not getattr(self, lo) < getattr(self, hi):
                 raise ConfigError(f"limits: {lo} must be < {hi}")
@@ -75,20 +68,11 @@ class DynamicsLimits:
     @classmethod
     def from_vehicle(cls, v: VehicleProfile, base: "DynamicsLimits | None" = None) -> "DynamicsLimits":
         """The vehicle's limits; time constants, gains and sub-step from `base` (default: the defaults)."""
-        lens, gim, mo = v.lens, v.gimbal, v.motion
-        return replace(base or cls(), max_speed_xy_mps=mo.speed_max_mps, max_speed_z_mps=mo.climb_max_mps,
-                       max_accel_mps2=mo.accel_max_mps2, yaw_rate_rps=gim.yaw_rate_radps,
-                       pitch_rate_rps=gim.pitch_rate_radps, roll_rate_rps=gim.roll_rate_radps,
-                       pitch_min_rad=gim.pitch_rad[0], pitch_max_rad=gim.pitch_rad[1], roll_max_rad=gim.roll_max_rad,
-                       focal_min_mm=lens.focal_length_mm[0], focal_max_mm=lens.focal_length_mm[1],
-                       focal_rate_mmps=lens.focal_rate_mmps, focus_min_m=lens.focus_distance_m[0],
-                       focus_max_m=lens.focus_distance_m[1], focus_rate_mps=lens.focus_rate_mps,
-                       f_number_min=lens.f_number[0], f_number_max=lens.f_number[1],
-                       f_number_rate_ps=lens.f_number_rate_ps)
+        return replace(base or cls(), **vehicle_fields(cls, v))
 
     @classmethod
     def from_dict(cls, d: dict | None) -> "DynamicsLimits":
-        d = dict(d or {})
+        d = renamed_aliases(cls, dict(d or {}), "scene", "limits.")
         names = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - names)
         if unknown:
@@ -149,8 +133,8 @@ class VehicleDynamics:
 
     def clamp_lens(self) -> None:
         lim = self.limits
-        self.focal_mm = min(max(self.focal_mm, lim.focal_min_mm), lim.focal_max_mm)
-        self.focus_m = min(max(self.focus_m, lim.focus_min_m), lim.focus_max_m)
+        self.focal_mm = min(max(self.focal_mm, lim.focal_length_min_mm), lim.focal_length_max_mm)
+        self.focus_m = min(max(self.focus_m, lim.focus_distance_min_m), lim.focus_distance_max_m)
         self.f_number = min(max(self.f_number, lim.f_number_min), lim.f_number_max)
 
     # -- commands ---------------------------------------------------------------------------
@@ -202,30 +186,30 @@ class VehicleDynamics:
                 self.sp_position = self.position.copy()
         else:
             v_cmd = self.sp_velocity + lim.position_gain_per_s * (self.sp_position - self.position)
-        v_cmd = _clamp_xy_z(v_cmd, lim.max_speed_xy_mps, lim.max_speed_z_mps)
+        v_cmd = _clamp_xy_z(v_cmd, lim.speed_max_mps, lim.climb_max_mps)
         a = self.sp_accel + (v_cmd - self.velocity) / lim.lag_tau_s
         n = float(np.linalg.norm(a))
-        if n > lim.max_accel_mps2:
-            a *= lim.max_accel_mps2 / n
+        if n > lim.accel_max_mps2:
+            a *= lim.accel_max_mps2 / n
         self.acceleration = a
-        v_new = _clamp_xy_z(self.velocity + a * h, lim.max_speed_xy_mps, lim.max_speed_z_mps)
+        v_new = _clamp_xy_z(self.velocity + a * h, lim.speed_max_mps, lim.climb_max_mps)
         self.position = self.position + 0.5 * (self.velocity + v_new) * h
         self.velocity = v_new
         # gimbal
         y, p, r = self.camera_ypr
         ty, tp, tr = self.sp_camera_ypr
         dy = wrap_angle(ty - y)
-        y = wrap_angle(y + max(-lim.yaw_rate_rps * h, min(lim.yaw_rate_rps * h, dy)))
+        y = wrap_angle(y + max(-lim.yaw_rate_radps * h, min(lim.yaw_rate_radps * h, dy)))
         tp = min(max(tp, lim.pitch_min_rad), lim.pitch_max_rad)
         tr = min(max(tr, -lim.roll_max_rad), lim.roll_max_rad)
-        p = _toward(p, tp, lim.pitch_rate_rps * h)
-        r = _toward(r, tr, lim.roll_rate_rps * h)
+        p = _toward(p, tp, lim.pitch_rate_radps * h)
+        r = _toward(r, tr, lim.roll_rate_radps * h)
         self.camera_ypr = np.array([y, p, r])
         # lens
         fl, fs, fa = self.sp_lens
-        self.focal_mm = _toward(self.focal_mm, min(max(fl, lim.focal_min_mm), lim.focal_max_mm),
+        self.focal_mm = _toward(self.focal_mm, min(max(fl, lim.focal_length_min_mm), lim.focal_length_max_mm),
                                 lim.focal_rate_mmps * h)
-        self.focus_m = _toward(self.focus_m, min(max(fs, lim.focus_min_m), lim.focus_max_m),
+        self.focus_m = _toward(self.focus_m, min(max(fs, lim.focus_distance_min_m), lim.focus_distance_max_m),
                                lim.focus_rate_mps * h)
         self.f_number = _toward(self.f_number, min(max(fa, lim.f_number_min), lim.f_number_max),
                                 lim.f_number_rate_ps * h)

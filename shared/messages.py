@@ -342,7 +342,8 @@ class GroundTruth:
     Lets fidelity be computed exactly as well as by running extraction on the rendered video.
     """
 
-    SCHEMA_VERSION: ClassVar[int] = 1
+    SCHEMA_VERSION: ClassVar[int] = 2  # 2: focal_length_mm, lens_limits, region_inverse_depth
+    MIN_SCHEMA_VERSION: ClassVar[int] = 1
     stamp_ns: int = doc("capture time of the frame this describes [ns] (= Frame.stamp_ns)", 0)
     seq: int = doc("sequence number", 0)
     valid: bool = doc("simulator healthy", True)
@@ -359,6 +360,15 @@ class GroundTruth:
     region_in_focus: np.ndarray = array("bool", (3,), doc="foreground/subject/background in focus")
     region_focus_fraction: np.ndarray = array("float32", (3,), allow_nan=True,
                                               doc="fraction of each region's pixels in focus; NaN = absent")
+    focal_length_mm: float = doc("focal length the frame was filmed at [mm]; NaN = not recorded",
+                                 float("nan"), since=2)
+    lens_limits: np.ndarray = array("float32", (None,), since=2,
+                                    doc="the vehicle's lens range: [nearest focus m, farthest focus m, smallest "
+                                        "f-number, largest f-number], (4,); empty = not recorded")
+    region_inverse_depth: np.ndarray = array(
+        "float32", (3, None), allow_nan=True, since=2,
+        doc="each region's depth as 1/m (0 = at infinity, the sky) at its 2.5, 7.5, ..., 97.5 % points: an "
+            "equal-weight sample of its pixels, (3, 20); NaN row = region absent; (3, 0) = not recorded")
 
 
 #: Every message type that can be sent on its own, by wire name.

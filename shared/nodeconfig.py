@@ -11,7 +11,8 @@ shared.errors.ConfigError naming the field.
 The config idiom: a node's config is one frozen dataclass whose fields are `setting(...)`s, each
 carrying its flag, unit, range and help. `add_settings_arguments` makes the flags from it and
 `config_from_args` builds the config: code defaults, then the deploy config's `settings`, then
-the flags given.
+the flags given. A class may accept earlier spellings of its fields in settings files: its
+`SETTING_ALIASES` maps each to the field's name.
 
     @dataclass(frozen=True)
     class SourceConfig:
@@ -92,48 +93,6 @@ def _mapping(v: Any, where: str) -> dict[str, Any]:
     return dict(v)
 
 
-def parse_with_settings(parser: argparse.ArgumentParser, argv: list[str] | None, node: str,
-                        fields: dict[str, str] | None = None) -> argparse.Namespace:
-    """Parse `argv` with the node's settings (`--config`/`--section`) as the flags' defaults.
-
-    For nodes whose configuration is their flags. `fields` maps a settings key to the flag's dest;
-    without it every flag is a setting, named like its flag (`system_id` or `system-id` for
-    `--system-id`). A value is converted and checked as the flag would be; a flag given on the
-    command line wins. The parser must have `add_config_arguments`. Raises ConfigError naming
-    the field for an unknown setting or a bad value."""
-    pre = argparse.ArgumentParser(add_help=False)
-    add_config_arguments(pre, node)
-    known, _ = pre.parse_known_args(argv)
-    actions = {a.dest: a for a in parser._actions if a.dest not in ("help", "config", "section")}
-    if fields is None:
-        fields = {dest: dest for dest in actions}
-    defaults = {}
-    for key, value in load_section(known.config, known.section or node).items():
-        action = actions.get(fields.get(str(key).replace("-", "_"), ""))
-        if action is None:
-            raise ConfigError(f"{node} config: unknown field {key!r}; allowed: {sorted(fields)}")
-        defaults[action.dest] = _flag_value(node, key, action, value)
-        action.required = False
-    parser.set_defaults(**defaults)
-    return parser.parse_args(argv)
-
-
-def _flag_value(node: str, key: str, action: argparse.Action, value: Any) -> Any:
-    where = f"{node}.{key}"
-    if action.nargs == 0:  # store_true / store_false
-        if not isinstance(value, bool):
-            raise ConfigError(f"{where}: must be true or false, got {value!r}")
-        return value
-    text = ",".join(str(v) for v in value) if isinstance(value, list) else str(value)
-    try:
-        out = action.type(text) if action.type is not None else text
-    except (ValueError, TypeError, argparse.ArgumentTypeError) as e:
-        raise ConfigError(f"{where}: {value!r} is not valid ({e})") from None
-    if action.choices is not None and out not in action.choices:
-        raise ConfigError(f"{where}: must be one of {list(action.choices)}, got {value!r}")
-    return out
-
-
 # -- config dataclasses whose fields carry their flag, unit, range and help ---------------------
 
 @dataclass(frozen=True)
@@ -162,6 +121,14 @@ def setting(default: Any = dataclasses.MISSING, *, flag: str | None = None, unit
 
 def setting_of(f: dataclasses.Field) -> Setting | None:
     return f.metadata.get("setting")
+
+
+def settings_parser(cls: type, node: str, prog: str, description: str) -> argparse.ArgumentParser:
+    """A parser with `--config`/`--section` and the flags of config class `cls`."""
+    parser = argparse.ArgumentParser(prog=prog, description=description)
+    add_config_arguments(parser, node)
+    add_settings_arguments(parser, cls, node)
+    return parser
 
 
 def add_settings_arguments(parser: argparse.ArgumentParser, cls: type, title: str, *,
@@ -211,6 +178,7 @@ def settings_from(cls: type, section: dict[str, Any], node: str, base: Any = Non
     """`base` (default: the code defaults) with a settings mapping (a deploy config's `settings`):
     keys are field names, a group's a mapping of its own; unknown keys and bad values are
     ConfigErrors naming the field."""
+    section = renamed_aliases(cls, section, node, prefix)
     names = [f.name for f in dataclasses.fields(cls)]
     unknown = sorted(set(section) - set(names))
     if unknown:
@@ -230,6 +198,20 @@ def settings_from(cls: type, section: dict[str, Any], node: str, base: Any = Non
         return validated(dataclasses.replace(base, **values), node, prefix)
     except TypeError as e:  # a value of the wrong kind the check above let through
         raise ConfigError(f"{node} config: {e}") from None
+
+
+def renamed_aliases(cls: type, section: dict[str, Any], node: str, prefix: str = "") -> dict[str, Any]:
+    """`section` with every key that is an alias of `cls` (its `SETTING_ALIASES`: an earlier
+    spelling -> the field's name) under the field's name; an alias given beside its field is an error."""
+    aliases = getattr(cls, "SETTING_ALIASES", {})
+    out: dict[str, Any] = {}
+    for k, v in section.items():
+        name = aliases.get(k, k)
+        if name in out:
+            raise ConfigError(f"{node} config: {prefix}{name} is given twice (an earlier spelling of it too); "
+                              "give it once")
+        out[name] = v
+    return out
 
 
 def _typed(node: str, name: str, v: Any, default: Any) -> Any:

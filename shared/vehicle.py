@@ -10,6 +10,10 @@ accepts and the simulator flies are the same machine. `--vehicle NAME|PATH` sele
 the default is DEFAULT_VEHICLE (CineMPC's camera, DESIGN §4).
 
 The YAML states angles in degrees (rates in deg/s); the dataclasses hold radians.
+
+`VehicleProfile.limits()` flattens a profile into the one spelling of each limit (the profile's
+own names, a [min, max] pair split into `_min_` / `_max_`); shared/limits.py turns them into config
+fields.
 """
 from __future__ import annotations
 
@@ -190,6 +194,25 @@ class VehicleProfile:
     motion: MotionSpec
     envelope: EnvelopeSpec
     path: str = ""
+
+    def limits(self) -> dict[str, Any]:
+        """Every limit under its one name (shared/limits.LIMIT_NAMES), in SI units and radians."""
+        lens, gim, mo, env = self.lens, self.gimbal, self.motion, self.envelope
+        return {"speed_max_mps": mo.speed_max_mps, "climb_max_mps": mo.climb_max_mps,
+                "accel_max_mps2": mo.accel_max_mps2,
+                "geofence_shape": env.geofence_shape, "geofence_radius_m": env.geofence_radius_m,
+                "geofence_half_extent_m": env.geofence_half_extent_m,
+                "altitude_min_m": env.altitude_m[0], "altitude_max_m": env.altitude_m[1],
+                "min_subject_distance_m": env.min_subject_distance_m,
+                "pitch_min_rad": gim.pitch_rad[0], "pitch_max_rad": gim.pitch_rad[1], "roll_max_rad": gim.roll_max_rad,
+                "yaw_rate_radps": gim.yaw_rate_radps, "pitch_rate_radps": gim.pitch_rate_radps,
+                "roll_rate_radps": gim.roll_rate_radps,
+                "focal_length_min_mm": lens.focal_length_mm[0], "focal_length_max_mm": lens.focal_length_mm[1],
+                "focal_rate_mmps": lens.focal_rate_mmps,
+                "focus_distance_min_m": lens.focus_distance_m[0], "focus_distance_max_m": lens.focus_distance_m[1],
+                "focus_rate_mps": lens.focus_rate_mps,
+                "f_number_min": lens.f_number[0], "f_number_max": lens.f_number[1],
+                "f_number_rate_ps": lens.f_number_rate_ps}
 
     @classmethod
     def parse(cls, doc: Any, where: str = "vehicle") -> "VehicleProfile":

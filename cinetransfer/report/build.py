@@ -16,6 +16,7 @@ import numpy as np
 
 from cinetransfer.report import fidelity as F
 from cinetransfer.report import figures as figs
+from cinetransfer.report import reach_frames as RF
 from cinetransfer.report.html import write_html
 from cinetransfer.report.style import StyleLike, StyleLoadError, load_style_any
 from cinetransfer.shared.instructions import shot_segments, slice_instructions
@@ -153,6 +154,7 @@ def per_shot(source: M.Instructions, output: M.Instructions | None, truths: list
         out.append({"shot": i, "rows": [a, b], "goals_met": h["goals_met"], "goals": h["goals"],
                     "joint_error_extraction": h["extraction"].get("joint_error_mean"),
                     "joint_error_truth": h["truth"].get("joint_error_mean"),
+                    "focus_unreachable_frames": fid.summary["focus_reach"]["unreachable_frames"],
                     "joint_error_floor_truth": floor.mean(slice(a, b)) if floor is not None else None,
                     "settle_limit_s": take.get("settle_limit_s"), "settle_s": take.get("settle_s"),
                     "settled": take.get("settled"), "error_at_take_start": take.get("error_at_take_start")})
@@ -269,10 +271,13 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
         "video": video, "video_error": video_error,
         "recording_file": rec_info,
         "per_frame": {"t_s": _round_list(s["t_s"], 4), "source_row": [int(x) for x in s["k"]],
+                      "focus_unreachable": {r: [x or None for x in s["reach"].reasons[:, i]]
+                                            for i, r in enumerate(F.REGIONS)},
                       "joint_error_extraction": _round_list(s["error_extraction"]),
                       "joint_error_truth": _round_list(s["error_truth"])},
         "meta": meta,
     }
+    summary["focus_reach"]["runs"] = RF.runs(s["reach"], s["t_s"], s["k"], shot_rows)
     _judge_by_faults(summary, meta.get("faults"))
     summary = jsonable(summary)
     write_html(outdir / "report.html", summary, figures, meta=summary["meta"], figure_errors=fig_errors,

@@ -42,6 +42,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from cinetransfer.report import reach_frames as RF
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.facing import faces_opposite, mirror_permutation
 
@@ -267,19 +268,28 @@ def compare_joints(ref: Track, est: Track, joint_names: Sequence[str]) -> tuple[
     return summary, _frame_mean(eu, both)
 
 
-def compare_focus(ref: Track, est: Track) -> dict[str, Any]:
-    """Per region: agreement of the in-focus booleans where the region is present on both sides,
-    agreement of presence where both sides have data, and error of the focused fraction."""
+def compare_focus(ref: Track, est: Track, unreachable: np.ndarray | None = None) -> dict[str, Any]:
+    """Per region: agreement of the in-focus booleans where the region is present on both sides
+    (raw, and over the frames where the asked label was within the lens's reach: `unreachable`
+    (N, 3) marks the others), agreement of presence where both sides have data, and error of the
+    focused fraction."""
     out: dict[str, Any] = {}
     avail = ref.available & est.available
+    if unreachable is None:
+        unreachable = np.zeros((ref.n, 3), bool)
     for r, name in enumerate(REGIONS):
         both = avail & ref.present[:, r] & est.present[:, r]
         n = int(both.sum())
         agree = (ref.focus_in[both, r] == est.focus_in[both, r]).mean() if n else float("nan")
+        reach = both & ~unreachable[:, r]
+        n_reach = int(reach.sum())
+        agree_reach = (ref.focus_in[reach, r] == est.focus_in[reach, r]).mean() if n_reach else float("nan")
         n_av = int(avail.sum())
         pres_agree = (ref.present[avail, r] == est.present[avail, r]).mean() if n_av else float("nan")
         fe = np.abs(est.frac[both, r] - ref.frac[both, r])
         out[name] = {"agreement": _f(agree), "n_frames": n,
+                     "agreement_reachable": _f(agree_reach), "n_frames_reachable": n_reach,
+                     "n_frames_unreachable": n - n_reach,
                      "present_reference": int((avail & ref.present[:, r]).sum()),
                      "present_compared": int((avail & est.present[:, r]).sum()),
                      "presence_agreement": _f(pres_agree),
@@ -308,10 +318,10 @@ class Goal:
 def goals() -> list[Goal]:
     g = [Goal("extraction_joint_error", "mean joint error (extraction)", "extraction", "<=",
               EXTRACTION_JOINT_ERROR_MAX)]
-    g += [Goal(f"extraction_focus_{r}", f"focus agreement, {r} (extraction)", "extraction", ">=",
+    g += [Goal(f"extraction_focus_{r}", f"focus agreement, {r} (extraction, reachable frames)", "extraction", ">=",
                EXTRACTION_FOCUS_AGREEMENT_MIN) for r in REGIONS]
     g += [Goal("truth_joint_error", "mean joint error (ground truth)", "truth", "<=", TRUTH_JOINT_ERROR_MAX)]
-    g += [Goal(f"truth_focus_{r}", f"focus agreement, {r} (ground truth)", "truth", ">=",
+    g += [Goal(f"truth_focus_{r}", f"focus agreement, {r} (ground truth, reachable frames)", "truth", ">=",
                TRUTH_FOCUS_AGREEMENT_MIN) for r in REGIONS]
     return g
 
@@ -324,7 +334,7 @@ def judge_goals(measures: dict[str, Any]) -> list[dict[str, Any]]:
             value = ((m.get("joints") or {}).get("overall") or {}).get("euclidean", {}).get("mean")
         else:
             region = g.id.rsplit("_", 1)[1]
-            value = ((m.get("focus") or {}).get(region) or {}).get("agreement")
+            value = ((m.get("focus") or {}).get(region) or {}).get("agreement_reachable")
         status = g.judge(value) if m.get("available") else "n/a"
         out.append({"id": g.id, "label": g.label, "measure": g.measure, "op": g.op, "threshold": g.threshold,
                     "value": value, "status": status})
@@ -373,6 +383,8 @@ def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
     out_tr = output_track(output, joint_names, n_out).take(np.flatnonzero(keep)) if output is not None \
         else empty_track(n, E)
     tru_tr = truth_track(truths, joint_names, n_out).take(np.flatnonzero(keep)) if truths else empty_track(n, E)
+    by_frame = RF.truths_by_frame(truths, n_out, truth_frame_offset(truths)) if truths else [None] * n_out
+    reach = RF.reach(src.focus_in, src.present & tru_tr.present, [by_frame[i] for i in np.flatnonzero(keep)])
 
     measures: dict[str, Any] = {}
     errs: dict[str, np.ndarray] = {}
@@ -385,7 +397,7 @@ def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
         if have:
             js, err = compare_joints(src, tr, joint_names)
             measures[name] = {"available": True, "reason": None, "frames": int(tr.available.sum()),
-                              "joints": js, "focus": compare_focus(src, tr)}
+                              "joints": js, "focus": compare_focus(src, tr, reach.unreachable)}
         else:
             err = np.full(n, np.nan)
             measures[name] = {"available": False, "reason": why, "frames": 0, "joints": None, "focus": None}
@@ -409,11 +421,15 @@ def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
                 "joint_error_std": m["joints"]["overall"]["euclidean"]["std"],
                 "frames_by_image_side": m["joints"]["frames_by_image_side"],
                 "joint_error_by_name": m["joints"]["overall"]["euclidean_by_name"]["mean"],
-                "focus_agreement": {r: m["focus"][r]["agreement"] for r in REGIONS}}
+                "focus_agreement": {r: m["focus"][r]["agreement"] for r in REGIONS},
+                "focus_agreement_reachable": {r: m["focus"][r]["agreement_reachable"] for r in REGIONS}}
 
     headline = {"goals_met": f"{n_met}/{n_judged}", "extraction": _headline("extraction"),
                 "truth": _headline("truth"), "goals": {g["id"]: g["status"] for g in goal_list}}
     summary = {"joint_names": joint_names, "regions": list(REGIONS), "alignment": alignment,
+               "focus_reach": {"frames_judged": int(reach.judged.sum()),
+                               "unreachable_frames": {r: int(reach.unreachable[:, i].sum())
+                                                      for i, r in enumerate(REGIONS)}},
                "extraction": measures["extraction"], "truth": measures["truth"], "goals": goal_list,
                "headline": headline}
     series = {"t_s": t, "k": k, "joint_names": joint_names, "source_first_frame": int(source.first_frame),
@@ -421,5 +437,6 @@ def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
               "source_full": src_full, "source_t_full": np.arange(src_full.n) / src_fps if src_fps > 0
               else np.arange(src_full.n, dtype=float),
               "error_extraction": errs["extraction"], "error_truth": errs["truth"],
-              "have_extraction": measures["extraction"]["available"], "have_truth": measures["truth"]["available"]}
+              "have_extraction": measures["extraction"]["available"], "have_truth": measures["truth"]["available"],
+              "reach": reach}
     return Fidelity(summary, series)

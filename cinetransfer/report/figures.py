@@ -350,6 +350,7 @@ def fig_error(path: Path, series: dict[str, Any]) -> Path:
     ax.legend(fontsize=7, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=4, frameon=False)
     sx = fig.add_subplot(gs[1], sharex=ax)
     rows = []
+    reach = series.get("reach")
     for name, key in (("extr.", "extraction"), ("truth", "truth")):
         if not series[f"have_{key}"]:
             continue
@@ -358,13 +359,15 @@ def fig_error(path: Path, series: dict[str, Any]) -> Path:
             both = src.available & tr.available & src.present[:, r] & tr.present[:, r]
             v = np.zeros(len(t))
             v[both] = np.where(src.focus_in[both, r] == tr.focus_in[both, r], 1, 2)
+            if reach is not None:
+                v[both & reach.unreachable[:, r]] += 2  # out of the lens's reach: paler, not judged
             rows.append((f"{region} ({name})", v))
     if rows:
-        _strips(sx, rows, t, ("#ffffff", "#2ca02c", "#d62728"))
+        _strips(sx, rows, t, ("#ffffff", "#2ca02c", "#d62728", "#a9d8a9", "#eaa9a9"))
     else:
         sx.text(0.5, 0.5, "no output data", ha="center", va="center", transform=sx.transAxes)
     sx.set_xlabel("time since recording start [s]   (strips: green = focus label agrees with the source, "
-                  "red = disagrees, white = undefined)", fontsize=8)
+                  "red = disagrees, pale = out of the lens's reach (not judged), white = undefined)", fontsize=8)
     fig.suptitle("Error over time", fontsize=10, x=0.16, ha="left", y=0.975, va="top")
     return _save(fig, path)
 

@@ -235,16 +235,39 @@ def _focus_table(summary: dict[str, Any]) -> str:
             fo = focus.get(region) or {}
             st = goals.get(f"{measure}_focus_{region}", {}).get("status", "n/a")
             fe = (fo.get("fraction_error") or {}).get("mean")
-            rows.append(f"<tr><td class='l'>{_e(region)}</td>"
-                        f"<td class='{_status_cls(st)}'>{_pct(fo.get('agreement'))}</td>"
-                        f"<td>{_frames_present(fo)}</td>"
+            rows.append(f"<tr><td class='l'>{_e(region)}</td><td>{_pct(fo.get('agreement'))}</td>"
+                        f"<td class='{_status_cls(st)}'>{_pct(fo.get('agreement_reachable'))}</td>"
+                        f"<td>{_frames_present(fo)}</td><td>{fo.get('n_frames_unreachable', 0)}</td>"
                         f"<td>{fo.get('in_focus_reference', 0)} / {fo.get('in_focus_compared', 0)}</td>"
                         f"<td>{_pct(fo.get('presence_agreement'))}</td><td>{_num(fe)}</td></tr>")
         return rows
 
-    return _by_measure(summary, "focus", "<tr><th class='l'>region</th><th>label agreement</th>"
-                       "<th>frames (present on both sides)</th><th>frames in focus: source / output</th>"
+    return _by_measure(summary, "focus", "<tr><th class='l'>region</th><th>label agreement, all frames</th>"
+                       "<th>label agreement, reachable frames (judged)</th>"
+                       "<th>frames (present on both sides)</th><th>of which out of the lens's reach</th>"
+                       "<th>frames in focus: source / output</th>"
                        "<th>presence agreement</th><th>|b| error mean</th></tr>", rows_of)
+
+
+def _unreachable_table(summary: dict[str, Any]) -> str:
+    """The frames where no focus distance and f-number of the lens gives the source's label, and why."""
+    reach = summary.get("focus_reach") or {}
+    runs = reach.get("runs") or []
+    if not reach.get("frames_judged"):
+        return ("<p class='small'>Out of the lens's reach: not judged (no simulator truth with region depths "
+                "and lens range; every frame counts).</p>")
+    if not runs:
+        return (f"<p class='small'>Out of the lens's reach: none of the {reach['frames_judged']} frames judged; "
+                "every asked label was within the lens's range.</p>")
+    rows = []
+    for r in runs:
+        why = r["reason"] + (f" … {r['reason_last']}" if r.get("reason_last") else "")
+        rows.append(f"<tr><td class='l'>{_e(r['region'])}</td><td>{r['shot'] + 1}</td>"
+                    f"<td>{r['first_frame']}–{r['last_frame']}</td><td>{r['frames']}</td>"
+                    f"<td class='l'>{_e(why)}</td></tr>")
+    return ("<h3>Frames out of the lens's reach</h3><table><tr><th class='l'>region</th><th>shot</th>"
+            "<th>output frames</th><th>frames</th><th class='l'>why no lens setting gives the source's label</th></tr>"
+            + "".join(rows) + "</table>")
 
 
 def _kv_table(d: dict[str, Any]) -> str:
@@ -411,7 +434,11 @@ over frames where both sides see the joint; std is the population standard devia
 <p class="small">Agreement = fraction of frames whose in-focus boolean equals the source's, over frames where
 the region is present on both sides (the frames where it exists on one side only are left out and counted in
 brackets). Presence agreement = fraction of frames where both sides agree the region
-exists. |b| error = mean absolute difference of the fraction of focused pixels.</p></div>
+exists. |b| error = mean absolute difference of the fraction of focused pixels. A frame is out of the lens's
+reach for a region when no focus distance and f-number in the vehicle's lens range, at the focal length and
+distances filmed, gives the region the source's label (together with the labels granted before it: subject,
+then background, then foreground); the goals judge the agreement over the other frames, and both are shown.</p>
+{_unreachable_table(summary)}</div>
 <h2>Side by side</h2>
 <div class="card">{_video(video, summary.get("video"), video_error, embed)}</div>
 <h2>Alignment</h2>

@@ -14,15 +14,15 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
-from cinetransfer.shared.camera import COC_MM
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.nodeconfig import setting
 from cinetransfer.shared.signing_key import read_signing_key
-from cinetransfer.shared.vehicle import VehicleProfile
+from cinetransfer.shared.limits import (EnvelopeLimits, GimbalLimits, LensLimits, MotionLimits, profile_default,
+                                        vehicle_fields)
+from cinetransfer.shared.vehicle import GEOFENCE_SHAPES, VehicleProfile, load_vehicle
 
-GEOFENCE_SHAPES = ("cylinder", "box")
 BACKENDS = ("sim", "mavlink")
 AUTOPILOTS = ("auto", "px4", "ardupilot")
 SIM_CLOCKS = ("lockstep", "realtime")
@@ -47,57 +47,63 @@ def _range(lo_name: str, lo: float, hi_name: str, hi: float) -> None:
 
 
 @dataclass(frozen=True)
-class SafetyConfig:
+class SafetyConfig(LensLimits, GimbalLimits, EnvelopeLimits, MotionLimits):
     """Limits the bridge enforces on every setpoint, whatever the backend.
 
     The vehicle's limits (envelope, speed, acceleration, gimbal and lens ranges) come from its
     profile (`from_vehicle`, shared/vehicle.py): the planner plans within the same numbers and
     the simulator flies them. The defaults are the default profile's (deploy/vehicles/cinempc.yaml).
     The planner bounds each axis of v and a; the safety layer bounds their norm (what the
-    simulated autopilot saturates too).
+    simulated autopilot saturates too). The limit fields are declared once in shared/limits.py
+    under the profile's names; the ones with a flag are declared again here for it.
+    SETTING_ALIASES are the earlier spellings settings files may use.
+
+    Besides the fields below: `climb_max_mps` clamps the vertical velocity feed-forward and how
+    fast the commanded position may move up or down; the gimbal band (`pitch_min_rad`,
+    `pitch_max_rad`, `roll_max_rad`) and the lens ranges (`focal_length_*_mm`,
+    `focus_distance_*_m`, `f_number_*`) clamp the camera setpoint.
     """
+
+    SETTING_ALIASES: ClassVar[dict[str, str]] = {
+        "max_speed_mps": "speed_max_mps", "max_climb_mps": "climb_max_mps", "max_accel_mps2": "accel_max_mps2",
+        "gimbal_pitch_min_rad": "pitch_min_rad", "gimbal_pitch_max_rad": "pitch_max_rad",
+        "gimbal_roll_max_rad": "roll_max_rad", "focus_min_m": "focus_distance_min_m",
+        "focus_max_m": "focus_distance_max_m"}
 
     #: home point [m], world frame: centre of the geofence; altitudes are measured from its z.
     home_m: tuple[float, float, float] = setting((0.0, 0.0, 0.0), flag="--home", unit="m", metavar="X,Y,Z",
                                                  help="geofence centre, world frame")
     #: 'cylinder' (radius around home, in x/y) or 'box' (x/y half-extents around home).
-    geofence_shape: str = setting("cylinder", flag="--geofence", choices=GEOFENCE_SHAPES, help="geofence shape")
+    geofence_shape: str = setting(default_factory=profile_default("geofence_shape"), flag="--geofence",
+                                  choices=GEOFENCE_SHAPES, help="geofence shape")
     #: cylinder radius [m] (shape 'cylinder'), 1..10000.
-    geofence_radius_m: float = setting(60.0, flag="--geofence-radius", unit="m", metavar="M",
+    geofence_radius_m: float = setting(default_factory=profile_default("geofence_radius_m"), flag="--geofence-radius",
+                                       unit="m", metavar="M",
                                        help="cylinder radius around home")
     #: box half-extents (x, y) [m] around home (shape 'box').
-    geofence_half_extent_m: tuple[float, float] = setting((60.0, 60.0), flag="--geofence-half-extent", unit="m",
-                                                          metavar="X,Y", help="box half-extents around home")
+    geofence_half_extent_m: tuple[float, float] = setting(default_factory=profile_default("geofence_half_extent_m"),
+                                                          flag="--geofence-half-extent", unit="m", metavar="X,Y",
+                                                          help="box half-extents around home")
     #: altitude band above home [m]: setpoints below/above are clamped.
-    altitude_min_m: float = setting(1.0, flag="--alt-min", unit="m", metavar="M", help="altitude band above home")
-    altitude_max_m: float = setting(40.0, flag="--alt-max", unit="m", metavar="M", help="altitude band above home")
+    altitude_min_m: float = setting(default_factory=profile_default("altitude_min_m"), flag="--alt-min", unit="m",
+                                    metavar="M", help="altitude band above home")
+    altitude_max_m: float = setting(default_factory=profile_default("altitude_max_m"), flag="--alt-max", unit="m",
+                                    metavar="M", help="altitude band above home")
     #: speed limit [m/s]: clamps the velocity feed-forward AND how fast the commanded position
     #: may move (a jump in the position setpoint is approached at this speed).
-    max_speed_mps: float = setting(2.0, flag="--max-speed", unit="m/s", metavar="M/S", help="speed limit")
-    #: vertical speed limit [m/s] (the vehicle's climb/descent rate): clamps the vertical velocity
-    #: feed-forward and how fast the commanded position may move up or down.
-    max_climb_mps: float = 1.0
+    speed_max_mps: float = setting(default_factory=profile_default("speed_max_mps"), flag="--max-speed", unit="m/s",
+                                   metavar="M/S", help="speed limit")
     #: acceleration limit [m/s^2]: clamps the acceleration feed-forward and the change of the
     #: velocity feed-forward between ticks.
-    max_accel_mps2: float = setting(1.2, flag="--max-accel", unit="m/s^2", metavar="M/S2",
-                                    help="acceleration limit")
+    accel_max_mps2: float = setting(default_factory=profile_default("accel_max_mps2"), flag="--max-accel",
+                                    unit="m/s^2", metavar="M/S2", help="acceleration limit")
     #: minimum horizontal distance [m] between the commanded position and the subject's centre
     #: (CineMPC: 2 m, DESIGN §4); 0 disables.
-    min_subject_distance_m: float = setting(2.0, flag="--min-subject-distance", unit="m", metavar="M",
+    min_subject_distance_m: float = setting(default_factory=profile_default("min_subject_distance_m"),
+                                            flag="--min-subject-distance", unit="m", metavar="M",
                                             help="minimum horizontal distance to the subject; 0 disables")
     #: subject state older than this [s] is ignored by the distance rule.
     subject_timeout_s: float = 1.0
-    #: camera pitch band [rad] (positive = looking up) and |roll| limit [rad].
-    gimbal_pitch_min_rad: float = -math.pi / 2
-    gimbal_pitch_max_rad: float = math.radians(30.0)
-    gimbal_roll_max_rad: float = math.radians(17.2)
-    #: lens ranges: focal length [mm], focus distance [m], f-number.
-    focal_length_min_mm: float = 30.0
-    focal_length_max_mm: float = 500.0
-    focus_min_m: float = 0.5
-    focus_max_m: float = 100.0
-    f_number_min: float = 1.0
-    f_number_max: float = 22.0
     #: watchdog [s]: no fresh accepted setpoint for this long -> hold position.
     watchdog_timeout_s: float = setting(0.5, flag="--watchdog", unit="s", metavar="S",
                                         help="hold when no fresh setpoint for this long")
@@ -117,19 +123,7 @@ class SafetyConfig:
     @classmethod
     def from_vehicle(cls, v: VehicleProfile, **changes: Any) -> "SafetyConfig":
         """The vehicle's envelope and limits (the planner and the simulator read the same numbers)."""
-        env, lens, gim = v.envelope, v.lens, v.gimbal
-        return cls(**{**dict(
-            geofence_shape=env.geofence_shape, geofence_radius_m=env.geofence_radius_m,
-            geofence_half_extent_m=env.geofence_half_extent_m,
-            altitude_min_m=env.altitude_m[0], altitude_max_m=env.altitude_m[1],
-            max_speed_mps=v.motion.speed_max_mps, max_climb_mps=v.motion.climb_max_mps,
-            max_accel_mps2=v.motion.accel_max_mps2,
-            min_subject_distance_m=env.min_subject_distance_m,
-            gimbal_pitch_min_rad=gim.pitch_rad[0], gimbal_pitch_max_rad=gim.pitch_rad[1],
-            gimbal_roll_max_rad=gim.roll_max_rad,
-            focal_length_min_mm=lens.focal_length_mm[0], focal_length_max_mm=lens.focal_length_mm[1],
-            focus_min_m=lens.focus_distance_m[0], focus_max_m=lens.focus_distance_m[1],
-            f_number_min=lens.f_number[0], f_number_max=lens.f_number[1]), **changes})
+        return cls(**{**vehicle_fields(cls, v), **changes})
 
     def validate(self) -> None:
         self._validate_envelope()
@@ -155,25 +149,25 @@ class SafetyConfig:
         for i, v in enumerate(self.geofence_half_extent_m):
             _positive(f"geofence_half_extent_m[{i}]", v)
         _range("altitude_min_m", self.altitude_min_m, "altitude_max_m", self.altitude_max_m)
-        _positive("max_speed_mps", self.max_speed_mps)
-        _positive("max_climb_mps", self.max_climb_mps)
-        _positive("max_accel_mps2", self.max_accel_mps2)
+        _positive("speed_max_mps", self.speed_max_mps)
+        _positive("climb_max_mps", self.climb_max_mps)
+        _positive("accel_max_mps2", self.accel_max_mps2)
         _finite("min_subject_distance_m", self.min_subject_distance_m)
         if self.min_subject_distance_m < 0:
             raise ConfigError("min_subject_distance_m must be >= 0 (0 disables)")
         _positive("subject_timeout_s", self.subject_timeout_s)
 
     def _validate_gimbal_and_lens(self) -> None:
-        _range("gimbal_pitch_min_rad", self.gimbal_pitch_min_rad, "gimbal_pitch_max_rad", self.gimbal_pitch_max_rad)
-        if self.gimbal_pitch_min_rad < -math.pi / 2 - 1e-9 or self.gimbal_pitch_max_rad > math.pi / 2 + 1e-9:
+        _range("pitch_min_rad", self.pitch_min_rad, "pitch_max_rad", self.pitch_max_rad)
+        if self.pitch_min_rad < -math.pi / 2 - 1e-9 or self.pitch_max_rad > math.pi / 2 + 1e-9:
             raise ConfigError("gimbal pitch band must lie within [-pi/2, pi/2]")
-        _finite("gimbal_roll_max_rad", self.gimbal_roll_max_rad)
-        if not 0 <= self.gimbal_roll_max_rad <= math.pi / 2:
-            raise ConfigError("gimbal_roll_max_rad must be in [0, pi/2]")
+        _finite("roll_max_rad", self.roll_max_rad)
+        if not 0 <= self.roll_max_rad <= math.pi / 2:
+            raise ConfigError("roll_max_rad must be in [0, pi/2]")
         _range("focal_length_min_mm", self.focal_length_min_mm, "focal_length_max_mm", self.focal_length_max_mm)
-        _range("focus_min_m", self.focus_min_m, "focus_max_m", self.focus_max_m)
+        _range("focus_distance_min_m", self.focus_distance_min_m, "focus_distance_max_m", self.focus_distance_max_m)
         _range("f_number_min", self.f_number_min, "f_number_max", self.f_number_max)
-        if self.focal_length_min_mm <= 0 or self.focus_min_m <= 0 or self.f_number_min <= 0:
+        if self.focal_length_min_mm <= 0 or self.focus_distance_min_m <= 0 or self.f_number_min <= 0:
             raise ConfigError("lens lower limits must be > 0")
 
 
@@ -225,12 +219,13 @@ class MavlinkConfig:
     takeoff_altitude_m: float = 3.0
     #: offset of the autopilot's local NED origin in the world frame [m] (ENU, z up).
     local_origin_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    #: camera sensor [mm]: converts CAMERA_FOV_STATUS's field of view to a focal length.
-    sensor_width_mm: float = 23.76
-    sensor_height_mm: float = 13.365
-    coc_mm: float = COC_MM  # the vehicle profile's (derived from the sensor width)
-    #: the lens's focal-length range [mm] (the vehicle profile's): zoom by range (0..100 %) maps onto it.
-    focal_length_range_mm: tuple[float, float] = (30.0, 500.0)
+    #: camera sensor [mm]: converts CAMERA_FOV_STATUS's field of view to a focal length (the
+    #: vehicle profile's: the service builds these four from it, the defaults are the default profile's).
+    sensor_width_mm: float = field(default_factory=lambda: load_vehicle().camera.sensor_width_mm)
+    sensor_height_mm: float = field(default_factory=lambda: load_vehicle().camera.sensor_height_mm)
+    coc_mm: float = field(default_factory=lambda: load_vehicle().camera.coc_mm)  # derived from the sensor width
+    #: the lens's focal-length range [mm]: zoom by range (0..100 %) maps onto it.
+    focal_length_range_mm: tuple[float, float] = field(default_factory=lambda: load_vehicle().lens.focal_length_mm)
     #: a lens or land command without acknowledgement is resent this many times, every
     #: command_retry_s [s]; then a lens axis is unsupported, a land falls back to the land mode.
     command_retries: int = 3

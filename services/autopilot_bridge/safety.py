@@ -146,7 +146,7 @@ def clamp_outward_velocity(p: np.ndarray, v: np.ndarray, cfg: SafetyConfig) -> t
     hit = False
     home = np.asarray(cfg.home_m, dtype=float)
     d = np.asarray(p[:2], float) - home[:2]
-    a = cfg.max_accel_mps2
+    a = cfg.accel_max_mps2
     if cfg.geofence_shape == "cylinder":
         r = float(np.linalg.norm(d))
         if r > 1e-9:
@@ -176,11 +176,11 @@ def clamp_outward_velocity(p: np.ndarray, v: np.ndarray, cfg: SafetyConfig) -> t
 
 def clamp_outward_accel(p: np.ndarray, a: np.ndarray, cfg: SafetyConfig) -> tuple[np.ndarray, bool]:
     """Acceleration feed-forward `a` at position `p` without an outward component wherever `p` is
-    within the braking distance at full speed (max_speed² / 2·max_accel) of a boundary: near the
+    within the braking distance at full speed (speed_max² / 2·accel_max) of a boundary: near the
     fence, pushing outward only stores up an overshoot."""
     a = np.array(a, dtype=float)
     hit = False
-    reach = cfg.max_speed_mps ** 2 / (2.0 * cfg.max_accel_mps2)
+    reach = cfg.speed_max_mps ** 2 / (2.0 * cfg.accel_max_mps2)
     home = np.asarray(cfg.home_m, dtype=float)
     d = np.asarray(p[:2], float) - home[:2]
     if cfg.geofence_shape == "cylinder":
@@ -389,12 +389,12 @@ class SafetyLayer:
     def _feed_forward(self, sp: M.Setpoint, p: np.ndarray, clamps: list[str]) -> tuple[np.ndarray, np.ndarray]:
         """Velocity and acceleration feed-forward within the limits, and not outward at the envelope."""
         cfg = self.cfg
-        v, hit = clamp_norm(np.array(sp.velocity_mps, dtype=float), cfg.max_speed_mps)
-        v, hit_z = clamp_climb(v, cfg.max_climb_mps)
+        v, hit = clamp_norm(np.array(sp.velocity_mps, dtype=float), cfg.speed_max_mps)
+        v, hit_z = clamp_climb(v, cfg.climb_max_mps)
         _note(clamps, hit or hit_z, "clamp_speed")
         v, hit = clamp_outward_velocity(p, v, cfg)
         _note(clamps, hit, "clamp_velocity_outward")
-        a, hit = clamp_norm(np.array(sp.acceleration_mps2, dtype=float), cfg.max_accel_mps2)
+        a, hit = clamp_norm(np.array(sp.acceleration_mps2, dtype=float), cfg.accel_max_mps2)
         _note(clamps, hit, "clamp_accel")
         a, hit = clamp_outward_accel(p, a, cfg)
         _note(clamps, hit, "clamp_accel_outward")
@@ -403,8 +403,8 @@ class SafetyLayer:
     def _gimbal(self, sp: M.Setpoint, clamps: list[str]) -> np.ndarray:
         cfg = self.cfg
         yaw, pitch, roll = (float(x) for x in sp.camera_ypr_rad)
-        pitch2 = min(max(pitch, cfg.gimbal_pitch_min_rad), cfg.gimbal_pitch_max_rad)
-        roll2 = min(max(roll, -cfg.gimbal_roll_max_rad), cfg.gimbal_roll_max_rad)
+        pitch2 = min(max(pitch, cfg.pitch_min_rad), cfg.pitch_max_rad)
+        roll2 = min(max(roll, -cfg.roll_max_rad), cfg.roll_max_rad)
         _note(clamps, pitch2 != pitch or roll2 != roll, "clamp_gimbal")
         return np.array([wrap_angle(yaw), pitch2, roll2])
 
@@ -427,7 +427,8 @@ class SafetyLayer:
             lens,
             focal_length_mm=one(lens.focal_length_mm, now.focal_length_mm, cfg.focal_length_min_mm,
                                 cfg.focal_length_max_mm),
-            focus_distance_m=one(lens.focus_distance_m, now.focus_distance_m, cfg.focus_min_m, cfg.focus_max_m),
+            focus_distance_m=one(lens.focus_distance_m, now.focus_distance_m, cfg.focus_distance_min_m,
+                                 cfg.focus_distance_max_m),
             f_number=one(lens.f_number, now.f_number, cfg.f_number_min, cfg.f_number_max),
         )
         return out, hit
@@ -437,19 +438,19 @@ class SafetyLayer:
                      prev_vel: np.ndarray, dt_s: float) -> MotionCommand:
         """Move the commanded position/velocity towards the target within speed/accel limits.
 
-        The commanded position advances by at most `max_speed_mps * dt_s` per tick (vertically by
-        `max_climb_mps * dt_s`) and the commanded velocity changes by at most `max_accel_mps2 * dt_s`.
+        The commanded position advances by at most `speed_max_mps * dt_s` per tick (vertically by
+        `climb_max_mps * dt_s`) and the commanded velocity changes by at most `accel_max_mps2 * dt_s`.
         """
         cfg = self.cfg
         dt = max(float(dt_s), 0.0)
         clamps: list[str] = []
-        step, hit = clamp_norm(np.asarray(target_pos, float) - prev_pos, cfg.max_speed_mps * dt)
-        step, hit_z = clamp_climb(step, cfg.max_climb_mps * dt)
+        step, hit = clamp_norm(np.asarray(target_pos, float) - prev_pos, cfg.speed_max_mps * dt)
+        step, hit_z = clamp_climb(step, cfg.climb_max_mps * dt)
         hit = hit or hit_z
         pos = prev_pos + step
         if hit:
             clamps.append("clamp_position_rate")
-        dv, hit_v = clamp_norm(np.asarray(target_vel, float) - prev_vel, cfg.max_accel_mps2 * dt)
+        dv, hit_v = clamp_norm(np.asarray(target_vel, float) - prev_vel, cfg.accel_max_mps2 * dt)
         vel = prev_vel + dv
         if hit_v:
             clamps.append("clamp_velocity_rate")

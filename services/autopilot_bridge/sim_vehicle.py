@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import dataclasses
 import logging
 import math
 import select
@@ -45,6 +46,7 @@ import numpy as np
 from cinetransfer.services.autopilot_bridge import enu_ned as F
 from cinetransfer.services.autopilot_bridge.mavlink import connect, mavlink
 from cinetransfer.services.autopilot_bridge.signing import enable_signing
+from cinetransfer.services.autopilot_bridge.sim_vehicle_config import NODE, SimVehicleConfig
 from cinetransfer.services.autopilot_bridge.sim_vehicle_services import CAMERA_COMPONENT, StandardServices
 from cinetransfer.shared.dynamics import DynamicsLimits
 from cinetransfer.shared.stopsignal import StopSignal
@@ -430,48 +432,33 @@ def _set_lens_in_range(model, name: str, value: float) -> int:
     return R.MAV_RESULT_ACCEPTED
 
 
-def _vec3(text: str) -> tuple[float, float, float]:
-    parts = [float(x) for x in text.split(",")]
-    if len(parts) != 3 or not all(math.isfinite(x) for x in parts):
-        raise argparse.ArgumentTypeError(f"expected x,y,z (3 finite numbers), got {text!r}")
-    return parts[0], parts[1], parts[2]
+def build_parser() -> argparse.ArgumentParser:
+    ap = nodeconfig.settings_parser(SimVehicleConfig, NODE, "cinetransfer sim-vehicle", __doc__.split("\n\n")[0])
+    add_vehicle_argument(ap)
+    return ap
+
+
+def config_from_args(args: argparse.Namespace) -> SimVehicleConfig:
+    """Defaults, then the settings (`--config`), then the flags; --vehicle over the settings' `vehicle`."""
+    cfg = nodeconfig.config_from_args(SimVehicleConfig, args, NODE)
+    return dataclasses.replace(cfg, vehicle=args.vehicle) if args.vehicle else cfg
 
 
 def main(argv: list[str]) -> int:
-    ap = argparse.ArgumentParser(prog="cinetransfer sim-vehicle", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--mavlink", default="udpout:127.0.0.1:14540", metavar="URL",
-                    help="pymavlink endpoint (default %(default)s; e.g. udpin:127.0.0.1:14550)")
-    ap.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4")
-    ap.add_argument("--system-id", type=int, default=1)
-    ap.add_argument("--start", type=_vec3, default=(0.0, 0.0, 0.0), metavar="X,Y,Z",
-                    help="start position [m], world ENU z-up (default on the ground at home)")
-    ap.add_argument("--rate", type=float, default=100.0, help="physics rate [Hz] (default %(default)s)")
-    ap.add_argument("--telemetry-rate", type=float, default=50.0,
-                    help="LOCAL_POSITION_NED / ATTITUDE rate [Hz] (default %(default)s)")
-    ap.add_argument("--offboard-timeout", type=float, default=0.5,
-                    help="PX4: leave OFFBOARD when no setpoint for this long [s] (default %(default)s)")
-    ap.add_argument("--signing-key", default="", metavar="FILE",
-                    help="MAVLink 2 signing key (cinetransfer deploy certs writes mavlink-signing.key)")
-    add_vehicle_argument(ap)
-    ap.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
-    nodeconfig.add_config_arguments(ap, "sim-vehicle")
+    args = build_parser().parse_args(argv)
     try:
-        args = nodeconfig.parse_with_settings(ap, argv, "sim-vehicle")
-        for name in ("rate", "telemetry_rate", "offboard_timeout"):
-            v = getattr(args, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ConfigError(f"sim-vehicle.{name} (--{name.replace('_', '-')}): must be > 0, got {v}")
-        vehicle = load_vehicle(args.vehicle)
-        key = read_signing_key(args.signing_key) if args.signing_key else None
+        cfg = config_from_args(args)
+        vehicle = load_vehicle(cfg.vehicle or None)
+        key = read_signing_key(cfg.signing_key) if cfg.signing_key else None
     except ConfigError as e:
         return report_config_error(e, "cinetransfer sim-vehicle")
-    logging.basicConfig(level=getattr(logging, args.log_level),
+    logging.basicConfig(level=getattr(logging, cfg.log_level),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     stop = StopSignal().install()  # a handler that sets an Event can deadlock (stopsignal.py)
-    veh = SimVehicle(args.mavlink, autopilot=args.autopilot, system_id=args.system_id, start_enu=args.start,
-                     rate_hz=args.rate, telemetry_hz=args.telemetry_rate, offboard_timeout_s=args.offboard_timeout,
-                     vehicle=vehicle, signing_key=key)
-    log.info("sim-vehicle (%s) on %s, start %s%s", args.autopilot, args.mavlink, args.start,
+    veh = SimVehicle(cfg.mavlink, autopilot=cfg.autopilot, system_id=cfg.system_id, start_enu=cfg.start,
+                     rate_hz=cfg.rate_hz, telemetry_hz=cfg.telemetry_rate_hz,
+                     offboard_timeout_s=cfg.offboard_timeout_s, vehicle=vehicle, signing_key=key)
+    log.info("sim-vehicle (%s) on %s, start %s%s", cfg.autopilot, cfg.mavlink, cfg.start,
              ", MAVLink 2 signed" if key else "")
     try:
         veh.run(stop)

@@ -60,7 +60,7 @@ class StandardServices:
     def __init__(self, veh: Any) -> None:
         self.veh = veh
         self.params = vehicle_params(veh.autopilot, veh.conn.mav.srcSystem, veh.offboard_timeout_s,
-                                     veh.model.dyn.limits.max_speed_xy_mps, veh.model.dyn.limits.max_speed_z_mps)
+                                     veh.model.dyn.limits.speed_max_mps, veh.model.dyn.limits.climb_max_mps)
         self.next_camera_hb = 0.0
         self.next_gimbal_status = 0.0
         self.gimbal_primary = (0, 0)  # (system, component) in control of the gimbal; (0, 0) = nobody

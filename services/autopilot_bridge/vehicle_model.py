@@ -34,8 +34,8 @@ class SimDynamicsAdapter:
     @property
     def lens_ranges(self) -> dict[str, tuple[float, float]]:
         lim = self.dyn.limits
-        return {"focal_length_mm": (lim.focal_min_mm, lim.focal_max_mm),
-                "focus_distance_m": (lim.focus_min_m, lim.focus_max_m),
+        return {"focal_length_mm": (lim.focal_length_min_mm, lim.focal_length_max_mm),
+                "focus_distance_m": (lim.focus_distance_min_m, lim.focus_distance_max_m),
                 "f_number": (lim.f_number_min, lim.f_number_max)}
 
     position_m = property(lambda self: self.dyn.position)

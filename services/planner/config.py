@@ -18,14 +18,14 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 from cinetransfer.shared.camera import COC_MM, SENSOR_HEIGHT_MM, SENSOR_WIDTH_MM
-
-
 from cinetransfer.shared.errors import ConfigError
-from cinetransfer.shared.nodeconfig import setting
+from cinetransfer.shared.nodeconfig import renamed_aliases, setting
 from cinetransfer.shared.paths import cache_dir
+from cinetransfer.shared.limits import (EnvelopeLimits, GimbalLimits, GimbalRateLimits, LensLimits, LensRateLimits,
+                                        MotionLimits, vehicle_fields)
 from cinetransfer.shared.vehicle import VehicleProfile
 
 
@@ -34,8 +34,11 @@ def _bad(section: str, name: str, value: Any, allowed: str) -> ConfigError:
 
 
 @dataclass(frozen=True)
-class Bounds:
+class Bounds(LensRateLimits, LensLimits, GimbalRateLimits, GimbalLimits, EnvelopeLimits, MotionLimits):
     """Limits of the vehicle, gimbal and lens (runtime parameters: no rebuild when changed).
+
+    Every field is a limit of the vehicle profile, declared once in shared/limits.py under the
+    profile's name; the defaults are the default profile's.
 
     Velocity and acceleration are bounded per world axis (hard; the vertical speed at the climb
     rate); the speed also in norm (soft), the norm being what the safety layer bounds. The speed
@@ -44,70 +47,46 @@ class Bounds:
     brought back instead of making the problem infeasible. Every other limit is hard.
     """
 
-    speed_max_mps: float = 2.0  # |v| and each |v_i| [m/s], > 0 (CineMPC: 2)
-    accel_max_mps2: float = 1.2  # each |a_i| [m/s^2], > 0 (CineMPC: 1.2)
-    climb_max_mps: float = 1.0  # |v_z| [m/s], > 0 (the vehicle's vertical speed)
-    altitude_min_m: float = 1.0  # floor for the camera position z [m] (soft)
-    altitude_max_m: float = 40.0  # ceiling [m] (soft), > altitude_min_m
-    min_distance_m: float = 2.0  # minimum horizontal camera-subject distance [m] (soft), >= 0 (CineMPC: 2)
-    pitch_min_rad: float = -math.pi / 2  # camera pitch lower limit [rad] (looking down), >= -pi/2
-    pitch_max_rad: float = math.pi / 6  # camera pitch upper limit [rad], <= pi/2
-    roll_max_rad: float = math.radians(17.2)  # |roll| [rad] (only with Structure.control_roll)
-    yaw_rate_max_radps: float = math.radians(86.0)  # |d yaw/dt| [rad/s], > 0
-    pitch_rate_max_radps: float = math.radians(86.0)  # |d pitch/dt| [rad/s], > 0
-    roll_rate_max_radps: float = math.radians(57.0)  # |d roll/dt| [rad/s], > 0
-    focal_min_mm: float = 30.0  # focal length range [mm] (CineMPC: 30-500)
-    focal_max_mm: float = 500.0
-    focal_rate_max_mmps: float = 20.0  # |df/dt| [mm/s] (CineMPC: 20)
-    focus_min_m: float = 0.5  # focus distance range [m]: the camera's minimum focus distance to 100 m
-    focus_max_m: float = 100.0
-    focus_rate_max_mps: float = 15.0  # |ds/dt| [m/s] (CineMPC: 15)
-    fnumber_min: float = 1.0  # f-number range (CineMPC: 1-22)
-    fnumber_max: float = 22.0
-    fnumber_rate_max_ps: float = 3.0  # |dA/dt| [1/s] (CineMPC: 3)
+    #: the settings keys of earlier versions, still accepted in settings files -> the field
+    SETTING_ALIASES: ClassVar[dict[str, str]] = {
+        "min_distance_m": "min_subject_distance_m", "yaw_rate_max_radps": "yaw_rate_radps",
+        "pitch_rate_max_radps": "pitch_rate_radps", "roll_rate_max_radps": "roll_rate_radps",
+        "focal_min_mm": "focal_length_min_mm", "focal_max_mm": "focal_length_max_mm",
+        "focal_rate_max_mmps": "focal_rate_mmps", "focus_min_m": "focus_distance_min_m",
+        "focus_max_m": "focus_distance_max_m", "focus_rate_max_mps": "focus_rate_mps",
+        "fnumber_min": "f_number_min", "fnumber_max": "f_number_max", "fnumber_rate_max_ps": "f_number_rate_ps"}
 
     @classmethod
     def from_vehicle(cls, v: VehicleProfile) -> "Bounds":
         """The vehicle's limits (shared/vehicle.py): the same numbers the safety layer and the simulator use."""
-        lens, gim, mo, env = v.lens, v.gimbal, v.motion, v.envelope
-        return cls(speed_max_mps=mo.speed_max_mps, accel_max_mps2=mo.accel_max_mps2, climb_max_mps=mo.climb_max_mps,
-                   altitude_min_m=env.altitude_m[0], altitude_max_m=env.altitude_m[1],
-                   min_distance_m=env.min_subject_distance_m,
-                   pitch_min_rad=gim.pitch_rad[0], pitch_max_rad=gim.pitch_rad[1], roll_max_rad=gim.roll_max_rad,
-                   yaw_rate_max_radps=gim.yaw_rate_radps, pitch_rate_max_radps=gim.pitch_rate_radps,
-                   roll_rate_max_radps=gim.roll_rate_radps,
-                   focal_min_mm=lens.focal_length_mm[0], focal_max_mm=lens.focal_length_mm[1],
-                   focal_rate_max_mmps=lens.focal_rate_mmps,
-                   focus_min_m=lens.focus_distance_m[0], focus_max_m=lens.focus_distance_m[1],
-                   focus_rate_max_mps=lens.focus_rate_mps,
-                   fnumber_min=lens.f_number[0], fnumber_max=lens.f_number[1],
-                   fnumber_rate_max_ps=lens.f_number_rate_ps).validate()
+        return cls(**vehicle_fields(cls, v)).validate()
 
     def validate(self) -> "Bounds":
         s = "bounds."
-        for name in ("speed_max_mps", "accel_max_mps2", "climb_max_mps", "yaw_rate_max_radps", "pitch_rate_max_radps",
-                     "roll_rate_max_radps", "focal_rate_max_mmps", "focus_rate_max_mps", "fnumber_rate_max_ps"):
+        for name in ("speed_max_mps", "accel_max_mps2", "climb_max_mps", "yaw_rate_radps", "pitch_rate_radps",
+                     "roll_rate_radps", "focal_rate_mmps", "focus_rate_mps", "f_number_rate_ps"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise _bad(s, name, v, "a finite value > 0")
         if not (math.isfinite(self.altitude_min_m) and math.isfinite(self.altitude_max_m)
                 and self.altitude_max_m > self.altitude_min_m):
             raise _bad(s, "altitude_max_m", self.altitude_max_m, "finite and > altitude_min_m")
-        if not (math.isfinite(self.min_distance_m) and self.min_distance_m >= 0):
-            raise _bad(s, "min_distance_m", self.min_distance_m, ">= 0")
+        if not (math.isfinite(self.min_subject_distance_m) and self.min_subject_distance_m >= 0):
+            raise _bad(s, "min_subject_distance_m", self.min_subject_distance_m, ">= 0")
         if not (-math.pi / 2 <= self.pitch_min_rad < self.pitch_max_rad <= math.pi / 2):
             raise _bad(s, "pitch_min_rad/pitch_max_rad", (self.pitch_min_rad, self.pitch_max_rad),
                        "-pi/2 <= min < max <= pi/2")
         if not (0 <= self.roll_max_rad < math.pi / 2):
             raise _bad(s, "roll_max_rad", self.roll_max_rad, "0 <= value < pi/2")
-        if not (0 < self.focal_min_mm < self.focal_max_mm and math.isfinite(self.focal_max_mm)):
-            raise _bad(s, "focal_min_mm/focal_max_mm", (self.focal_min_mm, self.focal_max_mm), "0 < min < max")
-        if not (self.focal_min_mm / 1000.0 < self.focus_min_m < self.focus_max_m
-                and math.isfinite(self.focus_max_m)):
-            raise _bad(s, "focus_min_m/focus_max_m", (self.focus_min_m, self.focus_max_m),
+        f_lo, f_hi, s_lo, s_hi = (self.focal_length_min_mm, self.focal_length_max_mm, self.focus_distance_min_m,
+                                  self.focus_distance_max_m)
+        if not (0 < f_lo < f_hi and math.isfinite(f_hi)):
+            raise _bad(s, "focal_length_min_mm/focal_length_max_mm", (f_lo, f_hi), "0 < min < max")
+        if not (f_lo / 1000.0 < s_lo < s_hi and math.isfinite(s_hi)):
+            raise _bad(s, "focus_distance_min_m/focus_distance_max_m", (s_lo, s_hi),
                        "focal length < min < max (metres)")
-        if not (1.0 <= self.fnumber_min < self.fnumber_max and math.isfinite(self.fnumber_max)):
-            raise _bad(s, "fnumber_min/fnumber_max", (self.fnumber_min, self.fnumber_max), "1 <= min < max")
+        if not (1.0 <= self.f_number_min < self.f_number_max and math.isfinite(self.f_number_max)):
+            raise _bad(s, "f_number_min/f_number_max", (self.f_number_min, self.f_number_max), "1 <= min < max")
         return self
 
 
@@ -356,7 +335,7 @@ def from_dict(d: dict[str, Any], vehicle: VehicleProfile | None = None) -> Plann
         sub = d.pop(g, {}) or {}
         if not isinstance(sub, dict):
             raise ConfigError(f"planner config: {g} must be a mapping")
-        sub = dict(sub)
+        sub = renamed_aliases(cls, dict(sub), "planner", f"{g}.")
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = set(sub) - names
         if unknown:

@@ -42,7 +42,7 @@ def soft_constraints(x_next, slack, centre_w, lim):  # noqa: ANN001, ANN201
 
 def soft_limits(bounds: Bounds) -> list[float]:
     """The `lim` parameter of soft_constraints for these bounds."""
-    return [bounds.altitude_min_m, bounds.altitude_max_m, bounds.min_distance_m, bounds.speed_max_mps]
+    return [bounds.altitude_min_m, bounds.altitude_max_m, bounds.min_subject_distance_m, bounds.speed_max_mps]
 
 
 def decision_bounds(layout: Layout, bounds: Bounds, n: int, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -14,9 +14,9 @@ import numpy as np
 from cinetransfer.services.planner.config import Bounds
 
 #: VehicleState lens axis -> (index in the lens vector (f, s, A), Bounds min field, Bounds max field)
-AXES = {"focal_length_mm": (0, "focal_min_mm", "focal_max_mm"),
-        "focus_distance_m": (1, "focus_min_m", "focus_max_m"),
-        "f_number": (2, "fnumber_min", "fnumber_max")}
+AXES = {"focal_length_mm": (0, "focal_length_min_mm", "focal_length_max_mm"),
+        "focus_distance_m": (1, "focus_distance_min_m", "focus_distance_max_m"),
+        "f_number": (2, "f_number_min", "f_number_max")}
 BAND = 1e-3
 
 

@@ -130,9 +130,9 @@ def state_bounds(layout: Layout, bounds: Bounds) -> tuple[np.ndarray, np.ndarray
     lo[layout.PITCH], hi[layout.PITCH] = bounds.pitch_min_rad, bounds.pitch_max_rad
     if layout.control_roll:
         lo[layout.ROLL], hi[layout.ROLL] = -bounds.roll_max_rad, bounds.roll_max_rad
-    lo[layout.F], hi[layout.F] = bounds.focal_min_mm, bounds.focal_max_mm
-    lo[layout.S], hi[layout.S] = bounds.focus_min_m, bounds.focus_max_m
-    lo[layout.A], hi[layout.A] = bounds.fnumber_min, bounds.fnumber_max
+    lo[layout.F], hi[layout.F] = bounds.focal_length_min_mm, bounds.focal_length_max_mm
+    lo[layout.S], hi[layout.S] = bounds.focus_distance_min_m, bounds.focus_distance_max_m
+    lo[layout.A], hi[layout.A] = bounds.f_number_min, bounds.f_number_max
     return lo, hi
 
 
@@ -140,13 +140,13 @@ def input_bounds(layout: Layout, bounds: Bounds) -> tuple[np.ndarray, np.ndarray
     """Symmetric hard bounds of the inputs."""
     hi = np.empty(layout.nu)
     hi[layout.ACC] = bounds.accel_max_mps2
-    hi[layout.YAW_RATE] = bounds.yaw_rate_max_radps
-    hi[layout.PITCH_RATE] = bounds.pitch_rate_max_radps
+    hi[layout.YAW_RATE] = bounds.yaw_rate_radps
+    hi[layout.PITCH_RATE] = bounds.pitch_rate_radps
     if layout.control_roll:
-        hi[layout.ROLL_RATE] = bounds.roll_rate_max_radps
-    hi[layout.F_RATE] = bounds.focal_rate_max_mmps
-    hi[layout.S_RATE] = bounds.focus_rate_max_mps
-    hi[layout.A_RATE] = bounds.fnumber_rate_max_ps
+        hi[layout.ROLL_RATE] = bounds.roll_rate_radps
+    hi[layout.F_RATE] = bounds.focal_rate_mmps
+    hi[layout.S_RATE] = bounds.focus_rate_mps
+    hi[layout.A_RATE] = bounds.f_number_rate_ps
     return -hi, hi
 
 

@@ -10,6 +10,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from cinetransfer.shared.errors import ConfigError  # noqa: F401 (callers import it from here)
+from cinetransfer.shared.focus_regions import FOREGROUND_MIN_ROWS
 from cinetransfer.shared.messages import COCO17_NAMES
 from cinetransfer.shared.nodeconfig import setting
 
@@ -79,7 +80,8 @@ class SmootherConfig:
     # a shot where no region reaches theta is judged relative to its sharpest region (focus.soft_shot)
     focus_soft_floor: float = 0.1  # ... if that region reads at least this, (0, 1]; 1 = off
     focus_min_run_s: float = 0.1  # a region labelled for a shorter run of frames has no label there [s], >= 0
-    foreground_min_rows: float = 0.03  # foreground band (below the feet) exists when >= this fraction of the height
+    # foreground band (below the feet) exists when >= this fraction of the height (shared.focus_regions)
+    foreground_min_rows: float = FOREGROUND_MIN_ROWS
     #: b ignores a border band of each region this wide (fraction of the map width), [0, 0.2]
     focus_region_margin: float = 0.015
     mu_m: float = setting(1.0, flag="--mu", unit="m", range="> 0",

@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from cinetransfer.services.smoother.anatomy import drop_implausible_bodies
+from cinetransfer.shared.focus_regions import FOREGROUND_MIN_ROWS, region_masks
 from cinetransfer.shared.messages import COCO17_NAMES, Measurement
 
 N_JOINTS = len(COCO17_NAMES)
@@ -103,18 +104,12 @@ def _core(region: np.ndarray, margin: int, keep: float = 0.25) -> np.ndarray:
 
 def _region_fractions(infocus: np.ndarray, subj: np.ndarray | None, feet_row: int | None,
                       min_rows: int, margin: int = 0) -> np.ndarray:
-    """b (foreground, subject, background) on the focus-map grid; NaN = region absent."""
-    h = infocus.shape[0]
+    """b (foreground, subject, background) on the focus-map grid (shared.focus_regions); NaN = region absent."""
     out = np.full(3, np.nan)
     if subj is None:
         out[2] = float(infocus.mean()) if infocus.size else np.nan
         return out
-    fg = np.zeros_like(subj)
-    if feet_row is not None and h - feet_row >= max(min_rows, 1):
-        fg[feet_row:, :] = True
-        fg &= ~subj
-    bg = ~(subj | fg)
-    for t, region in enumerate((fg, subj, bg)):
+    for t, region in enumerate(region_masks(subj, feet_row, min_rows)):
         region = _core(region, margin)
         n = int(region.sum())
         if n > 0:
@@ -132,8 +127,9 @@ def _track_id(t) -> int:
     return t if 0 <= t < 2 ** 62 else -1
 
 
-def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5, foreground_min_rows: float = 0.03,
-                   min_person_confidence: float = 0.0, focus_margin: float = 0.0, body_neck_min: float = 0.0,
+def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5,
+                   foreground_min_rows: float = FOREGROUND_MIN_ROWS, min_person_confidence: float = 0.0,
+                   focus_margin: float = 0.0, body_neck_min: float = 0.0,
                    body_span_min: float = 0.0, body_torso_min: float = 0.0) -> FrameFeatures:
     """Compute the FrameFeatures of one Measurement (pure). `body_*_min`: the anatomy check
     (anatomy.py; 0 = off)."""

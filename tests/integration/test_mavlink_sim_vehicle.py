@@ -119,7 +119,7 @@ def test_backend_flies_sim_vehicle_over_udp(autopilot):
     start = "0,0,3" if autopilot == "px4" else "0,0,0"  # ArduCopter takes off from the ground
     proc = spawn_vehicle(port, "--autopilot", autopilot, "--start", start)
     backend = MavlinkBackend(MavlinkConfig(url=f"udpout:127.0.0.1:{port}", connect_timeout_s=20.0))
-    core = BridgeCore(SafetyConfig(max_speed_mps=4.0))
+    core = BridgeCore(SafetyConfig(speed_max_mps=4.0))
     try:
         backend.start()
         assert backend.connected and backend.autopilot == autopilot

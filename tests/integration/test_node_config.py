@@ -27,9 +27,9 @@ def run_node(*argv):
 
 
 @pytest.mark.parametrize("command, settings, field", [
-    ("planner", {"bounds": {"focus_min_m": -1.0}}, "focus_min_m"),
+    ("planner", {"bounds": {"focus_distance_min_m": -1.0}}, "focus_distance_min_m"),
     ("planner", {"vehicle": "no_such_drone"}, "vehicle"),
-    ("autopilot_bridge", {"backend": "sim", "safety": {"max_speed_mps": -2.0}}, "max_speed_mps"),
+    ("autopilot_bridge", {"backend": "sim", "safety": {"speed_max_mps": -2.0}}, "speed_max_mps"),
     ("autopilot_bridge", {"rate_hz": 0}, "rate_hz"),
     ("smoother", {"theta": 1.5}, "theta"),
     ("smoother", {"windw_s": 3}, "windw_s"),
@@ -90,23 +90,27 @@ def test_camera_settings_then_flags(tmp_path):
         cn.config_from_args(parse([]), {})
 
 
-def test_flag_only_nodes_take_their_flags_from_the_settings(tmp_path):
-    import argparse
+def test_sim_vehicle_and_relay_settings_then_flags_earlier_keys_too(tmp_path):
+    from cinetransfer import relay
+    from cinetransfer.services.autopilot_bridge import sim_vehicle as sv
 
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--from", dest="src", required=True)
-    ap.add_argument("--rate", type=float, default=100.0)
-    ap.add_argument("--fast", action="store_true")
-    ap.add_argument("--mode", choices=("a", "b"), default="a")
-    nodeconfig.add_config_arguments(ap, "n")
-    path = deploy_config(tmp_path, "n", {"src": "ct/x/**", "rate": 50, "fast": True, "mode": "b"})
-    args = nodeconfig.parse_with_settings(ap, ["--config", str(path), "--rate", "25"], "n")
-    # a required flag satisfied by the file; the flag given wins; a switch and a choice from the file
-    assert (args.src, args.rate, args.fast, args.mode) == ("ct/x/**", 25.0, True, "b")
-    for bad, field in (({"fast": "yes"}, "fast"), ({"mode": "c"}, "mode"), ({"rate": "quick"}, "rate")):
-        path = deploy_config(tmp_path, "n", {"src": "ct/x/**", **bad})
+    path = deploy_config(tmp_path, "sim-vehicle", {"autopilot": "ardupilot", "start": [1, 2, 0], "rate": 50,
+                                                   "system-id": 7, "vehicle": "inspire3"})
+    cfg = sv.config_from_args(sv.build_parser().parse_args(["--config", str(path), "--rate", "25"]))
+    # the flag given wins; the keys named like the flags ("rate", "system-id") still set their fields
+    assert (cfg.autopilot, cfg.start, cfg.rate_hz, cfg.system_id, cfg.vehicle) == \
+        ("ardupilot", (1.0, 2.0, 0.0), 25.0, 7, "inspire3")
+    cfg = sv.config_from_args(sv.build_parser().parse_args(["--config", str(path), "--vehicle", "cinempc"]))
+    assert (cfg.rate_hz, cfg.vehicle) == (50.0, "cinempc")
+    assert sv.config_from_args(sv.build_parser().parse_args([])) == sv.SimVehicleConfig()
+    path = deploy_config(tmp_path, "relay", {"from": "ct/x/**", "to": "ct/y/z", "no_drop": True, "queue": 8})
+    cfg = relay.config_from_args(relay.build_parser().parse_args(["--config", str(path), "--queue", "16"]))
+    # a required flag satisfied by the file; the flag given wins; a switch from the file
+    assert (cfg.from_key, cfg.to_key, cfg.no_drop, cfg.queue) == ("ct/x/**", "ct/y/z", True, 16)
+    for bad, field in (({"no_drop": "yes"}, "no_drop"), ({"queue": 0}, "queue"), ({"to": ""}, "to_key")):
+        path = deploy_config(tmp_path, "relay", {"from": "ct/x/**", "to": "ct/y/z", **bad})
         with pytest.raises(ConfigError, match=field):
-            nodeconfig.parse_with_settings(ap, ["--config", str(path)], "n")
+            relay.config_from_args(relay.build_parser().parse_args(["--config", str(path)]))
 
 
 def test_a_node_missing_from_the_deploy_config_is_an_error(tmp_path):

@@ -49,9 +49,9 @@ class BoundsChecker:
         assert np.all(r.u >= self.ulo - TOL) and np.all(r.u <= self.uhi + TOL)
         assert np.all(np.abs(sp.velocity_mps) <= b.speed_max_mps + TOL)
         assert np.all(np.abs(sp.acceleration_mps2) <= b.accel_max_mps2 + TOL)
-        assert b.focal_min_mm - TOL <= sp.lens.focal_length_mm <= b.focal_max_mm + TOL
-        assert b.focus_min_m - TOL <= sp.lens.focus_distance_m <= b.focus_max_m + TOL
-        assert b.fnumber_min - TOL <= sp.lens.f_number <= b.fnumber_max + TOL
+        assert b.focal_length_min_mm - TOL <= sp.lens.focal_length_mm <= b.focal_length_max_mm + TOL
+        assert b.focus_distance_min_m - TOL <= sp.lens.focus_distance_m <= b.focus_distance_max_m + TOL
+        assert b.f_number_min - TOL <= sp.lens.f_number <= b.f_number_max + TOL
         assert b.pitch_min_rad - TOL <= sp.camera_ypr_rad[1] <= b.pitch_max_rad + TOL
         # soft constraints hold in these scenes (they can be kept): floor and distance
         assert np.all(sp.horizon_position_m[:, 2] >= b.altitude_min_m - 1e-3)
@@ -173,5 +173,5 @@ def test_subject_behind_the_camera_turns_round_without_flying_through(planner_fa
     assert np.max(err[t >= 3.0]) < 0.2, np.max(err[t >= 3.0])
     assert np.max(err[t >= 9.0]) < 0.05, np.max(err[t >= 9.0])
     # and it never flies through (or closer than the minimum distance to) the subject
-    assert min(dist) > CFG.bounds.min_distance_m - 0.05
+    assert min(dist) > CFG.bounds.min_subject_distance_m - 0.05
     assert set(log.mode) == {"track"}

@@ -141,7 +141,7 @@ def test_planner_service_tracks_and_exits_cleanly(port, peer, tmp_path):
 
 def test_planner_config_error_refuses_to_start(tmp_path):
     bad = tmp_path / "p.yaml"
-    bad.write_text("planner:\n  bounds:\n    focal_min_mm: 900\n")
+    bad.write_text("planner:\n  bounds:\n    focal_length_min_mm: 900\n")
     r = subprocess.run([sys.executable, "-m", "cinetransfer", "planner", "--config", str(bad)],
                        capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2 and "focal_min_mm" in r.stderr
+    assert r.returncode == 2 and "focal_length_min_mm" in r.stderr

@@ -24,7 +24,7 @@ def vs(pos=(0.0, 0.0, 5.0), vel=(0.0, 0.0, 0.0)):
 
 CLOCK = 10**18  # the bridge's "now" on the stamp clock: every stamp here lies in its past
 
-CFG = SafetyConfig(watchdog_timeout_s=0.5, max_speed_mps=2.0, max_accel_mps2=1.5)
+CFG = SafetyConfig(watchdog_timeout_s=0.5, speed_max_mps=2.0, accel_max_mps2=1.5)
 
 
 def test_given_no_setpoint_yet_when_ticking_then_holds_and_reports_the_change_once():
@@ -96,7 +96,7 @@ def test_closed_loop_tracking_stays_within_limits_and_reaches_the_setpoints():
     """Given a plan that jumps 20 m then follows a 1.5 m/s line, the vehicle (sim-vehicle's model)
     tracks it without exceeding the bridge's speed limit, and ends on the line."""
     c = BridgeCore(CFG)
-    fast = DynamicsLimits(max_speed_xy_mps=8.0, max_speed_z_mps=8.0, max_accel_mps2=6.0)  # faster than allowed
+    fast = DynamicsLimits(speed_max_mps=8.0, climb_max_mps=8.0, accel_max_mps2=6.0)  # faster than allowed
     m = SimDynamicsAdapter((0.0, 0.0, 5.0), limits=fast)
     m.armed = True
     m.hold_here()
@@ -119,6 +119,6 @@ def test_closed_loop_tracking_stays_within_limits_and_reaches_the_setpoints():
         speeds.append(float(np.linalg.norm(m.velocity_mps)))
         if t == pytest.approx(14.0):
             np.testing.assert_allclose(m.position_m, [20.0, 0.0, 8.0], atol=0.05)
-    assert max(speeds) <= CFG.max_speed_mps * 1.05  # the commanded transfer is rate limited
+    assert max(speeds) <= CFG.speed_max_mps * 1.05  # the commanded transfer is rate limited
     np.testing.assert_allclose(m.position_m, [20.0, 1.5 * 15, 8.0], atol=0.1)
     assert c.safety.counters["clamp_position_rate"] > 100

@@ -16,7 +16,7 @@ from cinetransfer.services.autopilot_bridge.sim.backend import SimBackend
 from cinetransfer.shared import messages as M
 
 # the envelope of the issue: fence radius 60 m, altitude band 0.5..40 m, braking at 2 m/s^2
-CFG = SafetyConfig(altitude_min_m=0.5, max_speed_mps=3.0, max_accel_mps2=2.0)
+CFG = SafetyConfig(altitude_min_m=0.5, speed_max_mps=3.0, accel_max_mps2=2.0)
 CLOCK = 1_700_000_000_000_000_000
 S = 1_000_000_000
 
@@ -215,7 +215,7 @@ def test_lens_values_reach_the_simulator_only_inside_the_safety_lens_ranges(sim)
     states, _ = fly(core, sim, lambda t: wild, 10.0)
     lens = states[-1].lens
     assert CFG.focal_length_min_mm <= lens.focal_length_mm <= CFG.focal_length_max_mm
-    assert CFG.focus_min_m <= lens.focus_distance_m <= CFG.focus_max_m
+    assert CFG.focus_distance_min_m <= lens.focus_distance_m <= CFG.focus_distance_max_m
     assert CFG.f_number_min <= lens.f_number <= CFG.f_number_max
     assert core.safety.counters["clamp_lens"] > 0
 

@@ -95,7 +95,7 @@ def test_holds_until_started_and_without_inputs(planner, instructions):
 def test_infeasible_config_yields_hold_not_crash(planner_cfg, instructions):
     # given a configuration the vehicle cannot satisfy (focal length >= 200 mm while the lens is at
     # 40 mm and zooms at most 20 mm/s): the solver fails, and the planner holds
-    cfg = pc.replace(planner_cfg, **{"bounds.focal_min_mm": 200.0})
+    cfg = pc.replace(planner_cfg, **{"bounds.focal_length_min_mm": 200.0})
     planner = Planner(cfg)
     sim = KinematicSim(wrong_start_scene())
     planner.command(M.Command(action="start"), T0)
@@ -121,7 +121,7 @@ def test_failure_flies_the_tail_then_holds(planner, planner_cfg, instructions):
     assert sp.mode == "track" and planner.counters["failures"] == 0
     good = planner._plan
     # when the bounds change at run time to something infeasible (no rebuild)
-    planner.set_bounds(pc.Bounds(focal_min_mm=400.0))
+    planner.set_bounds(pc.Bounds(focal_length_min_mm=400.0))
     modes = []
     for _ in range(30):
         sp = planner.step(now, instructions, sim.vehicle_state(now), sim.subject_state(now))

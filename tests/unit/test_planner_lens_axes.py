@@ -17,10 +17,10 @@ T0 = 1_700_000_000_000_000_000
 def test_pinned_bounds_narrow_only_the_named_axes():
     free = pc.Bounds()
     b = pinned_bounds(free, ("focal_length_mm", "no_such_axis"), np.array([85.0, 10.0, 4.0]))
-    assert (b.focal_min_mm, b.focal_max_mm) == pytest.approx((84.915, 85.085))  # 85 -+ 0.1 %
-    assert (b.focus_min_m, b.focus_max_m, b.fnumber_min, b.fnumber_max) == (0.5, 100.0, 1.0, 22.0)
+    assert (b.focal_length_min_mm, b.focal_length_max_mm) == pytest.approx((84.915, 85.085))  # 85 -+ 0.1 %
+    assert (b.focus_distance_min_m, b.focus_distance_max_m, b.f_number_min, b.f_number_max) == (0.5, 100.0, 1.0, 22.0)
     end = pinned_bounds(free, ("f_number",), np.array([85.0, 10.0, 0.5]))  # below the range: its end
-    assert (end.fnumber_min, end.fnumber_max) == pytest.approx((1.0, 1.002))
+    assert (end.f_number_min, end.f_number_max) == pytest.approx((1.0, 1.002))
     assert pinned_bounds(free, (), np.array([85.0, 10.0, 4.0])) is free
 
 
@@ -37,6 +37,7 @@ def test_the_planner_holds_an_unsupported_focal_length_and_frees_it_again():
     sp = planner.step(T0, ins, fixed, sim.subject_state(T0))
     assert sp.mode == "track"
     np.testing.assert_allclose(sp.horizon_lens[:, 0], f0, rtol=2e-3)
-    assert planner.solver.bounds.focal_max_mm - planner.solver.bounds.focal_min_mm == pytest.approx(2e-3 * f0)
+    b = planner.solver.bounds
+    assert b.focal_length_max_mm - b.focal_length_min_mm == pytest.approx(2e-3 * f0)
     planner.step(T0 + 50_000_000, ins, dataclasses.replace(vs, stamp_ns=T0 + 50_000_000), sim.subject_state(T0))
     assert planner.solver.bounds == cfg.bounds

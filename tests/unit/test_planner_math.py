@@ -299,7 +299,7 @@ def test_clamp_state_small_vs_large_violations():
     xc, ok = clamp_state(lay, b, x, 0.05)
     assert ok and xc[lay.F] == 30.0
     x[lay.F] = 35.0
-    xc, ok = clamp_state(lay, pc.Bounds(focal_min_mm=200.0), x, 0.05)
+    xc, ok = clamp_state(lay, pc.Bounds(focal_length_min_mm=200.0), x, 0.05)
     assert not ok and xc[lay.F] == 35.0  # far out: left as is, the solve will fail on purpose
 
 
@@ -309,7 +309,7 @@ def test_unwrap_and_wrap():
 
 
 @pytest.mark.parametrize("changes, field", [
-    ({"bounds.focal_min_mm": 600.0}, "focal_min_mm"),
+    ({"bounds.focal_length_min_mm": 600.0}, "focal_length_min_mm"),
     ({"bounds.speed_max_mps": 0.0}, "speed_max_mps"),
     ({"weights.image": -1.0}, "image"),
     ({"structure.horizon_steps": 0}, "horizon_steps"),

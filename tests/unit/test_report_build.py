@@ -291,3 +291,37 @@ def test_camera_roll_at_the_recorded_frames_and_the_note_it_gives():
     meta = {"instruction_frames": 4, "recorded_frames": 4}
     assert any("rolled" in n for n in recording_facts(meta, roll)["notes"])
     assert recording_facts(meta, {"p50": 0.0, "p95": 0.0, "max": 0.0})["notes"] == []
+
+
+def test_frames_out_of_the_lens_reach_are_shown_per_region_and_shot_and_carried(tmp_path):
+    # given a run whose truth records the regions' depths: in its first 12 frames the foreground lies at
+    # the subject's depth while the source asks it soft with the subject sharp (at 100 mm, lens f/1-22)
+    import dataclasses
+
+    src, out, truths, _, _ = _run(tmp_path, with_video=False)
+    src = dataclasses.replace(src, focus_in=np.tile([False, True, False], (K, 1)))
+    lim = np.float32([0.5, 100.0, 1.0, 22.0])
+    depth = [np.full(20, 1 / 4.0), np.full(20, 1 / 7.0), np.full(20, 1 / 30.0)]
+    truths = [dataclasses.replace(t, focal_length_mm=100.0, lens_limits=lim,
+                                  region_inverse_depth=np.float32([depth[1] if i < 12 else depth[0], *depth[1:]]))
+              for i, t in enumerate(truths)]
+    build_report(tmp_path / "rep", source_style=src, output_style=out, truths=truths, source_video=None,
+                 output_video=None, meta={})
+    js = _strict_json(tmp_path / "rep" / "report.json")
+    # then report.json carries them per frame and as a run, and both agreements, named
+    reach = js["focus_reach"]
+    assert reach["frames_judged"] == K and reach["unreachable_frames"] == {"foreground": 12, "subject": 0,
+                                                                            "background": 0}
+    (run,) = reach["runs"]
+    assert (run["region"], run["shot"], run["first_frame"], run["last_frame"], run["frames"]) == \
+        ("foreground", 0, 0, 11, 12)
+    assert run["reason"].startswith("foreground at the subject's depth")
+    pf = js["per_frame"]["focus_unreachable"]
+    assert pf["foreground"][0] == run["reason"] and pf["foreground"][12] is None and set(pf["subject"]) == {None}
+    fo = js["truth"]["focus"]["foreground"]
+    assert fo["n_frames_unreachable"] == 12 and fo["n_frames_reachable"] == K - 12
+    # and the page shows the run and both agreements
+    html = (tmp_path / "rep" / "report.html").read_text(encoding="utf-8")
+    assert "Frames out of the lens&#x27;s reach" in html or "Frames out of the lens's reach" in html
+    assert "label agreement, all frames" in html and "label agreement, reachable frames (judged)" in html
+    assert "foreground at the subject&#x27;s depth" in html or "foreground at the subject's depth" in html

@@ -21,8 +21,8 @@ def sp(pos=(1.0, 2.0, 5.0), vel=(0.0, 0.0, 0.0), acc=(0.0, 0.0, 0.0), ypr=(0.0, 
                       lens=lens or M.LensState(focal_length_mm=35.0, focus_distance_m=5.0, f_number=4.0), **kw)
 
 
-CFG = SafetyConfig(geofence_radius_m=10.0, altitude_min_m=1.0, altitude_max_m=20.0, max_speed_mps=2.0,
-                   max_accel_mps2=1.0, min_subject_distance_m=2.0)
+CFG = SafetyConfig(geofence_radius_m=10.0, altitude_min_m=1.0, altitude_max_m=20.0, speed_max_mps=2.0,
+                   accel_max_mps2=1.0, min_subject_distance_m=2.0)
 
 
 def test_given_a_setpoint_inside_all_limits_when_checked_then_it_passes_unchanged_and_is_counted():
@@ -122,15 +122,15 @@ def test_given_gimbal_and_lens_out_of_range_when_checked_then_clamped_and_yaw_wr
     r = s.check(sp(ypr=(3 * math.pi / 2, 1.2, -1.0),
                    lens=M.LensState(focal_length_mm=2000.0, focus_distance_m=0.01, f_number=0.5)))
     y, p, rl = r.setpoint.camera_ypr_rad
-    assert y == pytest.approx(-math.pi / 2) and p == pytest.approx(CFG.gimbal_pitch_max_rad)
-    assert rl == pytest.approx(-CFG.gimbal_roll_max_rad)
+    assert y == pytest.approx(-math.pi / 2) and p == pytest.approx(CFG.pitch_max_rad)
+    assert rl == pytest.approx(-CFG.roll_max_rad)
     assert (r.setpoint.lens.focal_length_mm, r.setpoint.lens.focus_distance_m, r.setpoint.lens.f_number) == \
-        (CFG.focal_length_max_mm, CFG.focus_min_m, CFG.f_number_min)
+        (CFG.focal_length_max_mm, CFG.focus_distance_min_m, CFG.f_number_min)
     assert s.counters["clamp_gimbal"] == 1 and s.counters["clamp_lens"] == 1
 
 
 def test_given_a_climb_faster_than_the_vehicle_climbs_when_checked_then_the_vertical_speed_is_clamped():
-    s = SafetyLayer(CFG)  # max_climb_mps: the default profile's 1.0
+    s = SafetyLayer(CFG)  # climb_max_mps: the default profile's 1.0
     r = s.check(sp(vel=(1.0, 0.0, -1.5)))  # norm 1.8 < 2: only the climb limit bites
     np.testing.assert_allclose(r.setpoint.velocity_mps, [1.0, 0.0, -1.0])
     assert s.counters["clamp_speed"] == 1
@@ -173,7 +173,7 @@ anything = st.one_of(finite, st.just(math.nan), st.just(math.inf), st.just(-math
        shape=st.sampled_from(["cylinder", "box"]))
 def test_property_accepted_setpoints_are_finite_inside_fence_and_band_and_within_speed(pos, vel, subj, shape):
     cfg = SafetyConfig(geofence_shape=shape, geofence_radius_m=10.0, geofence_half_extent_m=(10.0, 10.0),
-                       altitude_min_m=1.0, altitude_max_m=20.0, max_speed_mps=2.0, min_subject_distance_m=2.0)
+                       altitude_min_m=1.0, altitude_max_m=20.0, speed_max_mps=2.0, min_subject_distance_m=2.0)
     s = SafetyLayer(cfg)
     sxy = None if subj is None else np.array(subj)
     r = s.check(sp(pos=pos, vel=vel), subject_xy=sxy)
@@ -194,8 +194,8 @@ def test_property_accepted_setpoints_are_finite_inside_fence_and_band_and_within
 @pytest.mark.parametrize("cls,kw,field", [
     (SafetyConfig, {"geofence_shape": "sphere"}, "geofence_shape"),
     (SafetyConfig, {"altitude_min_m": 10.0, "altitude_max_m": 5.0}, "altitude_min_m"),
-    (SafetyConfig, {"max_speed_mps": -1.0}, "max_speed_mps"),
-    (SafetyConfig, {"max_accel_mps2": math.nan}, "max_accel_mps2"),
+    (SafetyConfig, {"speed_max_mps": -1.0}, "speed_max_mps"),
+    (SafetyConfig, {"accel_max_mps2": math.nan}, "accel_max_mps2"),
     (SafetyConfig, {"watchdog_timeout_s": 0.0}, "watchdog_timeout_s"),
     (SafetyConfig, {"min_subject_distance_m": -1.0}, "min_subject_distance_m"),
     (MavlinkConfig, {"setpoint_rate_hz": 2.0}, "setpoint_rate_hz"),

@@ -31,13 +31,13 @@ def test_position_step_respects_speed_and_acceleration_limits_and_converges():
     # when it flies there
     r = run(dyn, 60.0)
     # then horizontal/vertical speed and acceleration stay within the limits...
-    assert np.hypot(r["v"][:, 0], r["v"][:, 1]).max() <= LIM.max_speed_xy_mps + 1e-9
-    assert np.abs(r["v"][:, 2]).max() <= LIM.max_speed_z_mps + 1e-9
-    assert np.linalg.norm(r["a"], axis=1).max() <= LIM.max_accel_mps2 + 1e-9
+    assert np.hypot(r["v"][:, 0], r["v"][:, 1]).max() <= LIM.speed_max_mps + 1e-9
+    assert np.abs(r["v"][:, 2]).max() <= LIM.climb_max_mps + 1e-9
+    assert np.linalg.norm(r["a"], axis=1).max() <= LIM.accel_max_mps2 + 1e-9
     dv = np.diff(r["v"], axis=0) / 0.005  # achieved acceleration
-    assert np.linalg.norm(dv, axis=1).max() <= LIM.max_accel_mps2 + 1e-6
+    assert np.linalg.norm(dv, axis=1).max() <= LIM.accel_max_mps2 + 1e-6
     # ...it cruised at the speed limit, and it arrives without overshooting much
-    assert np.hypot(r["v"][:, 0], r["v"][:, 1]).max() > 0.99 * LIM.max_speed_xy_mps
+    assert np.hypot(r["v"][:, 0], r["v"][:, 1]).max() > 0.99 * LIM.speed_max_mps
     np.testing.assert_allclose(dyn.position, [20, 20, 5], atol=0.02)
     assert r["p"][:, 0].max() < 20.0 + 0.05
 
@@ -69,16 +69,16 @@ def test_gimbal_rates_and_ranges_are_limited_and_yaw_takes_the_short_way():
     r = run(dyn, 0.2)
     # yaw went up through 180 deg (20 deg the short way), at its rate limit
     yaw_deg = math.degrees(dyn.camera_ypr[0]) % 360
-    assert yaw_deg == pytest.approx(170 + math.degrees(LIM.yaw_rate_rps) * 0.2, abs=0.1)
+    assert yaw_deg == pytest.approx(170 + math.degrees(LIM.yaw_rate_radps) * 0.2, abs=0.1)
     # pitch and roll moved at their own rate limits
-    assert dyn.camera_ypr[1] == pytest.approx(-LIM.pitch_rate_rps * 0.2, abs=1e-6)
-    assert dyn.camera_ypr[2] == pytest.approx(LIM.roll_rate_rps * 0.2, abs=1e-6)
+    assert dyn.camera_ypr[1] == pytest.approx(-LIM.pitch_rate_radps * 0.2, abs=1e-6)
+    assert dyn.camera_ypr[2] == pytest.approx(LIM.roll_rate_radps * 0.2, abs=1e-6)
     run(dyn, 5.0)
     assert math.degrees(dyn.camera_ypr[0]) == pytest.approx(-170, abs=1e-6)
     assert dyn.camera_ypr[1] == pytest.approx(LIM.pitch_min_rad)  # clamped to the mechanical range
     assert dyn.camera_ypr[2] == pytest.approx(LIM.roll_max_rad)
     steps = np.abs(np.diff(np.unwrap(r["ypr"][:, 0])))
-    assert steps.max() <= LIM.yaw_rate_rps * 0.005 + 1e-9
+    assert steps.max() <= LIM.yaw_rate_radps * 0.005 + 1e-9
 
 
 def test_lens_rates_and_ranges_are_limited_and_nan_keeps_a_target():
@@ -90,7 +90,7 @@ def test_lens_rates_and_ranges_are_limited_and_nan_keeps_a_target():
     assert dyn.f_number == pytest.approx(1.0, abs=1e-6)  # 3/s: reached after 1 s
     dyn.set_target(position=dyn.position, lens=(1000.0, float("nan"), 50.0))
     run(dyn, 60.0)
-    assert dyn.focal_mm == pytest.approx(LIM.focal_max_mm)
+    assert dyn.focal_mm == pytest.approx(LIM.focal_length_max_mm)
     assert dyn.focus_m == pytest.approx(50.0)  # NaN kept the previous target
     assert dyn.f_number == pytest.approx(LIM.f_number_max)
 
@@ -105,8 +105,8 @@ def test_hold_decelerates_within_limits_and_stays_put():
     r = run(dyn, 6.0)
     # decelerates at the limit: stopping distance about v^2 / (2 a) plus the lag
     travelled = dyn.position[0] - p_hold[0]
-    assert 2.0 ** 2 / (2 * LIM.max_accel_mps2) * 0.9 < travelled < 2.0 ** 2 / (2 * LIM.max_accel_mps2) + 1.0
-    assert np.linalg.norm(r["a"], axis=1).max() <= LIM.max_accel_mps2 + 1e-9
+    assert 2.0 ** 2 / (2 * LIM.accel_max_mps2) * 0.9 < travelled < 2.0 ** 2 / (2 * LIM.accel_max_mps2) + 1.0
+    assert np.linalg.norm(r["a"], axis=1).max() <= LIM.accel_max_mps2 + 1e-9
     assert np.linalg.norm(dyn.velocity) < 0.01
     p_stop = dyn.position.copy()
     run(dyn, 3.0)
@@ -115,9 +115,9 @@ def test_hold_decelerates_within_limits_and_stays_put():
 
 
 def test_limits_validate_with_clear_errors():
-    with pytest.raises(ValueError, match="max_speed_xy_mps"):
-        DynamicsLimits(max_speed_xy_mps=-1.0)
-    with pytest.raises(ValueError, match="focal_min_mm must be < focal_max_mm"):
-        DynamicsLimits(focal_min_mm=100.0, focal_max_mm=50.0)
+    with pytest.raises(ValueError, match="speed_max_mps"):
+        DynamicsLimits(speed_max_mps=-1.0)
+    with pytest.raises(ValueError, match="focal_length_min_mm must be < focal_length_max_mm"):
+        DynamicsLimits(focal_length_min_mm=100.0, focal_length_max_mm=50.0)
     with pytest.raises(ValueError, match="unknown field"):
         DynamicsLimits.from_dict({"max_sped": 3})

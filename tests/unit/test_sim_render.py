@@ -210,6 +210,28 @@ def test_region_focus_ground_truth_in_the_focus_scene(focus_m, expected):
     assert (math.isnan(gt.dof_far_m) and math.isinf(far)) or gt.dof_far_m == pytest.approx(far)
 
 
+def test_truth_carries_each_regions_depths_the_focal_length_and_the_lens_range():
+    # given the focus scene: hedge 3 m from the camera, subject at 7 m, trees 37 m away and the sky
+    sim = SimBackend("focus_hedge", epoch_ns=0, width=480, height=270)
+    sim.start()
+    sim.step(0.0)
+    gt = codec.decode(codec.encode(sim.truths()[0]), M.GroundTruth)
+    lim = sim.scene.limits
+    # then the report has what it needs to tell which labels any lens could give
+    assert gt.focal_length_mm == pytest.approx(35.0)
+    assert list(gt.lens_limits) == pytest.approx([lim.focus_distance_min_m, lim.focus_distance_max_m, lim.f_number_min,
+                                                  lim.f_number_max])
+    inv = gt.region_inverse_depth
+    assert inv.shape == (3, 20) and np.isfinite(inv).all()
+    assert np.median(1 / inv[0]) == pytest.approx(3.0, rel=0.05)  # the hedge
+    assert np.median(1 / inv[1]) == pytest.approx(gt.subject_distance_m, rel=0.05)
+    assert np.median(1 / inv[2]) == pytest.approx(37.0, rel=0.05)  # the trees
+    assert (inv >= 0).all()  # 0 = the sky
+    # and a truth of schema version 1 (no depths) still decodes, with nothing recorded
+    old = M.GroundTruth(frame_index=1)
+    assert old.lens_limits.shape == (0,) and old.region_inverse_depth.shape == (3, 0)
+
+
 def test_subject_is_sharper_in_focus_than_out_of_focus_in_a_rendered_scene():
     lap = {}
     for focus_m in (7.0, 3.0):

@@ -52,7 +52,7 @@ def test_load_by_path(tmp_path):
     (lambda d: d["layers"][1].__setitem__("texture", "missing.png"), r"layers\[1\].texture: asset file"),
     (lambda d: d["layers"][1].__setitem__("region", "middle"), r"layers\[1\].region: must be one of"),
     (lambda d: d["layers"][1].pop("extent_m"), r"layers\[1\].extent_m: required when wrap is 'reflect'"),
-    (lambda d: d.__setitem__("limits", {"max_speed_xy_mps": 0}), r"max_speed_xy_mps: must be > 0"),
+    (lambda d: d.__setitem__("limits", {"speed_max_mps": 0}), r"speed_max_mps: must be > 0"),
     (lambda d: d["camera"].__setitem__("fps", 0), r"camera.fps: must be >= 1"),
     (lambda d: d.__setitem__("seed", "x"), r"scene.seed: must be an integer"),
 ])

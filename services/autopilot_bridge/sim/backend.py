@@ -34,6 +34,7 @@ from cinetransfer.services.autopilot_bridge.sim.scene import LayerSpec, Scene, S
 from cinetransfer.services.autopilot_bridge.sim.subject import Subject
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.focus_regions import FOREGROUND_MIN_ROWS, feet_row, region_masks
 
 __all__ = ["SimBackend", "SceneRenderer", "load_scene", "SceneError"]
 
@@ -42,7 +43,19 @@ log = logging.getLogger("autopilot_bridge.sim")
 #: a region counts as present when it covers at least this fraction of the image.
 REGION_MIN_FRACTION = 0.002
 #: a region is "in focus" when at least this fraction of its pixels lies inside the DoF.
-REGION_IN_FOCUS_FRACTION = 0.5
+REGION_IN_FOCUS_FRACTION = cam.REGION_IN_FOCUS_SHARE
+#: how many depths describe a region in the truth (its 2.5, 7.5, ..., 97.5 % points)
+DEPTH_SAMPLES = 20
+
+
+def depth_sample(depth_m: np.ndarray) -> np.ndarray:
+    """A region's pixel depths [m] (inf = sky) as DEPTH_SAMPLES inverse depths [1/m] at equally spaced
+    quantiles: what the report needs to tell which focus labels any lens setting could give it."""
+    inv = 1.0 / np.asarray(depth_m, dtype=float)  # inf -> 0: the sky is at infinity
+    probs = (np.arange(DEPTH_SAMPLES) + 0.5) / DEPTH_SAMPLES
+    return np.quantile(inv, probs, method="inverted_cdf")
+
+
 #: ground bands are drawn a little nearer than their own start, under the next band (no seams).
 BAND_OVERLAP = 1.25
 
@@ -208,21 +221,28 @@ class SceneRenderer:
                           (NEAR_M, math.inf))
             lab_planes.append(p)
         depth, subj = label_pass(view, lab_planes)
-        d_s = geo["subject_depth_m"]
-        fg = (~subj) & (depth < d_s)
-        bg = (~subj) & (depth >= d_s)
+        # the regions as the style reads them from a video (shared.focus_regions), not by depth
+        min_rows = int(math.ceil(FOREGROUND_MIN_ROWS * subj.shape[0]))
+        regions = region_masks(subj if subj.any() else None, feet_row(subj), min_rows, subj.shape)
         infocus = (depth >= near) & (depth <= far)
-        present, frac = [], []
-        for region in (fg, subj, bg):
+        present, frac, inv_depth = [], [], []
+        for region in regions:
             n = int(region.sum())
             ok = n >= REGION_MIN_FRACTION * region.size
             present.append(ok)
             frac.append(float((infocus & region).sum()) / n if ok else math.nan)
+            inv_depth.append(depth_sample(depth[region]) if ok else np.full(DEPTH_SAMPLES, np.nan))
         frac_a = np.array(frac, np.float32)
         in_focus = np.array([p and f >= REGION_IN_FOCUS_FRACTION for p, f in zip(present, frac)], bool)
         return {"joints_norm": jn, "joints_visible": vis, "dof_near_m": near,
                 "dof_far_m": far if math.isfinite(far) else math.nan, "region_present": np.array(present, bool),
-                "region_in_focus": in_focus, "region_focus_fraction": frac_a}
+                "region_in_focus": in_focus, "region_focus_fraction": frac_a,
+                "region_inverse_depth": np.array(inv_depth, np.float32), "focal_length_mm": view.focal_mm,
+                "lens_limits": self._lens_limits()}
+
+    def _lens_limits(self) -> np.ndarray:
+        lim = self.scene.limits
+        return np.array([lim.focus_distance_min_m, lim.focus_distance_max_m, lim.f_number_min, lim.f_number_max], np.float32)
 
 
 class SimBackend(VehiclePort):
@@ -441,5 +461,7 @@ class SimBackend(VehiclePort):
                 subject_distance_m=float(geo["subject_depth_m"]), dof_near_m=float(geo["dof_near_m"]),
                 dof_far_m=float(geo["dof_far_m"]), region_present=geo["region_present"],
                 region_in_focus=geo["region_in_focus"],
-                region_focus_fraction=np.asarray(geo["region_focus_fraction"], np.float32)))
+                region_focus_fraction=np.asarray(geo["region_focus_fraction"], np.float32),
+                focal_length_mm=float(geo["focal_length_mm"]), lens_limits=geo["lens_limits"],
+                region_inverse_depth=geo["region_inverse_depth"]))
         self._seq += 1

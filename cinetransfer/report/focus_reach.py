@@ -1,0 +1,228 @@
+"""Which asked focus labels any lens setting could have given, per frame and region (pure numpy).
+
+The style asks each region (foreground, subject, background) to be sharp or soft. Whether a lens
+can do it depends on the scene: where each region's pixels lie in depth, at the focal length and
+distances the framing needs. For one filmed frame (its focal length and its regions' depths, both
+from the simulator's truth) this module searches every focus distance and f-number in the vehicle's
+lens range (thin lens, the one circle of confusion of shared/camera.py) for a setting that gives the
+asked labels, and where there is none says why.
+
+A region is in focus when at least half its pixels (camera.REGION_IN_FOCUS_SHARE) lie inside the
+depth of field; a region's depths come as an equal-weight sample of inverse depths (1/m, 0 = the
+sky). A label counts as reachable with a setting when the share lands within MARGIN of the asked
+side, so frames near the line are left to the controller, never excused.
+
+Combinations: regions are taken in the order subject, background, foreground (the subject is the
+shot's point); a region is unreachable when no setting gives its label together with the labels
+of the reachable regions before it. The reason names the first relaxation that would have made it
+reachable: a wider aperture or a smaller one ("needs f/0.64"), focus beyond the lens's range
+("needs focus at 4.0 m or beyond"), both, or none at all (the region lies at the depth of a region
+asked otherwise: "foreground at the subject's depth").
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cinetransfer.shared.camera import COC_MM, REGION_IN_FOCUS_SHARE
+
+REGIONS: tuple[str, ...] = ("foreground", "subject", "background")
+#: the order in which asked labels are granted (indices into REGIONS)
+PRIORITY: tuple[int, ...] = (1, 2, 0)
+#: a setting reaches a label when the region's in-focus share is within this of the asked side
+MARGIN = 0.1
+#: the search grid: focus distances and f-numbers, log-spaced over the range searched
+N_FOCUS, N_APERTURE = 240, 96
+#: how far the reason's search relaxes the lens: any f-number in this range, focus out to this
+RELAXED_F_NUMBER = (0.05, 256.0)
+RELAXED_FOCUS_MAX_M = 1.0e5
+BISECT_STEPS = 40
+#: the finer grid of the other setting while bisecting one (the needed value to ~0.3 %)
+N_FINE = 1000
+
+
+@dataclass(frozen=True)
+class Lens:
+    """What the frame was filmed with and what the vehicle's lens can do."""
+
+    focal_mm: float
+    focus_m: tuple[float, float]  # nearest and farthest focus distance [m]
+    f_number: tuple[float, float]  # smallest and largest f-number
+    coc_mm: float = COC_MM
+
+
+@dataclass(frozen=True)
+class Unreachable:
+    region: int
+    kind: str  # 'depth' | 'f_number' | 'focus' | 'f_number_and_focus'
+    reason: str
+    needs_f_number: float | None = None
+    needs_focus_m: float | None = None
+
+
+def dof_inverse(focal_mm: float, f_number: np.ndarray, focus_m: np.ndarray,
+                coc_mm: float = COC_MM) -> tuple[np.ndarray, np.ndarray]:
+    """(1/far, 1/near) [1/m] of the depth of field (thin lens, as camera.dof_limits_m); 1/far = 0
+    when the depth of field reaches infinity (focus at or beyond the hyperfocal distance)."""
+    f = focal_mm / 1000.0
+    n, s = np.broadcast_arrays(np.asarray(f_number, float), np.asarray(focus_m, float))
+    h = (focal_mm * focal_mm / (n * coc_mm) + focal_mm) / 1000.0
+    inv_near = (h + s - 2.0 * f) / (s * (h - f))
+    inv_far = np.maximum(h - s, 0.0) / (s * (h - f))
+    return inv_far, inv_near
+
+
+def in_focus_share(inv_depth: np.ndarray, inv_far: np.ndarray, inv_near: np.ndarray) -> np.ndarray:
+    """Share of a region's depth sample inside each depth of field: (S,) samples, (G,) settings -> (G,)."""
+    d = np.sort(np.asarray(inv_depth, float))
+    inside = np.searchsorted(d, inv_near, side="right") - np.searchsorted(d, inv_far, side="left")
+    return inside / d.size
+
+
+def _reaches(share: np.ndarray, sharp: bool) -> np.ndarray:
+    if sharp:
+        return share >= REGION_IN_FOCUS_SHARE - MARGIN
+    return share < REGION_IN_FOCUS_SHARE + MARGIN
+
+
+def _grid(lo: float, hi: float, n: int) -> np.ndarray:
+    return np.geomspace(lo, hi, n) if hi > lo else np.array([lo])
+
+
+def _feasible(lens: Lens, n: np.ndarray, s: np.ndarray, regions: list[int], asked: np.ndarray,
+              inv_depth: np.ndarray) -> np.ndarray:
+    """Per setting (n, s broadcast together): every region in `regions` gets its asked label."""
+    inv_far, inv_near = dof_inverse(lens.focal_mm, n, s, lens.coc_mm)
+    ok = np.ones(inv_far.shape, bool)
+    for r in regions:
+        ok &= _reaches(in_focus_share(inv_depth[r], inv_far.ravel(), inv_near.ravel()).reshape(ok.shape),
+                       bool(asked[r]))
+    return ok
+
+
+def _settings(lens: Lens, n_range: tuple[float, float], s_range: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    n = _grid(*n_range, N_APERTURE)
+    s = _grid(*s_range, N_FOCUS)
+    nn, ss = np.meshgrid(n, s, indexing="ij")
+    return nn.ravel(), ss.ravel()
+
+
+def _any(lens: Lens, n_range, s_range, regions, asked, inv_depth) -> tuple[np.ndarray, np.ndarray]:
+    """The settings of the grid over n_range x s_range that give every label: (f-numbers, focus)."""
+    n, s = _settings(lens, n_range, s_range)
+    ok = _feasible(lens, n, s, regions, asked, inv_depth)
+    return n[ok], s[ok]
+
+
+def _bisect(ok_at, good: float, bad: float) -> float:
+    """The boundary between a value that works and one that does not (geometric bisection)."""
+    for _ in range(BISECT_STEPS):
+        mid = math.sqrt(good * bad)
+        good, bad = (mid, bad) if ok_at(mid) else (good, mid)
+    return good
+
+
+def _needed_f_number(lens: Lens, regions, asked, inv_depth, s_range) -> float | None:
+    """The f-number nearest the lens's range that gives the labels with focus in range, or None."""
+    n_ok, _ = _any(lens, RELAXED_F_NUMBER, s_range, regions, asked, inv_depth)
+    if n_ok.size == 0:
+        return None
+    lo, hi = lens.f_number
+    s = _grid(*s_range, N_FINE)
+
+    def ok_at(n: float) -> bool:
+        return bool(_feasible(lens, np.full_like(s, n), s, regions, asked, inv_depth).any())
+
+    below, above = n_ok[n_ok < lo], n_ok[n_ok > hi]
+    if below.size and (not above.size or math.log(lo / below.max()) <= math.log(above.min() / hi)):
+        return _bisect(ok_at, float(below.max()), lo)
+    return _bisect(ok_at, float(above.min()), hi) if above.size else None
+
+
+def _needed_focus(lens: Lens, regions, asked, inv_depth) -> float | None:
+    """The focus distance nearest the lens's range that gives the labels with an f-number in range."""
+    s_lo = max(lens.focal_mm / 1000.0 * 1.001, 1e-3)
+    _, s_ok = _any(lens, lens.f_number, (s_lo, RELAXED_FOCUS_MAX_M), regions, asked, inv_depth)
+    if s_ok.size == 0:
+        return None
+    n = _grid(*lens.f_number, N_FINE)
+
+    def ok_at(s: float) -> bool:
+        return bool(_feasible(lens, n, np.full_like(n, s), regions, asked, inv_depth).any())
+
+    near, far = s_ok[s_ok < lens.focus_m[0]], s_ok[s_ok > lens.focus_m[1]]
+    if far.size and (not near.size or math.log(far.min() / lens.focus_m[1]) <= math.log(lens.focus_m[0] / near.max())):
+        return _bisect(ok_at, float(far.min()), lens.focus_m[1])
+    return _bisect(ok_at, float(near.max()), lens.focus_m[0]) if near.size else None
+
+
+def _label(r: int, asked: np.ndarray) -> str:
+    return f"{REGIONS[r]} {'sharp' if asked[r] else 'soft'}"
+
+
+def _depth_twin(r: int, kept: list[int], asked: np.ndarray, inv_depth: np.ndarray) -> int | None:
+    """The region granted before `r`, asked otherwise, whose depths overlap r's the most."""
+    best, best_share = None, 0.0
+    for k in kept:
+        if bool(asked[k]) == bool(asked[r]):
+            continue
+        lo, hi = np.nanmin(inv_depth[k]), np.nanmax(inv_depth[k])
+        share = float(np.mean((inv_depth[r] >= lo) & (inv_depth[r] <= hi)))
+        if share > best_share:
+            best, best_share = k, share
+    return best
+
+
+def _why(lens: Lens, r: int, kept: list[int], asked: np.ndarray, inv_depth: np.ndarray) -> Unreachable:
+    regions = kept + [r]
+    what = _label(r, asked) + (" with " + ", ".join(_label(k, asked) for k in kept) if kept else "")
+    n_need = _needed_f_number(lens, regions, asked, inv_depth, lens.focus_m)
+    if n_need is not None:
+        edge = (f"the lens opens to f/{lens.f_number[0]:g}" if n_need < lens.f_number[0]
+                else f"the lens stops down to f/{lens.f_number[1]:g}")
+        return Unreachable(r, "f_number", f"{what}: needs f/{n_need:.2g} ({edge})", needs_f_number=n_need)
+    s_need = _needed_focus(lens, regions, asked, inv_depth)
+    if s_need is not None:
+        if s_need > lens.focus_m[1]:
+            text = f"needs focus at {s_need:.3g} m or beyond (the lens focuses to {lens.focus_m[1]:g} m)"
+        else:
+            text = f"needs focus at {s_need:.3g} m or nearer (the lens focuses from {lens.focus_m[0]:g} m)"
+        return Unreachable(r, "focus", f"{what}: {text}", needs_focus_m=s_need)
+    wide = (max(lens.focal_mm / 1000.0 * 1.001, 1e-3), RELAXED_FOCUS_MAX_M)
+    n_ok, s_ok = _any(lens, RELAXED_F_NUMBER, wide, regions, asked, inv_depth)
+    if n_ok.size:
+        i = int(np.argmin(np.abs(np.log(n_ok / np.clip(n_ok, *lens.f_number)))
+                          + np.abs(np.log(s_ok / np.clip(s_ok, *lens.focus_m)))))
+        return Unreachable(r, "f_number_and_focus", f"{what}: needs f/{n_ok[i]:.2g} with focus at {s_ok[i]:.3g} m "
+                           "(outside the lens's range in both)", needs_f_number=float(n_ok[i]),
+                           needs_focus_m=float(s_ok[i]))
+    twin = _depth_twin(r, kept, asked, inv_depth)
+    where = f"at the {REGIONS[twin]}'s depth" if twin is not None else "at the depths of the regions asked otherwise"
+    return Unreachable(r, "depth", f"{REGIONS[r]} {where}: no lens gives {what}")
+
+
+def unreachable_labels(lens: Lens, asked: np.ndarray, present: np.ndarray,
+                       inv_depth: np.ndarray) -> list[Unreachable]:
+    """The asked labels of one frame that no focus distance and f-number in the lens's range gives.
+
+    asked, present: (3,) bool per region (foreground, subject, background); inv_depth: (3, S) each
+    region's inverse depths [1/m] (0 = infinity). Regions absent or without depths are skipped."""
+    asked = np.asarray(asked, bool)
+    inv_depth = np.asarray(inv_depth, float)
+    n, s = _settings(lens, lens.f_number, lens.focus_m)
+    inv_far, inv_near = dof_inverse(lens.focal_mm, n, s, lens.coc_mm)
+    granted = np.ones(n.shape, bool)  # the settings that give every label granted so far
+    kept: list[int] = []
+    out: list[Unreachable] = []
+    for r in PRIORITY:
+        if not present[r] or inv_depth.shape[1] == 0 or not np.isfinite(inv_depth[r]).all():
+            continue
+        with_r = granted & _reaches(in_focus_share(inv_depth[r], inv_far, inv_near), bool(asked[r]))
+        if with_r.any():
+            kept.append(r)
+            granted = with_r
+        else:
+            out.append(_why(lens, r, kept, asked, inv_depth))
+    return out

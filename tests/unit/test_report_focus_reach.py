@@ -1,0 +1,154 @@
+"""Which asked focus labels a lens could give (cinetransfer.report.focus_reach, reach_frames), against
+hand-computed thin-lens values, and their place in the fidelity report."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from cinetransfer.report import fidelity as F
+from cinetransfer.report import focus_reach as FR
+from cinetransfer.report import reach_frames as RF
+from cinetransfer.report import synth
+from cinetransfer.shared import camera as cam
+
+S = 20
+SKY = np.zeros(S)  # inverse depth 0: at infinity
+ABSENT = np.full(S, np.nan)
+
+
+def at(d_m: float) -> np.ndarray:
+    return np.full(S, 1.0 / d_m)
+
+
+def test_dof_inverse_matches_the_thin_lens_limits():
+    # given a 50 mm lens at f/4 focused at 6 m, and one focused beyond its hyperfocal distance
+    inv_far, inv_near = FR.dof_inverse(50.0, np.array([4.0, 4.0]), np.array([6.0, 200.0]))
+    near, far = cam.dof_limits_m(50.0, 4.0, 6.0)
+    # then the reciprocals of shared.camera's limits; a depth of field reaching infinity gives 1/far = 0
+    assert inv_near[0] == pytest.approx(1.0 / near, rel=1e-9)
+    assert inv_far[0] == pytest.approx(1.0 / far, rel=1e-9)
+    assert inv_far[1] == 0.0
+
+
+def test_subject_soft_before_a_sharp_sky_needs_a_wider_aperture_by_hand():
+    # given the subject 12.6 m away at 35 mm, the background the sky, a lens f/1-22 focusing 0.5-100 m,
+    # and a style asking subject soft, background sharp
+    lens = FR.Lens(35.0, (0.5, 100.0), (1.0, 22.0))
+    inv = np.array([ABSENT, at(12.6), SKY])
+    out = FR.unreachable_labels(lens, np.array([False, False, True]), np.array([False, True, True]), inv)
+    # then by hand: the sky sharp needs s >= H; the subject soft needs D_n = s (H - f) / (H + s - 2 f) > 12.6
+    # at s = 100 m at most: H > (1260 + 74.8 f) / 87.4, i.e. N < f^2 / ((H - f) c)
+    f = 0.035
+    h_needed = (1260.0 + 74.8 * f) / 87.4
+    n_needed = (35.0 ** 2) / ((h_needed - f) * 1000.0 * cam.COC_MM)
+    assert n_needed == pytest.approx(0.636, abs=0.001)
+    assert [u.region for u in out] == [2]  # the subject's label is granted first; the background's is not
+    assert out[0].kind == "f_number"
+    assert out[0].needs_f_number == pytest.approx(n_needed, rel=0.01)
+    assert out[0].reason == "background sharp with subject soft: needs f/0.64 (the lens opens to f/1)"
+
+
+def test_focus_beyond_the_lens_range_by_hand():
+    # given a 100 mm lens focusing only out to 3 m, the subject at 2 m, the sky behind, subject soft asked
+    lens = FR.Lens(100.0, (0.5, 3.0), (1.0, 22.0))
+    inv = np.array([ABSENT, at(2.0), SKY])
+    out = FR.unreachable_labels(lens, np.array([False, False, True]), np.array([False, True, True]), inv)
+    # then by hand: s >= H and s (H - f) / (H + s - 2 f) > 2 give the least s where both bounds meet:
+    # H^2 - (f + 4) H + 4 f = 0, H = 4.0 m (at f/19.2, inside the lens's range): focus at 4 m or beyond
+    assert [(u.region, u.kind) for u in out] == [(2, "focus")]
+    assert out[0].needs_focus_m == pytest.approx(4.0, rel=0.01)
+    assert "needs focus at 4 m or beyond (the lens focuses to 3 m)" in out[0].reason
+
+
+def test_foreground_at_the_subjects_depth_is_beyond_any_lens():
+    # given the foreground at the subject's own depth (10 m), asked soft while the subject is asked sharp
+    lens = FR.Lens(35.0, (0.5, 100.0), (1.0, 22.0))
+    inv = np.array([at(10.0), at(10.0), at(30.0)])
+    out = FR.unreachable_labels(lens, np.array([False, True, False]), np.array([True, True, True]), inv)
+    # then the foreground, and only it, is out of reach, for its depth
+    assert [(u.region, u.kind) for u in out] == [(0, "depth")]
+    assert out[0].reason.startswith("foreground at the subject's depth")
+    # and asked sharp with the subject, the same scene is reachable
+    assert FR.unreachable_labels(lens, np.array([True, True, False]), np.array([True, True, True]), inv) == []
+
+
+def test_reachable_combinations_are_never_excused():
+    # given a juggler-like scene: subject 8 m, foreground 4 m, background 40 m, at 50 mm
+    lens = FR.Lens(50.0, (0.5, 100.0), (1.0, 22.0))
+    inv = np.array([at(4.0), at(8.0), at(40.0)])
+    present = np.ones(3, bool)
+    # then every combination of labels some lens setting gives is reachable
+    for asked in ([False, True, False], [True, True, True], [False, False, True], [True, False, False],
+                  [False, True, True], [True, True, False], [False, False, False]):
+        assert FR.unreachable_labels(lens, np.array(asked), present, inv) == [], asked
+    # and a region with a spread of depths at the threshold's side by less than the margin stays reachable:
+    # 45 % of the background at 8 m (inside any depth of field holding the subject), the rest at infinity
+    spread = np.where(np.arange(S) < 9, 1 / 8.0, 0.0)
+    inv2 = np.array([ABSENT, at(8.0), spread])
+    out = FR.unreachable_labels(lens, np.array([False, True, False]), np.array([False, True, True]), inv2)
+    assert out == []
+
+
+def _truths_with_depths(k: int, inv_depth: np.ndarray, focal_mm: float = 100.0) -> list:
+    src = synth.instructions(k)
+    return [dataclasses.replace(t, focal_length_mm=focal_mm, lens_limits=np.float32([0.5, 100.0, 1.0, 22.0]),
+                                region_inverse_depth=inv_depth.astype(np.float32))
+            for t in synth.truths(src.image_targets)]
+
+
+def test_the_report_excludes_unreachable_frames_from_the_judged_agreement_and_shows_both():
+    # given 48 frames at 100 mm; the style asks the foreground soft with the subject sharp; in the first 12
+    # the foreground is at the subject's depth, in the rest 3 m nearer; the flight films the foreground sharp
+    k = 48
+    fin_src = np.tile([False, True, False], (k, 1))
+    src = synth.instructions(k, focus_in=fin_src)
+    near_fg = np.array([at(4.0), at(7.0), at(30.0)])
+    same_fg = np.array([at(7.0), at(7.0), at(30.0)])
+    truths = _truths_with_depths(k, near_fg)
+    truths[:12] = _truths_with_depths(12, same_fg)
+    filmed = np.tile([True, True, False], (k, 1))
+    truths = [dataclasses.replace(t, region_in_focus=filmed[i]) for i, t in enumerate(truths)]
+    fid = F.compute_fidelity(src, None, truths)
+    fo = fid.summary["truth"]["focus"]["foreground"]
+    # then the raw agreement is 0, judged over the 36 reachable frames it is still 0 (the controller's miss),
+    # and the 12 at the subject's depth are named
+    assert fo["agreement"] == 0.0 and fo["n_frames"] == 48
+    assert fo["n_frames_reachable"] == 36 and fo["n_frames_unreachable"] == 12
+    assert fo["agreement_reachable"] == 0.0
+    assert fid.summary["focus_reach"] == {"frames_judged": 48,
+                                          "unreachable_frames": {"foreground": 12, "subject": 0, "background": 0}}
+    reach = fid.series["reach"]
+    assert reach.unreachable[:12, 0].all() and not reach.unreachable[12:].any()
+    assert reach.reasons[0, 0].startswith("foreground at the subject's depth")
+    # and when the flight films the reachable frames right, the judged agreement is 1 while the raw one is 0.75
+    filmed[12:] = [False, True, False]
+    truths = [dataclasses.replace(t, region_in_focus=filmed[i]) for i, t in enumerate(truths)]
+    s = F.compute_fidelity(src, None, truths).summary
+    fo = s["truth"]["focus"]["foreground"]
+    assert fo["agreement"] == pytest.approx(0.75) and fo["agreement_reachable"] == 1.0
+    g = {x["id"]: x for x in s["goals"]}
+    assert g["truth_focus_foreground"]["value"] == 1.0 and g["truth_focus_foreground"]["status"] == "met"
+    assert s["headline"]["truth"]["focus_agreement"]["foreground"] == pytest.approx(0.75)
+
+
+def test_runs_group_frames_per_region_and_shot():
+    # given frames 2-5 and 8-9 of the foreground unreachable, a shot starting at row 4
+    rch = RF.Reach.none(10)
+    rch.unreachable[[2, 3, 4, 5, 8, 9], 0] = True
+    for i in (2, 3, 4, 5, 8, 9):
+        rch.reasons[i, 0] = f"why {i}"
+    out = RF.runs(rch, np.arange(10) / 24.0, np.arange(10), shot_rows=[4])
+    assert [(r["shot"], r["first_frame"], r["last_frame"], r["frames"]) for r in out] == \
+        [(0, 2, 3, 2), (1, 4, 5, 2), (1, 8, 9, 2)]
+    assert out[0]["reason"] == "why 2" and out[0]["reason_last"] == "why 3"
+
+
+def test_a_recording_without_depths_is_never_judged():
+    # given truths of an older recording (no region depths, no lens range)
+    src = synth.instructions(8)
+    s = F.compute_fidelity(src, None, synth.truths(src.image_targets)).summary
+    assert s["focus_reach"]["frames_judged"] == 0
+    fo = s["truth"]["focus"]["subject"]
+    assert fo["agreement_reachable"] == fo["agreement"] and fo["n_frames_unreachable"] == 0
