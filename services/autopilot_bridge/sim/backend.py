@@ -242,7 +242,8 @@ class SceneRenderer:
 
     def _lens_limits(self) -> np.ndarray:
         lim = self.scene.limits
-        return np.array([lim.focus_distance_min_m, lim.focus_distance_max_m, lim.f_number_min, lim.f_number_max], np.float32)
+        return np.array([lim.focus_distance_min_m, lim.focus_distance_max_m, lim.f_number_min, lim.f_number_max],
+                        np.float32)
 
 
 class SimBackend(VehiclePort):
