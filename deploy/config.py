@@ -16,7 +16,7 @@ import yaml
 from cinetransfer.shared import keys, zenoh_config
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.nodeconfig import substitute_env
-from cinetransfer.shared.paths import named_yaml
+from cinetransfer.shared.paths import resolve_named_yaml
 
 CONFIG_DIR = Path(__file__).resolve().parent / "configs"
 
@@ -58,13 +58,8 @@ def _subst(value: Any) -> Any:
 
 
 def resolve_config_path(name_or_path: str) -> Path:
-    p, as_path = named_yaml(name_or_path, CONFIG_DIR)
-    if p.is_file():
-        return p
-    if as_path:
-        raise ConfigError(f"deploy config {p} does not exist")
-    names = ", ".join(sorted(f.stem for f in CONFIG_DIR.glob("*.yaml")))
-    raise ConfigError(f"no deploy config named {name_or_path!r}; shipped configs: {names}")
+    return resolve_named_yaml(name_or_path, CONFIG_DIR, missing="deploy config {path} does not exist",
+                              unknown="no deploy config named {name}; shipped configs: {shipped}")
 
 
 def _zenoh_flags(z: dict, where: str) -> list[str]:

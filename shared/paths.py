@@ -4,6 +4,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from cinetransfer.shared.errors import ConfigError
+
 ENV_CACHE = "CT_CACHE_DIR"
 
 
@@ -24,3 +26,18 @@ def named_yaml(name_or_path: str, shipped_dir: Path) -> tuple[Path, bool]:
     if p.suffix in (".yaml", ".yml") or p.exists():
         return p, True
     return shipped_dir / f"{name_or_path}.yaml", False
+
+
+def shipped_names(shipped_dir: Path) -> list[str]:
+    return sorted(p.stem for p in shipped_dir.glob("*.yaml"))
+
+
+def resolve_named_yaml(name_or_path: str, shipped_dir: Path, *, missing: str, unknown: str) -> Path:
+    """The YAML file `name_or_path` means (see named_yaml). Raises ConfigError with `missing` (a
+    path given that is not a file) or `unknown` (a name not shipped), formatted with {path},
+    {name} and {shipped}."""
+    p, as_path = named_yaml(name_or_path, shipped_dir)
+    if p.is_file():
+        return p
+    msg = missing if as_path else unknown
+    raise ConfigError(msg.format(path=p, name=repr(name_or_path), shipped=", ".join(shipped_names(shipped_dir))))

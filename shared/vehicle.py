@@ -26,7 +26,7 @@ from typing import Any
 
 from cinetransfer.shared.camera import coc_mm_for_sensor
 from cinetransfer.shared.errors import ConfigError
-from cinetransfer.shared.paths import named_yaml
+from cinetransfer.shared.paths import resolve_named_yaml, shipped_names
 
 VEHICLES_DIR = Path(__file__).resolve().parents[1] / "deploy" / "vehicles"
 DEFAULT_VEHICLE = "cinempc"
@@ -231,16 +231,12 @@ class VehicleProfile:
 
 
 def vehicle_names() -> list[str]:
-    return sorted(p.stem for p in VEHICLES_DIR.glob("*.yaml"))
+    return shipped_names(VEHICLES_DIR)
 
 
 def resolve_vehicle(name_or_path: str) -> Path:
-    p, as_path = named_yaml(name_or_path, VEHICLES_DIR)
-    if p.is_file():
-        return p
-    if as_path:
-        raise ConfigError(f"vehicle: profile {p} does not exist")
-    raise ConfigError(f"vehicle = {name_or_path!r}: no such profile; shipped: {', '.join(vehicle_names())}")
+    return resolve_named_yaml(name_or_path, VEHICLES_DIR, missing="vehicle: profile {path} does not exist",
+                              unknown="vehicle = {name}: no such profile; shipped: {shipped}")
 
 
 _CACHE: dict[str, VehicleProfile] = {}
