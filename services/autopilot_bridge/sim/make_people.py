@@ -554,6 +554,7 @@ MOTIONS: dict[str, MotionSpec] = {
     "walk": MotionSpec("deepmimic:walk", True, DEEPMIMIC_CREDIT.format("humanoid3d_walk")),
     "run": MotionSpec("deepmimic:run", True, DEEPMIMIC_CREDIT.format("humanoid3d_run")),
     "dance": MotionSpec("deepmimic:dance_b", False, DEEPMIMIC_CREDIT.format("humanoid3d_dance_b")),
+    "jump": MotionSpec("deepmimic:jump", True, DEEPMIMIC_CREDIT.format("humanoid3d_jump")),
     "juggle": MotionSpec("mediapipe", False, "MediaPipe Pose world landmarks of sam2_juggle_1280x720.mp4 "
                                              "(the juggler's own clip; sam2 demo, Apache-2.0)"),
     "idle": MotionSpec("stand", False, "synthetic: the rest pose with the arms lowered and a slow sway"),
@@ -674,6 +675,24 @@ def _leg_length(pts: dict) -> float:
                           + np.linalg.norm(pts[f"knee_{s}"] - pts[f"ankle_{s}"], axis=-1) for s in "lr"]))
 
 
+LIMB_POINTS = [f"{k}_{s}" for k in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle") for s in "lr"]
+
+
+def joint_error(pts: dict, rot: np.ndarray, ref: Reference, scale: float) -> float:
+    """Mean distance [m] of the body's limb joints from the capture's, both taken from the pelvis, the
+    capture scaled by leg length: what the fit misses plus the two bodies' differing proportions."""
+    idx = [ref.names.index(k) for k in LIMB_POINTS]
+    pel = ref.names.index("pelvis")
+    err = []
+    for i, r in enumerate(rot):
+        g, p = P.forward_kinematics(ref.heads, r, np.zeros(3))
+        t = p - np.einsum("bij,bj->bi", g, ref.heads)
+        x = np.einsum("bij,kbj->ki", g, ref.moments) + ref.weights @ t
+        src = np.stack([pts[k][i] - pts["pelvis"][i] for k in LIMB_POINTS]) * scale
+        err.append(np.linalg.norm((x[idx] - x[pel]) - src, axis=-1).mean())
+    return float(np.mean(err))
+
+
 def motion_arrays(name: str, spec: MotionSpec, ref: Reference, juggle_landmarks: Path | None) -> dict:
     """Everything people.load_motion reads, for the motion `spec` retargeted onto `ref`."""
     pts, fps = capture(spec, ref.rest_points, juggle_landmarks)
@@ -693,11 +712,13 @@ def motion_arrays(name: str, spec: MotionSpec, ref: Reference, juggle_landmarks:
     n = len(quats)
     cycle_m = scale * cycle
     speed = float(np.linalg.norm(cycle_m[:2]) * fps / n)
-    log.info("%s: %d frames at %.2f fps (%.2f s), direction error %.1f deg, scale %.3f, speed %.2f m/s",
-             name, n, fps, n / fps, err, scale, speed)
+    err_m = joint_error(pts, rot, ref, scale)
+    log.info("%s: %d frames at %.2f fps (%.2f s), direction error %.1f deg, joint error %.1f cm, scale %.3f, "
+             "speed %.2f m/s", name, n, fps, n / fps, err, 100 * err_m, scale, speed)
     return dict(bones=np.array(P.BONES), rotations=quats.astype(np.float32), root_offset=offset.astype(np.float32),
                 cycle_m=cycle_m.astype(np.float32), fps=np.float64(fps), loop=np.bool_(True),
-                speed_mps=np.float64(speed), source=np.str_(spec.credit), fit_error_deg=np.float64(err))
+                speed_mps=np.float64(speed), source=np.str_(spec.credit), fit_error_deg=np.float64(err),
+                fit_error_m=np.float64(err_m))
 
 
 def reference(anny: Anny) -> tuple[Reference, np.ndarray, np.ndarray]:

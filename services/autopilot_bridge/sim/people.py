@@ -1,7 +1,7 @@
 """3-D people for the simulator: baked bodies and motions, skinned in numpy (see docs/simulator.md).
 
     person = load_person("walker")      # juggler, dancer, runner, walker (PEOPLE)
-    motion = load_motion("walk")        # walk, run, dance, idle, juggle (MOTIONS)
+    motion = load_motion("walk")        # walk, run, dance, idle, juggle, jump (MOTIONS)
     posed = person.pose(motion, t_s)    # a few ms
 
 - `person.faces` (F, 3) int32 triangles; `person.colors` (V, 3) float32 in 0..1 (clothing-like
@@ -50,7 +50,7 @@ BONES: tuple[str, ...] = (
 PARENTS: tuple[int, ...] = (-1, 0, 1, 2, 3, 0, 5, 6, 0, 8, 9, 2, 11, 12, 2, 14, 15)
 
 PEOPLE: tuple[str, ...] = ("juggler", "dancer", "runner", "walker")
-MOTIONS: tuple[str, ...] = ("walk", "run", "dance", "idle", "juggle")
+MOTIONS: tuple[str, ...] = ("walk", "run", "dance", "idle", "juggle", "jump")
 
 
 class PeopleError(ValueError):
