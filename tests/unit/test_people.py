@@ -112,6 +112,7 @@ def test_pose_is_deterministic(person: P.Person, motion: P.Motion) -> None:
     assert np.array_equal(a.vertices_m, b.vertices_m) and np.array_equal(a.joints_m, b.joints_m)
     assert a.vertices_m.dtype == np.float32 and a.vertices_m.shape == person.vertices_m.shape
     assert a.joints_m.shape == (17, 3) and np.isfinite(a.vertices_m).all()
+    assert not person.vertices_m.flags.writeable and not motion.rotations.flags.writeable   # shared by the cache
 
 
 def test_root_starts_over_the_origin_and_loops_continue(person: P.Person, motion: P.Motion) -> None:

@@ -202,13 +202,13 @@ def load_person(name: str) -> Person:
 def person_from_arrays(name: str, d: dict) -> Person:
     """A Person from the arrays of a baked file (what make_people.py writes)."""
     w = np.asarray(d["skin_weights"], np.float32)
-    return Person(name=name, vertices_m=np.asarray(d["vertices_m"], np.float32),
+    return _frozen(Person(name=name, vertices_m=np.asarray(d["vertices_m"], np.float32),
                   faces=np.asarray(d["faces"], np.int32), colors=np.asarray(d["colors"], np.float32) / 255.0,
                   skin_bones=np.asarray(d["skin_bones"], np.intp), skin_weights=w / w.sum(axis=1, keepdims=True),
                   bone_heads_m=np.asarray(d["bone_heads_m"], np.float32),
                   joint_weights=np.asarray(d["joint_weights"], np.float32),
                   joint_moments=np.asarray(d["joint_moments"], np.float32), height_m=float(d["height_m"]),
-                  root_height_scale=float(d["root_height_scale"]), description=str(d["description"]))
+                  root_height_scale=float(d["root_height_scale"]), description=str(d["description"])))
 
 
 @lru_cache(maxsize=None)
@@ -217,6 +217,15 @@ def load_motion(name: str) -> Motion:
     d = _npz(MOTIONS_DIR / f"{name}.npz", "motion", name, MOTIONS)
     q = d["rotations"].astype(np.float32)
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
-    return Motion(name=name, fps=float(d["fps"]), loop=bool(d["loop"]), speed_mps=float(d["speed_mps"]),
-                  rotations=q, root_offset=d["root_offset"].astype(np.float32),
-                  cycle_m=d["cycle_m"].astype(np.float32), source=str(d["source"]))
+    return _frozen(Motion(name=name, fps=float(d["fps"]), loop=bool(d["loop"]), speed_mps=float(d["speed_mps"]),
+                          rotations=q, root_offset=d["root_offset"].astype(np.float32),
+                          cycle_m=d["cycle_m"].astype(np.float32), source=str(d["source"])))
+
+
+def _frozen(obj):
+    """Make the arrays of a cached Person/Motion read-only: every caller shares them."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+    return obj
