@@ -39,6 +39,15 @@ def test_chained_rotations_compose_in_world_axes() -> None:
     np.testing.assert_allclose(p[2], [1, 1, 0], atol=1e-12)
 
 
+def test_bake_quaternions_round_trip() -> None:
+    from cinetransfer.services.autopilot_bridge.sim.make_people import matrix_to_quat
+
+    rots = np.stack([_rz(a) for a in (0, 90, 179, 181, 270)])
+    q = matrix_to_quat(rots)
+    np.testing.assert_allclose(P.quat_to_matrix(q), rots, atol=1e-9)
+    assert np.all(np.sum(q[1:] * q[:-1], axis=1) > 0)          # sign-continuous along the sequence
+
+
 def test_quaternions_to_matrices() -> None:
     half = math.sqrt(0.5)
     np.testing.assert_allclose(P.quat_to_matrix(np.array([half, 0, 0, half])), _rz(90), atol=1e-12)
@@ -174,6 +183,16 @@ def test_people_are_distinct_and_of_their_height() -> None:
     for i in range(len(seen)):
         for k in range(i):
             assert np.abs(seen[i] - seen[k]).max() > 0.02
+
+
+def test_every_library_action_and_person_has_a_motion() -> None:
+    import json
+
+    for name in P.PEOPLE:
+        meta = json.loads((P.ASSETS / f"{name}.json").read_text())
+        assert set(meta["actions"]) <= set(P.ACTION_MOTIONS), name
+    assert set(P.ACTION_MOTIONS.values()) | set(P.DEFAULT_MOTIONS.values()) <= set(P.MOTIONS)
+    assert set(P.DEFAULT_MOTIONS) == set(P.PEOPLE)
 
 
 def test_baked_files_are_small() -> None:

@@ -52,6 +52,13 @@ PARENTS: tuple[int, ...] = (-1, 0, 1, 2, 3, 0, 5, 6, 0, 8, 9, 2, 11, 12, 2, 14, 
 PEOPLE: tuple[str, ...] = ("juggler", "dancer", "runner", "walker")
 MOTIONS: tuple[str, ...] = ("walk", "run", "dance", "idle", "juggle", "jump")
 
+#: The motion that plays each action of the subject library's scripts (sim/subject.py). `vault`
+#: plays the jump (a moving motion: an in-place step holds the root where the step is).
+ACTION_MOTIONS: dict[str, str] = {"stand": "idle", "juggle": "juggle", "dance": "dance", "twirl": "dance",
+                                  "walk": "walk", "run": "run", "vault": "jump"}
+#: Each person's own motion: what its clip shows, or the nearest capture.
+DEFAULT_MOTIONS: dict[str, str] = {"juggler": "juggle", "dancer": "dance", "runner": "run", "walker": "walk"}
+
 
 class PeopleError(ValueError):
     """A person or motion name that does not exist, or a baked file that does not fit this module."""
