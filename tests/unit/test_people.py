@@ -80,6 +80,9 @@ def test_rest_body_is_grounded_upright_and_facing_x(person: P.Person) -> None:
     assert abs(v[:, 2].min()) < 1e-4
     assert abs(v[:, 2].max() - person.height_m) < 1e-4
     np.testing.assert_allclose(person.bone_heads_m[0, :2], 0.0, atol=1e-5)   # root over the origin
+    a, b, c = (v[person.faces[:, i]].astype(np.float64) for i in range(3))
+    volume = np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6      # > 0: counter-clockwise seen from outside
+    assert 0.04 < volume < 0.12                                        # 40-120 litres: a closed adult body
     ears = (j[L["left_ear"]] + j[L["right_ear"]]) / 2
     assert j[L["nose"]][0] > ears[0] + 0.05                                   # the face looks along +x
     z = [j[L[n], 2] for n in ("nose", "left_shoulder", "left_hip", "left_knee", "left_ankle")]

@@ -4,9 +4,10 @@
     motion = load_motion("walk")        # walk, run, dance, idle, juggle, jump (MOTIONS)
     posed = person.pose(motion, t_s)    # a few ms
 
-- `person.faces` (F, 3) int32 triangles; `person.colors` (V, 3) float32 in 0..1 (clothing-like
-  colours by body region, with per-vertex brightness noise: flat colours read as soft to the focus
-  map); `person.height_m` standing height; `person.vertices_m` the rest mesh.
+- `person.faces` (F, 3) int32 triangles, counter-clockwise seen from outside; `person.colors`
+  (V, 3) float32 in 0..1 (clothing-like colours by body region, with per-vertex brightness noise:
+  flat colours read as soft to the focus map); `person.height_m` standing height;
+  `person.vertices_m` the rest mesh.
 - `motion.fps`, `.duration_s`, `.loop`, `.speed_mps` (the root's mean horizontal speed along +x,
   0 for in-place motions), `.n_frames`.
 - `posed.vertices_m` (V, 3) float32 and `posed.joints_m` (17, 3) float32 (COCO-17 order,
@@ -121,7 +122,7 @@ class Motion:
 class Person:
     name: str
     vertices_m: np.ndarray     # (V, 3) float32 rest mesh, body frame, feet on z = 0
-    faces: np.ndarray          # (F, 3) int32
+    faces: np.ndarray          # (F, 3) int32, counter-clockwise seen from outside
     colors: np.ndarray         # (V, 3) float32 in 0..1
     skin_bones: np.ndarray     # (V, 4) int: bone index per influence
     skin_weights: np.ndarray   # (V, 4) float32, rows sum to 1
