@@ -1,6 +1,6 @@
 """Bake the simulator's 3-D people and motions into assets/people and assets/motions (offline).
 
-Never run by setup or CI: the shipped files are its output. To rerun it (about 10 minutes on two
+Never run by setup or CI: the shipped files are its output. To rerun it (about 6 minutes on two
 cores, after anny's first model build, which writes ~790 MB to ~/.cache/anny and takes 4-9 minutes):
 
     python -m venv /tmp/bake && /tmp/bake/bin/pip install -e '.[bake]'
