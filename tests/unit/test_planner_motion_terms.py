@@ -164,3 +164,12 @@ def test_instructions_without_motion_fields_ask_nothing():
     ins = M.Instructions(image_targets=np.zeros((3, 4, 2), dtype=np.float32))
     assert CM.read_motion_style(ins) is None
     assert not CM.stage_motion(None, [0, 1, 2], control_roll=False).any()
+
+
+def test_the_zoom_rate_is_planned_slower_by_the_setpoint_lead_in_steps():
+    from cinetransfer.services.planner.core import flown_rate_factor
+    # the plan 0.1 s ahead at 20 Hz: the lens moves 0.1 s of plan per 0.05 s step
+    assert flown_rate_factor(0.1, 20.0) == pytest.approx(2.0)
+    assert flown_rate_factor(0.05, 20.0) == pytest.approx(1.0)
+    assert flown_rate_factor(0.0, 20.0) == 1.0  # no lead: nothing to scale
+    assert flown_rate_factor(1.0, 200.0) == 4.0  # bounded
