@@ -56,3 +56,35 @@ def by_image_side(reference_xy: np.ndarray, other_xy: np.ndarray, names: Sequenc
     if faces_opposite(reference_xy, other_xy, names):
         return other_xy[mirror_permutation(names)], True
     return other_xy, False
+
+
+#: The left/right joint pairs whose axis says which way a body faces, most reliable first.
+HEADING_PAIRS: tuple[tuple[str, str], ...] = (("left_shoulder", "right_shoulder"), ("left_hip", "right_hip"))
+
+
+def heading_from_joints(names: Sequence[str], joints_m: np.ndarray, min_width_m: float = 0.05) -> float:
+    """Yaw [rad, world, z up] of the way a body faces, from its 3-D joints: the body's left-right
+    axis (the sum of left - right over the shoulder and hip pairs) crossed with up points forward.
+    NaN when no pair is known or the axis is too short horizontally (`min_width_m`: a body seen
+    lying along its own axis, or joints all on one point)."""
+    names = list(names)
+    joints = np.asarray(joints_m, dtype=float)
+    axis = np.zeros(3)
+    for left, right in HEADING_PAIRS:
+        if left in names and right in names:
+            d = joints[names.index(left)] - joints[names.index(right)]
+            if np.all(np.isfinite(d)):
+                axis += d
+    # (left - right) x z = (L_y, -L_x, 0): forward in the ground plane
+    fwd_x, fwd_y = float(axis[1]), 0.0 - float(axis[0])  # (0.0 - 0.0 is +0: heading pi, not -pi)
+    if np.hypot(fwd_x, fwd_y) < min_width_m:
+        return float("nan")
+    return float(np.arctan2(fwd_y, fwd_x))
+
+
+def subject_heading(heading_rad: float | None, names: Sequence[str], joints_m: np.ndarray) -> float:
+    """The heading to publish: the one given when finite (a body's own yaw), else the one its 3-D
+    joints show (heading_from_joints), else NaN."""
+    if heading_rad is not None and np.isfinite(heading_rad):
+        return float(np.arctan2(np.sin(heading_rad), np.cos(heading_rad)))
+    return heading_from_joints(names, joints_m)

@@ -258,7 +258,8 @@ class VehicleState:
 class SubjectState:
     """3-D joints of the filmed subject (simulator ground truth or onboard perception)."""
 
-    SCHEMA_VERSION: ClassVar[int] = 1
+    SCHEMA_VERSION: ClassVar[int] = 2  # 2: heading_rad
+    MIN_SCHEMA_VERSION: ClassVar[int] = 1
     stamp_ns: int = doc("time of the estimate [ns]", 0)
     seq: int = doc("sequence number", 0)
     valid: bool = doc("estimate healthy", True)
@@ -267,6 +268,9 @@ class SubjectState:
     joints_m: np.ndarray = array("float64", (None, 3), allow_nan=True,
                                  doc="joint positions [m], world, shape (J, 3); NaN = unknown joint")
     velocity_mps: np.ndarray = array("float64", (3,), doc="subject velocity [m/s], world (for prediction)")
+    heading_rad: float = doc("yaw of the way the body faces [rad], world (0 = along +x, counter-clockwise "
+                             "positive); NaN = unknown, or not fixed in the world (a cut-out that turns to "
+                             "face the camera)", float("nan"), since=2)
 
 
 @dataclass(frozen=True, eq=False)

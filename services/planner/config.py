@@ -114,6 +114,13 @@ class Weights:
     level: float = 10.0  # roll^2 per s [1/rad^2], with control_roll: the horizon stays level unless a
     #                      tilted pose is worth it (17 deg of roll costs as much as ~0.035 error per joint)
     soft_constraint: float = 1000.0  # per (metre of violation) per s, plus the same per m^2: floor, ceiling, distance
+    # camera-motion style and side of the subject (docs/planner.md, "Camera motion" and "Side of the subject");
+    # each is 0 in a stage the style asks nothing of, so a static style flies as without them
+    side_of_subject: float = 10.0  # (1 - cos(bearing of the camera round the subject - wanted bearing)) per s
+    motion_rate: float = 20.0  # (camera angular rate - source's [rad/s])^2 per s, per pan / tilt / roll
+    zoom_rate: float = 100.0  # (d ln f/dt - source's [1/s])^2 per s
+    translation_dir: float = 5.0  # (velocity off the source's direction of travel / v_max)^2 per s
+    dolly_zoom: float = 100.0  # (d ln(subject distance)/dt - source's zoom rate [1/s])^2 per s, in a dolly zoom
 
     def validate(self) -> "Weights":
         for f in dataclasses.fields(self):
@@ -257,9 +264,11 @@ class PlannerConfig:
     joint_weights: tuple[tuple[str, float], ...] = ()
     #: how a style row's left/right targets meet the subject: "image_side" (a row whose person faces
     #: the other way from the subject as seen now is met by image side, shared/facing.py: the
-    #: planner frames the side it sees) or "name" (left by left: a back-view shot is flown from
-    #: behind, a front-view one from the front). docs/planner.md, "Back views".
-    left_right: str = "image_side"
+    #: planner frames the side it sees) or "name" (left by left, and the camera flies round to the
+    #: side the style shows: a back-view shot from behind, a front-view one from the front; needs the
+    #: subject's heading, SubjectState.heading_rad: without one, by image side). docs/planner.md,
+    #: "Side of the subject".
+    left_right: str = "name"
 
     def joint_weight(self, name: str) -> float:
         return dict(self.joint_weights).get(name, 1.0)

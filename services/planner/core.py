@@ -29,6 +29,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from cinetransfer.services.planner import constraints as C
+from cinetransfer.services.planner.camera_motion import (FLOWN_RATE_COLUMNS, MOTION_MASKS, SIDE_PARAMS, MotionStyle,
+                                                         read_motion_style, stage_motion)
+from cinetransfer.services.planner.side_of_subject import camera_bearing, side_targets
 from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
 from cinetransfer.services.planner.lens_axes import pinned_bounds
 from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject_out, near_keeps_subject_out,
@@ -110,6 +113,7 @@ class Planner:
         self.counters.update(scheduled=0, over_budget=0)
         self._scheduled: list[M.Command] = []
         self.last_result: SolveResult | None = None
+        self._motion_cache: tuple[object, MotionStyle | None] = (None, None)
 
     # ------------------------------------------------------------------ runtime parameters
     def set_weights(self, weights: Weights) -> None:
@@ -295,10 +299,10 @@ class Planner:
         self._count_failure()
         return self._fallback(now_ns, vehicle, f"failed: {res.status}")
 
-    def _seen_now(self, x0: np.ndarray, joints_w: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    def _seen_now(self, x0: np.ndarray, joints_w: np.ndarray, weights: np.ndarray, *, by_name: bool) -> np.ndarray:
         """Where the controlled joints are seen from the current camera (E, 2), for matching left and
-        right by image side; all NaN (no view: left meets left) with `left_right: name`."""
-        if self.cfg.left_right == "name":
+        right by image side; all NaN (no view: left meets left) when matching `by_name`."""
+        if by_name:
             return np.full((joints_w.shape[0], 2), np.nan)
         lay = self.layout
         seen = cam.project_world(joints_w, x0[lay.P], np.array(lay.angles(x0)), float(x0[lay.F]))
@@ -328,16 +332,35 @@ class Planner:
                 jw[j] = subj.joints[subj.names.index(name)]
                 jmask[j] = self.cfg.joint_weight(name)  # 1 unless config.joint_weights says otherwise
         rows, frame = self._rows(now_ns, ins, n, dt)
-        seen = self._seen_now(x0, jw[:len(ctrl)], jmask[:len(ctrl)])
-        targets, mask = stage_targets(np.asarray(ins.image_targets, dtype=float), rows, ctrl, jmask, seen)
+        # by name only where the camera can fly round to the side the style shows: a subject with a heading
+        heading = float(getattr(subject, "heading_rad", math.nan))
+        by_name = self.cfg.left_right == "name" and math.isfinite(heading)
+        seen = self._seen_now(x0, jw[:len(ctrl)], jmask[:len(ctrl)], by_name=by_name)
+        image_targets = np.asarray(ins.image_targets, dtype=float)
+        targets, mask = stage_targets(image_targets, rows, ctrl, jmask, seen)
+        motion = stage_motion(self._motion_style(ins), rows, control_roll=self.layout.control_roll)
+        motion[:, FLOWN_RATE_COLUMNS] /= flown_rate_factor(self.cfg.setpoint_lead_s, self.cfg.rate_hz)
+        if by_name:
+            bearing = camera_bearing(x0[self.layout.P], subj.centre)
+            ne = min(len(ctrl), image_targets.shape[1])
+            motion[:, SIDE_PARAMS] = side_targets(image_targets[:, :ne], rows, ctrl[:ne], heading, bearing)
+        self.counters.update(left_right="name" if by_name else "image_side",
+                             side_of_subject=bool(motion[:, SIDE_PARAMS.stop - 1].any()),
+                             camera_motion=bool(motion[:, MOTION_MASKS].any()))
         now_row = int(np.clip(frame - ins.first_frame, 0, ins.image_targets.shape[0] - 1))
         dof, dref = self._dof_targets(now_ns, ins, rows, now_row, x0, subj)
         u_prev = self._u_prev
         if self._plan is not None:
             _, u_prev = self._plan.at((now_ns - self._plan.t0_ns) * 1e-9)
         data = StageData(x0=x0, u_prev=u_prev, joints_w=jw, subject_centre_w=subj.centre, subject_velocity=subj.vel,
-                         targets=targets, mask=mask, dof=dof, distance_ref=dref)
+                         targets=targets, mask=mask, dof=dof, distance_ref=dref, motion=motion)
         return data, frame
+
+    def _motion_style(self, ins: M.Instructions) -> MotionStyle | None:
+        """The instructions' camera-motion style, read once per instructions message."""
+        if self._motion_cache[0] is not ins:
+            self._motion_cache = (ins, read_motion_style(ins))
+        return self._motion_cache[1]
 
     def _measured_state(self, now_ns: int, vehicle: M.VehicleState) -> np.ndarray:
         """The state x0 the solve starts from: the vehicle's, position predicted to `now`, yaw
@@ -542,6 +565,23 @@ def predict_subject(subject: M.SubjectState, now_ns: int) -> PredictedSubject:
     ci = [names.index(j) for j in CENTRE_JOINTS if j in names and finite[names.index(j)]]
     centre = joints[ci].mean(axis=0) if ci else joints[finite].mean(axis=0)
     return PredictedSubject(names, joints, vel, finite, centre)
+
+
+def flown_rate_factor(lead_s: float, rate_hz: float) -> float:
+    """How many times faster than planned the lens zooms in closed loop.
+
+    The lens reaches each setpoint within a step (the simulators' lens moves to it at its rate
+    limits), and the setpoint is the plan `lead_s` ahead, so each step moves it by `lead_s` of
+    planned motion and the next solve starts from there: over a step of 1/rate_hz it moves
+    lead_s * rate_hz times as far as the plan says (2 at 0.1 s and 20 Hz). Measured in the
+    closed-loop zoom test: 0.163 /s flown for 0.1 /s planned; 0.088 /s with the zoom rate planned
+    this much slower. The framing barely resists (the lead changes the subject's size by 1 %). The
+    camera's angles run ahead the same way, but there the framing pins them (a lead in yaw shifts
+    the subject by several % of the image): a pan was flown at 4.19 deg/s for the source's 4.24
+    as planned, and at 2.96 planned half as fast, so angular rates are not scaled; nor are rates
+    of travel (the vehicle lags its setpoint: the lead covers that)."""
+    f = lead_s * rate_hz
+    return min(max(f, 0.25), 4.0) if f > 0 else 1.0
 
 
 def absent_regions(ins: M.Instructions) -> np.ndarray:

@@ -21,9 +21,11 @@ from dataclasses import dataclass, field
 
 import casadi as ca
 
+from cinetransfer.services.planner import camera_motion as CM
 from cinetransfer.services.planner import constraints as C
 from cinetransfer.services.planner.config import WEIGHT_NAMES, Structure
 from cinetransfer.services.planner.model import Layout
+from cinetransfer.services.planner.side_of_subject import FREE_ANGLE_RAD as SIDE_FREE_RAD
 
 
 def rotation_ypr(yaw, pitch, roll=0.0):  # noqa: ANN001, ANN201 - casadi or float
@@ -193,6 +195,38 @@ def look_cost(point_c):  # noqa: ANN001, ANN201
     return 1.0 - point_c[0] / n
 
 
+def bearing_cos(rel_xy, wanted_xy):  # noqa: ANN001, ANN201
+    """cos(angle between the camera's bearing round the subject, the horizontal direction of
+    `rel_xy` = camera minus subject, and the unit `wanted_xy`)."""
+    n = ca.sqrt(rel_xy[0] ** 2 + rel_xy[1] ** 2 + 1e-6)
+    return (rel_xy[0] * wanted_xy[0] + rel_xy[1] * wanted_xy[1]) / n
+
+
+def bearing_shortfall(rel_xy, wanted_xy, free_rad):  # noqa: ANN001, ANN201
+    """max(0, cos(free_rad) - bearing_cos): 0 within `free_rad` of the wanted bearing (any view
+    that close shows the same side), growing beyond; the side-of-subject cost is its square."""
+    return ca.fmax(math.cos(free_rad) - bearing_cos(rel_xy, wanted_xy), 0)
+
+
+def log_rate(rate, value):  # noqa: ANN001, ANN201
+    """d ln(value)/dt of a quantity changing at `rate` (the zoom rate of a focal length)."""
+    return rate / value
+
+
+def distance_log_rate(rel, rel_vel):  # noqa: ANN001, ANN201
+    """d ln|rel|/dt = rel . rel_vel / |rel|^2 (the rate at which the subject distance grows, relative)."""
+    return (rel[0] * rel_vel[0] + rel[1] * rel_vel[1] + rel[2] * rel_vel[2]) / (
+        rel[0] ** 2 + rel[1] ** 2 + rel[2] ** 2 + 1e-6)
+
+
+def travel_residual(vel, direction, v_scale):  # noqa: ANN001, ANN201
+    """(velocity off the direction, velocity against it) / v_max for a unit world `direction`:
+    nothing for travel along it at any speed (the style gives a direction, not a speed)."""
+    along = vel[0] * direction[0] + vel[1] * direction[1] + vel[2] * direction[2]
+    off = vel - along * direction
+    return ca.vertcat(off * v_scale, ca.fmin(along, 0) * v_scale)
+
+
 def reciprocal_targets(near_m: float, far_m: float, *, near_foreground_m: float, far_margin_inv_m: float,
                        fg_absent: bool = False) -> tuple[float, float, float, float, float, float]:
     """Map desired limits (D_n*, D_f*) from shared.camera.desired_dof_limits to cost parameters.
@@ -262,7 +296,7 @@ class ParamLayout:
         lay = Layout(s.control_roll)
         e, n = s.max_joints, s.horizon_steps
         sizes = [("u_prev", lay.nu), ("joints", 3 * e), ("centre", 3), ("subj_vel", 3),
-                 ("targets", n * e * 2), ("mask", n * e), ("dof", n * N_DOF), ("dref", n),
+                 ("targets", n * e * 2), ("mask", n * e), ("dof", n * N_DOF), ("dref", n), ("motion", n * CM.N_MOTION),
                  ("weights", len(WEIGHT_NAMES)), ("u_scale", lay.nu), ("v_scale", 1), ("soft", C.N_SOFT)]
         self.slices: dict[str, slice] = {}
         off = 0
@@ -301,13 +335,15 @@ class NlpParams:
     u_scale: object
     v_scale: object
     soft: object  #: the soft constraints' limits (constraints.soft_limits)
+    motion: object = 0  #: (N * N_MOTION) side of the subject and camera-motion style (camera_motion.py)
 
     @classmethod
     def of(cls, p, sl: dict[str, slice], e: int) -> NlpParams:
         return cls(u_prev=p[sl["u_prev"]], joints0=ca.reshape(p[sl["joints"]], 3, e), centre0=p[sl["centre"]],
                    vel=p[sl["subj_vel"]], targets=p[sl["targets"]], mask=p[sl["mask"]], dof=p[sl["dof"]],
                    dref=p[sl["dref"]], wts={name: p[sl["weights"]][i] for i, name in enumerate(WEIGHT_NAMES)},
-                   u_scale=p[sl["u_scale"]], v_scale=p[sl["v_scale"]][0], soft=p[sl["soft"]])
+                   u_scale=p[sl["u_scale"]], v_scale=p[sl["v_scale"]][0], soft=p[sl["soft"]],
+                   motion=p[sl["motion"]])
 
 
 class StageBuilder:
@@ -367,7 +403,9 @@ class StageBuilder:
                           w_far=d[2] * wts["dof_far"], g_far=d[3], far_one_sided=d[4], near_one_sided=d[5])
         un = u * par.u_scale
         du_n = (u - u_last) * par.u_scale
-        vn = (x[lay.V] - par.vel) * par.v_scale  # relative to the subject: follow, don't wander
+        # relative to the subject: follow, don't wander; a camera the style turns or zooms in place stands still
+        still = par.motion[k * CM.N_MOTION + CM.STILL]
+        vn = (x[lay.V] - (1 - still) * par.vel) * par.v_scale
         acc_idx, cam_idx, lens_idx = self._input_groups()
         stage = (wts["image"] * im + wts["look"] * look_cost(cc) + jdof
                  + wts["accel"] * ca.sumsqr(un[acc_idx]) + wts["camera_rate"] * ca.sumsqr(un[cam_idx])
@@ -378,6 +416,7 @@ class StageBuilder:
                  + wts["velocity"] * ca.sumsqr(vn)
                  + wts["soft_constraint"] * (ca.sum1(slack) + ca.sumsqr(slack))
                  + wts["level"] * roll * roll)
+        stage += self._motion_terms(terms, k, par, x_prev=x_prev, x=x, u=u, r=r, cam=cam, centre=centre)
         terms.cost += dt * stage
         if s.solver != "ipopt":
             e_n, e_f = dof_residuals(inv_n, inv_f, par.dref[k], g_near=d[1], g_far=d[3], far_one_sided=d[4],
@@ -389,6 +428,35 @@ class StageBuilder:
             self._add_input_residuals(terms, wts, un=un, du_n=du_n, vn=vn, slack=slack,
                                       majorised=(u * par.u_scale, u_last * par.u_scale) if majorise and k > 0
                                       else None)
+
+    def _motion_residuals(self, k: int, par: NlpParams, *, x_prev, x, u, r, cam, centre) -> list:  # noqa: ANN001
+        """(weight, residual) pairs of stage k+1's side-of-subject and camera-motion terms, each
+        weight already multiplied by its mask (0 where the style asks nothing of the stage). Each
+        residual reads either the stage's input with the state it starts from, or the state it ends
+        in: the stage-wise QP (HPIPM) couples nothing else."""
+        lay, wts = self.layout, par.wts
+        m = par.motion[k * CM.N_MOTION:(k + 1) * CM.N_MOTION]
+        rel = cam - centre
+        out = [(wts["side_of_subject"] * m[CM.SIDE_MASK], bearing_shortfall(rel, m[0:2], SIDE_FREE_RAD))]
+        rate_idx = [lay.YAW_RATE, lay.PITCH_RATE] + ([lay.ROLL_RATE] if lay.control_roll else [])
+        for i, ui in enumerate(rate_idx):
+            out.append((wts["motion_rate"] * m[CM.RATE_MASKS.start + i], u[ui] - m[CM.RATES.start + i]))
+        f_mm = x_prev[lay.F]
+        out.append((wts["zoom_rate"] * m[CM.ZOOM_MASK], log_rate(u[lay.F_RATE], f_mm) - m[CM.ZOOM]))
+        rel_vel = x[lay.V] - par.vel
+        out.append((wts["dolly_zoom"] * m[CM.DOLLY_ZOOM_MASK], distance_log_rate(rel, rel_vel) - m[CM.DISTANCE_RATE]))
+        direction = ca.mtimes(r, m[CM.TRAVEL])  # the source camera's direction of travel, in the world
+        out.append((wts["translation_dir"] * m[CM.TRAVEL_MASK], travel_residual(x[lay.V], direction, par.v_scale)))
+        return out
+
+    def _motion_terms(self, terms: NlpTerms, k: int, par: NlpParams, **at):  # noqa: ANN003, ANN202
+        """Stage k+1's side-of-subject and camera-motion cost (per s); their residuals for the SQP."""
+        cost = 0
+        for w, res in self._motion_residuals(k, par, **at):
+            cost += w * ca.sumsqr(res)
+            if self.s.solver != "ipopt":
+                terms.resid.append(ca.sqrt(self.dt * w) * res)
+        return cost
 
     def _image_term(self, terms: NlpTerms, k: int, par: NlpParams, *, r, cam, f_mm, tk):
         """The image cost of stage k+1: the predicted joints projected through the planned camera,

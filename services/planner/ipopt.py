@@ -28,7 +28,8 @@ from cinetransfer.services.planner.solve_result import BUDGET_STATUSES, OK_STATU
 log = logging.getLogger("cinetransfer.planner")
 
 #: the modules the generated code is built from (a change to any of them compiles anew)
-NLP_SOURCES = ("model.py", "cost.py", "constraints.py", "solver.py", "sqp.py", "ipopt.py")
+NLP_SOURCES = ("model.py", "cost.py", "constraints.py", "solver.py", "sqp.py", "ipopt.py", "camera_motion.py",
+               "side_of_subject.py", "config.py")  # config.py: the weights are parameters of the NLP
 
 
 def structure_key(s: Structure) -> str:

@@ -20,6 +20,7 @@ import numpy as np
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.dynamics import DynamicsLimits, VehicleDynamics
+from cinetransfer.shared.facing import subject_heading
 from cinetransfer.shared.vehicle import VehicleProfile, load_vehicle
 
 #: COCO-17 joints of a 1.75 m person standing upright, body frame (x forward, y left, z up) [m].
@@ -206,8 +207,10 @@ class KinematicSim:
                               lens=lens, mode="sim", armed=True, holding=self.holding, backend="kinematic")
 
     def subject_state(self, stamp_ns: int) -> M.SubjectState:
+        joints = self.subject.joints()
         return M.SubjectState(stamp_ns=stamp_ns, subject_id="kinematic", joint_names=list(M.COCO17_NAMES),
-                              joints_m=self.subject.joints(), velocity_mps=self.subject.velocity.copy())
+                              joints_m=joints, velocity_mps=self.subject.velocity.copy(),
+                              heading_rad=subject_heading(self.subject.heading, M.COCO17_NAMES, joints))
 
     # ------------------------------------------------------------------ truth
     def image_points(self, names: list[str] | tuple[str, ...]) -> np.ndarray:

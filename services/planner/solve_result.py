@@ -22,6 +22,7 @@ class StageData:
     mask: np.ndarray  # (N, E_max) 1 = controlled joint at that stage, else 0
     dof: np.ndarray  # (N, N_DOF) see cost.reciprocal_targets and cost.defocus_ratio
     distance_ref: np.ndarray  # (N,) subject distance used to scale the DoF errors [m]
+    motion: np.ndarray | None = None  # (N, camera_motion.N_MOTION) side of the subject, camera motion; None = none
 
 
 @dataclass

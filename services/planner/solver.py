@@ -168,6 +168,8 @@ class MpcSolver(SqpMixin, IpoptMixin):
         p[sl["mask"]] = np.asarray(data.mask, dtype=float).reshape(-1)
         p[sl["dof"]] = np.asarray(data.dof, dtype=float).reshape(-1)
         p[sl["dref"]] = data.distance_ref
+        if data.motion is not None:
+            p[sl["motion"]] = np.asarray(data.motion, dtype=float).reshape(-1)
         p[sl["weights"]] = self.weights.as_vector()
         _, uhi = input_bounds(lay, self.bounds)
         p[sl["u_scale"]] = 1.0 / uhi

@@ -81,7 +81,7 @@ def test_left_right_setting_is_validated_and_names_the_field():
     from cinetransfer.services.planner import config as pc
     from cinetransfer.shared.errors import ConfigError
 
-    assert pc.PlannerConfig().left_right == "image_side"
+    assert pc.PlannerConfig().left_right == "name"
     assert pc.PlannerConfig(left_right="name").validate().left_right == "name"
     with pytest.raises(ConfigError, match="left_right"):
         pc.PlannerConfig(left_right="mirror").validate()

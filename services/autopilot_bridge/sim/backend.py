@@ -31,6 +31,7 @@ from cinetransfer.services.autopilot_bridge.sim.renderer import (MIN_SIGMA_PX, N
                                                                  DrawInfo, Plane, Texture, View, draw_plane,
                                                                  ground_bands, label_pass)
 from cinetransfer.services.autopilot_bridge.sim.scene import LayerSpec, Scene, SceneError, load_scene
+from cinetransfer.services.autopilot_bridge.sim.heading import subject_heading_rad
 from cinetransfer.services.autopilot_bridge.sim.subject import Subject
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
@@ -361,7 +362,8 @@ class SimBackend(VehiclePort):
         joints = sub.joints_world(frame, pose.position_m, self.dyn.position)
         return M.SubjectState(stamp_ns=self._stamp(self._t), seq=self._seq, valid=True,
                               subject_id=self.scene.subject.subject_id, joints_m=joints,
-                              velocity_mps=pose.velocity_mps.copy())
+                              velocity_mps=pose.velocity_mps.copy(),
+                              heading_rad=subject_heading_rad(sub, self._t, M.COCO17_NAMES, joints))
 
     def frames(self) -> list[M.Frame]:
         self._collect()

@@ -182,6 +182,10 @@ def clip_frame_index(t_s: float, n: int, fps: float, loop: str = "pingpong") -> 
 class Subject:
     """Script + clip: the billboard to draw and its 3-D joints, for a given camera position."""
 
+    #: the cut-out turns to face the camera, so it has no heading of its own: whatever side the
+    #: camera films from it shows the one view of its footage (SubjectState.heading_rad is NaN)
+    faces_camera: bool = True
+
     def __init__(self, spec: SubjectSpec, ground_z_m: float = 0.0, assets_dir: str | None = None):
         self.spec = spec
         self.script = SubjectScript(spec, ground_z_m)

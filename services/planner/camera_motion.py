@@ -1,0 +1,136 @@
+"""What the style asks of the camera's own motion, per stage of the horizon (pure numpy).
+
+The style carries per source frame a camera-motion class (static, pan, tilt, roll, zoom_in,
+zoom_out, dolly_in, dolly_out, truck, pedestal, orbit, dolly_zoom; combinations joined with "+"),
+the camera's angular rates (deg/s: pan positive to the camera's left, tilt positive up, roll
+positive clockwise as the camera sees it), the zoom rate d ln f/dt (1/s) and the direction of
+translation in the source camera's frame (x right, y down, z forward; zeros = none seen), NaN
+where unknown. Instructions without these fields (older styles) ask nothing: every mask is 0.
+
+A term is asked of a stage only where its row's class names the move and the rate is finite, so
+a static row ("hold still") adds nothing and the framing alone holds the camera still; rows with
+no class (a style that carries rates only) use the rates that are clearly non-zero.
+
+Per-stage parameter layout (N_MOTION values), read by cost.StageBuilder:
+    0-1   wanted horizontal bearing of the camera round the subject (unit vector), 2 its mask
+    3-5   yaw, pitch, roll rate targets [rad/s], 6-8 their masks
+    9     zoom rate target [1/s], 10 its mask
+    11-13 direction of travel in the planner's camera frame (x forward, y left, z up), 14 its mask
+    15    dolly-zoom mask, 16 the rate d ln(subject distance)/dt asked then (the zoom rate)
+    17    1 = the camera stands still (the velocity term's reference is 0 instead of the subject's
+          velocity): a row whose class turns or zooms the camera without moving it (pan, tilt,
+          roll, zoom_in, zoom_out), where following a walking subject would undo the pan
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+N_MOTION = 18
+SIDE, SIDE_MASK = slice(0, 2), 2
+RATES, RATE_MASKS = slice(3, 6), slice(6, 9)
+ZOOM, ZOOM_MASK = 9, 10
+TRAVEL, TRAVEL_MASK = slice(11, 14), 14
+DOLLY_ZOOM_MASK, DISTANCE_RATE, STILL = 15, 16, 17
+SIDE_PARAMS = slice(0, 3)  #: the side-of-subject parameters (bearing vector and mask), set by the planner core
+FLOWN_RATE_COLUMNS = [ZOOM]  #: the lens's rate target, planned slower (core.flown_rate_factor)
+MOTION_MASKS = [6, 7, 8, ZOOM_MASK, TRAVEL_MASK, DOLLY_ZOOM_MASK, STILL]  #: the camera-motion terms' masks
+
+#: which classes ask for which term
+RATE_CLASSES = (("pan", "orbit"), ("tilt",), ("roll",))
+ZOOM_CLASSES = ("zoom_in", "zoom_out", "dolly_zoom")
+TRAVEL_CLASSES = ("dolly_in", "dolly_out", "truck", "pedestal", "orbit", "dolly_zoom")
+STILL_CLASSES = ("pan", "tilt", "roll", "zoom_in", "zoom_out")
+#: with no class, a rate counts when at least this large (deg/s; 1/s for the zoom)
+MIN_RATE_DPS, MIN_ZOOM_RATE = 1.0, 0.01
+
+
+@dataclass(frozen=True)
+class MotionStyle:
+    """The style's camera motion per instruction row (K rows)."""
+
+    classes: list[frozenset[str] | None]  #: None = no class given for the row
+    rates_radps: np.ndarray  #: (K, 3) yaw, pitch, roll rates, NaN = unknown
+    zoom_rate: np.ndarray  #: (K,) d ln f / dt, NaN = unknown
+    travel: np.ndarray  #: (K, 3) unit direction in the planner's camera frame, zeros = none
+
+
+def motion_classes(text: object) -> frozenset[str] | None:
+    """The set of moves a class string names ("pan+zoom_in" -> {pan, zoom_in}); None if not a string."""
+    if not isinstance(text, str) or not text.strip():
+        return None
+    return frozenset(p.strip().lower() for p in text.split("+") if p.strip())
+
+
+def planner_camera_direction(d_source: np.ndarray) -> np.ndarray:
+    """A direction in the source camera frame (x right, y down, z forward) in the planner's camera
+    frame (x forward, y left, z up), unit length; zeros when it has none (or is not finite)."""
+    d = np.asarray(d_source, dtype=float).reshape(3)
+    out = np.array([d[2], -d[0], -d[1]])
+    n = float(np.linalg.norm(out))
+    return out / n if math.isfinite(n) and n > 1e-6 else np.zeros(3)
+
+
+def _column(ins: object, name: str, k: int, width: int | None = None) -> np.ndarray:
+    """A per-row field of the instructions as floats ((K,) or (K, width)); NaN when absent or malformed."""
+    shape = (k,) if width is None else (k, width)
+    v = getattr(ins, name, None)
+    try:
+        a = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        return np.full(shape, np.nan)
+    return a if a.shape == shape else np.full(shape, np.nan)
+
+
+def read_motion_style(ins: object) -> MotionStyle | None:
+    """The camera-motion style of the instructions, or None when they carry none (older styles)."""
+    k = int(np.asarray(getattr(ins, "image_targets")).shape[0])
+    names = ("pan_rate_dps", "tilt_rate_dps", "roll_rate_dps", "zoom_rate", "translation_dir", "camera_motion_class")
+    if all(getattr(ins, n, None) is None for n in names):
+        return None
+    rates = np.stack([_column(ins, n, k) for n in names[:3]], axis=1)
+    rates = np.radians(rates)
+    raw_cls = getattr(ins, "camera_motion_class", None)
+    classes = [motion_classes(c) for c in raw_cls] if isinstance(raw_cls, (list, tuple, np.ndarray)) \
+        and len(raw_cls) == k else [None] * k
+    travel_src = _column(ins, "translation_dir", k, 3)
+    travel = np.stack([planner_camera_direction(t) for t in travel_src]) if k else np.zeros((0, 3))
+    return MotionStyle(classes, rates, _column(ins, "zoom_rate", k), travel)
+
+
+def row_terms(style: MotionStyle, row: int, *, control_roll: bool) -> np.ndarray:
+    """The N_MOTION parameters of one row (the side-of-subject ones 0)."""
+    out = np.zeros(N_MOTION)
+    cls = style.classes[row]
+    for i, names in enumerate(RATE_CLASSES):
+        rate = float(style.rates_radps[row, i])
+        asked = (cls is not None and any(n in cls for n in names)) or \
+            (cls is None and math.isfinite(rate) and abs(rate) >= math.radians(MIN_RATE_DPS))
+        if asked and math.isfinite(rate) and (i < 2 or control_roll):
+            out[RATES.start + i], out[RATE_MASKS.start + i] = rate, 1.0
+    zoom = float(style.zoom_rate[row])
+    zoom_asked = (cls is not None and any(n in cls for n in ZOOM_CLASSES)) or \
+        (cls is None and math.isfinite(zoom) and abs(zoom) >= MIN_ZOOM_RATE)
+    if zoom_asked and math.isfinite(zoom):
+        out[ZOOM], out[ZOOM_MASK] = zoom, 1.0
+        if cls is not None and "dolly_zoom" in cls:
+            out[DOLLY_ZOOM_MASK], out[DISTANCE_RATE] = 1.0, zoom
+    if cls is not None and any(n in cls for n in STILL_CLASSES) and not any(n in cls for n in TRAVEL_CLASSES):
+        out[STILL] = 1.0
+    travel = style.travel[row]
+    if travel.any() and (cls is None or any(n in cls for n in TRAVEL_CLASSES)):
+        out[TRAVEL], out[TRAVEL_MASK] = travel, 1.0
+    return out
+
+
+def stage_motion(style: MotionStyle | None, rows: list[int], *, control_roll: bool) -> np.ndarray:
+    """(N, N_MOTION) parameters of the horizon's stages from their instruction rows."""
+    out = np.zeros((len(rows), N_MOTION))
+    if style is None:
+        return out
+    for k, r in enumerate(rows):
+        if 0 <= r < len(style.classes):
+            out[k] = row_terms(style, r, control_roll=control_roll)
+    return out

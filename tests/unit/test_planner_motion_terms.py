@@ -1,0 +1,175 @@
+"""Pure pieces of the side-of-subject and camera-motion terms, against hand-computed values."""
+import math
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from cinetransfer.services.planner import camera_motion as CM
+from cinetransfer.services.planner import cost as J
+from cinetransfer.services.planner.side_of_subject import (camera_bearing, carrot, side_targets, style_view,
+                                                           wanted_bearing)
+from cinetransfer.shared import messages as M
+from cinetransfer.shared.facing import heading_from_joints, subject_heading
+
+NAMES = ["left_shoulder", "right_shoulder", "left_hip", "right_hip"]
+FRONT = np.array([[0.56, 0.40], [0.44, 0.40], [0.53, 0.60], [0.47, 0.60]])
+BACK = FRONT[[1, 0, 3, 2]]
+
+
+def _f(v) -> float:  # noqa: ANN001
+    return float(ca.DM(v))
+
+
+# ------------------------------------------------------------------ heading from joints
+def test_heading_from_joints_is_the_left_right_axis_crossed_with_up():
+    # a body facing -x: its left (+y in the body) is world -y; (left - right) = (0, -0.38, 0);
+    # (L_y, -L_x) = (-0.38, 0): forward is -x, heading pi
+    joints = np.array([[0.0, -0.19, 1.44], [0.0, 0.19, 1.44], [0.0, -0.11, 0.95], [0.0, 0.11, 0.95]])
+    assert heading_from_joints(NAMES, joints) == pytest.approx(math.pi)
+    # turned to face +y: left is -x: (left - right) = (-0.6, 0, 0) -> forward (0, 0.6): pi/2
+    joints = np.array([[-0.19, 0.0, 1.44], [0.19, 0.0, 1.44], [-0.11, 0.0, 0.95], [0.11, 0.0, 0.95]])
+    assert heading_from_joints(NAMES, joints) == pytest.approx(math.pi / 2)
+    # a shoulder axis at 45 deg between +x and +y ((left - right) = (-0.2, 0.2)) alone: forward (0.2, 0.2)
+    joints = np.array([[-0.1, 0.1, 1.4], [0.1, -0.1, 1.4], [np.nan] * 3, [np.nan] * 3])
+    assert heading_from_joints(NAMES, joints) == pytest.approx(math.pi / 4)
+
+
+def test_heading_from_joints_is_nan_without_a_usable_axis():
+    assert math.isnan(heading_from_joints(NAMES, np.full((4, 3), np.nan)))
+    assert math.isnan(heading_from_joints(["nose"], np.zeros((1, 3))))
+    # left and right one above the other (the axis is vertical): no direction on the ground
+    assert math.isnan(heading_from_joints(NAMES, np.array([[0, 0, 1.5], [0, 0, 1.4], [0, 0, 1.0], [0, 0, 0.9]])))
+
+
+def test_subject_heading_prefers_the_given_one_and_wraps_it():
+    joints = np.array([[0.0, -0.19, 1.44], [0.0, 0.19, 1.44], [0.0, -0.11, 0.95], [0.0, 0.11, 0.95]])
+    assert subject_heading(0.3, NAMES, joints) == pytest.approx(0.3)
+    assert subject_heading(2 * math.pi + 0.3, NAMES, joints) == pytest.approx(0.3)
+    assert subject_heading(float("nan"), NAMES, joints) == pytest.approx(math.pi)
+    assert subject_heading(None, NAMES, joints) == pytest.approx(math.pi)
+
+
+def test_subject_state_heading_is_nan_by_default():
+    assert math.isnan(M.SubjectState().heading_rad)
+
+
+# ------------------------------------------------------------------ side of the subject
+def test_style_view_reads_front_back_and_side_on():
+    assert style_view(FRONT, NAMES) == 1
+    assert style_view(BACK, NAMES) == -1
+    side = FRONT.copy()
+    side[:, 0] = 0.5  # every pair on top of each other
+    assert style_view(side, NAMES) == 0
+    assert style_view(np.full((4, 2), np.nan), NAMES) == 0
+
+
+def test_wanted_bearing_is_the_heading_for_a_front_view_and_opposite_for_a_back_view():
+    assert wanted_bearing(0.5, 1) == pytest.approx(0.5)
+    assert wanted_bearing(0.5, -1) == pytest.approx(0.5 + math.pi)
+    assert math.isnan(wanted_bearing(0.5, 0))
+    assert math.isnan(wanted_bearing(float("nan"), 1))
+
+
+def test_camera_bearing_and_carrot():
+    assert camera_bearing(np.array([-5.0, 0.0, 1.6]), np.array([0.0, 0.0, 1.2])) == pytest.approx(math.pi)
+    assert camera_bearing(np.array([1.0, 1.0]), np.array([0.0, 0.0])) == pytest.approx(math.pi / 4)
+    assert math.isnan(camera_bearing(np.zeros(3), np.zeros(3)))
+    # within the step: the wanted bearing itself
+    assert carrot(0.0, 0.5) == pytest.approx(0.5)
+    # far off: 90 deg towards it the shorter way (from 170 deg to -170 deg: +20 deg, across pi)
+    assert carrot(0.0, 2.0) == pytest.approx(math.radians(90))
+    assert carrot(math.radians(170), math.radians(-170)) == pytest.approx(math.radians(190))
+    # straight behind: the way of increasing bearing, whichever way the angle is written
+    assert carrot(math.pi, 0.0) == pytest.approx(math.pi + math.radians(90))
+    assert carrot(0.0, math.pi) == pytest.approx(math.radians(90))
+
+
+def test_side_targets_mask_only_front_and_back_rows():
+    rows_xy = np.stack([FRONT, BACK, np.full((4, 2), np.nan)])
+    out = side_targets(rows_xy, [0, 1, 2], NAMES, heading_rad=0.0, bearing_now=math.pi)
+    # front view wanted at bearing 0 from pi: carrot pi + 90 deg; back view wanted at pi: there already
+    assert out[0] == pytest.approx([0.0, -1.0, 1.0], abs=1e-12)
+    assert out[1] == pytest.approx([-1.0, 0.0, 1.0])
+    assert out[2].tolist() == [0.0, 0.0, 0.0]
+    assert not side_targets(rows_xy, [0], NAMES, heading_rad=float("nan"), bearing_now=0.0).any()
+
+
+def test_bearing_cos_and_shortfall_by_hand():
+    assert _f(J.bearing_cos(ca.DM([3.0, 0.0]), ca.DM([1.0, 0.0]))) == pytest.approx(1.0, abs=1e-6)
+    assert _f(J.bearing_cos(ca.DM([0.0, 2.0]), ca.DM([1.0, 0.0]))) == pytest.approx(0.0, abs=1e-6)
+    assert _f(J.bearing_cos(ca.DM([1.0, math.sqrt(3)]), ca.DM([1.0, 0.0]))) == pytest.approx(0.5, abs=1e-6)
+    free = math.radians(45)
+    # within 45 deg: free; a quarter round: cos 45 - 0; opposite: cos 45 + 1
+    assert _f(J.bearing_shortfall(ca.DM([1.0, 0.5]), ca.DM([1.0, 0.0]), free)) == 0.0
+    assert _f(J.bearing_shortfall(ca.DM([0.0, 2.0]), ca.DM([1.0, 0.0]), free)) == pytest.approx(0.70711, abs=1e-5)
+    assert _f(J.bearing_shortfall(ca.DM([-2.0, 0.0]), ca.DM([1.0, 0.0]), free)) == pytest.approx(1.70711, abs=1e-5)
+
+
+# ------------------------------------------------------------------ camera-motion terms
+def test_log_rates_and_travel_residual_by_hand():
+    assert _f(J.log_rate(4.0, 40.0)) == pytest.approx(0.1)
+    # camera 4 m behind the subject along -x, backing away at 0.4 m/s: d ln d/dt = 0.4 / 4
+    assert _f(J.distance_log_rate(ca.DM([-4.0, 0.0, 0.0]), ca.DM([-0.4, 0.0, 0.0]))) == pytest.approx(0.1, abs=1e-6)
+    # along the direction: no residual; sideways 1 m/s at v_max 2: 0.5; backwards 1 m/s: 0.5 in the hinge
+    r = ca.DM(J.travel_residual(ca.DM([1.0, 0.0, 0.0]), ca.DM([1.0, 0.0, 0.0]), 0.5)).full().ravel()
+    assert r == pytest.approx([0, 0, 0, 0])
+    r = ca.DM(J.travel_residual(ca.DM([0.0, 1.0, 0.0]), ca.DM([1.0, 0.0, 0.0]), 0.5)).full().ravel()
+    assert r == pytest.approx([0, 0.5, 0, 0])
+    r = ca.DM(J.travel_residual(ca.DM([-1.0, 0.0, 0.0]), ca.DM([1.0, 0.0, 0.0]), 0.5)).full().ravel()
+    assert r == pytest.approx([0, 0, 0, -0.5])
+
+
+def test_motion_classes_and_direction_conversion():
+    assert CM.motion_classes("pan+zoom_in") == {"pan", "zoom_in"}
+    assert CM.motion_classes("static") == {"static"}
+    assert CM.motion_classes("") is None and CM.motion_classes(float("nan")) is None
+    # source frame x right, y down, z forward -> planner x forward, y left, z up
+    assert CM.planner_camera_direction(np.array([0.0, 0.0, -1.0])).tolist() == [-1.0, 0.0, 0.0]  # dolly out
+    assert CM.planner_camera_direction(np.array([1.0, 0.0, 0.0])) == pytest.approx([0, -1, 0])  # truck right
+    assert CM.planner_camera_direction(np.array([0.0, -2.0, 0.0])) == pytest.approx([0, 0, 1])  # pedestal up
+    assert CM.planner_camera_direction(np.array([np.nan, 0, 0])).tolist() == [0, 0, 0]
+    assert CM.planner_camera_direction(np.zeros(3)).tolist() == [0, 0, 0]
+
+
+def _style(cls, pan=np.nan, tilt=np.nan, roll=np.nan, zoom=np.nan, travel=(0.0, 0.0, 0.0)) -> CM.MotionStyle:
+    return CM.MotionStyle([CM.motion_classes(cls)], np.radians([[pan, tilt, roll]]), np.array([zoom]),
+                          np.array([CM.planner_camera_direction(np.array(travel))]))
+
+
+def test_row_terms_follow_the_class():
+    # static (hold still): nothing, whatever the rates say
+    assert not CM.row_terms(_style("static", pan=0.1, zoom=0.001), 0, control_roll=True).any()
+    t = CM.row_terms(_style("pan", pan=10.0, tilt=3.0), 0, control_roll=False)
+    assert t[CM.RATES.start] == pytest.approx(math.radians(10)) and t[CM.RATE_MASKS].tolist() == [1, 0, 0]
+    t = CM.row_terms(_style("roll", roll=5.0), 0, control_roll=False)
+    assert not t[CM.RATE_MASKS].any() and t[CM.STILL] == 1  # no roll control: no roll term (the camera stays put)
+    t = CM.row_terms(_style("dolly_zoom", zoom=0.1, travel=(0, 0, -1)), 0, control_roll=False)
+    assert t[CM.ZOOM] == 0.1 and t[CM.ZOOM_MASK] == 1 and t[CM.DOLLY_ZOOM_MASK] == 1 and t[CM.DISTANCE_RATE] == 0.1
+    assert t[CM.TRAVEL].tolist() == [-1, 0, 0] and t[CM.TRAVEL_MASK] == 1
+    t = CM.row_terms(_style("zoom_in", zoom=0.1, travel=(0, 0, 1)), 0, control_roll=False)
+    assert t[CM.ZOOM_MASK] == 1 and t[CM.DOLLY_ZOOM_MASK] == 0 and t[CM.TRAVEL_MASK] == 0
+    t = CM.row_terms(_style("pan", pan=float("nan")), 0, control_roll=False)
+    # the class names a pan whose rate is unknown: no rate term, but the camera turned in place
+    assert t[CM.STILL] == 1 and not np.delete(t, CM.STILL).any()
+    assert CM.row_terms(_style("pan+truck", pan=5.0, travel=(1, 0, 0)), 0, control_roll=False)[CM.STILL] == 0
+
+
+def test_row_terms_without_a_class_use_clear_rates():
+    t = CM.row_terms(_style(None, pan=0.5, tilt=-4.0, zoom=0.005), 0, control_roll=False)
+    assert t[CM.RATE_MASKS].tolist() == [0, 1, 0] and t[CM.ZOOM_MASK] == 0
+
+
+def test_instructions_without_motion_fields_ask_nothing():
+    ins = M.Instructions(image_targets=np.zeros((3, 4, 2), dtype=np.float32))
+    assert CM.read_motion_style(ins) is None
+    assert not CM.stage_motion(None, [0, 1, 2], control_roll=False).any()
+
+
+def test_the_zoom_rate_is_planned_slower_by_the_setpoint_lead_in_steps():
+    from cinetransfer.services.planner.core import flown_rate_factor
+    # the plan 0.1 s ahead at 20 Hz: the lens moves 0.1 s of plan per 0.05 s step
+    assert flown_rate_factor(0.1, 20.0) == pytest.approx(2.0)
+    assert flown_rate_factor(0.05, 20.0) == pytest.approx(1.0)
+    assert flown_rate_factor(0.0, 20.0) == 1.0  # no lead: nothing to scale
+    assert flown_rate_factor(1.0, 200.0) == 4.0  # bounded
