@@ -5,7 +5,8 @@ planner setting extracts the very same clip again and again.
 An entry is reused only when everything that decides the style is the same: the clip's content
 (sha256 of its bytes, not its name or date), the frames used (`--max-frames`), the effective
 settings of the source, detector and smoother nodes (as each node reports them), the code that
-measures and smooths (a hash of the source files of those services and of shared/), the
+measures and smooths (a hash of the source files of shared/ and of every service but the
+planner and the bridge), the
 detector's model files, the versions of the numeric libraries, and the message schemas. Any
 difference is another key, so stale data is never reused; an entry that cannot be read is
 ignored (and replaced).
@@ -64,25 +65,30 @@ def file_sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+#: services whose code cannot change a style (they fly it); every other service counts, so that a
+#: new measuring service is covered without being named here
+FLIGHT_SERVICES = ("planner", "autopilot_bridge")
+
+
 def _code_roots() -> list[Path]:
     """The installed source folders of the code that measures and smooths (the package layout maps
     cinetransfer.shared and cinetransfer.services onto shared/ and services/)."""
     from cinetransfer import services, shared
 
-    roots = [Path(shared.__file__).parent]
-    for name in STYLE_NODES:
-        roots.append(Path(services.__file__).parent / name)
-    return roots
+    top = Path(services.__file__).parent
+    return [Path(shared.__file__).parent, *(p for p in sorted(top.iterdir())
+                                           if p.is_dir() and p.name not in FLIGHT_SERVICES)]
 
 
 @lru_cache(maxsize=1)
 def code_version() -> str:
-    """sha256 over the source files of shared/ and the style's services, and the extraction module."""
+    """sha256 over the source files of shared/, every service but the flight's, and the extraction
+    modules (by name and content: a file moved between them counts as a change)."""
     h = hashlib.sha256()
     files = sorted(p for root in _code_roots() for p in root.rglob("*.py"))
-    files.append(_PACKAGE / "extraction.py")
+    files += [_PACKAGE / "extraction.py", _PACKAGE / "extract.py"]
     for p in files:
-        h.update(str(p.name).encode() + b"\0" + p.read_bytes() + b"\0")
+        h.update(p.name.encode() + b"\0" + p.read_bytes() + b"\0")
     return h.hexdigest()
 
 
