@@ -12,8 +12,10 @@ each frame of the takes exactly once, in slot order; only the recorder knows whi
 is which slot. The measuring overlaps the flight, whose lockstep leaves CPU time idle (the bridge
 waits for the planner, the planner for the bridge).
 
-The frames wait in an unbounded queue (a frame is 1.5 MB at 960x540; the detector measures
-~25 frames/s, faster than the flight films them): the recorder's thread never blocks on it.
+The frames wait in a queue (a frame is 1.5 MB at 960x540; on a quiet machine the detector
+measures ~25 frames/s, faster than the flight films them): the recorder's thread never blocks on
+it. A machine so loaded that MAX_BACKLOG frames wait gives up the live measuring (memory), and the
+output is measured from output.mp4 after the flight instead.
 """
 from __future__ import annotations
 
@@ -27,6 +29,8 @@ from typing import Any
 import numpy as np
 
 log = logging.getLogger("cinetransfer.transfer")
+#: frames waiting to be measured beyond which the measuring stops (~450 MB of 960x540 frames)
+MAX_BACKLOG = 300
 
 
 class LiveOutputStyle:
@@ -48,6 +52,11 @@ class LiveOutputStyle:
 
     def feed(self, slot: int, image: np.ndarray) -> None:
         """The recorder placed `image` in `slot` (called from its thread, in slot order)."""
+        if self.error is not None:
+            return
+        if self._q.qsize() >= MAX_BACKLOG:
+            self.error = f"{MAX_BACKLOG} frames waited to be measured (the machine is too busy)"
+            return
         self._q.put((int(slot), image))
 
     def _work(self) -> None:
