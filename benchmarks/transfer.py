@@ -1,21 +1,24 @@
-"""Transfer benchmark: wall time of the README's main command against the clip's duration, on a
-quiet machine and with a busy second process, and whether the two flights are identical.
+"""Transfer benchmark: wall time of the README's main command, whole, against the clip's duration,
+its stages, and whether the same take twice gives the same frames and the same report.
 
     python benchmarks/transfer.py [--source CLIP] [--scene open_country] [--busy 1] [--max-frames 0]
 
-Runs `cinetransfer transfer` twice (the second time with the first run's style.json, while
-`--busy` processes spin on the CPU), prints per run: total wall time and its ratio to the clip's
-duration, the flight's wall time per simulated second, the render and solve time per step (from
-the nodes' Health), the planner's over-budget solves; then compares the two recordings (ground
-truth and video) frame by frame. Goal: ratio <= 3 on 2 cores, identical results. The
-verdict judges the flight (pre-roll included), the part simulation time governs, and prints the
-whole command's ratio (two style extractions and the report included) beside it, met or not.
+Runs `cinetransfer transfer` twice with one fresh style cache: first with an empty cache (the
+README command as a new user runs it: the source's style is extracted), then the very same
+command again while `--busy` processes spin on the CPU (the style comes from the cache, as when a
+user iterates). Prints per run: total wall time and its ratio to the clip's duration, its
+stages (node start, source extraction, flight, output style, report, and the rest), the flight's
+wall time per simulated second, render and solve time per step (from the nodes' Health), the
+planner's over-budget solves; then compares the two runs: ground truth, video frames and the
+report's figures. Goal: the whole first command <= 3 x the clip on 2 cores, identical results.
+The verdict judges the whole command (extraction, flight, evaluation, start and stop included).
 Writes benchmarks/results/transfer.json.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -35,11 +38,16 @@ except ImportError:  # imported as the benchmarks package
 HERE = Path(__file__).resolve().parent
 
 
-def run(source: Path, scene: str, out: Path, max_frames: int, extra: list[str]) -> dict:
+#: the stages of meta.json's timings, in order, as printed
+STAGES = (("start_nodes_s", "start"), ("extract_source_s", "source style"), ("flight_s", "flight"),
+          ("extract_output_s", "output style"), ("report_s", "report"))
+
+
+def run(source: Path, scene: str, out: Path, max_frames: int, cache: Path) -> dict:
     cmd = [sys.executable, "-m", "cinetransfer", "transfer", str(source), "--scene", scene, "-o", str(out),
-           "--rig", out.name, *(["--max-frames", str(max_frames)] if max_frames else []), *extra]
+           "--rig", out.name, *(["--max-frames", str(max_frames)] if max_frames else [])]
     t = time.monotonic()
-    r = subprocess.run(cmd, capture_output=True, text=True)
+    r = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "CT_CACHE_DIR": str(cache)})
     wall = time.monotonic() - t
     if r.returncode != 0:
         sys.exit(f"transfer failed (exit {r.returncode}):\n{r.stderr[-3000:]}")
@@ -47,7 +55,8 @@ def run(source: Path, scene: str, out: Path, max_frames: int, extra: list[str]) 
     h = meta.get("health", {})
     pl, br = h.get("planner", {}).get("counters", {}), h.get("autopilot_bridge", {}).get("counters", {})
     flown_s = meta["preroll_frames"] / meta["fps"] + meta["instruction_frames"] / meta["fps"]
-    return {"wall_s": round(wall, 2), "timings": meta.get("timings", {}), "recorded": meta["recorded_frames"],
+    return {"wall_s": round(wall, 2), "timings": meta.get("timings", {}), "style_origin": meta.get("style_origin"),
+            "output_measured": meta.get("output_measured"), "recorded": meta["recorded_frames"],
             "instruction_frames": meta["instruction_frames"], "repeated": meta["repeated_frames"],
             "flight_wall_per_sim_s": round(meta["timings"]["flight_s"] / flown_s, 2) if "timings" in meta else None,
             "render_ms_p50": br.get("render_ms_p50"), "step_wall_ms_p50": br.get("step_wall_ms_p50"),
@@ -67,14 +76,48 @@ def frames(path: Path) -> list[np.ndarray]:
         out.append(img)
 
 
+#: report.json keys that say when or how fast, not what was measured
+VOLATILE = ("generated", "report_s", "meta", "inputs", "recording_file", "video")
+#: the take's facts counted in wall time (a real-time run would have cut those solves short; how
+#: long the planner was silent): machine load changes them, not the take
+WALL_TIME = ("over_budget_solves", "planner_silence_s")
+
+
+def report_figures(out: Path) -> dict:
+    """report.json without what says when, where or how fast (paths name OUTDIR)."""
+    text = (out / "report.json").read_text().replace(str(out), "OUTDIR")
+    return _without_wall_time({k: v for k, v in json.loads(text).items() if k not in VOLATILE})
+
+
+def _without_wall_time(v):
+    if isinstance(v, dict):
+        return {k: _without_wall_time(x) for k, x in v.items() if k not in WALL_TIME}
+    if isinstance(v, list):
+        return [_without_wall_time(x) for x in v]
+    return v
+
+
 def compare(a: Path, b: Path) -> dict:
     ta, tb = read_truths(a / "truth.msgpack"), read_truths(b / "truth.msgpack")
     jd = max(float(np.nanmax(np.abs(x.joints_norm - y.joints_norm))) for x, y in zip(ta, tb))
     focus_same = all(np.array_equal(x.region_in_focus, y.region_in_focus) for x, y in zip(ta, tb))
     fa, fb = frames(a / "output.mp4"), frames(b / "output.mp4")
     px = max(float(np.abs(x.astype(int) - y.astype(int)).max()) for x, y in zip(fa, fb))
+    ra, rb = report_figures(a), report_figures(b)
     return {"truth_frames": [len(ta), len(tb)], "joint_max_diff": jd, "focus_labels_identical": focus_same,
-            "video_frames": [len(fa), len(fb)], "video_max_pixel_diff": px}
+            "video_frames": [len(fa), len(fb)], "video_max_pixel_diff": px, "report_identical": ra == rb,
+            "report_keys_differing": sorted(k for k in set(ra) | set(rb) if ra.get(k) != rb.get(k))}
+
+
+def stage_line(r: dict, clip_s: float) -> str:
+    """The whole command's wall time, its ratio to the clip and its stages (the rest: starting the
+    command, saving the take, stopping the nodes)."""
+    t = r["timings"]
+    parts = [f"{name} {t[k]:.1f}" for k, name in STAGES if k in t]
+    rest = r["wall_s"] - sum(t.get(k, 0.0) for k, _ in STAGES)
+    return (f"{r['wall_s']:6.1f} s in all = {r['wall_s'] / clip_s:4.2f} x the clip ({clip_s:.1f} s): "
+            f"{' + '.join(parts)} + rest {rest:.1f} s (style: {r['style_origin']}; output measured "
+            f"{r['output_measured']})")
 
 
 def main() -> int:
@@ -91,38 +134,35 @@ def main() -> int:
     n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     clip_s = (min(n, args.max_frames) if args.max_frames else n) / cap.get(cv2.CAP_PROP_FPS)
     with tempfile.TemporaryDirectory() as tmp:
-        quiet = run(source, args.scene, Path(tmp) / "quiet", args.max_frames, [])
+        cache = Path(tmp) / "cache"  # empty: the first run extracts the style as a new user's does
+        first = run(source, args.scene, Path(tmp) / "first", args.max_frames, cache)
         busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.busy)]
         try:
-            loaded = run(source, args.scene, Path(tmp) / "busy", args.max_frames,
-                         ["--style", str(Path(tmp) / "quiet" / "style.json")])
+            again = run(source, args.scene, Path(tmp) / "again", args.max_frames, cache)
         finally:
             for p in busy:
                 p.kill()
-        same = compare(Path(tmp) / "quiet", Path(tmp) / "busy")
-    for name, r in (("quiet", quiet), (f"{args.busy} busy process(es)", loaded)):
+        same = compare(Path(tmp) / "first", Path(tmp) / "again")
+    for name, r in (("first (empty cache)", first), (f"again, {args.busy} busy process(es)", again)):
         fl = r["timings"].get("flight_s", float("nan"))
-        print(f"{name:>22}: {r['wall_s']:6.1f} s in all = {r['wall_s'] / clip_s:4.2f} x the clip ({clip_s:.1f} s), "
-              f"of it extraction {r['timings'].get('extract_source_s', 0):.1f} s + flight {fl:.1f} s "
-              f"({fl / clip_s:.2f} x the clip) + output extraction {r['timings'].get('extract_output_s', 0):.1f} s; "
-              f"flight {r['flight_wall_per_sim_s']} wall s per simulated s; render p50 {r['render_ms_p50']} ms, "
-              f"step p50 {r['step_wall_ms_p50']} ms, solve p50/p95 {r['solve_ms_p50']}/{r['solve_ms_p95']} ms, "
-              f"over real-time budget {r['over_budget_solves']}/{r['solves']}; "
-              f"frames {r['recorded']}/{r['instruction_frames']}, repeats {r['repeated']}")
-    print(f"{'':>22}  (the busy run reuses the quiet run's style: no source extraction in its total)")
-    identical = same["joint_max_diff"] <= 1e-3 and same["focus_labels_identical"] and \
-        same["truth_frames"][0] == same["truth_frames"][1]
+        print(f"{name:>30}: {stage_line(r, clip_s)}")
+        print(f"{'':>30}  flight {fl / clip_s:.2f} x the clip, {r['flight_wall_per_sim_s']} wall s per simulated s; "
+              f"render p50 {r['render_ms_p50']} ms, step p50 {r['step_wall_ms_p50']} ms, solve p50/p95 "
+              f"{r['solve_ms_p50']}/{r['solve_ms_p95']} ms, over real-time budget {r['over_budget_solves']}/"
+              f"{r['solves']}; frames {r['recorded']}/{r['instruction_frames']}, repeats {r['repeated']}")
+    identical = same["joint_max_diff"] == 0.0 and same["focus_labels_identical"] and \
+        same["truth_frames"][0] == same["truth_frames"][1] and same["video_max_pixel_diff"] == 0 and \
+        same["report_identical"]
     print(f"agreement: truth joints max diff {same['joint_max_diff']:.2e}, focus labels identical "
-          f"{same['focus_labels_identical']}, video max pixel diff {same['video_max_pixel_diff']:.0f}")
-    ratio = quiet["wall_s"] / clip_s
-    flight_ratio = quiet["timings"]["flight_s"] / clip_s
-    ok = flight_ratio <= 3.0 and identical and quiet["repeated"] == 0 and loaded["repeated"] == 0
-    print(f"verdict: flight (pre-roll included) {flight_ratio:.2f} x the clip (goal <= 3), whole command "
-          f"{ratio:.2f} x (source and output extraction included: {'<= 3' if ratio <= 3 else 'NOT <= 3'}), "
-          f"identical results {identical} -> {'goal met' if ok else 'goal NOT met'} for the flight")
-    res = {"clip_s": clip_s,
-           "quiet": quiet, "busy": loaded, "busy_processes": args.busy, "agreement": same, "goal_met": ok,
-           "ratio_total": ratio, "ratio_flight": flight_ratio}
+          f"{same['focus_labels_identical']}, video max pixel diff {same['video_max_pixel_diff']:.0f}, report "
+          f"figures identical {same['report_identical']} {same['report_keys_differing'] or ''}")
+    ratio = first["wall_s"] / clip_s
+    ok = ratio <= 3.0 and identical and first["repeated"] == 0 and again["repeated"] == 0
+    print(f"verdict: the whole command {ratio:.2f} x the clip (goal <= 3; again with the cached style "
+          f"{again['wall_s'] / clip_s:.2f} x under load), identical results {identical} -> "
+          f"{'goal met' if ok else 'goal NOT met'}; machine load average {os.getloadavg()[0]:.1f}")
+    res = {"clip_s": clip_s, "first": first, "again": again, "busy_processes": args.busy, "agreement": same,
+           "goal_met": ok, "ratio_total": ratio, "ratio_again": again["wall_s"] / clip_s}
     print(f"wrote {write_result('transfer', res)}")
     return 0 if ok else 1
 

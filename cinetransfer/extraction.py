@@ -7,11 +7,13 @@ import logging
 import queue
 import shutil
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from tqdm import tqdm
 
-from cinetransfer.job import TransferError
+from cinetransfer import style_cache
+from cinetransfer.job import EXTRACTION_ARGS, TransferError, await_subscriber
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.instructions import load_style, save_style
@@ -64,6 +66,8 @@ def extract_on_dataflow(session, rig: str, src: Path, stop: int | None, stall_s:
     tap = StyleTap(session, rig)
     cmd = session.declare_publisher(keys.SOURCE_COMMAND.key(rig))
     try:
+        if not await_subscriber(cmd, 30.0):
+            raise TransferError("the source node does not listen for commands (see OUTDIR/deploy/source.log)")
         args = {"path": path, **({"stop": int(stop)} if stop else {})}
         cmd.put(codec.encode(M.Command(stamp_ns=M.now_ns(), action="play", args=args)))
         style = _await_final(tap, path, stall_s)
@@ -143,15 +147,49 @@ def shortfall(played: int | None, declared: int | None, stop: int | None) -> str
             f"read; repair it, or pass --max-frames {played} to use what can be read")
 
 
-def source_style(args, src: Path, out: Path, session) -> tuple[Path, M.Instructions]:
-    """The source's style, written to OUTDIR/style.json: from --style, or extracted by the
-    dataflow's own services."""
+@dataclass
+class CachedStyle:
+    """The style cache's key for this transfer (None: not cached) and its entry (None: a miss)."""
+
+    key: style_cache.StyleKey | None = None
+    path: Path | None = None
+
+
+def cached_style(args, src: Path) -> CachedStyle:
+    """Look the source up in the style cache before anything starts: on the transfer's own
+    deployment the extraction nodes' settings are known from their flags (a joined deployment's
+    are asked once it is up: `source_style`)."""
+    if args.style or args.no_cache or args.deployment or getattr(args, "connect", None):
+        return CachedStyle()
+    key = style_cache.style_key(src, args.max_frames or None, style_cache.node_configs_local(EXTRACTION_ARGS))
+    return CachedStyle(key, style_cache.lookup(key))
+
+
+def source_style(args, src: Path, out: Path, session, cache: CachedStyle | None = None
+                 ) -> tuple[Path, M.Instructions, str]:
+    """The source's style, written to OUTDIR/style.json, and where it came from: 'file' (--style),
+    'cache' (the same clip extracted with the same settings and code before) or 'extracted' (by the
+    dataflow's own services; then kept in the cache)."""
     style_path = out / "style.json"
     if args.style:
         shutil.copyfile(args.style, style_path)
-        return style_path, load_style(style_path)
+        return style_path, load_style(style_path), "file"
+    cache = cache or CachedStyle()
+    if cache.key is None and not args.no_cache:  # a joined deployment: its nodes say how they are set
+        configs = style_cache.node_configs_remote(session, args.rig)
+        if configs is not None:
+            cache.key = style_cache.style_key(src, args.max_frames or None, configs)
+            cache.path = style_cache.lookup(cache.key)
+    if cache.path is not None:
+        shutil.copyfile(cache.path, style_path)
+        log.info("style: reusing the measurements of %s from the cache (same clip content sha256 %s..., same "
+                 "node settings, code and models): %s; --no-cache extracts again", src.name,
+                 cache.key.facts["clip_sha256"][:12], cache.path.parent)
+        return style_path, load_style(style_path), "cache"
     style = extract_on_dataflow(session, args.rig, src, args.max_frames or None, args.stall_timeout)
     save_style(style_path, style)
     print(f"wrote {style_path}: {style.image_targets.shape[0]} frames at {style.fps:g} fps (extracted by the "
           f"source, detector and smoother nodes)")
-    return style_path, load_style(style_path)
+    if cache.key is not None and style_cache.store(cache.key, style_path) is not None:
+        log.info("style: kept in the cache for the next transfer of this clip: %s", cache.key.folder)
+    return style_path, load_style(style_path), "extracted"

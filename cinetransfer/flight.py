@@ -17,7 +17,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from cinetransfer.job import TransferError
+from cinetransfer.job import TransferError, await_subscriber
 from cinetransfer.recorder import Recorder, Take, Window
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
@@ -50,6 +50,13 @@ class Conductor:
         self.to_bridge("hold")
         if sim_time:
             self.to_bridge("clock", pace=1.0)
+
+    def await_nodes(self, timeout: float) -> None:
+        """Wait until the planner and the bridge listen (call it before this session subscribes to
+        their keys itself: a subscriber of our own would match as well)."""
+        for what, pub in (("planner", self.planner), ("planner", self.instructions), ("autopilot_bridge", self.bridge)):
+            if not await_subscriber(pub, timeout):
+                raise TransferError(f"the {what} node does not listen for commands (see OUTDIR/deploy/{what}.log)")
 
     def undeclare(self) -> None:
         for p in (self.planner, self.bridge, self.instructions):
@@ -198,11 +205,17 @@ def _already_stopping(_signum, _frame) -> None:
 
 def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: float, realtime: bool,
         stall_s: float, meta: dict, publish_instructions: bool = True, settle_s: float = 3.0,
-        one_take: bool = False, pace: float = 0.0, min_take_s: float = 0.5) -> Recorder:
+        one_take: bool = False, pace: float = 0.0, min_take_s: float = 0.5, on_frame=None) -> Recorder:
     """Fly and record the take, stop; Ctrl-C stops the vehicle too. The planner has the smoother's
-    instructions already; a style given as a file is published here (`publish_instructions`)."""
-    rec = Recorder(session, rig, outdir, meta)
+    instructions already; a style given as a file is published here (`publish_instructions`).
+    `on_frame(slot, image)` sees every frame of the take as it is recorded."""
     cond = Conductor(session, rig)
+    try:
+        cond.await_nodes(30.0)
+    except TransferError:
+        cond.undeclare()
+        raise
+    rec = Recorder(session, rig, outdir, meta, on_frame=on_frame)
     bridge = Presence(session, rig, "autopilot_bridge")  # its death is seen at once, not after the stall timeout
     if publish_instructions:
         cond.instructions.put(codec.encode(replace(style, stamp_ns=M.now_ns(), final=True)))

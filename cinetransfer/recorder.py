@@ -80,8 +80,11 @@ class Window:
 class Recorder:
     """Subscribes to everything of the rig (see the module doc)."""
 
-    def __init__(self, session: Any, rig: str, outdir: Path, meta: dict) -> None:
+    def __init__(self, session: Any, rig: str, outdir: Path, meta: dict, on_frame: Any = None) -> None:
         self.outdir = outdir
+        #: called with (slot, image) for every frame written to the take, in slot order (the
+        #: output measured while filming, cinetransfer/live_output.py); None: nobody
+        self.on_frame = on_frame
         _reserve(outdir / RESERVE)  # OSError (no space even for that): the run stops before it flies
         self.log = RunWriter(outdir / "run.mcap", meta)
         #: the write error that stopped the recording (None: none)
@@ -216,6 +219,8 @@ class Recorder:
             self._video = H264Writer(self.outdir / "output.mp4", self._window.fps)
         self._video.write(np.asarray(p.item.image))
         self._shown.append(int(p.item.index))
+        if self.on_frame is not None:
+            self.on_frame(p.slot, p.item.image)
 
     # ------------------------------------------------------------------ control (main thread)
     def arm(self, window: Window) -> None:

@@ -35,12 +35,13 @@ from pathlib import Path
 import zenoh
 
 from cinetransfer.deploy.config import load_config
-from cinetransfer.extraction import source_style
+from cinetransfer.extraction import EXTRACTION_NODES, cached_style, source_style
 from cinetransfer.flight import check_take, fly, take_meta
 from cinetransfer.flight import merge_short as merge_short  # re-exported: callers import the schedule from here
 from cinetransfer.flight import shot_schedule as shot_schedule
-from cinetransfer.job import JOB_NODES, TransferError, deployment, run_cli, wait_alive
+from cinetransfer.job import TransferError, deployment, run_cli, wait_alive
 from cinetransfer.lease import TakeLease
+from cinetransfer.live_output import LiveOutputStyle
 from cinetransfer.recorder import Recorder
 from cinetransfer.shared import keys
 from cinetransfer.shared import messages as M
@@ -55,6 +56,8 @@ log = logging.getLogger("cinetransfer.transfer")
 #: exit code of a run whose take was degraded (held too long, lost its planner): everything is
 #: recorded and reported, but the flight is not the instructions' (docs/transfer.md, exit codes)
 EXIT_DEGRADED = 3
+#: the nodes that fly the take
+FLIGHT_NODES = {"planner", "autopilot_bridge"}
 
 
 def _subjects() -> list[str]:
@@ -78,6 +81,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds (simulated) to settle on frame 0 before recording (default %(default)s)")
     p.add_argument("--max-frames", type=int, default=0, help="use only the first N frames of the source (0 = all)")
     p.add_argument("--style", help="use this style.json instead of extracting one")
+    p.add_argument("--no-cache", action="store_true",
+                   help="extract the source's style again even if this clip was extracted with the same settings "
+                        "and code before, and do not keep it (the cache: $CT_CACHE_DIR/styles, docs/transfer.md)")
     p.add_argument("--pace", type=float, default=0.0, metavar="X",
                    help="simulated seconds per wall second during the take (default 0 = as fast as the machine "
                         "allows; 1 = watch it in real time). The result is the same either way")
@@ -108,22 +114,31 @@ def write_json(path: Path, data: dict) -> None:
         json.dump(data, fh, indent=2, default=str)
 
 
-def _job(args, src: Path, out: Path, meta: dict, timings: dict) -> tuple[Path, M.Instructions, Recorder]:
-    """Bring up (or join) the deployment, extract the style on it, fly the take, bring it down."""
+def _job(args, src: Path, out: Path, meta: dict, timings: dict, live: dict, stopping: list
+         ) -> tuple[Path, M.Instructions, Recorder]:
+    """Bring up (or join) the deployment, extract the style on it, fly the take (its frames
+    measured as they are recorded: live["output"], unless --no-eval), bring it down."""
     t = time.monotonic()
-    with deployment(args, out) as opts, zenoh_config.open_session(opts) as session, \
+    cache = cached_style(args, src)  # own deployment: known before any node starts
+    known = bool(args.style) or cache.path is not None
+    timings["cache_lookup_s"] = time.monotonic() - t
+    with deployment(args, out, extraction=not known, stopping=stopping) as opts, \
+            zenoh_config.open_session(opts) as session, \
             TakeLease(session, args.rig):  # one take at a time on the rig: a second one is refused here
-        needed = {"planner", "autopilot_bridge"} if args.style else set(JOB_NODES)
-        wait_alive(session, args.rig, needed, 180)
+        # the flight's nodes go on starting while the style is extracted
+        wait_alive(session, args.rig, FLIGHT_NODES if known else set(EXTRACTION_NODES), 180)
         timings["start_nodes_s"] = time.monotonic() - t
         t = time.monotonic()
-        style_path, style = source_style(args, src, out, session)
+        style_path, style, origin = source_style(args, src, out, session, cache)
+        meta["style_origin"] = origin
         timings["extract_source_s"] = time.monotonic() - t
         t = time.monotonic()
+        wait_alive(session, args.rig, FLIGHT_NODES, 180)
+        measurer = live["output"] = None if args.no_eval else LiveOutputStyle(out / "output.mp4", style.fps)
         rec = fly(style, outdir=out, session=session, rig=args.rig, preroll_s=args.preroll,
                   realtime=args.realtime, stall_s=args.stall_timeout, meta=meta,
-                  publish_instructions=bool(args.style), settle_s=args.settle, one_take=args.one_take,
-                  pace=args.pace, min_take_s=args.min_take)
+                  publish_instructions=origin != "extracted", settle_s=args.settle, one_take=args.one_take,
+                  pace=args.pace, min_take_s=args.min_take, on_frame=measurer.feed if measurer else None)
         timings["flight_s"] = time.monotonic() - t
         meta["health"] = {n: {"received": h.received, "rejected": h.rejected, "dropped": h.dropped,
                               "published": h.published, "counters": h.counters}
@@ -131,21 +146,42 @@ def _job(args, src: Path, out: Path, meta: dict, timings: dict) -> tuple[Path, M
     return style_path, style, rec
 
 
-def _evaluate(out: Path, src: Path, style_path: Path, rec: Recorder, meta: dict) -> dict:
+def _output_style(out: Path, meta: dict, rec: Recorder, live: LiveOutputStyle | None,
+                  timings: dict) -> Path | None:
+    """OUTDIR/output_style.json: from the frames measured while filming when that worked, else by
+    `cinetransfer extract` on output.mp4 (None when both failed: the report says so)."""
     out_style = out / "output_style.json"
+    # the output of per-shot takes is edited at the takes' first rows: its shots are known
+    takes = meta.get("takes") or []
+    cuts = [int(t["first_row"]) for t in takes[1:]] if len(takes) > 1 else None
+    t = time.monotonic()
+    if live is not None and live.finish(out_style, n_frames=int(meta.get("recorded_frames") or 0),
+                                        cuts=cuts):
+        meta["output_measured"] = "while filming (the camera's frames, before H.264)"
+        timings["extract_output_s"] = time.monotonic() - t
+        return out_style
     try:
-        # the output of per-shot takes is edited at the takes' first rows: its shots are known
-        takes = meta.get("takes") or []
-        cuts = ["--cuts", ",".join(str(t["first_row"]) for t in takes[1:])] if len(takes) > 1 else []
-        run_cli(["extract", str(out / "output.mp4"), "-o", str(out_style), *cuts], "extraction on the output")
+        run_cli(["extract", str(out / "output.mp4"), "-o", str(out_style),
+                 *(["--cuts", ",".join(map(str, cuts))] if cuts else [])], "extraction on the output")
+        meta["output_measured"] = "after the flight, from output.mp4"
     except TransferError as e:
         log.error("%s", e)
         out_style = None
+    timings["extract_output_s"] = time.monotonic() - t
+    return out_style
+
+
+def _evaluate(out: Path, src: Path, style_path: Path, rec: Recorder, meta: dict, live: LiveOutputStyle | None,
+              timings: dict) -> dict:
+    out_style = _output_style(out, meta, rec, live, timings)
+    t = time.monotonic()
     from cinetransfer.report import build_report
 
-    return build_report(out, source_style=style_path, output_style=out_style, truths=rec.truths,
-                        source_video=src, output_video=out / "output.mp4", meta=meta,
-                        recording=out / "run.mcap")
+    summary = build_report(out, source_style=style_path, output_style=out_style, truths=rec.truths,
+                           source_video=src, output_video=out / "output.mp4", meta=meta,
+                           recording=out / "run.mcap")
+    timings["report_s"] = time.monotonic() - t
+    return summary
 
 
 def _argument_problem(args, src: Path) -> str | None:
@@ -204,8 +240,29 @@ def _save_take(out: Path, style: M.Instructions, rec: Recorder, meta: dict, real
 def _transfer(args, src: Path, out: Path, meta: dict, t_start: float) -> int:
     """The job's steps in order: deployment and flight, the take saved and judged, the evaluation."""
     timings: dict[str, float] = {}
+    live: dict = {}  # the output measured while filming, once the flight starts
+    stopping: list = []  # the own deployment, stopping in the background while the take is evaluated
+    failed = True
     try:
-        style_path, style, rec = _job(args, src, out, meta, timings)
+        outcome = _take_and_evaluate(args, src, out, meta, timings, live, stopping)
+        failed = False
+    finally:
+        _wind_down(live, stopping, quiet=failed)  # after an error, that error is the one reported
+    if isinstance(outcome, int):
+        return outcome
+    timings["total_s"] = time.monotonic() - t_start
+    meta.update(timings=timings, credit=_credit(src))
+    write_json(out / "meta.json", meta)
+    print(json.dumps(outcome.get("headline", outcome), indent=2, default=str)[:3000])
+    print(f"\nreport: {(out / 'report.html').resolve()}  ({timings['total_s']:.0f} s in all)")
+    return _degraded(meta)
+
+
+def _take_and_evaluate(args, src: Path, out: Path, meta: dict, timings: dict, live: dict,
+                       stopping: list) -> dict | int:
+    """The report's summary, or the exit code of a run that ends before its evaluation."""
+    try:
+        style_path, style, rec = _job(args, src, out, meta, timings, live, stopping)
     except TransferError as e:
         if getattr(e, "flight", None) is not None:  # the flight failed: keep what it recorded
             meta["error"] = str(e)
@@ -219,15 +276,21 @@ def _transfer(args, src: Path, out: Path, meta: dict, t_start: float) -> int:
     if args.no_eval:
         print(f"recorded {meta['recorded_frames']} frames to {out / 'output.mp4'} (no evaluation)")
         return _degraded(meta)
-    t = time.monotonic()
-    summary = _evaluate(out, src, style_path, rec, meta)
-    timings["extract_output_s"] = time.monotonic() - t
-    timings["total_s"] = time.monotonic() - t_start
-    meta.update(timings=timings, credit=_credit(src))
-    write_json(out / "meta.json", meta)
-    print(json.dumps(summary.get("headline", summary), indent=2, default=str)[:3000])
-    print(f"\nreport: {(out / 'report.html').resolve()}  ({timings['total_s']:.0f} s in all)")
-    return _degraded(meta)
+    return _evaluate(out, src, style_path, rec, meta, live.get("output"), timings)
+
+
+def _wind_down(live: dict, stopping: list, *, quiet: bool) -> None:
+    """Stop measuring the output (finished already, or nothing is evaluated) and wait until the
+    own deployment has stopped: the command ends with its nodes."""
+    if live.get("output") is not None:
+        live["output"].cancel()
+    for down in stopping:
+        try:
+            down.wait()
+        except TransferError as e:
+            if not quiet:
+                raise
+            log.error("%s", e)
 
 
 def _degraded(meta: dict) -> int:

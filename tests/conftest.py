@@ -19,6 +19,13 @@ REPO = Path(__file__).resolve().parents[1]
 free_port = free_tcp_port  # tests use the same helper as the transfer command
 
 
+@pytest.fixture(autouse=True)
+def _own_cache_dir(tmp_path_factory, monkeypatch):
+    """Every test has its own cache folder ($CT_CACHE_DIR, inherited by the processes it starts):
+    a style one test extracted is never another test's cache hit (cinetransfer/style_cache.py)."""
+    monkeypatch.setenv("CT_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
+
+
 @pytest.fixture
 def port() -> int:
     return free_port()

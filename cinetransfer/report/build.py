@@ -231,9 +231,24 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
     credit = str(meta.get("credit") or figs.credit_for(source_video))
     shot_rows = ([int(t["first_row"]) for t in meta["takes"]] if meta.get("takes") else
                  [a for a, _ in shot_segments(source)])[1:]
+    # the side-by-side video decodes both videos once, and keeps the frames the figures show
+    s = fid.series
+    _, src_idx, out_idx = figs.frame_picks(s)
+    keep: tuple[dict, dict] = ({i: None for i in src_idx}, {i: None for i in out_idx})
+    video, video_error = None, ""
+    try:
+        from cinetransfer.report.video import side_by_side
+
+        video = side_by_side(outdir / VIDEO, s, source_video=source_video, output_video=output_video,
+                             fps=float(output_fps or source.fps or 24.0), keep=keep)
+    except Exception as e:  # noqa: BLE001 - the numbers are still worth a report
+        video_error = f"{type(e).__name__}: {e}"
+        log.warning("side-by-side video not made: %s", video_error)
+    decoded = tuple({i: im for i, im in d.items() if im is not None} for d in keep) if video else None
     figures, fig_errors = figs.make_figures(outdir, fid.series, source_video=source_video,
                                             output_video=output_video, credit=credit,
-                                            repeated_slots=meta.get("repeated_slots") or (), shot_rows=shot_rows)
+                                            repeated_slots=meta.get("repeated_slots") or (), shot_rows=shot_rows,
+                                            decoded=decoded)
 
     from cinetransfer.report.people import make_people
 
@@ -241,16 +256,6 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
         people = make_people(outdir, meta, source_video)
     except (OSError, ValueError, KeyError, cv2.error) as e:  # the report never fails on this picture
         people = {"error": str(e)}
-    s = fid.series
-    video, video_error = None, ""
-    try:
-        from cinetransfer.report.video import side_by_side
-
-        video = side_by_side(outdir / VIDEO, s, source_video=source_video, output_video=output_video,
-                             fps=float(output_fps or source.fps or 24.0))
-    except Exception as e:  # noqa: BLE001 - the numbers are still worth a report
-        video_error = f"{type(e).__name__}: {e}"
-        log.warning("side-by-side video not made: %s", video_error)
     summary: dict[str, Any] = {
         "people": people,
         "format": REPORT_FORMAT, "version": REPORT_VERSION,

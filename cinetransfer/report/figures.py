@@ -142,18 +142,30 @@ def _show(ax: Any, img: np.ndarray | None, text: str) -> None:
     ax.set_aspect(h / w)
 
 
+def frame_picks(series: dict[str, Any], n_samples: int = 6) -> tuple[np.ndarray, list[int], list[int]]:
+    """The rows fig_frames shows, and the source and output frame indices they show."""
+    n = len(series["t_s"])
+    picks = np.unique(np.linspace(0, n - 1, min(n_samples, n)).round().astype(int)) if n else np.zeros(0, int)
+    first = int(series.get("source_first_frame", 0))
+    return picks, [first + int(series["k"][i]) for i in picks], [int(i) for i in picks]
+
+
 def fig_frames(path: Path, series: dict[str, Any], *, source_video: str | Path | None,
-               output_video: str | Path | None, credit: str = "", n_samples: int = 6) -> Path:
+               output_video: str | Path | None, credit: str = "", n_samples: int = 6,
+               decoded: tuple[dict[int, np.ndarray], dict[int, np.ndarray]] | None = None) -> Path:
+    """`decoded`: the (source, output) frames of `frame_picks` as RGB, when the caller decoded the
+    videos already (the side-by-side video does); else they are read here."""
     t, k = series["t_s"], series["k"]
     src: F.Track = series["source"]
     ext: F.Track = series["extraction"]
     tru: F.Track = series["truth"]
     E = len(series["joint_names"])
-    n = len(t)
-    picks = np.unique(np.linspace(0, n - 1, min(n_samples, n)).round().astype(int)) if n else np.zeros(0, int)
     first = int(series.get("source_first_frame", 0))
-    src_imgs = read_frames(source_video, [first + int(k[i]) for i in picks])
-    out_imgs = read_frames(output_video, [int(i) for i in picks])
+    picks, src_idx, out_idx = frame_picks(series, n_samples)
+    src_imgs, out_imgs = decoded if decoded is not None else ({}, {})
+    missing = ([i for i in src_idx if i not in src_imgs], [i for i in out_idx if i not in out_imgs])
+    src_imgs = {**src_imgs, **(read_frames(source_video, missing[0]) if missing[0] else {})}
+    out_imgs = {**out_imgs, **(read_frames(output_video, missing[1]) if missing[1] else {})}
     cols = max(len(picks), 1)
     shapes = [im.shape[:2] for im in (*src_imgs.values(), *out_imgs.values())]
     aspect = float(np.clip(np.mean([h / w for h, w in shapes]), 0.3, 1.5)) if shapes else 9 / 16
@@ -379,7 +391,9 @@ FIGURES = (("fig_frames.png", "Sampled frames"), ("fig_joints.png", "Controlled 
 def make_figures(outdir: Path, series: dict[str, Any], *, source_video: str | Path | None,
                  output_video: str | Path | None, credit: str = "",
                  repeated_slots: Sequence[int] = (),
-                 shot_rows: Sequence[int] = ()) -> tuple[dict[str, Path], dict[str, str]]:
+                 shot_rows: Sequence[int] = (),
+                 decoded: tuple[dict[int, np.ndarray], dict[int, np.ndarray]] | None = None
+                 ) -> tuple[dict[str, Path], dict[str, str]]:
     """Every figure into outdir; returns ({file name: path}, {file name: error}). One failing
     figure is logged and reported, never fatal for the others or the report. Output frames in
     `repeated_slots` (repeats of the previous frame) are shaded on the time plots."""
@@ -387,7 +401,7 @@ def make_figures(outdir: Path, series: dict[str, Any], *, source_video: str | Pa
     done: dict[str, Path] = {}
     errors: dict[str, str] = {}
     makers = {"fig_frames.png": lambda p: fig_frames(p, series, source_video=source_video,
-                                                     output_video=output_video, credit=credit),
+                                                     output_video=output_video, credit=credit, decoded=decoded),
               "fig_joints.png": lambda p: fig_joints(p, series),
               "fig_focus.png": lambda p: fig_focus(p, series),
               "fig_error.png": lambda p: fig_error(p, series)}

@@ -40,30 +40,30 @@ class Floor:
         return float(np.nansum(self.per_frame[rows])) / k if k else float("nan")
 
 
-class _Fit:
-    """The per-frame cone program, compiled once (cvxpy parameters, DPP) for E joints. A joint that
-    is not compared has weight 0: its row of the residual is multiplied out (w x, w y, w t)."""
+def _least_errors(q: np.ndarray, p: np.ndarray, w: np.ndarray, aspect: float) -> np.ndarray:
+    """Per frame, the least summed joint error over (a, b, tx, ty) (the module doc), for all N
+    frames in one cone program (cvxpy): the frames share nothing, so one solve of their sum gives
+    each frame's own minimum at the cost of one problem set-up instead of N. q (N, E, 2) billboard
+    joints (X, Y) [m], p (N, E, 2) normalised targets, w (N, E) 1 = compared, 0 = not (that joint's
+    residual row is multiplied out: w x, w y, w t)."""
+    import cvxpy as cp
 
-    def __init__(self, n_joints: int, aspect: float):
-        import cvxpy as cp
-
-        self.q = cp.Parameter((n_joints, 2))  # w * billboard joints (X, Y) [m]
-        self.p = cp.Parameter((n_joints, 2))  # w * targets, normalised
-        self.w = cp.Parameter(n_joints, nonneg=True)  # 1 = compared, 0 = not
-        self.a, self.b, self.t = cp.Variable(), cp.Variable(), cp.Variable(2)
-        x = self.a * self.q[:, 0] + cp.multiply(self.w, self.t[0]) - self.p[:, 0]
-        y = cp.multiply(self.w, self.t[1]) - self.b * self.q[:, 1] - self.p[:, 1]
-        cons = [self.a >= 0, self.b >= 0, self.b <= aspect * self.a]
-        self.problem = cp.Problem(cp.Minimize(cp.sum(cp.norm(cp.vstack([x, y]), 2, axis=0))), cons)
-
-    def solve(self, q: np.ndarray, p: np.ndarray, w: np.ndarray) -> float:
-        self.q.value = np.nan_to_num(q) * w[:, None]
-        self.p.value = np.nan_to_num(p) * w[:, None]
-        self.w.value = w
-        self.problem.solve()
-        if self.problem.status not in ("optimal", "optimal_inaccurate"):
-            raise ValueError(f"floor fit failed: {self.problem.status}")
-        return max(float(self.problem.value), 0.0)
+    n, e = w.shape
+    q = np.nan_to_num(q) * w[..., None]
+    p = np.nan_to_num(p) * w[..., None]
+    a, b, t = cp.Variable(n), cp.Variable(n), cp.Variable((n, 2))
+    ones = np.ones((1, e))
+    x = cp.multiply(a[:, None] @ ones, q[..., 0]) + cp.multiply(w, t[:, 0:1] @ ones) - p[..., 0]
+    y = cp.multiply(w, t[:, 1:2] @ ones) - cp.multiply(b[:, None] @ ones, q[..., 1]) - p[..., 1]
+    cost = cp.sum(cp.norm(cp.vstack([cp.vec(x, order="C"), cp.vec(y, order="C")]), 2, axis=0))
+    problem = cp.Problem(cp.Minimize(cost), [a >= 0, b >= 0, b <= aspect * a])
+    problem.solve()
+    if problem.status not in ("optimal", "optimal_inaccurate"):
+        raise ValueError(f"floor fit failed: {problem.status}")
+    av, bv, tv = a.value[:, None], b.value[:, None], t.value
+    rx = av * q[..., 0] + w * tv[:, 0:1] - p[..., 0]
+    ry = w * tv[:, 1:2] - bv * q[..., 1] - p[..., 1]
+    return np.maximum(np.hypot(rx, ry).sum(axis=1), 0.0)
 
 
 def joint_error_floor(targets: np.ndarray, compared: np.ndarray, billboard: np.ndarray,
@@ -72,19 +72,20 @@ def joint_error_floor(targets: np.ndarray, compared: np.ndarray, billboard: np.n
     error counts), billboard (N, E, 2) the subject's joints in his plane [m] (X right, Y up;
     NaN = unknown), aspect = image width / height."""
     n, e = compared.shape
-    fit = _Fit(e, aspect)
     perm = mirror_permutation(joint_names)
     per = np.full(n, np.nan)
     counts = np.zeros(n, dtype=int)
-    for i in range(n):
-        w = (compared[i] & np.all(np.isfinite(billboard[i]), axis=1)).astype(float)
-        if not w.any():
-            continue
-        best = fit.solve(billboard[i], targets[i], w)
-        w_m = (compared[i] & np.all(np.isfinite(billboard[i][perm]), axis=1)).astype(float)
-        if np.array_equal(w_m, w) and not np.array_equal(perm, np.arange(e)):
-            best = min(best, fit.solve(billboard[i][perm], targets[i], w))  # left/right either way
-        per[i], counts[i] = best, int(w.sum())
+    w = (compared & np.all(np.isfinite(billboard), axis=2)).astype(float)
+    rows = np.flatnonzero(w.any(axis=1))
+    if rows.size == 0:
+        return Floor(per, counts)
+    per[rows] = _least_errors(billboard[rows], targets[rows], w[rows], aspect)
+    counts[rows] = w[rows].sum(axis=1).astype(int)
+    if not np.array_equal(perm, np.arange(e)):  # left/right either way, where both see the same joints
+        w_m = (compared & np.all(np.isfinite(billboard[:, perm]), axis=2)).astype(float)
+        both = rows[np.all(w_m[rows] == w[rows], axis=1)]
+        if both.size:
+            per[both] = np.minimum(per[both], _least_errors(billboard[both][:, perm], targets[both], w[both], aspect))
     return Floor(per, counts)
 
 

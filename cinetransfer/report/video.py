@@ -66,6 +66,13 @@ def _half(img: np.ndarray | None, width: int, text: str) -> np.ndarray:
     return cv2.resize(img, (width, HEIGHT), interpolation=cv2.INTER_AREA)
 
 
+def _keep(wanted: dict[int, Any], index: int, img: np.ndarray | None) -> None:
+    import cv2
+
+    if img is not None and index in wanted and wanted[index] is None:
+        wanted[index] = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
 def _label(img: np.ndarray, text: str, y: int) -> None:
     import cv2
 
@@ -75,8 +82,11 @@ def _label(img: np.ndarray, text: str, y: int) -> None:
 
 
 def side_by_side(path: Path, series: dict[str, Any], *, source_video: str | Path | None,
-                 output_video: str | Path | None, fps: float) -> dict[str, Any]:
-    """Write the comparison video to `path`; returns what it holds (frames, fps, duration)."""
+                 output_video: str | Path | None, fps: float,
+                 keep: tuple[dict[int, Any], dict[int, Any]] | None = None) -> dict[str, Any]:
+    """Write the comparison video to `path`; returns what it holds (frames, fps, duration).
+    `keep`: ({source frame index: None}, {output frame index: None}) to fill with those frames
+    (RGB) as they are decoded, so that the figures need not decode the videos a second time."""
     import cv2
 
     from cinetransfer.shared.video import H264Writer
@@ -95,6 +105,9 @@ def side_by_side(path: Path, series: dict[str, Any], *, source_video: str | Path
         with H264Writer(path, fps, crf=23) as w:
             for i in range(n):
                 a, b = srd.get(first + int(k[i])), ord_.get(i)
+                if keep is not None:
+                    _keep(keep[0], first + int(k[i]), a)
+                    _keep(keep[1], i, b)
                 if widths is None:
                     def wid(img: np.ndarray | None) -> int:
                         return 640 if img is None else int(round(img.shape[1] * HEIGHT / img.shape[0] / 2) * 2)

@@ -126,28 +126,45 @@ class Detector:
     def analyse(self, image_bgr: np.ndarray, stamp_ns: int) -> tuple[list[PersonDetection], list[Skeleton],
                                                                     FocusResult | None]:
         """People, skeletons and focus of one BGR frame."""
+        return self._analyse(image_bgr, stamp_ns)[:3]
+
+    def _analyse(self, image_bgr: np.ndarray, stamp_ns: int) -> tuple[list[PersonDetection], list[Skeleton],
+                                                                      FocusResult | None, np.ndarray]:
+        """People, skeletons, focus and colour signature of one BGR frame.
+
+        Two cores, three jobs: the pose backend keeps both busy on its own (SSD beside the
+        landmarks), so the focus map's edge stage and the colour signature wait until it is done
+        and then run beside the caller's mask refinement, which needs the pose; the fallback
+        detector, when there is one, starts at once (it is the longest job)."""
         if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or image_bgr.dtype != np.uint8:
             raise ValueError(f"expected a BGR uint8 image (H, W, 3), got {image_bgr.dtype} {image_bgr.shape}")
         h, w = image_bgr.shape[:2]
 
+        def fallback_work():
+            return self.fallback.detect(image_bgr) if self.fallback is not None else []
+
         def side_work():  # everything that does not need the pose result (runs on the other core)
             ev = self.focus.measure_edges(image_bgr) if self.focus is not None else None
-            extra = self.fallback.detect(image_bgr) if self.fallback is not None else []
-            return ev, extra
+            return ev, shots.colour_signature(image_bgr)
 
-        fut = self._pool.submit(side_work) if self._pool is not None else None
+        pool = self._pool
+        extra_fut = pool.submit(fallback_work) if pool is not None and self.fallback is not None else None
+        side_fut = None
         try:
             people, skeletons = self.backend.detect(image_bgr, stamp_ns)
+            side_fut = pool.submit(side_work) if pool is not None else None
+            if self.cfg.mask_refine_radius_px > 0:
+                people = subject_mask.refine_people(image_bgr, people, skeletons,
+                                                    radius=self.cfg.mask_refine_radius_px)
         finally:
-            ev, extra = fut.result() if fut is not None else side_work()
-        if self.cfg.mask_refine_radius_px > 0:
-            people = subject_mask.refine_people(image_bgr, people, skeletons, radius=self.cfg.mask_refine_radius_px)
+            extra = extra_fut.result() if extra_fut is not None else fallback_work()
+            ev, sig = side_fut.result() if side_fut is not None else side_work()
         if extra:
             people = self._merge_fallback(people, extra)
         focus = None
         if self.focus is not None and ev is not None:
             focus = self.focus.propagate(ev, people_mask(people, w, h))
-        return people, skeletons, focus
+        return people, skeletons, focus, sig
 
     def _merge_fallback(self, people: list[PersonDetection], extra: list[PersonDetection]) -> list[PersonDetection]:
         """Add fallback (box-only) people that no pose person already covers; skeleton indices stay valid
@@ -166,9 +183,8 @@ class Detector:
     def process(self, image_bgr: np.ndarray, frame_index: int = 0, stamp_ns: int = 0, *, source: str = "",
                 fps: float = float("nan"), lens: LensState | None = None, valid: bool = True) -> Measurement:
         """One Measurement for one BGR frame (an empty one, not an error, when nobody is there)."""
-        people, skeletons, focus = self.analyse(image_bgr, stamp_ns)
+        people, skeletons, focus, sig = self._analyse(image_bgr, stamp_ns)
         h, w = image_bgr.shape[:2]
-        sig = shots.colour_signature(image_bgr)
         prev = self._prev_shot
         # Only consecutive frames of one source are compared: after a gap nothing is known.
         change = (shots.shot_change(prev[2], sig) if prev is not None and prev[0] == source

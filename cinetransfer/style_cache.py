@@ -1,0 +1,215 @@
+"""The source's style, kept between transfers of the same clip: extracting it (source -> detector
+-> smoother) is the largest single cost of a transfer, and a user iterating on a scene, subject or
+planner setting extracts the very same clip again and again.
+
+An entry is reused only when everything that decides the style is the same: the clip's content
+(sha256 of its bytes, not its name or date), the frames used (`--max-frames`), the effective
+settings of the source, detector and smoother nodes (as each node reports them), the code that
+measures and smooths (a hash of the source files of shared/ and of every service but the
+planner and the bridge), the
+detector's model files, the versions of the numeric libraries, and the message schemas. Any
+difference is another key, so stale data is never reused; an entry that cannot be read is
+ignored (and replaced).
+
+    CT_CACHE_DIR/styles/<key>/style.json    the style, as the extraction wrote it
+    CT_CACHE_DIR/styles/<key>/key.json      what the key was made of (for a human reading it)
+
+CT_CACHE_DIR defaults to $XDG_CACHE_HOME/cinetransfer (~/.cache/cinetransfer), shared/paths.py.
+`transfer --no-cache` neither reads nor writes it; deleting the folder is always safe.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+from cinetransfer.shared.paths import cache_dir
+
+log = logging.getLogger("cinetransfer.transfer")
+
+#: bump when the entry's layout changes
+CACHE_FORMAT = 1
+#: the nodes whose settings decide the style
+STYLE_NODES = ("source", "detector", "smoother")
+#: libraries whose numbers end up in the style (a new version may round differently)
+LIBRARIES = ("numpy", "scipy", "opencv-python-headless", "ai-edge-litert", "mediapipe", "cvxpy", "osqp", "clarabel",
+             "scs", "ecos")
+_PACKAGE = Path(__file__).resolve().parent
+
+
+@dataclass(frozen=True)
+class StyleKey:
+    """The cache key of one extraction and what it was made of."""
+
+    digest: str
+    facts: dict[str, Any]
+
+    @property
+    def folder(self) -> Path:
+        return cache_dir("styles", self.digest)
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+#: services whose code cannot change a style (they fly it); every other service counts, so that a
+#: new measuring service is covered without being named here
+FLIGHT_SERVICES = ("planner", "autopilot_bridge")
+
+
+def _code_roots() -> list[Path]:
+    """The installed source folders of the code that measures and smooths (the package layout maps
+    cinetransfer.shared and cinetransfer.services onto shared/ and services/)."""
+    from cinetransfer import services, shared
+
+    top = Path(services.__file__).parent
+    return [Path(shared.__file__).parent, *(p for p in sorted(top.iterdir())
+                                           if p.is_dir() and p.name not in FLIGHT_SERVICES)]
+
+
+@lru_cache(maxsize=1)
+def code_version() -> str:
+    """sha256 over the source files of shared/, every service but the flight's, and the extraction
+    modules (by name and content: a file moved between them counts as a change)."""
+    h = hashlib.sha256()
+    files = sorted(p for root in _code_roots() for p in root.rglob("*.py"))
+    files += [_PACKAGE / "extraction.py", _PACKAGE / "extract.py"]
+    for p in files:
+        h.update(p.name.encode() + b"\0" + p.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+@lru_cache(maxsize=1)
+def models_version() -> str:
+    """sha256 over the detector's installed model files ('' when none are installed)."""
+    from cinetransfer.services.detector.box_models import models_dir
+
+    root = models_dir()
+    if not root.is_dir():
+        return ""
+    h = hashlib.sha256()
+    for p in sorted(root.iterdir()):
+        if p.is_file():
+            h.update(p.name.encode() + b"\0" + file_sha256(p).encode())
+    return h.hexdigest()
+
+
+def library_versions() -> dict[str, str]:
+    out = {}
+    for name in LIBRARIES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = ""
+    return out
+
+
+def node_configs_local(node_args: dict[str, list[str]]) -> dict[str, str]:
+    """The effective settings the transfer's own nodes run with (their flags `node_args`), computed
+    by each node's own parser as the node computes them, as the JSON each node reports."""
+    from cinetransfer.services.detector import service as detector
+    from cinetransfer.services.detector.config import config_from_args as detector_config
+    from cinetransfer.services.smoother import service as smoother
+    from cinetransfer.services.source import service as source
+    from cinetransfer.services.source.config import SourceConfig
+    from cinetransfer.shared import nodeconfig
+
+    def parsed(build, name):
+        return build().parse_args(node_args.get(name, []))
+
+    cfgs = {"source": nodeconfig.config_from_args(SourceConfig, parsed(source.build_parser, "source"), "source"),
+            "detector": detector_config(parsed(detector.build_parser, "detector")),
+            "smoother": smoother.node_config(parsed(smoother.build_parser, "smoother"))}
+    return {name: config_json(cfg) for name, cfg in cfgs.items()}
+
+
+def config_json(cfg: Any) -> str:
+    """A config as a node reports it on its config key (shared/node.py)."""
+    import dataclasses
+
+    if dataclasses.is_dataclass(cfg):
+        cfg = dataclasses.asdict(cfg)
+    return json.dumps(cfg, default=str, sort_keys=True)
+
+
+def node_configs_remote(session: Any, rig: str, timeout: float = 5.0) -> dict[str, str] | None:
+    """The effective settings of a running deployment's style nodes, asked on their config keys
+    (None when one does not answer: then nothing is cached)."""
+    from cinetransfer.shared import keys
+
+    out = {}
+    for name in STYLE_NODES:
+        replies = [r.ok.payload.to_string() for r in session.get(keys.config(rig, name), timeout=timeout)
+                   if r.ok is not None]
+        if len(replies) != 1:
+            return None
+        out[name] = replies[0]
+    return out
+
+
+def style_key(clip: Path, max_frames: int | None, node_configs: dict[str, str]) -> StyleKey:
+    """The key of extracting `clip` (its first `max_frames` frames; None = all) with these settings."""
+    from cinetransfer.shared import messages as M
+
+    facts = {"format": CACHE_FORMAT, "clip_sha256": file_sha256(clip), "clip_name": clip.name,
+             "max_frames": int(max_frames) if max_frames else None, "configs": dict(sorted(node_configs.items())),
+             "code": code_version(), "models": models_version(), "libraries": library_versions(),
+             "schemas": {"Measurement": M.Measurement.SCHEMA_VERSION, "Instructions": M.Instructions.SCHEMA_VERSION}}
+    # the clip's name is for a human reading key.json: the same bytes under another name are the same clip
+    keyed = {k: v for k, v in facts.items() if k != "clip_name"}
+    digest = hashlib.sha256(json.dumps(keyed, sort_keys=True).encode()).hexdigest()[:40]
+    return StyleKey(digest, facts)
+
+
+def lookup(key: StyleKey) -> Path | None:
+    """The cached style.json of `key`, or None (absent, or an entry that does not hold what its
+    key says: ignored, and replaced by the next store)."""
+    entry = key.folder
+    style = entry / "style.json"
+    try:
+        stored = json.loads((entry / "key.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if stored.get("digest") != key.digest or not style.is_file():
+        log.warning("style cache: entry %s is damaged; extracting again", entry)
+        return None
+    try:
+        from cinetransfer.shared.instructions import load_style
+
+        load_style(style)
+    except Exception as e:  # noqa: BLE001 - any unreadable entry is a miss, never a failed run
+        log.warning("style cache: %s cannot be read (%s); extracting again", style, e)
+        return None
+    return style
+
+
+def store(key: StyleKey, style_path: Path) -> Path | None:
+    """Keep `style_path` under `key` (written whole or not at all); None when the cache folder
+    cannot be written (the transfer goes on: a cache is never a reason to fail)."""
+    entry = key.folder
+    try:
+        entry.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{key.digest}.", dir=entry.parent))
+        shutil.copyfile(style_path, tmp / "style.json")
+        (tmp / "key.json").write_text(json.dumps({"digest": key.digest, **key.facts}, indent=1) + "\n")
+        if entry.exists():
+            shutil.rmtree(entry, ignore_errors=True)
+        os.replace(tmp, entry)
+    except OSError as e:
+        log.warning("style cache: could not store the style in %s (%s)", entry, e)
+        shutil.rmtree(locals().get("tmp", entry.parent / ".none"), ignore_errors=True)
+        return None
+    return entry
