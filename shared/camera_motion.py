@@ -264,6 +264,22 @@ def rates_from_poses(ypr_rad: np.ndarray, focal_mm: np.ndarray, fps: float) -> d
     return out
 
 
+def translation_from_velocity(velocity_w: np.ndarray, ypr_rad: np.ndarray, distance_m: float) -> np.ndarray:
+    """Unit translation direction (3,) in the camera frame (x right, y down, z forward) of a camera
+    moving at `velocity_w` (world, m/s) with attitude `ypr_rad`; zeros when the move is too slow to
+    show against a scene `distance_m` away (|v| / distance below ZOOM_MIN_PER_S: a dolly that
+    changes the subject's size less than the least zoom that counts); NaN when unknown."""
+    from cinetransfer.shared.camera import rotation_ypr
+
+    v, ypr = np.asarray(velocity_w, dtype=float), np.asarray(ypr_rad, dtype=float)
+    if not (np.isfinite(v).all() and np.isfinite(ypr).all() and math.isfinite(distance_m) and distance_m > 0):
+        return np.full(3, np.nan)
+    fwd, left, up = rotation_ypr(*ypr).T @ v  # camera axes of shared/camera.py: forward, left, up
+    t = np.array([-left, -up, fwd])
+    speed = float(np.linalg.norm(t))
+    return t / speed if speed / distance_m >= ZOOM_MIN_PER_S else np.zeros(3)
+
+
 def _rotvec(r: np.ndarray) -> np.ndarray:
     """Rotation vector (3,) [rad] of a rotation matrix (small or moderate angles)."""
     c = max(-1.0, min(1.0, (np.trace(r) - 1.0) / 2.0))

@@ -3,7 +3,8 @@
 and per shot how often the output's class matches the source's.
 
 Output row k is instruction row k (the take is filmed frame for frame); truth rows come from the
-vehicle states at the recorded frames' stamps (the camera's yaw, pitch, roll) and each frame's
+vehicle states at the recorded frames' stamps (the camera's yaw, pitch, roll and the vehicle's
+velocity, which counts as a translation from |v| / subject distance >= 0.03 /s) and each frame's
 focal length.
 """
 from __future__ import annotations
@@ -14,6 +15,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from cinetransfer.services.smoother.camera_motion import motion_style
 from cinetransfer.shared import camera_motion as cm
 from cinetransfer.shared import messages as M
 
@@ -32,15 +34,18 @@ def style_rates(instr: M.Instructions | None) -> dict[str, np.ndarray] | None:
 
 
 def truth_rates(states: Sequence[M.VehicleState], truths: Sequence[M.GroundTruth], rows: int,
-                fps: float) -> dict[str, Any] | None:
+                fps: float, starts: Sequence[int] = ()) -> dict[str, Any] | None:
     """Rates per instruction row from the camera's poses at the recorded frames (each frame: the
-    last vehicle state stamped at or before it) and the frames' focal lengths; None without truth."""
+    last vehicle state stamped at or before it) and the frames' focal lengths; None without truth.
+    Rows in `starts` begin a take: the camera settled between it and the row before, so no rate.
+    Smoothed and classed as the smoother does the clip's motion."""
     if not truths or not states or rows <= 0:
         return None
     st = sorted(states, key=lambda s: int(s.stamp_ns))
     stamps = np.array([int(s.stamp_ns) for s in st], dtype=np.int64)
     ypr = np.full((rows, 3), np.nan)
     focal = np.full(rows, np.nan)
+    trans = np.full((rows, 3), np.nan)
     for t in truths:
         k = int(t.frame_index)
         i = int(np.searchsorted(stamps, int(t.stamp_ns), side="right")) - 1
@@ -48,10 +53,15 @@ def truth_rates(states: Sequence[M.VehicleState], truths: Sequence[M.GroundTruth
             ypr[k] = np.asarray(st[i].camera_ypr_rad, dtype=float)
             f = float(t.focal_length_mm)
             focal[k] = f if np.isfinite(f) and f > 0 else float(st[i].lens.focal_length_mm)
-    out: dict[str, Any] = cm.rates_from_poses(ypr, focal, fps)
-    out["translation_dir"] = np.zeros((rows, 3))  # not derived from the poses (yet): see docs/report.md
-    out["class"] = [cm.classify(*(out[n][k] for n in RATES)) for k in range(rows)]
-    return out
+            trans[k] = cm.translation_from_velocity(st[i].velocity_mps, ypr[k], float(t.subject_distance_m))
+    raw = cm.rates_from_poses(ypr, focal, fps)
+    # per frame, as the detector measures it; then smoothed and classed as the smoother does the clip's
+    motion = np.column_stack([np.radians([raw[n] for n in RATES[:3]]).T / fps, raw["zoom_rate"] / fps, trans])
+    cuts = np.zeros(rows, dtype=bool)
+    cuts[[k for k in starts if 0 <= k < rows]] = True
+    style = motion_style(motion, fps, cuts)
+    return {**{n: np.asarray(style[n], dtype=float) for n in (*RATES, "translation_dir")},
+            "class": style["camera_motion_class"]}
 
 
 def _part(r: dict[str, Any] | None, a: int, b: int) -> dict[str, Any] | None:
@@ -91,7 +101,7 @@ def camera_motion_summary(source: M.Instructions, output: M.Instructions | None,
                 "shots": []}, {}
     rows = len(src["class"])
     out = style_rates(output)
-    tru = truth_rates(states, truths, rows, float(source.fps))
+    tru = truth_rates(states, truths, rows, float(source.fps), [a for a, _ in segments if 0 <= a < rows])
     shots = []
     for i, (a, b) in enumerate(segments):
         shots.append({"shot": i, "rows": [int(a), int(b)], "source": _part(src, a, b), "output": _part(out, a, b),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from conftest import REPO
 def sources():
     spec = importlib.util.spec_from_file_location("cm_sources", REPO / "benchmarks" / "camera_motion_sources.py")
     mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # its dataclasses look their module up
     spec.loader.exec_module(mod)
     return mod
 

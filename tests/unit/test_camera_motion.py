@@ -126,6 +126,20 @@ def test_rates_from_poses_by_hand():
     np.testing.assert_allclose(roll["roll_rate_dps"][1:], math.degrees(0.6), rtol=1e-6)
 
 
+def test_translation_from_the_vehicle_velocity_in_camera_axes():
+    look_east = np.zeros(3)  # yaw 0: looking along world +x
+    np.testing.assert_allclose(cm.translation_from_velocity([1.0, 0, 0], look_east, 5.0), [0, 0, 1], atol=1e-12)
+    # world +y is the camera's left: x right = -1
+    np.testing.assert_allclose(cm.translation_from_velocity([0, 0.5, 0], look_east, 5.0), [-1, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(cm.translation_from_velocity([0, 0, -0.5], look_east, 5.0), [0, 1, 0], atol=1e-12)
+    # looking north (yaw 90 deg), flying east: to the camera's right
+    np.testing.assert_allclose(cm.translation_from_velocity([1.0, 0, 0], [math.pi / 2, 0, 0], 5.0), [1, 0, 0],
+                               atol=1e-12)
+    # 0.1 m/s against a subject 10 m away changes its size by 1 %/s: below the least zoom that counts
+    assert not cm.translation_from_velocity([0.1, 0, 0], look_east, 10.0).any()
+    assert np.isnan(cm.translation_from_velocity([1.0, 0, 0], look_east, 0.0)).all()
+
+
 def test_smoother_style_per_shot_in_degrees_per_second():
     n, fps = 30, 24.0
     mo = np.zeros((n, 7))
