@@ -243,3 +243,17 @@ def test_report_json_and_page_carry_the_section(tmp_path):
     page = (tmp_path / "report.html").read_text()
     assert "<h2>Camera motion</h2>" in page and "The source camera was static." in page
     assert summary["camera_motion"] == js["camera_motion"]
+
+
+def test_people_are_masked_out_of_the_background_with_a_margin():
+    from cinetransfer.services.detector.camera_motion import MASK_MARGIN_PX, background_mask
+
+    mask = np.ones((40, 20), dtype=bool)  # a 20 x 40 px person at (100, 60) of a 640 x 360 frame
+    p = M.PersonDetection(box_xyxy=np.array([100, 60, 120, 100], np.float32), mask=mask,
+                          mask_origin_xy=np.array([100, 60], np.int32))
+    boxed = M.PersonDetection(box_xyxy=np.array([400, 200, 440, 280], np.float32), mask=np.zeros((0, 0), bool),
+                              mask_origin_xy=np.array([400, 200], np.int32))
+    bg = background_mask([p, boxed], 640, 360, (320, 180))  # half size: the person covers x 50-59, y 30-49
+    assert bg[40, 55] == 0 and bg[30 - MASK_MARGIN_PX, 55] == 0 and bg[30 - MASK_MARGIN_PX - 1, 55] == 255
+    assert bg[120, 210] == 0  # no mask: its box (x 200-219, y 100-139 at half size)
+    assert (bg == 255).mean() > 0.9
