@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cinetransfer.report.camera_motion import RATES, _part, style_rates
+from cinetransfer.report.camera_motion import RATES, shot_motion, style_rates
 from cinetransfer.services.smoother.config import SmootherConfig
 from cinetransfer.services.smoother.core import smooth_sequence
 from cinetransfer.extract import extract_features
@@ -51,7 +51,7 @@ def evaluate_source(video: Path, cfg: SmootherConfig) -> dict:
     t0 = time.monotonic()
     feats, source = extract_features(video, cfg)
     instr = smooth_sequence(feats, cfg, source=source, known_cuts=[]).instructions
-    got = _part(style_rates(instr), 0, len(instr.camera_motion_class))
+    got = shot_motion(style_rates(instr), 0, len(instr.camera_motion_class))
     errors = {}
     for n in RATES:
         want = float(np.nanmedian(np.array(tr[n], dtype=float)))
@@ -70,7 +70,7 @@ def clip_classes(clip: Path, cfg: SmootherConfig) -> dict:
     feats, source = extract_features(clip, cfg)
     instr = smooth_sequence(feats, cfg, source=source).instructions
     rates = style_rates(instr)
-    return {"shots": [{"rows": [a, b], **_part(rates, a, b)} for a, b in shot_segments(instr)],
+    return {"shots": [{"rows": [a, b], **shot_motion(rates, a, b)} for a, b in shot_segments(instr)],
             "frame_classes": dict(Counter(instr.camera_motion_class).most_common())}
 
 

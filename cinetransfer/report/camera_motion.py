@@ -64,7 +64,7 @@ def truth_rates(states: Sequence[M.VehicleState], truths: Sequence[M.GroundTruth
             "class": style["camera_motion_class"]}
 
 
-def _part(r: dict[str, Any] | None, a: int, b: int) -> dict[str, Any] | None:
+def shot_motion(r: dict[str, Any] | None, a: int, b: int) -> dict[str, Any] | None:
     """Class and median rates of rows [a, b) of one side (None when the side is missing)."""
     if r is None or len(r["class"]) < b:
         return None
@@ -104,8 +104,9 @@ def camera_motion_summary(source: M.Instructions, output: M.Instructions | None,
     tru = truth_rates(states, truths, rows, float(source.fps), [a for a, _ in segments if 0 <= a < rows])
     shots = []
     for i, (a, b) in enumerate(segments):
-        shots.append({"shot": i, "rows": [int(a), int(b)], "source": _part(src, a, b), "output": _part(out, a, b),
-                      "truth": _part(tru, a, b), "agreement": agreement(src["class"], out and out["class"], a, b),
+        shots.append({"shot": i, "rows": [int(a), int(b)], "source": shot_motion(src, a, b),
+                      "output": shot_motion(out, a, b), "truth": shot_motion(tru, a, b),
+                      "agreement": agreement(src["class"], out and out["class"], a, b),
                       "truth_agreement": agreement(src["class"], tru and tru["class"], a, b)})
     summary = {"available": True, "assumed_hfov_deg": cm.ASSUMED_HFOV_DEG,
                "output_reason": "" if out is not None else "no camera-motion fields in the output's style",

@@ -183,8 +183,17 @@ def motion_vector(m: Measurement) -> np.ndarray:
     cmo = getattr(m, "camera_motion", None)
     if cmo is None:
         return np.full(7, np.nan)
-    return np.concatenate([np.asarray(cmo.rotation_rad, dtype=float), [float(cmo.log_zoom)],
-                           np.asarray(cmo.translation_dir, dtype=float)])
+    v = np.concatenate([np.asarray(cmo.rotation_rad, dtype=float).reshape(-1)[:3], [float(cmo.log_zoom)],
+                        np.asarray(cmo.translation_dir, dtype=float).reshape(-1)[:3]])
+    # a frame-to-frame motion beyond half a turn, a zoom beyond e^1 or a direction longer than 1
+    # is no camera's: unknown (a message from another process must not overflow the rates)
+    bad = np.abs(v[:3]) > np.pi, abs(v[3]) > 1.0, np.linalg.norm(np.nan_to_num(v[4:])) > 1.0 + 1e-6
+    v[:3][bad[0]] = np.nan
+    if bad[1]:
+        v[3] = np.nan
+    if bad[2]:
+        v[4:] = np.nan
+    return v
 
 
 def occupancy_grids(crops: list[tuple[np.ndarray, int, int]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -25,7 +25,7 @@ def sources():
 @pytest.mark.parametrize("name", ["static", "pan_right", "tilt_up", "roll_cw", "zoom_in"])
 def test_a_crop_move_of_a_static_clip_is_classified_and_measured(sources, data, tmp_path, name):
     from cinetransfer.extract import extract_features
-    from cinetransfer.report.camera_motion import RATES, _part, style_rates
+    from cinetransfer.report.camera_motion import RATES, shot_motion, style_rates
     from cinetransfer.services.smoother.config import SmootherConfig
     from cinetransfer.services.smoother.core import smooth_sequence
 
@@ -36,7 +36,7 @@ def test_a_crop_move_of_a_static_clip_is_classified_and_measured(sources, data, 
     cfg = SmootherConfig()
     feats, src = extract_features(video, cfg)
     instr = smooth_sequence(feats, cfg, source=src, known_cuts=[]).instructions
-    got = _part(style_rates(instr), 0, len(instr.camera_motion_class))
+    got = shot_motion(style_rates(instr), 0, len(instr.camera_motion_class))
     assert got["class"] == move.cls, got
     for n in RATES:
         want = float(np.nanmedian(np.array(truth[n], dtype=float)))

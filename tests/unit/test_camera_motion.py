@@ -257,3 +257,14 @@ def test_people_are_masked_out_of_the_background_with_a_margin():
     assert bg[40, 55] == 0 and bg[30 - MASK_MARGIN_PX, 55] == 0 and bg[30 - MASK_MARGIN_PX - 1, 55] == 255
     assert bg[120, 210] == 0  # no mask: its box (x 200-219, y 100-139 at half size)
     assert (bg == 255).mean() > 0.9
+
+
+def test_a_measurement_with_an_impossible_motion_is_unknown_not_a_crash():
+    from cinetransfer.services.smoother.features import motion_vector
+
+    cmo = M.CameraMotion(rotation_rad=np.array([1e300, 0.01, 0.0]), log_zoom=50.0,
+                         translation_dir=np.array([3.0, 0.0, 0.0]), focal_px=900.0, points=40, explained=0.9)
+    v = motion_vector(M.Measurement(camera_motion=cmo))
+    assert math.isnan(v[0]) and v[1] == 0.01 and math.isnan(v[3]) and np.isnan(v[4:]).all()
+    st = motion_style(np.tile(v, (5, 1)), 24.0, np.zeros(5, dtype=bool))
+    assert np.isfinite(st["tilt_rate_dps"][1:]).all() and np.isnan(st["pan_rate_dps"]).all()
