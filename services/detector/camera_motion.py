@@ -1,8 +1,9 @@
 """The camera's motion between consecutive frames: background corners tracked on a small grey
 copy of the frame (people masked out), then fitted by shared/camera_motion.py.
 
-Cost: about 4-5 ms of CPU per frame at 1280x720 (a 320 px wide grey copy, up to 200 corners,
-pyramidal Lucas-Kanade forward and back, the fit), measured on a loaded 2-core machine.
+Cost: about 4-5 ms of CPU per frame at 1280x720 (a 320 px wide grey copy, up to 200 corners
+carried from frame to frame, pyramidal Lucas-Kanade forward and back, the fit), measured on a
+loaded 2-core machine.
 """
 from __future__ import annotations
 
