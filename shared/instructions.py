@@ -97,12 +97,17 @@ def instructions_to_dict(instr: M.Instructions) -> dict[str, Any]:
     return d
 
 
+def _absent_ok(f: dataclasses.Field) -> bool:
+    """A field added after the first version that may be None: a file written before it lacks it."""
+    return f.metadata.get("since", 1) > 1 and (bool(f.metadata.get("optional")) or f.default is None)
+
+
 def instructions_from_dict(d: dict[str, Any]) -> M.Instructions:
     """Inverse of `instructions_to_dict` (shapes and values checked by the codec)."""
     kw: dict[str, Any] = {}
     for f in dataclasses.fields(M.Instructions):
         if f.name not in d:
-            if f.metadata.get("optional") and f.metadata.get("since", 1) > 1:
+            if _absent_ok(f):
                 continue  # written before the field existed: its default (e.g. one shot)
             raise StyleFileError(f"instructions.{f.name} is missing")
         v = d[f.name]
@@ -144,6 +149,7 @@ def check_consistent(instr: M.Instructions) -> None:
             raise StyleFileError(f"{name} has {n} rows where image_targets has {K}")
     if instr.shot_start is not None and instr.shot_start.shape[0] != K:
         raise StyleFileError(f"shot_start has {instr.shot_start.shape[0]} rows where image_targets has {K}")
+    _check_motion(instr, K)
     for j in instr.joint_names:
         if j not in M.COCO17_NAMES:
             raise StyleFileError(f"joint {j!r} is not a COCO-17 name")
@@ -152,6 +158,29 @@ def check_consistent(instr: M.Instructions) -> None:
                              "the vehicle's camera films at the style's frame rate")
     if not (instr.fps > 0 and abs(instr.frame_duration_s * instr.fps - 1.0) < 1e-6):
         raise StyleFileError(f"fps {instr.fps} and frame_duration_s {instr.frame_duration_s} disagree")
+
+
+#: the camera-motion fields of Instructions (all present, or all None: no motion style)
+MOTION_FIELDS = ("camera_motion_class", "pan_rate_dps", "tilt_rate_dps", "roll_rate_dps", "zoom_rate",
+                 "translation_dir")
+
+
+def _check_motion(instr: M.Instructions, rows: int) -> None:
+    """The camera-motion fields: all or none, one row each, classes from the vocabulary."""
+    from cinetransfer.shared.camera_motion import CLASSES
+
+    have = [n for n in MOTION_FIELDS if getattr(instr, n) is not None]
+    if not have:
+        return
+    if len(have) != len(MOTION_FIELDS):
+        raise StyleFileError(f"camera motion: {', '.join(sorted(set(MOTION_FIELDS) - set(have)))} missing "
+                             f"where {', '.join(have)} are given")
+    for n in MOTION_FIELDS:
+        if len(getattr(instr, n)) != rows:
+            raise StyleFileError(f"{n} has {len(getattr(instr, n))} rows where image_targets has {rows}")
+    bad = {c for c in instr.camera_motion_class if c and not set(c.split("+")) <= set(CLASSES)}
+    if bad:
+        raise StyleFileError(f"camera_motion_class: {sorted(bad)[0]!r} is not made of {', '.join(CLASSES)}")
 
 
 # --------------------------------------------------------------------------- schema
@@ -179,8 +208,7 @@ def json_schema() -> dict[str, Any]:
     instr = {
         "type": "object",
         "description": "Same content as the Instructions message (shared/messages.py); NaN is null.",
-        "required": ["schema_version"] + [f.name for f in dataclasses.fields(M.Instructions)
-                                          if not (f.metadata.get("optional") and f.metadata.get("since", 1) > 1)],
+        "required": ["schema_version"] + [f.name for f in dataclasses.fields(M.Instructions) if not _absent_ok(f)],
         "properties": {
             "schema_version": {"enum": list(range(M.Instructions.MIN_SCHEMA_VERSION,
                                                   M.Instructions.SCHEMA_VERSION + 1))},
@@ -206,6 +234,18 @@ def json_schema() -> dict[str, Any]:
             "mu_m": {"type": "number", "exclusiveMinimum": 0},
             "shot_start": {"type": ["array", "null"], "items": {"type": "boolean"},
                            "description": "(K,) row starts a new shot of the source; null or absent = one shot"},
+            "camera_motion_class": {"type": ["array", "null"], "items": {"type": "string"},
+                                    "description": "(K,) the camera's move per row ('static', 'pan+tilt', ...; "
+                                                   "'' = unknown); null or absent = no camera-motion style"},
+            **{n: {"type": ["array", "null"], "items": _num_or_null(), "description": d}
+               for n, d in (("pan_rate_dps", "(K,) pan rate, positive to the camera's left [deg/s]"),
+                            ("tilt_rate_dps", "(K,) tilt rate, positive up [deg/s]"),
+                            ("roll_rate_dps", "(K,) roll rate, positive clockwise as the camera sees it [deg/s]"),
+                            ("zoom_rate", "(K,) d ln(focal length)/dt [1/s]"))},
+            "translation_dir": {"type": ["array", "null"], "items": {"type": "array", "items": _num_or_null(),
+                                                                       "minItems": 3, "maxItems": 3},
+                                "description": "(K, 3) unit translation direction, camera frame (x right, y down, "
+                                               "z forward); zeros = none seen"},
         },
         "additionalProperties": True,
     }
@@ -311,7 +351,13 @@ def slice_instructions(instr: M.Instructions, start: int, stop: int, *, final: b
         image_targets=instr.image_targets[start:stop].copy(), subject_visible=instr.subject_visible[start:stop].copy(),
         subject_box=instr.subject_box[start:stop].copy(), focus_raw=instr.focus_raw[start:stop].copy(),
         focus_smoothed=instr.focus_smoothed[start:stop].copy(), focus_in=instr.focus_in[start:stop].copy(),
-        shot_start=None if instr.shot_start is None else _shot_starts(instr.shot_start[start:stop]))
+        shot_start=None if instr.shot_start is None else _shot_starts(instr.shot_start[start:stop]),
+        **{n: None if getattr(instr, n) is None else _rows_of(getattr(instr, n), start, stop) for n in MOTION_FIELDS})
+
+
+def _rows_of(v, start: int, stop: int):
+    """Rows [start, stop) of a per-row field (an array or a list)."""
+    return v[start:stop].copy() if isinstance(v, np.ndarray) else list(v[start:stop])
 
 
 def _shot_starts(starts: np.ndarray) -> np.ndarray:

@@ -129,10 +129,30 @@ class Skeleton:
 
 
 @dataclass(frozen=True, eq=False)
+class CameraMotion:
+    """How the camera moved from the previous frame of the source to this one, measured on the
+    background's image motion with the people masked out (shared/camera_motion.py)."""
+
+    rotation_rad: np.ndarray = array("float64", (3,), allow_nan=True,
+                                     doc="pan (to the camera's left), tilt (up), roll (clockwise as the camera "
+                                         "sees it) since the previous frame [rad]; NaN = unknown")
+    log_zoom: float = doc("ln(focal length now / before) (> 0: zooming in); NaN = unknown", float("nan"))
+    translation_dir: np.ndarray = array("float64", (3,), allow_nan=True,
+                                        doc="direction of the camera's translation, unit vector in the camera "
+                                            "frame (x right, y down, z forward); zeros = none seen (no "
+                                            "parallax); NaN = unknown")
+    focal_px: float = doc("focal length [px of the frame] the rates were measured with (the frame's lens, else "
+                          "the assumed field of view); NaN = unknown", float("nan"))
+    points: int = doc("background points tracked", 0)
+    explained: float = doc("share of the points that rotation + zoom explains; NaN = too few points",
+                           float("nan"))
+
+
+@dataclass(frozen=True, eq=False)
 class Measurement:
     """Everything the detector measured in one frame (DESIGN §1.1 'for every frame')."""
 
-    SCHEMA_VERSION: ClassVar[int] = 2  # 2: shot_change
+    SCHEMA_VERSION: ClassVar[int] = 3  # 2: shot_change; 3: camera_motion
     MIN_SCHEMA_VERSION: ClassVar[int] = 1
     stamp_ns: int = doc("capture time of the frame [ns]", 0)
     seq: int = doc("sequence number", 0)
@@ -152,6 +172,8 @@ class Measurement:
     shot_change: float = doc("colour-histogram distance to the previous frame of the source in [0, 1] "
                              "(a hard cut scores near 1); NaN = first frame or not computed",
                              float("nan"), since=2)
+    camera_motion: CameraMotion | None = doc("the camera's motion since the previous frame of the source; None = "
+                                             "first frame, a gap, or not measured", None, since=3)
 
 
 @dataclass(frozen=True, eq=False)
@@ -174,7 +196,7 @@ class Instructions:
     several shots: `shot_start` marks the rows where each begins (a drone films each as a take).
     """
 
-    SCHEMA_VERSION: ClassVar[int] = 2  # 2: shot_start
+    SCHEMA_VERSION: ClassVar[int] = 3  # 2: shot_start; 3: camera motion
     MIN_SCHEMA_VERSION: ClassVar[int] = 1
     stamp_ns: int = doc("time of the newest measurement used [ns]", 0)
     seq: int = doc("sequence number", 0)
@@ -204,6 +226,24 @@ class Instructions:
     shot_start: np.ndarray = array("bool", (None,), optional=True, since=2,
                                           doc="row k starts a new shot of the source (a cut), shape (K,); "
                                               "row 0 is always a start; null = one shot")
+    camera_motion_class: list[str] | None = doc(
+        "the source camera's move in each row, shape (K,): 'static', or moves of 'pan', 'tilt', 'roll', 'zoom_in', "
+        "'zoom_out', 'dolly_in', 'dolly_out', 'truck', 'pedestal', 'orbit', 'dolly_zoom' joined with '+'; '' = "
+        "unknown; None = no camera-motion style (the planner ignores it)", None, since=3)
+    pan_rate_dps: np.ndarray = array("float32", (None,), optional=True, allow_nan=True, since=3,
+                                     doc="smoothed pan rate, positive to the camera's left (yaw up), shape (K,) "
+                                         "[deg/s]; NaN = unknown")
+    tilt_rate_dps: np.ndarray = array("float32", (None,), optional=True, allow_nan=True, since=3,
+                                      doc="smoothed tilt rate, positive up, shape (K,) [deg/s]; NaN = unknown")
+    roll_rate_dps: np.ndarray = array("float32", (None,), optional=True, allow_nan=True, since=3,
+                                      doc="smoothed roll rate, positive clockwise as the camera sees it, shape "
+                                          "(K,) [deg/s]; NaN = unknown")
+    zoom_rate: np.ndarray = array("float32", (None,), optional=True, allow_nan=True, since=3,
+                                  doc="smoothed d ln(focal length)/dt, shape (K,) [1/s]; NaN = unknown")
+    translation_dir: np.ndarray = array("float32", (None, 3), optional=True, allow_nan=True, since=3,
+                                        doc="direction of the camera's translation, unit vector in the camera frame "
+                                            "(x right, y down, z forward), shape (K, 3); zeros = none seen; "
+                                            "NaN = unknown")
 
 
 @dataclass(frozen=True, eq=False)
@@ -384,7 +424,7 @@ MESSAGE_TYPES: dict[str, type] = {
 
 #: Types that appear only inside other messages.
 NESTED_TYPES: dict[str, type] = {
-    cls.__name__: cls for cls in (LensState, PersonDetection, Skeleton, SourceInfo)
+    cls.__name__: cls for cls in (LensState, PersonDetection, Skeleton, SourceInfo, CameraMotion)
 }
 
 

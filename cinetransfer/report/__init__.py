@@ -6,7 +6,8 @@
 
 writes outdir/report.html (self-contained, offline), outdir/report.json and outdir/fig_*.png.
 Modules: fidelity (pure metrics), figures (matplotlib Agg PNGs), html (the page),
-truthfile (the run's GroundTruth log), style (path-or-message adapter), cli
+truthfile (the run's GroundTruth log), style (path-or-message adapter), camera_motion (the
+camera's moves: source, output, truth), cli
 (`cinetransfer report RUN_DIR`). See docs/report.md.
 """
 from __future__ import annotations

@@ -82,16 +82,29 @@ def camera_roll_deg(states: Sequence[M.VehicleState], frame_stamps_ns: Sequence[
     return {"p50": round(float(p50), 2), "p95": round(float(p95), 2), "max": round(float(r.max()), 2)}
 
 
-def recorded_roll(run: Any, truths: Sequence[M.GroundTruth]) -> dict[str, float] | None:
-    """camera_roll_deg at the recorded frames (the truths' stamps), from the vehicle states of a
-    run.mcap (a shared.runlog.RunReader)."""
-    if not truths:
-        return None
+def vehicle_states(run: Any) -> list[M.VehicleState]:
+    """Every vehicle state of a run.mcap (by topic: the camera frames are not decoded)."""
     from cinetransfer.shared import codec
 
-    states = [codec.decode(p, M.VehicleState) for topic in run.info.channels if topic.endswith("/vehicle/state")
-              for _, _, p in run.messages(topic)]  # by topic: the camera frames are not decoded
-    return camera_roll_deg(states, [t.stamp_ns for t in truths])
+    return [codec.decode(p, M.VehicleState) for topic in run.info.channels if topic.endswith("/vehicle/state")
+            for _, _, p in run.messages(topic)]
+
+
+def camera_motion_facts(outdir: Path, source: M.Instructions, output: M.Instructions | None,
+                        states: Sequence[M.VehicleState], truths: Sequence[M.GroundTruth],
+                        segments: Sequence[tuple[int, int]]) -> tuple[dict[str, Any], dict[str, Path]]:
+    """report.json's camera_motion and its figure (a failed figure is reported, never fatal)."""
+    from cinetransfer.report import camera_motion as CM
+
+    summary, series = CM.camera_motion_summary(source, output, states, truths, segments)
+    if not series:
+        return summary, {}
+    try:
+        return summary, {CM.FIGURE: CM.fig_camera_motion(outdir / CM.FIGURE, series)}
+    except Exception as e:  # noqa: BLE001 - a plotting bug must not lose the numbers
+        log.exception("figure %s failed", CM.FIGURE)
+        summary["figure_error"] = f"{type(e).__name__}: {e}"[:300]
+        return summary, {}
 
 
 def recording_facts(meta: dict[str, Any], roll: dict[str, float] | None = None) -> dict[str, Any]:
@@ -250,6 +263,12 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
                                             repeated_slots=meta.get("repeated_slots") or (), shot_rows=shot_rows,
                                             decoded=decoded)
 
+    segs = ([(int(t["first_row"]), int(t["end_row"])) for t in meta["takes"]] if meta.get("takes")
+            else shot_segments(source))
+    states = vehicle_states(run) if run and truths else []
+    motion, motion_fig = camera_motion_facts(outdir, source, output, states, truths, segs)
+    figures.update(motion_fig)
+
     from cinetransfer.report.people import make_people
 
     try:
@@ -268,9 +287,10 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
                    "output_video_info": vinfo, "source": {"path": source.source.path, "fps": source.fps,
                                                           "frames": int(source.image_targets.shape[0])}},
         "credit": credit,
-        "recording": recording_facts(meta, recorded_roll(run, truths) if run else None),
+        "recording": recording_facts(meta, camera_roll_deg(states, [t.stamp_ns for t in truths]) if states else None),
         "truth_floor": floor_summary,
         "shots": per_shot(source, output, list(truths), output_fps, meta.get("takes"), floor),
+        "camera_motion": motion,
         "figures": sorted(figures),
         "figure_errors": fig_errors,
         "video": video, "video_error": video_error,

@@ -342,6 +342,14 @@ def _recording_card(rec: dict[str, Any] | None) -> str:
             f"<p class='small'>Open it in Foxglove or Rerun (docs/recording.md).</p></div>")
 
 
+def _camera_motion(summary: dict[str, Any], figures: dict[str, Path], embed: bool) -> str:
+    from cinetransfer.report.camera_motion import FIGURE, camera_motion_card
+
+    fig = figures.get(FIGURE)
+    body = f"<figure>{_img(Path(fig), embed)}</figure>" if fig and Path(fig).is_file() else ""
+    return camera_motion_card(summary.get("camera_motion"), body)
+
+
 def render_html(summary: dict[str, Any], figures: dict[str, Path], *, meta: dict[str, Any],
                 figure_errors: dict[str, str] | None = None, credit: str = "", embed: bool = True,
                 video: Path | None = None, video_error: str = "") -> str:
@@ -439,6 +447,7 @@ reach for a region when no focus distance and f-number in the vehicle's lens ran
 distances filmed, gives the region the source's label (together with the labels granted before it: subject,
 then background, then foreground); the goals judge the agreement over the other frames, and both are shown.</p>
 {_unreachable_table(summary)}</div>
+{_camera_motion(summary, figures, embed)}
 <h2>Side by side</h2>
 <div class="card">{_video(video, summary.get("video"), video_error, embed)}</div>
 <h2>Alignment</h2>

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from cinetransfer.shared import nodeconfig
+from cinetransfer.shared.camera_motion import ASSUMED_HFOV_DEG
 from cinetransfer.shared.errors import ConfigError  # noqa: F401 (callers import it from here)
 from cinetransfer.shared.nodeconfig import setting
 
@@ -93,6 +94,11 @@ class DetectorConfig:
     focus_edge_threshold: float = 8.0  # min gradient magnitude for an edge pixel [grey levels/px]
     focus_propagation_sigma_px: float = 10.0  # spatial scale of sparse-to-dense propagation [work px]
     focus_no_edge_prior: float = 0.3  # P(in focus) where no edge is near (flat or very blurred areas)
+    # --- camera motion (camera_motion.py): background corners tracked between consecutive frames
+    camera_motion: bool = setting(True, flag="--no-camera-motion", help="skip the camera-motion measure")
+    camera_hfov_deg: float = setting(ASSUMED_HFOV_DEG, flag="--camera-hfov", unit="deg", range="[5, 150]",
+                                     metavar="DEG", help="horizontal field of view assumed for a frame whose "
+                                                         "lens is unknown (rotation rates scale with it)")
     # --- execution
     threads: int = setting(2, flag="--threads", choices=(1, 2),
                            help="1 = sequential; 2 = focus and pose in parallel (uses both cores)")
@@ -129,6 +135,7 @@ class DetectorConfig:
             need(0.0 <= getattr(self, name) <= 1.0, name, "[0, 1]")
         need(0.0 < self.mask_threshold < 1.0, "mask_threshold", "(0, 1)")
         need(0 <= self.mask_refine_radius_px <= 20, "mask_refine_radius_px", "0..20")
+        need(5.0 <= self.camera_hfov_deg <= 150.0, "camera_hfov_deg", "[5, 150]")
         need(0.0 < self.dedup_iou <= 1.0, "dedup_iou", "(0, 1]")
         need(self.upscale_max_side_px == 0 or 64 <= self.upscale_max_side_px <= 4096, "upscale_max_side_px",
              "0 or 64..4096")

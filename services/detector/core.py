@@ -24,6 +24,7 @@ from typing import Iterator
 import numpy as np
 
 from cinetransfer.services.detector import shots, subject_mask
+from cinetransfer.services.detector.camera_motion import CameraMotionTracker
 from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.services.detector.focus import FocusEstimator, FocusResult
 from cinetransfer.shared.frame_sources import iter_frames
@@ -94,6 +95,7 @@ class Detector:
 
             self.fallback = HogPeople(self.cfg)
         self._prev_shot: tuple[str, int, np.ndarray] | None = None  # (source, frame index, signature)
+        self.motion = CameraMotionTracker(self.cfg.camera_hfov_deg) if self.cfg.camera_motion else None
         self._pool = (cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="focus")
                       if self.cfg.threads > 1 and (self.focus is not None or self.fallback is not None) else None)
 
@@ -118,6 +120,8 @@ class Detector:
     def reset(self) -> None:
         """Forget temporal state (tracking) before an unrelated sequence."""
         self._prev_shot = None
+        if self.motion is not None:
+            self.motion.reset()
         reset = getattr(self.backend, "reset", None)
         if reset is not None:
             reset()
@@ -190,7 +194,9 @@ class Detector:
         change = (shots.shot_change(prev[2], sig) if prev is not None and prev[0] == source
                   and prev[1] == int(frame_index) - 1 else float("nan"))
         self._prev_shot = (source, int(frame_index), sig)
-        return Measurement(shot_change=change, stamp_ns=int(stamp_ns), valid=valid, source=source,
+        motion = (self.motion.update(image_bgr, people, source=source, frame_index=int(frame_index), lens=lens)
+                  if self.motion is not None else None)
+        return Measurement(shot_change=change, camera_motion=motion, stamp_ns=int(stamp_ns), valid=valid, source=source,
                            frame_index=int(frame_index),
                            fps=float(fps) if fps is not None and math.isfinite(fps) else float("nan"),
                            width=w, height=h, people=people, skeletons=skeletons,

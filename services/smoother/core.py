@@ -24,6 +24,7 @@ from cinetransfer.services.smoother import shots as shots_mod
 from cinetransfer.services.smoother import joints as joints_mod
 from cinetransfer.services.smoother import subject as subject_mod
 from cinetransfer.services.smoother.config import SmootherConfig
+from cinetransfer.services.smoother.camera_motion import motion_style
 from cinetransfer.services.smoother.features import FrameFeatures, empty_features, frame_features
 from cinetransfer.shared import messages as M
 
@@ -281,7 +282,8 @@ def _instructions(frames: list[FrameFeatures], track: _Track, focus: _Focus, cfg
         image_targets=targets.astype(np.float32), subject_visible=track.sel.visible.copy(),
         subject_box=box_n.astype(np.float32), focus_raw=np.where(focus.present, focus.b, np.nan).astype(np.float32),
         focus_smoothed=focus.B_out.astype(np.float32), focus_in=focus.focus_in, theta=float(cfg.theta),
-        mu_m=float(cfg.mu_m), shot_start=_shot_start(cuts, len(frames)))
+        mu_m=float(cfg.mu_m), shot_start=_shot_start(cuts, len(frames)),
+        **motion_style(np.array([f.motion for f in frames]), fps, cuts))
 
 
 def reconcile_frame_count(src: M.SourceInfo, *, first: int, rows: int,

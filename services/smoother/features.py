@@ -52,6 +52,9 @@ class FrameFeatures:
     has_focus: bool = False  # a focus map was measured
     valid: bool = True
     shot_change: float = float("nan")  # detector's colour distance to the previous frame; NaN = unknown
+    #: the camera's motion since the previous frame: pan, tilt, roll [rad], log-zoom, translation
+    #: direction (3,); NaN = unknown (shared/camera_motion.py)
+    motion: np.ndarray = field(default_factory=lambda: np.full(7, np.nan))
 
     n_people: int = -1  # set from boxes
 
@@ -172,7 +175,25 @@ def frame_features(m: Measurement, *, focus_pixel_threshold: float = 0.5,
                          grid_x=gx, grid_y=gy,
                          joints=joints, joint_conf=jconf, inside=inside, focus=focus,
                          focus_none=focus_none, has_focus=bool(has_focus), valid=bool(m.valid),
-                         shot_change=float(m.shot_change))
+                         shot_change=float(m.shot_change), motion=motion_vector(m))
+
+
+def motion_vector(m: Measurement) -> np.ndarray:
+    """(7,) pan, tilt, roll [rad], log-zoom and translation direction of a measurement; NaN = unknown."""
+    cmo = getattr(m, "camera_motion", None)
+    if cmo is None:
+        return np.full(7, np.nan)
+    v = np.concatenate([np.asarray(cmo.rotation_rad, dtype=float).reshape(-1)[:3], [float(cmo.log_zoom)],
+                        np.asarray(cmo.translation_dir, dtype=float).reshape(-1)[:3]])
+    # a frame-to-frame motion beyond half a turn, a zoom beyond e^1 or a direction longer than 1
+    # is no camera's: unknown (a message from another process must not overflow the rates)
+    bad = np.abs(v[:3]) > np.pi, abs(v[3]) > 1.0, np.linalg.norm(np.nan_to_num(v[4:])) > 1.0 + 1e-6
+    v[:3][bad[0]] = np.nan
+    if bad[1]:
+        v[3] = np.nan
+    if bad[2]:
+        v[4:] = np.nan
+    return v
 
 
 def occupancy_grids(crops: list[tuple[np.ndarray, int, int]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -206,6 +206,17 @@ def test_transfer_through_zenoh_processes(data, tmp_path, port, listener_opts):
     # and lies below what was flown
     floor = report["truth_floor"]
     assert floor["joint_frames"] == len(errs) and 0.0 <= floor["joint_error"] < float(np.mean(errs))
+    # the camera-motion section: the juggler's locked-off camera reads as static; the output is
+    # measured the same way, and the truth comes from the recorded camera poses
+    cmo = report["camera_motion"]
+    assert cmo["available"] and [s["rows"] for s in cmo["shots"]] == [[0, FRAMES]], cmo
+    shot = cmo["shots"][0]
+    assert shot["source"]["class"] == "static", shot
+    for side in ("source", "output", "truth"):
+        assert {"class", "pan_rate_dps", "tilt_rate_dps", "roll_rate_dps", "zoom_rate"} <= set(shot[side]), side
+    assert shot["truth"]["pan_rate_dps"] is not None and 0.0 <= shot["agreement"] <= 1.0
+    assert "fig_camera_motion.png" in report["figures"]
+    assert "The source camera was static." in (out / "report.html").read_text()
     # and the report's side-by-side video is H.264 and plays offline in headless Chromium, when there is one
     assert probe(out / "report_video.mp4")["frames"] == FRAMES
     assert report["recording_file"]["complete"] is True

@@ -1,0 +1,113 @@
+"""The camera's motion between consecutive frames: background corners tracked on a small grey
+copy of the frame (people masked out), then fitted by shared/camera_motion.py.
+
+Cost: about 4-5 ms of CPU per frame at 1280x720 (a 320 px wide grey copy, up to 200 corners
+carried from frame to frame, pyramidal Lucas-Kanade forward and back, the fit), measured on a
+loaded 2-core machine.
+"""
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from cinetransfer.shared import camera_motion as cm
+from cinetransfer.shared.messages import CameraMotion, LensState, PersonDetection
+
+MAX_CORNERS = 200
+#: search for fresh corners when fewer than this many of the tracked ones are left
+MIN_KEPT = 120
+#: people's masks are grown by this much [px at the work width]: their edges and shadows move too
+MASK_MARGIN_PX = 4
+#: a track whose backward track misses its start by more than this is dropped [px at the work width]
+FB_ERROR_PX = 0.5
+_LK = dict(winSize=(11, 11), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.03))
+
+
+def background_mask(people: list[PersonDetection], width: int, height: int, size: tuple[int, int]) -> np.ndarray:
+    """uint8 (h, w) at the work size `size` = (w, h): 255 where no person (nor its margin) is."""
+    w, h = size
+    sx, sy = w / width, h / height
+    out = np.full((h, w), 255, np.uint8)
+    for p in people:
+        ox, oy = float(p.mask_origin_xy[0]), float(p.mask_origin_xy[1])
+        mh, mw = p.mask.shape
+        x0, y0 = int(math.floor(ox * sx)), int(math.floor(oy * sy))
+        x1, y1 = int(math.ceil((ox + mw) * sx)), int(math.ceil((oy + mh) * sy))
+        if mw and mh and x1 > x0 and y1 > y0:
+            m = cv2.resize(p.mask.astype(np.uint8), (x1 - x0, y1 - y0), interpolation=cv2.INTER_NEAREST)
+        else:  # no mask: the whole box
+            b = p.box_xyxy
+            x0, y0, x1, y1 = (int(math.floor(b[0] * sx)), int(math.floor(b[1] * sy)), int(math.ceil(b[2] * sx)),
+                              int(math.ceil(b[3] * sy)))
+            m = np.ones((max(y1 - y0, 0), max(x1 - x0, 0)), np.uint8)
+        cx0, cy0, cx1, cy1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
+        if cx1 > cx0 and cy1 > cy0:
+            out[cy0:cy1, cx0:cx1][m[cy0 - y0:cy1 - y0, cx0 - x0:cx1 - x0] > 0] = 0
+    if MASK_MARGIN_PX > 0 and (out == 0).any():
+        out = cv2.erode(out, np.ones((2 * MASK_MARGIN_PX + 1,) * 2, np.uint8))
+    return out
+
+
+def frame_focal_px(lens: LensState | None, width: int, hfov_deg: float) -> float:
+    """Focal length [px] of a frame `width` px wide: from its lens when known, else the assumed field of view."""
+    if lens is not None and lens.focal_length_mm > 0 and lens.sensor_width_mm > 0:
+        return float(lens.focal_length_mm / lens.sensor_width_mm * width)
+    return cm.focal_px(width, hfov_deg)
+
+
+class CameraMotionTracker:
+    """Consecutive frames of one source in, the camera's motion between them out."""
+
+    def __init__(self, hfov_deg: float = cm.ASSUMED_HFOV_DEG, work_width: int = cm.WORK_WIDTH) -> None:
+        self.hfov_deg = float(hfov_deg)
+        self.work_width = int(work_width)
+        self._prev: tuple[str, int, np.ndarray, np.ndarray | None] | None = None  # source, index, grey, corners
+
+    def reset(self) -> None:
+        self._prev = None
+
+    def update(self, image_bgr: np.ndarray, people: list[PersonDetection], *, source: str, frame_index: int,
+               lens: LensState | None = None) -> CameraMotion | None:
+        """The motion since the previous frame (None when this is not the next frame of one source)."""
+        h, w = image_bgr.shape[:2]
+        ww = min(self.work_width, w)
+        size = (ww, max(int(round(h * ww / w)), 8))
+        grey = cv2.resize(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY), size, interpolation=cv2.INTER_AREA)
+        mask = background_mask(people, w, h, size)
+        prev = self._prev
+        out = None
+        kept = None
+        f_work = frame_focal_px(lens, w, self.hfov_deg) * ww / w
+        if prev is not None and prev[0] == source and prev[1] == int(frame_index) - 1:
+            p0, p1 = self._track(prev[2], grey, prev[3], mask)
+            kept = p1
+            centre = np.array([(size[0] - 1) / 2.0, (size[1] - 1) / 2.0])
+            fm = cm.frame_motion(p0 - centre, p1 - centre, f_work, inlier_px=cm.INLIER_PX * ww / cm.WORK_WIDTH)
+            out = CameraMotion(rotation_rad=fm.rotation_rad.astype(float), log_zoom=float(fm.log_zoom),
+                               translation_dir=fm.translation_dir.astype(float), focal_px=float(f_work * w / ww),
+                               points=int(fm.points), explained=float(fm.explained))
+        # the corners tracked into this frame go on to the next while enough are left (saves the
+        # corner search, ~15 % of the stage); else a fresh search off the people
+        corners = (kept.reshape(-1, 1, 2).astype(np.float32) if kept is not None and len(kept) >= MIN_KEPT
+                   else cv2.goodFeaturesToTrack(grey, MAX_CORNERS, 0.01, 8, mask=mask, blockSize=5))
+        self._prev = (source, int(frame_index), grey, corners)
+        return out
+
+    @staticmethod
+    def _track(g0: np.ndarray, g1: np.ndarray, corners: np.ndarray | None,
+               mask1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Corners of g0 tracked into g1, kept when the backward track returns and they land off
+        the people of g1: (N, 2) each, work pixels."""
+        if corners is None or len(corners) == 0:
+            return np.zeros((0, 2)), np.zeros((0, 2))
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(g0, g1, corners, None, **_LK)
+        p0r, st_b, _ = cv2.calcOpticalFlowPyrLK(g1, g0, p1, None, **_LK)
+        a, b = corners.reshape(-1, 2), p1.reshape(-1, 2)
+        ok = (st.ravel() == 1) & (st_b.ravel() == 1) & (np.linalg.norm(p0r.reshape(-1, 2) - a, axis=1) < FB_ERROR_PX)
+        hh, ww = mask1.shape
+        xi, yi = np.clip(b[:, 0].round().astype(int), 0, ww - 1), np.clip(b[:, 1].round().astype(int), 0, hh - 1)
+        inside = (b[:, 0] >= 0) & (b[:, 0] < ww) & (b[:, 1] >= 0) & (b[:, 1] < hh)
+        ok &= inside & (mask1[yi, xi] > 0)
+        return a[ok].astype(float), b[ok].astype(float)

@@ -1,0 +1,288 @@
+"""Camera motion from image motion: the math (pure numpy; the detector tracks the points).
+
+Image points are pixels relative to the principal point (the image centre), x right, y down; the
+camera frame is x right, y down, z forward. Per frame the background's points move by the
+instantaneous motion field of a camera that rotates, zooms and translates:
+
+    u = p (f + x^2/f) + t (x y / f)   + r y + s x + (x Tz - f Tx) / Z
+    v = p (x y / f)   + t (f + y^2/f) - r x + s y + (y Tz - f Ty) / Z
+
+with p the pan (positive: the camera turns to its left, the scene moves right), t the tilt
+(positive: up, the scene moves down), r the roll (positive: clockwise as the camera sees it, the
+scene turns counter-clockwise) in rad per frame, s = d ln(focal length) per frame, T the
+translation and Z each point's depth. Evaluated at the midpoint of each track the first-order
+field is exact to second order.
+
+The focal length in pixels of a source whose lens is unknown comes from `ASSUMED_HFOV_DEG`; a
+wrong guess scales the rotation rates by about the ratio of the focal lengths (the classes and the
+zoom rate do not depend on it).
+
+Rotation + zoom is fitted robustly (RANSAC on two-point samples, then least squares on the
+inliers). When that model leaves much of the background unexplained, parallax shows a
+translation: rotation and translation direction are then fitted with each point's depth
+eliminated (the residual must point along (x Tz - f Tx, y Tz - f Ty)).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+#: horizontal field of view assumed for a source whose lens is unknown [deg]: about the simulated
+#: camera's starting lens (30-35 mm on CineMPC's 23.76 mm sensor: 43-38 deg)
+ASSUMED_HFOV_DEG = 40.0
+
+#: the vocabulary of classes, in the order combinations are written ("pan+tilt")
+CLASSES = ("static", "pan", "tilt", "roll", "zoom_in", "zoom_out", "dolly_in", "dolly_out", "truck",
+           "pedestal", "orbit", "dolly_zoom")
+
+#: |rate| from which a rotation counts as a move [deg/s]
+ROTATION_MIN_DPS = 1.5
+#: |d ln f / dt| from which a zoom counts as a move [1/s]
+ZOOM_MIN_PER_S = 0.03
+#: a point fits a model within this distance [px at the work width WORK_WIDTH]
+INLIER_PX = 0.6
+WORK_WIDTH = 320
+#: rotation + zoom explains the frame when at least this share of the points fit it
+EXPLAINED_SHARE = 0.8
+#: fewest background points for a fit
+MIN_POINTS = 12
+#: ... and a translation is seen when rotation + translation explains this much larger a share
+PARALLAX_GAIN = 0.15
+
+
+def focal_px(width: int, hfov_deg: float = ASSUMED_HFOV_DEG) -> float:
+    """Focal length in pixels of an image `width` px wide with horizontal field of view `hfov_deg`."""
+    return 0.5 * width / math.tan(math.radians(hfov_deg) / 2.0)
+
+
+def hfov_deg(focal_mm: float, sensor_width_mm: float) -> float:
+    """Horizontal field of view [deg] of a lens on a sensor."""
+    return math.degrees(2.0 * math.atan(0.5 * sensor_width_mm / focal_mm))
+
+
+def rotation_zoom_basis(pts: np.ndarray, f: float) -> np.ndarray:
+    """(N, 2, 4) the motion field of unit pan, tilt, roll [rad] and log-zoom at points (N, 2)."""
+    x, y = pts[:, 0], pts[:, 1]
+    out = np.empty((len(pts), 2, 4))
+    out[:, 0, 0], out[:, 1, 0] = f + x * x / f, x * y / f
+    out[:, 0, 1], out[:, 1, 1] = x * y / f, f + y * y / f
+    out[:, 0, 2], out[:, 1, 2] = y, -x
+    out[:, 0, 3], out[:, 1, 3] = x, y
+    return out
+
+
+@dataclass(frozen=True)
+class FrameMotion:
+    """The camera's motion between two frames, per frame (not per second)."""
+
+    rotation_rad: np.ndarray  #: (3,) pan, tilt, roll [rad]; NaN = unknown
+    log_zoom: float  #: ln(f_now / f_before); NaN = unknown
+    translation_dir: np.ndarray  #: (3,) unit vector, camera frame; zeros = none seen; NaN = unknown
+    points: int  #: background points used
+    explained: float  #: share of them rotation + zoom explains; NaN = too few points
+
+    @staticmethod
+    def unknown(points: int = 0) -> "FrameMotion":
+        return FrameMotion(np.full(3, np.nan), math.nan, np.full(3, np.nan), int(points), math.nan)
+
+
+def _solve(basis: np.ndarray, flow: np.ndarray) -> np.ndarray:
+    """Least-squares parameters (4,) of the motion field `basis` (N, 2, 4) for `flow` (N, 2)."""
+    a = basis.reshape(-1, 4)
+    q, *_ = np.linalg.lstsq(a, flow.reshape(-1), rcond=None)
+    return q
+
+
+def fit_rotation_zoom(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float, iters: int = 64,
+                      rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Pan, tilt, roll [rad] and log-zoom (4,) moving points p0 to p1 (N, 2, centred px), and the
+    inlier mask (N,): RANSAC over two-point samples, then least squares on the best inliers."""
+    rng = rng or np.random.default_rng(0)
+    mid, flow = 0.5 * (p0 + p1), p1 - p0
+    basis = rotation_zoom_basis(mid, f)
+    n = len(p0)
+    pairs = rng.integers(0, n, size=(iters, 2))
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    a = basis[pairs].reshape(len(pairs), 4, 4)  # two points x (u, v) rows per hypothesis
+    b = flow[pairs].reshape(len(pairs), 4)
+    ok = np.abs(np.linalg.det(a)) > 1e-9
+    hyps = np.linalg.solve(a[ok], b[ok][..., None])[..., 0] if ok.any() else np.zeros((0, 4))
+    hyps = np.vstack([hyps, np.zeros((1, 4))])  # "nothing moved" is always a candidate
+    pred = np.einsum("nkj,hj->hnk", basis, hyps)
+    inl = np.linalg.norm(pred - flow[None], axis=2) < inlier_px
+    best = inl[int(np.argmax(inl.sum(axis=1)))]
+    q = _solve(basis[best], flow[best]) if best.sum() >= 2 else np.zeros(4)
+    inl = np.linalg.norm(basis @ q - flow, axis=1) < inlier_px
+    if inl.sum() >= 2:
+        q = _solve(basis[inl], flow[inl])
+    return q, inl
+
+
+def _translation_dir(mid: np.ndarray, resid: np.ndarray, f: float) -> np.ndarray:
+    """Unit T (3,) that the residual flow (N, 2) points along, each point's depth eliminated: the
+    null vector of the rows [f r_y, -f r_x, r_x y - r_y x]; signed so that the depths are positive."""
+    x, y = mid[:, 0], mid[:, 1]
+    rows = np.stack([f * resid[:, 1], -f * resid[:, 0], resid[:, 0] * y - resid[:, 1] * x], axis=1)
+    t = np.linalg.svd(rows, full_matrices=False)[2][-1]
+    d = np.stack([x * t[2] - f * t[0], y * t[2] - f * t[1]], axis=1)
+    if np.sum(np.einsum("nk,nk->n", d, resid)) < 0:  # inverse depth = (r . d) / |d|^2 must be > 0
+        t = -t
+    return t / np.linalg.norm(t)
+
+
+def _perpendicular(mid: np.ndarray, flow: np.ndarray, basis: np.ndarray, rot: np.ndarray, t: np.ndarray,
+                   f: float) -> np.ndarray:
+    """Each point's residual flow across its translation line (N,) [px]: zero when a depth explains it."""
+    d = np.stack([mid[:, 0] * t[2] - f * t[0], mid[:, 1] * t[2] - f * t[1]], axis=1)
+    r = flow - basis @ rot
+    return np.abs(r[:, 0] * d[:, 1] - r[:, 1] * d[:, 0]) / np.maximum(np.linalg.norm(d, axis=1), 1e-9)
+
+
+def fit_rotation_translation(p0: np.ndarray, p1: np.ndarray, f: float, rot0: np.ndarray, *, inlier_px: float,
+                             iters: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rotation (3,) [rad], translation direction (3,) and inliers (N,) moving p0 to p1 with
+    parallax: alternate the direction given the rotation and the rotation given the direction
+    (linear in each), from `rot0`, dropping the points far off the model (moving things). The
+    depth of every point is eliminated, so a zoom and a dolly past a flat background are the same
+    to it: call it only when rotation + zoom does not explain the points."""
+    mid, flow = 0.5 * (p0 + p1), p1 - p0
+    basis = rotation_zoom_basis(mid, f)[:, :, :3]
+    rot = np.asarray(rot0, dtype=float).copy()
+    t = np.zeros(3)
+    use = np.ones(len(mid), dtype=bool)
+    for i in range(iters):
+        t = _translation_dir(mid[use], flow[use] - basis[use] @ rot, f)
+        d = np.stack([mid[:, 0] * t[2] - f * t[0], mid[:, 1] * t[2] - f * t[1]], axis=1)
+        # cross(flow - B rot, d) = 0 is linear in rot: cross(B rot, d) = cross(flow, d)
+        a = basis[:, 0, :] * d[:, 1:2] - basis[:, 1, :] * d[:, 0:1]
+        b = flow[:, 0] * d[:, 1] - flow[:, 1] * d[:, 0]
+        rot, *_ = np.linalg.lstsq(a[use], b[use], rcond=None)
+        if i >= 1:  # trim once the model has settled a little
+            keep = _perpendicular(mid, flow, basis, rot, t, f) < 3.0 * inlier_px
+            use = keep if keep.sum() >= MIN_POINTS else use
+    return rot, t, _perpendicular(mid, flow, basis, rot, t, f) < inlier_px
+
+
+def frame_motion(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float = INLIER_PX) -> FrameMotion:
+    """The camera's motion between two frames from background points p0 -> p1 (N, 2, centred px,
+    at the resolution whose focal length is `f` px). A translation is reported only when parallax
+    shows it: rotation + zoom leaves much unexplained and rotation + translation explains it."""
+    p0, p1 = np.asarray(p0, dtype=float).reshape(-1, 2), np.asarray(p1, dtype=float).reshape(-1, 2)
+    n = len(p0)
+    if n < MIN_POINTS:
+        return FrameMotion.unknown(n)
+    q, inl = fit_rotation_zoom(p0, p1, f, inlier_px=inlier_px)
+    explained = float(inl.mean())
+    if explained < EXPLAINED_SHARE:
+        rot, t, inl_t = fit_rotation_translation(p0, p1, f, q[:3], inlier_px=inlier_px)
+        if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= explained + PARALLAX_GAIN:
+            return FrameMotion(rot, 0.0, t, n, explained)
+    return FrameMotion(q[:3].copy(), float(q[3]), np.zeros(3), n, explained)
+
+
+# --------------------------------------------------------------------------- per shot
+def smooth_rates(x: np.ndarray, window: int) -> np.ndarray:
+    """Median then mean over a centred window of `window` rows (NaN ignored; NaN where the window
+    holds nothing finite). Columns are smoothed independently."""
+    a = np.asarray(x, dtype=float)
+    flat = a.reshape(len(a), -1)
+    out = np.full_like(flat, np.nan)
+    h = max(int(window) // 2, 0)
+    med = np.full_like(flat, np.nan)
+    for k in range(len(flat)):
+        w = flat[max(0, k - h):k + h + 1]
+        fin = np.isfinite(w).any(axis=0)
+        med[k, fin] = np.nanmedian(w[:, fin], axis=0)
+    for k in range(len(flat)):
+        w = med[max(0, k - h):k + h + 1]
+        fin = np.isfinite(w).any(axis=0)
+        out[k, fin] = np.nanmean(w[:, fin], axis=0)
+    return out.reshape(a.shape)
+
+
+def classify(pan_dps: float, tilt_dps: float, roll_dps: float, zoom_rate: float,
+             translation_dir: np.ndarray | None = None) -> str:
+    """The class of one set of rates: the moves present joined with "+" in the order of CLASSES,
+    "static" when none is; "" when nothing is known (every rate NaN)."""
+    rates = np.array([pan_dps, tilt_dps, roll_dps, zoom_rate], dtype=float)
+    t = np.zeros(3) if translation_dir is None else np.nan_to_num(np.asarray(translation_dir, dtype=float))
+    if not np.isfinite(rates).any():
+        return ""
+    r = np.nan_to_num(rates)
+    moves = []
+    trans = _translation_class(t)
+    if trans == "truck" and abs(r[0]) >= ROTATION_MIN_DPS and np.sign(r[0]) == np.sign(t[0]):
+        trans = "orbit"  # moving right while turning left (or the reverse): round a centre ahead
+    for name, on in (("pan", abs(r[0]) >= ROTATION_MIN_DPS and trans != "orbit"),
+                     ("tilt", abs(r[1]) >= ROTATION_MIN_DPS), ("roll", abs(r[2]) >= ROTATION_MIN_DPS)):
+        if on:
+            moves.append(name)
+    zoom = "zoom_in" if r[3] >= ZOOM_MIN_PER_S else "zoom_out" if r[3] <= -ZOOM_MIN_PER_S else ""
+    if trans.startswith("dolly") and zoom and (trans == "dolly_in") == (zoom == "zoom_out"):
+        trans, zoom = "dolly_zoom", ""
+    moves += [m for m in (zoom, trans) if m]
+    return "+".join(sorted(moves, key=CLASSES.index)) if moves else "static"
+
+
+def _translation_class(t: np.ndarray) -> str:
+    """'dolly_in', 'dolly_out', 'truck', 'pedestal' for the main axis of a translation, '' for none."""
+    if not np.any(t):
+        return ""
+    i = int(np.argmax(np.abs(t)))
+    return ("truck", "pedestal", "dolly_in" if t[2] > 0 else "dolly_out")[i]
+
+
+def components(cls: str) -> set[str]:
+    """The moves of a class ("pan+tilt" -> {"pan", "tilt"})."""
+    return set(cls.split("+")) if cls else set()
+
+
+# --------------------------------------------------------------------------- from poses
+def rates_from_poses(ypr_rad: np.ndarray, focal_mm: np.ndarray, fps: float) -> dict[str, np.ndarray]:
+    """Pan, tilt, roll rates [deg/s] and zoom rate [1/s] per frame (K,) from the camera's attitude
+    (K, 3) yaw, pitch, roll [rad] (shared/camera.py) and focal length (K,) [mm] per frame: the
+    relative rotation between consecutive frames, in the camera's own axes (first row NaN)."""
+    from cinetransfer.shared.camera import rotation_ypr
+
+    ypr = np.asarray(ypr_rad, dtype=float)
+    k = len(ypr)
+    out = {n: np.full(k, np.nan) for n in ("pan_rate_dps", "tilt_rate_dps", "roll_rate_dps", "zoom_rate")}
+    for i in range(1, k):
+        if not (np.isfinite(ypr[i]).all() and np.isfinite(ypr[i - 1]).all()):
+            continue
+        rel = rotation_ypr(*ypr[i - 1]).T @ rotation_ypr(*ypr[i])  # camera i in camera i-1's (fwd, left, up) axes
+        w = _rotvec(rel) * fps
+        # shared/camera.py's camera axes are x forward, y left, z up: pan = about up, tilt = about
+        # -left (pitch up is positive), roll = about forward, clockwise as the camera sees it
+        out["pan_rate_dps"][i], out["tilt_rate_dps"][i] = math.degrees(w[2]), math.degrees(-w[1])
+        out["roll_rate_dps"][i] = math.degrees(w[0])
+    f = np.asarray(focal_mm, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out["zoom_rate"][1:] = np.log(f[1:] / f[:-1]) * fps
+    return out
+
+
+def translation_from_velocity(velocity_w: np.ndarray, ypr_rad: np.ndarray, distance_m: float) -> np.ndarray:
+    """Unit translation direction (3,) in the camera frame (x right, y down, z forward) of a camera
+    moving at `velocity_w` (world, m/s) with attitude `ypr_rad`; zeros when the move is too slow to
+    show against a scene `distance_m` away (|v| / distance below ZOOM_MIN_PER_S: a dolly that
+    changes the subject's size less than the least zoom that counts); NaN when unknown."""
+    from cinetransfer.shared.camera import rotation_ypr
+
+    v, ypr = np.asarray(velocity_w, dtype=float), np.asarray(ypr_rad, dtype=float)
+    if not (np.isfinite(v).all() and np.isfinite(ypr).all() and math.isfinite(distance_m) and distance_m > 0):
+        return np.full(3, np.nan)
+    fwd, left, up = rotation_ypr(*ypr).T @ v  # camera axes of shared/camera.py: forward, left, up
+    t = np.array([-left, -up, fwd])
+    speed = float(np.linalg.norm(t))
+    return t / speed if speed / distance_m >= ZOOM_MIN_PER_S else np.zeros(3)
+
+
+def _rotvec(r: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,) [rad] of a rotation matrix (small or moderate angles)."""
+    c = max(-1.0, min(1.0, (np.trace(r) - 1.0) / 2.0))
+    ang = math.acos(c)
+    v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    return v * (0.5 if ang < 1e-9 else ang / (2.0 * math.sin(ang)))

@@ -1,0 +1,270 @@
+"""Camera motion: the motion-field fit against hand-computed values and exact homographies, the
+classes, the rates from poses, the smoother's per-shot style and the style file's fields."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from cinetransfer.services.smoother.camera_motion import motion_style
+from cinetransfer.shared import camera_motion as cm
+from cinetransfer.shared import instructions as I
+from cinetransfer.shared import messages as M
+
+F = 500.0
+
+
+def _rot(axis, angle: float) -> np.ndarray:
+    a = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * k @ k
+
+
+def _grid(n: int = 12, half_w: float = 300.0, half_h: float = 170.0) -> np.ndarray:
+    xs, ys = np.meshgrid(np.linspace(-half_w, half_w, n), np.linspace(-half_h, half_h, n))
+    return np.column_stack([xs.ravel(), ys.ravel()])
+
+
+def _through_homography(p: np.ndarray, r: np.ndarray, f0: float, f1: float) -> np.ndarray:
+    """Points seen by a camera of focal length f0, then by the same camera turned by r (camera
+    axes x right, y down, z forward) with focal length f1: x1 ~ K1 r^T K0^-1 x0."""
+    d = np.column_stack([p / f0, np.ones(len(p))]) @ r  # rows: r^T d
+    return f1 * d[:, :2] / d[:, 2:3]
+
+
+def test_motion_field_of_unit_moves_by_hand():
+    b = cm.rotation_zoom_basis(np.array([[100.0, 50.0]]), F)[0]
+    # pan: u = f + x^2/f = 520, v = x y / f = 10; tilt: u = 10, v = f + y^2/f = 505
+    np.testing.assert_allclose(b[:, 0], [520.0, 10.0])
+    np.testing.assert_allclose(b[:, 1], [10.0, 505.0])
+    # roll (clockwise): u = y, v = -x; zoom: u = x, v = y
+    np.testing.assert_allclose(b[:, 2], [50.0, -100.0])
+    np.testing.assert_allclose(b[:, 3], [100.0, 50.0])
+
+
+@pytest.mark.parametrize("axis, deg, zoom, want", [
+    ((0, -1, 0), 1.0, 0.0, (1.0, 0.0, 0.0, 0.0)),     # turning left = about the up axis (-y)
+    ((0, 1, 0), 0.5, 0.0, (-0.5, 0.0, 0.0, 0.0)),
+    ((1, 0, 0), 0.8, 0.0, (0.0, 0.8, 0.0, 0.0)),      # looking up
+    ((0, 0, 1), 2.0, 0.0, (0.0, 0.0, 2.0, 0.0)),      # clockwise as the camera sees it
+    ((0, -1, 0), 0.0, 0.02, (0.0, 0.0, 0.0, 0.02)),   # zoom in: f * e^0.02
+    ((0, -1, 0), 1.2, -0.015, (1.2, 0.0, 0.0, -0.015)),
+])
+def test_a_homography_of_known_pan_and_zoom_gives_back_the_rates(axis, deg, zoom, want):
+    p0 = _grid()
+    p1 = _through_homography(p0, _rot(axis, math.radians(deg)), F, F * math.exp(zoom))
+    m = cm.frame_motion(p0, p1, F)
+    np.testing.assert_allclose(np.degrees(m.rotation_rad), want[:3], atol=0.01)
+    assert m.log_zoom == pytest.approx(want[3], abs=2e-4)
+    assert not m.translation_dir.any() and m.explained == 1.0
+
+
+def test_outliers_moving_things_do_not_move_the_fit():
+    p0 = _grid(14)
+    p1 = _through_homography(p0, _rot((0, -1, 0), math.radians(1.0)), F, F)
+    p1[:40] += np.array([7.0, -3.0])  # a third of the points on something that moves by itself
+    m = cm.frame_motion(p0, p1, F)
+    assert math.degrees(m.rotation_rad[0]) == pytest.approx(1.0, abs=0.01)
+
+
+def test_too_few_points_is_unknown():
+    m = cm.frame_motion(np.zeros((5, 2)), np.zeros((5, 2)), F)
+    assert np.isnan(m.rotation_rad).all() and math.isnan(m.log_zoom) and m.points == 5
+
+
+@pytest.mark.parametrize("t, want", [((0.3, 0.0, 0.0), (1, 0, 0)), ((0.0, 0.0, 0.5), (0, 0, 1)),
+                                     ((0.0, 0.0, -0.5), (0, 0, -1)), ((0.0, -0.2, 0.0), (0, -1, 0))])
+def test_parallax_gives_the_translation_direction(t, want):
+    rng = np.random.default_rng(3)
+    x = np.column_stack([rng.uniform(-10, 10, 400), rng.uniform(-3, 3, 400), rng.uniform(4, 40, 400)])
+    p0 = F * x[:, :2] / x[:, 2:3]
+    x1 = x - np.asarray(t)  # the camera moved by t: the points moved by -t in its frame
+    p1 = F * x1[:, :2] / x1[:, 2:3]
+    keep = (np.abs(p0[:, 0]) < 320) & (np.abs(p0[:, 1]) < 180)
+    m = cm.frame_motion(p0[keep], p1[keep], F)
+    np.testing.assert_allclose(m.translation_dir, want, atol=0.02)
+    np.testing.assert_allclose(m.rotation_rad, 0.0, atol=1e-3)
+
+
+@pytest.mark.parametrize("rates, t, want", [
+    ((0.2, -0.3, 0.1, 0.0), None, "static"),
+    ((5.0, 0.0, 0.0, 0.0), None, "pan"),
+    ((-5.0, 3.0, 0.0, 0.0), None, "pan+tilt"),
+    ((0.0, 0.0, -8.0, 0.0), None, "roll"),
+    ((0.0, 0.0, 0.0, 0.1), None, "zoom_in"),
+    ((4.0, 0.0, 0.0, -0.1), None, "pan+zoom_out"),
+    ((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 1.0), "dolly_in"),
+    ((0.0, 0.0, 0.0, 0.0), (0.1, 0.0, -0.99), "dolly_out"),
+    ((0.0, 0.0, 0.0, 0.0), (1.0, 0.0, 0.0), "truck"),
+    ((0.0, 0.0, 0.0, 0.0), (0.0, -1.0, 0.0), "pedestal"),
+    ((6.0, 0.0, 0.0, 0.0), (1.0, 0.0, 0.0), "orbit"),        # right while turning left
+    ((-6.0, 0.0, 0.0, 0.0), (1.0, 0.0, 0.0), "pan+truck"),   # right while turning right: no centre ahead
+    ((0.0, 0.0, 0.0, -0.1), (0.0, 0.0, 1.0), "dolly_zoom"),
+    ((math.nan,) * 4, None, ""),
+])
+def test_classes(rates, t, want):
+    assert cm.classify(*rates, None if t is None else np.array(t)) == want
+
+
+def test_rates_from_poses_by_hand():
+    fps = 10.0
+    k = np.arange(6)
+    yaw, pitch = 0.02 * k, -0.01 * k  # per frame: 0.2 rad/s left, 0.1 rad/s down
+    ypr = np.column_stack([yaw, pitch, np.zeros(6)])
+    focal = 30.0 * np.exp(0.05 * k)  # 0.5 per second
+    r = cm.rates_from_poses(ypr, focal, fps)
+    assert math.isnan(r["pan_rate_dps"][0])
+    # yaw is about the world's up axis: the camera's own pan is that times cos(pitch), at the step's middle
+    np.testing.assert_allclose(r["pan_rate_dps"][1:], math.degrees(0.2) * np.cos(pitch[1:] + 0.005), rtol=1e-5)
+    np.testing.assert_allclose(r["tilt_rate_dps"][1:], -math.degrees(0.1), rtol=1e-2)
+    # ... and the rest of the yaw turns about the camera's forward axis: a roll of yaw rate x sin(pitch)
+    np.testing.assert_allclose(r["roll_rate_dps"][1:], math.degrees(0.2) * np.sin(pitch[1:] + 0.005), rtol=1e-3)
+    np.testing.assert_allclose(r["zoom_rate"][1:], 0.5, rtol=1e-9)
+    roll = cm.rates_from_poses(np.column_stack([np.zeros(3), np.zeros(3), [0.0, 0.03, 0.06]]), np.full(3, 30.0), 20)
+    np.testing.assert_allclose(roll["roll_rate_dps"][1:], math.degrees(0.6), rtol=1e-6)
+
+
+def test_translation_from_the_vehicle_velocity_in_camera_axes():
+    look_east = np.zeros(3)  # yaw 0: looking along world +x
+    np.testing.assert_allclose(cm.translation_from_velocity([1.0, 0, 0], look_east, 5.0), [0, 0, 1], atol=1e-12)
+    # world +y is the camera's left: x right = -1
+    np.testing.assert_allclose(cm.translation_from_velocity([0, 0.5, 0], look_east, 5.0), [-1, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(cm.translation_from_velocity([0, 0, -0.5], look_east, 5.0), [0, 1, 0], atol=1e-12)
+    # looking north (yaw 90 deg), flying east: to the camera's right
+    np.testing.assert_allclose(cm.translation_from_velocity([1.0, 0, 0], [math.pi / 2, 0, 0], 5.0), [1, 0, 0],
+                               atol=1e-12)
+    # 0.1 m/s against a subject 10 m away changes its size by 1 %/s: below the least zoom that counts
+    assert not cm.translation_from_velocity([0.1, 0, 0], look_east, 10.0).any()
+    assert np.isnan(cm.translation_from_velocity([1.0, 0, 0], look_east, 0.0)).all()
+
+
+def test_smoother_style_per_shot_in_degrees_per_second():
+    n, fps = 30, 24.0
+    mo = np.zeros((n, 7))
+    mo[:15, 0] = math.radians(0.25)  # first shot pans 6 deg/s
+    mo[15:, 3] = 0.005                # second zooms in at 0.12 /s
+    mo[16, 0] = math.radians(20.0)    # one wild frame: the median keeps it out
+    cuts = np.zeros(n, dtype=bool)
+    cuts[15] = True
+    st = motion_style(mo, fps, cuts)
+    assert st["camera_motion_class"][:15] == ["pan"] * 15 and st["camera_motion_class"][15:] == ["zoom_in"] * 15
+    np.testing.assert_allclose(st["pan_rate_dps"][:15], 6.0, rtol=1e-5)
+    np.testing.assert_allclose(st["zoom_rate"][15:], 0.12, rtol=1e-5)
+    assert np.all(st["translation_dir"] == 0.0)
+
+
+def _instr(k: int = 4, **kw) -> M.Instructions:
+    return M.Instructions(fps=24.0, frame_duration_s=1 / 24, joint_names=["nose"],
+                          image_targets=np.full((k, 1, 2), 0.5, np.float32), subject_visible=np.ones(k, bool),
+                          subject_box=np.zeros((k, 4), np.float32), focus_raw=np.zeros((k, 3), np.float32),
+                          focus_smoothed=np.zeros((k, 3), np.float32), focus_in=np.zeros((k, 3), bool), **kw)
+
+
+def _motion(k: int = 4) -> dict:
+    return dict(camera_motion_class=["static", "pan", "pan", ""],
+                pan_rate_dps=np.array([0.0, 5.0, 5.0, np.nan], np.float32), tilt_rate_dps=np.zeros(k, np.float32),
+                roll_rate_dps=np.zeros(k, np.float32), zoom_rate=np.zeros(k, np.float32),
+                translation_dir=np.zeros((k, 3), np.float32))
+
+
+def test_style_file_carries_the_motion_and_older_files_load(tmp_path):
+    p = tmp_path / "style.json"
+    I.save_style(p, _instr(**_motion()))
+    back = I.load_style(p)
+    assert back.camera_motion_class == ["static", "pan", "pan", ""]
+    assert back.pan_rate_dps[1] == 5.0 and math.isnan(back.pan_rate_dps[3])
+    assert I.slice_instructions(back, 1, 3).camera_motion_class == ["pan", "pan"]
+    # a file written before the camera motion existed: no such fields, schema version 2
+    d = I.style_to_dict(_instr())
+    for name in I.MOTION_FIELDS:
+        d["instructions"].pop(name)
+    d["instructions"]["schema_version"] = 2
+    p.write_text(json.dumps(d))
+    old = I.load_style(p)
+    assert all(getattr(old, n) is None for n in I.MOTION_FIELDS)
+
+
+@pytest.mark.parametrize("change, needle", [
+    (lambda m: m.pop("zoom_rate"), "zoom_rate missing"),
+    (lambda m: m.update(camera_motion_class=["static", "pan", "swoop", "pan"]), "'swoop' is not made of"),
+    (lambda m: m.update(tilt_rate_dps=np.zeros(3, np.float32)), "tilt_rate_dps has 3 rows"),
+])
+def test_inconsistent_motion_fields_are_refused(change, needle):
+    m = _motion()
+    change(m)
+    with pytest.raises(I.StyleFileError, match=needle):
+        I.check_consistent(_instr(**m))
+
+
+def _moving(instr: M.Instructions, classes: list[str], pan: float) -> M.Instructions:
+    import dataclasses
+
+    k = len(classes)
+    return dataclasses.replace(instr, camera_motion_class=classes, pan_rate_dps=np.full(k, pan, np.float32),
+                               tilt_rate_dps=np.zeros(k, np.float32), roll_rate_dps=np.zeros(k, np.float32),
+                               zoom_rate=np.zeros(k, np.float32), translation_dir=np.zeros((k, 3), np.float32))
+
+
+def test_report_section_per_shot_with_truth_from_poses():
+    from cinetransfer.report.camera_motion import camera_motion_summary
+
+    k, fps = 8, 24.0
+    src = _moving(_instr(k), ["pan"] * k, 6.0)
+    out = _moving(_instr(k), ["pan"] * 4 + ["static"] * 4, 6.0)
+    stamps = [1_000_000 + i * 41_666_667 for i in range(k)]
+    yaw_rate = math.radians(6.0)  # rad/s, to the left
+    states = [M.VehicleState(stamp_ns=s, camera_ypr_rad=np.array([yaw_rate * i / fps, 0.0, 0.0]),
+                             lens=M.LensState(focal_length_mm=35.0)) for i, s in enumerate(stamps)]
+    truths = [M.GroundTruth(stamp_ns=s, frame_index=i, focal_length_mm=35.0) for i, s in enumerate(stamps)]
+    summary, series = camera_motion_summary(src, out, states, truths, [(0, 4), (4, 8)])
+    a, b = summary["shots"]
+    assert a["rows"] == [0, 4] and a["source"]["class"] == "pan" and a["agreement"] == 1.0
+    assert b["agreement"] == 0.0 and b["output"]["class"] == "pan"  # the shot's median: 6 deg/s
+    assert a["truth"]["pan_rate_dps"] == pytest.approx(6.0, rel=1e-3) and a["truth"]["class"] == "pan"
+    assert a["truth"]["zoom_rate"] == 0.0 and a["truth_agreement"] == 1.0
+    old, _ = camera_motion_summary(_instr(k), out, states, truths, [(0, k)])
+    assert not old["available"] and "older style" in old["reason"]
+
+
+def test_report_json_and_page_carry_the_section(tmp_path):
+    from cinetransfer.report import build_report, synth
+
+    src = synth.instructions(12)
+    src = _moving(src, ["static"] * 12, 0.0)
+    summary = build_report(tmp_path, source_style=src, output_style=_moving(src, ["pan"] * 12, 5.0), truths=[],
+                           source_video=None, output_video=None, meta={})
+    js = json.loads((tmp_path / "report.json").read_text())
+    shot = js["camera_motion"]["shots"][0]
+    assert shot["source"]["class"] == "static" and shot["output"]["class"] == "pan" and shot["agreement"] == 0.0
+    assert shot["truth"] is None and js["camera_motion"]["truth_reason"]
+    assert "fig_camera_motion.png" in js["figures"] and (tmp_path / "fig_camera_motion.png").stat().st_size > 0
+    page = (tmp_path / "report.html").read_text()
+    assert "<h2>Camera motion</h2>" in page and "The source camera was static." in page
+    assert summary["camera_motion"] == js["camera_motion"]
+
+
+def test_people_are_masked_out_of_the_background_with_a_margin():
+    from cinetransfer.services.detector.camera_motion import MASK_MARGIN_PX, background_mask
+
+    mask = np.ones((40, 20), dtype=bool)  # a 20 x 40 px person at (100, 60) of a 640 x 360 frame
+    p = M.PersonDetection(box_xyxy=np.array([100, 60, 120, 100], np.float32), mask=mask,
+                          mask_origin_xy=np.array([100, 60], np.int32))
+    boxed = M.PersonDetection(box_xyxy=np.array([400, 200, 440, 280], np.float32), mask=np.zeros((0, 0), bool),
+                              mask_origin_xy=np.array([400, 200], np.int32))
+    bg = background_mask([p, boxed], 640, 360, (320, 180))  # half size: the person covers x 50-59, y 30-49
+    assert bg[40, 55] == 0 and bg[30 - MASK_MARGIN_PX, 55] == 0 and bg[30 - MASK_MARGIN_PX - 1, 55] == 255
+    assert bg[120, 210] == 0  # no mask: its box (x 200-219, y 100-139 at half size)
+    assert (bg == 255).mean() > 0.9
+
+
+def test_a_measurement_with_an_impossible_motion_is_unknown_not_a_crash():
+    from cinetransfer.services.smoother.features import motion_vector
+
+    cmo = M.CameraMotion(rotation_rad=np.array([1e300, 0.01, 0.0]), log_zoom=50.0,
+                         translation_dir=np.array([3.0, 0.0, 0.0]), focal_px=900.0, points=40, explained=0.9)
+    v = motion_vector(M.Measurement(camera_motion=cmo))
+    assert math.isnan(v[0]) and v[1] == 0.01 and math.isnan(v[3]) and np.isnan(v[4:]).all()
+    st = motion_style(np.tile(v, (5, 1)), 24.0, np.zeros(5, dtype=bool))
+    assert np.isfinite(st["tilt_rate_dps"][1:]).all() and np.isnan(st["pan_rate_dps"]).all()
