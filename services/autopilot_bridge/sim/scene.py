@@ -434,9 +434,7 @@ def scene_names() -> list[str]:
     return sorted(p.stem for p in SCENES_DIR.glob("*.yaml"))
 
 
-def load_scene(name_or_path: str | Path, subject: str | None = None) -> Scene:
-    """A bundled scene by name ('lawn_juggler') or a scene file by path; `subject`: another
-    person from the library in place of the scene's own (see subject_names())."""
+def _scene_path(name_or_path: str | Path) -> Path:
     p = Path(name_or_path)
     if not p.suffix:
         cand = SCENES_DIR / f"{name_or_path}.yaml"
@@ -445,10 +443,32 @@ def load_scene(name_or_path: str | Path, subject: str | None = None) -> Scene:
         p = cand
     if not p.is_file():
         raise SceneError(f"scene file {p} not found")
+    return p
+
+
+def _read_doc(p: Path, seen: tuple[Path, ...] = ()) -> Any:
+    """A scene file's mapping; `extends: NAME` starts from another scene's and replaces its top-level keys."""
     try:
         doc = yaml.safe_load(p.read_text())
     except yaml.YAMLError as e:
         raise SceneError(f"{p}: not valid YAML: {e}") from None
+    if not isinstance(doc, dict) or "extends" not in doc:
+        return doc
+    base = _str(doc, "extends", "scene")
+    bp = _scene_path(base if not Path(base).suffix else p.parent / base)
+    if bp in seen or bp == p:
+        raise SceneError(f"{p.name}: scene.extends: {base!r} extends itself")
+    parent = _read_doc(bp, (*seen, p))
+    if not isinstance(parent, dict):
+        raise SceneError(f"{p.name}: scene.extends: {base!r} is not a scene mapping")
+    return {**parent, **{k: v for k, v in doc.items() if k != "extends"}}
+
+
+def load_scene(name_or_path: str | Path, subject: str | None = None) -> Scene:
+    """A bundled scene by name ('lawn_juggler') or a scene file by path; `subject`: another
+    person from the library in place of the scene's own (see subject_names())."""
+    p = _scene_path(name_or_path)
+    doc = _read_doc(p)
     try:
         return parse_scene(doc, p, subject)
     except SceneError as e:
