@@ -87,7 +87,8 @@ float area_lod(sampler2D s, vec2 uv) {
     return 0.5 * log2(max(abs(dx.x * dy.y - dx.y * dy.x), 1e-8));
 }
 void main() {
-    vec4 t = textureLod(tex, v_uv, area_lod(tex, v_uv));
+    float lod = area_lod(tex, v_uv);
+    vec4 t = textureLod(tex, v_uv, lod);
 #ifdef ALPHA
     if (t.a < 0.5) discard;
 #endif

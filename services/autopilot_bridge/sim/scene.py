@@ -382,6 +382,8 @@ def parse_scene(doc: Any, path: Path | None = None, subject: str | None = None) 
     if g:
         _known(g, "ground", {"texture", "m_per_px", "z_m", "extent_m"})
         gtex = _str(g, "texture", "ground")
+        if gtex in _procedural() and world != "3d":
+            raise SceneError(f"ground.texture: the procedural texture {gtex!r} needs `world: 3d`")
         ground = GroundSpec(texture=gtex if world == "3d" and gtex in _procedural() else _asset(gtex, "ground.texture"),
                             m_per_px=_num(g, "m_per_px", "ground", positive=True), z_m=_num(g, "z_m", "ground", 0.0),
                             extent_m=_num(g, "extent_m", "ground", 400.0, positive=True))
