@@ -2,9 +2,10 @@
 
 The script (subject.SubjectScript) says where the person is and what they do at each time; here
 each action plays a baked motion (`ACTION_MOTIONS`), at a rate that matches a moving step's ground
-speed to the motion's own (no sliding feet), and the body turns to its heading (heading.py). The body frame's
-root is kept over the script's position (its own drift is taken out), so the script alone says
-where the person is. Pure functions of time: the same time gives the same body.
+speed to the motion's own (no sliding feet), and the body turns to its heading (heading.py). A
+moving motion's mean advance (speed_mps x its time) is taken out, so that the script says where the
+person goes; the body's own sway, bob and an in-place motion's wandering stay. Pure functions of
+time: the same time gives the same body.
 """
 from __future__ import annotations
 
@@ -83,10 +84,12 @@ class Actor:
         motion = motion_for(pose.action)
         speed = float(np.hypot(*pose.velocity_mps[:2]))
         rate = speed / motion.speed_mps if (motion.speed_mps and speed > 0) else 1.0
-        posed = self.person.pose(motion, max(t - seg_t0, 0.0) * rate)
+        t_motion = max(t - seg_t0, 0.0) * rate
+        posed = self.person.pose(motion, t_motion)
         heading = self.heading_at(t_s)
         rot = yaw_matrix(heading)
-        origin = np.array([posed.root_m[0], posed.root_m[1], 0.0])
+        # a moving motion's mean advance is the script's to make (the body's own sway and bob stay)
+        origin = np.array([(motion.speed_mps or 0.0) * t_motion, 0.0, 0.0])
         verts = (np.asarray(posed.vertices_m, float) - origin) @ rot.T + pose.position_m
         joints = (np.asarray(posed.joints_m, float) - origin) @ rot.T + pose.position_m
         return Body(vertices_m=verts.astype(np.float32), joints_m=joints, heading_rad=heading, pose=pose)
