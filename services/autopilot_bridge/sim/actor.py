@@ -73,11 +73,22 @@ class Actor:
         self.faces = np.asarray(self.person.faces, np.int32)
         self.colours_bgr = np.ascontiguousarray(np.asarray(self.person.colors, np.float32)[:, ::-1])
         self.heading = ScriptHeading(self.script, spec.facing_rad)
+        self._last: tuple[float, Body] | None = None
 
     def heading_at(self, t_s: float) -> float:
         return self.heading.heading_at(t_s)
 
     def body_at(self, t_s: float) -> Body:
+        """The body at t_s (the last one is kept: the bridge asks for the subject's state more often
+        than frames are drawn, and skinning costs a few ms)."""
+        last = self._last  # one read: the render thread and the control loop both ask
+        if last is not None and last[0] == t_s:
+            return last[1]
+        body = self._body_at(t_s)
+        self._last = (t_s, body)
+        return body
+
+    def _body_at(self, t_s: float) -> Body:
         pose = self.script.pose_at(t_s)
         t, k = self.heading.segment_at(t_s)
         seg_t0 = self.script.segments[k][0]
