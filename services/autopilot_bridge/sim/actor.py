@@ -15,10 +15,7 @@ from functools import lru_cache
 
 import numpy as np
 
-try:
-    from cinetransfer.services.autopilot_bridge.sim import people
-except ImportError:  # the baked people are not merged yet
-    from cinetransfer.services.autopilot_bridge.sim import people_standin as people
+from cinetransfer.services.autopilot_bridge.sim import people
 from cinetransfer.services.autopilot_bridge.sim.heading import ScriptHeading
 from cinetransfer.services.autopilot_bridge.sim.scene import SubjectSpec
 from cinetransfer.services.autopilot_bridge.sim.subject import SubjectPose, SubjectScript
