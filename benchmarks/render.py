@@ -9,7 +9,9 @@ Reports the median, p95 and max time per frame and the resulting frames/s. Goals
 truth: >= 30 fps for the 2.5-D compositor, >= 15 fps for the 3-D world (OpenGL on llvmpipe, depth
 of field from the depth buffer). Wall time is what counts; CPU time (every thread: OpenCV's and
 llvmpipe's) is printed too, because on a shared machine it is less disturbed by other load.
-Writes benchmarks/results/render.json (commit, machine, config, figures).
+Writes benchmarks/results/render.json (commit, machine, config, figures); the 3-D world's figures
+are kept in render_3d.json (`--scenes courtyard open_country_3d focus_hedge_3d lawn_juggler_3d
+--out benchmarks/results/render_3d.json`), measured apart from the 2.5-D ones.
 """
 from __future__ import annotations
 

@@ -3,11 +3,10 @@
 One `GLCanvas` draws triangle meshes through the camera model of shared/camera.py and reads back
 three things per pixel: the colour (BGR uint8), the depth along the optical axis [m] (the
 fragment's own camera-x, not the non-linear z-buffer; inf for the sky) and which kind of surface
-it is (`SURFACE_*`). Three ways to colour a mesh:
-- `uv`: a texture at per-vertex texture coordinates (photographs: backdrops, the hedge, the sky),
-  texels with alpha < 0.5 are not drawn;
-- `world`: a texture tiled in world metres, projected along the face's dominant axis (the ground,
-  walls, pillars, trees), times a finer detail texture, lit by a fixed sun;
+it is (`SURFACE_*`). Two ways to colour a mesh:
+- `uv`: a texture at per-vertex texture coordinates times a per-vertex light factor, and a finer
+  detail texture (photographs, the ground, solid objects; a cut-out's texels with alpha < 0.5 are
+  not drawn);
 - `colour`: per-vertex colours, lit by the sun with the face's own normal (the person).
 Projection (camera x forward, y left, z up; u = 1/2 - f y / (x w_s), v = 1/2 - f z / (x h_s))
 maps pixel u W to window x exactly, so a point lands in the pixel that camera.project_world names.
@@ -59,8 +58,7 @@ _FRAGMENT_HEAD = """
 #version 330
 uniform sampler2D tex;
 uniform sampler2D detail;
-uniform vec2 period_m;          // world: metres per texture repeat (x, y)
-uniform float detail_period_m;  // world: metres per detail repeat; uv: detail repeats per texture
+uniform float detail_period_m;  // detail repeats per texture repeat
 uniform float detail_gain;
 uniform float surface;
 uniform float fixed_depth;      // > 0: write this depth (the sky)
@@ -98,16 +96,6 @@ void main() {
     c *= 1.0 + detail_gain * (2.0 * textureLod(detail, d_uv, area_lod(detail, d_uv)).r - 1.0);
 #endif
 """,
-    "world": """
-void main() {
-    vec3 n = normalize(cross(dFdx(v_world), dFdy(v_world)));
-    vec3 a = abs(n);
-    vec2 q = (a.z >= a.x && a.z >= a.y) ? v_world.xy : ((a.x >= a.y) ? v_world.yz : v_world.xz);
-    vec3 c = texture(tex, q / period_m).rgb;
-#ifdef DETAIL
-    c *= 1.0 + detail_gain * (2.0 * texture(detail, q / detail_period_m).r - 1.0);
-#endif
-""",
     "colour": """
 void main() {
     vec3 n = normalize(cross(dFdx(v_world), dFdy(v_world)));
@@ -137,16 +125,15 @@ class MeshData:
     name: str
     vertices: np.ndarray  # (N, 3) float32 world
     faces: np.ndarray  # (F, 3) int32
-    mode: str  # 'uv' | 'world' | 'colour'
+    mode: str  # 'uv' | 'colour'
     surface: int
     uv: np.ndarray | None = None  # (N, 2) float32 (mode uv)
     colours: np.ndarray | None = None  # (N, 3) float32 BGR 0..1 (mode colour); mode uv: a light factor (1 = none)
-    texture: str | None = None  # a texture's key in the canvas (modes uv, world)
-    period_m: tuple[float, float] = (1.0, 1.0)
+    texture: str | None = None  # a texture's key in the canvas (mode uv)
     detail: str | None = None
     detail_period_m: float = 1.0
     detail_gain: float = 0.0
-    lit: bool = False
+    lit: bool = False  # mode colour: shaded by the sun (mode uv carries its light in `colours`)
     sky: bool = False
     alpha: bool = False  # mode uv: texels with alpha < 0.5 are not drawn (a cut-out picture)
 
@@ -217,7 +204,7 @@ class GLCanvas:
             self._gl_textures[key] = t
 
     def _program(self, mesh: MeshData):
-        key = (mesh.mode, mesh.detail is not None and mesh.detail_gain > 0, mesh.lit and mesh.mode != "uv", mesh.alpha)
+        key = (mesh.mode, mesh.detail is not None and mesh.detail_gain > 0, mesh.lit, mesh.alpha)
         prog = self._programs.get(key)
         if prog is None:
             prog = self._ctx.program(vertex_shader=_VERTEX, fragment_shader=fragment_source(*key))
@@ -282,8 +269,7 @@ class GLCanvas:
         vao = self._vao(mesh, static)
         p["mvp"].write(camera["mvp"])
         p["depth_row"].value = camera["depth_row"]
-        values = {"period_m": (float(mesh.period_m[0]), float(mesh.period_m[1])),
-                  "detail_period_m": float(mesh.detail_period_m), "detail_gain": float(mesh.detail_gain),
+        values = {"detail_period_m": float(mesh.detail_period_m), "detail_gain": float(mesh.detail_gain),
                   "surface": float(mesh.surface), "fixed_depth": 1.0e30 if mesh.sky else 0.0}
         for name, value in values.items():
             if name in p:

@@ -20,9 +20,8 @@ from cinetransfer.services.autopilot_bridge.sim.gl_canvas import SURFACE_SUBJECT
 from cinetransfer.services.autopilot_bridge.sim.renderer import View
 from cinetransfer.services.autopilot_bridge.sim.scene import Scene
 from cinetransfer.services.autopilot_bridge.sim.truth import region_truth
-from cinetransfer.services.autopilot_bridge.sim.world_meshes import (SURFACE_OF_REGION, ground_mesh, ground_texture,
-                                                                     layer_mesh, object_meshes, object_position,
-                                                                     read_texture)
+from cinetransfer.services.autopilot_bridge.sim.world_meshes import (ground_mesh, ground_texture, layer_mesh,
+                                                                     object_meshes, object_position, read_texture)
 from cinetransfer.shared import camera as cam
 
 #: the truth's region masks and depths are read from every TRUTH_STRIDE-th pixel (the 2.5-D label pass: 1/6)
@@ -157,4 +156,4 @@ def joints_visible(jn: np.ndarray, joint_depth_m: np.ndarray, depth: np.ndarray,
     return vis
 
 
-__all__ = ["WorldRenderer", "joints_visible", "SURFACE_OF_REGION"]
+__all__ = ["WorldRenderer", "joints_visible"]
