@@ -2,7 +2,7 @@
 
 The script (subject.SubjectScript) says where the person is and what they do at each time; here
 each action plays a baked motion (`ACTION_MOTIONS`), at a rate that matches a moving step's ground
-speed to the motion's own (no sliding feet), and the body turns to its heading (heading.py). A
+speed to the motion's own (no sliding feet), and the body turns to its heading (script_heading.py). A
 moving motion's mean advance (speed_mps x its time) is taken out, so that the script says where the
 person goes; the body's own sway, bob and an in-place motion's wandering stay. Pure functions of
 time: the same time gives the same body.
@@ -16,7 +16,7 @@ from functools import lru_cache
 import numpy as np
 
 from cinetransfer.services.autopilot_bridge.sim import people
-from cinetransfer.services.autopilot_bridge.sim.heading import ScriptHeading
+from cinetransfer.services.autopilot_bridge.sim.script_heading import ScriptHeading
 from cinetransfer.services.autopilot_bridge.sim.scene import SubjectSpec
 from cinetransfer.services.autopilot_bridge.sim.subject import SubjectPose, SubjectScript
 

@@ -31,7 +31,6 @@ from cinetransfer.shared.dynamics import VehicleDynamics
 from cinetransfer.services.autopilot_bridge.sim.renderer import (MIN_SIGMA_PX, NEAR_M, SIGMA_PER_DIAMETER,
                                                                  DrawInfo, Plane, Texture, View, draw_plane,
                                                                  ground_bands, label_pass)
-from cinetransfer.services.autopilot_bridge.sim.heading import ScriptHeading
 from cinetransfer.services.autopilot_bridge.sim.scene import LayerSpec, Scene, SceneError, load_scene
 from cinetransfer.services.autopilot_bridge.sim.subject import Subject
 from cinetransfer.services.autopilot_bridge.sim.truth import region_truth
@@ -77,7 +76,6 @@ class SceneRenderer:
         gz = scene.ground.z_m if scene.ground else 0.0
         self.subject = Subject(scene.subject, ground_z_m=gz)
         self.script = self.subject.script
-        self.heading = ScriptHeading(self.script, scene.subject.facing_rad)
         self._layer_tex = [_read_texture(layer.texture, layer.wrap) for layer in scene.layers]
         self._ground_tex = None
         self._ground_period_m = (0.0, 0.0)
@@ -110,8 +108,9 @@ class SceneRenderer:
         return self.subject.joints_world(frame, pose.position_m, camera_pos_m)
 
     def subject_heading(self, t_s: float) -> float:
-        """The script's heading (a walk's direction; the drawn cut-out itself always faces the camera)."""
-        return self.heading.heading_at(t_s)
+        """NaN: the cut-out turns to face the camera, so it has no heading of its own (a heading read
+        from its joints would follow the camera round)."""
+        return math.nan
 
     def truth_only(self, view: View, t_s: float) -> dict:
         planes, geo = self.planes(view, t_s)
@@ -369,7 +368,8 @@ class SimBackend(VehiclePort):
                               velocity_mps=pose.velocity_mps.copy(), **extra)
 
     def subject_heading_rad(self) -> float:
-        """Which way the subject faces now [rad, world yaw: 0 faces +x, pi/2 faces +y]."""
+        """Which way the subject faces now [rad, world yaw: 0 faces +x, pi/2 faces +y]; NaN for the
+        2.5-D cut-out, which faces the camera."""
         return self.renderer.subject_heading(self._t)
 
     def frames(self) -> list[M.Frame]:

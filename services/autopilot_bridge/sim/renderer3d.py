@@ -42,6 +42,7 @@ class WorldRenderer:
         self.sensor = cam.Sensor(scene.camera.sensor_width_mm, scene.camera.sensor_height_mm, scene.camera.coc_mm)
         self.ground_z = scene.ground.z_m if scene.ground else 0.0
         self.actor = Actor(scene.subject, ground_z_m=self.ground_z)
+        self.subject = self.actor  # the subject with a heading of its own (heading_at), as the 2.5-D renderer's
         self.script = self.actor.script
         self.canvas = GLCanvas(self.width, self.height)
         self.canvas.add_texture("detail", textures.texture("detail"))
