@@ -11,6 +11,17 @@ if ! "$PY" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else 1)'; t
   echo "setup.sh: Python >= 3.11 is required (found $("$PY" --version 2>&1)); set PYTHON=/path/to/python3.11" >&2
   exit 1
 fi
+# The simulator's 3-D world draws with OpenGL on Mesa's EGL (software rendering, no display or GPU needed).
+mesa_ok() {
+  local egl=0 dri=0 f
+  for f in /usr/lib/*/libEGL.so.1 /usr/lib/libEGL.so.1 /usr/lib64/libEGL.so.1; do [ -e "$f" ] && egl=1; done
+  for f in /usr/lib/*/dri/swrast_dri.so /usr/lib/dri/swrast_dri.so /usr/lib64/dri/swrast_dri.so; do [ -e "$f" ] && dri=1; done
+  [ "$egl" = 1 ] && [ "$dri" = 1 ]
+}
+if ! mesa_ok; then
+  echo "setup.sh: Mesa's EGL and software GL drivers are missing (the simulator's 3-D world needs them);" \
+       "install them with: sudo apt-get install -y libegl1 libgl1-mesa-dri" >&2
+fi
 if [ ! -x "$VENV/bin/python" ]; then
   echo "setup.sh: creating $VENV"
   "$PY" -m venv "$VENV"
@@ -40,5 +51,5 @@ export PIP_DISABLE_PIP_VERSION_CHECK=1
 # npm this says how to get it and goes on: the detector then runs its mediapipe backend
 # (services/detector/box_models.py, docs/detector.md).
 "$VENV/bin/python" -m cinetransfer.services.detector.box_models fetch
-"$VENV/bin/python" -c "import cinetransfer.cli, mediapipe, torch, zenoh, casadi, cv2; print('setup.sh: ok — torch', torch.__version__, '| opencv', cv2.__version__)"
+"$VENV/bin/python" -c "import cinetransfer.cli, mediapipe, moderngl, torch, zenoh, casadi, cv2; print('setup.sh: ok — torch', torch.__version__, '| opencv', cv2.__version__)"
 echo "$want" > "$stamp"

@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 
 from cinetransfer.services.autopilot_bridge.sim.backend import SimBackend
-from cinetransfer.services.autopilot_bridge.sim.scene import scene_names
+from cinetransfer.services.autopilot_bridge.sim.scene import load_scene, scene_names
 from cinetransfer.shared import messages as M
 
 N_FRAMES = 36
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scene", scene_names())
+@pytest.mark.parametrize("scene", [n for n in scene_names() if load_scene(n).world == "2.5d"])
 def test_detector_finds_the_subject_and_joints_in_90_percent_of_frames(pose_detector, scene):
     pose_detector.reset()
     sim = SimBackend(scene, epoch_ns=0)

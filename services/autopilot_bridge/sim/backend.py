@@ -33,29 +33,13 @@ from cinetransfer.services.autopilot_bridge.sim.renderer import (MIN_SIGMA_PX, N
 from cinetransfer.services.autopilot_bridge.sim.scene import LayerSpec, Scene, SceneError, load_scene
 from cinetransfer.services.autopilot_bridge.sim.heading import subject_heading_rad
 from cinetransfer.services.autopilot_bridge.sim.subject import Subject
+from cinetransfer.services.autopilot_bridge.sim.truth import region_truth
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
-from cinetransfer.shared.focus_regions import FOREGROUND_MIN_ROWS, feet_row, region_masks
 
 __all__ = ["SimBackend", "SceneRenderer", "load_scene", "SceneError"]
 
 log = logging.getLogger("autopilot_bridge.sim")
-
-#: a region counts as present when it covers at least this fraction of the image.
-REGION_MIN_FRACTION = 0.002
-#: a region is "in focus" when at least this fraction of its pixels lies inside the DoF.
-REGION_IN_FOCUS_FRACTION = cam.REGION_IN_FOCUS_SHARE
-#: how many depths describe a region in the truth (its 2.5, 7.5, ..., 97.5 % points)
-DEPTH_SAMPLES = 20
-
-
-def depth_sample(depth_m: np.ndarray) -> np.ndarray:
-    """A region's pixel depths [m] (inf = sky) as DEPTH_SAMPLES inverse depths [1/m] at equally spaced
-    quantiles: what the report needs to tell which focus labels any lens setting could give it."""
-    inv = 1.0 / np.asarray(depth_m, dtype=float)  # inf -> 0: the sky is at infinity
-    probs = (np.arange(DEPTH_SAMPLES) + 0.5) / DEPTH_SAMPLES
-    return np.quantile(inv, probs, method="inverted_cdf")
-
 
 #: ground bands are drawn a little nearer than their own start, under the next band (no seams).
 BAND_OVERLAP = 1.25
@@ -91,6 +75,7 @@ class SceneRenderer:
         self.sensor = cam.Sensor(scene.camera.sensor_width_mm, scene.camera.sensor_height_mm, scene.camera.coc_mm)
         gz = scene.ground.z_m if scene.ground else 0.0
         self.subject = Subject(scene.subject, ground_z_m=gz)
+        self.script = self.subject.script
         self._layer_tex = [_read_texture(layer.texture, layer.wrap) for layer in scene.layers]
         self._ground_tex = None
         self._ground_period_m = (0.0, 0.0)
@@ -112,6 +97,28 @@ class SceneRenderer:
             if tex is not None:
                 tex.magnified  # noqa: B018 (a cached_property: computed here, once)
         self.last_draw: list[DrawInfo] = []
+
+    world = "2.5d"
+
+    # -- the subject ------------------------------------------------------------------------
+    def subject_joints(self, t_s: float, camera_pos_m: np.ndarray) -> np.ndarray:
+        """The subject's joints [m, world] at t_s, on the billboard that faces `camera_pos_m`."""
+        pose = self.subject.script.pose_at(t_s)
+        frame = self.subject.frame_at(t_s, pose.action)
+        return self.subject.joints_world(frame, pose.position_m, camera_pos_m)
+
+    def subject_heading(self, t_s: float) -> float:
+        """NaN: the cut-out turns to face the camera, so it has no heading of its own (a heading read
+        from its joints would follow the camera round)."""
+        return math.nan
+
+    def truth_only(self, view: View, t_s: float) -> dict:
+        planes, geo = self.planes(view, t_s)
+        geo.update(self.truth(view, planes, geo))
+        return geo
+
+    def close(self) -> None:
+        pass
 
     # -- geometry --------------------------------------------------------------------------
     def _layer_plane(self, spec: LayerSpec, tex: Texture, view: View) -> Plane:
@@ -209,7 +216,6 @@ class SceneRenderer:
     def truth(self, view: View, planes: list[Plane], geo: dict) -> dict:
         jn = cam.project_world(geo["joints_w"], view.position_m, view.ypr_rad, view.focal_mm, view.sensor)
         vis = np.isfinite(jn).all(axis=1) & (jn >= 0).all(axis=1) & (jn <= 1).all(axis=1)
-        near, far = cam.dof_limits_m(view.focal_mm, view.f_number, view.focus_m, view.sensor.coc_mm)
         # the ground's depth is the same plane whatever the band: one pass over it is enough
         first_ground = True
         lab_planes = []
@@ -222,29 +228,25 @@ class SceneRenderer:
                           (NEAR_M, math.inf))
             lab_planes.append(p)
         depth, subj = label_pass(view, lab_planes)
-        # the regions as the style reads them from a video (shared.focus_regions), not by depth
-        min_rows = int(math.ceil(FOREGROUND_MIN_ROWS * subj.shape[0]))
-        regions = region_masks(subj if subj.any() else None, feet_row(subj), min_rows, subj.shape)
-        infocus = (depth >= near) & (depth <= far)
-        present, frac, inv_depth = [], [], []
-        for region in regions:
-            n = int(region.sum())
-            ok = n >= REGION_MIN_FRACTION * region.size
-            present.append(ok)
-            frac.append(float((infocus & region).sum()) / n if ok else math.nan)
-            inv_depth.append(depth_sample(depth[region]) if ok else np.full(DEPTH_SAMPLES, np.nan))
-        frac_a = np.array(frac, np.float32)
-        in_focus = np.array([p and f >= REGION_IN_FOCUS_FRACTION for p, f in zip(present, frac)], bool)
-        return {"joints_norm": jn, "joints_visible": vis, "dof_near_m": near,
-                "dof_far_m": far if math.isfinite(far) else math.nan, "region_present": np.array(present, bool),
-                "region_in_focus": in_focus, "region_focus_fraction": frac_a,
-                "region_inverse_depth": np.array(inv_depth, np.float32), "focal_length_mm": view.focal_mm,
-                "lens_limits": self._lens_limits()}
+        out = region_truth(depth, subj, view.focal_mm, view.f_number, view.focus_m, view.sensor.coc_mm)
+        out.update({"joints_norm": jn, "joints_visible": vis, "focal_length_mm": view.focal_mm,
+                    "lens_limits": self._lens_limits()})
+        return out
 
     def _lens_limits(self) -> np.ndarray:
         lim = self.scene.limits
         return np.array([lim.focus_distance_min_m, lim.focus_distance_max_m, lim.f_number_min, lim.f_number_max],
                         np.float32)
+
+
+
+def make_renderer(scene: Scene, width: int | None = None, height: int | None = None):
+    """The scene's renderer: the 3-D world (`world: 3d`) or the 2.5-D compositor."""
+    if scene.world == "3d":
+        from cinetransfer.services.autopilot_bridge.sim.renderer3d import WorldRenderer
+
+        return WorldRenderer(scene, width, height)
+    return SceneRenderer(scene, width, height)
 
 
 class SimBackend(VehiclePort):
@@ -261,7 +263,7 @@ class SimBackend(VehiclePort):
         self.fps = float(fps or self.scene.camera.fps)
         if not self.fps > 0:
             raise ValueError("fps must be > 0")
-        self.renderer = SceneRenderer(self.scene, width, height)
+        self.renderer = make_renderer(self.scene, width, height)
         self.render_enabled = render
         self.truth_enabled = truth
         self._init_timeline(epoch_ns)
@@ -356,14 +358,18 @@ class SimBackend(VehiclePort):
                               holding=d.holding, backend="sim")
 
     def subject_state(self) -> M.SubjectState:
-        sub = self.renderer.subject
-        pose = sub.script.pose_at(self._t)
-        frame = sub.frame_at(self._t, pose.action)
-        joints = sub.joints_world(frame, pose.position_m, self.dyn.position)
+        pose = self.renderer.script.pose_at(self._t)
+        joints = self.renderer.subject_joints(self._t, self.dyn.position)
         return M.SubjectState(stamp_ns=self._stamp(self._t), seq=self._seq, valid=True,
                               subject_id=self.scene.subject.subject_id, joints_m=joints,
                               velocity_mps=pose.velocity_mps.copy(),
-                              heading_rad=subject_heading_rad(sub, self._t, M.COCO17_NAMES, joints))
+                              heading_rad=subject_heading_rad(self.renderer.subject, self._t, M.COCO17_NAMES, joints))
+
+    def subject_heading_rad(self) -> float:
+        """Which way the subject faces now [rad, world yaw: 0 faces +x, pi/2 faces +y]; NaN for the
+        2.5-D cut-out, which faces the camera."""
+        joints = self.renderer.subject_joints(self._t, self.dyn.position)
+        return subject_heading_rad(self.renderer.subject, self._t, M.COCO17_NAMES, joints)
 
     def frames(self) -> list[M.Frame]:
         self._collect()
@@ -386,7 +392,10 @@ class SimBackend(VehiclePort):
     def close(self) -> None:
         self.started = False
         if self._pool is not None:
+            self._pool.submit(self.renderer.close).result()
             self._pool.shutdown(wait=True, cancel_futures=True)
+        else:
+            self.renderer.close()
 
     # -- helpers ---------------------------------------------------------------------------
     @property
@@ -410,7 +419,10 @@ class SimBackend(VehiclePort):
 
     def render_at(self, t_s: float | None = None) -> tuple[np.ndarray, dict]:
         """Render the current state (at sim time `t_s`, default now) without queuing a frame."""
-        return self.renderer.render(self.view(), self._t if t_s is None else t_s, truth=self.truth_enabled)
+        args = (self.view(), self._t if t_s is None else t_s)
+        if self._pool is not None:  # the renderer's GL context lives on the render thread
+            return self._pool.submit(self.renderer.render, *args, truth=self.truth_enabled).result()
+        return self.renderer.render(*args, truth=self.truth_enabled)
 
     #: async rendering: a frame due while this many are still being rendered is skipped (counted)
     MAX_PENDING_RENDERS = 2
@@ -454,9 +466,7 @@ class SimBackend(VehiclePort):
                                     index=index, fps=self.fps, image=img, lens=lens))
         if self.truth_enabled:
             if not geo:
-                view = view or self.view()
-                planes, geo = self.renderer.planes(view, t_s)
-                geo.update(self.renderer.truth(view, planes, geo))
+                geo = self.renderer.truth_only(view or self.view(), t_s)
             self._truths.append(M.GroundTruth(
                 stamp_ns=stamp, seq=index, valid=True, frame_index=index,
                 joints_norm=np.asarray(geo["joints_norm"], np.float32),

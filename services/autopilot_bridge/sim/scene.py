@@ -29,6 +29,11 @@ ACTIONS = ("stand", "walk", "run", "juggle", "dance", "twirl", "vault")
 MOVING = ("walk", "run")
 REGIONS = ("foreground", "background", "sky")
 WRAPS = ("none", "reflect", "replicate")
+#: how a scene is drawn: '3d' (renderer3d.py: meshes on the GPU path, the person a skinned 3-D body)
+#: or '2.5d' (renderer.py: photographs on planes, the person a camera-facing cut-out)
+WORLDS = ("2.5d", "3d")
+#: the 3-D world's solid objects (`objects:`); see ObjectSpec
+OBJECT_KINDS = ("box", "pillar", "tree")
 
 
 class SceneError(ValueError):
@@ -126,7 +131,7 @@ class VehicleSpec:
 
 @dataclass(frozen=True)
 class GroundSpec:
-    texture: Path
+    texture: Path | str  # a picture, or (3-D world) a procedural texture's name (textures.NAMES)
     m_per_px: float
     z_m: float = 0.0
     extent_m: float = 400.0
@@ -151,6 +156,23 @@ class LayerSpec:
 
 
 @dataclass(frozen=True)
+class ObjectSpec:
+    """A solid object of the 3-D world standing on the ground: a box (walls, blocks), a pillar (a
+    cylinder) or a tree (a trunk under an ellipsoid crown). 3-D scenes only."""
+
+    name: str
+    kind: str
+    position_m: tuple[float, float]  # world (x, y) of its foot's centre
+    size_m: tuple[float, float, float]  # box: length (along yaw), depth, height; pillar/tree: diameter, -, height
+    yaw_rad: float
+    texture: str  # a procedural texture (textures.NAMES)
+    period_m: float  # metres per texture repeat
+    crown_m: tuple[float, float] = (0.0, 0.0)  # tree: crown diameter and height
+    path_m: tuple[tuple[float, float], ...] = ()  # moving objects: waypoints walked back and forth
+    speed_mps: float = 0.0
+
+
+@dataclass(frozen=True)
 class ScriptStep:
     action: str
     duration_s: float
@@ -168,6 +190,7 @@ class SubjectSpec:
     start_m: tuple[float, float] = (0.0, 0.0)
     subject_id: str = "subject"
     clip_fps: float | None = None  # None: each action's own rate from the library
+    facing_rad: float = math.pi  # the way the person faces while in place (3-D world), until a walk turns it
 
 
 @dataclass(frozen=True)
@@ -182,6 +205,8 @@ class Scene:
     layers: tuple[LayerSpec, ...]
     subject: SubjectSpec
     path: Path | None = field(default=None, compare=False)
+    world: str = "2.5d"
+    objects: tuple[ObjectSpec, ...] = ()
 
 
 def _parse_camera(d: dict) -> CameraSpec:
@@ -239,6 +264,12 @@ def _parse_layer(d: dict, i: int) -> LayerSpec:
                      bottom_z_m=_num(d, "bottom_z_m", w, 0.0), m_per_px=m_per_px, anchor_px=anchor,
                      facing=facing, facing_yaw_rad=math.radians(_num(d, "facing_deg", w, 180.0)),
                      wrap=wrap, extent_m=extent, distance_m=distance)
+
+
+def _procedural() -> tuple[str, ...]:
+    from cinetransfer.services.autopilot_bridge.sim import textures
+
+    return textures.NAMES
 
 
 def subject_names() -> list[str]:
@@ -299,7 +330,7 @@ def _parse_step(d: dict, i: int, subject: str = "", actions: tuple[str, ...] = A
 
 def _parse_subject(d: dict, swap: str | None = None) -> SubjectSpec:
     w = "subject"
-    _known(d, w, {"clip", "height_m", "script", "loop", "start_m", "id", "clip_fps"})
+    _known(d, w, {"clip", "height_m", "script", "loop", "start_m", "id", "clip_fps", "facing_deg"})
     clip = _str(d, "clip", w)
     script = d.get("script")
     if swap is not None and swap != clip:
@@ -327,7 +358,8 @@ def _parse_subject(d: dict, swap: str | None = None) -> SubjectSpec:
     return SubjectSpec(clip=clip, height_m=_num(d, "height_m", w, float(info.get("height_m", 1.75)), lo=0.5, hi=2.5),
                        script=tuple(_parse_step(s, i, clip, acts) for i, s in enumerate(script)), loop=loop,
                        start_m=_vec(d, "start_m", w, 2, (0.0, 0.0)), subject_id=_str(d, "id", w, "subject"),
-                       clip_fps=_num(d, "clip_fps", w, positive=True, hi=120) if "clip_fps" in d else None)
+                       clip_fps=_num(d, "clip_fps", w, positive=True, hi=120) if "clip_fps" in d else None,
+                       facing_rad=math.radians(_num(d, "facing_deg", w, 180.0)))
 
 
 def parse_scene(doc: Any, path: Path | None = None, subject: str | None = None) -> Scene:
@@ -335,7 +367,8 @@ def parse_scene(doc: Any, path: Path | None = None, subject: str | None = None) 
     if not isinstance(doc, dict):
         raise SceneError("scene: the file must contain a mapping at the top level")
     _known(doc, "scene", {"name", "description", "seed", "camera", "vehicle", "limits", "ground", "layers",
-                          "subject"})
+                          "subject", "world", "objects"})
+    world = _str(doc, "world", "scene", "2.5d", WORLDS)
     name = _str(doc, "name", "scene", path.stem if path else "scene")
     seed = doc.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int):
@@ -348,7 +381,10 @@ def parse_scene(doc: Any, path: Path | None = None, subject: str | None = None) 
     ground = None
     if g:
         _known(g, "ground", {"texture", "m_per_px", "z_m", "extent_m"})
-        ground = GroundSpec(texture=_asset(_str(g, "texture", "ground"), "ground.texture"),
+        gtex = _str(g, "texture", "ground")
+        if gtex in _procedural() and world != "3d":
+            raise SceneError(f"ground.texture: the procedural texture {gtex!r} needs `world: 3d`")
+        ground = GroundSpec(texture=gtex if world == "3d" and gtex in _procedural() else _asset(gtex, "ground.texture"),
                             m_per_px=_num(g, "m_per_px", "ground", positive=True), z_m=_num(g, "z_m", "ground", 0.0),
                             extent_m=_num(g, "extent_m", "ground", 400.0, positive=True))
     layers = doc.get("layers", [])
@@ -359,7 +395,40 @@ def parse_scene(doc: Any, path: Path | None = None, subject: str | None = None) 
                  vehicle=_parse_vehicle(_dict(doc, "vehicle", "scene", required=True)),
                  limits=limits, ground=ground,
                  layers=tuple(_parse_layer(d, i) for i, d in enumerate(layers)),
-                 subject=_parse_subject(_dict(doc, "subject", "scene", required=True), subject), path=path)
+                 subject=_parse_subject(_dict(doc, "subject", "scene", required=True), subject), path=path,
+                 world=world, objects=_parse_objects(doc.get("objects", []), world))
+
+
+def _parse_object(d: Any, i: int) -> ObjectSpec:
+    from cinetransfer.services.autopilot_bridge.sim import textures
+
+    w = f"objects[{i}]"
+    if not isinstance(d, dict):
+        raise SceneError(f"{w}: must be a mapping")
+    _known(d, w, {"name", "kind", "position_m", "size_m", "yaw_deg", "texture", "period_m", "crown_m", "path_m",
+                  "speed_mps"})
+    kind = _str(d, "kind", w, choices=OBJECT_KINDS)
+    size = _vec(d, "size_m", w, 3)
+    if min(size[0], size[2]) <= 0 or size[1] < 0 or (kind == "box" and size[1] <= 0):
+        raise SceneError(f"{w}.size_m: lengths must be > 0, got {list(size)}")
+    path = d.get("path_m", [])
+    if not isinstance(path, list):
+        raise SceneError(f"{w}.path_m: must be a list of [x, y] waypoints")
+    pts = tuple(_vec({"p": p}, "p", f"{w}.path_m[{k}]", 2) for k, p in enumerate(path))
+    crown = _vec(d, "crown_m", w, 2, (2.5, 3.0) if kind == "tree" else (0.0, 0.0))
+    return ObjectSpec(name=_str(d, "name", w, f"object{i}"), kind=kind, position_m=_vec(d, "position_m", w, 2),
+                      size_m=size, yaw_rad=math.radians(_num(d, "yaw_deg", w, 0.0)),
+                      texture=_str(d, "texture", w, "bark" if kind == "tree" else "stone", textures.NAMES),
+                      period_m=_num(d, "period_m", w, 1.0, positive=True), crown_m=crown, path_m=pts,
+                      speed_mps=_num(d, "speed_mps", w, 0.5 if pts else 0.0, lo=0.0, hi=10.0))
+
+
+def _parse_objects(objs: Any, world: str) -> tuple[ObjectSpec, ...]:
+    if not isinstance(objs, list):
+        raise SceneError("scene.objects: must be a list")
+    if objs and world != "3d":
+        raise SceneError("scene.objects: solid objects need `world: 3d`")
+    return tuple(_parse_object(d, i) for i, d in enumerate(objs))
 
 
 def scene_names() -> list[str]:
@@ -367,9 +436,7 @@ def scene_names() -> list[str]:
     return sorted(p.stem for p in SCENES_DIR.glob("*.yaml"))
 
 
-def load_scene(name_or_path: str | Path, subject: str | None = None) -> Scene:
-    """A bundled scene by name ('lawn_juggler') or a scene file by path; `subject`: another
-    person from the library in place of the scene's own (see subject_names())."""
+def _scene_path(name_or_path: str | Path) -> Path:
     p = Path(name_or_path)
     if not p.suffix:
         cand = SCENES_DIR / f"{name_or_path}.yaml"
@@ -378,10 +445,32 @@ def load_scene(name_or_path: str | Path, subject: str | None = None) -> Scene:
         p = cand
     if not p.is_file():
         raise SceneError(f"scene file {p} not found")
+    return p
+
+
+def _read_doc(p: Path, seen: tuple[Path, ...] = ()) -> Any:
+    """A scene file's mapping; `extends: NAME` starts from another scene's and replaces its top-level keys."""
     try:
         doc = yaml.safe_load(p.read_text())
     except yaml.YAMLError as e:
         raise SceneError(f"{p}: not valid YAML: {e}") from None
+    if not isinstance(doc, dict) or "extends" not in doc:
+        return doc
+    base = _str(doc, "extends", "scene")
+    bp = _scene_path(base if not Path(base).suffix else p.parent / base)
+    if bp in seen or bp == p:
+        raise SceneError(f"{p.name}: scene.extends: {base!r} extends itself")
+    parent = _read_doc(bp, (*seen, p))
+    if not isinstance(parent, dict):
+        raise SceneError(f"{p.name}: scene.extends: {base!r} is not a scene mapping")
+    return {**parent, **{k: v for k, v in doc.items() if k != "extends"}}
+
+
+def load_scene(name_or_path: str | Path, subject: str | None = None) -> Scene:
+    """A bundled scene by name ('lawn_juggler') or a scene file by path; `subject`: another
+    person from the library in place of the scene's own (see subject_names())."""
+    p = _scene_path(name_or_path)
+    doc = _read_doc(p)
     try:
         return parse_scene(doc, p, subject)
     except SceneError as e:
