@@ -82,7 +82,7 @@ class Recorder:
 
     def __init__(self, session: Any, rig: str, outdir: Path, meta: dict) -> None:
         self.outdir = outdir
-        _reserve(outdir / RESERVE)  # OSError (no space even for that): the run stops before it flies
+        make_reserve(outdir)  # (made by the transfer before its nodes start; OSError: no room even for that)
         self.log = RunWriter(outdir / "run.mcap", meta)
         #: the write error that stopped the recording (None: none)
         self.failure: OSError | None = None
@@ -212,6 +212,7 @@ class Recorder:
                 self._progress.notify_all()
 
     def _write_frame(self, p: Placed) -> None:
+        self._check_space()  # before the encoder: a packet cut by a real ENOSPC would cost the whole video
         if self._video is None:
             self._video = H264Writer(self.outdir / "output.mp4", self._window.fps)
         self._video.write(np.asarray(p.item.image))
@@ -263,9 +264,11 @@ class Recorder:
         return summary
 
 
-def _reserve(path: Path) -> None:
-    """Set RESERVE_BYTES of disk aside (really allocated, not a sparse file)."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+def make_reserve(outdir: Path) -> None:
+    """Set RESERVE_BYTES of disk aside in `outdir` (really allocated, not a sparse file); a reserve
+    already there is kept as it is. OSError (ENOSPC) when the disk has not that much room."""
+    path = outdir / RESERVE
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT, 0o600)
     try:
         os.posix_fallocate(fd, 0, RESERVE_BYTES)
     except OSError:
@@ -274,3 +277,8 @@ def _reserve(path: Path) -> None:
         raise
     os.close(fd)
 
+
+def drop_reserve(outdir: Path) -> None:
+    """Give the reserve back (a run that ends before its recording closed it)."""
+    with contextlib.suppress(OSError):
+        os.unlink(outdir / RESERVE)
