@@ -194,6 +194,7 @@ def test_a_disk_filling_mid_take_keeps_an_output_video_larger_than_the_reserve(d
     info = probe(video)
     assert info["faststart"] and 0 < info["frames"] == meta["recorded_frames"] < k, (info, meta["recorded_frames"])
     assert video.stat().st_size > RESERVE_BYTES
+    print(f"output.mp4: {video.stat().st_size / 2**20:.1f} MB, {info['frames']} of {k} frames")  # a figure
     assert meta["files"]["output.mp4"] == f"partial: {info['frames']} of {k} frames", meta["files"]
     assert meta["files"]["run.mcap"] == "complete" and RunReader(out / "run.mcap").info.complete
     assert "No space left on device" in meta["error"] and meta["truth_frames"] > 0
