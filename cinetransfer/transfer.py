@@ -203,7 +203,7 @@ def _save_take(out: Path, style: M.Instructions, rec: Recorder, meta: dict, real
     """What the take holds (meta.json, with each take's settle time and the state of its files)
     and its truth (truth.msgpack)."""
     meta.update(take_meta(rec, style, realtime))
-    meta["files"] = recorded_files(out, int(style.image_targets.shape[0]))
+    meta["files"] = recorded_files(out, int(style.image_targets.shape[0]), read_back=rec.failure is not None)
     if meta.get("takes") and meta.get("epoch_ns") is not None and meta["files"]["run.mcap"] in READABLE:
         from cinetransfer import take_faults
 
@@ -256,9 +256,10 @@ def _transfer(args, src: Path, out: Path, meta: dict, t_start: float) -> int:
 READABLE = ("complete", "readable, without its summary")  #: run.mcap states that read without --salvage
 
 
-def recorded_files(out: Path, n_slots: int) -> dict[str, str]:
+def recorded_files(out: Path, n_slots: int, *, read_back: bool = True) -> dict[str, str]:
     """What output.mp4 and run.mcap hold, read back from the disk: 'complete', 'partial: N of K
-    frames', 'missing (...)', 'unreadable: ...'; for the recording also READABLE or 'needs --salvage'."""
+    frames', 'missing (...)', 'unreadable: ...'; for the recording also READABLE or 'needs --salvage'.
+    `read_back=False`: run.mcap was closed without an error, and is not read again (it can be large)."""
     from cinetransfer.runlog import RunFormatError, RunReader
     from cinetransfer.shared.video import probe
 
@@ -271,7 +272,9 @@ def recorded_files(out: Path, n_slots: int) -> dict[str, str]:
             files["output.mp4"] = "complete" if n >= n_slots else f"partial: {n} of {n_slots} frames"
         except Exception as e:  # noqa: BLE001 - whatever the demuxer says: the file cannot be watched
             files["output.mp4"] = f"unreadable: {e}"
-    if mcap.is_file():
+    if mcap.is_file() and not read_back:
+        files["run.mcap"] = "complete"
+    elif mcap.is_file():
         try:
             files["run.mcap"] = "complete" if RunReader(mcap).info.complete else "readable, without its summary"
         except (RunFormatError, OSError) as e:
