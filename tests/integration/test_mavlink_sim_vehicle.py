@@ -239,6 +239,14 @@ def test_tcp_link_is_reopened_after_the_vehicle_restarts():
         assert backend.connected
         rc, _ = stop_vehicle(proc)
         assert rc == 0
+        # while the vehicle is down, each reopen is refused: the backend says so and steps on (a step
+        # that raised ConnectionRefusedError here failed this test whenever the reboot was slow)
+        t0 = time.monotonic()
+        while backend.counters["mav_reopens"] < 2:
+            assert time.monotonic() - t0 < 60, backend.counters
+            backend.step(time.monotonic())
+            time.sleep(0.02)
+        assert not backend.connected
         proc = tcp_vehicle()  # the vehicle 'reboots' on the same port
         t0 = time.monotonic()
         while time.monotonic() - t0 < 60 and not (backend.counters["mav_link_losses"] and backend.connected):
