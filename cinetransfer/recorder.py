@@ -204,6 +204,7 @@ class Recorder:
         slot = self._window.slot(frame.stamp_ns, frame.index) if self._window else None
         if self._frames is None or slot is None:
             return
+        self._check_space()  # before the frame is counted: a full disk must not count a frame it never wrote
         placed = self._frames.add(slot, frame)
         for p in placed:
             self._write_frame(p)
@@ -212,7 +213,6 @@ class Recorder:
                 self._progress.notify_all()
 
     def _write_frame(self, p: Placed) -> None:
-        self._check_space()  # before the encoder: a packet cut by a real ENOSPC would cost the whole video
         if self._video is None:
             self._video = H264Writer(self.outdir / "output.mp4", self._window.fps)
         self._video.write(np.asarray(p.item.image))
@@ -247,7 +247,11 @@ class Recorder:
             os.unlink(self.outdir / RESERVE)
         if self._frames is None:
             return None, None
-        return self._frames.finish(), self._truth_summary()
+        frames = self._frames.finish()
+        if frames.written > len(self._shown):  # a write failed mid-batch: count what output.mp4 holds
+            frames.written = len(self._shown)
+            frames.missing_slots = list(range(len(self._shown), frames.n_slots))
+        return frames, self._truth_summary()
 
     def _truth_summary(self) -> TakeSummary:
         """Give each written slot the truth of the frame it shows; slots without one are missing."""
