@@ -93,6 +93,7 @@ def test_a_full_run_folder_neither_starts_a_deployment_nor_kills_a_running_one(t
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1500)  # a whole transfer on a loaded machine: the waits inside bound it
 def test_a_full_disk_stops_the_recording_at_once_and_keeps_it_readable(data, tmp_path, small_disk):
     from cinetransfer.runlog import RunReader
 
@@ -156,6 +157,7 @@ def mid_disk(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1500)  # a whole transfer on a loaded machine: the waits inside bound it
 def test_a_disk_filling_mid_take_keeps_an_output_video_larger_than_the_reserve(data, tmp_path, mid_disk):
     from cinetransfer.recorder import LOW_SPACE_BYTES, RESERVE_BYTES
     from cinetransfer.runlog import RunReader
