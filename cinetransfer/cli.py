@@ -13,6 +13,7 @@ from __future__ import annotations
 import errno
 import importlib
 import os
+import re
 import sys
 
 from cinetransfer.shared.errors import ConfigError, report_config_error
@@ -116,7 +117,8 @@ def user_error(e: BaseException) -> str | None:
         where = f": {e.filename}" if e.filename else ""
         return f"{what}{where}"
     if type(e).__name__ == "ZError" and type(e).__module__.split(".")[0] == "zenoh":
-        return (f"cannot use the bus: {e} (is the deployment running and reachable? "
+        said = re.sub(r"\s+at /\S+\.rs:\d+\.?", "", str(e))  # (where in Zenoh's Rust source: no help to a user)
+        return (f"cannot use the bus: {said} (is the deployment running and reachable? "
                 "see 'cinetransfer deploy status CONFIG')")
     return None
 

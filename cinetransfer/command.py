@@ -58,6 +58,9 @@ def main(argv: list[str]) -> int:
     try:
         cmd_args = parse_args_kv(a.args)
         opts = join.deployment_options(a.deployment, "operator")
+    except join.NotRunningError as e:
+        print(f"cinetransfer command: {e}", file=sys.stderr)
+        return 1
     except ValueError as e:
         print(f"cinetransfer command: {e}", file=sys.stderr)
         return 2

@@ -170,7 +170,8 @@ def observer_options(args: argparse.Namespace) -> zenoh_config.ZenohOptions:
         if args.deployment:
             raise
     # the local deployment never made credentials (never started, or not secure): a plain client
-    return zenoh_config.options_from_args(args, connect=(DEFAULT_ROUTER,))
+    # (no router there: a one-line error rather than an empty table)
+    return zenoh_config.options_from_args(args, mode="client", connect=(DEFAULT_ROUTER,))
 
 
 def main(argv: list[str]) -> int:
@@ -199,8 +200,12 @@ def main(argv: list[str]) -> int:
     args = p.parse_args(argv)
     try:
         opts = observer_options(args)
-    except ValueError as e:
-        p.error(str(e))
+    except join.NotRunningError as e:  # nothing to watch: one line, like a router that does not answer
+        print(f"cinetransfer monitor: {e}", file=sys.stderr)
+        return 1
+    except ValueError as e:  # a bad setting, not a bad flag: one line, no usage
+        print(f"cinetransfer monitor: {e}", file=sys.stderr)
+        return 2
     stop = StopSignal().install()  # a handler that sets an Event can deadlock (stopsignal.py)
     if args.foxglove:
         return _serve_foxglove(opts, args, stop)

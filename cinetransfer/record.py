@@ -19,7 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from cinetransfer import monitor
+from cinetransfer.deploy import join
 from cinetransfer.shared import keys, zenoh_config
+from cinetransfer.shared.stopsignal import StopSignal
 from cinetransfer.runlog import RunWriter
 
 
@@ -45,7 +47,7 @@ class LiveRecording:
                 self.written += 1
                 self._done.notify_all()
 
-    def wait_count(self, n: int, stop: threading.Event) -> None:
+    def wait_count(self, n: int, stop: StopSignal) -> None:
         """Return once `n` messages are written or `stop` is set."""
         with self._done:
             while self.written < n and not stop.is_set():
@@ -81,12 +83,14 @@ def main(argv: list[str]) -> int:
         if out.exists() and not args.force:
             raise ValueError(f"{out} exists (--force overwrites it)")
         opts = monitor.observer_options(args)
+    except join.NotRunningError as e:  # nothing to record: one line, exit 1, as monitor says it
+        print(f"cinetransfer record: {e}", file=sys.stderr)
+        return 1
     except ValueError as e:
         print(f"cinetransfer record: {e}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    # not a threading.Event set from a handler: that hangs when the signal lands inside its wait()
+    stop = StopSignal().install((signal.SIGINT, signal.SIGTERM))
     meta = {"source": "record", "keyexpr": args.keyexpr, "started": time.strftime("%Y-%m-%d %H:%M:%S")}
     with zenoh_config.open_session(opts) as session:
         try:

@@ -85,7 +85,7 @@ class Recorder:
         #: called with (slot, image) for every frame written to the take, in slot order (the
         #: output measured while filming, cinetransfer/live_output.py); None: nobody
         self.on_frame = on_frame
-        _reserve(outdir / RESERVE)  # OSError (no space even for that): the run stops before it flies
+        make_reserve(outdir)  # (made by the transfer before its nodes start; OSError: no room even for that)
         self.log = RunWriter(outdir / "run.mcap", meta)
         #: the write error that stopped the recording (None: none)
         self.failure: OSError | None = None
@@ -207,6 +207,7 @@ class Recorder:
         slot = self._window.slot(frame.stamp_ns, frame.index) if self._window else None
         if self._frames is None or slot is None:
             return
+        self._check_space()  # before the frame is counted: a full disk must not count a frame it never wrote
         placed = self._frames.add(slot, frame)
         for p in placed:
             self._write_frame(p)
@@ -251,7 +252,11 @@ class Recorder:
             os.unlink(self.outdir / RESERVE)
         if self._frames is None:
             return None, None
-        return self._frames.finish(), self._truth_summary()
+        frames = self._frames.finish()
+        if frames.written > len(self._shown):  # a write failed mid-batch: count what output.mp4 holds
+            frames.written = len(self._shown)
+            frames.missing_slots = list(range(len(self._shown), frames.n_slots))
+        return frames, self._truth_summary()
 
     def _truth_summary(self) -> TakeSummary:
         """Give each written slot the truth of the frame it shows; slots without one are missing."""
@@ -268,9 +273,11 @@ class Recorder:
         return summary
 
 
-def _reserve(path: Path) -> None:
-    """Set RESERVE_BYTES of disk aside (really allocated, not a sparse file)."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+def make_reserve(outdir: Path) -> None:
+    """Set RESERVE_BYTES of disk aside in `outdir` (really allocated, not a sparse file); a reserve
+    already there is kept as it is. OSError (ENOSPC) when the disk has not that much room."""
+    path = outdir / RESERVE
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT, 0o600)
     try:
         os.posix_fallocate(fd, 0, RESERVE_BYTES)
     except OSError:
@@ -279,3 +286,8 @@ def _reserve(path: Path) -> None:
         raise
     os.close(fd)
 
+
+def drop_reserve(outdir: Path) -> None:
+    """Give the reserve back (a run that ends before its recording closed it)."""
+    with contextlib.suppress(OSError):
+        os.unlink(outdir / RESERVE)

@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import shutil
 import signal
 import sys
 import time
@@ -42,7 +43,7 @@ from cinetransfer.flight import shot_schedule as shot_schedule
 from cinetransfer.job import TransferError, deployment, run_cli, wait_alive
 from cinetransfer.lease import TakeLease
 from cinetransfer.live_output import LiveOutputStyle
-from cinetransfer.recorder import Recorder
+from cinetransfer.recorder import LOW_SPACE_BYTES, RESERVE_BYTES, Recorder, drop_reserve, make_reserve
 from cinetransfer.shared import keys
 from cinetransfer.shared import messages as M
 from cinetransfer.shared import zenoh_config
@@ -195,6 +196,22 @@ def _argument_problem(args, src: Path) -> str | None:
     if args.subject and (args.deployment or getattr(args, "connect", None)):
         return ("--subject needs the transfer's own deployment; a running bridge films "
                 "the subject it was started with (autopilot_bridge --subject NAME)")
+    return _style_problem(args.style)
+
+
+def _style_problem(style: str | None) -> str | None:
+    """A --style file that cannot be flown (unreadable, off the schema, fps outside the camera's
+    range, nothing to fly) is refused before a node starts, not after."""
+    if not style:
+        return None
+    from cinetransfer.shared.instructions import load_style
+
+    try:
+        load_style(style)
+    except OSError as e:
+        return f"--style {style}: {e.strerror or e}"
+    except ValueError as e:
+        return f"--style {e}"
     return None
 
 
@@ -219,9 +236,11 @@ def _resolve_rig(args) -> str | None:
 
 
 def _save_take(out: Path, style: M.Instructions, rec: Recorder, meta: dict, realtime: bool) -> None:
-    """What the take holds (meta.json, with each take's settle time) and its truth (truth.msgpack)."""
+    """What the take holds (meta.json, with each take's settle time and the state of its files)
+    and its truth (truth.msgpack)."""
     meta.update(take_meta(rec, style, realtime))
-    if meta.get("takes") and meta.get("epoch_ns") is not None and (out / "run.mcap").is_file():
+    meta["files"] = recorded_files(out, int(style.image_targets.shape[0]), read_back=rec.failure is not None)
+    if meta.get("takes") and meta.get("epoch_ns") is not None and meta["files"]["run.mcap"] in READABLE:
         from cinetransfer import take_faults
 
         faults = take_faults.take_faults(out / "run.mcap", meta["rig"], meta["takes"], epoch_ns=int(meta["epoch_ns"]),
@@ -264,10 +283,14 @@ def _take_and_evaluate(args, src: Path, out: Path, meta: dict, timings: dict, li
     try:
         style_path, style, rec = _job(args, src, out, meta, timings, live, stopping)
     except TransferError as e:
-        if getattr(e, "flight", None) is not None:  # the flight failed: keep what it recorded
-            meta["error"] = str(e)
+        if getattr(e, "flight", None) is None:
+            raise
+        meta["error"] = str(e)  # the flight failed: keep what it recorded, and say what that is
+        try:
             _save_take(out, *e.flight, meta, args.realtime)
-        raise
+        except OSError as se:  # (a full disk: the error that stopped the flight is the one to tell)
+            raise TransferError(f"{e}; meta.json and truth.msgpack not written: {_one_line(se)}") from None
+        raise TransferError(f"{e}; {_files_said(meta['files'])}") from None
     _save_take(out, style, rec, meta, args.realtime)
     if meta["interrupted"]:
         print(f"recorded {meta['recorded_frames']} frames to {out / 'output.mp4'} (interrupted)")
@@ -291,6 +314,39 @@ def _wind_down(live: dict, stopping: list, *, quiet: bool) -> None:
             if not quiet:
                 raise
             log.error("%s", e)
+
+
+READABLE = ("complete", "readable, without its summary")  #: run.mcap states that read without --salvage
+
+
+def recorded_files(out: Path, n_slots: int, *, read_back: bool = True) -> dict[str, str]:
+    """What output.mp4 and run.mcap hold, read back from the disk: 'complete', 'partial: N of K
+    frames', 'missing (...)', 'unreadable: ...'; for the recording also READABLE or 'needs --salvage'.
+    `read_back=False`: run.mcap was closed without an error, and is not read again (it can be large)."""
+    from cinetransfer.runlog import RunFormatError, RunReader
+    from cinetransfer.shared.video import probe
+
+    video, mcap = out / "output.mp4", out / "run.mcap"
+    files = {"output.mp4": "missing (the take's first frame was never recorded)",
+             "run.mcap": "missing"}
+    if video.is_file():
+        try:
+            n = probe(video)["frames"]
+            files["output.mp4"] = "complete" if n >= n_slots else f"partial: {n} of {n_slots} frames"
+        except Exception as e:  # noqa: BLE001 - whatever the demuxer says: the file cannot be watched
+            files["output.mp4"] = f"unreadable: {e}"
+    if mcap.is_file() and not read_back:
+        files["run.mcap"] = "complete"
+    elif mcap.is_file():
+        try:
+            files["run.mcap"] = "complete" if RunReader(mcap).info.complete else "readable, without its summary"
+        except (RunFormatError, OSError) as e:
+            files["run.mcap"] = f"needs --salvage: {e}"
+    return files
+
+
+def _files_said(files: dict[str, str]) -> str:
+    return "; ".join(f"{name} {state}" for name, state in files.items())
 
 
 def _degraded(meta: dict) -> int:
@@ -326,15 +382,40 @@ def main(argv: list[str]) -> int:
                   "started": time.strftime("%Y-%m-%d %H:%M:%S")}
     try:
         out.mkdir(parents=True, exist_ok=True)
+        _reserve_room(out)
         return _transfer(args, src, out, meta, t_start)
     except (TransferError, MissingFramesError, ValueError, OSError, zenoh.ZError) as e:
-        print(f"cinetransfer transfer: {e}", file=sys.stderr)
+        print(f"cinetransfer transfer: {_one_line(e)}", file=sys.stderr)
+        drop_reserve(out)
         if created and out.is_dir() and not any(out.iterdir()):
             out.rmdir()  # a run refused before it wrote anything leaves nothing behind
         return 1
     except KeyboardInterrupt:  # outside the flight (extraction, start-up): nothing is flying yet
         print(f"cinetransfer transfer: interrupted; what was written is in {out}", file=sys.stderr)
         return 130
+    finally:
+        drop_reserve(out)
+
+
+def _reserve_room(out: Path) -> None:
+    """The recording's reserve, set aside before any node starts: a disk without that much room is
+    refused at once, and the nodes' logs and the extraction cannot eat the room the recording
+    needs to close readable on a full disk."""
+    try:
+        make_reserve(out)
+    except OSError as e:
+        drop_reserve(out)
+        free = shutil.disk_usage(out).free
+        raise TransferError(f"-o {out}: {e.strerror or e}: {free / 2**20:.1f} MB free; a transfer sets "
+                            f"{RESERVE_BYTES >> 20} MB aside to close its recording on a full disk and stops "
+                            f"recording below {LOW_SPACE_BYTES >> 20} MB free") from None
+
+
+def _one_line(e: BaseException) -> str:
+    """An OSError names what failed and where; anything else says itself."""
+    if isinstance(e, OSError) and e.strerror:
+        return f"{e.strerror}: {e.filename}" if e.filename else e.strerror
+    return str(e)
 
 
 def _people(src: Path, args) -> dict:

@@ -27,9 +27,11 @@ into RUN_DIR/secrets (0700). `cinetransfer deploy certs DIR` creates them for a 
 from __future__ import annotations
 
 import argparse
+import errno
 import fcntl
 import logging
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -37,7 +39,16 @@ import time
 from pathlib import Path
 
 from cinetransfer.deploy.config import DeployConfig, dataflow_problems, load_config
-from cinetransfer.deploy.rundir import ENV_PROC, ENV_RUN_DIR, read_state, resolve_run_dir, running_procs, try_lock
+from cinetransfer.deploy.rundir import (
+    ENV_PROC,
+    ENV_RUN_DIR,
+    FULL_BYTES,
+    free_bytes,
+    read_state,
+    resolve_run_dir,
+    running_procs,
+    try_lock,
+)
 from cinetransfer.deploy.security import prepare_security, secrets_dir
 from cinetransfer.deploy.supervision import Supervisor
 from cinetransfer.shared.errors import ConfigError, report_config_error
@@ -88,7 +99,24 @@ def cmd_check(names: list[str]) -> int:
 
 
 def cmd_up(cfg: DeployConfig, run_dir: Path, wait: bool, foreground: bool, owner_pid: int | None = None) -> int:
-    run_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
+    """`up` on a run folder that cannot be written (missing, read-only, full) is one line, exit 1,
+    and leaves no folder it made behind."""
+    made = not run_dir.exists()
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
+        free = free_bytes(run_dir)
+        if free is not None and free < FULL_BYTES:
+            raise OSError(errno.ENOSPC, f"{os.strerror(errno.ENOSPC)} ({free >> 10} KB free; a deployment needs "
+                                        f"{FULL_BYTES >> 20} MB for its logs and state)")
+        return _up(cfg, run_dir, wait, foreground, owner_pid)
+    except OSError as e:
+        print(f"cinetransfer deploy: cannot write the run folder {run_dir}: {e.strerror or e}", file=sys.stderr)
+        if made:
+            shutil.rmtree(run_dir, ignore_errors=True)
+        return 1
+
+
+def _up(cfg: DeployConfig, run_dir: Path, wait: bool, foreground: bool, owner_pid: int | None) -> int:
     lock_fd = try_lock(run_dir)
     if lock_fd is None:
         state = read_state(run_dir) or {}
@@ -205,6 +233,10 @@ def cmd_status(cfg: DeployConfig, run_dir: Path) -> int:
         return 1
     alive = _alive(cfg, run_dir, cfg.check_endpoint, cfg.rig, timeout=1.0)
     print(f"deploy {cfg.name} (rig {cfg.rig}): supervisor pid {sup}; run folder {run_dir}")
+    free = free_bytes(run_dir)
+    if free is not None and free < FULL_BYTES:
+        print(f"  RUN FOLDER FULL ({free >> 10} KB free): logs and state.json are not being written; "
+              "the nodes run on")
     print(f"  {'name':<20} {'kind':<7} {'pid':>8} {'restarts':>8}  alive")
     for p in cfg.procs:
         restarts = (state.get("procs", {}).get(p.name) or {}).get("restarts", "?")

@@ -12,7 +12,12 @@ import zenoh
 from cinetransfer.deploy.config import load_config
 from cinetransfer.deploy.rundir import resolve_run_dir
 from cinetransfer.deploy.security import secrets_dir
+from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.zenoh_config import ZenohOptions, open_session
+
+
+class NotRunningError(ValueError):
+    """The deployment has never been brought up here: there are no credentials to join it with."""
 
 
 def deployment_options(config: str | os.PathLike, identity: str = "operator", *,
@@ -27,8 +32,15 @@ def deployment_options(config: str | os.PathLike, identity: str = "operator", *,
     rd = resolve_run_dir(cfg, run_dir)
     if not cfg.check_endpoint:
         raise ValueError(f"deploy config {cfg.path} has no router endpoint to join")
+    secrets = secrets_dir(cfg, rd)
+    if cfg.secure and not (secrets / "users.txt").is_file():
+        if not cfg.secrets:  # the folder 'deploy up' generates: never made, so never started here
+            raise NotRunningError(f"deployment {cfg.name} is not running here: no credentials in {secrets} "
+                                  f"('cinetransfer deploy up {cfg.name}' makes them)")
+        raise ConfigError(f"secrets folder {secrets} has no users.txt (make one with "
+                          "'cinetransfer deploy certs DIR --one-host')")
     base: dict[str, object] = {"mode": "client", "connect": (cfg.check_endpoint,), "identity": identity,
-                               "secrets": str(secrets_dir(cfg, rd)) if cfg.secure else None}
+                               "secrets": str(secrets) if cfg.secure else None}
     opts = ZenohOptions(**{**base, **overrides})  # type: ignore[arg-type]
     opts.validate()
     return opts

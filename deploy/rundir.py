@@ -42,6 +42,19 @@ def resolve_run_dir(cfg: DeployConfig, run_dir: str | os.PathLike | None = None)
 
 
 
+#: a run folder with less free space than this is full: `up` refuses it, `status` says so
+FULL_BYTES = 1 << 20
+
+
+def free_bytes(path: Path) -> int | None:
+    """Free space for an unprivileged writer under `path` (None: the folder cannot be looked at)."""
+    try:
+        st = os.statvfs(path)
+    except OSError:
+        return None
+    return st.f_bavail * st.f_frsize
+
+
 def write_atomic(path: Path, text: str) -> None:
     """Write via a unique temporary file in the same folder and rename (readers never see half)."""
     with atomic_write(path, mode=0o600) as f:

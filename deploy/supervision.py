@@ -6,6 +6,7 @@ SIGINT (then SIGKILL after a grace period), routers last.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -35,11 +36,16 @@ class Supervisor:
         self.next_start: dict[str, float] = {}
         self.started_at: dict[str, float] = {}
         self.stopping = False
+        self.write_error: OSError | None = None  #: the first write to the run folder that failed
 
     def _start(self, proc: Proc) -> None:
-        logf = open(self.run_dir / f"{proc.name}.log", "ab")
-        logf.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} start: cinetransfer {' '.join(proc.argv)}\n".encode())
-        logf.flush()
+        logf = open(self.run_dir / f"{proc.name}.log", "ab")  # (opening needs no free space; writing may)
+        try:
+            logf.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} start: cinetransfer {' '.join(proc.argv)}\n"
+                       .encode())
+            logf.flush()
+        except OSError as e:
+            self._cannot_write(e)
         env = {**os.environ, "PYTHONUNBUFFERED": "1", ENV_RUN_DIR: str(self.run_dir), ENV_PROC: proc.name}
         argv = [*proc.argv, *security_flags(self.cfg, self.run_dir, proc)]
         self.children[proc.name] = subprocess.Popen([sys.executable, "-m", "cinetransfer", *argv], stdout=logf,
@@ -56,7 +62,20 @@ class Supervisor:
                                                         self.children[p.name].poll() is None else None),
                                "restarts": self.restarts[p.name], "argv": list(p.argv)} for p in self.cfg.procs},
         }
-        write_atomic(self.run_dir / "state.json", json.dumps(state, indent=2))
+        try:
+            write_atomic(self.run_dir / "state.json", json.dumps(state, indent=2))
+        except OSError as e:
+            self._cannot_write(e)
+
+    def _cannot_write(self, e: OSError) -> None:
+        """A full (or failing) run folder costs the state file and the logs, never the supervision:
+        the nodes fly on, restarts and `down` still work (processes are found by their mark, not
+        by state.json); said once on stderr and in `deploy status`."""
+        if self.write_error is None:
+            self.write_error = e
+            with contextlib.suppress(OSError):
+                print(f"cinetransfer deploy: cannot write the run folder {self.run_dir}: {e.strerror or e}; "
+                      "supervising on without state.json and logs", file=sys.stderr, flush=True)
 
     def run(self) -> int:
         signal.signal(signal.SIGTERM, lambda *_: setattr(self, "stopping", True))

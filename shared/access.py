@@ -27,6 +27,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from cinetransfer.shared import dataflow, keys
+from cinetransfer.shared.errors import ConfigError
 
 OPERATOR = "operator"  # the operator's tools: `cinetransfer transfer`, command senders
 OBSERVER = "observer"  # read-only tools: `monitor`, `deploy up/status` liveliness checks
@@ -130,15 +131,15 @@ def access_control(*, grants: dict[str, list[str]] | None = None, links: bool = 
 
 
 def read_password(secrets_dir: str | Path, identity: str) -> str:
-    """`identity`'s password from the deployment's users.txt (ValueError naming what is missing)."""
+    """`identity`'s password from the deployment's users.txt (ConfigError naming what is missing)."""
     path = Path(secrets_dir) / "users.txt"
     try:
         lines = path.read_text().splitlines()
     except FileNotFoundError:
-        raise ValueError(f"no credentials at {path}: run 'cinetransfer deploy certs {secrets_dir}' "
+        raise ConfigError(f"no credentials at {path}: run 'cinetransfer deploy certs {secrets_dir}' "
                          f"(or 'deploy up', which creates them for its run folder)") from None
     for line in lines:
         user, sep, pw = line.partition(":")
         if sep and user == identity:
             return pw
-    raise ValueError(f"{path} has no password for identity {identity!r}")
+    raise ConfigError(f"{path} has no password for identity {identity!r}")

@@ -66,23 +66,29 @@ def spawn(*args: str, log: Path | None = None, env: dict | None = None) -> subpr
     """Start `python -m cinetransfer ARGS...` as a real process."""
     out = open(log, "wb") if log else subprocess.DEVNULL
     try:
+        # PYTHONFAULTHANDLER: a process that hangs at exit is made to print every thread's stack (see stop)
         return subprocess.Popen([sys.executable, "-m", "cinetransfer", *args], stdout=out, stderr=subprocess.STDOUT,
-                                env={**os.environ, **(env or {})})
+                                env={**os.environ, "PYTHONFAULTHANDLER": "1", **(env or {})})
     finally:
         if log:
             out.close()  # the child keeps its own descriptor
 
 
 def stop(proc: subprocess.Popen, timeout: float = 15.0) -> int:
-    """SIGINT, then wait; kill if it does not exit (and fail the caller via the return code)."""
+    """SIGINT, then wait; a process that does not exit gets SIGABRT, which makes a spawned one write
+    every thread's stack into its log (the evidence of a hang), then SIGKILL; the caller fails on
+    the return code (-6 or -9)."""
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
         try:
             return proc.wait(timeout)
         except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-            return -9
+            proc.send_signal(signal.SIGABRT)
+            try:
+                return proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                return proc.wait()
     return proc.returncode
 
 

@@ -78,6 +78,10 @@ def main(argv: list[str]) -> int:
     out_video = run / OUTPUT_VIDEO if (run / OUTPUT_VIDEO).is_file() else None
     source_video = _find_source(run, meta, args.source)
     outdir = Path(args.outdir) if args.outdir else run
+    problem = _unwritable(outdir)
+    if problem:  # before the figures: each would otherwise log its own traceback
+        print(f"cinetransfer report: cannot write the report into {outdir}: {problem}", file=sys.stderr)
+        return 1
     try:
         summary = build_report(outdir, source_style=run / STYLE, output_style=out_style, truths=truths,
                                source_video=source_video, output_video=out_video, meta=meta,
@@ -89,6 +93,19 @@ def main(argv: list[str]) -> int:
     print(json.dumps(summary["headline"], indent=2))
     print(f"report: {(outdir / 'report.html').resolve()}")
     return 0
+
+
+def _unwritable(outdir: Path) -> str | None:
+    """Why no file can be made in `outdir` (made if missing), or None: a file is made and removed."""
+    import tempfile
+
+    try:
+        outdir.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=outdir):
+            pass
+    except OSError as e:
+        return e.strerror or str(e)
+    return None
 
 
 if __name__ == "__main__":

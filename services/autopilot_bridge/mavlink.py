@@ -576,8 +576,8 @@ class MavlinkBackend(VehiclePort):
 
     def step(self, now_s: float) -> None:
         now = now_s
-        if self.conn is None:
-            self._open()
+        if self.conn is None and not self._reopen(now):  # (a failed reopen left no link: retried in turn)
+            return
         self._poll(now)
         if not self._keep_link(now) or self.conn is None:
             return
@@ -603,16 +603,24 @@ class MavlinkBackend(VehiclePort):
             self.stream_since_s = None
             self.last_reopen_s = now
             self.log.warning("link lost: nothing from the vehicle for %.1f s", self.cfg.link_timeout_s)
-        if not self.link_up and self.reopens_link and now - self.last_reopen_s > self.cfg.reopen_period_s:
-            self.last_reopen_s = now
-            self.counters["mav_reopens"] += 1
-            self.log.info("reopening %s", self.cfg.url)
-            try:
-                self._open()
-            except (OSError, ConnectionError) as e:
-                self.log.warning("reopen failed: %s", e)
-                self.conn = None
-                return False
+        if not self.link_up and self.reopens_link:
+            return self._reopen(now)
+        return True
+
+    def _reopen(self, now: float) -> bool:
+        """Open the link again, at most once per reopen_period_s; False while there is none. A
+        vehicle that is not listening yet (rebooting) is a warning, never an exception out of step."""
+        if now - self.last_reopen_s <= self.cfg.reopen_period_s:
+            return self.conn is not None
+        self.last_reopen_s = now
+        self.counters["mav_reopens"] += 1
+        self.log.info("reopening %s", self.cfg.url)
+        try:
+            self._open()
+        except (OSError, ConnectionError) as e:
+            self.log.warning("reopen failed: %s", e)
+            self.conn = None
+            return False
         return True
 
     def _stream(self, now: float) -> None:

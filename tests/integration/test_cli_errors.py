@@ -57,6 +57,94 @@ def test_monitor_without_a_running_deployment_says_so_in_one_line():
     r = cli("monitor", "--mode", "client", "--connect", f"tcp/127.0.0.1:{free_tcp_port()}", "--once")
     one_line_error(r, 1, "cannot use the bus", "is the deployment running")
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert ".rs:" not in r.stderr  # (not where in Zenoh's source the connection failed)
+
+
+@pytest.mark.parametrize("args", [("monitor", "--deployment", "local", "--once"), ("monitor", "--once"),
+                                  ("command", "planner", "stop")])
+def test_tools_on_a_deployment_never_started_here_say_so_in_one_line(tmp_path, args):
+    # no credentials (the deployment was never brought up with this state folder), nothing listening
+    r = cli(*args, env={"CT_STATE_DIR": str(tmp_path / "state"), "CT_ROUTER_PORT": str(free_tcp_port())})
+    last = one_line_error(r, 1)
+    assert len(r.stderr.strip().splitlines()) == 1 and "usage:" not in r.stderr, r.stderr
+    assert "is not running here" in last or "cannot use the bus" in last, last
+
+
+@pytest.mark.parametrize("args", [("monitor", "--deployment", "local", "--once"), ("command", "planner", "stop")])
+def test_tools_on_a_stopped_deployment_say_so_in_one_line(tmp_path, monkeypatch, args):
+    from cinetransfer.deploy.config import load_config
+    from cinetransfer.deploy.rundir import resolve_run_dir
+    from cinetransfer.deploy.security import prepare_security
+
+    env = {"CT_STATE_DIR": str(tmp_path / "state"), "CT_ROUTER_PORT": str(free_tcp_port()), "CT_SECRETS": ""}
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    # the credentials an earlier `deploy up local` left in its run folder; its router is gone
+    cfg = load_config("local")
+    run_dir = resolve_run_dir(cfg)
+    run_dir.mkdir(parents=True)
+    prepare_security(cfg, run_dir)
+    r = cli(*args, env=env)
+    one_line_error(r, 1, "cannot use the bus", "is the deployment running")
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+@pytest.fixture
+def read_only_dir(tmp_path):
+    """A folder nobody can write, root included (a read-only tmpfs; chmod where not root)."""
+    import os
+
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    if os.geteuid() != 0:
+        ro.chmod(0o555)
+        yield ro
+        ro.chmod(0o755)
+        return
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(ro)], capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a read-only tmpfs: {r.stderr.strip()}")
+    try:
+        yield ro
+    finally:
+        subprocess.run(["umount", "-l", str(ro)], capture_output=True)
+
+
+@pytest.fixture
+def style24(data, tmp_path_factory):
+    path = tmp_path_factory.mktemp("style") / "style.json"
+    r = cli("extract", str(data / "sam2_juggle_1280x720.mp4"), "--stop", "24", "-o", str(path), "--quiet")
+    assert r.returncode == 0, r.stderr
+    return path
+
+
+@pytest.mark.parametrize("into", [".", "sub"])
+def test_report_into_a_read_only_folder_is_one_line(style24, tmp_path, read_only_dir, into):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "style.json").write_bytes(style24.read_bytes())
+    r = cli("report", str(run), "-o", str(read_only_dir / into))
+    one_line_error(r, 1, "cannot write the report into", str(read_only_dir))
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_plot_into_a_read_only_folder_is_one_line(style24, read_only_dir):
+    r = cli("plot", str(style24), "-o", str(read_only_dir / "style.png"))
+    one_line_error(r, 1, str(read_only_dir / "style.png"))
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_a_style_the_camera_cannot_film_is_refused_before_anything_starts(style24, data, tmp_path):
+    import json
+
+    d = json.loads(style24.read_text())
+    d["instructions"].update(fps=1000.0, frame_duration_s=0.001)  # faster than the camera films
+    bad = tmp_path / "fast.json"
+    bad.write_text(json.dumps(d))
+    out = tmp_path / "out"
+    r = cli("transfer", str(data / "sam2_juggle_1280x720.mp4"), "--style", str(bad), "-o", str(out))
+    one_line_error(r, 2, "--style", "fps", "240")
+    assert len(r.stderr.strip().splitlines()) == 1 and not out.exists(), r.stderr
 
 
 @pytest.mark.parametrize("extra, words", [

@@ -5,6 +5,7 @@ import threading
 
 import zenoh
 
+from attacks import jpeg_bomb_frame
 from cinetransfer.shared.frame_sources import iter_frames
 from cinetransfer.shared import codec, keys, zenoh_config
 from cinetransfer.shared import messages as M
@@ -87,6 +88,9 @@ def test_service_measures_frames_and_drops_visibly(tmp_path, data, port, listene
         # a garbage payload is rejected and counted; the node carries on
         bus.frame_pub.put(b"not a frame at all")
         wait_for(lambda: any(h.rejected >= 1 for h in bus.health), 10, what="rejection in Health")
+        # so is a 761-byte frame declaring a 30000x30000 JPEG (it once cost 28 s and 5.4 GB): refused unread
+        bus.frame_pub.put(jpeg_bomb_frame())
+        wait_for(lambda: any(h.rejected >= 2 for h in bus.health), 10, what="the JPEG bomb rejected in Health")
         # a burst faster than it can measure: the backlog stays bounded, the skipped frames are counted
         n0 = len(bus.measurements)
         burst = frames[7:40]

@@ -36,7 +36,9 @@ def free_udp_port() -> int:
 
 
 def spawn(*args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "cinetransfer", "sim-vehicle", *args],
+    # a generous offboard failsafe: these tests are about spoofing, and a loaded machine can stall
+    # the test's setpoint stream past the default 0.5 s (the vehicle then leaves OFFBOARD, rightly)
+    return subprocess.Popen([sys.executable, "-m", "cinetransfer", "sim-vehicle", "--offboard-timeout", "5", *args],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
 
 

@@ -116,8 +116,11 @@ def test_bridge_flies_a_mavsdk_autopilot_with_a_camera_server():
 
 
 def spawn_vehicle(port: int) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "cinetransfer", "sim-vehicle", "--mavlink",
-                             f"udpin:127.0.0.1:{port}"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    # a generous offboard failsafe (default 0.5 s of wall time): a loaded machine can stall MAVSDK's
+    # setpoint stream that long, and the vehicle then rightly leaves OFFBOARD; not what is tested here
+    return subprocess.Popen([sys.executable, "-m", "cinetransfer", "sim-vehicle", "--offboard-timeout", "5",
+                             "--mavlink", f"udpin:127.0.0.1:{port}"], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT)
 
 
 def test_mavsdk_ground_station_flies_the_sim_vehicle():

@@ -142,3 +142,38 @@ def test_watchdog_counts_simulated_seconds(tape, port, tmp_path):
     tracked_s = (states[back_to_hold].stamp_ns - states[first_track].stamp_ns) * 1e-9
     # then the vehicle tracked for the watchdog's 0.5 s of simulated time (to within a step)
     assert 0.45 <= tracked_s <= 0.6, tracked_s
+
+
+@pytest.mark.slow
+def test_a_clock_tick_600_s_back_resets_the_planners_warm_start_and_the_take_goes_on(tape, port, tmp_path):
+    health: dict[str, M.Health] = {}
+    sub = tape.session.declare_subscriber(keys.health(RIG, "planner"),
+                                          lambda s: health.update(planner=codec.decode(s.payload.to_bytes())))
+    br = bridge(port, tmp_path, "--pace", "0")
+    pl = spawn("planner", "--rig", RIG, "--health-period", "0.2", *connect_flags(port),
+               log=tmp_path / "planner.log")
+    try:
+        wait_for(lambda: {"planner", "autopilot_bridge"} <= tape.alive, 120, what="nodes alive")
+        ins = instructions_from_arrays(targets=np.full((2400, 1, 2), 0.5), joint_names=["nose"], fps=24.0)
+        tape.session.put(keys.INSTRUCTIONS.key(RIG), codec.encode(dataclasses.replace(ins, final=True)))
+        tape.session.put(keys.PLANNER_COMMAND.key(RIG), codec.encode(M.Command(action="start")))
+        wait_for(lambda: health.get("planner") is not None and health["planner"].counters.get("solves", 0) > 20, 120,
+                 what="the planner tracking")
+        resets = int(health["planner"].counters.get("warm_start_resets", 0))
+        # when one clock tick arrives 600 s back (what a restarted bridge publishes) ...
+        last = tape.of(keys.SIM_CLOCK)[-1]
+        back = dataclasses.replace(last, stamp_ns=last.stamp_ns - 600 * 10**9)
+        tape.session.put(keys.SIM_CLOCK.key(RIG), codec.encode(back))
+        # ... then the planner resets its warm start (and again when the clock is back where it was)
+        wait_for(lambda: int(health["planner"].counters.get("warm_start_resets", 0)) > resets, 60,
+                 what="warm start reset")
+        n = len(tape.of(keys.SIM_CLOCK))
+        # and the take goes on: the lockstep clock, which waits for the planner's setpoints, still runs
+        wait_for(lambda: len(tape.of(keys.SIM_CLOCK)) > n + 40, 120, what="clock ticks after the jump")
+        assert pl.poll() is None and br.poll() is None
+    finally:
+        sub.undeclare()
+        rc_pl, rc_br = stop(pl), stop(br)
+    log = (tmp_path / "planner.log").read_text()
+    assert rc_pl == 0 and rc_br == 0, log[-3000:]
+    assert "Traceback" not in log and "warm start reset" in log, log[-3000:]
