@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cinetransfer.report.repeatable import report_figures
 from cinetransfer.report.truthfile import read_truths
 from cinetransfer.data import data_dir
 
@@ -74,27 +75,6 @@ def frames(path: Path) -> list[np.ndarray]:
         if not ok:
             return out
         out.append(img)
-
-
-#: report.json keys that say when or how fast, not what was measured
-VOLATILE = ("generated", "report_s", "meta", "inputs", "recording_file", "video")
-#: the take's facts counted in wall time (a real-time run would have cut those solves short; how
-#: long the planner was silent): machine load changes them, not the take
-WALL_TIME = ("over_budget_solves", "planner_silence_s")
-
-
-def report_figures(out: Path) -> dict:
-    """report.json without what says when, where or how fast (paths name OUTDIR)."""
-    text = (out / "report.json").read_text().replace(str(out), "OUTDIR")
-    return _without_wall_time({k: v for k, v in json.loads(text).items() if k not in VOLATILE})
-
-
-def _without_wall_time(v):
-    if isinstance(v, dict):
-        return {k: _without_wall_time(x) for k, x in v.items() if k not in WALL_TIME}
-    if isinstance(v, list):
-        return [_without_wall_time(x) for x in v]
-    return v
 
 
 def compare(a: Path, b: Path) -> dict:

@@ -9,14 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cinetransfer.report.repeatable import report_figures as figures
 from cinetransfer.report.truthfile import read_truths
 
 FRAMES = 24  # one second of the 24 fps clip
-#: report.json keys that say when, where or how fast, not what was measured
-VOLATILE = ("generated", "report_s", "meta", "inputs", "recording_file", "video")
-#: the take's facts counted in wall time (a real-time run would have cut those solves short; how
-#: long the planner was silent): machine load changes them, not the take
-WALL_TIME = ("over_budget_solves", "planner_silence_s")
 
 
 def transfer(data, out, *extra):
@@ -37,20 +33,6 @@ def video_frames(path) -> list[np.ndarray]:
             cap.release()
             return out
         out.append(img)
-
-
-def figures(out) -> dict:
-    """report.json without what says when, where or how fast (paths name OUTDIR)."""
-    text = (out / "report.json").read_text().replace(str(out), "OUTDIR")
-    return _without_wall_time({k: v for k, v in json.loads(text).items() if k not in VOLATILE})
-
-
-def _without_wall_time(v):
-    if isinstance(v, dict):
-        return {k: _without_wall_time(x) for k, x in v.items() if k not in WALL_TIME}
-    if isinstance(v, list):
-        return [_without_wall_time(x) for x in v]
-    return v
 
 
 @pytest.mark.slow
