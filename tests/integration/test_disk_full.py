@@ -147,6 +147,8 @@ def long_style(short, path, reps: int) -> int:
             if isinstance(getattr(instr, f.name), np.ndarray) and getattr(instr, f.name).shape[:1] == (k,)}
     if instr.shot_start is not None:
         rows["shot_start"] = np.zeros(k * reps, bool)
+    if instr.camera_motion_class is not None:  # a list, not an array
+        rows["camera_motion_class"] = list(instr.camera_motion_class) * reps
     save_style(path, dataclasses.replace(instr, **rows))
     return k * reps
 
