@@ -42,7 +42,7 @@ import threading
 import cv2
 import numpy as np
 
-from cinetransfer.services.detector import box_models
+from cinetransfer.services.detector import box_models, dedupe
 from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.shared.boxes import box_iou
 from cinetransfer.shared.messages import PersonDetection, Skeleton
@@ -423,12 +423,9 @@ class BoxFirstPose:
         `second`), track ids kept or new."""
         cfg = self.cfg
         cands.sort(key=lambda c: -c[0][0])
-        keep = []
-        for c in cands:  # two crops on one person give near-identical boxes: keep the surer one
-            if all(box_iou(c[0][1], k[0][1]) <= cfg.dedup_iou for k in keep):
-                keep.append(c)
-            if len(keep) >= cfg.bf_max_people:
-                break
+        # two crops on one person: keep the surer one (dedupe.py: overlapping boxes, or nested ones on one body)
+        seen = [dedupe.Seen(c[0][1], c[0][5], c[0][6], c[0][4], c[0][3]) for c in cands]
+        keep = [cands[i] for i in dedupe.keep_distinct(seen, cfg, cfg.bf_max_people)]
         finals = [self._final_box(c[0][1], c[0][2]) for c in keep]
         if second is not None and finals:
             k = max(range(len(finals)), key=lambda i: box_iou(finals[i], second))

@@ -61,6 +61,10 @@ class DetectorConfig:
     mask_refine_radius_px: int = 3  # (subject_mask.py) [px], 0 = off, 0..20
     min_person_confidence: float = 0.35  # drop people whose derived confidence is below this, [0, 1]
     dedup_iou: float = 0.5  # two detections whose boxes overlap more than this are one person, (0, 1]
+    # a box nested in another (this fraction of it inside) is the same person when the body agrees (dedupe.py):
+    dedup_inside: float = 0.8  # fraction of the smaller box inside the larger, (0, 1]
+    dedup_joint_dist: float = 0.1  # median joint distance / the nested box's height, [0, 1]
+    dedup_mask_inside: float = 0.8  # ... or fraction of its mask inside the other's mask, (0, 1]
     min_box_height_px: int = 8  # ignore people smaller than this [px]
     # --- fallback person detector (any backend): finds people the pose model misses (back views,
     #     crowds) as box-only detections; costs ~50-90 ms/frame on one core, so off by default
@@ -137,6 +141,9 @@ class DetectorConfig:
         need(0 <= self.mask_refine_radius_px <= 20, "mask_refine_radius_px", "0..20")
         need(5.0 <= self.camera_hfov_deg <= 150.0, "camera_hfov_deg", "[5, 150]")
         need(0.0 < self.dedup_iou <= 1.0, "dedup_iou", "(0, 1]")
+        need(0.0 < self.dedup_inside <= 1.0, "dedup_inside", "(0, 1]")
+        need(0.0 <= self.dedup_joint_dist <= 1.0, "dedup_joint_dist", "[0, 1]")
+        need(0.0 < self.dedup_mask_inside <= 1.0, "dedup_mask_inside", "(0, 1]")
         need(self.upscale_max_side_px == 0 or 64 <= self.upscale_max_side_px <= 4096, "upscale_max_side_px",
              "0 or 64..4096")
         need(0 <= self.tiles <= 4, "tiles", "0..4")

@@ -26,6 +26,7 @@ from typing import Any, Iterator
 import cv2
 import numpy as np
 
+from cinetransfer.services.detector import dedupe
 from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.services.detector.pose_bundle import bundle_path
 from cinetransfer.shared.boxes import box_iou  # noqa: F401 - re-exported for the other backends
@@ -240,12 +241,9 @@ class MediaPipePose:
         cands = [c for c in cands if c[0].confidence >= cfg.min_person_confidence
                  and (c[0].box_xyxy[3] - c[0].box_xyxy[1]) >= cfg.min_box_height_px]
         cands.sort(key=lambda c: -c[0].confidence)
-        keep: list[tuple[PersonDetection, np.ndarray, np.ndarray]] = []
-        for c in cands:
-            if all(box_iou(c[0].box_xyxy, k[0].box_xyxy) <= cfg.dedup_iou for k in keep):
-                keep.append(c)
-            if len(keep) >= cfg.num_poses:
-                break
+        seen = [dedupe.Seen(c[0].box_xyxy, c[1], c[2], c[0].mask, tuple(int(v) for v in c[0].mask_origin_xy))
+                for c in cands]
+        keep = [cands[i] for i in dedupe.keep_distinct(seen, cfg, cfg.num_poses)]
         people = [c[0] for c in keep]
         skels = [Skeleton(keypoints_px=c[1], confidences=c[2], keypoint_set="coco17", person_index=i)
                  for i, c in enumerate(keep)]

@@ -223,6 +223,7 @@ def test_each_person_is_detected_once_from_front_side_and_back(pose_detector, pe
         once += len(m.people) == 1 and len(hits) == 1
     assert visible >= 20
     assert found >= 0.95 * visible, f"{person}: found in {found}/{visible} views"
-    # exactly one person: measured 24/24 juggler and walker, 23/24 runner, 22/24 dancer (her two misses
-    # are the detector's: a second box nested in hers, arms raised, both skeletons on her)
-    assert once >= 0.9 * visible, f"{person}: detected as exactly one person in {once}/{visible} views"
+    # exactly one person: measured 24/24 for every person (the dancer's two views with a second box
+    # nested in hers, arms raised, both skeletons on her, were 22/24 before duplicate removal looked at
+    # nested boxes)
+    assert once >= 0.95 * visible, f"{person}: detected as exactly one person in {once}/{visible} views"
