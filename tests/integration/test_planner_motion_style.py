@@ -3,7 +3,6 @@ to the side of the subject the style shows, and with the style's camera motion: 
 a dolly zoom. Everything is measured on the simulator's true state with shared.camera."""
 import dataclasses
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -20,25 +19,13 @@ JOINTS = ["left_shoulder", "right_shoulder", "left_hip", "right_hip"]
 SUBJECT_FOCUS = (False, True, False)
 
 
-@dataclass(frozen=True, eq=False)
-class StyledInstructions(M.Instructions):
-    """Instructions with the style's camera-motion fields (as the style schema carries them)."""
-
-    camera_motion_class: list | None = None
-    pan_rate_dps: np.ndarray | None = None
-    tilt_rate_dps: np.ndarray | None = None
-    roll_rate_dps: np.ndarray | None = None
-    zoom_rate: np.ndarray | None = None
-    translation_dir: np.ndarray | None = None
-
-
 def _styled(ins: M.Instructions, cls: str, *, pan=np.nan, zoom=np.nan, travel=(0.0, 0.0, 0.0)) -> M.Instructions:
+    """`ins` with the style's camera-motion fields (per frame, as the style schema carries them)."""
     k = ins.image_targets.shape[0]
-    base = {f.name: getattr(ins, f.name) for f in dataclasses.fields(M.Instructions)}
     nan = np.full(k, np.nan)
-    return StyledInstructions(**base, camera_motion_class=[cls] * k, pan_rate_dps=np.broadcast_to(pan, (k,)).copy(),
-                              tilt_rate_dps=nan, roll_rate_dps=nan, zoom_rate=np.broadcast_to(zoom, (k,)).copy(),
-                              translation_dir=np.tile(np.asarray(travel, dtype=float), (k, 1)))
+    return dataclasses.replace(ins, camera_motion_class=[cls] * k, pan_rate_dps=np.broadcast_to(pan, (k,)).copy(),
+                               tilt_rate_dps=nan, roll_rate_dps=nan, zoom_rate=np.broadcast_to(zoom, (k,)).copy(),
+                               translation_dir=np.tile(np.asarray(travel, dtype=float), (k, 1)))
 
 
 @pytest.fixture(scope="module")
