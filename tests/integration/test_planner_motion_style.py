@@ -20,6 +20,7 @@ SUBJECT_FOCUS = (False, True, False)
 
 
 def _styled(ins: M.Instructions, cls: str, *, pan=np.nan, zoom=np.nan, travel=(0.0, 0.0, 0.0)) -> M.Instructions:
+    """`ins` with the style's camera-motion fields (per frame, as the style schema carries them)."""
     k = ins.image_targets.shape[0]
     nan = np.full(k, np.nan)
     return dataclasses.replace(ins, camera_motion_class=[cls] * k, pan_rate_dps=np.broadcast_to(pan, (k,)).copy(),

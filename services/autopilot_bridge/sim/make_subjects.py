@@ -48,6 +48,11 @@ SOLE_PER_TORSO = 0.36
 #: torso length of a scale-normalised cut-out [px] (standing height ~ 330 px: small assets).
 TORSO_PX = 95.0
 GREY = 128
+#: radius of the walker's default loop [m]. At 1 m/s he turns 1/WALK_LOOP_M rad/s; a camera filming
+#: his front 6.5-8 m away must go round with him, at about that rate times its distance from the
+#: loop's centre: 3 m/s at a 2 m radius (29 deg/s), over the 2 m/s speed limit (CineMPC's profile),
+#: so the 3-D world's camera fell behind to his back; 5 m (11.5 deg/s) needs about 1.7 m/s.
+WALK_LOOP_M = 5.0
 
 #: library facts that are not measured: who, from where, credit, height (metres), a default script
 LIBRARY = {
@@ -83,10 +88,10 @@ LIBRARY = {
         "credit": "MOTChallenge TUD-Stadtmitte, CC BY-NC-SA 3.0 (Andriluka, Roth, Schiele, CVPR 2010; "
                   "Leal-Taixé et al. 2015), research use",
         "height_m": 1.75,
-        # a loop round an octagon (radius 2 m) at 1.0 m/s, gait slowed to match: a camera limited to
+        # a loop round an octagon (radius WALK_LOOP_M) at 1.0 m/s, gait slowed to match: a camera limited to
         # 1.2 m/s^2 follows smooth turns, not a walk back and forth (a 2.4 m/s reversal takes it 2 s)
         "default_script": [{"action": "walk", "speed_mps": 1.0, "path_m": [
-            [round(2.0 * math.sin(math.pi * k / 4), 3), round(2.0 - 2.0 * math.cos(math.pi * k / 4), 3)]
+            [round(WALK_LOOP_M * math.sin(math.pi * k / 4), 3), round(WALK_LOOP_M * (1 - math.cos(math.pi * k / 4)), 3)]
             for k in range(1, 9)]}],
     },
 }
