@@ -6,8 +6,9 @@ here; in `cinetransfer detect` it runs in its own thread, ~3 ms per 720p frame).
 resolution it times, over a fixed number of frames after a warm-up:
 - the stages alone: pose (the default box_first backend; and the mediapipe backend), focus (edge
   stage + propagation), HOG fallback;
-- the full detector sequentially (threads=1) and with both cores (threads=2), without and with
-  the HOG fallback (juggle) / with the mediapipe backend (TUD).
+- the full detector sequentially (threads=1) and with both cores (threads=2), with the SSD on
+  every frame (`bf_ssd_every=1`, as before it skipped frames), without and with the HOG fallback
+  (juggle) / with the mediapipe backend (TUD).
 Prints median / p95 / max latency per frame, throughput (frames/s) and CPU use (process CPU
 time / wall time: 2.0 = both cores busy) and CPU time per frame (independent of other load:
 on an idle 2-core machine frames/s can reach at most 2000 / CPU-ms).
@@ -89,6 +90,7 @@ def main() -> None:
         res["HOG fallback only"] = _time(lambda f, i: hog.detect(f), frames, a.warmup)
         for name, cfg in (("full, 1 thread", base.replace(threads=1)),
                           ("full, 2 threads (default)", base.replace(threads=2)),
+                          ("full, 2 threads, SSD every frame", base.replace(threads=2, bf_ssd_every=1)),
                           ("full + HOG fallback, 2 threads", base.replace(threads=2, person_fallback="hog"))):
             with Detector(cfg) as det:
                 res[name] = _time(lambda f, i: det.process(f, i, i * 41_666_667), frames, a.warmup)

@@ -164,6 +164,7 @@ class BoxFirstPose:
         self._ghosts: list[dict] = []  # people not seen lately: last box, velocity, id (see _emit)
         self._next_id = 0
         self._last_stamp: int | None = None
+        self._since_ssd = 0  # frames since the SSD last ran (bf_ssd_every)
 
     def close(self) -> None:
         if self._pool is not None:
@@ -175,6 +176,7 @@ class BoxFirstPose:
         self._prev = []
         self._ghosts = []
         self._last_stamp = None
+        self._since_ssd = 0
 
     # ------------------------------------------------------------------ stage 1
     def boxes(self, image_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -390,19 +392,64 @@ class BoxFirstPose:
         tracks = [j for j, t in enumerate(self._prev) if t["roi"] is not None and t["coast"] < cfg.bf_max_coast_frames]
         look = self._look_roi() if self.second_look else None
         rois = [self._prev[j]["roi"] for j in tracks] + ([look] if look is not None else [])
-        raws, (boxes, scores) = self._run_crops(image_bgr, rois, with_ssd=True)
+        skip = self._may_skip_ssd(tracks)
+        raws, ssd = self._run_crops(image_bgr, rois, with_ssd=not skip)
         second = self._look_box(raws.pop(), width, height) if look is not None else None
         followed = {j: (raw, self._candidate(raw, None, 0.0, width, height)) for j, raw in zip(tracks, raws)}
         followed = {j: v for j, v in followed.items() if v[1] is not None}
-        # 2. a detector box on a followed person confirms it (its score, its box); the other boxes get
-        #    an upright crop of their own
+        if skip:
+            cands = self._carried(followed, len(tracks), width, height)
+            if cands is not None:
+                self._since_ssd += 1
+                return self._emit(cands, second)
+            ssd = self.boxes(image_bgr)  # someone was not found again by the landmarks: the SSD looks after all
+        self._since_ssd = 0
+        return self._emit(self._confirmed(image_bgr, followed, *ssd, width, height), second)
+
+    def _may_skip_ssd(self, tracks: list[int]) -> bool:
+        """Whether this frame may go without the SSD: within `bf_ssd_every` frames of its last run, and
+        at most `bf_ssd_skip_max_people` people (in a crowd people come and go), every person of the last
+        frame was confirmed by a detector box, is followed by a landmark crop and no one is missing (a
+        person not seen is looked for by the SSD on every frame)."""
+        if self.cfg.bf_ssd_every <= 1 or self._since_ssd + 1 >= self.cfg.bf_ssd_every:
+            return False
+        return (0 < len(self._prev) <= self.cfg.bf_ssd_skip_max_people and not self._ghosts
+                and len(tracks) == len(self._prev)
+                and all(t["coast"] == 0 and t["ssd"] is not None for t in self._prev))
+
+    def _carried(self, followed: dict, n_tracks: int, width: int, height: int) -> list | None:
+        """The candidates of a frame without the SSD: each person followed by its landmarks again gets
+        the box of its mask moved by the offset the detector's box had from its mask when last run, and
+        that box's score. None when someone was not found again (pose flag low, or no mask)."""
+        if len(followed) < n_tracks or any(c[2] is None for _, c in followed.values()):
+            return None
+        cands = []
+        for j, (raw, c) in followed.items():
+            score, offset = self._prev[j]["ssd"]
+            box = np.clip(c[2] + offset, 0, [width, height, width, height]).astype(np.float32)
+            conf = math.sqrt(self.box_certainty(score) * raw[1])
+            cands.append(((conf, box, *c[2:]), j, 0, (score, offset)))
+        return cands
+
+    @staticmethod
+    def _ssd_memo(score: float, box: np.ndarray, mask_box: np.ndarray | None) -> tuple | None:
+        """What a frame without the SSD needs of this one's detector box: (score, box - mask box)."""
+        return None if mask_box is None else (float(score), (box - mask_box).astype(np.float32))
+
+    def _confirmed(self, image_bgr: np.ndarray, followed: dict, boxes: np.ndarray, scores: np.ndarray,
+                   width: int, height: int) -> list:
+        """The candidates of a frame with the SSD's boxes: (candidate, previous person index or -1, frames
+        without a detector box, SSD memo)."""
+        # a detector box on a followed person confirms it (its score, its box); the other boxes get
+        # an upright crop of their own
         fj = list(followed)
         match = self._match(list(boxes), [followed[j][1][1] for j in fj])
-        cands = []  # (candidate, previous person index or -1, frames without a detector box)
+        cands = []
         for i, k in match.items():
             raw, c = followed[fj[k]]
             conf = math.sqrt(self.box_certainty(float(scores[i])) * raw[1])
-            cands.append(((conf, boxes[i].astype(np.float32), *c[2:]), fj[k], 0))
+            cands.append(((conf, boxes[i].astype(np.float32), *c[2:]), fj[k], 0,
+                          self._ssd_memo(scores[i], boxes[i], c[2])))
         rest = [i for i in range(len(boxes)) if i not in match]
         raws, _ = self._run_crops(image_bgr, [self.box_roi(boxes[i]) for i in rest], with_ssd=False)
         idmatch = self._match([boxes[i] for i in rest], [t["box"] for t in self._prev])  # ids only
@@ -411,15 +458,15 @@ class BoxFirstPose:
             c = self._candidate(raw, boxes[i], float(scores[i]), width, height)
             j = idmatch.get(n, -1)
             if c is not None:
-                cands.append((c, j if j not in used else -1, 0))
+                cands.append((c, j if j not in used else -1, 0, self._ssd_memo(scores[i], boxes[i], c[2])))
         for j in fj:  # people the detector lost this frame: followed by their landmarks alone
             if j not in used:
-                cands.append((followed[j][1], j, self._prev[j]["coast"] + 1))
-        return self._emit(cands, second)
+                cands.append((followed[j][1], j, self._prev[j]["coast"] + 1, None))
+        return cands
 
     def _emit(self, cands: list, second: np.ndarray | None) -> tuple[list[PersonDetection], list[Skeleton]]:
         """The frame's people from its candidates (candidate, previous person index or -1, frames
-        without a detector box): duplicates dropped, boxes final (widened by the second look's mask box
+        without a detector box, SSD memo): duplicates dropped, boxes final (widened by the second look's mask box
         `second`), track ids kept or new."""
         cfg = self.cfg
         cands.sort(key=lambda c: -c[0][0])
@@ -435,7 +482,7 @@ class BoxFirstPose:
         tracks = self._prev + self._ghosts
         owner = self._assign(finals, [c[1] for c in keep], tracks)
         self._prev, people, skels = [], [], []
-        for i, ((conf, _, _, origin, mask, kp, jc, lm), _, coast) in enumerate(keep):
+        for i, ((conf, _, _, origin, mask, kp, jc, lm), _, coast, memo) in enumerate(keep):
             box, t = finals[i], owner[i]
             if t >= 0:
                 tid, last, vel = tracks[t]["id"], tracks[t]["box"], tracks[t]["vel"]
@@ -445,7 +492,7 @@ class BoxFirstPose:
                 last, vel = box, np.zeros(4, np.float32)
             moved = 1.0 - box_iou(box, last) if t >= 0 else 1.0  # box change since the last frame
             self._prev.append({"box": box, "id": tid, "roi": self.landmark_roi(lm), "coast": coast, "moved": moved,
-                               "vel": vel, "unseen": 0})
+                               "vel": vel, "unseen": 0, "ssd": memo})
             people.append(PersonDetection(box_xyxy=box, confidence=float(np.clip(conf, 0, 1)),
                                           mask_origin_xy=np.asarray(origin, dtype=np.int32), mask=mask, track_id=tid))
             skels.append(Skeleton(keypoints_px=kp, confidences=jc, keypoint_set="coco17", person_index=i))

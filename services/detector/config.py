@@ -44,6 +44,14 @@ class DetectorConfig:
     bf_max_people: int = 12  # most people reported per frame, 1..50
     bf_track_iou: float = 0.3  # a person overlapping one of the previous frame this much keeps its track id, (0, 1]
     bf_threads: int = 1  # LiteRT threads per model (the other core runs the focus map), 1..4
+    # video mode: the SSD runs on every Nth frame only while each person of the last frame (at most
+    # bf_ssd_skip_max_people of them: in a crowd people come and go) was confirmed by it, is followed by its
+    # landmarks again (pose flag >= bf_track_min_pose_flag) and no one is missing; between, a person's box is
+    # its mask's box carried by the last SSD box's offset from it. 1 = every frame
+    bf_ssd_every: int = setting(2, flag="--ssd-every", range="[1, 10]", metavar="N",
+                                help="box_first, video mode: run the person-box SSD every Nth frame while "
+                                     "everyone is followed by landmarks (1 = every frame)")
+    bf_ssd_skip_max_people: int = 2  # ... only while at most this many people are followed, 1..50
     # --- mediapipe backend
     num_poses: int = setting(6, flag="--num-poses", range="[1, 20]", help="max people per frame")
     min_detection_confidence: float = 0.3  # person-detector score threshold, [0, 1]
@@ -132,6 +140,8 @@ class DetectorConfig:
         need(1 <= self.bf_max_people <= 50, "bf_max_people", "1..50")
         need(0.0 < self.bf_track_iou <= 1.0, "bf_track_iou", "(0, 1]")
         need(1 <= self.bf_threads <= 4, "bf_threads", "1..4")
+        need(1 <= self.bf_ssd_every <= 10, "bf_ssd_every", "1..10")
+        need(1 <= self.bf_ssd_skip_max_people <= 50, "bf_ssd_skip_max_people", "1..50")
         need(self.running_mode in RUNNING_MODES, "running_mode", " | ".join(RUNNING_MODES))
         need(1 <= self.num_poses <= 20, "num_poses", "1..20")
         for name in ("min_detection_confidence", "min_presence_confidence", "min_tracking_confidence",

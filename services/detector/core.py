@@ -8,9 +8,10 @@
         ...
 
 Parallelism (2 cores): the focus estimator's expensive stage (edges and their defocus, pure
-OpenCV/numpy that releases the GIL) runs in a worker thread while the pose backend (MediaPipe
-C++, also GIL-free) runs in the caller's thread; the cheap second focus stage then uses the
-people's masks so that the in-focus map does not bleed between a person and what is behind.
+OpenCV/numpy that releases the GIL) runs in a worker thread while the pose backend (LiteRT or
+MediaPipe C++, also GIL-free) runs in the caller's thread; the cheap second focus stage then uses
+the people's masks so that the in-focus map does not bleed between a person and what is behind,
+while the camera-motion stage (which masks the people out too) runs in the worker.
 `process_source` also decodes the next frames in a background thread.
 """
 from __future__ import annotations
@@ -97,7 +98,7 @@ class Detector:
         self._prev_shot: tuple[str, int, np.ndarray] | None = None  # (source, frame index, signature)
         self.motion = CameraMotionTracker(self.cfg.camera_hfov_deg) if self.cfg.camera_motion else None
         self._pool = (cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="focus")
-                      if self.cfg.threads > 1 and (self.focus is not None or self.fallback is not None) else None)
+                      if self.cfg.threads > 1 else None)
 
     @property
     def name(self) -> str:
@@ -132,14 +133,14 @@ class Detector:
         """People, skeletons and focus of one BGR frame."""
         return self._analyse(image_bgr, stamp_ns)[:3]
 
-    def _analyse(self, image_bgr: np.ndarray, stamp_ns: int) -> tuple[list[PersonDetection], list[Skeleton],
-                                                                      FocusResult | None, np.ndarray]:
-        """People, skeletons, focus and colour signature of one BGR frame.
+    def _analyse(self, image_bgr: np.ndarray, stamp_ns: int, beside=None) -> tuple:  # noqa: ANN001 - callable
+        """People, skeletons, focus, colour signature of one BGR frame, and what `beside(people)` returns.
 
-        Two cores, three jobs: the pose backend keeps both busy on its own (SSD beside the
-        landmarks), so the focus map's edge stage and the colour signature wait until it is done
-        and then run beside the caller's mask refinement, which needs the pose; the fallback
-        detector, when there is one, starts at once (it is the longest job)."""
+        Two cores, four jobs: the focus map's edge stage and the colour signature need no pose, so they
+        start at once in the worker thread beside the pose backend (which uses both cores only on the
+        frames its SSD runs); the caller's mask refinement needs the pose; then `beside` (the camera
+        motion, which needs the people's masks) runs in the worker while the caller spreads the focus
+        map. The fallback detector, when there is one, starts first (it is the longest job)."""
         if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or image_bgr.dtype != np.uint8:
             raise ValueError(f"expected a BGR uint8 image (H, W, 3), got {image_bgr.dtype} {image_bgr.shape}")
         h, w = image_bgr.shape[:2]
@@ -153,10 +154,9 @@ class Detector:
 
         pool = self._pool
         extra_fut = pool.submit(fallback_work) if pool is not None and self.fallback is not None else None
-        side_fut = None
+        side_fut = pool.submit(side_work) if pool is not None else None
         try:
             people, skeletons = self.backend.detect(image_bgr, stamp_ns)
-            side_fut = pool.submit(side_work) if pool is not None else None
             if self.cfg.mask_refine_radius_px > 0:
                 people = subject_mask.refine_people(image_bgr, people, skeletons,
                                                     radius=self.cfg.mask_refine_radius_px)
@@ -165,10 +165,14 @@ class Detector:
             ev, sig = side_fut.result() if side_fut is not None else side_work()
         if extra:
             people = self._merge_fallback(people, extra)
-        focus = None
-        if self.focus is not None and ev is not None:
-            focus = self.focus.propagate(ev, people_mask(people, w, h))
-        return people, skeletons, focus, sig
+        beside_fut = pool.submit(beside, people) if pool is not None and beside is not None else None
+        try:
+            focus = None
+            if self.focus is not None and ev is not None:
+                focus = self.focus.propagate(ev, people_mask(people, w, h))
+        finally:
+            done = beside_fut.result() if beside_fut is not None else beside(people) if beside is not None else None
+        return people, skeletons, focus, sig, done
 
     def _merge_fallback(self, people: list[PersonDetection], extra: list[PersonDetection]) -> list[PersonDetection]:
         """Add fallback (box-only) people that no pose person already covers; skeleton indices stay valid
@@ -187,15 +191,18 @@ class Detector:
     def process(self, image_bgr: np.ndarray, frame_index: int = 0, stamp_ns: int = 0, *, source: str = "",
                 fps: float = float("nan"), lens: LensState | None = None, valid: bool = True) -> Measurement:
         """One Measurement for one BGR frame (an empty one, not an error, when nobody is there)."""
-        people, skeletons, focus, sig = self._analyse(image_bgr, stamp_ns)
+        def motion_of(people: list[PersonDetection]):
+            if self.motion is None:
+                return None
+            return self.motion.update(image_bgr, people, source=source, frame_index=int(frame_index), lens=lens)
+
+        people, skeletons, focus, sig, motion = self._analyse(image_bgr, stamp_ns, motion_of)
         h, w = image_bgr.shape[:2]
         prev = self._prev_shot
         # Only consecutive frames of one source are compared: after a gap nothing is known.
         change = (shots.shot_change(prev[2], sig) if prev is not None and prev[0] == source
                   and prev[1] == int(frame_index) - 1 else float("nan"))
         self._prev_shot = (source, int(frame_index), sig)
-        motion = (self.motion.update(image_bgr, people, source=source, frame_index=int(frame_index), lens=lens)
-                  if self.motion is not None else None)
         return Measurement(shot_change=change, camera_motion=motion, stamp_ns=int(stamp_ns), valid=valid, source=source,
                            frame_index=int(frame_index),
                            fps=float(fps) if fps is not None and math.isfinite(fps) else float("nan"),

@@ -257,3 +257,44 @@ def test_main_subject_keeps_its_identity_through_a_tud_crossing():
             who.append(best[0] if box_iou(feats[f].boxes[k], best[1]) >= 0.3 else -1)
     assert len(who) >= 0.9 * len(ms)
     assert len(set(who)) == 1 and who[0] in (2, 7), who
+
+
+class _CountingSsd(BoxFirstPose):
+    """The real backend, counting the frames its SSD runs on."""
+
+    ssd_runs = 0
+
+    def boxes(self, image_bgr):
+        self.ssd_runs += 1
+        return super().boxes(image_bgr)
+
+
+@needs_models
+def test_ssd_runs_every_other_frame_on_a_followed_juggler_with_the_same_people():
+    frames = list(iter_frames(data_dir() / "sam2_juggle_1280x720.mp4", stop=16, prefetch=0))
+    out = {}
+    for every in (1, 2):
+        be = _CountingSsd(DetectorConfig(focus=False, bf_ssd_every=every))
+        with Detector(DetectorConfig(focus=False, bf_ssd_every=every), backend=be) as det:
+            out[every] = ([det.process(f.image, f.index, f.stamp_ns) for f in frames], be.ssd_runs)
+    (each, runs_each), (skip, runs_skip) = out[1], out[2]
+    assert runs_each == len(frames) and runs_skip == len(frames) // 2, (runs_each, runs_skip)
+    assert len({m.people[0].track_id for m in skip}) == 1
+    for a, b in zip(each, skip):
+        assert len(a.people) == len(b.people) == 1
+        assert box_iou(a.people[0].box_xyxy, b.people[0].box_xyxy) > 0.9
+        assert abs(a.people[0].confidence - b.people[0].confidence) < 0.1
+        assert (b.skeletons[0].confidences >= 0.5).sum() >= 12
+
+
+@needs_models
+def test_a_person_the_landmarks_lose_makes_the_ssd_look_on_that_frame():
+    frames = list(iter_frames(data_dir() / "sam2_juggle_1280x720.mp4", stop=3, prefetch=0))
+    cfg = DetectorConfig(focus=False, camera_motion=False, bf_ssd_every=10)
+    be = _CountingSsd(cfg)
+    with Detector(cfg, backend=be) as det:
+        det.process(frames[0].image, 0, frames[0].stamp_ns)
+        det.process(frames[1].image, 1, frames[1].stamp_ns)
+        assert be.ssd_runs == 1  # followed: no SSD
+        empty = det.process(np.zeros_like(frames[2].image), 2, frames[2].stamp_ns)
+        assert be.ssd_runs == 2 and not empty.people  # lost: the SSD looked, and found no one
