@@ -10,6 +10,12 @@ One step of `period` simulated seconds (the control period, 0.05 s by default):
        in sub-ticks at the bridge rate; every camera frame slot crossed is rendered
     5. pace: sleep so that simulated time runs at `pace` x wall time (0 = as fast as possible)
 
+Where a step's wall time goes is counted in the Health counters (seconds, summed over the
+`waits_steps` steps since the last reset): `publish_s` (state, clock and frames out),
+`wait_render_s` (frames of the previous step still rendering when they are due out),
+`wait_setpoint_s` (the planner's solve and the round trip), `advance_s` (safety layer, dynamics,
+render hand-off) and `pace_s` (sleeping to the pace).
+
 Machine load changes how long a step takes, never what it computes: the same scene, commands
 and planner give the same flight and the same frames. Bridge commands handled here:
 - 'reset' (args: epoch_ns=int, optional fps=float, pace=float): start the simulation over at
@@ -19,10 +25,11 @@ and planner give the same flight and the same frames. Bridge commands handled he
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import math
 import time
-from typing import Any
+from typing import Any, Iterator
 
 from cinetransfer.shared import keys
 from cinetransfer.shared import messages as M
@@ -62,6 +69,27 @@ def _opt_number(args: dict[str, Any], name: str, lo: float, hi: float) -> float 
     return float(v)
 
 
+class StepWaits:
+    """Wall seconds of the simulation steps, summed by part (what each step waits on)."""
+
+    PARTS = ("publish_s", "wait_render_s", "wait_setpoint_s", "advance_s", "pace_s")
+
+    def __init__(self) -> None:
+        self.totals = dict.fromkeys(self.PARTS, 0.0)
+        self.steps = 0
+
+    @contextlib.contextmanager
+    def timing(self, part: str) -> Iterator[None]:
+        t = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.totals[part] += time.perf_counter() - t
+
+    def counters(self) -> dict[str, float]:
+        return {**{k: round(v, 3) for k, v in self.totals.items()}, "waits_steps": self.steps}
+
+
 class SimClockLoop:
     """Runs the bridge on simulation time (see the module doc)."""
 
@@ -76,6 +104,7 @@ class SimClockLoop:
         self.counters = {"sim_steps": 0, "sim_time_s": 0.0, "setpoint_waits_timed_out": 0, "sp_stale": 0,
                          "resets": 0, "frames_published": 0, "lockstep": False}
         self._step_ms: collections.deque[float] = collections.deque(maxlen=2000)
+        self.waits = StepWaits()
         self._begin(int(self.backend._epoch_ns or M.now_ns()))
 
     def _begin(self, epoch_ns: int) -> None:
@@ -101,20 +130,29 @@ class SimClockLoop:
         t_wall = time.perf_counter()
         node.clock_ns = t_ns
         lockstep = self.planner.alive
+        waits = self.waits
         with node.timed():
-            bridge.publish_state(t_ns)
-            self.clock_pub.put(M.SimClock(stamp_ns=t_ns, epoch_ns=self.epoch_ns, step=self.step,
-                                          period_s=self.period_ns * 1e-9, lockstep=lockstep, pace=self.pace))
-            self.counters["frames_published"] += self._frames()
-        sps = self._await_setpoint(t_ns) if lockstep else self._setpoints_on_clock(t_ns)
+            with waits.timing("publish_s"):
+                bridge.publish_state(t_ns)
+                self.clock_pub.put(M.SimClock(stamp_ns=t_ns, epoch_ns=self.epoch_ns, step=self.step,
+                                              period_s=self.period_ns * 1e-9, lockstep=lockstep, pace=self.pace))
+            with waits.timing("wait_render_s"):
+                self.backend.flush()
+            with waits.timing("publish_s"):
+                self.counters["frames_published"] += self.bridge.publish_frames()
+        with waits.timing("wait_setpoint_s"):
+            sps = self._await_setpoint(t_ns) if lockstep else self._setpoints_on_clock(t_ns)
         with node.consistent():  # one Health report holds a whole step or none of it
-            if not self._advance(t_ns, sps, lockstep):
-                return
+            with waits.timing("advance_s"):
+                if not self._advance(t_ns, sps, lockstep):
+                    return
+            waits.steps += 1
             self._step_ms.append((time.perf_counter() - t_wall) * 1e3)
             ms = sorted(self._step_ms)
             self.counters["step_wall_ms_p50"] = round(ms[len(ms) // 2], 2)
-            node.counters.update(self.counters, pace=self.pace)
-        self._wait_for_pace()
+            node.counters.update(self.counters, **waits.counters(), pace=self.pace)
+        with waits.timing("pace_s"):
+            self._wait_for_pace()
 
     def _advance(self, t_ns: int, sps: list[M.Setpoint], lockstep: bool) -> bool:
         """Commands, setpoints and the vehicle from t to t + period; False if a reset started over."""
@@ -136,10 +174,6 @@ class SimClockLoop:
 
     def _sim_s(self, t_ns: int) -> float:
         return (t_ns - self.epoch_ns) * 1e-9
-
-    def _frames(self) -> int:
-        self.backend.flush()
-        return self.bridge.publish_frames()
 
     def _await_setpoint(self, t_ns: int) -> list[M.Setpoint]:
         """The planner's setpoint for this step (older ones are stale; a wall timeout is counted)."""
@@ -199,6 +233,7 @@ class SimClockLoop:
         self.backend.reset(epoch, fps)
         self.bridge.reset_core()
         self.counters["resets"] += 1
+        self.waits = StepWaits()  # the breakdown describes the take that starts now
         log.info("simulation reset: time zero = %d ns, camera %.3g fps, pace %g", epoch, self.backend.fps, self.pace)
         self._begin(epoch)
         return True
