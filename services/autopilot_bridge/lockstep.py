@@ -18,8 +18,11 @@ render hand-off) and `pace_s` (sleeping to the pace).
 
 Machine load changes how long a step takes, never what it computes: the same scene, commands
 and planner give the same flight and the same frames. Bridge commands handled here:
-- 'reset' (args: epoch_ns=int, optional fps=float, pace=float): start the simulation over at
-  time `epoch_ns` (scene's initial state, frame 0 next), forgetting setpoints and holds;
+- 'reset' (args: epoch_ns=int, optional fps=float, pace=float, pictures=[[lo, hi], ...]): start
+  the simulation over at time `epoch_ns` (scene's initial state, frame 0 next), forgetting
+  setpoints and holds; with `pictures`, only frames with an index in one of the ranges [lo, hi)
+  are rendered and published, the others get their ground truth only (a take's recording keeps
+  no pre-roll frame: rendering them was a third of the README flight's renders);
 - 'clock' (args: pace=float): change the pace.
 """
 from __future__ import annotations
@@ -58,6 +61,19 @@ def parse_reset(args: dict[str, Any]) -> tuple[int, float | None, float | None]:
     fps = _opt_number(args, "fps", 1.0, 240.0)
     pace = _opt_number(args, "pace", 0.0, 1000.0)
     return epoch, fps, pace
+
+
+def parse_pictures(args: dict[str, Any]) -> list[tuple[int, int]] | None:
+    """The 'pictures' of a 'reset' (None when absent: every frame); ValueError when malformed."""
+    v = args.get("pictures")
+    if v is None:
+        return None
+    ok = isinstance(v, (list, tuple)) and all(
+        isinstance(r, (list, tuple)) and len(r) == 2 and all(isinstance(x, int) and not isinstance(x, bool)
+                                                             for x in r) and 0 <= r[0] <= r[1] for r in v)
+    if not ok:
+        raise ValueError(f"reset: pictures must be a list of [lo, hi] frame index ranges, 0 <= lo <= hi; got {v!r}")
+    return [(int(a), int(b)) for a, b in v]
 
 
 def _opt_number(args: dict[str, Any], name: str, lo: float, hi: float) -> float | None:
@@ -228,9 +244,10 @@ class SimClockLoop:
             self._pace_origin = (time.monotonic(), self.step)
             return False
         epoch, fps, pace = parse_reset(cmd.args)
+        pictures = parse_pictures(cmd.args)
         if pace is not None:
             self.pace = pace
-        self.backend.reset(epoch, fps)
+        self.backend.reset(epoch, fps, pictures=pictures)
         self.bridge.reset_core()
         self.counters["resets"] += 1
         self.waits = StepWaits()  # the breakdown describes the take that starts now
