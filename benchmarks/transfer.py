@@ -175,7 +175,8 @@ def main() -> int:
     print(f"verdict: the whole command {ratio:.2f} x the clip (goal <= 3; again with the cached style "
           f"{again['wall_s'] / clip_s:.2f} x under load), identical results {identical} -> "
           f"{'goal met' if ok else 'goal NOT met'}; machine load average {os.getloadavg()[0]:.1f}")
-    res = {"clip_s": clip_s, "first": first, "again": again, "busy_processes": args.busy, "agreement": same,
+    res = {"source": source.name, "scene": args.scene, "max_frames": args.max_frames,
+           "clip_s": clip_s, "first": first, "again": again, "busy_processes": args.busy, "agreement": same,
            "goal_met": ok, "ratio_total": ratio, "ratio_again": again["wall_s"] / clip_s}
     print(f"wrote {write_result('transfer', res)}")
     return 0 if ok else 1

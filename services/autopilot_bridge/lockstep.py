@@ -121,6 +121,8 @@ class SimClockLoop:
                          "resets": 0, "frames_published": 0, "lockstep": False}
         self._step_ms: collections.deque[float] = collections.deque(maxlen=2000)
         self.waits = StepWaits()
+        if not cfg.frames_before_reset:  # idle until a take resets the simulation: no pictures
+            self.backend.pictures = ()
         self._begin(int(self.backend._epoch_ns or M.now_ns()))
 
     def _begin(self, epoch_ns: int) -> None:

@@ -50,3 +50,16 @@ def test_pictures_of_a_reset_are_checked():
     for bad in ([[5, 2]], [[-1, 3]], [[1, 2, 3]], "all", [[1.5, 3]], [[True, 3]]):
         with pytest.raises(ValueError, match="pictures"):
             parse_pictures({"pictures": bad})
+
+
+def test_a_transfers_own_bridge_renders_nothing_before_its_reset(tmp_path):
+    from cinetransfer.job import deploy_config
+    from cinetransfer.services.autopilot_bridge.service import build_parser, config_from_args
+    import yaml
+
+    cfg = yaml.safe_load(deploy_config(tmp_path, 7447, "r", "open_country").read_text())
+    args = next(n["args"] for n in cfg["nodes"] if n["name"] == "autopilot_bridge")
+    assert config_from_args(build_parser().parse_args(args)).frames_before_reset is False
+    assert config_from_args(build_parser().parse_args([])).frames_before_reset is True  # the default: frames
+    real = yaml.safe_load(deploy_config(tmp_path, 7447, "r", "open_country", realtime=True).read_text())
+    assert "--no-frames-before-reset" not in next(n["args"] for n in real["nodes"] if n["name"] == "autopilot_bridge")
