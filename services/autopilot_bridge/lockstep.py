@@ -121,6 +121,8 @@ class SimClockLoop:
                          "resets": 0, "frames_published": 0, "lockstep": False}
         self._step_ms: collections.deque[float] = collections.deque(maxlen=2000)
         self.waits = StepWaits()
+        #: the frame index after the last pictured one (None: every frame is pictured)
+        self.pictures_end: int | None = None
         if not cfg.frames_before_reset:  # idle until a take resets the simulation: no pictures
             self.backend.pictures = ()
         self._begin(int(self.backend._epoch_ns or M.now_ns()))
@@ -169,6 +171,7 @@ class SimClockLoop:
             ms = sorted(self._step_ms)
             self.counters["step_wall_ms_p50"] = round(ms[len(ms) // 2], 2)
             node.counters.update(self.counters, **waits.counters(), pace=self.pace)
+        self._past_pictures()
         with waits.timing("pace_s"):
             self._wait_for_pace()
 
@@ -250,12 +253,24 @@ class SimClockLoop:
         if pace is not None:
             self.pace = pace
         self.backend.reset(epoch, fps, pictures=pictures)
+        self.pictures_end = max((b for _, b in pictures), default=0) if pictures is not None else None
         self.bridge.reset_core()
         self.counters["resets"] += 1
         self.waits = StepWaits()  # the breakdown describes the take that starts now
         log.info("simulation reset: time zero = %d ns, camera %.3g fps, pace %g", epoch, self.backend.fps, self.pace)
         self._begin(epoch)
         return True
+
+    def _past_pictures(self) -> None:
+        """Once the last pictured frame is rendered, nobody waits for the simulation any more: it
+        goes on at real-time pace (the transfer's stop sets that too, once its recorder has every
+        frame) instead of free-running through truth-only steps that take the CPU the recorder needs."""
+        end = self.pictures_end
+        if end is not None and self.pace == 0 and self.backend.sim_time_s * self.backend.fps >= end:
+            log.info("past the last pictured frame (%d): real-time pace", end - 1)
+            self.pace = 1.0
+            self._pace_origin = (time.monotonic(), self.step)
+            self.pictures_end = None
 
     def _wait_for_pace(self) -> None:
         if self.pace <= 0:
