@@ -284,6 +284,8 @@ def _transfer(args, src: Path, out: Path, meta: dict, t_start: float) -> int:
         failed = False
     finally:
         _wind_down(live, stopping, quiet=failed)  # after an error, that error is the one reported
+    if outcome is NO_EVAL:  # judged once the nodes are down: the verdict is the command's last line
+        return _degraded(meta)
     if isinstance(outcome, int):
         return outcome
     clock.end("wind_down_s")
@@ -295,8 +297,12 @@ def _transfer(args, src: Path, out: Path, meta: dict, t_start: float) -> int:
     return _degraded(meta)
 
 
+#: what `_take_and_evaluate` returns for a take recorded with --no-eval
+NO_EVAL = "recorded, not evaluated"
+
+
 def _take_and_evaluate(args, src: Path, out: Path, meta: dict, clock: StageClock, live: dict,
-                       stopping: list) -> dict | int:
+                       stopping: list) -> dict | int | str:
     """The report's summary, or the exit code of a run that ends before its evaluation."""
     try:
         style_path, style, rec = _job(args, src, out, meta, clock, live, stopping)
@@ -317,7 +323,7 @@ def _take_and_evaluate(args, src: Path, out: Path, meta: dict, clock: StageClock
     check_take(meta, rec, args.realtime)
     if args.no_eval:
         print(f"recorded {meta['recorded_frames']} frames to {out / 'output.mp4'} (no evaluation)")
-        return _degraded(meta)
+        return NO_EVAL
     return _evaluate(out, src, style_path, rec, meta, live.get("output"), clock)
 
 
