@@ -40,13 +40,18 @@ HERE = Path(__file__).resolve().parent
 
 
 #: the stages of meta.json's timings, in order, as printed
-STAGES = (("start_nodes_s", "start"), ("extract_source_s", "source style"), ("flight_s", "flight"),
-          ("extract_output_s", "output style"), ("report_s", "report"))
+STAGES = (("cache_lookup_s", "style cache key"), ("start_nodes_s", "start"), ("extract_source_s", "source style"),
+          ("flight_s", "flight"), ("save_take_s", "save take"), ("extract_output_s", "output style"),
+          ("report_s", "report"), ("wind_down_s", "stop nodes"))
+#: where the bridge's and the planner's simulation steps spend their wall time (Health counters)
+BRIDGE_WAITS = ("publish_s", "wait_render_s", "wait_setpoint_s", "advance_s", "pace_s")
+PLANNER_WAITS = ("wait_tick_s", "wait_state_s", "step_s")
 
 
 def run(source: Path, scene: str, out: Path, max_frames: int, cache: Path) -> dict:
     cmd = [sys.executable, "-m", "cinetransfer", "transfer", str(source), "--scene", scene, "-o", str(out),
            "--rig", out.name, *(["--max-frames", str(max_frames)] if max_frames else [])]
+    load = os.getloadavg()[0]
     t = time.monotonic()
     r = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "CT_CACHE_DIR": str(cache)})
     wall = time.monotonic() - t
@@ -63,7 +68,10 @@ def run(source: Path, scene: str, out: Path, max_frames: int, cache: Path) -> di
             "render_ms_p50": br.get("render_ms_p50"), "step_wall_ms_p50": br.get("step_wall_ms_p50"),
             "solve_ms_p50": pl.get("solve_ms_p50"), "solve_ms_p95": pl.get("solve_ms_p95"),
             "over_budget_solves": pl.get("over_budget"), "solves": pl.get("solves"),
-            "report": meta.get("headline")}
+            "stage_cpu_s": meta.get("stage_cpu_s", {}), "sim_steps": br.get("waits_steps"),
+            "bridge_waits_s": {k: br[k] for k in BRIDGE_WAITS if k in br},
+            "planner_waits_s": {k: pl[k] for k in PLANNER_WAITS if k in pl},
+            "load_before": load, "report": meta.get("headline")}
 
 
 def frames(path: Path) -> list[np.ndarray]:
@@ -87,6 +95,29 @@ def compare(a: Path, b: Path) -> dict:
     return {"truth_frames": [len(ta), len(tb)], "joint_max_diff": jd, "focus_labels_identical": focus_same,
             "video_frames": [len(fa), len(fb)], "video_max_pixel_diff": px, "report_identical": ra == rb,
             "report_keys_differing": sorted(k for k in set(ra) | set(rb) if ra.get(k) != rb.get(k))}
+
+
+def stage_table(r: dict) -> list[str]:
+    """One row per stage: wall seconds, CPU seconds of all processes, and the processes that
+    spent the most CPU in it."""
+    rows = [f"{'stage':>16} {'wall s':>7} {'CPU s':>7}  CPU by process"]
+    for key, name in STAGES:
+        if key not in r["timings"]:
+            continue
+        cpu = r["stage_cpu_s"].get(key, {})
+        top = ", ".join(f"{p} {c:.1f}" for p, c in sorted(cpu.items(), key=lambda x: -x[1]) if c >= 0.05)
+        rows.append(f"{name:>16} {r['timings'][key]:7.1f} {sum(cpu.values()):7.1f}  {top}")
+    return rows
+
+
+def waits_line(r: dict) -> str:
+    """What each simulation step waits on, in ms per step (the take's steps, from the nodes' Health)."""
+    n = r.get("sim_steps") or 0
+    if not n:
+        return "no simulation steps counted"
+    br = ", ".join(f"{k[:-2]} {v / n * 1e3:.1f}" for k, v in r["bridge_waits_s"].items())
+    pl = ", ".join(f"{k[:-2]} {v / n * 1e3:.1f}" for k, v in r["planner_waits_s"].items())
+    return f"per step ({n} steps), ms: bridge {br}; planner {pl}"
 
 
 def stage_line(r: dict, clip_s: float) -> str:
@@ -125,7 +156,10 @@ def main() -> int:
         same = compare(Path(tmp) / "first", Path(tmp) / "again")
     for name, r in (("first (empty cache)", first), (f"again, {args.busy} busy process(es)", again)):
         fl = r["timings"].get("flight_s", float("nan"))
-        print(f"{name:>30}: {stage_line(r, clip_s)}")
+        print(f"{name:>30}: {stage_line(r, clip_s)} [load average {r['load_before']:.1f} before it]")
+        for row in stage_table(r):
+            print(f"{'':>30}  {row}")
+        print(f"{'':>30}  {waits_line(r)}")
         print(f"{'':>30}  flight {fl / clip_s:.2f} x the clip, {r['flight_wall_per_sim_s']} wall s per simulated s; "
               f"render p50 {r['render_ms_p50']} ms, step p50 {r['step_wall_ms_p50']} ms, solve p50/p95 "
               f"{r['solve_ms_p50']}/{r['solve_ms_p95']} ms, over real-time budget {r['over_budget_solves']}/"
@@ -141,7 +175,8 @@ def main() -> int:
     print(f"verdict: the whole command {ratio:.2f} x the clip (goal <= 3; again with the cached style "
           f"{again['wall_s'] / clip_s:.2f} x under load), identical results {identical} -> "
           f"{'goal met' if ok else 'goal NOT met'}; machine load average {os.getloadavg()[0]:.1f}")
-    res = {"clip_s": clip_s, "first": first, "again": again, "busy_processes": args.busy, "agreement": same,
+    res = {"source": source.name, "scene": args.scene, "max_frames": args.max_frames,
+           "clip_s": clip_s, "first": first, "again": again, "busy_processes": args.busy, "agreement": same,
            "goal_met": ok, "ratio_total": ratio, "ratio_again": again["wall_s"] / clip_s}
     print(f"wrote {write_result('transfer', res)}")
     return 0 if ok else 1

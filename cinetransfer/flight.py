@@ -144,7 +144,9 @@ def fly_sim_time(style: M.Instructions, rec: Recorder, cond: Conductor, *, prero
     log.info("simulation time: %d take(s) of %s frames at %.3g fps, settling %s frames before each", len(takes),
              "/".join(str(t["end_row"] - t["first_row"]) for t in takes), fps,
              "/".join(str(t["settle_frames"]) for t in takes))
-    cond.to_bridge("reset", epoch_ns=epoch, fps=fps, pace=float(pace))
+    # only the takes' frames are recorded: the settle phases' frames are not rendered (their truth is kept)
+    pictures = [[t["first_index"], t["first_index"] + t["end_row"] - t["first_row"]] for t in takes]
+    cond.to_bridge("reset", epoch_ns=epoch, fps=fps, pace=float(pace), pictures=pictures)
     _progress(rec, k, stall_s, what="simulation", bridge=bridge)
     return {"clock": "simulation (lockstep)", "epoch_ns": epoch, "preroll_frames": takes[0]["settle_frames"],
             "takes": takes, "one_take": one_take}

@@ -35,7 +35,7 @@ import struct
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Collection, Iterator
 
 import numpy as np
 
@@ -433,6 +433,14 @@ class _ReadState:
         default_factory=lambda: {jsonmsg.schema_name(c): c for c in M.MESSAGE_TYPES.values()})
 
 
+def _wanted(topic: str, role: str, only: Collection[str] | None) -> bool:
+    """Whether a channel carries one of the keys `only` (None: every key); a frame's info channel
+    is K/info of the frame's key K."""
+    if only is None:
+        return True
+    return (topic[: -len("/info")] if role == "frame-info" else topic) in only
+
+
 class RunReader:
     """Reads a recording back: `messages()` gives (log_time_ns, key, codec payload) of every
     message of the rig, as replay republishes them. Raises RunFormatError on a file that is not
@@ -515,9 +523,12 @@ class RunReader:
                 ch = chans[rec.channel_id]
                 yield rec, ch, schemas.get(ch.schema_id)
 
-    def messages(self, key_prefix: str = "") -> Iterator[tuple[int, str, bytes]]:
+    def messages(self, key_prefix: str = "", *,
+                 only: Collection[str] | None = None) -> Iterator[tuple[int, str, bytes]]:
         """(log_time_ns, key, payload): our codec bytes for every message of the rig, frames rebuilt
-        from their JPEG and info (the image is lossy: JPEG), raw channels as they travelled."""
+        from their JPEG and info (the image is lossy: JPEG), raw channels as they travelled.
+        `only`: just these keys (the others are not decoded: a reader of a few small keys does not
+        pay for rebuilding every camera frame)."""
         from mcap.records import Channel, Message, Schema
 
         st = _ReadState()
@@ -529,7 +540,7 @@ class RunReader:
             elif isinstance(rec, Message):
                 ch = st.chans[rec.channel_id]
                 role = ch.metadata.get(ROLE, "")
-                if role == "derived" or not ch.topic.startswith(key_prefix):
+                if role == "derived" or not ch.topic.startswith(key_prefix) or not _wanted(ch.topic, role, only):
                     continue
                 out = self._message(st, rec, ch, role)
                 if out is not None:
@@ -641,9 +652,11 @@ def _protobuf_class(schema: Any) -> Any:
     return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
 
 
-def read_run(path: str | Path, key_prefix: str = "", *, salvage: bool = False) -> Iterator[tuple[int, str, bytes]]:
-    """(log_time_ns, key, payload) of every message of the rig in a recording (see RunReader)."""
-    return RunReader(path, salvage=salvage).messages(key_prefix)
+def read_run(path: str | Path, key_prefix: str = "", *, salvage: bool = False,
+             only: Collection[str] | None = None) -> Iterator[tuple[int, str, bytes]]:
+    """(log_time_ns, key, payload) of every message of the rig in a recording (see RunReader), or
+    of the keys in `only`."""
+    return RunReader(path, salvage=salvage).messages(key_prefix, only=only)
 
 
 def size_report(info: RunInfo) -> dict[str, Any]:

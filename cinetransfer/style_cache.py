@@ -13,6 +13,8 @@ ignored (and replaced).
 
     CT_CACHE_DIR/styles/<key>/style.json    the style, as the extraction wrote it
     CT_CACHE_DIR/styles/<key>/key.json      what the key was made of (for a human reading it)
+    CT_CACHE_DIR/versions/{code,models}.json the code's and the models' digests, with the stat
+                                            signature of the files they were computed from
 
 CT_CACHE_DIR defaults to $XDG_CACHE_HOME/cinetransfer (~/.cache/cinetransfer), shared/paths.py.
 `transfer --no-cache` neither reads nor writes it; deleting the folder is always safe.
@@ -29,8 +31,9 @@ from dataclasses import dataclass
 from functools import lru_cache
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
+from cinetransfer.shared.atomic import atomic_write
 from cinetransfer.shared.paths import cache_dir
 
 log = logging.getLogger("cinetransfer.transfer")
@@ -80,31 +83,81 @@ def _code_roots() -> list[Path]:
                                            if p.is_dir() and p.name not in FLIGHT_SERVICES)]
 
 
-@lru_cache(maxsize=1)
-def code_version() -> str:
-    """sha256 over the source files of shared/, every service but the flight's, and the extraction
-    modules (by name and content: a file moved between them counts as a change)."""
+def stat_signature(files: list[Path]) -> str:
+    """What the file system says of `files` without reading them: path, size, modification time
+    and inode. Any edit, copy, reinstall or checkout changes it (the test git's index relies on)."""
     h = hashlib.sha256()
+    for p in files:
+        st = p.stat()
+        h.update(f"{p}\0{st.st_size}\0{st.st_mtime_ns}\0{st.st_ino}\n".encode())
+    return h.hexdigest()
+
+
+def remembered_digest(kind: str, files: list[Path], digest: Callable[[list[Path]], str]) -> str:
+    """`digest(files)`, computed once per installed version of `files`: it is kept in
+    CT_CACHE_DIR/versions/KIND.json with their `stat_signature` and read back while that holds.
+    Hashing the code and the 43 MB of models took 0.3-0.7 s quiet and ~5 s on a loaded machine on
+    every transfer; a stat of each file takes milliseconds."""
+    sig = stat_signature(files)
+    memo = cache_dir("versions", f"{kind}.json")
+    try:
+        kept = json.loads(memo.read_text())
+        if kept.get("signature") == sig and isinstance(kept.get("digest"), str):
+            return kept["digest"]
+    except (OSError, ValueError, AttributeError):
+        pass  # absent or unreadable: computed again and rewritten
+    value = digest(files)
+    try:
+        memo.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_write(memo) as fh:
+            json.dump({"signature": sig, "digest": value}, fh)
+    except OSError as e:  # a cache that cannot be written costs time, never the transfer
+        log.debug("style cache: could not keep the %s digest in %s (%s)", kind, memo, e)
+    return value
+
+
+def code_files() -> list[Path]:
+    """The source files of shared/, every service but the flight's, and the extraction modules."""
     files = sorted(p for root in _code_roots() for p in root.rglob("*.py"))
-    files += [_PACKAGE / "extraction.py", _PACKAGE / "extract.py"]
+    return files + [_PACKAGE / "extraction.py", _PACKAGE / "extract.py"]
+
+
+def hash_code(files: list[Path]) -> str:
+    """sha256 over the files by name and content (a file moved between folders counts as a change)."""
+    h = hashlib.sha256()
     for p in files:
         h.update(p.name.encode() + b"\0" + p.read_bytes() + b"\0")
     return h.hexdigest()
 
 
 @lru_cache(maxsize=1)
-def models_version() -> str:
-    """sha256 over the detector's installed model files ('' when none are installed)."""
+def code_version() -> str:
+    """The digest of `code_files()` (`hash_code`), remembered per installed version."""
+    return remembered_digest("code", code_files(), hash_code)
+
+
+def model_files() -> list[Path]:
+    """The detector's installed model files ([] when none are installed)."""
     from cinetransfer.services.detector.box_models import models_dir
 
     root = models_dir()
-    if not root.is_dir():
+    return sorted(p for p in root.iterdir() if p.is_file()) if root.is_dir() else []
+
+
+def hash_models(files: list[Path]) -> str:
+    """sha256 over the model files' names and contents ('' when there are none)."""
+    if not files:
         return ""
     h = hashlib.sha256()
-    for p in sorted(root.iterdir()):
-        if p.is_file():
-            h.update(p.name.encode() + b"\0" + file_sha256(p).encode())
+    for p in files:
+        h.update(p.name.encode() + b"\0" + file_sha256(p).encode())
     return h.hexdigest()
+
+
+@lru_cache(maxsize=1)
+def models_version() -> str:
+    """The digest of the detector's model files (`hash_models`), remembered per installed version."""
+    return remembered_digest("models", model_files(), hash_models)
 
 
 def library_versions() -> dict[str, str]:

@@ -25,11 +25,13 @@ extraction cinetransfer/extraction.py, the flight and its takes cinetransfer/fli
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import logging
 import shutil
 import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -51,6 +53,7 @@ from cinetransfer.shared.atomic import atomic_write
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.node import setup_logging
 from cinetransfer.shared.vehicle import add_vehicle_argument
+from cinetransfer.stage_cpu import StageClock
 from cinetransfer.take import MissingFramesError
 
 log = logging.getLogger("cinetransfer.transfer")
@@ -109,38 +112,53 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+#: the report's heaviest imports (matplotlib for the figures, cvxpy for the truth floor: 2.1 CPU s
+#: quiet, ~9 s wall loaded), done while the take is filmed: the bridge's renderer paces the flight
+#: and this process mostly waits for frames
+REPORT_IMPORTS = ("matplotlib.figure", "matplotlib.backends.backend_agg", "cvxpy")
+
+
+def warm_imports(names: tuple[str, ...]) -> None:
+    """Import `names` now (on a background thread) so that the report does not wait for them;
+    one that fails is left to fail where it is used, with its own message."""
+    for name in names:
+        try:
+            importlib.import_module(name)
+        except Exception as e:  # noqa: BLE001 - only a head start: the report imports it again
+            log.debug("warm import of %s failed: %s", name, e)
+
+
 def write_json(path: Path, data: dict) -> None:
     """Temp file then rename: a reader (or a crash) never sees half a file."""
     with atomic_write(path) as fh:
         json.dump(data, fh, indent=2, default=str)
 
 
-def _job(args, src: Path, out: Path, meta: dict, timings: dict, live: dict, stopping: list
+def _job(args, src: Path, out: Path, meta: dict, clock: StageClock, live: dict, stopping: list
          ) -> tuple[Path, M.Instructions, Recorder]:
     """Bring up (or join) the deployment, extract the style on it, fly the take (its frames
     measured as they are recorded: live["output"], unless --no-eval), bring it down."""
-    t = time.monotonic()
     cache = cached_style(args, src)  # own deployment: known before any node starts
     known = bool(args.style) or cache.path is not None
-    timings["cache_lookup_s"] = time.monotonic() - t
+    clock.end("cache_lookup_s")
     with deployment(args, out, extraction=not known, stopping=stopping) as opts, \
             zenoh_config.open_session(opts) as session, \
             TakeLease(session, args.rig):  # one take at a time on the rig: a second one is refused here
         # the flight's nodes go on starting while the style is extracted
         wait_alive(session, args.rig, FLIGHT_NODES if known else set(EXTRACTION_NODES), 180)
-        timings["start_nodes_s"] = time.monotonic() - t
-        t = time.monotonic()
+        clock.end("start_nodes_s")
         style_path, style, origin = source_style(args, src, out, session, cache)
         meta["style_origin"] = origin
-        timings["extract_source_s"] = time.monotonic() - t
-        t = time.monotonic()
+        clock.end("extract_source_s")
         wait_alive(session, args.rig, FLIGHT_NODES, 180)
         measurer = live["output"] = None if args.no_eval else LiveOutputStyle(out / "output.mp4", style.fps)
+        if not args.no_eval:
+            threading.Thread(target=warm_imports, args=(REPORT_IMPORTS,), name="warm-imports", daemon=True).start()
         rec = fly(style, outdir=out, session=session, rig=args.rig, preroll_s=args.preroll,
                   realtime=args.realtime, stall_s=args.stall_timeout, meta=meta,
                   publish_instructions=origin != "extracted", settle_s=args.settle, one_take=args.one_take,
                   pace=args.pace, min_take_s=args.min_take, on_frame=measurer.feed if measurer else None)
-        timings["flight_s"] = time.monotonic() - t
+        clock.end("flight_s")
         meta["health"] = {n: {"received": h.received, "rejected": h.rejected, "dropped": h.dropped,
                               "published": h.published, "counters": h.counters}
                           for n, h in rec.health.items()}
@@ -148,18 +166,17 @@ def _job(args, src: Path, out: Path, meta: dict, timings: dict, live: dict, stop
 
 
 def _output_style(out: Path, meta: dict, rec: Recorder, live: LiveOutputStyle | None,
-                  timings: dict) -> Path | None:
+                  clock: StageClock) -> Path | None:
     """OUTDIR/output_style.json: from the frames measured while filming when that worked, else by
     `cinetransfer extract` on output.mp4 (None when both failed: the report says so)."""
     out_style = out / "output_style.json"
     # the output of per-shot takes is edited at the takes' first rows: its shots are known
     takes = meta.get("takes") or []
     cuts = [int(t["first_row"]) for t in takes[1:]] if len(takes) > 1 else None
-    t = time.monotonic()
     if live is not None and live.finish(out_style, n_frames=int(meta.get("recorded_frames") or 0),
                                         cuts=cuts):
         meta["output_measured"] = "while filming (the camera's frames, before H.264)"
-        timings["extract_output_s"] = time.monotonic() - t
+        clock.end("extract_output_s")
         return out_style
     try:
         run_cli(["extract", str(out / "output.mp4"), "-o", str(out_style),
@@ -168,20 +185,19 @@ def _output_style(out: Path, meta: dict, rec: Recorder, live: LiveOutputStyle | 
     except TransferError as e:
         log.error("%s", e)
         out_style = None
-    timings["extract_output_s"] = time.monotonic() - t
+    clock.end("extract_output_s")
     return out_style
 
 
 def _evaluate(out: Path, src: Path, style_path: Path, rec: Recorder, meta: dict, live: LiveOutputStyle | None,
-              timings: dict) -> dict:
-    out_style = _output_style(out, meta, rec, live, timings)
-    t = time.monotonic()
+              clock: StageClock) -> dict:
+    out_style = _output_style(out, meta, rec, live, clock)
     from cinetransfer.report import build_report
 
     summary = build_report(out, source_style=style_path, output_style=out_style, truths=rec.truths,
                            source_video=src, output_video=out / "output.mp4", meta=meta,
                            recording=out / "run.mcap")
-    timings["report_s"] = time.monotonic() - t
+    clock.end("report_s")
     return summary
 
 
@@ -258,30 +274,38 @@ def _save_take(out: Path, style: M.Instructions, rec: Recorder, meta: dict, real
 
 def _transfer(args, src: Path, out: Path, meta: dict, t_start: float) -> int:
     """The job's steps in order: deployment and flight, the take saved and judged, the evaluation."""
-    timings: dict[str, float] = {}
+    timings: dict[str, float] = {"before_s": time.monotonic() - t_start}  # the output folder and its reserve
+    clock = StageClock(timings, None if args.deployment or args.connect else out / "deploy")
     live: dict = {}  # the output measured while filming, once the flight starts
     stopping: list = []  # the own deployment, stopping in the background while the take is evaluated
     failed = True
     try:
-        outcome = _take_and_evaluate(args, src, out, meta, timings, live, stopping)
+        outcome = _take_and_evaluate(args, src, out, meta, clock, live, stopping)
         failed = False
     finally:
         _wind_down(live, stopping, quiet=failed)  # after an error, that error is the one reported
+    if outcome is NO_EVAL:  # judged once the nodes are down: the verdict is the command's last line
+        return _degraded(meta)
     if isinstance(outcome, int):
         return outcome
+    clock.end("wind_down_s")
     timings["total_s"] = time.monotonic() - t_start
-    meta.update(timings=timings, credit=_credit(src))
+    meta.update(timings=timings, stage_cpu_s=clock.cpu.stages, credit=_credit(src))
     write_json(out / "meta.json", meta)
     print(json.dumps(outcome.get("headline", outcome), indent=2, default=str)[:3000])
     print(f"\nreport: {(out / 'report.html').resolve()}  ({timings['total_s']:.0f} s in all)")
     return _degraded(meta)
 
 
-def _take_and_evaluate(args, src: Path, out: Path, meta: dict, timings: dict, live: dict,
-                       stopping: list) -> dict | int:
+#: what `_take_and_evaluate` returns for a take recorded with --no-eval
+NO_EVAL = "recorded, not evaluated"
+
+
+def _take_and_evaluate(args, src: Path, out: Path, meta: dict, clock: StageClock, live: dict,
+                       stopping: list) -> dict | int | str:
     """The report's summary, or the exit code of a run that ends before its evaluation."""
     try:
-        style_path, style, rec = _job(args, src, out, meta, timings, live, stopping)
+        style_path, style, rec = _job(args, src, out, meta, clock, live, stopping)
     except TransferError as e:
         if getattr(e, "flight", None) is None:
             raise
@@ -292,14 +316,15 @@ def _take_and_evaluate(args, src: Path, out: Path, meta: dict, timings: dict, li
             raise TransferError(f"{e}; meta.json and truth.msgpack not written: {_one_line(se)}") from None
         raise TransferError(f"{e}; {_files_said(meta['files'])}") from None
     _save_take(out, style, rec, meta, args.realtime)
+    clock.end("save_take_s")
     if meta["interrupted"]:
         print(f"recorded {meta['recorded_frames']} frames to {out / 'output.mp4'} (interrupted)")
         return 130
     check_take(meta, rec, args.realtime)
     if args.no_eval:
         print(f"recorded {meta['recorded_frames']} frames to {out / 'output.mp4'} (no evaluation)")
-        return _degraded(meta)
-    return _evaluate(out, src, style_path, rec, meta, live.get("output"), timings)
+        return NO_EVAL
+    return _evaluate(out, src, style_path, rec, meta, live.get("output"), clock)
 
 
 def _wind_down(live: dict, stopping: list, *, quiet: bool) -> None:

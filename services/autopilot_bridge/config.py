@@ -314,6 +314,11 @@ class BridgeConfig:
     #: sim clock: simulated seconds per wall second to aim at; 0 = as fast as possible.
     pace: float = setting(1.0, flag="--pace", metavar="X",
                           help="sim clock: simulated seconds per wall second to aim at (0 = as fast as possible)")
+    #: sim clock: render camera frames before the first 'reset' (a transfer's own deployment
+    #: idles until its take resets the simulation: nobody records those frames).
+    frames_before_reset: bool = setting(True, flag="--no-frames-before-reset",
+                                        help="sim clock: render no camera frame until the first 'reset' "
+                                             "(truth and states still flow)")
     #: sim clock: longest wall wait [s] for the planner's setpoint of a step (counted when hit).
     setpoint_wait_s: float = setting(30.0, flag="--setpoint-wait", unit="s", metavar="S",
                                      help="sim clock: longest wall wait for the planner's setpoint of a step")

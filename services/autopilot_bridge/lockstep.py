@@ -10,19 +10,29 @@ One step of `period` simulated seconds (the control period, 0.05 s by default):
        in sub-ticks at the bridge rate; every camera frame slot crossed is rendered
     5. pace: sleep so that simulated time runs at `pace` x wall time (0 = as fast as possible)
 
+Where a step's wall time goes is counted in the Health counters (seconds, summed over the
+`waits_steps` steps since the last reset): `publish_s` (state, clock and frames out),
+`wait_render_s` (frames of the previous step still rendering when they are due out),
+`wait_setpoint_s` (the planner's solve and the round trip), `advance_s` (safety layer, dynamics,
+render hand-off) and `pace_s` (sleeping to the pace).
+
 Machine load changes how long a step takes, never what it computes: the same scene, commands
 and planner give the same flight and the same frames. Bridge commands handled here:
-- 'reset' (args: epoch_ns=int, optional fps=float, pace=float): start the simulation over at
-  time `epoch_ns` (scene's initial state, frame 0 next), forgetting setpoints and holds;
+- 'reset' (args: epoch_ns=int, optional fps=float, pace=float, pictures=[[lo, hi], ...]): start
+  the simulation over at time `epoch_ns` (scene's initial state, frame 0 next), forgetting
+  setpoints and holds; with `pictures`, only frames with an index in one of the ranges [lo, hi)
+  are rendered and published, the others get their ground truth only (a take's recording keeps
+  no pre-roll frame: rendering them was a third of the README flight's renders);
 - 'clock' (args: pace=float): change the pace.
 """
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import math
 import time
-from typing import Any
+from typing import Any, Iterator
 
 from cinetransfer.shared import keys
 from cinetransfer.shared import messages as M
@@ -53,6 +63,19 @@ def parse_reset(args: dict[str, Any]) -> tuple[int, float | None, float | None]:
     return epoch, fps, pace
 
 
+def parse_pictures(args: dict[str, Any]) -> list[tuple[int, int]] | None:
+    """The 'pictures' of a 'reset' (None when absent: every frame); ValueError when malformed."""
+    v = args.get("pictures")
+    if v is None:
+        return None
+    ok = isinstance(v, (list, tuple)) and all(
+        isinstance(r, (list, tuple)) and len(r) == 2 and all(isinstance(x, int) and not isinstance(x, bool)
+                                                             for x in r) and 0 <= r[0] <= r[1] for r in v)
+    if not ok:
+        raise ValueError(f"reset: pictures must be a list of [lo, hi] frame index ranges, 0 <= lo <= hi; got {v!r}")
+    return [(int(a), int(b)) for a, b in v]
+
+
 def _opt_number(args: dict[str, Any], name: str, lo: float, hi: float) -> float | None:
     v = args.get(name)
     if v is None:
@@ -60,6 +83,27 @@ def _opt_number(args: dict[str, Any], name: str, lo: float, hi: float) -> float 
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
         raise ValueError(f"{name} must be a number in [{lo:g}, {hi:g}], got {v!r}")
     return float(v)
+
+
+class StepWaits:
+    """Wall seconds of the simulation steps, summed by part (what each step waits on)."""
+
+    PARTS = ("publish_s", "wait_render_s", "wait_setpoint_s", "advance_s", "pace_s")
+
+    def __init__(self) -> None:
+        self.totals = dict.fromkeys(self.PARTS, 0.0)
+        self.steps = 0
+
+    @contextlib.contextmanager
+    def timing(self, part: str) -> Iterator[None]:
+        t = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.totals[part] += time.perf_counter() - t
+
+    def counters(self) -> dict[str, float]:
+        return {**{k: round(v, 3) for k, v in self.totals.items()}, "waits_steps": self.steps}
 
 
 class SimClockLoop:
@@ -76,6 +120,11 @@ class SimClockLoop:
         self.counters = {"sim_steps": 0, "sim_time_s": 0.0, "setpoint_waits_timed_out": 0, "sp_stale": 0,
                          "resets": 0, "frames_published": 0, "lockstep": False}
         self._step_ms: collections.deque[float] = collections.deque(maxlen=2000)
+        self.waits = StepWaits()
+        #: the frame index after the last pictured one (None: every frame is pictured)
+        self.pictures_end: int | None = None
+        if not cfg.frames_before_reset:  # idle until a take resets the simulation: no pictures
+            self.backend.pictures = ()
         self._begin(int(self.backend._epoch_ns or M.now_ns()))
 
     def _begin(self, epoch_ns: int) -> None:
@@ -101,20 +150,30 @@ class SimClockLoop:
         t_wall = time.perf_counter()
         node.clock_ns = t_ns
         lockstep = self.planner.alive
+        waits = self.waits
         with node.timed():
-            bridge.publish_state(t_ns)
-            self.clock_pub.put(M.SimClock(stamp_ns=t_ns, epoch_ns=self.epoch_ns, step=self.step,
-                                          period_s=self.period_ns * 1e-9, lockstep=lockstep, pace=self.pace))
-            self.counters["frames_published"] += self._frames()
-        sps = self._await_setpoint(t_ns) if lockstep else self._setpoints_on_clock(t_ns)
+            with waits.timing("publish_s"):
+                bridge.publish_state(t_ns)
+                self.clock_pub.put(M.SimClock(stamp_ns=t_ns, epoch_ns=self.epoch_ns, step=self.step,
+                                              period_s=self.period_ns * 1e-9, lockstep=lockstep, pace=self.pace))
+            with waits.timing("wait_render_s"):
+                self.backend.flush()
+            with waits.timing("publish_s"):
+                self.counters["frames_published"] += self.bridge.publish_frames()
+        with waits.timing("wait_setpoint_s"):
+            sps = self._await_setpoint(t_ns) if lockstep else self._setpoints_on_clock(t_ns)
         with node.consistent():  # one Health report holds a whole step or none of it
-            if not self._advance(t_ns, sps, lockstep):
-                return
+            with waits.timing("advance_s"):
+                if not self._advance(t_ns, sps, lockstep):
+                    return
+            waits.steps += 1
             self._step_ms.append((time.perf_counter() - t_wall) * 1e3)
             ms = sorted(self._step_ms)
             self.counters["step_wall_ms_p50"] = round(ms[len(ms) // 2], 2)
-            node.counters.update(self.counters, pace=self.pace)
-        self._wait_for_pace()
+            node.counters.update(self.counters, **waits.counters(), pace=self.pace)
+        self._past_pictures()
+        with waits.timing("pace_s"):
+            self._wait_for_pace()
 
     def _advance(self, t_ns: int, sps: list[M.Setpoint], lockstep: bool) -> bool:
         """Commands, setpoints and the vehicle from t to t + period; False if a reset started over."""
@@ -136,10 +195,6 @@ class SimClockLoop:
 
     def _sim_s(self, t_ns: int) -> float:
         return (t_ns - self.epoch_ns) * 1e-9
-
-    def _frames(self) -> int:
-        self.backend.flush()
-        return self.bridge.publish_frames()
 
     def _await_setpoint(self, t_ns: int) -> list[M.Setpoint]:
         """The planner's setpoint for this step (older ones are stale; a wall timeout is counted)."""
@@ -194,14 +249,28 @@ class SimClockLoop:
             self._pace_origin = (time.monotonic(), self.step)
             return False
         epoch, fps, pace = parse_reset(cmd.args)
+        pictures = parse_pictures(cmd.args)
         if pace is not None:
             self.pace = pace
-        self.backend.reset(epoch, fps)
+        self.backend.reset(epoch, fps, pictures=pictures)
+        self.pictures_end = max((b for _, b in pictures), default=0) if pictures is not None else None
         self.bridge.reset_core()
         self.counters["resets"] += 1
+        self.waits = StepWaits()  # the breakdown describes the take that starts now
         log.info("simulation reset: time zero = %d ns, camera %.3g fps, pace %g", epoch, self.backend.fps, self.pace)
         self._begin(epoch)
         return True
+
+    def _past_pictures(self) -> None:
+        """Once the last pictured frame is rendered, nobody waits for the simulation any more: it
+        goes on at real-time pace (the transfer's stop sets that too, once its recorder has every
+        frame) instead of free-running through truth-only steps that take the CPU the recorder needs."""
+        end = self.pictures_end
+        if end is not None and self.pace == 0 and self.backend.sim_time_s * self.backend.fps >= end:
+            log.info("past the last pictured frame (%d): real-time pace", end - 1)
+            self.pace = 1.0
+            self._pace_origin = (time.monotonic(), self.step)
+            self.pictures_end = None
 
     def _wait_for_pace(self) -> None:
         if self.pace <= 0:

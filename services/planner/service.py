@@ -51,6 +51,8 @@ def config_from_args(args: argparse.Namespace) -> pc.PlannerConfig:
 
 #: in simulation time, how long to wait for the state of a clock tick before solving without it [s]
 STATE_WAIT_S = 2.0
+#: where the simulation-time loop's wall time goes (Health counters, seconds since the clock's reset)
+WAIT_PARTS = ("wait_tick_s", "wait_state_s", "step_s")
 
 
 class PlannerShell:
@@ -74,6 +76,7 @@ class PlannerShell:
         self.counters: dict[str, Any] = {"clock_ticks": 0, "state_waits_timed_out": 0}
         self.solve_ms: collections.deque[float] = collections.deque(maxlen=5000)
         self._solves_seen = 0
+        self._epoch_ns: int | None = None
 
     def run(self) -> None:
         period = 1.0 / self.cfg.rate_hz
@@ -82,7 +85,9 @@ class PlannerShell:
             if len(self.clk_in):
                 self._enter_sim_time()
         while self.node.running:
+            t = time.perf_counter()
             tick = self.clk_in.get(timeout=0.2)
+            self._spent("wait_tick_s", t)
             if tick is not None:
                 with self.node.guard(self.clk_in.key, "clock tick"):  # no exception ever ends the loop
                     self._sim_tick(tick)
@@ -102,13 +107,17 @@ class PlannerShell:
 
     def _sim_tick(self, tick: M.SimClock) -> None:
         now = int(tick.stamp_ns)
+        if tick.epoch_ns != self._epoch_ns:  # the simulation started over: so does the breakdown
+            self._epoch_ns = tick.epoch_ns
+            self.counters.update(dict.fromkeys(WAIT_PARTS, 0.0))
         self.node.clock_ns = now
         self.counters["clock_ticks"] += 1
         self._inputs(now)
-        deadline = time.monotonic() + STATE_WAIT_S
+        deadline, t = time.monotonic() + STATE_WAIT_S, time.perf_counter()
         while not self._have_state_at(now) and self.node.running and time.monotonic() < deadline:
             self.node.wait(0.05)
             self._states()
+        self._spent("wait_state_s", t)
         if not self._have_state_at(now) and self.node.running:
             self.counters["state_waits_timed_out"] += 1
             v, s = self.latest["veh"], self.latest["sub"]
@@ -116,6 +125,11 @@ class PlannerShell:
                             f"{None if v is None else v.stamp_ns}, subject {None if s is None else s.stamp_ns})",
                             "clock")
         self._solve(now)
+
+    def _spent(self, part: str, since: float) -> None:
+        """Count the wall seconds since `since` under `part` (where the simulation-time loop's time
+        goes: waiting for a tick, for its state, or stepping the planner)."""
+        self.counters[part] = round(self.counters.get(part, 0.0) + time.perf_counter() - since, 4)
 
     def _have_state_at(self, now: int) -> bool:
         v, s = self.latest["veh"], self.latest["sub"]
@@ -149,9 +163,11 @@ class PlannerShell:
 
     def _solve(self, now: int) -> None:
         node, planner, latest = self.node, self.planner, self.latest
+        t = time.perf_counter()
         with node.timed():
             sp = planner.step(now, latest["ins"], latest["veh"], latest["sub"])
         self.pub.put(sp)
+        self._spent("step_s", t)
         if planner.last_result is not None and planner.counters["solves"] != self._solves_seen:
             self._solves_seen = planner.counters["solves"]
             self.solve_ms.append(planner.last_result.wall_s * 1e3)

@@ -175,10 +175,15 @@ def test_transfer_through_zenoh_processes(data, tmp_path, port, listener_opts):
 
     meta = json.loads((out / "meta.json").read_text())
     assert meta["recorded_frames"] == FRAMES == meta["instruction_frames"]
-    # the recording starts at the flight's time zero: frame 0, stamped then, none from before the reset
+    # the recording's camera frames are the take's, each stamped at its slot after the flight's time
+    # zero: the pre-roll is flown (its truth recorded) but not rendered, and nothing is from before the reset
     recorded = [codec.decode(p, M.Frame) for _, _, p in read_run(out / "run.mcap", keys.FRAME.key("e2e"))]
-    assert recorded[0].index == 0 and recorded[0].stamp_ns == meta["epoch_ns"]
-    assert [f.index for f in recorded] == list(range(len(recorded)))
+    first = meta["preroll_frames"]
+    assert first == 48 and [f.index for f in recorded] == list(range(first, first + FRAMES))
+    assert all(f.stamp_ns == meta["epoch_ns"] + int(round(f.index / 24 * 1e9)) for f in recorded)
+    timeline = [codec.decode(p, M.GroundTruth) for _, _, p in read_run(out / "run.mcap", keys.SIM_TRUTH.key("e2e"))]
+    assert [t.frame_index for t in timeline][:first + FRAMES] == list(range(first + FRAMES))
+    assert min(t.stamp_ns for t in timeline) == meta["epoch_ns"]
     assert min(t.stamp_ns for t in read_truths(out / "truth.msgpack")) >= meta["epoch_ns"]
     # in simulation time every instruction frame is its own render: nothing repeated or missing
     assert meta["clock_mode"] == "lockstep"

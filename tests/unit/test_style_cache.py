@@ -70,3 +70,32 @@ def test_store_then_lookup_and_damaged_entries_are_misses(clip, configs, tmp_pat
     assert C.lookup(key) is None
     C.store(key, style)  # ... and replaced by the next store
     assert C.lookup(key) == entry / "style.json"
+
+
+def test_a_digest_is_computed_once_per_installed_version_of_its_files(tmp_path):
+    files = [tmp_path / "a.py", tmp_path / "b.py"]
+    files[0].write_text("x = 1\n")
+    files[1].write_text("y = 2\n")
+    calls = []
+
+    def digest(fs):
+        calls.append(list(fs))
+        return C.hash_code(fs)
+
+    first = C.remembered_digest("demo", files, digest)
+    assert first == C.hash_code(files) and len(calls) == 1
+    assert C.remembered_digest("demo", files, digest) == first and len(calls) == 1  # remembered, not read
+    files[1].write_text("y = 3\n")  # an edit (same size): the new modification time gives it away
+    os.utime(files[1], ns=(1, 1))
+    second = C.remembered_digest("demo", files, digest)
+    assert len(calls) == 2 and second == C.hash_code(files) != first
+    (C.cache_dir("versions") / "demo.json").write_text("{not json")  # damaged memo: computed again
+    assert C.remembered_digest("demo", files, digest) == second and len(calls) == 3
+
+
+def test_the_code_and_model_digests_are_the_hashes_of_their_files():
+    C.code_version.cache_clear()
+    C.models_version.cache_clear()
+    assert C.code_version() == C.hash_code(C.code_files())
+    assert C.models_version() == C.hash_models(C.model_files())
+    assert (C.cache_dir("versions") / "code.json").is_file()

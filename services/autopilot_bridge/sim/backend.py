@@ -21,6 +21,7 @@ import logging
 import math
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Sequence
 
 import cv2
 import numpy as np
@@ -266,6 +267,7 @@ class SimBackend(VehiclePort):
         self.renderer = make_renderer(self.scene, width, height)
         self.render_enabled = render
         self.truth_enabled = truth
+        self.pictures: tuple[tuple[int, int], ...] | None = None  #: see reset()
         self._init_timeline(epoch_ns)
         #: when set (real-time use), frames more than this behind `now_s` are skipped, not rendered
         self.max_frame_lag_s = max_frame_lag_s
@@ -291,16 +293,24 @@ class SimBackend(VehiclePort):
         self._truths: list[M.GroundTruth] = []
         self._seq = 0
 
-    def reset(self, epoch_ns: int, fps: float | None = None) -> None:
+    def reset(self, epoch_ns: int, fps: float | None = None,
+              pictures: Sequence[tuple[int, int]] | None = None) -> None:
         """Start the simulation over: scene initial state, time 0 stamped `epoch_ns`, frame 0
-        next (at `fps` if given). Renders still in flight are discarded."""
+        next (at `fps` if given). Renders still in flight are discarded. `pictures`: the frame
+        index ranges [lo, hi) that get an image (None: every frame); the others get only their
+        ground truth (no Frame message): a recording that keeps only its takes' frames does not
+        pay for rendering the pre-roll's."""
         self.flush()
         self._pending.clear()
         if fps is not None:
             if not (math.isfinite(fps) and 0 < fps <= 240):
                 raise ValueError(f"fps must be in (0, 240], got {fps!r}")
             self.fps = float(fps)
+        self.pictures = None if pictures is None else tuple((int(a), int(b)) for a, b in pictures)
         self._init_timeline(int(epoch_ns))
+
+    def _pictured(self, index: int) -> bool:
+        return self.render_enabled and (self.pictures is None or any(a <= index < b for a, b in self.pictures))
 
     def flush(self) -> None:
         """Wait for every frame still being rendered (lockstep: a step ends with its frames)."""
@@ -434,8 +444,17 @@ class SimBackend(VehiclePort):
         del self.render_ms[:-200]
         return out
 
+    def _truth_timed(self, view: View, t_s: float) -> tuple[None, dict]:
+        return None, (self.renderer.truth_only(view, t_s) if self.truth_enabled else {})
+
     def _emit_frame(self, index: int, t_s: float) -> None:
         lens = self.lens_state()
+        if not self._pictured(index) and self.render_enabled:  # truth only, in order with the renders
+            if self._pool is None:
+                self._finish_frame(index, t_s, lens, None, self._truth_timed(self.view(), t_s)[1], self.view())
+            else:  # the renderer's (GL) context lives on the render thread
+                self._pending.append((self._pool.submit(self._truth_timed, self.view(), t_s), index, t_s, lens))
+            return
         if self.render_enabled and self._pool is not None:
             self._collect()
             if len(self._pending) >= self.MAX_PENDING_RENDERS:
@@ -459,11 +478,13 @@ class SimBackend(VehiclePort):
             img, geo = fut.result()
             self._finish_frame(index, t_s, lens, img, geo, None)
 
-    def _finish_frame(self, index: int, t_s: float, lens: M.LensState, img: np.ndarray, geo: dict,
+    def _finish_frame(self, index: int, t_s: float, lens: M.LensState, img: np.ndarray | None, geo: dict,
                       view: View | None) -> None:
+        """The frame (none when `img` is None: not pictured) and its truth into the outboxes."""
         stamp = self._stamp(t_s)
-        self._frames.append(M.Frame(stamp_ns=stamp, seq=index, valid=True, source=f"sim:{self.scene.name}",
-                                    index=index, fps=self.fps, image=img, lens=lens))
+        if img is not None:
+            self._frames.append(M.Frame(stamp_ns=stamp, seq=index, valid=True, source=f"sim:{self.scene.name}",
+                                        index=index, fps=self.fps, image=img, lens=lens))
         if self.truth_enabled:
             if not geo:
                 geo = self.renderer.truth_only(view or self.view(), t_s)
