@@ -62,6 +62,25 @@ def connect_flags(port: int) -> list[str]:
     return ["--connect", f"tcp/127.0.0.1:{port}", "--listen", "tcp/127.0.0.1:0"]
 
 
+def cli(*args: str, env: dict | None = None, timeout: float = 120) -> subprocess.CompletedProcess:
+    """Run `python -m cinetransfer ARGS...` to its end as a real process."""
+    return subprocess.run([sys.executable, "-m", "cinetransfer", *args], capture_output=True, text=True,
+                          timeout=timeout, env={**os.environ, **(env or {})})
+
+
+def mount_tmpfs(mnt: Path, options: str):
+    """Yield `mnt` with a fresh tmpfs mounted on it (e.g. "size=2m", "ro,size=1m"), unmounted after;
+    skips where mounting is not allowed (CI runs as root)."""
+    mnt.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(mnt)], capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
 def spawn(*args: str, log: Path | None = None, env: dict | None = None) -> subprocess.Popen:
     """Start `python -m cinetransfer ARGS...` as a real process."""
     out = open(log, "wb") if log else subprocess.DEVNULL

@@ -15,6 +15,7 @@ from typing import Callable, Protocol
 
 import numpy as np
 
+from cinetransfer.services.planner.config import PlannerConfig
 from cinetransfer.services.planner.core import Planner, absent_regions, instructions_from_arrays
 from cinetransfer.services.planner.kinematic_sim import KinematicScene, Subject, Walk
 from cinetransfer.shared import camera as cam
@@ -89,6 +90,18 @@ def wrong_start_scene(walks: list[Walk] | None = None) -> KinematicScene:
     """The vehicle starts off the shot: too far, to the side, too high, looking away, wrong lens."""
     return KinematicScene(name="wrong-start", vehicle_position_m=(-7.0, 2.0, 2.5), camera_ypr_rad=(0.4, -0.2, 0.0),
                           lens=(40.0, 8.0, 6.0), walks=list(walks or []))
+
+
+def planner_maker(cfg: PlannerConfig) -> Callable[[], Planner]:
+    """A maker of fresh planners that share one solver: building a casadi solver takes seconds, and
+    a reset one behaves as new."""
+    from cinetransfer.services.planner.solver import MpcSolver
+    solver = MpcSolver(cfg.structure, cfg.bounds, cfg.weights, max_solve_time_s=cfg.max_solve_time_s)
+
+    def make() -> Planner:
+        solver.reset()
+        return Planner(cfg, solver=solver)
+    return make
 
 
 @dataclass

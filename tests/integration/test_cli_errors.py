@@ -1,18 +1,11 @@
 """Every bad input a user can give the command line: one clear line on stderr, a documented exit
 code, no traceback, and nothing left behind. Real `cinetransfer` processes."""
 import subprocess
-import sys
 
 import pytest
 
 from cinetransfer.shared.zenoh_config import free_tcp_port
-
-
-def cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    import os
-
-    return subprocess.run([sys.executable, "-m", "cinetransfer", *args], capture_output=True, text=True, timeout=120,
-                          env={**os.environ, **(env or {})})
+from conftest import cli, mount_tmpfs
 
 
 def one_line_error(r: subprocess.CompletedProcess, rc: int, *words: str) -> str:
@@ -101,13 +94,8 @@ def read_only_dir(tmp_path):
         yield ro
         ro.chmod(0o755)
         return
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=1m", "tmpfs", str(ro)], capture_output=True, text=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a read-only tmpfs: {r.stderr.strip()}")
-    try:
-        yield ro
-    finally:
-        subprocess.run(["umount", "-l", str(ro)], capture_output=True)
+    ro.rmdir()
+    yield from mount_tmpfs(ro, "ro,size=1m")
 
 
 @pytest.fixture
@@ -174,7 +162,6 @@ def test_a_truncated_source_is_an_error_not_a_short_style(data, tmp_path):
     whole = (data / "sam2_juggle_1280x720.mp4").read_bytes()
     cut = tmp_path / "cut.mp4"
     cut.write_bytes(whole[:len(whole) // 4])
-    r = subprocess.run([sys.executable, "-m", "cinetransfer", "transfer", str(cut), "-o", str(tmp_path / "out"),
-                        "--rig", "cut", "--no-eval"], capture_output=True, text=True, timeout=900)
+    r = cli("transfer", str(cut), "-o", str(tmp_path / "out"), "--rig", "cut", "--no-eval", timeout=900)
     last = one_line_error(r, 1, "truncated or damaged", "of the 247 frames", "--max-frames")
     assert not (tmp_path / "out" / "meta.json").exists(), last  # nothing was flown

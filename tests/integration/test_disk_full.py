@@ -10,29 +10,17 @@ import time
 
 import pytest
 
-from conftest import REPO, wait_for
-
-
-def mount_tmpfs(mnt, size: str):
-    mnt.mkdir()
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)], capture_output=True,
-                       text=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
-    try:
-        yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+from conftest import REPO, cli, mount_tmpfs, wait_for
 
 
 @pytest.fixture
 def small_disk(tmp_path):
-    yield from mount_tmpfs(tmp_path / "small", "16m")
+    yield from mount_tmpfs(tmp_path / "small", "size=16m")
 
 
 @pytest.fixture
 def tiny_disk(tmp_path):
-    yield from mount_tmpfs(tmp_path / "tiny", "2m")
+    yield from mount_tmpfs(tmp_path / "tiny", "size=2m")
 
 
 def fill(folder, leave: int = 0) -> None:
@@ -51,8 +39,7 @@ def fill(folder, leave: int = 0) -> None:
 
 
 def deploy(*args, env):
-    return subprocess.run([sys.executable, "-m", "cinetransfer", "deploy", *args], env=env, capture_output=True,
-                          text=True, timeout=150)
+    return cli("deploy", *args, env=env, timeout=150)
 
 
 def test_a_full_run_folder_neither_starts_a_deployment_nor_kills_a_running_one(tiny_disk, port):
@@ -60,7 +47,7 @@ def test_a_full_run_folder_neither_starts_a_deployment_nor_kills_a_running_one(t
     from cinetransfer.deploy.rundir import pid_alive, running_procs
 
     relays = str(REPO / "tests" / "data" / "deploy" / "relays.yaml")
-    env = {**os.environ, "CT_ROUTER_PORT": str(port), "CT_RIG": "full"}
+    env = {"CT_ROUTER_PORT": str(port), "CT_RIG": "full"}
     run_dir = tiny_disk / "run"
     # given a deployment up on a small disk ...
     r = deploy("up", relays, "--run-dir", str(run_dir), env=env)
@@ -99,15 +86,13 @@ def test_a_full_disk_stops_the_recording_at_once_and_keeps_it_readable(data, tmp
 
     clip = str(data / "sam2_juggle_1280x720.mp4")
     style = tmp_path / "style.json"
-    r = subprocess.run([sys.executable, "-m", "cinetransfer", "extract", clip, "--stop", "24", "-o", str(style),
-                        "--quiet"], capture_output=True, text=True, timeout=300)
+    r = cli("extract", clip, "--stop", "24", "-o", str(style), "--quiet", timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     out = small_disk / "run"
     t0 = time.monotonic()
     # a pre-roll of 60 s records ~1400 camera frames (~10 MB): more than the 8 MB left beside the 8 MB reserve
-    r = subprocess.run([sys.executable, "-m", "cinetransfer", "transfer", clip, "--style", str(style),
-                        "--scene", "lawn_juggler", "-o", str(out), "--preroll", "60", "--rig", "full", "--no-eval"],
-                       capture_output=True, text=True, timeout=900)
+    r = cli("transfer", clip, "--style", str(style), "--scene", "lawn_juggler", "-o", str(out), "--preroll", "60",
+            "--rig", "full", "--no-eval", timeout=900)
     took = time.monotonic() - t0
     assert r.returncode == 1, r.stdout[-2000:] + r.stderr[-3000:]
     last = r.stderr.strip().splitlines()[-1]
@@ -125,8 +110,7 @@ def test_a_full_disk_stops_the_recording_at_once_and_keeps_it_readable(data, tmp
 
 def test_a_disk_without_room_for_the_reserve_is_refused_before_anything_starts(data, tiny_disk):
     clip = str(data / "sam2_juggle_1280x720.mp4")
-    r = subprocess.run([sys.executable, "-m", "cinetransfer", "transfer", clip, "-o", str(tiny_disk / "run"),
-                        "--rig", "tiny"], capture_output=True, text=True, timeout=120)
+    r = cli("transfer", clip, "-o", str(tiny_disk / "run"), "--rig", "tiny")
     assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stdout + r.stderr
     assert r.stderr.startswith(f"cinetransfer transfer: -o {tiny_disk / 'run'}: No space left on device: "), r.stderr
     assert "MB free; a transfer sets 8 MB aside" in r.stderr
@@ -155,7 +139,7 @@ def long_style(short, path, reps: int) -> int:
 
 @pytest.fixture
 def mid_disk(tmp_path):
-    yield from mount_tmpfs(tmp_path / "mid", "64m")
+    yield from mount_tmpfs(tmp_path / "mid", "size=64m")
 
 
 @pytest.mark.slow
@@ -167,8 +151,7 @@ def test_a_disk_filling_mid_take_keeps_an_output_video_larger_than_the_reserve(d
 
     clip = str(data / "sam2_juggle_1280x720.mp4")
     short = tmp_path / "style24.json"
-    r = subprocess.run([sys.executable, "-m", "cinetransfer", "extract", clip, "--stop", "24", "-o", str(short),
-                        "--quiet"], capture_output=True, text=True, timeout=300)
+    r = cli("extract", clip, "--stop", "24", "-o", str(short), "--quiet", timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     k = long_style(short, tmp_path / "style.json", 40)  # 40 s at 24 fps: ~20 MB of video
     out = mid_disk / "run"

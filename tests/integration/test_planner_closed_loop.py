@@ -12,8 +12,9 @@ from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.core import Planner
 from cinetransfer.services.planner.kinematic_sim import KinematicSim, Walk
 from cinetransfer.services.planner.model import input_bounds, state_bounds
-from cinetransfer.services.planner.scenarios import (ReferenceShot, dolly_zoom_shot, reference_instructions,
-                                                     run_closed_loop, standing_shot, wrong_start_scene)
+from cinetransfer.services.planner.scenarios import (ReferenceShot, dolly_zoom_shot, planner_maker,
+                                                     reference_instructions, run_closed_loop, standing_shot,
+                                                     wrong_start_scene)
 from cinetransfer.shared import camera as cam
 
 CFG = pc.PlannerConfig(max_solve_time_s=0.5)  # generous: the simulated clock waits for the solver here
@@ -22,13 +23,7 @@ TOL = 1e-6
 
 @pytest.fixture(scope="module")
 def planner_factory():
-    from cinetransfer.services.planner.solver import MpcSolver
-    solver = MpcSolver(CFG.structure, CFG.bounds, CFG.weights, max_solve_time_s=CFG.max_solve_time_s)
-
-    def make():
-        solver.reset()
-        return Planner(CFG, solver=solver)
-    return make
+    return planner_maker(CFG)
 
 
 class BoundsChecker:

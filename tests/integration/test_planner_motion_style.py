@@ -10,8 +10,8 @@ import pytest
 from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.core import Planner
 from cinetransfer.services.planner.kinematic_sim import KinematicScene, KinematicSim, Walk
-from cinetransfer.services.planner.scenarios import ReferenceShot, reference_instructions, run_closed_loop, \
-    standing_shot
+from cinetransfer.services.planner.scenarios import (ReferenceShot, planner_maker, reference_instructions,
+                                                     run_closed_loop, standing_shot)
 from cinetransfer.shared import messages as M
 
 CFG = pc.PlannerConfig(max_solve_time_s=0.5)  # generous: the simulated clock waits for the solver here
@@ -30,13 +30,7 @@ def _styled(ins: M.Instructions, cls: str, *, pan=np.nan, zoom=np.nan, travel=(0
 
 @pytest.fixture(scope="module")
 def planner_factory():
-    from cinetransfer.services.planner.solver import MpcSolver
-    solver = MpcSolver(CFG.structure, CFG.bounds, CFG.weights, max_solve_time_s=CFG.max_solve_time_s)
-
-    def make():
-        solver.reset()
-        return Planner(CFG, solver=solver)
-    return make
+    return planner_maker(CFG)
 
 
 def _fly(planner: Planner, sim: KinematicSim, ins: M.Instructions, duration_s: float) -> tuple[np.ndarray, list]:
