@@ -141,15 +141,32 @@ def in_focus(distance_m: np.ndarray | float, focal_length_mm: float, f_number: f
     return bool(out) if np.ndim(out) == 0 else out
 
 
+def realisable_labels(b_fg: bool, b_subject: bool, b_bg: bool) -> tuple[bool, bool, bool]:
+    """The focus labels one depth of field can give, from those asked (foreground, subject, background).
+
+    The depth of field is one interval of depth: a sharp foreground and a sharp background with a
+    soft subject between them is the one combination no lens gives. The foreground then gives way,
+    in the order in which the report grants labels (subject, background, foreground:
+    report.focus_reach.PRIORITY), so the planner plans what the report judges reachable. Before,
+    such a row (a source's foreground read sharp for a few frames of a "subject soft, background
+    sharp" shot) asked for everything sharp, the subject included.
+    """
+    if b_fg and b_bg and not b_subject:
+        return False, False, True
+    return bool(b_fg), bool(b_subject), bool(b_bg)
+
+
 def desired_dof_limits(b_fg: bool, b_subject: bool, b_bg: bool, distance_m: float,
                        mu_m: float, *, defocus_when_none: bool = False) -> tuple[float, float]:
-    """Target (D_n*, D_f*) from the focus booleans (DESIGN §1.2).
+    """Target (D_n*, D_f*) from the focus booleans (DESIGN §1.2), as far as they are realisable
+    (realisable_labels).
 
     +inf for D_n* / -inf for D_f* means "not controlled". DESIGN's table leaves everything
     uncontrolled when no region is in focus; with `defocus_when_none` that case instead asks
     for the depth of field to end mu in front of the subject (D_f* = d - mu), so that a
     source shot where nothing is sharp is imitated rather than ignored.
     """
+    b_fg, b_subject, b_bg = realisable_labels(b_fg, b_subject, b_bg)
     if defocus_when_none and not (b_fg or b_subject or b_bg):
         return math.inf, distance_m - mu_m
     if b_fg:

@@ -259,6 +259,9 @@ class PlannerConfig:
                               help="start recording when the first instructions arrive (else wait for a 'start' "
                                    "command)")
     mu_default_m: float = 1.0  # DoF margin when the instructions carry none (mu <= 0) [m]
+    #: how far ahead (within the take) a style row wanting the subject soft before a sharp background
+    #: raises the minimum subject distance to the standoff that choice needs (separation.py) [s]; 0 = off
+    separation_lookahead_s: float = 6.0
     #: per-joint factors on the image term, ((COCO-17 name, factor >= 0), ...); unnamed joints 1.
     #: How the planner trades joint targets it cannot all meet (another body): docs/planner.md.
     joint_weights: tuple[tuple[str, float], ...] = ()
@@ -289,7 +292,7 @@ class PlannerConfig:
             if name not in COCO17_NAMES or not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise _bad("", "joint_weights", (name, v), f"a COCO-17 name ({', '.join(COCO17_NAMES)}) "
                            "and a finite factor >= 0")
-        for name in ("tail_max_s", "setpoint_lead_s", "clamp_tolerance", "feasibility_tol"):
+        for name in ("tail_max_s", "setpoint_lead_s", "clamp_tolerance", "feasibility_tol", "separation_lookahead_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise _bad("", name, v, "a finite value >= 0")

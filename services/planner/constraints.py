@@ -40,9 +40,11 @@ def soft_constraints(x_next, slack, centre_w, lim):  # noqa: ANN001, ANN201
                       v_max - speed + slack[3])
 
 
-def soft_limits(bounds: Bounds) -> list[float]:
-    """The `lim` parameter of soft_constraints for these bounds."""
-    return [bounds.altitude_min_m, bounds.altitude_max_m, bounds.min_subject_distance_m, bounds.speed_max_mps]
+def soft_limits(bounds: Bounds, min_distance_m: float = 0.0) -> list[float]:
+    """The `lim` parameter of soft_constraints for these bounds; `min_distance_m` raises the
+    minimum subject distance for one solve (a standoff the focus choice needs: separation.py)."""
+    d_min = max(bounds.min_subject_distance_m, min_distance_m)
+    return [bounds.altitude_min_m, bounds.altitude_max_m, d_min, bounds.speed_max_mps]
 
 
 def decision_bounds(layout: Layout, bounds: Bounds, n: int, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -38,6 +38,7 @@ from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject
                                                 reciprocal_targets,
                                                 subject_softness, switched_out)
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
+from cinetransfer.services.planner.separation import framing_k, separation_distance_m
 from cinetransfer.services.planner.solver import N_DOF, MpcSolver, SolveResult, StageData
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
@@ -349,12 +350,41 @@ class Planner:
                              camera_motion=bool(motion[:, MOTION_MASKS].any()))
         now_row = int(np.clip(frame - ins.first_frame, 0, ins.image_targets.shape[0] - 1))
         dof, dref = self._dof_targets(now_ns, ins, rows, now_row, x0, subj)
+        standoff = self._separation_m(ins, now_row, jw, jmask)
+        self.counters["separation_m"] = round(standoff, 2)
         u_prev = self._u_prev
         if self._plan is not None:
             _, u_prev = self._plan.at((now_ns - self._plan.t0_ns) * 1e-9)
         data = StageData(x0=x0, u_prev=u_prev, joints_w=jw, subject_centre_w=subj.centre, subject_velocity=subj.vel,
-                         targets=targets, mask=mask, dof=dof, distance_ref=dref, motion=motion)
+                         targets=targets, mask=mask, dof=dof, distance_ref=dref, motion=motion,
+                         min_distance_m=standoff)
         return data, frame
+
+    def _separation_m(self, ins: M.Instructions, now_row: int, jw: np.ndarray, jmask: np.ndarray) -> float:
+        """The subject distance the rows of the next `separation_lookahead_s` (within the take) need for
+        a subject soft before a sharp background, each at the framing it asks for (separation.py); 0 if none."""
+        st, b = self.cfg.structure, self.solver.bounds
+        focus = realisable_rows(ins.focus_in)
+        if self.cfg.separation_lookahead_s <= 0 or focus.ndim != 2 or focus.shape[1:] != (3,):
+            return 0.0
+        last = min(focus.shape[0], ins.image_targets.shape[0]) - 1
+        if self.end_frame is not None:
+            last = min(last, self.end_frame - 1 - int(ins.first_frame))
+        hi = min(last, now_row + int(math.ceil(self.cfg.separation_lookahead_s * _fps(ins))))
+        absent, b_subject = absent_regions(ins), smoothed_subject_focus(ins)
+        ratio = st.defocus_coc_ratio / st.sharp_coc_ratio
+        ne = min(jw.shape[0], ins.image_targets.shape[1])
+        z = np.where(jmask[:ne] > 0, jw[:ne, 2], np.nan)
+        ks, ratios = [], []
+        for r in range(max(now_row, 0), hi + 1):
+            if not near_keeps_subject_out(*focus[r].tolist()) or absent[r].all():
+                continue
+            ks.append(framing_k(np.asarray(ins.image_targets[r, :ne, 1], float), z, st.sensor_height_mm))
+            soft = subject_softness(float(b_subject[r]), float(ins.theta)) if len(b_subject) > r else 1.0
+            ratios.append(defocus_ratio(True, ratio, soft))
+        mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
+        return separation_distance_m(ks, ratios, f_number_min=b.f_number_min, coc_mm=st.plan_coc_mm, mu_m=mu,
+                                     focus_max_m=b.focus_distance_max_m, focal_max_mm=b.focal_length_max_mm)
 
     def _motion_style(self, ins: M.Instructions) -> MotionStyle | None:
         """The instructions' camera-motion style, read once per instructions message."""
@@ -392,7 +422,7 @@ class Planner:
         st, lay = self.cfg.structure, self.layout
         n, dt = len(rows), st.dt_s
         mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
-        focus = np.asarray(ins.focus_in, dtype=bool)
+        focus = realisable_rows(ins.focus_in)
         absent = absent_regions(ins)
         b_subject = smoothed_subject_focus(ins)
         rows3 = focus.tolist() if focus.shape[-1:] == (3,) else []
@@ -416,8 +446,11 @@ class Planner:
             if focus.shape[0] > r and focus.shape[1] == 3 and not absent[r].all():
                 near, far = cam.desired_dof_limits(bool(focus[r, 0]), bool(focus[r, 1]), bool(focus[r, 2]),
                                                    depth, mu, defocus_when_none=st.defocus_when_none)
+                # with the subject kept out by the near limit the far limit of the sharpness circle (3/8 of
+                # the one circle) at infinity is margin enough: the extra margin would cap the focus at half
+                # its longest and the subject's blur with it (separation.py)
                 dof[k, :6] = reciprocal_targets(near, far, near_foreground_m=st.near_foreground_m,
-                                                far_margin_inv_m=st.far_margin_inv_m,
+                                                far_margin_inv_m=0.0 if near_out[r] else st.far_margin_inv_m,
                                                 # a near limit that keeps the subject out stays two-sided
                                                 fg_absent=bool(absent[r, 0]) and not near_out[r])
                 soft = subject_softness(float(b_subject[r]), float(ins.theta)) if len(b_subject) > r else 1.0
@@ -428,7 +461,7 @@ class Planner:
     def _rows(self, now_ns: int, ins: M.Instructions, n: int, dt: float) -> tuple[list[int], int]:
         """Instruction rows of stages 1..n and the source frame index followed now."""
         k_rows = ins.image_targets.shape[0]
-        fps = ins.fps if ins.fps > 0 else (1.0 / ins.frame_duration_s if ins.frame_duration_s > 0 else 24.0)
+        fps = _fps(ins)
         t = self.recording_time_s(now_ns)
         moving = self.state == "recording"
         self.counters["phase"] = "settle" if moving and t < 0 else ("take" if moving else self.state)
@@ -549,6 +582,19 @@ class PredictedSubject:
     vel: np.ndarray  #: (3,)
     finite: np.ndarray  #: (J,) the joint is known
     centre: np.ndarray  #: (3,) mean of the centre joints known (else of all known joints)
+
+
+def realisable_rows(focus_in: np.ndarray) -> np.ndarray:
+    """The style's focus rows (K, 3) as one depth of field can give them (shared.camera.realisable_labels)."""
+    focus = np.asarray(focus_in, dtype=bool)
+    if focus.ndim != 2 or focus.shape[1] != 3:
+        return focus
+    return np.array([cam.realisable_labels(*row) for row in focus.tolist()], dtype=bool).reshape(focus.shape)
+
+
+def _fps(ins: M.Instructions) -> float:
+    """Instruction rows per second of recording."""
+    return ins.fps if ins.fps > 0 else (1.0 / ins.frame_duration_s if ins.frame_duration_s > 0 else 24.0)
 
 
 def predict_subject(subject: M.SubjectState, now_ns: int) -> PredictedSubject:

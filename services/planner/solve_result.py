@@ -23,6 +23,7 @@ class StageData:
     dof: np.ndarray  # (N, N_DOF) see cost.reciprocal_targets and cost.defocus_ratio
     distance_ref: np.ndarray  # (N,) subject distance used to scale the DoF errors [m]
     motion: np.ndarray | None = None  # (N, camera_motion.N_MOTION) side of the subject, camera motion; None = none
+    min_distance_m: float = 0.0  # a minimum subject distance above the bounds' (separation.py) [m]; 0 = the bounds'
 
 
 @dataclass

@@ -174,7 +174,7 @@ class MpcSolver(SqpMixin, IpoptMixin):
         _, uhi = input_bounds(lay, self.bounds)
         p[sl["u_scale"]] = 1.0 / uhi
         p[sl["v_scale"]] = 1.0 / self.bounds.speed_max_mps
-        p[sl["soft"]] = C.soft_limits(self.bounds)
+        p[sl["soft"]] = C.soft_limits(self.bounds, data.min_distance_m)
         if not np.all(np.isfinite(p)):
             raise ValueError("non-finite solver parameter")
         return p

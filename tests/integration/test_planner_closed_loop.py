@@ -170,3 +170,46 @@ def test_subject_behind_the_camera_turns_round_without_flying_through(planner_fa
     # and it never flies through (or closer than the minimum distance to) the subject
     assert min(dist) > CFG.bounds.min_subject_distance_m - 0.05
     assert set(log.mode) == {"track"}
+
+
+def _rack_to_background(scene, planner_cfg, planner_factory):
+    # a far, small framing (12 m, 50 mm: 4.2 mm of focal length per metre) whose focus racks from the
+    # subject to the background at 5 s; per sample also the subject centre's blur in circles of confusion
+    shot = ReferenceShot(offset_m=lambda t: np.array([-12.0, 0.5, 0.3]), focal_mm=lambda t: 42.0,
+                         focus=lambda t: (False, True, False) if t < 5.0 else (False, False, True))
+    ins = reference_instructions(scene, shot, duration_s=12.0)
+    planner = Planner(planner_cfg, solver=planner_factory().solver)
+    sim = KinematicSim(scene)
+    dist, blur = [], []
+
+    def truth(s, names):
+        f_mm, focus_m, fnum = (float(v) for v in s.lens)
+        st = CFG.structure
+        blur.append(cam.blur_diameter_mm(s.subject_depth_m(), f_mm, fnum, focus_m) / st.coc_mm)
+        near, far = s.dof_limits_m()
+        return s.image_points(names), s.subject_depth_m(), near, far
+
+    def on_step(i, sp):
+        dist.append(float(np.hypot(*(sim.p[:2] - sim.subject.centre()[:2]))))
+    log = run_closed_loop(planner, sim, ins, duration_s=11.0, on_step=on_step, truth=truth)
+    return log, np.asarray(dist), np.asarray(blur)[-len(log.t_s):]
+
+
+def test_subject_soft_before_a_sharp_background_from_further_back(planner_factory):
+    # given the camera at the reference's 12 m, 42 mm pose (3.5 mm of focal length per metre), from
+    # where the subject is softest before a sharp background at 20.2 m (separation.best_separation_m)
+    from cinetransfer.services.planner.kinematic_sim import KinematicScene
+    scene = KinematicScene(vehicle_position_m=(-12.0, 0.5, 1.3), camera_ypr_rad=(0.0, 0.0, 0.0), lens=(42.0, 12.0, 4.0))
+    log, dist, blur = _rack_to_background(scene, CFG, planner_factory)
+    t, depth = np.asarray(log.t_s), np.asarray(log.depth_m)
+    near, far = np.asarray(log.near_m), np.asarray(log.far_m)
+    # then the planner backs off ahead of the rack (its horizon is 1.5 s: the look-ahead sees it),
+    # keeping the framing with a longer lens
+    assert np.max(np.asarray(log.image_error)[t >= 3.0]) < 0.03
+    assert dist[int(4.9 * CFG.rate_hz)] > 17.5, dist[int(4.9 * CFG.rate_hz)]
+    # and the subject is sharp until the switch, then soft (beyond c, the one circle: measured 1.0 c
+    # from 5.5 s, 1.4 c from 7 s) with the background sharp (far limit past 200 m)
+    mid = (t > 3.0) & (t < 4.9)
+    assert np.all((near[mid] < depth[mid]) & (depth[mid] < far[mid]))
+    late = t >= 6.0
+    assert np.all(blur[late] > 1.1) and np.all(far[late] > 200.0), (blur[late].min(), far[late].min())

@@ -81,6 +81,7 @@ def test_rotation_is_orthonormal():
     ((False, False, True), (6.0, math.inf)),     # background: d + mu .. inf
     ((True, True, True), (0.0, math.inf)),       # everything
     ((False, False, False), (math.inf, -math.inf)),  # nothing controlled
+    ((True, False, True), (6.0, math.inf)),      # fg and bg sharp, subject soft: no one interval; as background
 ])
 def test_desired_dof_limits_table(flags, expect):
     assert C.desired_dof_limits(*flags, distance_m=5.0, mu_m=1.0) == expect
@@ -90,3 +91,12 @@ def test_nothing_in_focus_can_ask_for_defocus():
     # DESIGN's table leaves it uncontrolled; the option puts the far limit mu before the subject
     assert C.desired_dof_limits(False, False, False, 5.0, 1.0, defocus_when_none=True) == (math.inf, 4.0)
     assert C.desired_dof_limits(False, True, False, 5.0, 1.0, defocus_when_none=True) == (4.0, 6.0)
+
+
+def test_realisable_labels_drop_only_the_foreground_of_the_impossible_combination():
+    # one depth of field is one interval: sharp in front and behind with the subject soft between cannot be;
+    # the foreground gives way (the report's order: subject, background, foreground)
+    assert C.realisable_labels(True, False, True) == (False, False, True)
+    for flags in [(a, b, c) for a in (False, True) for b in (False, True) for c in (False, True)]:
+        if flags != (True, False, True):
+            assert C.realisable_labels(*flags) == flags

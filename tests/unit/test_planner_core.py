@@ -340,3 +340,12 @@ def test_a_clock_jump_resets_the_warm_start_instead_of_failing(planner, instruct
     assert sp.stamp_ns == now and sp.mode == "track" and sp.valid, sp.solver_status
     assert_finite(sp)
     assert planner.counters["warm_start_resets"] == 1
+
+
+def test_style_rows_are_planned_as_one_depth_of_field_gives_them():
+    # given rows asking fg and bg sharp with the subject soft (no one interval of depth), and others
+    from cinetransfer.services.planner.core import realisable_rows
+    rows = np.array([[True, False, True], [True, True, True], [False, False, True], [True, False, False]])
+    # then only the impossible row changes: its foreground gives way, as the report grants labels
+    assert realisable_rows(rows).tolist() == [[False, False, True], [True, True, True], [False, False, True],
+                                              [True, False, False]]

@@ -1,0 +1,72 @@
+"""The standoff a subject soft before a sharp background needs (services/planner/separation.py)."""
+import math
+
+import pytest
+
+from cinetransfer.services.planner.separation import (APERTURE_MARGIN, best_separation_m, framing_k,
+                                                      separation_distance_m, standoff_m)
+from cinetransfer.shared import camera as cam
+
+
+def test_standoff_by_hand():
+    # given 4 mm per metre of framing, f/1, c = 0.05 mm, the soft circle 4 c and a point-like subject:
+    # a = 1000 * 1 * 0.05 * 5 / 16 = 15.625 m, and d = a (f = 62.5 mm, H = 78.125 m, H / 5 = d)
+    assert standoff_m(4.0, f_number=1.0, coc_mm=0.05, defocus_ratio=4.0, mu_m=0.0) == pytest.approx(15.625)
+    # and with the subject 1 m deep: d = (a + sqrt(a^2 + 4 a)) / 2
+    assert standoff_m(4.0, f_number=1.0, coc_mm=0.05, defocus_ratio=4.0, mu_m=1.0) == pytest.approx(16.568, abs=1e-3)
+    assert math.isnan(standoff_m(0.0, f_number=1.0, coc_mm=0.05, defocus_ratio=4.0, mu_m=1.0))
+
+
+def test_standoff_against_the_lens_model():
+    # at the standoff with the focus at the hyperfocal distance of c, the far limit of c is at
+    # infinity and the near limit of the soft circle lies at d + mu (to the focal length's share)
+    k, a_num, c, r, mu = 4.2, 1.0, 0.05, 4.0, 1.0
+    d = standoff_m(k, f_number=a_num, coc_mm=c, defocus_ratio=r, mu_m=mu)
+    f = k * d
+    s = cam.hyperfocal_m(f, a_num, c)
+    assert math.isinf(cam.dof_limits_m(f, a_num, s * 1.0001, c)[1])
+    near_soft = cam.dof_limits_m(f, a_num, s, r * c)[0]
+    assert near_soft == pytest.approx(d + mu, rel=0.01)
+    # and from nearer at the same framing the subject's far edge is still inside the soft circle's field
+    f2 = k * 0.8 * d
+    s2 = cam.hyperfocal_m(f2, a_num, c)
+    assert cam.dof_limits_m(f2, a_num, s2, r * c)[0] < 0.8 * d + mu
+
+
+def test_softest_subject_distance():
+    # the subject's blur at H is c (H / d - 1) with H = k^2 d^2 / (1000 A c) up to the longest focus:
+    # at k = 4.2 mm/m, f/1, c = 0.05 mm, s_max = 100 m: d* = sqrt(5000) / 4.2 = 16.84 m (H = 100 m)
+    d = best_separation_m(4.2, f_number_min=1.0, coc_mm=0.05, focus_max_m=100.0)
+    assert d == pytest.approx(16.836, abs=1e-3)
+    assert cam.hyperfocal_m(4.2 * d, 1.0, 0.05) == pytest.approx(100.0, abs=0.1)
+
+    def blur(dd):  # softest subject at dd with the far limit at infinity and the focus within reach
+        f = 4.2 * dd
+        a_num = max(1.0, f * f / (0.05 * (100.0 * 1000.0 - f)))
+        s = cam.hyperfocal_m(f, a_num, 0.05)
+        return cam.blur_diameter_mm(dd, f, a_num, s)
+    assert blur(d) > blur(0.9 * d) and blur(d) > blur(1.1 * d)
+
+
+def test_separation_distance_takes_the_hardest_row_and_the_caps():
+    # no row wanting the subject soft before a sharp background: nothing raised
+    kw = dict(f_number_min=1.0, coc_mm=0.05, mu_m=1.0, focus_max_m=100.0, focal_max_mm=500.0)
+    assert separation_distance_m([], [], **kw) == 0.0
+    assert separation_distance_m([float("nan")], [4.0], **kw) == 0.0
+    # the softest row asked for sets it, at the aperture margin (a tight framing: within reach)
+    d = separation_distance_m([6.0, 6.0], [2.0, 4.0], **kw)
+    assert d == pytest.approx(standoff_m(6.0, f_number=APERTURE_MARGIN, coc_mm=0.05, defocus_ratio=4.0, mu_m=1.0))
+    # a looser framing in a later row needs more than the softest distance: that one
+    assert separation_distance_m([6.0, 4.2], [4.0, 4.0], **kw) == pytest.approx(16.836, abs=1e-3)
+    # and the longest focal length caps it too (k d <= f_max)
+    assert separation_distance_m([4.2], [4.0], **{**kw, "focal_max_mm": 60.0}) == pytest.approx(60.0 / 4.2)
+
+
+def test_framing_k_from_a_row_by_hand():
+    # shoulders at 1.45 m, hips at 0.95 m (0.5 m apart) seen 0.1 of the frame apart on a 13.365 mm high
+    # sensor: 1.3365 mm for 0.5 m, 2.673 mm of focal length per metre of distance (e.g. 53.5 mm at 20 m)
+    assert framing_k([0.40, 0.40, 0.50, 0.50], [1.45, 1.45, 0.95, 0.95], 13.365) == pytest.approx(2.673)
+    # a joint without a target or position does not count; too few or too flat: unknown
+    assert framing_k([0.40, float("nan"), 0.50], [1.45, 1.45, 0.95], 13.365) == pytest.approx(2.673)
+    assert math.isnan(framing_k([0.40, float("nan")], [1.45, 0.95], 13.365))
+    assert math.isnan(framing_k([0.40, 0.41], [1.0, 1.05], 13.365))
