@@ -50,6 +50,11 @@ EXPLAINED_SHARE = 0.8
 MIN_POINTS = 12
 #: ... and a translation is seen when rotation + translation explains this much larger a share
 PARALLAX_GAIN = 0.15
+#: the parallax test runs over a baseline of this many frames at least (a slow dolly's parallax is a
+#: fraction of a pixel per frame at the work width: over several frames it stands out of the noise)
+MIN_SPAN = 4
+#: ... with the inlier distance this much wider (the points' tracks drift a little over the frames)
+LONG_INLIER_FACTOR = 3.0
 
 
 def focal_px(width: int, hfov_deg: float = ASSUMED_HFOV_DEG) -> float:
@@ -154,32 +159,50 @@ def fit_rotation_translation(p0: np.ndarray, p1: np.ndarray, f: float, rot0: np.
     use = np.ones(len(mid), dtype=bool)
     for i in range(iters):
         t = _translation_dir(mid[use], flow[use] - basis[use] @ rot, f)
-        d = np.stack([mid[:, 0] * t[2] - f * t[0], mid[:, 1] * t[2] - f * t[1]], axis=1)
-        # cross(flow - B rot, d) = 0 is linear in rot: cross(B rot, d) = cross(flow, d)
-        a = basis[:, 0, :] * d[:, 1:2] - basis[:, 1, :] * d[:, 0:1]
-        b = flow[:, 0] * d[:, 1] - flow[:, 1] * d[:, 0]
-        rot, *_ = np.linalg.lstsq(a[use], b[use], rcond=None)
+        rot = rotation_given_direction(p0, p1, f, t, use)
         if i >= 1:  # trim once the model has settled a little
             keep = _perpendicular(mid, flow, basis, rot, t, f) < 3.0 * inlier_px
             use = keep if keep.sum() >= MIN_POINTS else use
     return rot, t, _perpendicular(mid, flow, basis, rot, t, f) < inlier_px
 
 
-def frame_motion(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float = INLIER_PX) -> FrameMotion:
+def frame_motion(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float = INLIER_PX,
+                 earlier: np.ndarray | None = None, span: int = 1) -> FrameMotion:
     """The camera's motion between two frames from background points p0 -> p1 (N, 2, centred px,
     at the resolution whose focal length is `f` px). A translation is reported only when parallax
-    shows it: rotation + zoom leaves much unexplained and rotation + translation explains it."""
+    shows it: rotation + zoom leaves much unexplained and rotation + translation explains it.
+
+    `earlier` (N, 2): the same points `span` frames before p1. Parallax grows with the baseline
+    while the tracking noise hardly does, so the test for a translation (and its direction) runs on
+    earlier -> p1 when span >= MIN_SPAN; the per-frame rotation then comes from p0 -> p1 given it."""
     p0, p1 = np.asarray(p0, dtype=float).reshape(-1, 2), np.asarray(p1, dtype=float).reshape(-1, 2)
     n = len(p0)
     if n < MIN_POINTS:
         return FrameMotion.unknown(n)
     q, inl = fit_rotation_zoom(p0, p1, f, inlier_px=inlier_px)
     explained = float(inl.mean())
-    if explained < EXPLAINED_SHARE:
-        rot, t, inl_t = fit_rotation_translation(p0, p1, f, q[:3], inlier_px=inlier_px)
-        if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= explained + PARALLAX_GAIN:
+    long = earlier is not None and span >= MIN_SPAN
+    a = np.asarray(earlier, dtype=float).reshape(-1, 2) if long else p0
+    tol = inlier_px * LONG_INLIER_FACTOR if long else inlier_px
+    share = float(fit_rotation_zoom(a, p1, f, inlier_px=tol)[1].mean()) if long else explained
+    if share < EXPLAINED_SHARE:
+        rot, t, inl_t = fit_rotation_translation(a, p1, f, q[:3] * (span if long else 1), inlier_px=tol)
+        if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= share + PARALLAX_GAIN:
+            rot = rotation_given_direction(p0, p1, f, t, inl_t) if long else rot
             return FrameMotion(rot, 0.0, t, n, explained)
     return FrameMotion(q[:3].copy(), float(q[3]), np.zeros(3), n, explained)
+
+
+def rotation_given_direction(p0: np.ndarray, p1: np.ndarray, f: float, t: np.ndarray, use: np.ndarray) -> np.ndarray:
+    """Rotation (3,) [rad] moving p0 to p1 (N, 2) with translation direction t, each point's depth
+    eliminated, over the points `use` (N,) (least squares): cross(flow - B rot, d) = 0 is linear in rot."""
+    mid, flow = 0.5 * (p0 + p1), p1 - p0
+    basis = rotation_zoom_basis(mid, f)[:, :, :3]
+    d = np.stack([mid[:, 0] * t[2] - f * t[0], mid[:, 1] * t[2] - f * t[1]], axis=1)
+    a = basis[:, 0, :] * d[:, 1:2] - basis[:, 1, :] * d[:, 0:1]
+    b = flow[:, 0] * d[:, 1] - flow[:, 1] * d[:, 0]
+    use = use if use.sum() >= MIN_POINTS else np.ones(len(mid), dtype=bool)
+    return np.linalg.lstsq(a[use], b[use], rcond=None)[0]
 
 
 # --------------------------------------------------------------------------- per shot
