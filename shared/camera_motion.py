@@ -54,7 +54,11 @@ PARALLAX_GAIN = 0.15
 #: fraction of a pixel per frame at the work width: over several frames it stands out of the noise)
 MIN_SPAN = 4
 #: ... with the inlier distance this much wider (the points' tracks drift a little over the frames)
-LONG_INLIER_FACTOR = 3.0
+LONG_INLIER_FACTOR = 2.0
+#: a translation this close to the optical axis is a dolly (|t_z|), whose zoom the far points show
+DOLLY_AXIS = 0.9
+#: ... the share of the points taken as the far ones
+FAR_SHARE = 0.1
 
 
 def focal_px(width: int, hfov_deg: float = ASSUMED_HFOV_DEG) -> float:
@@ -189,8 +193,30 @@ def frame_motion(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float =
         rot, t, inl_t = fit_rotation_translation(a, p1, f, q[:3] * (span if long else 1), inlier_px=tol)
         if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= share + PARALLAX_GAIN:
             rot = rotation_given_direction(p0, p1, f, t, inl_t) if long else rot
-            return FrameMotion(rot, 0.0, t, n, explained)
+            zoom = zoom_against_dolly(a, p1, f, rot * (span if long else 1), t, inl_t) / (span if long else 1)
+            return FrameMotion(rot, zoom, t, n, explained)
     return FrameMotion(q[:3].copy(), float(q[3]), np.zeros(3), n, explained)
+
+
+def zoom_against_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.ndarray,
+                       use: np.ndarray) -> float:
+    """The log-zoom p0 -> p1 that a dolly along t cannot explain (0 when none is seen).
+
+    Past a dolly each point's image scales at t_z / depth plus the zoom, so a zoom the same way
+    as the dolly is the dolly to any point at a finite depth: it is not reported. One the other way
+    (the dolly-zoom: in while zooming out) makes the far points shrink as no depth can; the farthest
+    points (the FAR_SHARE with the least scale along the dolly) then carry the zoom alone."""
+    if abs(t[2]) < DOLLY_AXIS or use.sum() < MIN_POINTS:
+        return 0.0
+    mid = 0.5 * (p0 + p1)
+    resid = (p1 - p0) - rotation_zoom_basis(mid, f)[:, :, :3] @ rot
+    r2 = np.einsum("nk,nk->n", mid, mid)
+    ok = use & (r2 > (0.1 * f) ** 2)  # near the centre a scale is lost in the noise
+    if ok.sum() < MIN_POINTS:
+        return 0.0
+    scale = np.einsum("nk,nk->n", resid[ok], mid[ok]) / r2[ok] * np.sign(t[2])
+    far = float(np.percentile(scale, 100.0 * FAR_SHARE))
+    return far * float(np.sign(t[2])) if far < 0.0 else 0.0
 
 
 def rotation_given_direction(p0: np.ndarray, p1: np.ndarray, f: float, t: np.ndarray, use: np.ndarray) -> np.ndarray:
