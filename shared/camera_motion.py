@@ -55,6 +55,8 @@ PARALLAX_GAIN = 0.15
 MIN_SPAN = 4
 #: ... with the inlier distance this much wider (the points' tracks drift a little over the frames)
 LONG_INLIER_FACTOR = 2.0
+#: a direction found by search replaces the first fit's when it explains this many times the points
+SEARCH_MARGIN = 1.1
 #: a translation this close to the optical axis is a dolly (|t_z|), whose zoom the far points show
 DOLLY_AXIS = 0.9
 #: ... the share of the points taken as the far ones
@@ -149,6 +151,18 @@ def _perpendicular(mid: np.ndarray, flow: np.ndarray, basis: np.ndarray, rot: np
     return np.abs(r[:, 0] * d[:, 1] - r[:, 1] * d[:, 0]) / np.maximum(np.linalg.norm(d, axis=1), 1e-9)
 
 
+def _hemisphere(n: int) -> tuple[np.ndarray, ...]:
+    """n unit vectors spread evenly over the half sphere z >= 0 (t and -t draw the same lines)."""
+    k = np.arange(n) + 0.5
+    z = k / n
+    phi = k * math.pi * (3.0 - math.sqrt(5.0))
+    r = np.sqrt(1.0 - z * z)
+    return tuple(np.column_stack([r * np.cos(phi), r * np.sin(phi), z]))
+
+
+_DIRECTIONS = _hemisphere(48)
+
+
 def fit_rotation_translation(p0: np.ndarray, p1: np.ndarray, f: float, rot0: np.ndarray, *, inlier_px: float,
                              iters: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rotation (3,) [rad], translation direction (3,) and inliers (N,) moving p0 to p1 with
@@ -159,10 +173,21 @@ def fit_rotation_translation(p0: np.ndarray, p1: np.ndarray, f: float, rot0: np.
     mid, flow = 0.5 * (p0 + p1), p1 - p0
     basis = rotation_zoom_basis(mid, f)[:, :, :3]
     rot = np.asarray(rot0, dtype=float).copy()
-    t = np.zeros(3)
     use = np.ones(len(mid), dtype=bool)
+    t = _translation_dir(mid, flow - basis @ rot, f)
+    # the rotation fitted first has taken up what of a sideways move looks like a pan: a coarse
+    # search over directions (each with its own rotation) starts the alternation where it belongs
+    def score(r_c: np.ndarray, t_c: np.ndarray) -> int:
+        return int((_perpendicular(mid, flow, basis, r_c, t_c, f) < inlier_px).sum())
+
+    best = score(rot, t)
+    found = max(((score(r_c, c), c, r_c) for c in _DIRECTIONS
+                 for r_c in [rotation_given_direction(p0, p1, f, c, use)]), key=lambda x: x[0])
+    if found[0] > SEARCH_MARGIN * best:  # only a clearly better start: near ties keep the first fit's rotation
+        t, rot = found[1], found[2]
     for i in range(iters):
-        t = _translation_dir(mid[use], flow[use] - basis[use] @ rot, f)
+        if i:
+            t = _translation_dir(mid[use], flow[use] - basis[use] @ rot, f)
         rot = rotation_given_direction(p0, p1, f, t, use)
         if i >= 1:  # trim once the model has settled a little
             keep = _perpendicular(mid, flow, basis, rot, t, f) < 3.0 * inlier_px
