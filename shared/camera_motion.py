@@ -53,6 +53,8 @@ PARALLAX_GAIN = 0.15
 #: the parallax test runs over a baseline of this many frames at least (a slow dolly's parallax is a
 #: fraction of a pixel per frame at the work width: over several frames it stands out of the noise)
 MIN_SPAN = 4
+#: ... over at least this many points tracked that long
+MIN_BASELINE_POINTS = 40
 #: ... with the inlier distance this much wider (the points' tracks drift a little over the frames)
 LONG_INLIER_FACTOR = 2.0
 #: a direction found by search replaces the first fit's when it explains this many times the points
@@ -201,24 +203,44 @@ def frame_motion(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float =
     at the resolution whose focal length is `f` px). A translation is reported only when parallax
     shows it: rotation + zoom leaves much unexplained and rotation + translation explains it.
 
-    `earlier` (N, 2): the same points `span` frames before p1. Parallax grows with the baseline
-    while the tracking noise hardly does, so the test for a translation (and its direction) runs on
-    earlier -> p1 when span >= MIN_SPAN; the per-frame rotation then comes from p0 -> p1 given it."""
+    `earlier` (N, 2): the same points `span` frames before p1, NaN where a point was not tracked
+    that long. Parallax grows with the baseline while the tracking noise hardly does, so the test
+    for a translation (and its direction) runs on earlier -> p1 over the points tracked that long
+    when span >= MIN_SPAN; the per-frame rotation then comes from p0 -> p1 given it."""
     p0, p1 = np.asarray(p0, dtype=float).reshape(-1, 2), np.asarray(p1, dtype=float).reshape(-1, 2)
+    fin = np.isfinite(p0).all(axis=1) & np.isfinite(p1).all(axis=1)
+    if earlier is not None:
+        earlier = np.asarray(earlier, dtype=float).reshape(-1, 2)[fin]
+    p0, p1 = p0[fin], p1[fin]
     n = len(p0)
     if n < MIN_POINTS:
         return FrameMotion.unknown(n)
+    try:
+        return _fit_frame(p0, p1, f, inlier_px, earlier, span)
+    except np.linalg.LinAlgError:  # degenerate points (all on a line, ...): the frame's motion is unknown
+        return FrameMotion.unknown(n)
+
+
+def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earlier: np.ndarray | None,
+               span: int) -> FrameMotion:
+    """frame_motion on finite points."""
+    n = len(p0)
     q, inl = fit_rotation_zoom(p0, p1, f, inlier_px=inlier_px)
     explained = float(inl.mean())
-    long = earlier is not None and span >= MIN_SPAN
-    a = np.asarray(earlier, dtype=float).reshape(-1, 2) if long else p0
+    sel = np.ones(n, dtype=bool)
+    if earlier is not None and span >= MIN_SPAN:
+        sel = np.isfinite(np.asarray(earlier, dtype=float).reshape(-1, 2)).all(axis=1)
+    long = bool(earlier is not None and span >= MIN_SPAN and sel.sum() >= MIN_BASELINE_POINTS)
+    k = span if long else 1
+    a = np.asarray(earlier, dtype=float).reshape(-1, 2)[sel] if long else p0
+    b, b0 = (p1[sel], p0[sel]) if long else (p1, p0)
     tol = inlier_px * LONG_INLIER_FACTOR if long else inlier_px
-    share = float(fit_rotation_zoom(a, p1, f, inlier_px=tol)[1].mean()) if long else explained
+    share = float(fit_rotation_zoom(a, b, f, inlier_px=tol)[1].mean()) if long else explained
     if share < EXPLAINED_SHARE:
-        rot, t, inl_t = fit_rotation_translation(a, p1, f, q[:3] * (span if long else 1), inlier_px=tol)
+        rot, t, inl_t = fit_rotation_translation(a, b, f, q[:3] * k, inlier_px=tol)
         if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= share + PARALLAX_GAIN:
-            rot = rotation_given_direction(p0, p1, f, t, inl_t) if long else rot
-            zoom = zoom_against_dolly(a, p1, f, rot * (span if long else 1), t, inl_t) / (span if long else 1)
+            rot = rotation_given_direction(b0, b, f, t, inl_t) if long else rot
+            zoom = zoom_against_dolly(a, b, f, rot * k, t, inl_t) / k
             return FrameMotion(rot, zoom, t, n, explained)
     return FrameMotion(q[:3].copy(), float(q[3]), np.zeros(3), n, explained)
 

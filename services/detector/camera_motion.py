@@ -24,6 +24,20 @@ MASK_MARGIN_PX = 4
 FB_ERROR_PX = 0.5
 #: the parallax baseline: corners' positions are kept over this many frames (1/3 s at 24 fps)
 SPAN_FRAMES = 8
+#: least distance between corners [px at the work width]
+MIN_DISTANCE_PX = 8
+#: the parallax baseline needs this many corners tracked over it
+BASELINE_POINTS = 40
+
+
+def _baseline_start(history: np.ndarray | None) -> int | None:
+    """The oldest row of the history (frames, N, 2) that at least BASELINE_POINTS corners were
+    tracked from; None when there is none before the newest."""
+    if history is None or len(history) < 2:
+        return None
+    known = np.isfinite(history[:-1, :, 0]).sum(axis=1)
+    rows = np.flatnonzero(known >= BASELINE_POINTS)
+    return int(rows[0]) if len(rows) else None
 _LK = dict(winSize=(11, 11), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.03))
 
 
@@ -85,24 +99,41 @@ class CameraMotionTracker:
         f_work = frame_focal_px(lens, w, self.hfov_deg) * ww / w
         if prev is not None and prev[0] == source and prev[1] == int(frame_index) - 1:
             p0, p1, ok = self._track(prev[2], grey, prev[3], mask)
-            # each kept corner's positions over the last SPAN_FRAMES frames: the parallax baseline
+            # each kept corner's positions over the last SPAN_FRAMES frames (NaN before it was found):
+            # the parallax baseline, the longest that enough of them were tracked over
             history = np.concatenate([prev[4][-SPAN_FRAMES:, ok], p1[None]]) if prev[4] is not None else None
             centre = np.array([(size[0] - 1) / 2.0, (size[1] - 1) / 2.0])
-            earlier = history[0] - centre if history is not None else None
+            start = _baseline_start(history)
             fm = cm.frame_motion(p0 - centre, p1 - centre, f_work, inlier_px=cm.INLIER_PX * ww / cm.WORK_WIDTH,
-                                 earlier=earlier, span=0 if history is None else len(history) - 1)
+                                 earlier=None if start is None else history[start] - centre,
+                                 span=0 if start is None else len(history) - 1 - start)
             out = CameraMotion(rotation_rad=fm.rotation_rad.astype(float), log_zoom=float(fm.log_zoom),
                                translation_dir=fm.translation_dir.astype(float), focal_px=float(f_work * w / ww),
                                points=int(fm.points), explained=float(fm.explained))
-        # the corners tracked into this frame go on to the next while enough are left (saves the
-        # corner search, ~15 % of the stage, and keeps the baseline); else a fresh search off the people
-        if history is not None and history.shape[1] >= MIN_KEPT:
-            corners = history[-1].reshape(-1, 1, 2).astype(np.float32)
-        else:
-            corners = cv2.goodFeaturesToTrack(grey, MAX_CORNERS, 0.01, 8, mask=mask, blockSize=5)
-            history = None if corners is None else corners.reshape(1, -1, 2).astype(float)
+        # the corners tracked into this frame go on to the next (saves the corner search, ~15 % of
+        # the stage, and keeps the baseline); fresh ones away from them top up when too few are left
+        if history is None or history.shape[1] < MIN_KEPT:
+            history = self._top_up(grey, mask, history)
+        corners = None if history is None else history[-1].reshape(-1, 1, 2).astype(np.float32)
         self._prev = (source, int(frame_index), grey, corners, history)
         return out
+
+    @staticmethod
+    def _top_up(grey: np.ndarray, mask: np.ndarray, history: np.ndarray | None) -> np.ndarray | None:
+        """The history (frames, N, 2) with fresh corners (off the people and the kept corners) added
+        up to MAX_CORNERS, their earlier positions NaN; None when there are none at all."""
+        kept = 0 if history is None else history.shape[1]
+        free = mask.copy()
+        for x, y in ([] if history is None else history[-1]):
+            cv2.circle(free, (int(round(x)), int(round(y))), MIN_DISTANCE_PX, 0, -1)
+        fresh = cv2.goodFeaturesToTrack(grey, MAX_CORNERS - kept, 0.01, MIN_DISTANCE_PX, mask=free, blockSize=5) \
+            if MAX_CORNERS > kept else None
+        if fresh is None or not len(fresh):
+            return history if kept else None
+        rows = 1 if history is None else history.shape[0]
+        add = np.full((rows, len(fresh), 2), np.nan)
+        add[-1] = fresh.reshape(-1, 2)
+        return add if history is None else np.concatenate([history, add], axis=1)
 
     @staticmethod
     def _track(g0: np.ndarray, g1: np.ndarray, corners: np.ndarray | None,
