@@ -133,6 +133,17 @@ def fit_rotation_zoom(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: fl
     return q, inl
 
 
+def explained_share(p0: np.ndarray, p1: np.ndarray, f: float, q0: np.ndarray, *, inlier_px: float) -> float:
+    """Share of the points p0 -> p1 that rotation + zoom explains, from the parameters `q0` (4,)
+    (the frame's own fit scaled to the baseline: no second RANSAC) refitted on their inliers once."""
+    mid, flow = 0.5 * (p0 + p1), p1 - p0
+    basis = rotation_zoom_basis(mid, f)
+    inl = np.linalg.norm(basis @ q0 - flow, axis=1) < inlier_px
+    if inl.sum() >= 2:
+        inl = np.linalg.norm(basis @ _solve(basis[inl], flow[inl]) - flow, axis=1) < inlier_px
+    return float(inl.mean())
+
+
 def _translation_dir(mid: np.ndarray, resid: np.ndarray, f: float) -> np.ndarray:
     """Unit T (3,) that the residual flow (N, 2) points along, each point's depth eliminated: the
     null vector of the rows [f r_y, -f r_x, r_x y - r_y x]; signed so that the depths are positive."""
@@ -235,7 +246,7 @@ def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earli
     a = np.asarray(earlier, dtype=float).reshape(-1, 2)[sel] if long else p0
     b, b0 = (p1[sel], p0[sel]) if long else (p1, p0)
     tol = inlier_px * LONG_INLIER_FACTOR if long else inlier_px
-    share = float(fit_rotation_zoom(a, b, f, inlier_px=tol)[1].mean()) if long else explained
+    share = explained_share(a, b, f, q * k, inlier_px=tol) if long else explained
     if share < EXPLAINED_SHARE:
         rot, t, inl_t = fit_rotation_translation(a, b, f, q[:3] * k, inlier_px=tol)
         if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= share + PARALLAX_GAIN:
