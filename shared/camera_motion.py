@@ -50,6 +50,19 @@ EXPLAINED_SHARE = 0.8
 MIN_POINTS = 12
 #: ... and a translation is seen when rotation + translation explains this much larger a share
 PARALLAX_GAIN = 0.15
+#: the parallax test runs over a baseline of this many frames at least (a slow dolly's parallax is a
+#: fraction of a pixel per frame at the work width: over several frames it stands out of the noise)
+MIN_SPAN = 4
+#: ... over at least this many points tracked that long
+MIN_BASELINE_POINTS = 40
+#: ... with the inlier distance this much wider (the points' tracks drift a little over the frames)
+LONG_INLIER_FACTOR = 2.0
+#: a direction found by search replaces the first fit's when it explains this many times the points
+SEARCH_MARGIN = 1.1
+#: a translation this close to the optical axis is a dolly (|t_z|), whose zoom the far points show
+DOLLY_AXIS = 0.9
+#: ... the share of the points taken as the far ones
+FAR_SHARE = 0.1
 
 
 def focal_px(width: int, hfov_deg: float = ASSUMED_HFOV_DEG) -> float:
@@ -120,6 +133,17 @@ def fit_rotation_zoom(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: fl
     return q, inl
 
 
+def explained_share(p0: np.ndarray, p1: np.ndarray, f: float, q0: np.ndarray, *, inlier_px: float) -> float:
+    """Share of the points p0 -> p1 that rotation + zoom explains, from the parameters `q0` (4,)
+    (the frame's own fit scaled to the baseline: no second RANSAC) refitted on their inliers once."""
+    mid, flow = 0.5 * (p0 + p1), p1 - p0
+    basis = rotation_zoom_basis(mid, f)
+    inl = np.linalg.norm(basis @ q0 - flow, axis=1) < inlier_px
+    if inl.sum() >= 2:
+        inl = np.linalg.norm(basis @ _solve(basis[inl], flow[inl]) - flow, axis=1) < inlier_px
+    return float(inl.mean())
+
+
 def _translation_dir(mid: np.ndarray, resid: np.ndarray, f: float) -> np.ndarray:
     """Unit T (3,) that the residual flow (N, 2) points along, each point's depth eliminated: the
     null vector of the rows [f r_y, -f r_x, r_x y - r_y x]; signed so that the depths are positive."""
@@ -140,6 +164,18 @@ def _perpendicular(mid: np.ndarray, flow: np.ndarray, basis: np.ndarray, rot: np
     return np.abs(r[:, 0] * d[:, 1] - r[:, 1] * d[:, 0]) / np.maximum(np.linalg.norm(d, axis=1), 1e-9)
 
 
+def _hemisphere(n: int) -> tuple[np.ndarray, ...]:
+    """n unit vectors spread evenly over the half sphere z >= 0 (t and -t draw the same lines)."""
+    k = np.arange(n) + 0.5
+    z = k / n
+    phi = k * math.pi * (3.0 - math.sqrt(5.0))
+    r = np.sqrt(1.0 - z * z)
+    return tuple(np.column_stack([r * np.cos(phi), r * np.sin(phi), z]))
+
+
+_DIRECTIONS = _hemisphere(48)
+
+
 def fit_rotation_translation(p0: np.ndarray, p1: np.ndarray, f: float, rot0: np.ndarray, *, inlier_px: float,
                              iters: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rotation (3,) [rad], translation direction (3,) and inliers (N,) moving p0 to p1 with
@@ -150,36 +186,107 @@ def fit_rotation_translation(p0: np.ndarray, p1: np.ndarray, f: float, rot0: np.
     mid, flow = 0.5 * (p0 + p1), p1 - p0
     basis = rotation_zoom_basis(mid, f)[:, :, :3]
     rot = np.asarray(rot0, dtype=float).copy()
-    t = np.zeros(3)
     use = np.ones(len(mid), dtype=bool)
+    t = _translation_dir(mid, flow - basis @ rot, f)
+    # the rotation fitted first has taken up what of a sideways move looks like a pan: a coarse
+    # search over directions (each with its own rotation) starts the alternation where it belongs
+    def score(r_c: np.ndarray, t_c: np.ndarray) -> int:
+        return int((_perpendicular(mid, flow, basis, r_c, t_c, f) < inlier_px).sum())
+
+    best = score(rot, t)
+    found = max(((score(r_c, c), c, r_c) for c in _DIRECTIONS
+                 for r_c in [rotation_given_direction(p0, p1, f, c, use)]), key=lambda x: x[0])
+    if found[0] > SEARCH_MARGIN * best:  # only a clearly better start: near ties keep the first fit's rotation
+        t, rot = found[1], found[2]
     for i in range(iters):
-        t = _translation_dir(mid[use], flow[use] - basis[use] @ rot, f)
-        d = np.stack([mid[:, 0] * t[2] - f * t[0], mid[:, 1] * t[2] - f * t[1]], axis=1)
-        # cross(flow - B rot, d) = 0 is linear in rot: cross(B rot, d) = cross(flow, d)
-        a = basis[:, 0, :] * d[:, 1:2] - basis[:, 1, :] * d[:, 0:1]
-        b = flow[:, 0] * d[:, 1] - flow[:, 1] * d[:, 0]
-        rot, *_ = np.linalg.lstsq(a[use], b[use], rcond=None)
+        if i:
+            t = _translation_dir(mid[use], flow[use] - basis[use] @ rot, f)
+        rot = rotation_given_direction(p0, p1, f, t, use)
         if i >= 1:  # trim once the model has settled a little
             keep = _perpendicular(mid, flow, basis, rot, t, f) < 3.0 * inlier_px
             use = keep if keep.sum() >= MIN_POINTS else use
     return rot, t, _perpendicular(mid, flow, basis, rot, t, f) < inlier_px
 
 
-def frame_motion(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float = INLIER_PX) -> FrameMotion:
+def frame_motion(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float = INLIER_PX,
+                 earlier: np.ndarray | None = None, span: int = 1) -> FrameMotion:
     """The camera's motion between two frames from background points p0 -> p1 (N, 2, centred px,
     at the resolution whose focal length is `f` px). A translation is reported only when parallax
-    shows it: rotation + zoom leaves much unexplained and rotation + translation explains it."""
+    shows it: rotation + zoom leaves much unexplained and rotation + translation explains it.
+
+    `earlier` (N, 2): the same points `span` frames before p1, NaN where a point was not tracked
+    that long. Parallax grows with the baseline while the tracking noise hardly does, so the test
+    for a translation (and its direction) runs on earlier -> p1 over the points tracked that long
+    when span >= MIN_SPAN; the per-frame rotation then comes from p0 -> p1 given it."""
     p0, p1 = np.asarray(p0, dtype=float).reshape(-1, 2), np.asarray(p1, dtype=float).reshape(-1, 2)
+    fin = np.isfinite(p0).all(axis=1) & np.isfinite(p1).all(axis=1)
+    if earlier is not None:
+        earlier = np.asarray(earlier, dtype=float).reshape(-1, 2)[fin]
+    p0, p1 = p0[fin], p1[fin]
     n = len(p0)
     if n < MIN_POINTS:
         return FrameMotion.unknown(n)
+    try:
+        return _fit_frame(p0, p1, f, inlier_px, earlier, span)
+    except np.linalg.LinAlgError:  # degenerate points (all on a line, ...): the frame's motion is unknown
+        return FrameMotion.unknown(n)
+
+
+def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earlier: np.ndarray | None,
+               span: int) -> FrameMotion:
+    """frame_motion on finite points."""
+    n = len(p0)
     q, inl = fit_rotation_zoom(p0, p1, f, inlier_px=inlier_px)
     explained = float(inl.mean())
-    if explained < EXPLAINED_SHARE:
-        rot, t, inl_t = fit_rotation_translation(p0, p1, f, q[:3], inlier_px=inlier_px)
-        if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= explained + PARALLAX_GAIN:
-            return FrameMotion(rot, 0.0, t, n, explained)
+    sel = np.ones(n, dtype=bool)
+    if earlier is not None and span >= MIN_SPAN:
+        sel = np.isfinite(np.asarray(earlier, dtype=float).reshape(-1, 2)).all(axis=1)
+    long = bool(earlier is not None and span >= MIN_SPAN and sel.sum() >= MIN_BASELINE_POINTS)
+    k = span if long else 1
+    a = np.asarray(earlier, dtype=float).reshape(-1, 2)[sel] if long else p0
+    b, b0 = (p1[sel], p0[sel]) if long else (p1, p0)
+    tol = inlier_px * LONG_INLIER_FACTOR if long else inlier_px
+    share = explained_share(a, b, f, q * k, inlier_px=tol) if long else explained
+    if share < EXPLAINED_SHARE:
+        rot, t, inl_t = fit_rotation_translation(a, b, f, q[:3] * k, inlier_px=tol)
+        if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= share + PARALLAX_GAIN:
+            rot = rotation_given_direction(b0, b, f, t, inl_t) if long else rot
+            zoom = zoom_against_dolly(a, b, f, rot * k, t, inl_t) / k
+            return FrameMotion(rot, zoom, t, n, explained)
     return FrameMotion(q[:3].copy(), float(q[3]), np.zeros(3), n, explained)
+
+
+def zoom_against_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.ndarray,
+                       use: np.ndarray) -> float:
+    """The log-zoom p0 -> p1 that a dolly along t cannot explain (0 when none is seen).
+
+    Past a dolly each point's image scales at t_z / depth plus the zoom, so a zoom the same way
+    as the dolly is the dolly to any point at a finite depth: it is not reported. One the other way
+    (the dolly-zoom: in while zooming out) makes the far points shrink as no depth can; the farthest
+    points (the FAR_SHARE with the least scale along the dolly) then carry the zoom alone."""
+    if abs(t[2]) < DOLLY_AXIS or use.sum() < MIN_POINTS:
+        return 0.0
+    mid = 0.5 * (p0 + p1)
+    resid = (p1 - p0) - rotation_zoom_basis(mid, f)[:, :, :3] @ rot
+    r2 = np.einsum("nk,nk->n", mid, mid)
+    ok = use & (r2 > (0.1 * f) ** 2)  # near the centre a scale is lost in the noise
+    if ok.sum() < MIN_POINTS:
+        return 0.0
+    scale = np.einsum("nk,nk->n", resid[ok], mid[ok]) / r2[ok] * np.sign(t[2])
+    far = float(np.percentile(scale, 100.0 * FAR_SHARE))
+    return far * float(np.sign(t[2])) if far < 0.0 else 0.0
+
+
+def rotation_given_direction(p0: np.ndarray, p1: np.ndarray, f: float, t: np.ndarray, use: np.ndarray) -> np.ndarray:
+    """Rotation (3,) [rad] moving p0 to p1 (N, 2) with translation direction t, each point's depth
+    eliminated, over the points `use` (N,) (least squares): cross(flow - B rot, d) = 0 is linear in rot."""
+    mid, flow = 0.5 * (p0 + p1), p1 - p0
+    basis = rotation_zoom_basis(mid, f)[:, :, :3]
+    d = np.stack([mid[:, 0] * t[2] - f * t[0], mid[:, 1] * t[2] - f * t[1]], axis=1)
+    a = basis[:, 0, :] * d[:, 1:2] - basis[:, 1, :] * d[:, 0:1]
+    b = flow[:, 0] * d[:, 1] - flow[:, 1] * d[:, 0]
+    use = use if use.sum() >= MIN_POINTS else np.ones(len(mid), dtype=bool)
+    return np.linalg.lstsq(a[use], b[use], rcond=None)[0]
 
 
 # --------------------------------------------------------------------------- per shot

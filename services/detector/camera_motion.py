@@ -22,6 +22,22 @@ MIN_KEPT = 120
 MASK_MARGIN_PX = 4
 #: a track whose backward track misses its start by more than this is dropped [px at the work width]
 FB_ERROR_PX = 0.5
+#: the parallax baseline: corners' positions are kept over this many frames (1/3 s at 24 fps)
+SPAN_FRAMES = 8
+#: least distance between corners [px at the work width]
+MIN_DISTANCE_PX = 8
+#: the parallax baseline needs this many corners tracked over it
+BASELINE_POINTS = 40
+
+
+def _baseline_start(history: np.ndarray | None) -> int | None:
+    """The oldest row of the history (frames, N, 2) that at least BASELINE_POINTS corners were
+    tracked from; None when there is none before the newest."""
+    if history is None or len(history) < 2:
+        return None
+    known = np.isfinite(history[:-1, :, 0]).sum(axis=1)
+    rows = np.flatnonzero(known >= BASELINE_POINTS)
+    return int(rows[0]) if len(rows) else None
 _LK = dict(winSize=(11, 11), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.03))
 
 
@@ -63,7 +79,8 @@ class CameraMotionTracker:
     def __init__(self, hfov_deg: float = cm.ASSUMED_HFOV_DEG, work_width: int = cm.WORK_WIDTH) -> None:
         self.hfov_deg = float(hfov_deg)
         self.work_width = int(work_width)
-        self._prev: tuple[str, int, np.ndarray, np.ndarray | None] | None = None  # source, index, grey, corners
+        # source, index, grey, corners, their positions over the last frames (frames, N, 2)
+        self._prev: tuple | None = None
 
     def reset(self) -> None:
         self._prev = None
@@ -78,30 +95,53 @@ class CameraMotionTracker:
         mask = background_mask(people, w, h, size)
         prev = self._prev
         out = None
-        kept = None
+        history = None
         f_work = frame_focal_px(lens, w, self.hfov_deg) * ww / w
         if prev is not None and prev[0] == source and prev[1] == int(frame_index) - 1:
-            p0, p1 = self._track(prev[2], grey, prev[3], mask)
-            kept = p1
+            p0, p1, ok = self._track(prev[2], grey, prev[3], mask)
+            # each kept corner's positions over the last SPAN_FRAMES frames (NaN before it was found):
+            # the parallax baseline, the longest that enough of them were tracked over
+            history = np.concatenate([prev[4][-SPAN_FRAMES:, ok], p1[None]]) if prev[4] is not None else None
             centre = np.array([(size[0] - 1) / 2.0, (size[1] - 1) / 2.0])
-            fm = cm.frame_motion(p0 - centre, p1 - centre, f_work, inlier_px=cm.INLIER_PX * ww / cm.WORK_WIDTH)
+            start = _baseline_start(history)
+            fm = cm.frame_motion(p0 - centre, p1 - centre, f_work, inlier_px=cm.INLIER_PX * ww / cm.WORK_WIDTH,
+                                 earlier=None if start is None else history[start] - centre,
+                                 span=0 if start is None else len(history) - 1 - start)
             out = CameraMotion(rotation_rad=fm.rotation_rad.astype(float), log_zoom=float(fm.log_zoom),
                                translation_dir=fm.translation_dir.astype(float), focal_px=float(f_work * w / ww),
                                points=int(fm.points), explained=float(fm.explained))
-        # the corners tracked into this frame go on to the next while enough are left (saves the
-        # corner search, ~15 % of the stage); else a fresh search off the people
-        corners = (kept.reshape(-1, 1, 2).astype(np.float32) if kept is not None and len(kept) >= MIN_KEPT
-                   else cv2.goodFeaturesToTrack(grey, MAX_CORNERS, 0.01, 8, mask=mask, blockSize=5))
-        self._prev = (source, int(frame_index), grey, corners)
+        # the corners tracked into this frame go on to the next (saves the corner search, ~15 % of
+        # the stage, and keeps the baseline); fresh ones away from them top up when too few are left
+        if history is None or history.shape[1] < MIN_KEPT:
+            history = self._top_up(grey, mask, history)
+        corners = None if history is None else history[-1].reshape(-1, 1, 2).astype(np.float32)
+        self._prev = (source, int(frame_index), grey, corners, history)
         return out
 
     @staticmethod
+    def _top_up(grey: np.ndarray, mask: np.ndarray, history: np.ndarray | None) -> np.ndarray | None:
+        """The history (frames, N, 2) with fresh corners (off the people and the kept corners) added
+        up to MAX_CORNERS, their earlier positions NaN; None when there are none at all."""
+        kept = 0 if history is None else history.shape[1]
+        free = mask.copy()
+        for x, y in ([] if history is None else history[-1]):
+            cv2.circle(free, (int(round(x)), int(round(y))), MIN_DISTANCE_PX, 0, -1)
+        fresh = cv2.goodFeaturesToTrack(grey, MAX_CORNERS - kept, 0.01, MIN_DISTANCE_PX, mask=free, blockSize=5) \
+            if MAX_CORNERS > kept else None
+        if fresh is None or not len(fresh):
+            return history if kept else None
+        rows = 1 if history is None else history.shape[0]
+        add = np.full((rows, len(fresh), 2), np.nan)
+        add[-1] = fresh.reshape(-1, 2)
+        return add if history is None else np.concatenate([history, add], axis=1)
+
+    @staticmethod
     def _track(g0: np.ndarray, g1: np.ndarray, corners: np.ndarray | None,
-               mask1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+               mask1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Corners of g0 tracked into g1, kept when the backward track returns and they land off
-        the people of g1: (N, 2) each, work pixels."""
+        the people of g1: (N, 2) each, work pixels, and which of the corners were kept (bool)."""
         if corners is None or len(corners) == 0:
-            return np.zeros((0, 2)), np.zeros((0, 2))
+            return np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, dtype=bool)
         p1, st, _ = cv2.calcOpticalFlowPyrLK(g0, g1, corners, None, **_LK)
         p0r, st_b, _ = cv2.calcOpticalFlowPyrLK(g1, g0, p1, None, **_LK)
         a, b = corners.reshape(-1, 2), p1.reshape(-1, 2)
@@ -110,4 +150,4 @@ class CameraMotionTracker:
         xi, yi = np.clip(b[:, 0].round().astype(int), 0, ww - 1), np.clip(b[:, 1].round().astype(int), 0, hh - 1)
         inside = (b[:, 0] >= 0) & (b[:, 0] < ww) & (b[:, 1] >= 0) & (b[:, 1] < hh)
         ok &= inside & (mask1[yi, xi] > 0)
-        return a[ok].astype(float), b[ok].astype(float)
+        return a[ok].astype(float), b[ok].astype(float), ok

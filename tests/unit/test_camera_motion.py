@@ -88,6 +88,26 @@ def test_parallax_gives_the_translation_direction(t, want):
     np.testing.assert_allclose(m.rotation_rad, 0.0, atol=1e-3)
 
 
+def test_a_dolly_read_as_a_zoom_in_one_frame_shows_over_the_baseline():
+    """A dolly whose parallax per frame is mostly within the inlier distance reads as a zoom from
+    one frame; the same points eight frames apart show the translation."""
+    rng = np.random.default_rng(5)
+    x = np.column_stack([rng.uniform(-8, 8, 500), rng.uniform(-2, 2, 500), rng.uniform(3, 30, 500)])
+    step = np.array([0.0, 0.0, 0.06])  # 1.44 m/s at 24 frames/s
+    proj = [F * (x - k * step)[:, :2] / (x - k * step)[:, 2:3] for k in range(9)]
+    keep = (np.abs(proj[0][:, 0]) < 320) & (np.abs(proj[0][:, 1]) < 180)
+    earlier, p0, p1 = proj[0][keep], proj[7][keep], proj[8][keep]
+    one = cm.frame_motion(p0, p1, F)
+    assert not one.translation_dir.any() and one.log_zoom > 0  # one frame: a zoom
+    m = cm.frame_motion(p0, p1, F, earlier=earlier, span=8)
+    np.testing.assert_allclose(m.translation_dir, (0, 0, 1), atol=0.02)
+    np.testing.assert_allclose(m.rotation_rad, 0.0, atol=1e-4)
+    assert m.log_zoom == 0.0
+    # too short a baseline is not used: the frame is judged alone
+    short = cm.frame_motion(p0, p1, F, earlier=proj[6][keep], span=2)
+    assert not short.translation_dir.any()
+
+
 @pytest.mark.parametrize("rates, t, want", [
     ((0.2, -0.3, 0.1, 0.0), None, "static"),
     ((5.0, 0.0, 0.0, 0.0), None, "pan"),

@@ -138,8 +138,11 @@ def _style(cls, pan=np.nan, tilt=np.nan, roll=np.nan, zoom=np.nan, travel=(0.0, 
 
 
 def test_row_terms_follow_the_class():
-    # static (hold still): nothing, whatever the rates say
-    assert not CM.row_terms(_style("static", pan=0.1, zoom=0.001), 0, control_roll=True).any()
+    # static (hold still): every rate and the zoom asked to be 0, whatever the measured rates say
+    t = CM.row_terms(_style("static", pan=0.1, zoom=0.001), 0, control_roll=True)
+    assert t[CM.RATE_MASKS].tolist() == [1, 1, 1] and t[CM.ZOOM_MASK] == 1
+    assert not t[CM.RATES].any() and t[CM.ZOOM] == 0 and not np.delete(t, [6, 7, 8, CM.ZOOM_MASK]).any()
+    assert CM.row_terms(_style("static"), 0, control_roll=False)[CM.RATE_MASKS].tolist() == [1, 1, 0]
     t = CM.row_terms(_style("pan", pan=10.0, tilt=3.0), 0, control_roll=False)
     assert t[CM.RATES.start] == pytest.approx(math.radians(10)) and t[CM.RATE_MASKS].tolist() == [1, 0, 0]
     t = CM.row_terms(_style("roll", roll=5.0), 0, control_roll=False)
