@@ -1,6 +1,6 @@
 """Simulator render benchmark: frames rendered per second at 960x540 and 1280x720.
 
-    python benchmarks/render.py [--samples 72] [--warmup 6] [--scenes lawn_juggler open_country courtyard ...]
+    python benchmarks/render.py [--samples 72] [--warmup 6] [--scenes open_country courtyard open_country_25d ...]
 
 For each scene and resolution the camera flies a slow sideways arc while zooming and pulling
 focus (so that nothing can be cached between frames) and SimBackend.step renders every frame
@@ -9,9 +9,8 @@ Reports the median, p95 and max time per frame and the resulting frames/s. Goals
 truth: >= 30 fps for the 2.5-D compositor, >= 15 fps for the 3-D world (OpenGL on llvmpipe, depth
 of field from the depth buffer). Wall time is what counts; CPU time (every thread: OpenCV's and
 llvmpipe's) is printed too, because on a shared machine it is less disturbed by other load.
-Writes benchmarks/results/render.json (commit, machine, config, figures); the 3-D world's figures
-are kept in render_3d.json (`--scenes courtyard open_country_3d focus_hedge_3d lawn_juggler_3d
---out benchmarks/results/render_3d.json`), measured apart from the 2.5-D ones.
+Writes benchmarks/results/render.json (commit, machine, config, figures); by default every 3-D
+scene (the bundled scenes) and the 2.5-D fast mode's (`*_25d`).
 """
 from __future__ import annotations
 
@@ -73,8 +72,8 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--samples", type=int, default=72)
     p.add_argument("--warmup", type=int, default=6)
-    p.add_argument("--scenes", nargs="+", default=["lawn_juggler", "open_country", "focus_hedge", "courtyard",
-                                                   "open_country_3d", "focus_hedge_3d"])
+    p.add_argument("--scenes", nargs="+", default=["open_country", "focus_hedge", "lawn_juggler", "courtyard",
+                                                   "open_country_25d", "focus_hedge_25d", "lawn_juggler_25d"])
     p.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "render.json")
     args = p.parse_args()
     rows = []

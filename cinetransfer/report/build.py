@@ -140,7 +140,7 @@ def floor_facts(source: M.Instructions, truths: Sequence[M.GroundTruth], meta: d
     fl, why = FL.run_floor(source, list(truths), meta, aligned_by_index=by_index)
     if fl is None:
         return {"joint_error": None, "reason": why}, None
-    return {"joint_error": fl.mean(), "joint_frames": int(fl.counts.sum()), "model": FL.MODEL}, fl
+    return {"joint_error": fl.mean(), "joint_frames": int(fl.counts.sum()), "model": fl.model}, fl
 
 
 def per_shot(source: M.Instructions, output: M.Instructions | None, truths: list, output_fps: float | None,

@@ -62,7 +62,7 @@ class Collector:
 def test_sim_backend_publishes_state_subject_frames_truth_and_tracks_setpoints(listener_opts, port, tmp_path):
     bus = Collector(listener_opts)
     log = tmp_path / "bridge.log"
-    br = spawn("autopilot_bridge", "--rig", RIG, "--backend", "sim", "--scene", "lawn_juggler", "--jpeg", "80",
+    br = spawn("autopilot_bridge", "--rig", RIG, "--backend", "sim", "--scene", "lawn_juggler_25d", "--jpeg", "80",
                "--health-period", "0.2", *connect_flags(port), log=log)
     stop_stream = threading.Event()
     try:

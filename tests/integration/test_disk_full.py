@@ -91,8 +91,8 @@ def test_a_full_disk_stops_the_recording_at_once_and_keeps_it_readable(data, tmp
     out = small_disk / "run"
     t0 = time.monotonic()
     # a pre-roll of 60 s records ~1400 camera frames (~10 MB): more than the 8 MB left beside the 8 MB reserve
-    r = cli("transfer", clip, "--style", str(style), "--scene", "lawn_juggler", "-o", str(out), "--preroll", "60",
-            "--rig", "full", "--no-eval", timeout=900)
+    r = cli("transfer", clip, "--style", str(style), "--scene", "lawn_juggler_25d", "-o", str(out), "--preroll",
+            "60", "--rig", "full", "--no-eval", timeout=900)
     took = time.monotonic() - t0
     assert r.returncode == 1, r.stdout[-2000:] + r.stderr[-3000:]
     last = r.stderr.strip().splitlines()[-1]
@@ -157,9 +157,9 @@ def test_a_disk_filling_mid_take_keeps_an_output_video_larger_than_the_reserve(d
     out = mid_disk / "run"
     video = out / "output.mp4"
     proc = subprocess.Popen([sys.executable, "-m", "cinetransfer", "transfer", clip, "--style",
-                             str(tmp_path / "style.json"), "--scene", "lawn_juggler", "-o", str(out), "--preroll", "1",
-                             "--rig", "filling", "--no-eval"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+                             str(tmp_path / "style.json"), "--scene", "lawn_juggler_25d", "-o", str(out),
+                             "--preroll", "1", "--rig", "filling", "--no-eval"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
     try:
         # given a take whose video has grown past the reserve the recorder keeps to close it ...
         wait_for(lambda: proc.poll() is not None or (video.is_file() and video.stat().st_size > RESERVE_BYTES + 2**20),

@@ -65,7 +65,7 @@ def tape(listener_opts):
 
 
 def bridge(port, tmp_path, *flags):
-    return spawn("autopilot_bridge", "--rig", RIG, "--backend", "sim", "--scene", "lawn_juggler",
+    return spawn("autopilot_bridge", "--rig", RIG, "--backend", "sim", "--scene", "lawn_juggler_25d",
                  *flags, *connect_flags(port), log=tmp_path / "bridge.log")
 
 

@@ -20,7 +20,7 @@ def run(*args, env, timeout=300):
 def test_transfer_across_a_ground_onboard_split(data, tmp_path):
     secrets = tmp_path / "secrets"
     env = {**os.environ, "CT_RIG": "split", "CT_DRONE_ADDR": "127.0.0.1",
-           "CT_ONBOARD_LISTEN": "127.0.0.1", "CT_ONBOARD_PORT": str(free_tcp_port()), "CT_SCENE": "lawn_juggler"}
+           "CT_ONBOARD_LISTEN": "127.0.0.1", "CT_ONBOARD_PORT": str(free_tcp_port()), "CT_SCENE": "lawn_juggler_25d"}
     # each host gets only its own folder of the deployment's credentials
     onboard_env = {**env, "CT_ROUTER_PORT": str(free_tcp_port()), "CT_SECRETS": str(secrets / "onboard")}
     ground_env = {**env, "CT_ROUTER_PORT": str(free_tcp_port()), "CT_SECRETS": str(secrets / "ground")}

@@ -14,7 +14,7 @@ def test_a_planner_killed_mid_take_makes_a_degraded_take_that_exits_3(data, tmp_
     out = tmp_path / "run"
     console = open(tmp_path / "console.log", "w")
     proc = subprocess.Popen([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
-                             "--scene", "lawn_juggler", "-o", str(out), "--max-frames", "96", "--preroll", "1",
+                             "--scene", "lawn_juggler_25d", "-o", str(out), "--max-frames", "96", "--preroll", "1",
                              "--rig", "killed", "--pace", "0.5", "--no-eval"],  # a take of 8 s or more
                             stdout=console, stderr=subprocess.STDOUT, text=True)
     try:
@@ -46,7 +46,7 @@ def test_a_planner_killed_mid_take_makes_a_degraded_take_that_exits_3(data, tmp_
 def test_an_undisturbed_take_is_not_degraded(data, tmp_path):
     out = tmp_path / "run"
     r = subprocess.run([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
-                        "--scene", "lawn_juggler", "-o", str(out), "--max-frames", "24", "--preroll", "1",
+                        "--scene", "lawn_juggler_25d", "-o", str(out), "--max-frames", "24", "--preroll", "1",
                         "--rig", "calm", "--no-eval"], capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
     faults = json.loads((out / "meta.json").read_text())["faults"]
@@ -63,7 +63,7 @@ def test_a_bridge_killed_mid_take_is_named_at_once_and_the_recording_is_kept(dat
 
     out = tmp_path / "run"
     proc = subprocess.Popen([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
-                             "--scene", "lawn_juggler", "-o", str(out), "--max-frames", "96", "--preroll", "1",
+                             "--scene", "lawn_juggler_25d", "-o", str(out), "--max-frames", "96", "--preroll", "1",
                              "--rig", "nobridge", "--pace", "0.5", "--no-eval"],  # stall timeout: the default 300 s
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     err, seen_s = kill_node_then_wait(proc, out, "autopilot_bridge",
@@ -86,7 +86,7 @@ def test_a_detector_killed_during_the_extraction_is_named_at_once(data, tmp_path
 
     out = tmp_path / "run"
     proc = subprocess.Popen([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
-                             "--scene", "lawn_juggler", "-o", str(out), "--rig", "nodetector", "--no-eval"],
+                             "--scene", "lawn_juggler_25d", "-o", str(out), "--rig", "nodetector", "--no-eval"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     # given the extraction under way (the detector has measured frames of the 247-frame clip), the detector dies
     err, seen_s = kill_node_then_wait(proc, out, "detector", lambda: wait_for_measurements(out, "nodetector", proc))

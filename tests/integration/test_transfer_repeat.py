@@ -36,6 +36,7 @@ def video_frames(path) -> list[np.ndarray]:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(2700)  # three 3-D transfers on a loaded machine, each bounded by its own timeout
 def test_the_same_take_twice_gives_the_same_frames_and_report_the_second_from_the_cache(data, tmp_path):
     # given the command run once (its style extracted by the nodes and kept in the cache) ...
     _, first = transfer(data, tmp_path / "first")

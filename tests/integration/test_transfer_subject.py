@@ -1,6 +1,7 @@
 """A transfer onto another person: the juggle clip's style flown with `--subject walker` in the
-juggler's own lawn scene (the scene's juggler swapped out), through the real processes. The
-bridge films the walker, and the report names both people and shows them side by side."""
+juggler's own lawn scene in the 2.5-D fast mode (a cut-out, seen from behind; the scene's juggler
+swapped out), through the real processes. The bridge films the walker, and the report names both
+people and shows them side by side."""
 import json
 import subprocess
 import sys
@@ -15,7 +16,7 @@ FRAMES = 36
 def test_transfer_with_a_subject_different_from_the_source(data, tmp_path):
     out = tmp_path / "run"
     r = subprocess.run([sys.executable, "-m", "cinetransfer", "transfer", str(data / "sam2_juggle_1280x720.mp4"),
-                        "--scene", "lawn_juggler", "--subject", "walker", "-o", str(out),
+                        "--scene", "lawn_juggler_25d", "--subject", "walker", "-o", str(out),
                         "--max-frames", str(FRAMES), "--preroll", "2", "--rig", "subj"],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-5000:]

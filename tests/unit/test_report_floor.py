@@ -62,7 +62,7 @@ def test_uncompared_joints_do_not_count():
 def test_the_simulators_own_truth_is_within_the_weak_perspective_residual():
     """The simulator's truth joints, as targets, against the billboard poses billboard_joints
     gives for the same stamps: a floor of ~0 (what is left is perspective)."""
-    sim = SimBackend("focus_hedge", epoch_ns=0, width=480, height=270)
+    sim = SimBackend("focus_hedge_25d", epoch_ns=0, width=480, height=270)
     sim.start()
     p0 = np.array(sim.scene.vehicle.position_m)
     # climb 2.5 m and look down on him, aimed at his middle 1 m above the origin (the vertical
@@ -77,7 +77,7 @@ def test_the_simulators_own_truth_is_within_the_weak_perspective_residual():
     n = len(truths)
     T = F.truth_track(truths, NAMES, n)
     assert T.ok.all()  # he is in the picture
-    bb, aspect = billboard_joints("focus_hedge", None, [t.stamp_ns for t in truths], 0, NAMES)
+    bb, aspect = billboard_joints("focus_hedge_25d", None, [t.stamp_ns for t in truths], 0, NAMES)
     assert aspect == pytest.approx(960 / 540)  # the scene's camera (the test renders smaller, same shape)
     assert np.all(bb[:, :2, 1] > bb[:, 2:, 1] + 0.3)  # shoulders above hips, metres
     assert np.all(bb[:, 0, 0] > bb[:, 1, 0])  # he faces the camera: his left shoulder on the image right
@@ -94,16 +94,51 @@ def test_the_floor_says_why_when_it_cannot_be_computed():
     from cinetransfer.services.planner.core import instructions_from_arrays
 
     ins = instructions_from_arrays(targets=np.full((4, 4, 2), 0.5), joint_names=NAMES)
-    sim = SimBackend("focus_hedge", epoch_ns=0, width=160, height=90)
+    sim = SimBackend("focus_hedge_25d", epoch_ns=0, width=160, height=90)
     sim.start()
     sim.step(0.0)
     truths = sim.truths()
-    sim_meta = {"scene": "focus_hedge", "epoch_ns": 0}
+    sim_meta = {"scene": "focus_hedge_25d", "epoch_ns": 0}
     assert run_floor(ins, [], sim_meta, aligned_by_index=True) == (None, "no ground truth")
     assert "not a simulated run" in run_floor(ins, truths, {}, aligned_by_index=True)[1]
-    assert "frame rates differ" in run_floor(ins, truths, {"scene": "focus_hedge", "epoch_ns": 0},
+    assert "frame rates differ" in run_floor(ins, truths, {"scene": "focus_hedge_25d", "epoch_ns": 0},
                                              aligned_by_index=False)[1]
     fl, why = run_floor(ins, truths, {"scene": "no_such_scene", "epoch_ns": 0}, aligned_by_index=True)
     assert fl is None and "could not be loaded" in why and "no_such_scene" in why
-    fl, why = run_floor(ins, truths, {"scene": "focus_hedge", "epoch_ns": 0}, aligned_by_index=True)
+    fl, why = run_floor(ins, truths, {"scene": "focus_hedge_25d", "epoch_ns": 0}, aligned_by_index=True)
     assert why == "" and fl.counts[0] == 4 and fl.counts[1:].sum() == 0
+
+
+def test_a_body_seen_from_a_grid_direction_has_a_floor_of_zero_and_another_pose_does_not():
+    from cinetransfer.report.floor import body_floor, view_axes
+
+    rng = np.random.default_rng(3)
+    joints = rng.normal(0.0, 0.4, (5, 4, 3)) + [2.0, 1.0, 1.0]  # five frames of four joints [m]
+    right, up = view_axes(np.radians([40.0]), np.radians([15.0]))
+    a, aspect = 0.3, 16 / 9
+    targets = np.stack([a * joints @ right[0] + 0.5, 0.4 - aspect * a * joints @ up[0]], axis=-1)
+    fl = body_floor(targets, np.ones((5, 4), bool), joints, NAMES, aspect)
+    assert fl.mean() == pytest.approx(0.0, abs=1e-4) and list(fl.counts) == [4] * 5
+    assert "3-D body" in fl.model
+    other = body_floor(targets, np.ones((5, 4), bool), joints[::-1], NAMES, aspect)  # the poses out of order
+    assert other.mean() > 0.01
+
+
+def test_the_3d_worlds_own_truth_is_within_the_grid_and_weak_perspective_residual():
+    from cinetransfer.report.floor import run_floor
+    from cinetransfer.services.planner.core import instructions_from_arrays
+
+    sim = SimBackend("focus_hedge", epoch_ns=0, width=320, height=180)
+    assert sim.scene.world == "3d"
+    sim.start()
+    truths = []
+    for k in range(24):
+        sim.step(k / 24)
+        truths += sim.truths()
+    sim.close()
+    T = F.truth_track(truths, NAMES, len(truths))
+    assert T.ok.all()
+    ins = instructions_from_arrays(targets=T.xy, joint_names=NAMES)
+    fl, why = run_floor(ins, truths, {"scene": "focus_hedge", "epoch_ns": 0}, aligned_by_index=True)
+    assert why == "" and fl.counts.sum() == T.ok.sum() and "3-D body" in fl.model
+    assert fl.mean() < 0.004

@@ -33,7 +33,7 @@ class JointsOnly:
 
 
 def test_the_cut_out_that_faces_the_camera_publishes_no_heading():
-    sim = SimBackend(load_scene("open_country", subject="walker"), epoch_ns=0, render=False, truth=False)
+    sim = SimBackend(load_scene("open_country_25d", subject="walker"), epoch_ns=0, render=False, truth=False)
     sim.start()
     sim.step(0.0)
     sim.step(0.5)

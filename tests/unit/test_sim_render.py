@@ -101,7 +101,7 @@ def _setpoint(p, ypr, focal=float("nan"), focus=float("nan"), fnum=float("nan"))
 
 
 def test_ground_truth_joints_are_project_world_of_the_subject_state_and_match_the_drawn_person():
-    sim = SimBackend("lawn_juggler", epoch_ns=0, width=480, height=270)
+    sim = SimBackend("lawn_juggler_25d", epoch_ns=0, width=480, height=270)
     sim.start()
     p0 = np.array(sim.scene.vehicle.position_m)
     sim.apply(_setpoint(p0 + [1.0, 1.5, 0.3], [-0.2, -0.1, 0.05], focal=45.0))
@@ -126,7 +126,7 @@ def test_ground_truth_joints_are_project_world_of_the_subject_state_and_match_th
 
 
 def test_frames_come_at_the_camera_rate_with_lens_and_aligned_truths_and_survive_the_codec():
-    sim = SimBackend("focus_hedge", epoch_ns=1_000_000_000, width=320, height=180)
+    sim = SimBackend("focus_hedge_25d", epoch_ns=1_000_000_000, width=320, height=180)
     sim.start()
     sim.step(10.0)  # the first call sets time zero
     sim.step(11.0)
@@ -136,7 +136,7 @@ def test_frames_come_at_the_camera_rate_with_lens_and_aligned_truths_and_survive
     assert all(f.stamp_ns == t.stamp_ns == 1_000_000_000 + round(f.index / 24 * 1e9) for f, t in zip(frames, truths))
     f = frames[3]
     assert f.image.shape == (180, 320, 3) and f.image.dtype == np.uint8 and f.fps == 24.0
-    assert f.source == "sim:focus_hedge"
+    assert f.source == "sim:focus_hedge_25d"
     assert f.lens.sensor_width_mm == cam.SENSOR_WIDTH_MM and f.lens.coc_mm == cam.COC_MM
     assert f.lens.focal_length_mm == pytest.approx(35.0)
     for msg in (f, truths[3], sim.vehicle_state(), sim.subject_state()):
@@ -147,7 +147,7 @@ def test_frames_come_at_the_camera_rate_with_lens_and_aligned_truths_and_survive
 
 def test_same_calls_give_the_same_frames():
     def run() -> list[np.ndarray]:
-        sim = SimBackend("open_country", epoch_ns=0, width=320, height=180)
+        sim = SimBackend("open_country_25d", epoch_ns=0, width=320, height=180)
         sim.start()
         p0 = np.array(sim.scene.vehicle.position_m)
         out = []
@@ -197,7 +197,7 @@ def test_simulated_time_runs_faster_than_real_time_without_rendering():
 def test_region_focus_ground_truth_in_the_focus_scene(focus_m, expected):
     # hedge 3 m from the camera, subject at 7 m, trees 37 m away: 35 mm at f/1 (with the circle of
     # confusion where the focus estimator flips, 0.134 mm, f/2 keeps the subject sharp focused at 3 m)
-    sim = SimBackend("focus_hedge", epoch_ns=0, width=480, height=270)
+    sim = SimBackend("focus_hedge_25d", epoch_ns=0, width=480, height=270)
     sim.start()
     sim.dyn.focus_m, sim.dyn.f_number = focus_m, 1.0
     sim.dyn.sp_lens = (sim.dyn.focal_mm, focus_m, 1.0)
@@ -212,7 +212,7 @@ def test_region_focus_ground_truth_in_the_focus_scene(focus_m, expected):
 
 def test_truth_carries_each_regions_depths_the_focal_length_and_the_lens_range():
     # given the focus scene: hedge 3 m from the camera, subject at 7 m, trees 37 m away and the sky
-    sim = SimBackend("focus_hedge", epoch_ns=0, width=480, height=270)
+    sim = SimBackend("focus_hedge_25d", epoch_ns=0, width=480, height=270)
     sim.start()
     sim.step(0.0)
     gt = codec.decode(codec.encode(sim.truths()[0]), M.GroundTruth)
@@ -235,7 +235,7 @@ def test_truth_carries_each_regions_depths_the_focal_length_and_the_lens_range()
 def test_subject_is_sharper_in_focus_than_out_of_focus_in_a_rendered_scene():
     lap = {}
     for focus_m in (7.0, 3.0):
-        sim = SimBackend("focus_hedge", epoch_ns=0)
+        sim = SimBackend("focus_hedge_25d", epoch_ns=0)
         sim.start()
         sim.dyn.focus_m = focus_m
         sim.dyn.sp_lens = (sim.dyn.focal_mm, focus_m, sim.dyn.f_number)
@@ -269,7 +269,7 @@ def test_step_at_a_frame_time_within_rounding_never_goes_back():
     # would move back by 1e-10 s): no error, time stays monotonic
     from cinetransfer.services.autopilot_bridge.sim.backend import SimBackend, load_scene
 
-    sim = SimBackend(load_scene("lawn_juggler"), epoch_ns=0)
+    sim = SimBackend(load_scene("lawn_juggler_25d"), epoch_ns=0)
     sim.start()
     sim.step(0.0)
     sim.step(1.0 / sim.fps - 1e-10)
@@ -284,7 +284,7 @@ def test_async_rendering_gives_the_same_frames_in_order():
     from cinetransfer.services.autopilot_bridge.sim.backend import SimBackend, load_scene
 
     def fly(async_render: bool):
-        sim = SimBackend(load_scene("focus_hedge"), epoch_ns=0, async_render=async_render)
+        sim = SimBackend(load_scene("focus_hedge_25d"), epoch_ns=0, async_render=async_render)
         sim.start()
         frames, truths = [], []
         for i in range(13):
@@ -357,7 +357,7 @@ def test_a_magnified_texture_keeps_its_contrast_and_gains_none(cycles_per_texel)
 def test_the_juggler_seen_close_and_in_focus_reads_in_focus_to_the_detector():
     # the focus_hedge juggler at 7 m through 70 mm: his cut-out magnified ~1.7x (tos_clip01's
     # second shot); bilinear magnification read 0.45-0.6 of his pixels in focus in that transfer
-    rr = SceneRenderer(load_scene("focus_hedge"))
+    rr = SceneRenderer(load_scene("focus_hedge_25d"))
     v = View(np.array([-7.0, 0.0, 1.0]), np.array([0.0, math.atan2(0.3, 7.0), 0.0]), 70.0, 7.0, 4.0,
              960, 540, rr.sensor)
     img, _ = rr.render(v, 0.0, truth=False)

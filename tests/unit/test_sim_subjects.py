@@ -65,7 +65,7 @@ def test_an_action_the_subject_lacks_is_an_error_naming_the_subject_and_its_acti
 
 
 def test_walk_plays_the_gait_at_a_rate_matching_its_stride():
-    scene = load_scene("open_country", subject="walker")
+    scene = load_scene("open_country_25d", subject="walker")
     sim = SimBackend(scene, epoch_ns=0, render=False, truth=False)
     sub = sim.renderer.subject
     nat = sub.clip.actions["walk"].speed_mps
@@ -73,7 +73,7 @@ def test_walk_plays_the_gait_at_a_rate_matching_its_stride():
     _, fps_half = sub.playback("walk", nat / 2)
     assert fps_half == pytest.approx(fps_nat / 2)
     # the runner does a 'walk' with its running clip, slowed to the walking speed
-    runner = SimBackend(load_scene("open_country", subject="runner"), epoch_ns=0, render=False,
+    runner = SimBackend(load_scene("open_country_25d", subject="runner"), epoch_ns=0, render=False,
                         truth=False).renderer.subject
     act, fps = runner.playback("walk", 1.2)
     assert act.name == "run" and fps == pytest.approx(act.fps * 1.2 / act.speed_mps)

@@ -185,7 +185,7 @@ def _orbit_frames(person: str, views: int, w: int, h: int):
     from cinetransfer.services.autopilot_bridge.sim.scene import subject_info
 
     info = subject_info(person)
-    scene = load_scene("open_country_3d", subject=person)
+    scene = load_scene("open_country", subject=person)
     sim = SimBackend(scene, width=w, height=h, epoch_ns=0)
     r = sim.renderer
     for k in range(views):

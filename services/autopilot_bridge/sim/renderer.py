@@ -27,12 +27,15 @@ from functools import cached_property
 import cv2
 import numpy as np
 
+from cinetransfer.services.autopilot_bridge.sim.blur import gaussian_blur
 from cinetransfer.shared import camera as cam
 
 NEAR_M = 0.05
 #: Gaussian sigma per blur-circle diameter (the lens model's: shared.camera)
 SIGMA_PER_DIAMETER = cam.SIGMA_PER_DIAMETER
 MIN_SIGMA_PX = 0.35
+#: the widest blur done at full size of a plane's warp; wider ones on a downscaled copy (sim/blur.py)
+MAX_SIGMA_PX = 6.0
 #: blur-circle step [px] between ground bands, and the most bands.
 BAND_COC_STEP_PX = 2.0
 MAX_BANDS = 10
@@ -208,21 +211,6 @@ def _clip_polygon(poly: np.ndarray, lo: float, hi: float) -> np.ndarray:
     return np.array(pts) if len(pts) >= 3 else np.zeros((0, 3))
 
 
-def _blur(img: np.ndarray, sigma: float) -> np.ndarray:
-    if sigma < MIN_SIGMA_PX:
-        return img
-    h, w = img.shape[:2]
-    k = 1
-    while sigma / k > 6.0 and min(h, w) // (2 * k) >= 8:
-        k *= 2
-    if k == 1:
-        return cv2.GaussianBlur(img, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
-    small = cv2.resize(img, (max(1, w // k), max(1, h // k)), interpolation=cv2.INTER_AREA)
-    small = cv2.GaussianBlur(small, (0, 0), math.sqrt(max(sigma ** 2 / k ** 2 - 0.25, 0.09)),
-                             borderType=cv2.BORDER_CONSTANT)
-    return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
-
-
 def plane_homography(view: View, a: np.ndarray, scale: float = 1.0) -> np.ndarray:
     """Continuous texture coords → continuous pixel coords of an image `scale` times the view's size."""
     m = np.asarray(a, float).copy()
@@ -299,7 +287,8 @@ def draw_plane(canvas: np.ndarray, view: View, plane: Plane) -> DrawInfo:
         pts = np.round(((px - [x0, y0] + 0.5) / k - 0.5) * 16).astype(np.int32)
         cv2.fillConvexPoly(mask, pts, 255, lineType=cv2.LINE_AA, shift=4)
         warped = cv2.multiply(warped, cv2.merge([mask] * 4), scale=1.0 / 255)
-    warped = _blur(warped, sigma / k)
+    if sigma / k >= MIN_SIGMA_PX:
+        warped = gaussian_blur(warped, sigma / k, max_sigma_px=MAX_SIGMA_PX, border=cv2.BORDER_CONSTANT)
     if k > 1:
         warped = cv2.resize(warped, (lw * k, lh * k), interpolation=cv2.INTER_LINEAR)[:roi_h, :roi_w]
     region = canvas[y0:y1, x0:x1]
