@@ -137,6 +137,8 @@ def _to_json(v: Any, tp: Any, f: dataclasses.Field | None) -> Any:
     if isinstance(v, float):
         return v if math.isfinite(v) else None
     if isinstance(v, (list, tuple)):
+        if typing.get_origin(tp) in _UNIONS:  # an optional list: the list arm says the items
+            tp = next(a for a in typing.get_args(tp) if a is not type(None))
         (item,) = typing.get_args(tp) or (Any,)
         return [_to_json(x, item, None) for x in v]
     if isinstance(v, dict):

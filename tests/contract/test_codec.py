@@ -34,7 +34,11 @@ def sample_messages():
                          subject_box=rng.random((k, 4)).astype(np.float32),
                          focus_raw=rng.random((k, 3)).astype(np.float32),
                          focus_smoothed=rng.random((k, 3)).astype(np.float32),
-                         focus_in=rng.random((k, 3)) > 0.5, theta=0.5, mu_m=1.0)
+                         focus_in=rng.random((k, 3)) > 0.5, theta=0.5, mu_m=1.0,
+                         camera_motion_class=["static"] * (k - 1) + ["pan+dolly_in"],
+                         pan_rate_dps=rng.random(k).astype(np.float32), tilt_rate_dps=np.full(k, np.nan, np.float32),
+                         roll_rate_dps=np.zeros(k, np.float32), zoom_rate=rng.random(k).astype(np.float32),
+                         translation_dir=rng.random((k, 3)).astype(np.float32))
     yield M.Setpoint(position_m=np.array([1.0, 2.0, 3.0]), camera_ypr_rad=np.array([0.1, -0.2, 0.0]), lens=lens,
                      horizon_t_s=np.arange(3) * 0.1, horizon_position_m=rng.random((3, 3)),
                      horizon_camera_ypr_rad=rng.random((3, 3)), horizon_lens=rng.random((3, 3)), solver_status="ok")
