@@ -62,6 +62,18 @@ def connect_flags(port: int) -> list[str]:
     return ["--connect", f"tcp/127.0.0.1:{port}", "--listen", "tcp/127.0.0.1:0"]
 
 
+def load_benchmark(name: str):
+    """benchmarks/NAME.py as a module (the folder is scripts, not a package); registered in
+    sys.modules so that its dataclasses can look their module up."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", REPO / "benchmarks" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
 def cli(*args: str, env: dict | None = None, timeout: float = 120) -> subprocess.CompletedProcess:
     """Run `python -m cinetransfer ARGS...` to its end as a real process."""
     return subprocess.run([sys.executable, "-m", "cinetransfer", *args], capture_output=True, text=True,

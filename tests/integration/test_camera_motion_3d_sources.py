@@ -3,23 +3,17 @@ camera's poses: the tracker and the smoother read a slow dolly, a truck and a st
 the rendered frames (parallax over the tracks' baseline), and the truth file says what was flown."""
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 
 import numpy as np
 import pytest
 
-from conftest import REPO
+from conftest import load_benchmark
 
 
 @pytest.fixture(scope="module")
 def sources():
-    spec = importlib.util.spec_from_file_location("cm3d_sources", REPO / "benchmarks" / "camera_motion_3d_sources.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # its dataclasses look their module up
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("camera_motion_3d_sources")
 
 
 @pytest.fixture(scope="module")

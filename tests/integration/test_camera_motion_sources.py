@@ -3,23 +3,17 @@ through the real extraction (detector with the people's masks, then the smoother
 with the right class and rates within 20 %."""
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 
 import numpy as np
 import pytest
 
-from conftest import REPO
+from conftest import load_benchmark
 
 
 @pytest.fixture(scope="module")
 def sources():
-    spec = importlib.util.spec_from_file_location("cm_sources", REPO / "benchmarks" / "camera_motion_sources.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # its dataclasses look their module up
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("camera_motion_sources")
 
 
 @pytest.mark.parametrize("name", ["static", "pan_right", "tilt_up", "roll_cw", "zoom_in"])

@@ -1,20 +1,16 @@
 """The benchmarks' harness (statistics, result head, atomic writes) and docs/benchmarks.md, which
 is generated from benchmarks/results/*.json and must stay in step with them."""
-import importlib.util
 import json
 import math
 
 import pytest
 
-from conftest import REPO
+from conftest import REPO, load_benchmark
 
 
 @pytest.fixture(scope="module")
 def harness():
-    spec = importlib.util.spec_from_file_location("bench_harness", REPO / "benchmarks" / "harness.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("harness")
 
 
 def test_docs_benchmarks_md_is_generated_from_the_results(harness):
