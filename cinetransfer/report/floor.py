@@ -29,11 +29,14 @@ rest is the subject's body, which cannot take the source person's pose.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from cinetransfer.shared.facing import mirror_permutation
+
+if TYPE_CHECKING:  # the simulator is imported only where a floor is computed
+    from cinetransfer.services.autopilot_bridge.sim.scene import Scene
 
 
 @dataclass(frozen=True)
@@ -100,18 +103,26 @@ def joint_error_floor(targets: np.ndarray, compared: np.ndarray, billboard: np.n
     return Floor(per, counts, MODEL)
 
 
-def billboard_joints(scene: str, subject: str | None, stamps_ns: Sequence[int], epoch_ns: int,
-                     joint_names: Sequence[str]) -> tuple[np.ndarray, float]:
-    """((N, E, 2) the filmed subject's joints in his billboard's plane [m] (X right, Y up) at each
-    simulation stamp, as the simulator poses him; the rendered image's width / height). Scene by
-    name or path; `subject`: the run's library person. Raises SceneError if it cannot be loaded."""
-    from cinetransfer.services.autopilot_bridge.sim.scene import load_scene
-    from cinetransfer.services.autopilot_bridge.sim.subject import Subject
+def _coco_index(joint_names: Sequence[str]) -> list[int]:
+    """Each joint's row in the simulator's COCO-17 joints (-1: not a COCO-17 joint)."""
     from cinetransfer.shared.messages import COCO17_NAMES
 
-    sc = load_scene(scene, subject=subject)
+    return [list(COCO17_NAMES).index(n) if n in COCO17_NAMES else -1 for n in joint_names]
+
+
+def _aspect(sc: Scene) -> float:
+    return float(sc.camera.width) / float(sc.camera.height)
+
+
+def billboard_joints(sc: Scene, stamps_ns: Sequence[int], epoch_ns: int,
+                     joint_names: Sequence[str]) -> tuple[np.ndarray, float]:
+    """((N, E, 2) the filmed subject's joints in his billboard's plane [m] (X right, Y up) at each
+    simulation stamp, as the simulator poses him; the rendered image's width / height). `sc`: the
+    run's loaded scene (sim.scene.load_scene, with the run's library person)."""
+    from cinetransfer.services.autopilot_bridge.sim.subject import Subject
+
     sub = Subject(sc.subject, sc.ground.z_m if sc.ground is not None else 0.0)
-    idx = [list(COCO17_NAMES).index(n) if n in COCO17_NAMES else -1 for n in joint_names]
+    idx = _coco_index(joint_names)
     out = np.full((len(stamps_ns), len(joint_names), 2), np.nan)
     for i, stamp in enumerate(stamps_ns):
         t = (int(stamp) - int(epoch_ns)) * 1e-9
@@ -121,27 +132,24 @@ def billboard_joints(scene: str, subject: str | None, stamps_ns: Sequence[int], 
         for e, j in enumerate(idx):
             if j >= 0:
                 out[i, e] = ((frame.joints_px[j, 0] - ax) * sub.m_per_px, (ay - frame.joints_px[j, 1]) * sub.m_per_px)
-    return out, float(sc.camera.width) / float(sc.camera.height)
+    return out, _aspect(sc)
 
 
-def body_joints(scene: str, subject: str | None, stamps_ns: Sequence[int], epoch_ns: int,
+def body_joints(sc: Scene, stamps_ns: Sequence[int], epoch_ns: int,
                 joint_names: Sequence[str]) -> tuple[np.ndarray, float]:
     """((N, E, 3) the filmed 3-D body's joints [m, world] at each simulation stamp, as the 3-D world
-    poses him; the rendered image's width / height). Raises SceneError if the scene cannot be loaded."""
+    poses him; the rendered image's width / height). `sc` as billboard_joints."""
     from cinetransfer.services.autopilot_bridge.sim.actor import Actor
-    from cinetransfer.services.autopilot_bridge.sim.scene import load_scene
-    from cinetransfer.shared.messages import COCO17_NAMES
 
-    sc = load_scene(scene, subject=subject)
     actor = Actor(sc.subject, sc.ground.z_m if sc.ground is not None else 0.0)
-    idx = [list(COCO17_NAMES).index(n) if n in COCO17_NAMES else -1 for n in joint_names]
+    idx = _coco_index(joint_names)
     out = np.full((len(stamps_ns), len(joint_names), 3), np.nan)
     for i, stamp in enumerate(stamps_ns):
         joints = actor.body_at((int(stamp) - int(epoch_ns)) * 1e-9).joints_m
         for e, j in enumerate(idx):
             if j >= 0:
                 out[i, e] = joints[j]
-    return out, float(sc.camera.width) / float(sc.camera.height)
+    return out, _aspect(sc)
 
 
 #: the 3-D floor's grid of view directions (module doc)
@@ -230,12 +238,12 @@ def run_floor(source, truths: Sequence, meta: dict, *, aligned_by_index: bool) -
     for t in truths:
         if 0 <= int(t.frame_index) - off < n:
             stamps[int(t.frame_index) - off] = int(t.stamp_ns)
-    args = (str(meta["scene"]), meta.get("subject"), stamps, int(meta["epoch_ns"]), names)
     try:
         from cinetransfer.services.autopilot_bridge.sim.scene import load_scene
 
-        three_d = load_scene(args[0], subject=args[1]).world == "3d"
-        joints, aspect = body_joints(*args) if three_d else billboard_joints(*args)
+        sc = load_scene(str(meta["scene"]), subject=meta.get("subject"))
+        three_d = sc.world == "3d"
+        joints, aspect = (body_joints if three_d else billboard_joints)(sc, stamps, int(meta["epoch_ns"]), names)
     except Exception as e:  # noqa: BLE001 - a scene file moved since the run: the report goes on without it
         return None, f"the run's scene could not be loaded ({type(e).__name__}: {e})"
     if three_d:

@@ -7,6 +7,7 @@ import pytest
 from cinetransfer.report import fidelity as F
 from cinetransfer.report.floor import billboard_joints, joint_error_floor
 from cinetransfer.services.autopilot_bridge.sim.backend import SimBackend
+from cinetransfer.services.autopilot_bridge.sim.scene import load_scene
 from cinetransfer.shared import messages as M
 
 NAMES = ["left_shoulder", "right_shoulder", "left_hip", "right_hip"]
@@ -77,7 +78,7 @@ def test_the_simulators_own_truth_is_within_the_weak_perspective_residual():
     n = len(truths)
     T = F.truth_track(truths, NAMES, n)
     assert T.ok.all()  # he is in the picture
-    bb, aspect = billboard_joints("focus_hedge_25d", None, [t.stamp_ns for t in truths], 0, NAMES)
+    bb, aspect = billboard_joints(load_scene("focus_hedge_25d"), [t.stamp_ns for t in truths], 0, NAMES)
     assert aspect == pytest.approx(960 / 540)  # the scene's camera (the test renders smaller, same shape)
     assert np.all(bb[:, :2, 1] > bb[:, 2:, 1] + 0.3)  # shoulders above hips, metres
     assert np.all(bb[:, 0, 0] > bb[:, 1, 0])  # he faces the camera: his left shoulder on the image right
