@@ -38,7 +38,7 @@ from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject
                                                 reciprocal_targets,
                                                 subject_softness, switched_out)
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
-from cinetransfer.services.planner.separation import framing_k, separation_distance_m
+from cinetransfer.services.planner.separation import background_soft_distance_m, framing_k, separation_distance_m
 from cinetransfer.services.planner.solver import N_DOF, MpcSolver, SolveResult, StageData
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
@@ -362,7 +362,9 @@ class Planner:
 
     def _separation_m(self, ins: M.Instructions, now_row: int, jw: np.ndarray, jmask: np.ndarray) -> float:
         """The subject distance the rows of the next `separation_lookahead_s` (within the take) need for
-        a subject soft before a sharp background, each at the framing it asks for (separation.py); 0 if none."""
+        a subject soft before a sharp background, or sharp before a soft one `background_behind_m`
+        behind it, each at the framing it asks for (separation.py); 0 if none. Both halves of a rack
+        focus ask to back off, so the larger of the two is kept over the whole look-ahead."""
         st, b = self.cfg.structure, self.solver.bounds
         focus = realisable_rows(ins.focus_in)
         if self.cfg.separation_lookahead_s <= 0 or focus.ndim != 2 or focus.shape[1:] != (3,):
@@ -371,20 +373,28 @@ class Planner:
         if self.end_frame is not None:
             last = min(last, self.end_frame - 1 - int(ins.first_frame))
         hi = min(last, now_row + int(math.ceil(self.cfg.separation_lookahead_s * _fps(ins))))
-        absent, b_subject = absent_regions(ins), smoothed_subject_focus(ins)
+        absent, smoothed = absent_regions(ins), smoothed_focus(ins)
         ratio = st.defocus_coc_ratio / st.sharp_coc_ratio
         ne = min(jw.shape[0], ins.image_targets.shape[1])
         z = np.where(jmask[:ne] > 0, jw[:ne, 2], np.nan)
-        ks, ratios = [], []
+        rows = {"subject_soft": ([], []), "background_soft": ([], [])}
         for r in range(max(now_row, 0), hi + 1):
-            if not near_keeps_subject_out(*focus[r].tolist()) or absent[r].all():
+            kind = separation_kind(focus[r], absent[r])
+            if kind is None:
                 continue
-            ks.append(framing_k(np.asarray(ins.image_targets[r, :ne, 1], float), z, st.sensor_height_mm))
-            soft = subject_softness(float(b_subject[r]), float(ins.theta)) if len(b_subject) > r else 1.0
-            ratios.append(defocus_ratio(True, ratio, soft))
+            region = 1 if kind == "subject_soft" else 2
+            soft = subject_softness(float(smoothed[r, region]), float(ins.theta)) if len(smoothed) > r else 1.0
+            rows[kind][0].append(framing_k(np.asarray(ins.image_targets[r, :ne, 1], float), z, st.sensor_height_mm))
+            rows[kind][1].append(defocus_ratio(True, ratio, soft))
         mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
-        return separation_distance_m(ks, ratios, f_number_min=b.f_number_min, coc_mm=st.plan_coc_mm, mu_m=mu,
-                                     focus_max_m=b.focus_distance_max_m, focal_max_mm=b.focal_length_max_mm)
+        subject_soft = separation_distance_m(*rows["subject_soft"], f_number_min=b.f_number_min, coc_mm=st.plan_coc_mm,
+                                             mu_m=mu, focus_max_m=b.focus_distance_max_m,
+                                             focal_max_mm=b.focal_length_max_mm)
+        background_soft = background_soft_distance_m(*rows["background_soft"], f_number_min=b.f_number_min,
+                                                     coc_mm=st.plan_coc_mm, behind_m=self.cfg.background_behind_m,
+                                                     focal_max_mm=b.focal_length_max_mm)
+        self.counters["separation_background_soft_m"] = round(background_soft, 2)
+        return max(subject_soft, background_soft)
 
     def _motion_style(self, ins: M.Instructions) -> MotionStyle | None:
         """The instructions' camera-motion style, read once per instructions message."""
@@ -638,6 +648,25 @@ def absent_regions(ins: M.Instructions) -> np.ndarray:
     focus = np.asarray(ins.focus_in, dtype=bool)
     sm = np.asarray(ins.focus_smoothed, dtype=float) if ins.focus_smoothed is not None else np.zeros((0, 3))
     return ~np.isfinite(sm) if sm.shape == focus.shape else np.zeros(focus.shape, dtype=bool)
+
+
+def separation_kind(row: np.ndarray, absent: np.ndarray) -> str | None:
+    """Which standoff a realisable focus row asks for (separation.py): "subject_soft" (only the
+    background sharp), "background_soft" (the subject sharp, a background present and soft) or None."""
+    b_fg, b_subject, b_bg = (bool(v) for v in row)
+    if absent.all():
+        return None
+    if near_keeps_subject_out(b_fg, b_subject, b_bg):
+        return "subject_soft"
+    if b_subject and not b_bg and not absent[2]:
+        return "background_soft"
+    return None
+
+
+def smoothed_focus(ins: M.Instructions) -> np.ndarray:
+    """(K, 3) the source's smoothed focus B per row and region; (0, 3) when the instructions carry none."""
+    b = np.asarray(ins.focus_smoothed, dtype=float) if ins.focus_smoothed is not None else np.zeros((0, 3))
+    return b if b.ndim == 2 and b.shape[1] == 3 else np.zeros((0, 3))
 
 
 def smoothed_subject_focus(ins: M.Instructions) -> np.ndarray:
