@@ -115,6 +115,7 @@ class Planner:
         self._scheduled: list[M.Command] = []
         self.last_result: SolveResult | None = None
         self._motion_cache: tuple[object, MotionStyle | None] = (None, None)
+        self._focus_cache: tuple[object, np.ndarray] = (None, np.zeros((0, 3), bool))
 
     # ------------------------------------------------------------------ runtime parameters
     def set_weights(self, weights: Weights) -> None:
@@ -366,7 +367,7 @@ class Planner:
         behind it, each at the framing it asks for (separation.py); 0 if none. Both halves of a rack
         focus ask to back off, so the larger of the two is kept over the whole look-ahead."""
         st, b = self.cfg.structure, self.solver.bounds
-        focus = realisable_rows(ins.focus_in)
+        focus = self._planned_focus(ins)
         if self.cfg.separation_lookahead_s <= 0 or focus.ndim != 2 or focus.shape[1:] != (3,):
             return 0.0
         last = min(focus.shape[0], ins.image_targets.shape[0]) - 1
@@ -395,6 +396,13 @@ class Planner:
                                                      focal_max_mm=b.focal_length_max_mm)
         self.counters["separation_background_soft_m"] = round(background_soft, 2)
         return max(subject_soft, background_soft)
+
+    def _planned_focus(self, ins: M.Instructions) -> np.ndarray:
+        """The style's focus rows as the planner films them (planned_focus_rows), once per instructions message."""
+        if self._focus_cache[0] is not ins:
+            max_rows = int(round(RACK_THROUGH_MAX_S * _fps(ins)))
+            self._focus_cache = (ins, planned_focus_rows(ins.focus_in, absent_regions(ins), max_rows))
+        return self._focus_cache[1]
 
     def _motion_style(self, ins: M.Instructions) -> MotionStyle | None:
         """The instructions' camera-motion style, read once per instructions message."""
@@ -432,7 +440,7 @@ class Planner:
         st, lay = self.cfg.structure, self.layout
         n, dt = len(rows), st.dt_s
         mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
-        focus = realisable_rows(ins.focus_in)
+        focus = self._planned_focus(ins)
         absent = absent_regions(ins)
         b_subject = smoothed_subject_focus(ins)
         rows3 = focus.tolist() if focus.shape[-1:] == (3,) else []
@@ -466,6 +474,7 @@ class Planner:
                 soft = subject_softness(float(b_subject[r]), float(ins.theta)) if len(b_subject) > r else 1.0
                 dof[k, 6] = defocus_ratio(keeps_out[r] and switched_out(keeps_out, now_row, r), ratio, soft)
                 dof[k, 7] = defocus_ratio(near_out[r] and switched_out(near_out, now_row, r), ratio, soft)
+                dof[k, 2] *= float(far_previewed(focus, near_out, now_row, r))
         return dof, dref
 
     def _rows(self, now_ns: int, ins: M.Instructions, n: int, dt: float) -> tuple[list[int], int]:
@@ -600,6 +609,51 @@ def realisable_rows(focus_in: np.ndarray) -> np.ndarray:
     if focus.ndim != 2 or focus.shape[1] != 3:
         return focus
     return np.array([cam.realisable_labels(*row) for row in focus.tolist()], dtype=bool).reshape(focus.shape)
+
+
+#: the longest run of "nothing in focus" rows [s] right before a background-only row that the planner
+#: films as background-only (planned_focus_rows)
+RACK_THROUGH_MAX_S = 1.0
+
+
+def planned_focus_rows(focus_in: np.ndarray, absent: np.ndarray, max_rows: int) -> np.ndarray:
+    """The style's focus rows (K, 3) as the planner films them: as one depth of field can give them
+    (realisable_rows), and a run of at most `max_rows` rows with nothing in focus right before a row
+    with only the background in focus as background-only. That run is how a rack focus from the
+    subject to the background reads through the smoother's window (a few frames with nothing sharp
+    while the focus travels); planned as asked, its depth of field in front of the subject pulled the
+    focus the other way just before the longest move of the rack (dance-twirl's rack focus: 7 rows,
+    the subject still sharp 8 frames after the switch)."""
+    focus = realisable_rows(focus_in)
+    if focus.ndim != 2 or focus.shape[1] != 3 or absent.shape != focus.shape:
+        return focus
+    out = focus.copy()
+    none = ~focus.any(axis=1) & ~absent.all(axis=1)
+    background_only = np.array([near_keeps_subject_out(*row) for row in focus.tolist()], dtype=bool)
+    k = 0
+    while k < len(focus):
+        if not none[k]:
+            k += 1
+            continue
+        end = k
+        while end < len(focus) and none[end]:
+            end += 1
+        if end < len(focus) and background_only[end] and end - k <= max_rows:
+            out[k:end] = (False, False, True)
+        k = end
+    return out
+
+
+def far_previewed(focus: np.ndarray, near_out: list[bool], now_row: int, row: int) -> bool:
+    """Whether a stage's far-limit target counts: not where the row followed now keeps the background
+    soft and the stage lies past a switch, still ahead, to background-only. Opening the far limit is
+    quick (the aperture), moving the near limit past the subject is the focus's long travel: previewed
+    together, the least-squares plan opened the far limit first, the background sharp 7-14 frames
+    before the switch while the subject was still sharp (dance-twirl's rack focus). The near limit
+    stays previewed."""
+    if not near_out[row] or switched_out(near_out, now_row, row):
+        return True
+    return bool(focus[now_row, 2]) if 0 <= now_row < len(focus) else True
 
 
 def _fps(ins: M.Instructions) -> float:

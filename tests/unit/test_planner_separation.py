@@ -135,3 +135,39 @@ def test_which_rows_ask_for_a_standoff():
     assert separation_kind(np.array([False, True, False]), no_bg) is None  # nothing to blur behind
     assert separation_kind(np.array([False, True, True]), present) is None
     assert separation_kind(np.array([False, True, False]), np.ones(3, bool)) is None
+
+
+def test_a_rack_focus_read_through_nothing_sharp_is_filmed_racking_through():
+    import numpy as np
+
+    from cinetransfer.services.planner.core import planned_focus_rows
+    sub, none, bg = (False, True, False), (False, False, False), (True, False, True)
+    rows = np.array([sub, sub, none, none, bg, bg, none, none, none, sub, none], dtype=bool)
+    present = np.zeros(rows.shape, bool)
+    got = planned_focus_rows(rows, present, 2)
+    # the two "nothing" rows before the background-only row rack through (fg + bg without the subject is
+    # one depth of field can't give: background-only); three before a subject row or at the end stay
+    want = np.array([sub, sub, (0, 0, 1), (0, 0, 1), (0, 0, 1), (0, 0, 1), none, none, none, sub, none], dtype=bool)
+    assert np.array_equal(got, want)
+    # a longer run than the limit is a choice of its own; rows without any measurement stay as they are
+    assert np.array_equal(planned_focus_rows(rows, present, 1)[2:4], [none, none])
+    absent = present.copy()
+    absent[2:4] = True
+    assert np.array_equal(planned_focus_rows(rows, absent, 2)[2:4], [none, none])
+
+
+def test_the_far_limit_opens_only_once_the_rack_has_switched():
+    import numpy as np
+
+    from cinetransfer.services.planner.core import far_previewed
+    sub, bg, both = (False, True, False), (False, False, True), (False, True, True)
+    focus = np.array([sub, sub, bg, bg], dtype=bool)
+    near_out = [False, False, True, True]
+    # followed now: a row keeping the background soft; the background-only stages past the switch do
+    # not cost their far limit yet, the stages before it do
+    assert [far_previewed(focus, near_out, 0, r) for r in range(4)] == [True, True, False, False]
+    # once switched, every background-only stage costs it
+    assert all(far_previewed(focus, near_out, 2, r) for r in range(2, 4))
+    # a row followed now with the background sharp already: previewed as before
+    focus2 = np.array([both, both, bg, bg], dtype=bool)
+    assert all(far_previewed(focus2, near_out, 0, r) for r in range(4))
