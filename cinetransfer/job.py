@@ -3,7 +3,6 @@ here as separate processes) or a running one it joins as the operator."""
 from __future__ import annotations
 
 import logging
-import math
 import os
 import shutil
 import subprocess
@@ -80,8 +79,7 @@ def deploy_config(outdir: Path, port: int, rig: str, scene: str, *, realtime: bo
         "nodes": [
             *([{"name": n, "command": n, "args": list(a)} for n, a in EXTRACTION_ARGS.items()] if extraction else []),
             {"name": "autopilot_bridge", "command": "autopilot_bridge", "args": bridge},
-            {"name": "planner", "command": "planner", "args": [*(["--vehicle", vehicle] if vehicle else []),
-                                                                *_background_args(scene, subject)]},
+            {"name": "planner", "command": "planner", "args": ["--vehicle", vehicle] if vehicle else []},
         ],
         "restart": {"backoff_initial_s": 0.5, "stop_grace_s": 10, "startup_timeout_s": 180},
     }
@@ -89,19 +87,6 @@ def deploy_config(outdir: Path, port: int, rig: str, scene: str, *, realtime: bo
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(yaml.safe_dump(cfg, sort_keys=False))
     return path
-
-
-def _background_args(scene: str, subject: str | None) -> list[str]:
-    """The planner's --background-behind for a simulated scene (cinetransfer/scene_background.py);
-    none for a scene that cannot be read here (the bridge then says what is wrong with it)."""
-    from cinetransfer.scene_background import background_behind_m
-    from cinetransfer.services.autopilot_bridge.sim.scene import SceneError, load_scene
-
-    try:
-        behind = background_behind_m(load_scene(scene, subject=subject))
-    except (SceneError, OSError):
-        return []
-    return ["--background-behind", f"{behind:.2f}"] if math.isfinite(behind) else []
 
 
 @contextmanager

@@ -364,8 +364,8 @@ class Planner:
     def _separation_m(self, ins: M.Instructions, now_row: int, jw: np.ndarray, jmask: np.ndarray) -> float:
         """The subject distance the rows of the next `separation_lookahead_s` (within the take) need for
         a subject soft before a sharp background, or sharp before a soft one `background_behind_m`
-        behind it, each at the framing it asks for (separation.py); 0 if none. Both halves of a rack
-        focus ask to back off, so the larger of the two is kept over the whole look-ahead."""
+        behind it (when that is known), each at the framing it asks for (separation.py); 0 if none.
+        Both halves of a rack focus ask to back off, so the larger of the two is kept."""
         st, b = self.cfg.structure, self.solver.bounds
         focus = self._planned_focus(ins)
         if self.cfg.separation_lookahead_s <= 0 or focus.ndim != 2 or focus.shape[1:] != (3,):
@@ -391,9 +391,9 @@ class Planner:
         subject_soft = separation_distance_m(*rows["subject_soft"], f_number_min=b.f_number_min, coc_mm=st.plan_coc_mm,
                                              mu_m=mu, focus_max_m=b.focus_distance_max_m,
                                              focal_max_mm=b.focal_length_max_mm)
-        background_soft = background_soft_distance_m(*rows["background_soft"], f_number_min=b.f_number_min,
-                                                     coc_mm=st.plan_coc_mm, behind_m=self.cfg.background_behind_m,
-                                                     focal_max_mm=b.focal_length_max_mm)
+        background_soft = 0.0 if math.isinf(self.cfg.background_behind_m) else background_soft_distance_m(
+            *rows["background_soft"], f_number_min=b.f_number_min, coc_mm=st.plan_coc_mm,
+            behind_m=self.cfg.background_behind_m, focal_max_mm=b.focal_length_max_mm)
         self.counters["separation_background_soft_m"] = round(background_soft, 2)
         return max(subject_soft, background_soft)
 

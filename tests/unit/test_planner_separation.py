@@ -117,7 +117,7 @@ def test_background_behind_setting_from_the_flag():
 
     p = argparse.ArgumentParser()
     add_config_arguments(p)
-    assert math.isinf(config_from_args(p.parse_args([])).background_behind_m)  # unknown: as at infinity
+    assert math.isinf(config_from_args(p.parse_args([])).background_behind_m)  # unknown: no standoff
     assert config_from_args(p.parse_args(["--background-behind", "30"])).background_behind_m == 30.0
     for bad in (0.0, -5.0, float("nan")):
         with pytest.raises(ConfigError):
