@@ -262,6 +262,15 @@ class PlannerConfig:
     #: how far ahead (within the take) a style row wanting the subject soft before a sharp background
     #: raises the minimum subject distance to the standoff that choice needs (separation.py) [s]; 0 = off
     separation_lookahead_s: float = 6.0
+    #: how far behind the subject the background stands [m]; inf = unknown, and then a row wanting the
+    #: subject sharp before a soft background asks for no standoff. Given, such a row raises the minimum
+    #: subject distance until the depth of field ends before it (separation.py). Off by default: the
+    #: standoff slows a rack focus (the same reciprocal move is more metres of focus from further back)
+    #: and focus_hedge's 3-D lawn reads soft without it (docs/planner.md)
+    background_behind_m: float = setting(math.inf, flag="--background-behind", unit="m", range="> 0",
+                                         metavar="M", help="how far behind the subject the background stands, "
+                                         "for a standoff that keeps it soft behind a sharp subject (inf: unknown, "
+                                         "no standoff)")
     #: per-joint factors on the image term, ((COCO-17 name, factor >= 0), ...); unnamed joints 1.
     #: How the planner trades joint targets it cannot all meet (another body): docs/planner.md.
     joint_weights: tuple[tuple[str, float], ...] = ()
@@ -292,6 +301,8 @@ class PlannerConfig:
             if name not in COCO17_NAMES or not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise _bad("", "joint_weights", (name, v), f"a COCO-17 name ({', '.join(COCO17_NAMES)}) "
                            "and a finite factor >= 0")
+        if not (self.background_behind_m > 0):  # inf is allowed: an unknown background
+            raise _bad("", "background_behind_m", self.background_behind_m, "a value > 0 (inf: unknown)")
         for name in ("tail_max_s", "setpoint_lead_s", "clamp_tolerance", "feasibility_tol", "separation_lookahead_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):

@@ -38,7 +38,7 @@ from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject
                                                 reciprocal_targets,
                                                 subject_softness, switched_out)
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
-from cinetransfer.services.planner.separation import framing_k, separation_distance_m
+from cinetransfer.services.planner.separation import background_soft_distance_m, framing_k, separation_distance_m
 from cinetransfer.services.planner.solver import N_DOF, MpcSolver, SolveResult, StageData
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
@@ -115,6 +115,7 @@ class Planner:
         self._scheduled: list[M.Command] = []
         self.last_result: SolveResult | None = None
         self._motion_cache: tuple[object, MotionStyle | None] = (None, None)
+        self._focus_cache: tuple[object, np.ndarray] = (None, np.zeros((0, 3), bool))
 
     # ------------------------------------------------------------------ runtime parameters
     def set_weights(self, weights: Weights) -> None:
@@ -362,29 +363,46 @@ class Planner:
 
     def _separation_m(self, ins: M.Instructions, now_row: int, jw: np.ndarray, jmask: np.ndarray) -> float:
         """The subject distance the rows of the next `separation_lookahead_s` (within the take) need for
-        a subject soft before a sharp background, each at the framing it asks for (separation.py); 0 if none."""
+        a subject soft before a sharp background, or sharp before a soft one `background_behind_m`
+        behind it (when that is known), each at the framing it asks for (separation.py); 0 if none.
+        Both halves of a rack focus ask to back off, so the larger of the two is kept."""
         st, b = self.cfg.structure, self.solver.bounds
-        focus = realisable_rows(ins.focus_in)
+        focus = self._planned_focus(ins)
         if self.cfg.separation_lookahead_s <= 0 or focus.ndim != 2 or focus.shape[1:] != (3,):
             return 0.0
         last = min(focus.shape[0], ins.image_targets.shape[0]) - 1
         if self.end_frame is not None:
             last = min(last, self.end_frame - 1 - int(ins.first_frame))
         hi = min(last, now_row + int(math.ceil(self.cfg.separation_lookahead_s * _fps(ins))))
-        absent, b_subject = absent_regions(ins), smoothed_subject_focus(ins)
+        absent, smoothed = absent_regions(ins), smoothed_focus(ins)
         ratio = st.defocus_coc_ratio / st.sharp_coc_ratio
         ne = min(jw.shape[0], ins.image_targets.shape[1])
         z = np.where(jmask[:ne] > 0, jw[:ne, 2], np.nan)
-        ks, ratios = [], []
+        rows = {"subject_soft": ([], []), "background_soft": ([], [])}
         for r in range(max(now_row, 0), hi + 1):
-            if not near_keeps_subject_out(*focus[r].tolist()) or absent[r].all():
+            kind = separation_kind(focus[r], absent[r])
+            if kind is None:
                 continue
-            ks.append(framing_k(np.asarray(ins.image_targets[r, :ne, 1], float), z, st.sensor_height_mm))
-            soft = subject_softness(float(b_subject[r]), float(ins.theta)) if len(b_subject) > r else 1.0
-            ratios.append(defocus_ratio(True, ratio, soft))
+            region = 1 if kind == "subject_soft" else 2
+            soft = subject_softness(float(smoothed[r, region]), float(ins.theta)) if len(smoothed) > r else 1.0
+            rows[kind][0].append(framing_k(np.asarray(ins.image_targets[r, :ne, 1], float), z, st.sensor_height_mm))
+            rows[kind][1].append(defocus_ratio(True, ratio, soft))
         mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
-        return separation_distance_m(ks, ratios, f_number_min=b.f_number_min, coc_mm=st.plan_coc_mm, mu_m=mu,
-                                     focus_max_m=b.focus_distance_max_m, focal_max_mm=b.focal_length_max_mm)
+        subject_soft = separation_distance_m(*rows["subject_soft"], f_number_min=b.f_number_min, coc_mm=st.plan_coc_mm,
+                                             mu_m=mu, focus_max_m=b.focus_distance_max_m,
+                                             focal_max_mm=b.focal_length_max_mm)
+        background_soft = 0.0 if math.isinf(self.cfg.background_behind_m) else background_soft_distance_m(
+            *rows["background_soft"], f_number_min=b.f_number_min, coc_mm=st.plan_coc_mm,
+            behind_m=self.cfg.background_behind_m, focal_max_mm=b.focal_length_max_mm)
+        self.counters["separation_background_soft_m"] = round(background_soft, 2)
+        return max(subject_soft, background_soft)
+
+    def _planned_focus(self, ins: M.Instructions) -> np.ndarray:
+        """The style's focus rows as the planner films them (planned_focus_rows), once per instructions message."""
+        if self._focus_cache[0] is not ins:
+            max_rows = int(round(RACK_THROUGH_MAX_S * _fps(ins)))
+            self._focus_cache = (ins, planned_focus_rows(ins.focus_in, absent_regions(ins), max_rows))
+        return self._focus_cache[1]
 
     def _motion_style(self, ins: M.Instructions) -> MotionStyle | None:
         """The instructions' camera-motion style, read once per instructions message."""
@@ -422,7 +440,7 @@ class Planner:
         st, lay = self.cfg.structure, self.layout
         n, dt = len(rows), st.dt_s
         mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
-        focus = realisable_rows(ins.focus_in)
+        focus = self._planned_focus(ins)
         absent = absent_regions(ins)
         b_subject = smoothed_subject_focus(ins)
         rows3 = focus.tolist() if focus.shape[-1:] == (3,) else []
@@ -456,6 +474,7 @@ class Planner:
                 soft = subject_softness(float(b_subject[r]), float(ins.theta)) if len(b_subject) > r else 1.0
                 dof[k, 6] = defocus_ratio(keeps_out[r] and switched_out(keeps_out, now_row, r), ratio, soft)
                 dof[k, 7] = defocus_ratio(near_out[r] and switched_out(near_out, now_row, r), ratio, soft)
+                dof[k, 2] *= float(far_previewed(focus, near_out, now_row, r))
         return dof, dref
 
     def _rows(self, now_ns: int, ins: M.Instructions, n: int, dt: float) -> tuple[list[int], int]:
@@ -592,6 +611,51 @@ def realisable_rows(focus_in: np.ndarray) -> np.ndarray:
     return np.array([cam.realisable_labels(*row) for row in focus.tolist()], dtype=bool).reshape(focus.shape)
 
 
+#: the longest run of "nothing in focus" rows [s] right before a background-only row that the planner
+#: films as background-only (planned_focus_rows)
+RACK_THROUGH_MAX_S = 1.0
+
+
+def planned_focus_rows(focus_in: np.ndarray, absent: np.ndarray, max_rows: int) -> np.ndarray:
+    """The style's focus rows (K, 3) as the planner films them: as one depth of field can give them
+    (realisable_rows), and a run of at most `max_rows` rows with nothing in focus right before a row
+    with only the background in focus as background-only. That run is how a rack focus from the
+    subject to the background reads through the smoother's window (a few frames with nothing sharp
+    while the focus travels); planned as asked, its depth of field in front of the subject pulled the
+    focus the other way just before the longest move of the rack (dance-twirl's rack focus: 7 rows,
+    the subject still sharp 8 frames after the switch)."""
+    focus = realisable_rows(focus_in)
+    if focus.ndim != 2 or focus.shape[1] != 3 or absent.shape != focus.shape:
+        return focus
+    out = focus.copy()
+    none = ~focus.any(axis=1) & ~absent.all(axis=1)
+    background_only = np.array([near_keeps_subject_out(*row) for row in focus.tolist()], dtype=bool)
+    k = 0
+    while k < len(focus):
+        if not none[k]:
+            k += 1
+            continue
+        end = k
+        while end < len(focus) and none[end]:
+            end += 1
+        if end < len(focus) and background_only[end] and end - k <= max_rows:
+            out[k:end] = (False, False, True)
+        k = end
+    return out
+
+
+def far_previewed(focus: np.ndarray, near_out: list[bool], now_row: int, row: int) -> bool:
+    """Whether a stage's far-limit target counts: not where the row followed now keeps the background
+    soft and the stage lies past a switch, still ahead, to background-only. Opening the far limit is
+    quick (the aperture), moving the near limit past the subject is the focus's long travel: previewed
+    together, the least-squares plan opened the far limit first, the background sharp 7-14 frames
+    before the switch while the subject was still sharp (dance-twirl's rack focus). The near limit
+    stays previewed."""
+    if not near_out[row] or switched_out(near_out, now_row, row):
+        return True
+    return bool(focus[now_row, 2]) if 0 <= now_row < len(focus) else True
+
+
 def _fps(ins: M.Instructions) -> float:
     """Instruction rows per second of recording."""
     return ins.fps if ins.fps > 0 else (1.0 / ins.frame_duration_s if ins.frame_duration_s > 0 else 24.0)
@@ -638,6 +702,25 @@ def absent_regions(ins: M.Instructions) -> np.ndarray:
     focus = np.asarray(ins.focus_in, dtype=bool)
     sm = np.asarray(ins.focus_smoothed, dtype=float) if ins.focus_smoothed is not None else np.zeros((0, 3))
     return ~np.isfinite(sm) if sm.shape == focus.shape else np.zeros(focus.shape, dtype=bool)
+
+
+def separation_kind(row: np.ndarray, absent: np.ndarray) -> str | None:
+    """Which standoff a realisable focus row asks for (separation.py): "subject_soft" (only the
+    background sharp), "background_soft" (the subject sharp, a background present and soft) or None."""
+    b_fg, b_subject, b_bg = (bool(v) for v in row)
+    if absent.all():
+        return None
+    if near_keeps_subject_out(b_fg, b_subject, b_bg):
+        return "subject_soft"
+    if b_subject and not b_bg and not absent[2]:
+        return "background_soft"
+    return None
+
+
+def smoothed_focus(ins: M.Instructions) -> np.ndarray:
+    """(K, 3) the source's smoothed focus B per row and region; (0, 3) when the instructions carry none."""
+    b = np.asarray(ins.focus_smoothed, dtype=float) if ins.focus_smoothed is not None else np.zeros((0, 3))
+    return b if b.ndim == 2 and b.shape[1] == 3 else np.zeros((0, 3))
 
 
 def smoothed_subject_focus(ins: M.Instructions) -> np.ndarray:

@@ -12,6 +12,15 @@ d* = sqrt(1000 A c s_max) / k (best_separation_m); farther is worse, as beyond t
 length (k d <= f_max). From too near no lens setting gives the choice: the planner then raises its
 minimum distance to the subject to this standoff, over a look-ahead longer than its horizon, and the
 image term lengthens the lens to keep the framing.
+
+The other half of a rack focus, the subject sharp before a soft background, wants the same move: at a
+fixed framing the depth of field reaches a = 1000 A r c / k^2 behind a subject focused at d by
+a d / (d - a) (the far limit of r c: d H / (H - d) with H = d^2 / a), which shrinks towards a as the
+camera backs off. A background `beta` behind the subject is beyond it from
+
+    d >= a beta / (beta - a)     (beta > a; a background at infinity: d >= a)
+
+(background_soft_standoff_m); nearer, its blur is under r c whatever the lens does.
 """
 from __future__ import annotations
 
@@ -34,6 +43,20 @@ def standoff_m(k_mm_per_m: float, *, f_number: float, coc_mm: float, defocus_rat
     a = 1000.0 * f_number * coc_mm * (1.0 + defocus_ratio) / (k_mm_per_m * k_mm_per_m)
     mu = max(mu_m, 0.0)
     return 0.5 * (a + math.sqrt(a * a + 4.0 * a * mu))
+
+
+def background_soft_standoff_m(k_mm_per_m: float, *, f_number: float, coc_mm: float, defocus_ratio: float,
+                                behind_m: float) -> float:
+    """The least subject distance [m] at which a background `behind_m` behind a subject focused at its
+    own distance lies beyond the far limit of the circle `defocus_ratio` x `coc_mm`, at `f_number`
+    and with the framing f = k d; inf when no distance gives it (the background within a of the
+    subject), NaN for a framing that says nothing."""
+    if not (math.isfinite(k_mm_per_m) and k_mm_per_m > 0):
+        return math.nan
+    a = 1000.0 * f_number * coc_mm * defocus_ratio / (k_mm_per_m * k_mm_per_m)
+    if math.isinf(behind_m):
+        return a
+    return a * behind_m / (behind_m - a) if behind_m > a else math.inf
 
 
 def best_separation_m(k_mm_per_m: float, *, f_number_min: float, coc_mm: float, focus_max_m: float) -> float:
@@ -73,4 +96,20 @@ def separation_distance_m(ks: Sequence[float], ratios: Sequence[float], *, f_num
         cap = min(best_separation_m(k, f_number_min=f_number_min, coc_mm=coc_mm, focus_max_m=focus_max_m),
                   focal_max_mm / k)
         best = max(best, min(need, cap))
+    return best
+
+
+def background_soft_distance_m(ks: Sequence[float], ratios: Sequence[float], *, f_number_min: float,
+                               coc_mm: float, behind_m: float, focal_max_mm: float) -> float:
+    """The minimum subject distance [m] the planner keeps for the rows ahead that want the subject
+    sharp and the background soft (per row: its framing `ks` and visible-defocus circle ratio
+    `ratios`, as separation_distance_m), for a background `behind_m` behind the subject; 0 when no
+    row does, no framing is known or no distance gives the choice (the report says so per frame).
+    Farther always blurs the background more, so only the longest focal length caps it."""
+    best = 0.0
+    for k, r in zip(ks, ratios):
+        need = background_soft_standoff_m(k, f_number=APERTURE_MARGIN * f_number_min, coc_mm=coc_mm,
+                                          defocus_ratio=r, behind_m=behind_m)
+        if math.isfinite(need):
+            best = max(best, min(need, focal_max_mm / k))
     return best

@@ -3,7 +3,8 @@ import math
 
 import pytest
 
-from cinetransfer.services.planner.separation import (APERTURE_MARGIN, best_separation_m, framing_k,
+from cinetransfer.services.planner.separation import (APERTURE_MARGIN, background_soft_distance_m,
+                                                      background_soft_standoff_m, best_separation_m, framing_k,
                                                       separation_distance_m, standoff_m)
 from cinetransfer.shared import camera as cam
 
@@ -70,3 +71,103 @@ def test_framing_k_from_a_row_by_hand():
     assert framing_k([0.40, float("nan"), 0.50], [1.45, 1.45, 0.95], 13.365) == pytest.approx(2.673)
     assert math.isnan(framing_k([0.40, float("nan")], [1.45, 0.95], 13.365))
     assert math.isnan(framing_k([0.40, 0.41], [1.0, 1.05], 13.365))
+
+
+def test_background_soft_standoff_by_hand():
+    # 4 mm per metre of framing, f/1, c = 0.05 mm, the soft circle 4 c: a = 1000 * 1 * 0.05 * 4 / 16 = 12.5 m
+    kw = dict(f_number=1.0, coc_mm=0.05, defocus_ratio=4.0)
+    # a background at infinity is blurred by 4 c from d = a on (f^2 / (A d) = k^2 d / 1000 = 0.2 mm)
+    assert background_soft_standoff_m(4.0, behind_m=math.inf, **kw) == pytest.approx(12.5)
+    # 30 m behind the subject: d = a beta / (beta - a) = 12.5 * 30 / 17.5
+    assert background_soft_standoff_m(4.0, behind_m=30.0, **kw) == pytest.approx(21.4286, abs=1e-3)
+    # within a of the subject no distance gives it; a framing that says nothing: unknown
+    assert math.isinf(background_soft_standoff_m(4.0, behind_m=10.0, **kw))
+    assert math.isnan(background_soft_standoff_m(float("nan"), behind_m=30.0, **kw))
+
+
+def test_background_soft_standoff_against_the_lens_model():
+    # at the standoff, focused on the subject, the far limit of the soft circle is the background
+    # (to the focal length's share); from nearer at the same framing it lies beyond the background
+    k, a_num, c, r, beta = 4.0, 1.0, 0.05, 4.0, 30.0
+    d = background_soft_standoff_m(k, f_number=a_num, coc_mm=c, defocus_ratio=r, behind_m=beta)
+    assert cam.dof_limits_m(k * d, a_num, d, r * c)[1] == pytest.approx(d + beta, rel=0.02)
+    assert cam.blur_diameter_mm(d + beta, k * d, a_num, d) == pytest.approx(r * c, rel=0.02)
+    near = 0.8 * d
+    assert cam.dof_limits_m(k * near, a_num, near, r * c)[1] > near + beta
+
+
+def test_background_soft_distance_takes_the_hardest_row_and_the_lens():
+    kw = dict(f_number_min=1.0, coc_mm=0.05, behind_m=30.0, focal_max_mm=500.0)
+    assert background_soft_distance_m([], [], **kw) == 0.0
+    assert background_soft_distance_m([float("nan")], [4.0], **kw) == 0.0
+    # the loosest framing sets it, at the aperture margin
+    want = background_soft_standoff_m(4.0, f_number=APERTURE_MARGIN, coc_mm=0.05, defocus_ratio=4.0, behind_m=30.0)
+    assert background_soft_distance_m([6.0, 4.0], [4.0, 4.0], **kw) == pytest.approx(want)
+    # the longest focal length caps it; a background too near for any distance raises nothing
+    assert background_soft_distance_m([4.0], [4.0], **{**kw, "focal_max_mm": 60.0}) == pytest.approx(15.0)
+    assert background_soft_distance_m([4.0], [4.0], **{**kw, "behind_m": 5.0}) == 0.0
+
+
+def test_background_behind_setting_from_the_flag():
+    import argparse
+
+    from cinetransfer.services.planner import config as pc
+    from cinetransfer.services.planner.service import add_config_arguments, config_from_args
+    from cinetransfer.shared.errors import ConfigError
+
+    p = argparse.ArgumentParser()
+    add_config_arguments(p)
+    assert math.isinf(config_from_args(p.parse_args([])).background_behind_m)  # unknown: no standoff
+    assert config_from_args(p.parse_args(["--background-behind", "30"])).background_behind_m == 30.0
+    for bad in (0.0, -5.0, float("nan")):
+        with pytest.raises(ConfigError):
+            pc.PlannerConfig(background_behind_m=bad).validate()
+
+
+def test_which_rows_ask_for_a_standoff():
+    import numpy as np
+
+    from cinetransfer.services.planner.core import separation_kind
+    present, no_bg = np.zeros(3, bool), np.array([False, False, True])
+    assert separation_kind(np.array([False, False, True]), present) == "subject_soft"
+    assert separation_kind(np.array([False, True, False]), present) == "background_soft"
+    assert separation_kind(np.array([True, True, False]), present) == "background_soft"
+    assert separation_kind(np.array([False, True, False]), no_bg) is None  # nothing to blur behind
+    assert separation_kind(np.array([False, True, True]), present) is None
+    assert separation_kind(np.array([False, True, False]), np.ones(3, bool)) is None
+
+
+def test_a_rack_focus_read_through_nothing_sharp_is_filmed_racking_through():
+    import numpy as np
+
+    from cinetransfer.services.planner.core import planned_focus_rows
+    sub, none, bg = (False, True, False), (False, False, False), (True, False, True)
+    rows = np.array([sub, sub, none, none, bg, bg, none, none, none, sub, none], dtype=bool)
+    present = np.zeros(rows.shape, bool)
+    got = planned_focus_rows(rows, present, 2)
+    # the two "nothing" rows before the background-only row rack through (fg + bg without the subject is
+    # one depth of field can't give: background-only); three before a subject row or at the end stay
+    want = np.array([sub, sub, (0, 0, 1), (0, 0, 1), (0, 0, 1), (0, 0, 1), none, none, none, sub, none], dtype=bool)
+    assert np.array_equal(got, want)
+    # a longer run than the limit is a choice of its own; rows without any measurement stay as they are
+    assert np.array_equal(planned_focus_rows(rows, present, 1)[2:4], [none, none])
+    absent = present.copy()
+    absent[2:4] = True
+    assert np.array_equal(planned_focus_rows(rows, absent, 2)[2:4], [none, none])
+
+
+def test_the_far_limit_opens_only_once_the_rack_has_switched():
+    import numpy as np
+
+    from cinetransfer.services.planner.core import far_previewed
+    sub, bg, both = (False, True, False), (False, False, True), (False, True, True)
+    focus = np.array([sub, sub, bg, bg], dtype=bool)
+    near_out = [False, False, True, True]
+    # followed now: a row keeping the background soft; the background-only stages past the switch do
+    # not cost their far limit yet, the stages before it do
+    assert [far_previewed(focus, near_out, 0, r) for r in range(4)] == [True, True, False, False]
+    # once switched, every background-only stage costs it
+    assert all(far_previewed(focus, near_out, 2, r) for r in range(2, 4))
+    # a row followed now with the background sharp already: previewed as before
+    focus2 = np.array([both, both, bg, bg], dtype=bool)
+    assert all(far_previewed(focus2, near_out, 0, r) for r in range(4))
