@@ -251,9 +251,46 @@ def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earli
         rot, t, inl_t = fit_rotation_translation(a, b, f, q[:3] * k, inlier_px=tol)
         if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= share + PARALLAX_GAIN:
             rot = rotation_given_direction(b0, b, f, t, inl_t) if long else rot
+            t = dolly_sign(a, b, f, rot * k, t, inl_t)
             zoom = zoom_against_dolly(a, b, f, rot * k, t, inl_t) / k
             return FrameMotion(rot, zoom, t, n, explained)
     return FrameMotion(q[:3].copy(), float(q[3]), np.zeros(3), n, explained)
+
+
+def _radial_scales(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray,
+                   use: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's scale rate along its radial line once the rotation is taken out (M,), and the
+    midpoints (M, 2) it was read at: the points `use` away from the centre (there a scale is lost in
+    the noise)."""
+    mid = 0.5 * (p0 + p1)
+    resid = (p1 - p0) - rotation_zoom_basis(mid, f)[:, :, :3] @ rot
+    r2 = np.einsum("nk,nk->n", mid, mid)
+    ok = use & (r2 > (0.1 * f) ** 2)
+    return np.einsum("nk,nk->n", resid[ok], mid[ok]) / r2[ok], mid[ok]
+
+
+def dolly_sign(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.ndarray,
+               use: np.ndarray) -> np.ndarray:
+    """The translation t (3,) with the sign of a dolly-zoom that its points alone cannot tell.
+
+    Past a dolly with a zoom against it some points grow and some shrink, and two moves fit every
+    point with a positive depth: in while zooming out (the zoom is the least scale, of the farthest
+    points) and out while zooming in (the zoom is the greatest). The direction fit takes the sign
+    most points agree with, which flips from frame to frame as the scene's depths go by (the
+    smoother's mean direction then cancels out). The ground decides: the lower a point in the
+    image, the nearer it is (a camera above the ground looking about level), and the nearer a
+    point, the more a dolly makes it scale its way (grow going in). Any other translation, and a
+    dolly whose points all scale the same way, keeps its sign."""
+    if abs(t[2]) < DOLLY_AXIS or use.sum() < MIN_POINTS:
+        return t
+    scale, mid = _radial_scales(p0, p1, f, rot, use)
+    if len(scale) < MIN_POINTS:
+        return t
+    lo, hi = np.percentile(scale, [100.0 * FAR_SHARE, 100.0 * (1.0 - FAR_SHARE)])
+    if not lo < 0.0 < hi:
+        return t
+    lower_grows = float(np.corrcoef(mid[:, 1], scale)[0, 1])
+    return -t if math.isfinite(lower_grows) and lower_grows * t[2] < 0.0 else t
 
 
 def zoom_against_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.ndarray,
@@ -266,13 +303,9 @@ def zoom_against_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray
     points (the FAR_SHARE with the least scale along the dolly) then carry the zoom alone."""
     if abs(t[2]) < DOLLY_AXIS or use.sum() < MIN_POINTS:
         return 0.0
-    mid = 0.5 * (p0 + p1)
-    resid = (p1 - p0) - rotation_zoom_basis(mid, f)[:, :, :3] @ rot
-    r2 = np.einsum("nk,nk->n", mid, mid)
-    ok = use & (r2 > (0.1 * f) ** 2)  # near the centre a scale is lost in the noise
-    if ok.sum() < MIN_POINTS:
+    scale = _radial_scales(p0, p1, f, rot, use)[0] * np.sign(t[2])
+    if len(scale) < MIN_POINTS:
         return 0.0
-    scale = np.einsum("nk,nk->n", resid[ok], mid[ok]) / r2[ok] * np.sign(t[2])
     far = float(np.percentile(scale, 100.0 * FAR_SHARE))
     return far * float(np.sign(t[2])) if far < 0.0 else 0.0
 

@@ -108,6 +108,43 @@ def test_a_dolly_read_as_a_zoom_in_one_frame_shows_over_the_baseline():
     assert not short.translation_dir.any()
 
 
+def _ground_points(rng: np.random.Generator) -> np.ndarray:
+    """A camera 1.6 m above flat ground looking level, a wall 25 m ahead: points (N, 3) in the camera
+    frame (x right, y down, z forward); the lower in the image, the nearer."""
+    z_ground = rng.uniform(4.0, 25.0, 300)
+    ground = np.column_stack([rng.uniform(-0.35, 0.35, 300) * z_ground, np.full(300, 1.6), z_ground])
+    wall = np.column_stack([rng.uniform(-8, 8, 200), rng.uniform(-5, 1.5, 200), np.full(200, 25.0)])
+    return np.vstack([ground, wall])
+
+
+@pytest.mark.parametrize("step, zoom", [(0.05, -0.004), (-0.05, 0.004)])
+def test_a_dolly_zoom_takes_its_sign_from_the_ground(step, zoom):
+    """In while zooming out and out while zooming in fit every point with positive depths, mirror
+    images of each other; the ground (lower = nearer) tells them apart, whichever sign is given."""
+    x = _ground_points(np.random.default_rng(7))
+    p0 = F * x[:, :2] / x[:, 2:3]
+    x1 = x - np.array([0.0, 0.0, step])
+    p1 = np.exp(zoom) * F * x1[:, :2] / x1[:, 2:3]
+    keep = (np.abs(p0[:, 0]) < 320) & (np.abs(p0[:, 1]) < 180)
+    p0, p1 = p0[keep], p1[keep]
+    use = np.ones(len(p0), dtype=bool)
+    want = np.array([0.0, 0.0, np.sign(step)])
+    for given in (want, -want):
+        np.testing.assert_array_equal(cm.dolly_sign(p0, p1, F, np.zeros(3), given, use), want)
+    # the zoom then comes from the farthest points, against the dolly
+    assert np.sign(cm.zoom_against_dolly(p0, p1, F, np.zeros(3), want, use)) == np.sign(zoom)
+
+
+def test_a_dolly_whose_points_all_scale_one_way_keeps_its_sign():
+    x = _ground_points(np.random.default_rng(8))
+    p0 = F * x[:, :2] / x[:, 2:3]
+    x1 = x - np.array([0.0, 0.0, 0.05])
+    p1 = F * x1[:, :2] / x1[:, 2:3]
+    use = np.ones(len(p0), dtype=bool)
+    for given in ((0.0, 0.0, 1.0), (0.0, 0.0, -1.0), (1.0, 0.0, 0.0)):
+        np.testing.assert_array_equal(cm.dolly_sign(p0, p1, F, np.zeros(3), np.array(given), use), given)
+
+
 @pytest.mark.parametrize("rates, t, want", [
     ((0.2, -0.3, 0.1, 0.0), None, "static"),
     ((5.0, 0.0, 0.0, 0.0), None, "pan"),
