@@ -335,7 +335,7 @@ def _take_and_evaluate(args, src: Path, out: Path, meta: dict, clock: StageClock
         except OSError as se:  # (a full disk: the error that stopped the flight is the one to tell)
             raise TransferError(f"{e}; meta.json and truth.msgpack not written: {_one_line(se)}") from None
         raise TransferError(f"{e}; {_files_said(meta['files'])}") from None
-    if not args.no_eval and not meta["interrupted"]:
+    if not args.no_eval and not rec.interrupted:
         # the report's truth floor needs no output style: it is computed while the output's frames
         # are still being measured
         live["floor"] = floor_ahead(style_path, list(rec.truths), dict(meta))
