@@ -217,6 +217,8 @@ def _evaluate(out: Path, src: Path, style_path: Path, rec: Recorder, meta: dict,
     summary = build_report(out, source_style=style_path, output_style=out_style, truths=rec.truths,
                            source_video=src, output_video=out / "output.mp4", meta=meta,
                            recording=out / "run.mcap", figure_worker=figures, floor_ahead=live.get("floor"))
+    if figures is not None:  # ended before the stage's CPU is read: its figures count in the report's
+        figures.close(wait=True)
     clock.end("report_s")
     return summary
 

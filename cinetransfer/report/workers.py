@@ -48,10 +48,11 @@ class FigureWorker:
             log.warning("figure process unusable (%s): figures are drawn in this process", e)
             return None
 
-    def close(self) -> None:
-        """Stop the worker (figures still being drawn are abandoned)."""
+    def close(self, wait: bool = False) -> None:
+        """Stop the worker (figures still being drawn are abandoned); `wait`: until its process has
+        ended (then this process's CPU times include it: os.times() counts ended children)."""
         if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool.shutdown(wait=wait, cancel_futures=True)
             self._pool = None
 
     def __enter__(self) -> "FigureWorker":
