@@ -25,6 +25,7 @@ extraction cinetransfer/extraction.py, the flight and its takes cinetransfer/fli
 from __future__ import annotations
 
 import argparse
+import concurrent.futures as cf
 import importlib
 import json
 import logging
@@ -46,6 +47,7 @@ from cinetransfer.job import TransferError, deployment, run_cli, wait_alive
 from cinetransfer.lease import TakeLease
 from cinetransfer.live_output import LiveOutputStyle
 from cinetransfer.recorder import LOW_SPACE_BYTES, RESERVE_BYTES, Recorder, drop_reserve, make_reserve
+from cinetransfer.report.workers import FigureWorker
 from cinetransfer.shared import keys
 from cinetransfer.shared import messages as M
 from cinetransfer.shared import zenoh_config
@@ -128,6 +130,22 @@ def warm_imports(names: tuple[str, ...]) -> None:
             log.debug("warm import of %s failed: %s", name, e)
 
 
+def floor_ahead(style_path: Path, truths: list, meta: dict) -> cf.Future:
+    """The report's truth floor (report/floor.py, frames aligned by index), on a thread from now,
+    from the style as the report reads it."""
+    def floor():
+        from cinetransfer.report.floor import run_floor
+        from cinetransfer.report.style import load_style_any
+
+        return run_floor(load_style_any(style_path)[0], truths, meta, aligned_by_index=True)
+
+    pool = cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="floor")
+    try:
+        return pool.submit(floor)
+    finally:
+        pool.shutdown(wait=False)
+
+
 def write_json(path: Path, data: dict) -> None:
     """Temp file then rename: a reader (or a crash) never sees half a file."""
     with atomic_write(path) as fh:
@@ -154,6 +172,7 @@ def _job(args, src: Path, out: Path, meta: dict, clock: StageClock, live: dict, 
         measurer = live["output"] = None if args.no_eval else LiveOutputStyle(out / "output.mp4", style.fps)
         if not args.no_eval:
             threading.Thread(target=warm_imports, args=(REPORT_IMPORTS,), name="warm-imports", daemon=True).start()
+            live["figures"] = FigureWorker()  # starts now: its imports are done by the time the report draws
         rec = fly(style, outdir=out, session=session, rig=args.rig, preroll_s=args.preroll,
                   realtime=args.realtime, stall_s=args.stall_timeout, meta=meta,
                   publish_instructions=origin != "extracted", settle_s=args.settle, one_take=args.one_take,
@@ -189,14 +208,17 @@ def _output_style(out: Path, meta: dict, rec: Recorder, live: LiveOutputStyle | 
     return out_style
 
 
-def _evaluate(out: Path, src: Path, style_path: Path, rec: Recorder, meta: dict, live: LiveOutputStyle | None,
+def _evaluate(out: Path, src: Path, style_path: Path, rec: Recorder, meta: dict, live: dict,
               clock: StageClock) -> dict:
-    out_style = _output_style(out, meta, rec, live, clock)
+    out_style = _output_style(out, meta, rec, live.get("output"), clock)
+    figures = live.get("figures")
     from cinetransfer.report import build_report
 
     summary = build_report(out, source_style=style_path, output_style=out_style, truths=rec.truths,
                            source_video=src, output_video=out / "output.mp4", meta=meta,
-                           recording=out / "run.mcap")
+                           recording=out / "run.mcap", figure_worker=figures, floor_ahead=live.get("floor"))
+    if figures is not None:  # ended before the stage's CPU is read: its figures count in the report's
+        figures.close(wait=True)
     clock.end("report_s")
     return summary
 
@@ -315,6 +337,10 @@ def _take_and_evaluate(args, src: Path, out: Path, meta: dict, clock: StageClock
         except OSError as se:  # (a full disk: the error that stopped the flight is the one to tell)
             raise TransferError(f"{e}; meta.json and truth.msgpack not written: {_one_line(se)}") from None
         raise TransferError(f"{e}; {_files_said(meta['files'])}") from None
+    if not args.no_eval and not rec.interrupted:
+        # the report's truth floor needs no output style: it is computed while the output's frames
+        # are still being measured
+        live["floor"] = floor_ahead(style_path, list(rec.truths), dict(meta))
     _save_take(out, style, rec, meta, args.realtime)
     clock.end("save_take_s")
     if meta["interrupted"]:
@@ -324,7 +350,7 @@ def _take_and_evaluate(args, src: Path, out: Path, meta: dict, clock: StageClock
     if args.no_eval:
         print(f"recorded {meta['recorded_frames']} frames to {out / 'output.mp4'} (no evaluation)")
         return NO_EVAL
-    return _evaluate(out, src, style_path, rec, meta, live.get("output"), clock)
+    return _evaluate(out, src, style_path, rec, meta, live, clock)
 
 
 def _wind_down(live: dict, stopping: list, *, quiet: bool) -> None:
@@ -332,6 +358,8 @@ def _wind_down(live: dict, stopping: list, *, quiet: bool) -> None:
     own deployment has stopped: the command ends with its nodes."""
     if live.get("output") is not None:
         live["output"].cancel()
+    if live.get("figures") is not None:
+        live["figures"].close()
     for down in stopping:
         try:
             down.wait()

@@ -8,8 +8,9 @@ import logging
 import math
 import os
 import time
+from concurrent.futures import BrokenExecutor
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import cv2
 import numpy as np
@@ -92,19 +93,32 @@ def vehicle_states(run: Any) -> list[M.VehicleState]:
 
 def camera_motion_facts(outdir: Path, source: M.Instructions, output: M.Instructions | None,
                         states: Sequence[M.VehicleState], truths: Sequence[M.GroundTruth],
-                        segments: Sequence[tuple[int, int]]) -> tuple[dict[str, Any], dict[str, Path]]:
-    """report.json's camera_motion and its figure (a failed figure is reported, never fatal)."""
+                        segments: Sequence[tuple[int, int]], figure_worker: Any = None
+                        ) -> tuple[dict[str, Any], Callable[[], dict[str, Path]]]:
+    """report.json's camera_motion, and its figure as it is drawn (in `figure_worker` when given):
+    call the second for {file name: path}. A failed figure is reported in the summary, never fatal."""
     from cinetransfer.report import camera_motion as CM
 
     summary, series = CM.camera_motion_summary(source, output, states, truths, segments)
-    if not series:
-        return summary, {}
-    try:
-        return summary, {CM.FIGURE: CM.fig_camera_motion(outdir / CM.FIGURE, series)}
-    except Exception as e:  # noqa: BLE001 - a plotting bug must not lose the numbers
-        log.exception("figure %s failed", CM.FIGURE)
-        summary["figure_error"] = f"{type(e).__name__}: {e}"[:300]
-        return summary, {}
+    path = outdir / CM.FIGURE
+    job = figure_worker.submit(CM.fig_camera_motion, path, series) if series and figure_worker is not None else None
+
+    def drawn() -> dict[str, Path]:
+        if not series:
+            return {}
+        try:
+            if job is not None:
+                try:
+                    return {CM.FIGURE: job.result()}
+                except BrokenExecutor as e:  # the figure process died, not the figure: drawn here
+                    log.warning("figure %s: the figure process failed (%s); drawn here instead", CM.FIGURE, e)
+            return {CM.FIGURE: CM.fig_camera_motion(path, series)}
+        except Exception as e:  # noqa: BLE001 - a plotting bug must not lose the numbers
+            log.exception("figure %s failed", CM.FIGURE)
+            summary["figure_error"] = f"{type(e).__name__}: {e}"[:300]
+            return {}
+
+    return summary, drawn
 
 
 def recording_facts(meta: dict[str, Any], roll: dict[str, float] | None = None) -> dict[str, Any]:
@@ -132,12 +146,17 @@ def recording_facts(meta: dict[str, Any], roll: dict[str, float] | None = None) 
 
 
 def floor_facts(source: M.Instructions, truths: Sequence[M.GroundTruth], meta: dict[str, Any],
-                fid: Any) -> tuple[dict[str, Any], Any]:
-    """The truth joint error's floor (floor.py) for report.json, and the Floor (None if not computed)."""
+                fid: Any, ahead: Any = None) -> tuple[dict[str, Any], Any]:
+    """The truth joint error's floor (floor.py) for report.json, and the Floor (None if not computed).
+    `ahead`: a Future of `floor.run_floor` on the same source, truths and meta with the frames
+    aligned by index, started before the output's style was known (used when they are)."""
     from cinetransfer.report import floor as FL
 
     by_index = (fid.summary.get("alignment") or {}).get("mode") == "index"
-    fl, why = FL.run_floor(source, list(truths), meta, aligned_by_index=by_index)
+    if ahead is not None and by_index:
+        fl, why = ahead.result()
+    else:
+        fl, why = FL.run_floor(source, list(truths), meta, aligned_by_index=by_index)
     if fl is None:
         return {"joint_error": None, "reason": why}, None
     return {"joint_error": fl.mean(), "joint_frames": int(fl.counts.sum()), "model": fl.model}, fl
@@ -174,6 +193,18 @@ def per_shot(source: M.Instructions, output: M.Instructions | None, truths: list
     return out
 
 
+def _drawn(*drawings: Any) -> tuple[dict[str, Any], dict[str, str]]:
+    """The figures of the drawings, and their errors, in the page's order."""
+    figures: dict[str, Any] = {}
+    errors: dict[str, str] = {}
+    for d in drawings:
+        done, failed = d.result()
+        figures.update(done)
+        errors.update(failed)
+    order = [n for n, _ in figs.FIGURES]
+    return figures, {n: errors[n] for n in sorted(errors, key=order.index)}
+
+
 def _judge_by_faults(summary: dict[str, Any], faults: dict[str, Any] | None) -> None:
     """The headline states what happened in the takes (holds, planner restarts, over-budget solves,
     watchdog holds); in a degraded take no goal is reported as met (cinetransfer/take_faults.py)."""
@@ -200,13 +231,16 @@ def _judge_by_faults(summary: dict[str, Any], faults: dict[str, Any] | None) -> 
 def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLike | None,
                  truths: Sequence[M.GroundTruth], source_video: Path | str | None,
                  output_video: Path | str | None, meta: dict[str, Any] | None = None,
-                 embed_images: bool = True, recording: Path | str | None = None) -> dict[str, Any]:
+                 embed_images: bool = True, recording: Path | str | None = None,
+                 figure_worker: Any = None, floor_ahead: Any = None) -> dict[str, Any]:
     """Compare a recorded run with its source style; write outdir/report.html, report.json and
     fig_*.png. Returns the summary (the content of report.json; its "headline" is a short digest).
 
     source_style / output_style: a style.json path or an `Instructions` message. output_style
     None (or unreadable) means the extraction on the output failed: the report says so and
-    the ground-truth half is still computed. truths: the simulator's GroundTruth, one per
+    the ground-truth half is still computed. figure_worker: a report.workers.FigureWorker that draws
+    the figures beside the rest (None: drawn in this process; the same files either way); floor_ahead:
+    the truth floor computed ahead (`floor_facts`). truths: the simulator's GroundTruth, one per
     recorded frame (may be empty). recording: the run's run.mcap, summarised in the report (size
     per second of flight, channels). Raises ValueError when the source style cannot be loaded or
     the recording is not a readable cinetransfer MCAP (shared.runlog.RunFormatError).
@@ -240,12 +274,16 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
 
     fid = F.compute_fidelity(source, output, truths, output_fps=output_fps, output_frames=output_frames,
                              output_missing_reason=reason)
-    floor_summary, floor = floor_facts(source, truths, meta, fid)
     credit = str(meta.get("credit") or figs.credit_for(source_video))
     shot_rows = ([int(t["first_row"]) for t in meta["takes"]] if meta.get("takes") else
                  [a for a, _ in shot_segments(source)])[1:]
-    # the side-by-side video decodes both videos once, and keeps the frames the figures show
+    # the time plots are drawn (in `figure_worker` when given) while the side-by-side video decodes
+    # both videos once, keeping the frames the frames figure shows
     s = fid.series
+    fig_series = figs.figure_series(s, meta.get("repeated_slots") or (), shot_rows)
+    plots = figs.Drawing(outdir, fig_series, [n for n, _ in figs.FIGURES if n != figs.FRAMES_FIGURE],
+                         pool=figure_worker)
+    floor_summary, floor = floor_facts(source, truths, meta, fid, floor_ahead)
     _, src_idx, out_idx = figs.frame_picks(s)
     keep: tuple[dict, dict] = ({i: None for i in src_idx}, {i: None for i in out_idx})
     video, video_error = None, ""
@@ -258,16 +296,13 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
         video_error = f"{type(e).__name__}: {e}"
         log.warning("side-by-side video not made: %s", video_error)
     decoded = tuple({i: im for i, im in d.items() if im is not None} for d in keep) if video else None
-    figures, fig_errors = figs.make_figures(outdir, fid.series, source_video=source_video,
-                                            output_video=output_video, credit=credit,
-                                            repeated_slots=meta.get("repeated_slots") or (), shot_rows=shot_rows,
-                                            decoded=decoded)
+    frames = figs.Drawing(outdir, fig_series, [figs.FRAMES_FIGURE], pool=figure_worker, source_video=source_video,
+                          output_video=output_video, credit=credit, decoded=decoded)
 
     segs = ([(int(t["first_row"]), int(t["end_row"])) for t in meta["takes"]] if meta.get("takes")
             else shot_segments(source))
     states = vehicle_states(run) if run and truths else []
-    motion, motion_fig = camera_motion_facts(outdir, source, output, states, truths, segs)
-    figures.update(motion_fig)
+    motion, motion_fig = camera_motion_facts(outdir, source, output, states, truths, segs, figure_worker)
 
     from cinetransfer.report.people import make_people
 
@@ -275,6 +310,9 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
         people = make_people(outdir, meta, source_video)
     except (OSError, ValueError, KeyError, cv2.error) as e:  # the report never fails on this picture
         people = {"error": str(e)}
+    shots = per_shot(source, output, list(truths), output_fps, meta.get("takes"), floor)
+    figures, fig_errors = _drawn(plots, frames)
+    figures.update(motion_fig())
     summary: dict[str, Any] = {
         "people": people,
         "format": REPORT_FORMAT, "version": REPORT_VERSION,
@@ -289,7 +327,7 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
         "credit": credit,
         "recording": recording_facts(meta, camera_roll_deg(states, [t.stamp_ns for t in truths]) if states else None),
         "truth_floor": floor_summary,
-        "shots": per_shot(source, output, list(truths), output_fps, meta.get("takes"), floor),
+        "shots": shots,
         "camera_motion": motion,
         "figures": sorted(figures),
         "figure_errors": fig_errors,

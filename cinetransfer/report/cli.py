@@ -82,11 +82,14 @@ def main(argv: list[str]) -> int:
     if problem:  # before the figures: each would otherwise log its own traceback
         print(f"cinetransfer report: cannot write the report into {outdir}: {problem}", file=sys.stderr)
         return 1
+    from cinetransfer.report.workers import FigureWorker
+
     try:
-        summary = build_report(outdir, source_style=run / STYLE, output_style=out_style, truths=truths,
-                               source_video=source_video, output_video=out_video, meta=meta,
-                               embed_images=not args.no_embed,
-                               recording=run / RECORDING if (run / RECORDING).is_file() else None)
+        with FigureWorker() as worker:  # the figures on the second core while this process does the rest
+            summary = build_report(outdir, source_style=run / STYLE, output_style=out_style, truths=truths,
+                                   source_video=source_video, output_video=out_video, meta=meta,
+                                   embed_images=not args.no_embed, figure_worker=worker,
+                                   recording=run / RECORDING if (run / RECORDING).is_file() else None)
     except ValueError as e:
         print(f"cinetransfer report: {e}", file=sys.stderr)
         return 1

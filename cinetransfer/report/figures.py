@@ -388,6 +388,72 @@ FIGURES = (("fig_frames.png", "Sampled frames"), ("fig_joints.png", "Controlled 
            ("fig_focus.png", "Focus per region"), ("fig_error.png", "Error over time"))
 
 
+#: the figure that shows sampled frames (it needs the decoded videos; the others only the series)
+FRAMES_FIGURE = "fig_frames.png"
+
+
+def draw_figure(name: str, outdir: Path, series: dict[str, Any], **frames_kw: Any) -> tuple[Path | None, str]:
+    """One figure of FIGURES into outdir: (its path, ""), or (None, the error) when plotting failed:
+    logged, never raised (a plotting bug must not lose the numbers). `frames_kw` are fig_frames'
+    keywords. Module-level with picklable arguments: a second process can draw it (report/workers.py)."""
+    makers = {FRAMES_FIGURE: lambda p: fig_frames(p, series, **frames_kw),
+              "fig_joints.png": lambda p: fig_joints(p, series),
+              "fig_focus.png": lambda p: fig_focus(p, series),
+              "fig_error.png": lambda p: fig_error(p, series)}
+    # Cosmetic plotting warnings (layout, empty data) are logged, not raised: a caller that
+    # runs with warnings as errors must still get its report.
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            return makers[name](outdir / name), ""
+        except Exception as e:  # a plotting bug must not lose the numbers
+            log.exception("figure %s failed", name)
+            return None, re.sub(r"\s+", " ", f"{type(e).__name__}: {e}")[:300]
+        finally:
+            for w in caught:
+                log.debug("figure %s: %s: %s", name, w.category.__name__, w.message)
+
+
+class Drawing:
+    """Figures being drawn: in `pool` (a report.workers.FigureWorker) when given, else here and now.
+    `result()` gives ({file name: path}, {file name: error}); a figure the pool could not draw (its
+    process died) is drawn here instead."""
+
+    def __init__(self, outdir: Path, series: dict[str, Any], names: Sequence[str], pool: Any = None,
+                 **frames_kw: Any) -> None:
+        self.outdir, self.series, self.frames_kw = outdir, series, frames_kw
+        self.jobs: dict[str, Any] = {}
+        for name in names:
+            job = pool.submit(draw_figure, name, outdir, series, **self._kw(name)) if pool is not None else None
+            self.jobs[name] = job if job is not None else draw_figure(name, outdir, series, **self._kw(name))
+
+    def _kw(self, name: str) -> dict[str, Any]:
+        return self.frames_kw if name == FRAMES_FIGURE else {}
+
+    def result(self) -> tuple[dict[str, Path], dict[str, str]]:
+        done: dict[str, Path] = {}
+        errors: dict[str, str] = {}
+        for name, job in self.jobs.items():
+            if not isinstance(job, tuple):
+                try:
+                    job = job.result()
+                except Exception as e:  # noqa: BLE001 - the worker process failed, not the figure: draw it here
+                    log.warning("figure %s: the figure process failed (%s); drawn here instead", name, e)
+                    job = draw_figure(name, self.outdir, self.series, **self._kw(name))
+            path, error = job
+            if path is not None:
+                done[name] = path
+            else:
+                errors[name] = error
+        return done, errors
+
+
+def figure_series(series: dict[str, Any], repeated_slots: Sequence[int] = (),
+                  shot_rows: Sequence[int] = ()) -> dict[str, Any]:
+    """The fidelity series with what the time plots mark: repeated output frames and the cuts."""
+    return {**series, "repeated_slots": list(repeated_slots), "shot_rows": list(shot_rows)}
+
+
 def make_figures(outdir: Path, series: dict[str, Any], *, source_video: str | Path | None,
                  output_video: str | Path | None, credit: str = "",
                  repeated_slots: Sequence[int] = (),
@@ -397,24 +463,5 @@ def make_figures(outdir: Path, series: dict[str, Any], *, source_video: str | Pa
     """Every figure into outdir; returns ({file name: path}, {file name: error}). One failing
     figure is logged and reported, never fatal for the others or the report. Output frames in
     `repeated_slots` (repeats of the previous frame) are shaded on the time plots."""
-    series = {**series, "repeated_slots": list(repeated_slots), "shot_rows": list(shot_rows)}
-    done: dict[str, Path] = {}
-    errors: dict[str, str] = {}
-    makers = {"fig_frames.png": lambda p: fig_frames(p, series, source_video=source_video,
-                                                     output_video=output_video, credit=credit, decoded=decoded),
-              "fig_joints.png": lambda p: fig_joints(p, series),
-              "fig_focus.png": lambda p: fig_focus(p, series),
-              "fig_error.png": lambda p: fig_error(p, series)}
-    for name, _ in FIGURES:
-        # Cosmetic plotting warnings (layout, empty data) are logged, not raised: a caller that
-        # runs with warnings as errors must still get its report.
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            try:
-                done[name] = makers[name](outdir / name)
-            except Exception as e:  # a plotting bug must not lose the numbers
-                log.exception("figure %s failed", name)
-                errors[name] = re.sub(r"\s+", " ", f"{type(e).__name__}: {e}")[:300]
-        for w in caught:
-            log.debug("figure %s: %s: %s", name, w.category.__name__, w.message)
-    return done, errors
+    return Drawing(outdir, figure_series(series, repeated_slots, shot_rows), [n for n, _ in FIGURES],
+                   source_video=source_video, output_video=output_video, credit=credit, decoded=decoded).result()
