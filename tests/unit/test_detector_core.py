@@ -120,6 +120,23 @@ def test_sequential_and_parallel_give_the_same_result(juggle_frames):
     assert np.abs(a.focus_map.astype(int) - b.focus_map.astype(int)).mean() < 2
 
 
+
+def test_streamed_frames_give_what_one_frame_at_a_time_gives():
+    # given consecutive frames of the juggler (tracking, the SSD's skipped frames and camera motion all in play)
+    frames = list(iter_frames(data_dir() / "sam2_juggle_1280x720.mp4", stop=8))
+    with Detector(DetectorConfig()) as det:
+        one = [det.process(f.image, f.index, f.stamp_ns, source="clip", fps=f.fps) for f in frames]
+    # when the same frames are streamed (frame k's tail beside frame k + 1's pose)
+    with Detector(DetectorConfig()) as det:
+        streamed = list(det.process_frames(frames, source="clip"))
+    # then every measurement is the same, in the same order
+    assert [m.frame_index for m in streamed] == [f.index for f in frames]
+    for a, b in zip(one, streamed):
+        assert codec.encode(a) == codec.encode(b)
+    assert sum(m.camera_motion is not None for m in streamed) == len(frames) - 1
+    assert all(len(m.people) == 1 for m in streamed)
+
+
 # ---------------------------------------------------------------------------- focus
 def _davis(name: str, index: int):
     d = data_dir()
