@@ -12,8 +12,8 @@ OpenCV/numpy that releases the GIL) runs in a worker thread while the pose backe
 MediaPipe C++, also GIL-free) runs in the caller's thread; the cheap second focus stage then uses
 the people's masks so that the in-focus map does not bleed between a person and what is behind,
 while the camera-motion stage (which masks the people out too) runs in the worker.
-`process_frames` / `process_source` go further for a sequence: a frame's tail (focus map, camera
-motion, Measurement: nothing the next frame's pose needs) runs in a thread of its own beside the
+`process_frames` / `process_source` go further for a sequence: a frame's tail (mask refinement,
+focus map, camera motion, Measurement: nothing the next frame's pose needs) runs in a thread of its own beside the
 next frame's pose, with the same results. `process_source` also decodes the next frames in a
 background thread.
 """
@@ -79,6 +79,7 @@ class _Head(NamedTuple):
     skeletons: list[Skeleton]
     edges: object  # the focus estimator's EdgeEvidence, or None
     signature: np.ndarray
+    refined: bool  # the people's masks are refined already
 
 
 def people_mask(people: list[PersonDetection], width: int, height: int) -> np.ndarray | None:
@@ -147,18 +148,17 @@ class Detector:
     def analyse(self, image_bgr: np.ndarray, stamp_ns: int) -> tuple[list[PersonDetection], list[Skeleton],
                                                                     FocusResult | None]:
         """People, skeletons and focus of one BGR frame."""
-        head = self._head(image_bgr, stamp_ns)
+        head = self._head(image_bgr, stamp_ns, refine=True)
         return head.people, head.skeletons, self._focus_of(head)
 
-    def _head(self, image_bgr: np.ndarray, stamp_ns: int) -> "_Head":
+    def _head(self, image_bgr: np.ndarray, stamp_ns: int, *, refine: bool) -> "_Head":
         """The part of a frame that the next frame's pose depends on (the pose backend's tracking), with
-        what needs no pose: people, skeletons (masks refined), the focus map's edge evidence, the colour
-        signature.
+        what needs no pose: people, skeletons, the focus map's edge evidence, the colour signature.
 
         The focus map's edge stage and the colour signature start at once in the worker thread beside
-        the pose backend (which uses both cores only on the frames its SSD runs); the caller's mask
-        refinement needs the pose. The fallback detector, when there is one, starts first (it is the
-        longest job)."""
+        the pose backend (which uses both cores only on the frames its SSD runs). `refine`: the caller
+        refines the people's masks meanwhile too (else the tail does). The fallback detector, when there
+        is one, starts first (it is the longest job)."""
         if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or image_bgr.dtype != np.uint8:
             raise ValueError(f"expected a BGR uint8 image (H, W, 3), got {image_bgr.dtype} {image_bgr.shape}")
 
@@ -174,7 +174,7 @@ class Detector:
         side_fut = pool.submit(side_work) if pool is not None else None
         try:
             people, skeletons = self.backend.detect(image_bgr, stamp_ns)
-            if self.cfg.mask_refine_radius_px > 0:
+            if refine and self.cfg.mask_refine_radius_px > 0:
                 people = subject_mask.refine_people(image_bgr, people, skeletons,
                                                     radius=self.cfg.mask_refine_radius_px)
         finally:
@@ -182,7 +182,17 @@ class Detector:
             ev, sig = side_fut.result() if side_fut is not None else side_work()
         if extra:
             people = self._merge_fallback(people, extra)
-        return _Head(image_bgr, people, skeletons, ev, sig)
+        return _Head(image_bgr, people, skeletons, ev, sig, refine)
+
+    def _refined(self, head: "_Head") -> "_Head":
+        """The head with its people's masks refined (snapped to the image's edges, cut to their own
+        body). No later frame's pose reads them, so this is tail work; a fallback person has no mask
+        and stays as it is."""
+        if head.refined or self.cfg.mask_refine_radius_px <= 0:
+            return head
+        people = subject_mask.refine_people(head.image, head.people, head.skeletons,
+                                            radius=self.cfg.mask_refine_radius_px)
+        return head._replace(people=people, refined=True)
 
     def _focus_of(self, head: "_Head") -> FocusResult | None:
         """The focus map spread from the edges, inside and outside the people's masks apart."""
@@ -193,10 +203,12 @@ class Detector:
 
     def _tail(self, head: "_Head", frame_index: int, stamp_ns: int, source: str, fps: float,
               lens: LensState | None, valid: bool, *, overlap: bool) -> Measurement:
-        """The rest of a frame, which no later frame's pose needs: the focus map, the camera motion (it
-        masks the people out), the shot change, the Measurement. Camera motion and shot change depend on
-        the previous frame's tail: tails run in frame order. `overlap`: the camera motion runs in the
-        worker thread while this one spreads the focus map."""
+        """The rest of a frame, which no later frame's pose needs: the people's masks refined, the focus
+        map, the camera motion (it masks the people out), the shot change, the Measurement. Camera
+        motion and shot change depend on the previous frame's tail: tails run in frame order.
+        `overlap`: the camera motion runs in the worker thread while this one spreads the focus map."""
+        head = self._refined(head)
+
         def motion_of():
             if self.motion is None:
                 return None
@@ -239,14 +251,14 @@ class Detector:
     def process(self, image_bgr: np.ndarray, frame_index: int = 0, stamp_ns: int = 0, *, source: str = "",
                 fps: float = float("nan"), lens: LensState | None = None, valid: bool = True) -> Measurement:
         """One Measurement for one BGR frame (an empty one, not an error, when nobody is there)."""
-        head = self._head(image_bgr, stamp_ns)
+        head = self._head(image_bgr, stamp_ns, refine=True)
         return self._tail(head, frame_index, stamp_ns, source, fps, lens, valid, overlap=True)
 
     def process_frames(self, frames: Iterable[SourceFrame], *, source: str | None = None) -> Iterator[Measurement]:
         """Measurements of a sequence of frames, in order: the same as `process` on each, but frame k's
-        tail (focus map, camera motion, Measurement) runs in a thread of its own while frame k + 1's pose
-        runs, so both cores stay busy across frames (a frame's pose and tail alone leave one idle much
-        of the time). Measurement k is handed out once frame k + 1's pose is done: one frame later
+        tail (mask refinement, focus map, camera motion, Measurement) runs in a thread of its own while
+        frame k + 1's pose runs, so both cores stay busy across frames (a frame's pose and tail alone
+        leave one idle much of the time). Measurement k is handed out once frame k + 1's pose is done: one frame later
         than `process` would. `source` overrides each frame's own source name."""
         if self._pool is None:  # threads = 1: sequential
             for f in frames:
@@ -256,7 +268,7 @@ class Detector:
         with cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="tail") as tails:
             pending: cf.Future | None = None
             for f in frames:
-                head = self._head(f.image, f.stamp_ns)
+                head = self._head(f.image, f.stamp_ns, refine=False)
                 if pending is not None:
                     yield pending.result()
                 # the previous tail is done: this one may start (tails share the camera-motion state)
