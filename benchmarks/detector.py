@@ -32,9 +32,10 @@ from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.services.detector.core import Detector
 from cinetransfer.services.detector.focus import FocusEstimator
 from cinetransfer.services.detector.hog_people import HogPeople
-from cinetransfer.shared.frame_sources import iter_frames
+from cinetransfer.shared.frame_sources import SourceFrame, iter_frames
 
 RESOLUTIONS = ((640, 360), (1280, 720))
+STREAMED = "full, 2 threads, streamed (a file)"
 
 
 def _time(fn, frames, warmup: int) -> dict:
@@ -58,6 +59,32 @@ def _time(fn, frames, warmup: int) -> dict:
             "caller_thread_cpu_ms_per_frame": 1e3 * main / len(frames), "idle_estimate_fps": 1e3 / idle_ms}
 
 
+def _time_stream(det: Detector, frames, warmup: int, period_ns: int) -> dict:
+    """`_time` for `Detector.process_frames` (the path of `process_source` and `cinetransfer detect`):
+    frame k's tail overlaps frame k + 1's pose, so a frame's latency is not defined here; the latency
+    columns give the time between consecutive measurements handed out."""
+    def seq(first: int, n: int):
+        return (SourceFrame(first + i, (first + i) * period_ns, frames[(first + i) % len(frames)], 24.0, "bench")
+                for i in range(n))
+
+    for _ in det.process_frames(seq(0, warmup)):
+        pass
+    lat = []
+    c0, m0, t0 = time.process_time(), time.thread_time(), time.perf_counter()
+    t = t0
+    for _ in det.process_frames(seq(warmup, len(frames))):
+        now = time.perf_counter()
+        lat.append(now - t)
+        t = now
+    wall = time.perf_counter() - t0
+    cpu = time.process_time() - c0
+    main = time.thread_time() - m0
+    idle_ms = 1e3 * max(main, cpu / 2) / len(frames)
+    return {"fps": len(frames) / wall, "latency_ms": stats(1e3 * np.asarray(lat)), "cpu_cores_used": cpu / wall,
+            "cpu_ms_per_frame": 1e3 * cpu / len(frames),
+            "caller_thread_cpu_ms_per_frame": 1e3 * main / len(frames), "idle_estimate_fps": 1e3 / idle_ms}
+
+
 def _line(name: str, r: dict) -> str:
     lat = r["latency_ms"]
     return (f"  {name:<34} {r['fps']:6.1f} frames/s   median {lat['median']:6.1f} ms   p95 {lat['p95']:6.1f} ms   "
@@ -65,60 +92,82 @@ def _line(name: str, r: dict) -> str:
             f"(caller {r['caller_thread_cpu_ms_per_frame']:5.1f})   idle est. {r['idle_estimate_fps']:5.1f} frames/s")
 
 
+def _resolution(frames: list, warmup: int, quick: bool) -> dict:
+    """Every row at one resolution (`quick`: the default detector only, per frame and streamed)."""
+    res: dict = {}
+    base = DetectorConfig()
+    if not quick:
+        for be in ("box_first", "mediapipe"):
+            with Detector(base.replace(backend=be, focus=False, threads=1)) as det:
+                res[f"pose only ({det.name})"] = _time(lambda f, i: det.backend.detect(f, i * 41_666_667), frames,
+                                                       warmup)
+        est = FocusEstimator(base)
+        res["focus only"] = _time(lambda f, i: est.estimate(f), frames, warmup)
+        hog = HogPeople(base)
+        res["HOG fallback only"] = _time(lambda f, i: hog.detect(f), frames, warmup)
+    with Detector(base) as det:
+        res[STREAMED] = _time_stream(det, frames, warmup, 41_666_667)
+    rows = (("full, 2 threads (default)", base),) if quick else (
+        ("full, 1 thread", base.replace(threads=1)), ("full, 2 threads (default)", base.replace(threads=2)),
+        ("full, 2 threads, SSD every frame", base.replace(threads=2, bf_ssd_every=1)),
+        ("full + HOG fallback, 2 threads", base.replace(threads=2, person_fallback="hog")))
+    for name, cfg in rows:
+        with Detector(cfg) as det:
+            res[name] = _time(lambda f, i: det.process(f, i, i * 41_666_667), frames, warmup)
+    for k, r in res.items():
+        print(_line(k, r))
+    return res
+
+
+def _tud(frames: list, warmup: int) -> dict:
+    res = {}
+    with Detector(DetectorConfig(focus=False, threads=1)) as det:
+        res["pose only (box_first)"] = _time(lambda f, i: det.backend.detect(f, i * 40_000_000), frames, warmup)
+    with Detector(DetectorConfig()) as det:
+        res[STREAMED] = _time_stream(det, frames, warmup, 40_000_000)
+    for name, cfg in (("full, 2 threads (default)", DetectorConfig()),
+                      ("full, 2 threads, mediapipe backend", DetectorConfig(backend="mediapipe"))):
+        with Detector(cfg) as det:
+            res[name] = _time(lambda f, i: det.process(f, i, i * 40_000_000), frames, warmup)
+    for k, r in res.items():
+        print(_line(k, r))
+    return res
+
+
+def _verdict(label: str, r: dict, goal: float) -> None:
+    print(f"goal: >= {goal:.0f} frames/s on {label}, streamed -> {r['fps']:.1f} frames/s measured "
+          f"({'met' if r['fps'] >= goal else 'NOT met'}); CPU cost {r['cpu_ms_per_frame']:.1f} ms/frame, caller "
+          f"thread {r['caller_thread_cpu_ms_per_frame']:.1f} -> about {r['idle_estimate_fps']:.1f} frames/s on 2 idle "
+          f"cores ({'met' if r['idle_estimate_fps'] >= goal else 'NOT met'} there)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--warmup", type=int, default=10)
+    ap.add_argument("--quick", action="store_true",
+                    help="1280x720 only, the default detector per frame and streamed; writes no result file")
     a = ap.parse_args()
     src = [f.image for f in iter_frames(data_dir() / "sam2_juggle_1280x720.mp4", stop=a.frames)]
     load = os.getloadavg()[0]
     print(f"load average before: {load:.2f} on {os.cpu_count()} CPUs "
           f"({'quiet' if load < 0.5 else 'UNDER LOAD: numbers are pessimistic'})")
     results: dict = {}
-    for w, h in RESOLUTIONS:
+    for w, h in RESOLUTIONS[-1:] if a.quick else RESOLUTIONS:
         frames = [cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA) for img in src]
         print(f"{w}x{h}, {len(frames)} frames:")
-        res: dict = {}
-        base = DetectorConfig()
-        for be in ("box_first", "mediapipe"):
-            with Detector(base.replace(backend=be, focus=False, threads=1)) as det:
-                res[f"pose only ({det.name})"] = _time(lambda f, i: det.backend.detect(f, i * 41_666_667), frames,
-                                                       a.warmup)
-        est = FocusEstimator(base)
-        res["focus only"] = _time(lambda f, i: est.estimate(f), frames, a.warmup)
-        hog = HogPeople(base)
-        res["HOG fallback only"] = _time(lambda f, i: hog.detect(f), frames, a.warmup)
-        for name, cfg in (("full, 1 thread", base.replace(threads=1)),
-                          ("full, 2 threads (default)", base.replace(threads=2)),
-                          ("full, 2 threads, SSD every frame", base.replace(threads=2, bf_ssd_every=1)),
-                          ("full + HOG fallback, 2 threads", base.replace(threads=2, person_fallback="hog"))):
-            with Detector(cfg) as det:
-                res[name] = _time(lambda f, i: det.process(f, i, i * 41_666_667), frames, a.warmup)
-        for k, r in res.items():
-            print(_line(k, r))
-        results[f"{w}x{h}"] = res
-    tud = [f.image for f in iter_frames(data_dir() / "tud_stadtmitte_640x480.mp4", stop=a.frames)]
-    print(f"TUD-Stadtmitte 640x480, {len(tud)} frames:")
-    res = {}
-    with Detector(DetectorConfig(focus=False, threads=1)) as det:
-        res["pose only (box_first)"] = _time(lambda f, i: det.backend.detect(f, i * 40_000_000), tud, a.warmup)
-    for name, cfg in (("full, 2 threads (default)", DetectorConfig()),
-                      ("full, 2 threads, mediapipe backend", DetectorConfig(backend="mediapipe"))):
-        with Detector(cfg) as det:
-            res[name] = _time(lambda f, i: det.process(f, i, i * 40_000_000), tud, a.warmup)
-    for k, r in res.items():
-        print(_line(k, r))
-    results["tud_640x480"] = res
-    for label, r, goal in (("1280x720 (one person)", results["1280x720"]["full, 2 threads (default)"], 30.0),
-                           ("TUD (about 5 people)", results["tud_640x480"]["full, 2 threads (default)"], 10.0)):
-        print(f"goal: >= {goal:.0f} frames/s on {label} -> {r['fps']:.1f} frames/s measured "
-              f"({'met' if r['fps'] >= goal else 'NOT met'}); CPU cost {r['cpu_ms_per_frame']:.1f} ms/frame, caller "
-              f"thread {r['caller_thread_cpu_ms_per_frame']:.1f} -> about {r['idle_estimate_fps']:.1f} frames/s "
-              "on 2 idle "
-              f"cores ({'met' if r['idle_estimate_fps'] >= goal else 'NOT met'} there)")
+        results[f"{w}x{h}"] = _resolution(frames, a.warmup, a.quick)
+    if not a.quick:
+        tud = [f.image for f in iter_frames(data_dir() / "tud_stadtmitte_640x480.mp4", stop=a.frames)]
+        print(f"TUD-Stadtmitte 640x480, {len(tud)} frames:")
+        results["tud_640x480"] = _tud(tud, a.warmup)
+    _verdict("1280x720 (one person)", results["1280x720"][STREAMED], 30.0)
+    if not a.quick:
+        _verdict("TUD (about 5 people)", results["tud_640x480"][STREAMED], 10.0)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
-    results["load_avg_before"] = load
-    print(f"wrote {write_result('detector', results)}")
+    if not a.quick:
+        results["load_avg_before"] = load
+        print(f"wrote {write_result('detector', results)}")
 
 
 if __name__ == "__main__":

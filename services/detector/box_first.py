@@ -255,10 +255,19 @@ class BoxFirstPose:
 
     def _mask(self, seg: np.ndarray, roi: tuple, width: int, height: int) -> tuple[np.ndarray, tuple] | None:
         """The crop's segmentation, thresholded, in frame pixels: (mask, (x0, y0)) clipped to the frame."""
+        on = seg > self.cfg.mask_threshold
+        rows, cols = np.flatnonzero(on.any(axis=1)), np.flatnonzero(on.any(axis=0))
+        if rows.size == 0:
+            return None
+        # A frame pixel's bilinear value exceeds the threshold only if one of its four crop neighbours
+        # does: only the frame rectangle round those crop pixels (one pixel wider) needs the warp.
         cx, cy, side, co, si = roi
-        h = side / 2 * (abs(co) + abs(si))  # half-extent of the rotated square
-        fx0, fy0 = max(0, int(math.floor(cx - h))), max(0, int(math.floor(cy - h)))
-        fx1, fy1 = min(width, int(math.ceil(cx + h))), min(height, int(math.ceil(cy + h)))
+        u = np.array([cols[0] - 1.0, cols[-1] + 2.0, cols[-1] + 2.0, cols[0] - 1.0]) - LANDMARK_INPUT / 2
+        v = np.array([rows[0] - 1.0, rows[0] - 1.0, rows[-1] + 2.0, rows[-1] + 2.0]) - LANDMARK_INPUT / 2
+        k = side / LANDMARK_INPUT
+        xs, ys = cx + k * (co * u - si * v), cy + k * (si * u + co * v)
+        fx0, fy0 = max(0, int(math.floor(xs.min())) - 1), max(0, int(math.floor(ys.min())) - 1)
+        fx1, fy1 = min(width, int(math.ceil(xs.max())) + 1), min(height, int(math.ceil(ys.max())) + 1)
         if fx1 <= fx0 or fy1 <= fy0:
             return None
         a, t = self._crop_matrix(roi, (fx0, fy0))

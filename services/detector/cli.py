@@ -8,6 +8,7 @@ decoded frame, streamed as it goes (an interrupted run leaves a readable file). 
 from __future__ import annotations
 
 import argparse
+import collections
 import logging
 import sys
 import time
@@ -82,8 +83,15 @@ class _Run:
                                 focus_map_scale=det.focus_map_scale(info.width, info.height)) as writer, \
                 tqdm(total=total or None, unit="frame", disable=True if args.no_progress else None, dynamic_ncols=True,
                      desc=Path(args.source).name) as bar:
-            for f in iter_frames(args.source, start=args.start, stop=args.stop, fps=args.fps):
-                m = det.process(f.image, f.index, f.stamp_ns, source=info.path, fps=f.fps)
+            read: collections.deque = collections.deque()  # frames handed to the detector, not yet measured
+
+            def frames():
+                for f in iter_frames(args.source, start=args.start, stop=args.stop, fps=args.fps):
+                    read.append(f)
+                    yield f
+
+            for m in det.process_frames(frames(), source=info.path):  # measured in order, a frame behind
+                f = read.popleft()
                 writer.write(m)
                 if args.overlay:
                     self._overlay(args.overlay, f, m)

@@ -48,7 +48,7 @@ class DetectorConfig:
     # bf_ssd_skip_max_people of them: in a crowd people come and go) was confirmed by it, is followed by its
     # landmarks again (pose flag >= bf_track_min_pose_flag) and no one is missing; between, a person's box is
     # its mask's box carried by the last SSD box's offset from it. 1 = every frame
-    bf_ssd_every: int = setting(2, flag="--ssd-every", range="[1, 10]", metavar="N",
+    bf_ssd_every: int = setting(3, flag="--ssd-every", range="[1, 10]", metavar="N",
                                 help="box_first, video mode: run the person-box SSD every Nth frame while "
                                      "everyone is followed by landmarks (1 = every frame)")
     bf_ssd_skip_max_people: int = 2  # ... only while at most this many people are followed, 1..50
@@ -115,6 +115,11 @@ class DetectorConfig:
     threads: int = setting(2, flag="--threads", choices=(1, 2),
                            help="1 = sequential; 2 = focus and pose in parallel (uses both cores)")
 
+    # OpenCV's own worker threads (process-wide, set when a Detector is made; 0 = leave OpenCV's default).
+    # The detector already spreads its stages over both cores; OpenCV splitting each call over them as
+    # well costs ~10 % more CPU a frame at 1280x720 (benchmarks/detector.py) for no gain
+    cv_threads: int = 1  # 0..8
+
     def validate(self) -> "DetectorConfig":
         def need(cond: bool, name: str, allowed: str) -> None:
             if not cond:
@@ -170,6 +175,7 @@ class DetectorConfig:
         need(0.0 < self.focus_edge_threshold <= 255.0, "focus_edge_threshold", "(0, 255]")
         need(1.0 <= self.focus_propagation_sigma_px <= 200.0, "focus_propagation_sigma_px", "1..200")
         need(self.threads in (1, 2), "threads", "1 | 2")
+        need(0 <= self.cv_threads <= 8, "cv_threads", "0..8")
         if self.backend == "torchvision":
             need(bool(self.tv_mask_checkpoint or self.tv_keypoint_checkpoint), "tv_mask_checkpoint",
                  "a checkpoint path (or tv_keypoint_checkpoint) when backend='torchvision'")

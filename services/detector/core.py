@@ -12,7 +12,10 @@ OpenCV/numpy that releases the GIL) runs in a worker thread while the pose backe
 MediaPipe C++, also GIL-free) runs in the caller's thread; the cheap second focus stage then uses
 the people's masks so that the in-focus map does not bleed between a person and what is behind,
 while the camera-motion stage (which masks the people out too) runs in the worker.
-`process_source` also decodes the next frames in a background thread.
+`process_frames` / `process_source` go further for a sequence: a frame's tail (mask refinement,
+focus map, camera motion, Measurement: nothing the next frame's pose needs) runs in a thread of its own beside the
+next frame's pose, with the same results. `process_source` also decodes the next frames in a
+background thread.
 """
 from __future__ import annotations
 
@@ -20,15 +23,16 @@ import concurrent.futures as cf
 import dataclasses
 import logging
 import math
-from typing import Iterator
+from typing import Iterable, Iterator, NamedTuple
 
+import cv2
 import numpy as np
 
 from cinetransfer.services.detector import shots, subject_mask
 from cinetransfer.services.detector.camera_motion import CameraMotionTracker
 from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.services.detector.focus import FocusEstimator, FocusResult
-from cinetransfer.shared.frame_sources import iter_frames
+from cinetransfer.shared.frame_sources import SourceFrame, iter_frames
 from cinetransfer.shared.messages import LensState, Measurement, PersonDetection, Skeleton
 
 log = logging.getLogger("cinetransfer.detector")
@@ -67,6 +71,17 @@ def make_backend(cfg: DetectorConfig):
     raise DetectorError(f"unknown backend {cfg.backend!r}")
 
 
+class _Head(NamedTuple):
+    """A frame after its pose: what its tail needs."""
+
+    image: np.ndarray
+    people: list[PersonDetection]
+    skeletons: list[Skeleton]
+    edges: object  # the focus estimator's EdgeEvidence, or None
+    signature: np.ndarray
+    refined: bool  # the people's masks are refined already
+
+
 def people_mask(people: list[PersonDetection], width: int, height: int) -> np.ndarray | None:
     """Union of the people's masks (None when nobody has a mask pixel)."""
     if not people:
@@ -88,6 +103,8 @@ class Detector:
 
     def __init__(self, cfg: DetectorConfig | None = None, *, backend=None) -> None:
         self.cfg = (cfg or DetectorConfig()).validate()
+        if self.cfg.cv_threads > 0:
+            cv2.setNumThreads(self.cfg.cv_threads)
         self.backend = backend if backend is not None else make_backend(self.cfg)
         self.focus = FocusEstimator(self.cfg) if self.cfg.focus else None
         self.fallback = None
@@ -131,19 +148,19 @@ class Detector:
     def analyse(self, image_bgr: np.ndarray, stamp_ns: int) -> tuple[list[PersonDetection], list[Skeleton],
                                                                     FocusResult | None]:
         """People, skeletons and focus of one BGR frame."""
-        return self._analyse(image_bgr, stamp_ns)[:3]
+        head = self._head(image_bgr, stamp_ns, refine=True)
+        return head.people, head.skeletons, self._focus_of(head)
 
-    def _analyse(self, image_bgr: np.ndarray, stamp_ns: int, beside=None) -> tuple:  # noqa: ANN001 - callable
-        """People, skeletons, focus, colour signature of one BGR frame, and what `beside(people)` returns.
+    def _head(self, image_bgr: np.ndarray, stamp_ns: int, *, refine: bool) -> "_Head":
+        """The part of a frame that the next frame's pose depends on (the pose backend's tracking), with
+        what needs no pose: people, skeletons, the focus map's edge evidence, the colour signature.
 
-        Two cores, four jobs: the focus map's edge stage and the colour signature need no pose, so they
-        start at once in the worker thread beside the pose backend (which uses both cores only on the
-        frames its SSD runs); the caller's mask refinement needs the pose; then `beside` (the camera
-        motion, which needs the people's masks) runs in the worker while the caller spreads the focus
-        map. The fallback detector, when there is one, starts first (it is the longest job)."""
+        The focus map's edge stage and the colour signature start at once in the worker thread beside
+        the pose backend (which uses both cores only on the frames its SSD runs). `refine`: the caller
+        refines the people's masks meanwhile too (else the tail does). The fallback detector, when there
+        is one, starts first (it is the longest job)."""
         if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or image_bgr.dtype != np.uint8:
             raise ValueError(f"expected a BGR uint8 image (H, W, 3), got {image_bgr.dtype} {image_bgr.shape}")
-        h, w = image_bgr.shape[:2]
 
         def fallback_work():
             return self.fallback.detect(image_bgr) if self.fallback is not None else []
@@ -157,7 +174,7 @@ class Detector:
         side_fut = pool.submit(side_work) if pool is not None else None
         try:
             people, skeletons = self.backend.detect(image_bgr, stamp_ns)
-            if self.cfg.mask_refine_radius_px > 0:
+            if refine and self.cfg.mask_refine_radius_px > 0:
                 people = subject_mask.refine_people(image_bgr, people, skeletons,
                                                     radius=self.cfg.mask_refine_radius_px)
         finally:
@@ -165,14 +182,57 @@ class Detector:
             ev, sig = side_fut.result() if side_fut is not None else side_work()
         if extra:
             people = self._merge_fallback(people, extra)
-        beside_fut = pool.submit(beside, people) if pool is not None and beside is not None else None
+        return _Head(image_bgr, people, skeletons, ev, sig, refine)
+
+    def _refined(self, head: "_Head") -> "_Head":
+        """The head with its people's masks refined (snapped to the image's edges, cut to their own
+        body). No later frame's pose reads them, so this is tail work; a fallback person has no mask
+        and stays as it is."""
+        if head.refined or self.cfg.mask_refine_radius_px <= 0:
+            return head
+        people = subject_mask.refine_people(head.image, head.people, head.skeletons,
+                                            radius=self.cfg.mask_refine_radius_px)
+        return head._replace(people=people, refined=True)
+
+    def _focus_of(self, head: "_Head") -> FocusResult | None:
+        """The focus map spread from the edges, inside and outside the people's masks apart."""
+        if self.focus is None or head.edges is None:
+            return None
+        h, w = head.image.shape[:2]
+        return self.focus.propagate(head.edges, people_mask(head.people, w, h))
+
+    def _tail(self, head: "_Head", frame_index: int, stamp_ns: int, source: str, fps: float,
+              lens: LensState | None, valid: bool, *, overlap: bool) -> Measurement:
+        """The rest of a frame, which no later frame's pose needs: the people's masks refined, the focus
+        map, the camera motion (it masks the people out), the shot change, the Measurement. Camera
+        motion and shot change depend on the previous frame's tail: tails run in frame order.
+        `overlap`: the camera motion runs in the worker thread while this one spreads the focus map."""
+        head = self._refined(head)
+
+        def motion_of():
+            if self.motion is None:
+                return None
+            return self.motion.update(head.image, head.people, source=source, frame_index=int(frame_index),
+                                      lens=lens)
+
+        pool = self._pool if overlap else None
+        motion_fut = pool.submit(motion_of) if pool is not None else None
         try:
-            focus = None
-            if self.focus is not None and ev is not None:
-                focus = self.focus.propagate(ev, people_mask(people, w, h))
+            focus = self._focus_of(head)
         finally:
-            done = beside_fut.result() if beside_fut is not None else beside(people) if beside is not None else None
-        return people, skeletons, focus, sig, done
+            motion = motion_fut.result() if motion_fut is not None else motion_of()
+        h, w = head.image.shape[:2]
+        prev = self._prev_shot
+        # Only consecutive frames of one source are compared: after a gap nothing is known.
+        change = (shots.shot_change(prev[2], head.signature) if prev is not None and prev[0] == source
+                  and prev[1] == int(frame_index) - 1 else float("nan"))
+        self._prev_shot = (source, int(frame_index), head.signature)
+        return Measurement(shot_change=change, camera_motion=motion, stamp_ns=int(stamp_ns), valid=valid, source=source,
+                           frame_index=int(frame_index),
+                           fps=float(fps) if fps is not None and math.isfinite(fps) else float("nan"),
+                           width=w, height=h, people=head.people, skeletons=head.skeletons,
+                           focus_map=focus.as_uint8() if focus is not None else None, lens=lens,
+                           detector=self.name)
 
     def _merge_fallback(self, people: list[PersonDetection], extra: list[PersonDetection]) -> list[PersonDetection]:
         """Add fallback (box-only) people that no pose person already covers; skeleton indices stay valid
@@ -191,30 +251,36 @@ class Detector:
     def process(self, image_bgr: np.ndarray, frame_index: int = 0, stamp_ns: int = 0, *, source: str = "",
                 fps: float = float("nan"), lens: LensState | None = None, valid: bool = True) -> Measurement:
         """One Measurement for one BGR frame (an empty one, not an error, when nobody is there)."""
-        def motion_of(people: list[PersonDetection]):
-            if self.motion is None:
-                return None
-            return self.motion.update(image_bgr, people, source=source, frame_index=int(frame_index), lens=lens)
+        head = self._head(image_bgr, stamp_ns, refine=True)
+        return self._tail(head, frame_index, stamp_ns, source, fps, lens, valid, overlap=True)
 
-        people, skeletons, focus, sig, motion = self._analyse(image_bgr, stamp_ns, motion_of)
-        h, w = image_bgr.shape[:2]
-        prev = self._prev_shot
-        # Only consecutive frames of one source are compared: after a gap nothing is known.
-        change = (shots.shot_change(prev[2], sig) if prev is not None and prev[0] == source
-                  and prev[1] == int(frame_index) - 1 else float("nan"))
-        self._prev_shot = (source, int(frame_index), sig)
-        return Measurement(shot_change=change, camera_motion=motion, stamp_ns=int(stamp_ns), valid=valid, source=source,
-                           frame_index=int(frame_index),
-                           fps=float(fps) if fps is not None and math.isfinite(fps) else float("nan"),
-                           width=w, height=h, people=people, skeletons=skeletons,
-                           focus_map=focus.as_uint8() if focus is not None else None, lens=lens,
-                           detector=self.name)
+    def process_frames(self, frames: Iterable[SourceFrame], *, source: str | None = None) -> Iterator[Measurement]:
+        """Measurements of a sequence of frames, in order: the same as `process` on each, but frame k's
+        tail (mask refinement, focus map, camera motion, Measurement) runs in a thread of its own while
+        frame k + 1's pose runs, so both cores stay busy across frames (a frame's pose and tail alone
+        leave one idle much of the time). Measurement k is handed out once frame k + 1's pose is done: one frame later
+        than `process` would. `source` overrides each frame's own source name."""
+        if self._pool is None:  # threads = 1: sequential
+            for f in frames:
+                yield self.process(f.image, f.index, f.stamp_ns, source=f.source if source is None else source,
+                                   fps=f.fps)
+            return
+        with cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="tail") as tails:
+            pending: cf.Future | None = None
+            for f in frames:
+                head = self._head(f.image, f.stamp_ns, refine=False)
+                if pending is not None:
+                    yield pending.result()
+                # the previous tail is done: this one may start (tails share the camera-motion state)
+                pending = tails.submit(self._tail, head, f.index, f.stamp_ns,
+                                       f.source if source is None else source, f.fps, None, True, overlap=False)
+            if pending is not None:
+                yield pending.result()
 
     def process_source(self, path: str, *, start: int = 0, stop: int | None = None,
                        fps: float | None = None) -> Iterator[Measurement]:
         """Measurements of every frame of a video file or image folder (FrameSourceError if unreadable)."""
-        for f in iter_frames(path, start=start, stop=stop, fps=fps):
-            yield self.process(f.image, f.index, f.stamp_ns, source=str(path), fps=f.fps)
+        yield from self.process_frames(iter_frames(path, start=start, stop=stop, fps=fps), source=str(path))
 
     def focus_map_scale(self, width: int, height: int) -> float:
         if self.focus is None:

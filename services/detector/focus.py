@@ -98,20 +98,21 @@ class FocusEstimator:
         mag1 = cv2.magnitude(g1x, g1y)
         t = cfg.focus_edge_threshold
         # Canny's 3x3 Sobel magnitude is ~8x the central-difference gradient per pixel.
-        edges = cv2.Canny(grey, 4.0 * t, 8.0 * t, L2gradient=True) > 0
-        ys, xs = np.nonzero(edges)
+        # flat indices: one index array instead of two (a third of the pixels are edges)
+        idx = np.flatnonzero(cv2.Canny(grey, 4.0 * t, 8.0 * t, L2gradient=True))
         mw, mh = self.map_size(w, h)
         guide = cv2.resize(grey, (mw, mh), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
         num = np.zeros((wh, ww), np.float32)
         den = np.zeros((wh, ww), np.float32)
         sigma = np.zeros(0, np.float32)
-        if len(ys):
-            r = mag[ys, xs] / np.maximum(mag1[ys, xs], 1e-6)
+        if idx.size:
+            m = mag.ravel().take(idx)
+            r = m / np.maximum(mag1.ravel().take(idx), 1e-6)
             r = np.maximum(r, 1.0 + 1e-3)
             sigma = np.minimum(s0 / np.sqrt(r * r - 1.0), 50.0).astype(np.float32)
-            wgt = np.minimum(mag[ys, xs] / (4.0 * t), 4.0)  # contrast weight, saturating
-            num[ys, xs] = np.log(sigma) * wgt
-            den[ys, xs] = wgt
+            wgt = np.minimum(m / (4.0 * t), 4.0)  # contrast weight, saturating
+            num.ravel()[idx] = np.log(sigma) * wgt
+            den.ravel()[idx] = wgt
         # mean-pool to the map resolution (both alike; the ratio is what counts)
         num = cv2.resize(num, (mw, mh), interpolation=cv2.INTER_AREA)
         den = cv2.resize(den, (mw, mh), interpolation=cv2.INTER_AREA)
