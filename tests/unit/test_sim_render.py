@@ -1,6 +1,7 @@
 """Built-in simulator: renderer geometry, thin-lens blur, ground truth, backend (sim/renderer.py, backend.py)."""
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import cv2
@@ -368,3 +369,22 @@ def test_the_juggler_seen_close_and_in_focus_reads_in_focus_to_the_detector():
     res = FocusEstimator(DetectorConfig()).estimate(img, person_mask=mask)
     m = cv2.resize(mask.astype(np.uint8), res.prob.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
     assert (res.prob[m] >= 0.5).mean() > 0.65  # 0.74 (bilinear: 0.55)
+
+
+def test_a_layer_behind_the_person_seen_obliquely_is_drawn_before_him():
+    """lawn_juggler's backdrop (x = 21.9 m, 160 m wide) seen from the start towards a person 14 m to the
+    side: its anchor is nearer along the optical axis than he is, but he and the camera are on the same
+    side of it, so it is drawn first and does not cover him."""
+    sim = SimBackend(load_scene("lawn_juggler_25d"), epoch_ns=0)
+    r = sim.renderer
+    root = np.array([1.0, -14.0, 0.0])
+    r.subject.script.pose_at = lambda t, _p=r.subject.script.pose_at: dataclasses.replace(_p(t), position_m=root)
+    c = np.array([-5.5, 0.0, 1.4])
+    d = root + [0.0, 0.0, 0.9] - c
+    v = dataclasses.replace(sim.view(), position_m=c, ypr_rad=np.array([math.atan2(d[1], d[0]), 0.0, 0.0]),
+                            focal_mm=60.0)
+    planes, geo = r.planes(v, 0.0)
+    names = [p.name for p in planes]
+    backdrop = next(p for p in planes if p.name == "trees_building")
+    assert float(v.to_camera(np.array([21.9, 0.0, 0.0]))[0]) < geo["root_depth_m"]  # the anchor is nearer
+    assert names.index("trees_building") < names.index("subject") and backdrop.depth_key > geo["root_depth_m"]

@@ -132,3 +132,24 @@ def test_detector_finds_every_subject_in_every_scene_and_its_joints_land_on_the_
         found += best < 0.03
     assert found >= 0.98 * N_FRAMES, f"{subject} in {scene}: found in {found}/{N_FRAMES}; {np.round(errors, 3)}"
     assert float(np.median(errors)) <= 0.02, f"{subject} in {scene}: median joint error {np.median(errors):.4f}"
+
+
+def test_the_walkers_default_loop_sets_off_towards_the_camera_and_turns_smoothly_round_it():
+    """The take opens on his front (he walks towards where the bundled cameras start) and the turn keeps it
+    reachable: he turns left, the README scene's camera starts on his left, and no corner turns him more
+    than 15 deg (the octagon's 45 deg corners threw a camera resting 45 deg off his front side-on)."""
+    from cinetransfer.services.autopilot_bridge.sim.make_subjects import LIBRARY
+
+    assert subject_info("walker")["default_script"] == LIBRARY["walker"]["default_script"]  # asset = generator
+    scene = load_scene("open_country", subject="walker")
+    start = np.array(scene.subject.start_m)
+    path = np.array([start] + [p for st in scene.subject.script for p in st.path_m])
+    legs = np.diff(path, axis=0)
+    to_camera = np.array(scene.vehicle.position_m[:2]) - start
+    cos = legs[0] @ to_camera / (np.linalg.norm(legs[0]) * np.linalg.norm(to_camera))
+    assert math.degrees(math.acos(cos)) < 25.0
+    assert legs[0][0] * to_camera[1] - legs[0][1] * to_camera[0] > 0  # the camera on his left
+    headings = np.unwrap(np.arctan2(legs[:, 1], legs[:, 0]))
+    turns = np.degrees(np.diff(headings))
+    assert np.all(turns > 0) and turns.max() <= 15.1  # (waypoints rounded to the mm)
+    assert np.allclose(path[-1], start, atol=1e-3)  # a closed loop: it repeats without a jump

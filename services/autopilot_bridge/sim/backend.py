@@ -17,6 +17,7 @@ the state at its own time. Deterministic: same scene + same calls = same frames.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import logging
 import math
 import time
@@ -60,6 +61,15 @@ def _vertical_plane_a(base_m: np.ndarray, right: np.ndarray, m_per_px: float,
     up = np.array([0.0, 0.0, 1.0])
     au, av = anchor_px
     return np.column_stack([m_per_px * right, -m_per_px * up, base_m - au * m_per_px * right + av * m_per_px * up])
+
+
+def _same_side(corners_w: np.ndarray, a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether points `a` and `b` lie on the same side of the vertical plane through `corners_w` (its first
+    two corners span it horizontally)."""
+    along = np.asarray(corners_w[1], float) - np.asarray(corners_w[0], float)
+    normal = np.array([along[1], -along[0]])
+    side = [float(normal @ (np.asarray(q, float)[:2] - corners_w[0][:2])) for q in (a, b)]
+    return side[0] * side[1] > 0
 
 
 def _right_axis(facing_yaw: float) -> np.ndarray:
@@ -170,9 +180,13 @@ class SceneRenderer:
         cuts = [root_depth]
         for spec, tex in zip(self.scene.layers, self._layer_tex):
             p = self._layer_plane(spec, tex, view)
-            planes.append(p)
             if spec.region != "sky" and p.depth_key > NEAR_M:
                 cuts.append(p.depth_key)
+            if spec.region != "sky" and p.depth_key <= root_depth and _same_side(p.corners_w, view.position_m, root):
+                # a wide layer seen obliquely: its anchor can be nearer along the optical axis than the person
+                # while the whole plane lies behind him (he and the camera on the same side of it)
+                p = dataclasses.replace(p, depth_key=math.nextafter(root_depth, math.inf))
+            planes.append(p)
         g = self.scene.ground
         if g is not None:
             m = g.m_per_px

@@ -48,11 +48,14 @@ SOLE_PER_TORSO = 0.36
 #: torso length of a scale-normalised cut-out [px] (standing height ~ 330 px: small assets).
 TORSO_PX = 95.0
 GREY = 128
-#: radius of the walker's default loop [m]. At 1 m/s he turns 1/WALK_LOOP_M rad/s; a camera filming
-#: his front 6.5-8 m away must go round with him, at about that rate times its distance from the
-#: loop's centre: 3 m/s at a 2 m radius (29 deg/s), over the 2 m/s speed limit (CineMPC's profile),
-#: so the 3-D world's camera fell behind to his back; 5 m (11.5 deg/s) needs about 1.7 m/s.
-WALK_LOOP_M = 5.0
+#: radius of the walker's default loop [m] and its number of sides. At 1 m/s he turns 1/WALK_LOOP_M rad/s,
+#: and a camera filming his front goes round the loop's centre with him: the planner keeps it within
+#: 45 deg of his front, so it lags on the outside of the turn, 5-6 m from him, about 70 deg round:
+#: 12.6 m from the centre at 7 m (1.8 m/s), under CineMPC's 2 m/s; at 5 m it needed 2 m/s and
+#: fell side-on. Many sides: each corner turns him by 15 deg, not the octagon's 45 deg jumps
+#: that threw the camera side-on at once (docs/planner.md, "Side of the subject").
+WALK_LOOP_M = 7.0
+WALK_LOOP_SIDES = 24
 
 #: library facts that are not measured: who, from where, credit, height (metres), a default script
 LIBRARY = {
@@ -88,11 +91,14 @@ LIBRARY = {
         "credit": "MOTChallenge TUD-Stadtmitte, CC BY-NC-SA 3.0 (Andriluka, Roth, Schiele, CVPR 2010; "
                   "Leal-Taixé et al. 2015), research use",
         "height_m": 1.75,
-        # a loop round an octagon (radius WALK_LOOP_M) at 1.0 m/s, gait slowed to match: a camera limited to
-        # 1.2 m/s^2 follows smooth turns, not a walk back and forth (a 2.4 m/s reversal takes it 2 s)
+        # a loop (WALK_LOOP_SIDES sides, radius WALK_LOOP_M) at 1.0 m/s, gait slowed to match: a camera limited
+        # to 1.2 m/s^2 follows smooth turns, not a walk back and forth (a 2.4 m/s reversal takes it 2 s). He sets
+        # off towards -x, where the bundled scenes' cameras start (so the take opens on his front, not his back),
+        # turning left, towards -y: open_country's camera starts on that side, inside the turn
         "default_script": [{"action": "walk", "speed_mps": 1.0, "path_m": [
-            [round(WALK_LOOP_M * math.sin(math.pi * k / 4), 3), round(WALK_LOOP_M * (1 - math.cos(math.pi * k / 4)), 3)]
-            for k in range(1, 9)]}],
+            [round(-WALK_LOOP_M * math.sin(2 * math.pi * k / WALK_LOOP_SIDES), 3) + 0.0,
+             round(-WALK_LOOP_M * (1 - math.cos(2 * math.pi * k / WALK_LOOP_SIDES)), 3) + 0.0]
+            for k in range(1, WALK_LOOP_SIDES + 1)]}],
     },
 }
 

@@ -89,7 +89,7 @@ class WorldRenderer:
         """Everything to draw at t_s, nearest first (llvmpipe then skips the shading of hidden pixels):
         the person, moving objects, the static scene by distance, the ground, the sky last."""
         out = [MeshData("subject", body.vertices_m, self.actor.faces, "colour", SURFACE_SUBJECT,
-                        colours=self.actor.colours_bgr, lit=True)]
+                        colours=self.actor.colours_bgr, lit=True, closed=True)]
         for i, o in self._moving:
             out += object_meshes(i, o, object_position(o, t_s), self.ground_z)
         dist = [float(np.linalg.norm(c - view.position_m)) for c in self._centres]
