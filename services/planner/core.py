@@ -726,8 +726,7 @@ def smoothed_focus(ins: M.Instructions) -> np.ndarray:
 def smoothed_subject_focus(ins: M.Instructions) -> np.ndarray:
     """(K,) the source's smoothed subject focus B per row; empty when the instructions carry none
     (visible defocus then takes the subject as plainly soft: cost.subject_softness)."""
-    b = np.asarray(ins.focus_smoothed, dtype=float) if ins.focus_smoothed is not None else np.zeros((0, 3))
-    return b[:, 1] if b.ndim == 2 and b.shape[1] == 3 else np.zeros(0)
+    return smoothed_focus(ins)[:, 1]
 
 
 def stage_targets(image_targets: np.ndarray, rows: list[int] | np.ndarray, ctrl: list[str], jmask: np.ndarray,
