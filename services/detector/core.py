@@ -92,6 +92,41 @@ def people_mask(people: list[PersonDetection], width: int, height: int) -> np.nd
     return out if out.any() else None
 
 
+def people_mask_at(people: list[PersonDetection], width: int, height: int,
+                   size: tuple[int, int]) -> np.ndarray | None:
+    """The people's mask as the focus propagation takes it (None when nobody has a mask pixel): the
+    union at the frame's resolution, or, when the frame is a whole multiple of the grid `size` = (w,
+    h) (1280x720 -> 160x90), straight at the grid's: the cells whose own block of frame pixels is at
+    least half covered. The propagation keeps only that (an area resize, then >= 0.5), and block
+    counts are exact, so the result is the same; only the blocks round the people are looked at."""
+    mw, mh = size
+    k = width // mw
+    if k < 1 or k * mw != width or k * mh != height:
+        return people_mask(people, width, height)
+    rects = []
+    for p in people:
+        ox, oy = int(p.mask_origin_xy[0]), int(p.mask_origin_xy[1])
+        h, w = p.mask.shape
+        x0, y0, x1, y1 = max(ox, 0), max(oy, 0), min(ox + w, width), min(oy + h, height)
+        if x1 > x0 and y1 > y0:
+            rects.append((p, ox, oy, x0, y0, x1, y1))
+    if not rects:
+        return None
+    bx0, by0 = min(r[3] for r in rects) // k * k, min(r[4] for r in rects) // k * k
+    bx1, by1 = -(-max(r[5] for r in rects) // k) * k, -(-max(r[6] for r in rects) // k) * k
+    canvas = np.zeros((by1 - by0, bx1 - bx0), dtype=bool)
+    for p, ox, oy, x0, y0, x1, y1 in rects:
+        canvas[y0 - by0:y1 - by0, x0 - bx0:x1 - bx0] |= p.mask[y0 - oy:y1 - oy, x0 - ox:x1 - ox]
+    if not canvas.any():
+        return None
+    half = 2 * canvas.reshape(canvas.shape[0] // k, k, canvas.shape[1] // k, k).sum(axis=(1, 3)) >= k * k
+    if not half.any():  # people too small to cover half a cell: the propagation sees the full mask
+        return people_mask(people, width, height)
+    out = np.zeros((mh, mw), dtype=bool)
+    out[by0 // k:by1 // k, bx0 // k:bx1 // k] = half
+    return out
+
+
 def _centre_inside(a: PersonDetection, b: PersonDetection) -> bool:
     """Is the centre of box a inside box b?"""
     cx, cy = (a.box_xyxy[0] + a.box_xyxy[2]) / 2, (a.box_xyxy[1] + a.box_xyxy[3]) / 2
@@ -199,7 +234,8 @@ class Detector:
         if self.focus is None or head.edges is None:
             return None
         h, w = head.image.shape[:2]
-        return self.focus.propagate(head.edges, people_mask(head.people, w, h))
+        # at the map's own resolution: the propagation keeps apart whole map pixels
+        return self.focus.propagate(head.edges, people_mask_at(head.people, w, h, self.focus.map_size(w, h)))
 
     def _tail(self, head: "_Head", frame_index: int, stamp_ns: int, source: str, fps: float,
               lens: LensState | None, valid: bool, *, overlap: bool) -> Measurement:

@@ -12,13 +12,13 @@ from cinetransfer.data import data_dir as shared_data_dir
 
 from cinetransfer.services.detector import pose_bundle
 from cinetransfer.services.detector.config import ConfigError, DetectorConfig
-from cinetransfer.services.detector.core import Detector, people_mask
-from cinetransfer.services.detector.focus import FocusEstimator
+from cinetransfer.services.detector.core import Detector, people_mask, people_mask_at
+from cinetransfer.services.detector.focus import EdgeEvidence, FocusEstimator
 from cinetransfer.services.detector.overlay import draw
 from cinetransfer.services.detector.pose_mediapipe import BLAZEPOSE_TO_COCO17
 from cinetransfer.shared.frame_sources import FrameSourceError, iter_frames, probe
 from cinetransfer.shared import codec
-from cinetransfer.shared.messages import Measurement
+from cinetransfer.shared.messages import Measurement, PersonDetection
 
 
 
@@ -201,6 +201,38 @@ def test_focus_map_resolution_is_stated():
 
 def test_people_mask_union():
     assert people_mask([], 10, 10) is None
+
+
+def _random_people(rng, width: int, height: int) -> list[PersonDetection]:
+    out = []
+    for _ in range(int(rng.integers(1, 4))):
+        w, h = (int(v) for v in rng.integers(1, 300, size=2))
+        ox, oy = int(rng.integers(-80, width)), int(rng.integers(-80, height))
+        out.append(PersonDetection(box_xyxy=np.array([ox, oy, ox + w, oy + h], np.float32), confidence=0.9,
+                                   mask_origin_xy=np.array([ox, oy], np.int32),
+                                   mask=rng.random((h, w)) < rng.random()))
+    return out
+
+
+@pytest.mark.parametrize("width, height", [(1280, 720), (854, 480)])
+def test_people_mask_at_the_map_grid_gives_the_same_focus_map(width, height):
+    """The propagation fed the grid mask (a whole multiple) or the frame's union (else) draws the same map."""
+    rng = np.random.default_rng(3)
+    est = FocusEstimator(DetectorConfig())
+    mw, mh = est.map_size(width, height)
+    grid = 0
+    for _ in range(40):
+        people = _random_people(rng, width, height)
+        ev = EdgeEvidence(num=rng.random((mh, mw), dtype=np.float32), den=rng.random((mh, mw), dtype=np.float32),
+                          guide=rng.random((mh, mw), dtype=np.float32), sigma_edges=np.zeros(0, np.float32),
+                          work_width=640, px_scale=1.0, frame_width=width)
+        at = people_mask_at(people, width, height, (mw, mh))
+        full = people_mask(people, width, height)
+        assert (at is None) == (full is None)
+        grid += at is not None and at.shape == (mh, mw)
+        np.testing.assert_array_equal(est.propagate(ev, at).prob, est.propagate(ev, full).prob)
+    assert grid > 0 if width == 1280 else grid == 0
+
 
 
 # ---------------------------------------------------------------------------- sources
