@@ -14,11 +14,12 @@ the people's masks so that the in-focus map does not bleed between a person and 
 while the camera-motion stage (which masks the people out too) runs in the worker.
 `process_frames` / `process_source` go further for a sequence: a frame's tail (mask refinement,
 focus map, camera motion, Measurement: nothing the next frame's pose needs) runs in a thread of its own beside the
-next frame's pose, with the same results. `process_source` also decodes the next frames in a
+next frames' poses, with the same results. `process_source` also decodes the next frames in a
 background thread.
 """
 from __future__ import annotations
 
+import collections
 import concurrent.futures as cf
 import dataclasses
 import logging
@@ -290,28 +291,34 @@ class Detector:
         head = self._head(image_bgr, stamp_ns, refine=True)
         return self._tail(head, frame_index, stamp_ns, source, fps, lens, valid, overlap=True)
 
+    #: tails queued or running at once in `process_frames`: with two, the tail thread has the next one
+    #: ready when it finishes one, and a frame's pose never waits for the tail before the last
+    TAILS_IN_FLIGHT = 2
+
     def process_frames(self, frames: Iterable[SourceFrame], *, source: str | None = None) -> Iterator[Measurement]:
         """Measurements of a sequence of frames, in order: the same as `process` on each, but frame k's
         tail (mask refinement, focus map, camera motion, Measurement) runs in a thread of its own while
-        frame k + 1's pose runs, so both cores stay busy across frames (a frame's pose and tail alone
-        leave one idle much of the time). Measurement k is handed out once frame k + 1's pose is done: one frame later
-        than `process` would. `source` overrides each frame's own source name."""
+        the next frames' poses run, so both cores stay busy across frames (a frame's pose and tail alone
+        leave one idle much of the time). Measurement k is handed out as soon as its tail is done and
+        a pose has finished, at the latest once frame k + `TAILS_IN_FLIGHT`'s pose is done. `source`
+        overrides each frame's own source name."""
         if self._pool is None:  # threads = 1: sequential
             for f in frames:
                 yield self.process(f.image, f.index, f.stamp_ns, source=f.source if source is None else source,
                                    fps=f.fps)
             return
+        # one tail thread: tails run one at a time, in frame order (they share the camera-motion and
+        # shot-change state)
         with cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="tail") as tails:
-            pending: cf.Future | None = None
+            pending: collections.deque[cf.Future] = collections.deque()
             for f in frames:
                 head = self._head(f.image, f.stamp_ns, refine=False)
-                if pending is not None:
-                    yield pending.result()
-                # the previous tail is done: this one may start (tails share the camera-motion state)
-                pending = tails.submit(self._tail, head, f.index, f.stamp_ns,
-                                       f.source if source is None else source, f.fps, None, True, overlap=False)
-            if pending is not None:
-                yield pending.result()
+                while pending and (pending[0].done() or len(pending) >= self.TAILS_IN_FLIGHT):
+                    yield pending.popleft().result()
+                pending.append(tails.submit(self._tail, head, f.index, f.stamp_ns,
+                                            f.source if source is None else source, f.fps, None, True, overlap=False))
+            while pending:
+                yield pending.popleft().result()
 
     def process_source(self, path: str, *, start: int = 0, stop: int | None = None,
                        fps: float | None = None) -> Iterator[Measurement]:

@@ -126,7 +126,7 @@ def test_streamed_frames_give_what_one_frame_at_a_time_gives():
     frames = list(iter_frames(data_dir() / "sam2_juggle_1280x720.mp4", stop=8))
     with Detector(DetectorConfig()) as det:
         one = [det.process(f.image, f.index, f.stamp_ns, source="clip", fps=f.fps) for f in frames]
-    # when the same frames are streamed (frame k's tail beside frame k + 1's pose)
+    # when the same frames are streamed (frame k's tail beside the next frames' poses)
     with Detector(DetectorConfig()) as det:
         streamed = list(det.process_frames(frames, source="clip"))
     # then every measurement is the same, in the same order. (Not always to the byte: run twice one
