@@ -291,34 +291,23 @@ class Detector:
         head = self._head(image_bgr, stamp_ns, refine=True)
         return self._tail(head, frame_index, stamp_ns, source, fps, lens, valid, overlap=True)
 
-    #: tails queued or running at once in `process_frames`: with two, the tail thread has the next one
-    #: ready when it finishes one, and a frame's pose never waits for the tail before the last
+    #: tails queued or running at once when streaming (`FrameStream`): with two, the tail thread has the
+    #: next one ready when it finishes one, and a frame's pose never waits for the tail before the last
     TAILS_IN_FLIGHT = 2
 
     def process_frames(self, frames: Iterable[SourceFrame], *, source: str | None = None) -> Iterator[Measurement]:
         """Measurements of a sequence of frames, in order: the same as `process` on each, but frame k's
         tail (mask refinement, focus map, camera motion, Measurement) runs in a thread of its own while
         the next frames' poses run, so both cores stay busy across frames (a frame's pose and tail alone
-        leave one idle much of the time). Measurement k is handed out as soon as its tail is done and
-        a pose has finished, at the latest once frame k + `TAILS_IN_FLIGHT`'s pose is done. `source`
-        overrides each frame's own source name."""
-        if self._pool is None:  # threads = 1: sequential
+        leave one idle much of the time); see `FrameStream`. `source` overrides each frame's own source
+        name."""
+        with FrameStream(self) as stream:
             for f in frames:
-                yield self.process(f.image, f.index, f.stamp_ns, source=f.source if source is None else source,
-                                   fps=f.fps)
-            return
-        # one tail thread: tails run one at a time, in frame order (they share the camera-motion and
-        # shot-change state)
-        with cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="tail") as tails:
-            pending: collections.deque[cf.Future] = collections.deque()
-            for f in frames:
-                head = self._head(f.image, f.stamp_ns, refine=False)
-                while pending and (pending[0].done() or len(pending) >= self.TAILS_IN_FLIGHT):
-                    yield pending.popleft().result()
-                pending.append(tails.submit(self._tail, head, f.index, f.stamp_ns,
-                                            f.source if source is None else source, f.fps, None, True, overlap=False))
-            while pending:
-                yield pending.popleft().result()
+                for due in stream.push(f.image, f.index, f.stamp_ns, source=f.source if source is None else source,
+                                       fps=f.fps):
+                    yield due.result()
+            for due in stream.flush():
+                yield due.result()
 
     def process_source(self, path: str, *, start: int = 0, stop: int | None = None,
                        fps: float | None = None) -> Iterator[Measurement]:
@@ -329,3 +318,60 @@ class Detector:
         if self.focus is None:
             return float("nan")
         return self.focus.map_size(width, height)[0] / width
+
+
+class FrameStream:
+    """Frames pushed one at a time, in order; their measurements handed back in order, as futures.
+
+    With `threads` 2, frame k's tail (mask refinement, focus map, camera motion, shot change, the
+    Measurement: nothing a later pose needs) runs in a thread of its own while the next frames'
+    poses run. Tails run one at a time, in frame order (they share the camera-motion and shot-change
+    state), so the measurements are those `Detector.process` gives. `push` returns the futures now
+    due (finished, or held back `Detector.TAILS_IN_FLIGHT` frames), oldest first; `flush` the rest.
+    A frame whose pose fails raises from `push`; a failed tail raises from its future's `result()`.
+    With `threads` 1 each push measures its frame at once."""
+
+    def __init__(self, det: Detector) -> None:
+        self.det = det
+        self._tails = (cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="tail")
+                       if det._pool is not None else None)
+        self._pending: collections.deque[cf.Future] = collections.deque()
+
+    def __enter__(self) -> "FrameStream":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def in_flight(self) -> int:
+        return len(self._pending)
+
+    def push(self, image_bgr: np.ndarray, frame_index: int, stamp_ns: int, *, source: str, fps: float,
+             lens: LensState | None = None, valid: bool = True) -> list[cf.Future]:
+        if self._tails is None:
+            done: cf.Future = cf.Future()
+            done.set_result(self.det.process(image_bgr, frame_index, stamp_ns, source=source, fps=fps, lens=lens,
+                                             valid=valid))
+            return [done]
+        head = self.det._head(image_bgr, stamp_ns, refine=False)
+        due = []
+        while self._pending and (self._pending[0].done() or len(self._pending) >= Detector.TAILS_IN_FLIGHT):
+            due.append(self._pending.popleft())
+            due[-1].exception()  # waits for it: at most TAILS_IN_FLIGHT tails queued or running
+        self._pending.append(self._tails.submit(self.det._tail, head, frame_index, stamp_ns, source, fps, lens, valid,
+                                                overlap=False))
+        return due
+
+    def flush(self) -> list[cf.Future]:
+        """The futures of every frame pushed and not yet handed back, finished."""
+        due = list(self._pending)
+        self._pending.clear()
+        cf.wait(due)
+        return due
+
+    def close(self) -> None:
+        self._pending.clear()
+        if self._tails is not None:
+            self._tails.shutdown(wait=True)
+            self._tails = None

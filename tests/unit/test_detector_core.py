@@ -12,7 +12,7 @@ from cinetransfer.data import data_dir as shared_data_dir
 
 from cinetransfer.services.detector import pose_bundle
 from cinetransfer.services.detector.config import ConfigError, DetectorConfig
-from cinetransfer.services.detector.core import Detector, people_mask, people_mask_at
+from cinetransfer.services.detector.core import Detector, FrameStream, people_mask, people_mask_at
 from cinetransfer.services.detector.focus import EdgeEvidence, FocusEstimator
 from cinetransfer.services.detector.overlay import draw
 from cinetransfer.services.detector.pose_mediapipe import BLAZEPOSE_TO_COCO17
@@ -146,6 +146,33 @@ def test_streamed_frames_give_what_one_frame_at_a_time_gives():
     assert identical >= len(frames) - 1
     assert sum(m.camera_motion is not None for m in streamed) == len(frames) - 1
 
+
+
+def test_frame_stream_hands_back_in_order_and_a_failed_tail_costs_only_its_frame(monkeypatch):
+    frames = list(iter_frames(data_dir() / "sam2_juggle_1280x720.mp4", stop=6))
+    with Detector(DetectorConfig()) as det:
+        real_tail = det._tail
+
+        def tail(head, frame_index, *args, **kw):  # the real tail, failing on one frame
+            if frame_index == 2:
+                raise RuntimeError("tail failed")
+            return real_tail(head, frame_index, *args, **kw)
+
+        monkeypatch.setattr(det, "_tail", tail)
+        due = []
+        with FrameStream(det) as stream:
+            for f in frames:
+                due += stream.push(f.image, f.index, f.stamp_ns, source="clip", fps=f.fps)
+                assert stream.in_flight <= Detector.TAILS_IN_FLIGHT
+            assert len(due) >= len(frames) - Detector.TAILS_IN_FLIGHT
+            due += stream.flush()
+        assert stream.in_flight == 0
+    assert len(due) == len(frames)
+    with pytest.raises(RuntimeError, match="tail failed"):
+        due[2].result()
+    assert [d.result().frame_index for i, d in enumerate(due) if i != 2] == [0, 1, 3, 4, 5]
+    assert due[3].result().camera_motion is None  # the frame before it has no tail: a gap
+    assert due[4].result().camera_motion is not None
 
 # ---------------------------------------------------------------------------- focus
 def _davis(name: str, index: int):
