@@ -90,7 +90,7 @@ class _Run:
                     read.append(f)
                     yield f
 
-            for m in det.process_frames(frames(), source=info.path):  # measured in order, a frame behind
+            for m in det.process_frames(frames(), source=info.path):  # measured in order, a frame or two behind
                 f = read.popleft()
                 writer.write(m)
                 if args.overlay:

@@ -14,11 +14,12 @@ the people's masks so that the in-focus map does not bleed between a person and 
 while the camera-motion stage (which masks the people out too) runs in the worker.
 `process_frames` / `process_source` go further for a sequence: a frame's tail (mask refinement,
 focus map, camera motion, Measurement: nothing the next frame's pose needs) runs in a thread of its own beside the
-next frame's pose, with the same results. `process_source` also decodes the next frames in a
+next frames' poses, with the same results. `process_source` also decodes the next frames in a
 background thread.
 """
 from __future__ import annotations
 
+import collections
 import concurrent.futures as cf
 import dataclasses
 import logging
@@ -90,6 +91,41 @@ def people_mask(people: list[PersonDetection], width: int, height: int) -> np.nd
     for p in people:
         out |= p.full_mask(width, height)
     return out if out.any() else None
+
+
+def people_mask_at(people: list[PersonDetection], width: int, height: int,
+                   size: tuple[int, int]) -> np.ndarray | None:
+    """The people's mask as the focus propagation takes it (None when nobody has a mask pixel): the
+    union at the frame's resolution, or, when the frame is a whole multiple of the grid `size` = (w,
+    h) (1280x720 -> 160x90), straight at the grid's: the cells whose own block of frame pixels is at
+    least half covered. The propagation keeps only that (an area resize, then >= 0.5), and block
+    counts are exact, so the result is the same; only the blocks round the people are looked at."""
+    mw, mh = size
+    k = width // mw
+    if k < 1 or k * mw != width or k * mh != height:
+        return people_mask(people, width, height)
+    rects = []
+    for p in people:
+        ox, oy = int(p.mask_origin_xy[0]), int(p.mask_origin_xy[1])
+        h, w = p.mask.shape
+        x0, y0, x1, y1 = max(ox, 0), max(oy, 0), min(ox + w, width), min(oy + h, height)
+        if x1 > x0 and y1 > y0:
+            rects.append((p, ox, oy, x0, y0, x1, y1))
+    if not rects:
+        return None
+    bx0, by0 = min(r[3] for r in rects) // k * k, min(r[4] for r in rects) // k * k
+    bx1, by1 = -(-max(r[5] for r in rects) // k) * k, -(-max(r[6] for r in rects) // k) * k
+    canvas = np.zeros((by1 - by0, bx1 - bx0), dtype=bool)
+    for p, ox, oy, x0, y0, x1, y1 in rects:
+        canvas[y0 - by0:y1 - by0, x0 - bx0:x1 - bx0] |= p.mask[y0 - oy:y1 - oy, x0 - ox:x1 - ox]
+    if not canvas.any():
+        return None
+    half = 2 * canvas.reshape(canvas.shape[0] // k, k, canvas.shape[1] // k, k).sum(axis=(1, 3)) >= k * k
+    if not half.any():  # people too small to cover half a cell: the propagation sees the full mask
+        return people_mask(people, width, height)
+    out = np.zeros((mh, mw), dtype=bool)
+    out[by0 // k:by1 // k, bx0 // k:bx1 // k] = half
+    return out
 
 
 def _centre_inside(a: PersonDetection, b: PersonDetection) -> bool:
@@ -199,7 +235,8 @@ class Detector:
         if self.focus is None or head.edges is None:
             return None
         h, w = head.image.shape[:2]
-        return self.focus.propagate(head.edges, people_mask(head.people, w, h))
+        # at the map's own resolution: the propagation keeps apart whole map pixels
+        return self.focus.propagate(head.edges, people_mask_at(head.people, w, h, self.focus.map_size(w, h)))
 
     def _tail(self, head: "_Head", frame_index: int, stamp_ns: int, source: str, fps: float,
               lens: LensState | None, valid: bool, *, overlap: bool) -> Measurement:
@@ -254,28 +291,23 @@ class Detector:
         head = self._head(image_bgr, stamp_ns, refine=True)
         return self._tail(head, frame_index, stamp_ns, source, fps, lens, valid, overlap=True)
 
+    #: tails queued or running at once when streaming (`FrameStream`): with two, the tail thread has the
+    #: next one ready when it finishes one, and a frame's pose never waits for the tail before the last
+    TAILS_IN_FLIGHT = 2
+
     def process_frames(self, frames: Iterable[SourceFrame], *, source: str | None = None) -> Iterator[Measurement]:
         """Measurements of a sequence of frames, in order: the same as `process` on each, but frame k's
         tail (mask refinement, focus map, camera motion, Measurement) runs in a thread of its own while
-        frame k + 1's pose runs, so both cores stay busy across frames (a frame's pose and tail alone
-        leave one idle much of the time). Measurement k is handed out once frame k + 1's pose is done: one frame later
-        than `process` would. `source` overrides each frame's own source name."""
-        if self._pool is None:  # threads = 1: sequential
+        the next frames' poses run, so both cores stay busy across frames (a frame's pose and tail alone
+        leave one idle much of the time); see `FrameStream`. `source` overrides each frame's own source
+        name."""
+        with FrameStream(self) as stream:
             for f in frames:
-                yield self.process(f.image, f.index, f.stamp_ns, source=f.source if source is None else source,
-                                   fps=f.fps)
-            return
-        with cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="tail") as tails:
-            pending: cf.Future | None = None
-            for f in frames:
-                head = self._head(f.image, f.stamp_ns, refine=False)
-                if pending is not None:
-                    yield pending.result()
-                # the previous tail is done: this one may start (tails share the camera-motion state)
-                pending = tails.submit(self._tail, head, f.index, f.stamp_ns,
-                                       f.source if source is None else source, f.fps, None, True, overlap=False)
-            if pending is not None:
-                yield pending.result()
+                for due in stream.push(f.image, f.index, f.stamp_ns, source=f.source if source is None else source,
+                                       fps=f.fps):
+                    yield due.result()
+            for due in stream.flush():
+                yield due.result()
 
     def process_source(self, path: str, *, start: int = 0, stop: int | None = None,
                        fps: float | None = None) -> Iterator[Measurement]:
@@ -286,3 +318,60 @@ class Detector:
         if self.focus is None:
             return float("nan")
         return self.focus.map_size(width, height)[0] / width
+
+
+class FrameStream:
+    """Frames pushed one at a time, in order; their measurements handed back in order, as futures.
+
+    With `threads` 2, frame k's tail (mask refinement, focus map, camera motion, shot change, the
+    Measurement: nothing a later pose needs) runs in a thread of its own while the next frames'
+    poses run. Tails run one at a time, in frame order (they share the camera-motion and shot-change
+    state), so the measurements are those `Detector.process` gives. `push` returns the futures now
+    due (finished, or held back `Detector.TAILS_IN_FLIGHT` frames), oldest first; `flush` the rest.
+    A frame whose pose fails raises from `push`; a failed tail raises from its future's `result()`.
+    With `threads` 1 each push measures its frame at once."""
+
+    def __init__(self, det: Detector) -> None:
+        self.det = det
+        self._tails = (cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="tail")
+                       if det._pool is not None else None)
+        self._pending: collections.deque[cf.Future] = collections.deque()
+
+    def __enter__(self) -> "FrameStream":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def in_flight(self) -> int:
+        return len(self._pending)
+
+    def push(self, image_bgr: np.ndarray, frame_index: int, stamp_ns: int, *, source: str, fps: float,
+             lens: LensState | None = None, valid: bool = True) -> list[cf.Future]:
+        if self._tails is None:
+            done: cf.Future = cf.Future()
+            done.set_result(self.det.process(image_bgr, frame_index, stamp_ns, source=source, fps=fps, lens=lens,
+                                             valid=valid))
+            return [done]
+        head = self.det._head(image_bgr, stamp_ns, refine=False)
+        due = []
+        while self._pending and (self._pending[0].done() or len(self._pending) >= Detector.TAILS_IN_FLIGHT):
+            due.append(self._pending.popleft())
+            due[-1].exception()  # waits for it: at most TAILS_IN_FLIGHT tails queued or running
+        self._pending.append(self._tails.submit(self.det._tail, head, frame_index, stamp_ns, source, fps, lens, valid,
+                                                overlap=False))
+        return due
+
+    def flush(self) -> list[cf.Future]:
+        """The futures of every frame pushed and not yet handed back, finished."""
+        due = list(self._pending)
+        self._pending.clear()
+        cf.wait(due)
+        return due
+
+    def close(self) -> None:
+        self._pending.clear()
+        if self._tails is not None:
+            self._tails.shutdown(wait=True)
+            self._tails = None

@@ -19,6 +19,7 @@ Inputs (`--input`):
 from __future__ import annotations
 
 import argparse
+import collections
 import logging
 import sys
 import time
@@ -91,18 +92,26 @@ def _process(node, det, pub, stats: _Stats, frame: M.Frame) -> bool:
         m = det.process(frame.image, frame.index, frame.stamp_ns, source=frame.source, fps=frame.fps,
                         lens=frame.lens, valid=frame.valid)
     except (ValueError, RuntimeError, OSError) as e:
-        stats.errors += 1
-        node.counters["errors"] = stats.errors
-        node.error(f"frame #{frame.index}: {type(e).__name__}: {e}", "process")
+        _count_error(node, stats, frame.index, e)
         return False
     node.record_latency_ms((time.perf_counter() - t) * 1e3)
+    _published(node, pub, stats, m)
+    return True
+
+
+def _count_error(node, stats: _Stats, index: int, e: BaseException) -> None:
+    stats.errors += 1
+    node.counters["errors"] = stats.errors
+    node.error(f"frame #{index}: {type(e).__name__}: {e}", "process")
+
+
+def _published(node, pub, stats: _Stats, m: M.Measurement) -> None:
     pub.put(m)
     stats.processed += 1
     stats.people += len(m.people)
     stats.win.append(time.monotonic())
     node.counters.update(frames_processed=stats.processed, frames_skipped=stats.skipped,
-                         people_last=len(m.people), fps=round(stats.fps(), 2), last_frame=frame.index)
-    return True
+                         people_last=len(m.people), fps=round(stats.fps(), 2), last_frame=m.frame_index)
 
 
 def _wait_matching(node, pub, timeout_s: float) -> None:
@@ -153,36 +162,77 @@ def run_file(node, det, args, stats: _Stats) -> int:
 
 
 def run_source(node, det, args, stats: _Stats) -> int:
-    """Measure every source frame in order; close each stream with a StreamEnd of our own."""
+    """Measure every source frame in order; close each stream with a StreamEnd of our own. Frames are
+    streamed (`FrameStream`: a frame's tail beside the next frames' poses); what is in flight is
+    handed out whenever no frame is waiting, so the source, which sends only as many frames as it
+    has credit for, never waits on measurements held here."""
+    from cinetransfer.services.detector.core import FrameStream
+
     frames = node.subscribe(keys.SOURCE_FRAME, policy="no-drop")
     ends = node.subscribe(keys.SOURCE_END)
-    pub = node.publisher(keys.MEASUREMENT, block=True)
+    out = _Streamed(node, node.publisher(keys.MEASUREMENT, block=True), stats)
     end_pub = node.publisher(keys.DETECTOR_END)
-    done: dict[str, int] = {}  # measurements published per source path
     node.ready()
-    while node.running:
-        node.wait(0.2)
-        for frame in frames.drain():
-            stats.note_frames([frame])
-            with node.guard(frames.key, "frame"):  # anything unexpected costs the frame, not the loop
-                if _process(node, det, pub, stats, frame):
-                    done[frame.source] = done.get(frame.source, 0) + 1
-        for end in ends.drain():
-            with node.guard(ends.key, "end of stream"):
-                _finish_stream(node, frames, pub, end_pub, det, stats, done, end)
+    with FrameStream(det) as stream:
+        while node.running:
+            node.wait(0.2)
+            for frame in frames.drain():
+                stats.note_frames([frame])
+                with node.guard(frames.key, "frame"):  # anything unexpected costs the frame, not the loop
+                    out.push(stream, frame)
+            if stream.in_flight and not len(frames):  # nothing waiting: hand out what is held
+                with node.guard(frames.key, "frame"):
+                    out.publish(stream.flush())
+            for end in ends.drain():
+                with node.guard(ends.key, "end of stream"):
+                    _finish_stream(node, frames, stream, out, end_pub, end)
     return 0
 
 
-def _finish_stream(node, frames, pub, end_pub, det, stats: _Stats, done: dict[str, int], end: M.StreamEnd) -> None:
+class _Streamed:
+    """Publishes the measurements a FrameStream hands back, paired with the frames pushed (in order);
+    a failure is counted and logged, never fatal. `done`: measurements published per source path."""
+
+    def __init__(self, node, pub, stats: _Stats) -> None:
+        self.node, self.pub, self.stats = node, pub, stats
+        self.held: collections.deque[tuple[int, float]] = collections.deque()  # (frame index, push time)
+        self.done: dict[str, int] = {}
+
+    def push(self, stream, frame: M.Frame) -> None:
+        self.held.append((frame.index, time.perf_counter()))
+        try:
+            due = stream.push(frame.image, frame.index, frame.stamp_ns, source=frame.source, fps=frame.fps,
+                              lens=frame.lens, valid=frame.valid)
+        except (ValueError, RuntimeError, OSError) as e:
+            self.held.pop()
+            _count_error(self.node, self.stats, frame.index, e)
+            return
+        self.publish(due)
+
+    def publish(self, due: list) -> None:
+        for fut in due:
+            index, t = self.held.popleft()
+            try:
+                m = fut.result()
+            except Exception as e:  # noqa: BLE001 - a failed tail costs its frame, not the ones after it
+                _count_error(self.node, self.stats, index, e)
+                continue
+            self.node.record_latency_ms((time.perf_counter() - t) * 1e3)
+            _published(self.node, self.pub, self.stats, m)
+            self.done[m.source] = self.done.get(m.source, 0) + 1
+
+
+def _finish_stream(node, frames, stream, out: _Streamed, end_pub, end: M.StreamEnd) -> None:
     """The source ended: measure what is still queued (frames travel ahead of the end but on
     another key), then say how many measurements this stream produced."""
     path = end.source.path
+    out.publish(stream.flush())
     deadline = time.monotonic() + 5.0
-    while done.get(path, 0) + stats.errors < end.frames and time.monotonic() < deadline and node.running:
+    while out.done.get(path, 0) + out.stats.errors < end.frames and time.monotonic() < deadline and node.running:
         for frame in frames.get_all(0.1):
-            if _process(node, det, pub, stats, frame):
-                done[frame.source] = done.get(frame.source, 0) + 1
-    n = done.pop(path, 0)
+            out.push(stream, frame)
+        out.publish(stream.flush())
+    n = out.done.pop(path, 0)
     end_pub.put(M.StreamEnd(stamp_ns=end.stamp_ns, valid=end.valid and n == end.frames, source=end.source,
                             frames=n, reason=end.reason if n == end.frames else
                             f"{end.reason}; {end.frames - n} of {end.frames} frames not measured"))

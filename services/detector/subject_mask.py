@@ -48,7 +48,9 @@ def own_pieces(mask: np.ndarray, joints_xy: np.ndarray) -> np.ndarray:
     keep = keep[keep > 0]
     if keep.size == 0:
         return mask
-    return np.isin(labels, keep)
+    own = np.zeros(n, dtype=bool)
+    own[keep] = True
+    return own[labels]  # a look-up per label: cheaper than np.isin over the whole crop
 
 
 def refine_person(image_bgr: np.ndarray, person: PersonDetection, skeleton: Skeleton | None, *,

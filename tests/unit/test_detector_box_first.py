@@ -270,21 +270,23 @@ class _CountingSsd(BoxFirstPose):
 
 
 @needs_models
-def test_ssd_runs_every_other_frame_on_a_followed_juggler_with_the_same_people():
+def test_ssd_runs_every_nth_frame_on_a_followed_juggler_with_the_same_people():
     frames = list(iter_frames(data_dir() / "sam2_juggle_1280x720.mp4", stop=16, prefetch=0))
     out = {}
-    for every in (1, 2):
+    for every in (1, 2, DetectorConfig().bf_ssd_every):
         be = _CountingSsd(DetectorConfig(focus=False, bf_ssd_every=every))
         with Detector(DetectorConfig(focus=False, bf_ssd_every=every), backend=be) as det:
             out[every] = ([det.process(f.image, f.index, f.stamp_ns) for f in frames], be.ssd_runs)
-    (each, runs_each), (skip, runs_skip) = out[1], out[2]
-    assert runs_each == len(frames) and runs_skip == len(frames) // 2, (runs_each, runs_skip)
-    assert len({m.people[0].track_id for m in skip}) == 1
-    for a, b in zip(each, skip):
-        assert len(a.people) == len(b.people) == 1
-        assert box_iou(a.people[0].box_xyxy, b.people[0].box_xyxy) > 0.9
-        assert abs(a.people[0].confidence - b.people[0].confidence) < 0.1
-        assert (b.skeletons[0].confidences >= 0.5).sum() >= 12
+    each, runs_each = out[1]
+    assert runs_each == len(frames)
+    for every, (skip, runs_skip) in out.items():
+        assert runs_skip == -(-len(frames) // every), (every, runs_skip)
+        assert len({m.people[0].track_id for m in skip}) == 1
+        for a, b in zip(each, skip):
+            assert len(a.people) == len(b.people) == 1
+            assert box_iou(a.people[0].box_xyxy, b.people[0].box_xyxy) > 0.9
+            assert abs(a.people[0].confidence - b.people[0].confidence) < 0.1
+            assert (b.skeletons[0].confidences >= 0.5).sum() >= 12
 
 
 @needs_models

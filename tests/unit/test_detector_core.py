@@ -12,13 +12,13 @@ from cinetransfer.data import data_dir as shared_data_dir
 
 from cinetransfer.services.detector import pose_bundle
 from cinetransfer.services.detector.config import ConfigError, DetectorConfig
-from cinetransfer.services.detector.core import Detector, people_mask
-from cinetransfer.services.detector.focus import FocusEstimator
+from cinetransfer.services.detector.core import Detector, FrameStream, people_mask, people_mask_at
+from cinetransfer.services.detector.focus import EdgeEvidence, FocusEstimator
 from cinetransfer.services.detector.overlay import draw
 from cinetransfer.services.detector.pose_mediapipe import BLAZEPOSE_TO_COCO17
 from cinetransfer.shared.frame_sources import FrameSourceError, iter_frames, probe
 from cinetransfer.shared import codec
-from cinetransfer.shared.messages import Measurement
+from cinetransfer.shared.messages import Measurement, PersonDetection
 
 
 
@@ -126,7 +126,7 @@ def test_streamed_frames_give_what_one_frame_at_a_time_gives():
     frames = list(iter_frames(data_dir() / "sam2_juggle_1280x720.mp4", stop=8))
     with Detector(DetectorConfig()) as det:
         one = [det.process(f.image, f.index, f.stamp_ns, source="clip", fps=f.fps) for f in frames]
-    # when the same frames are streamed (frame k's tail beside frame k + 1's pose)
+    # when the same frames are streamed (frame k's tail beside the next frames' poses)
     with Detector(DetectorConfig()) as det:
         streamed = list(det.process_frames(frames, source="clip"))
     # then every measurement is the same, in the same order. (Not always to the byte: run twice one
@@ -146,6 +146,33 @@ def test_streamed_frames_give_what_one_frame_at_a_time_gives():
     assert identical >= len(frames) - 1
     assert sum(m.camera_motion is not None for m in streamed) == len(frames) - 1
 
+
+
+def test_frame_stream_hands_back_in_order_and_a_failed_tail_costs_only_its_frame(monkeypatch):
+    frames = list(iter_frames(data_dir() / "sam2_juggle_1280x720.mp4", stop=6))
+    with Detector(DetectorConfig()) as det:
+        real_tail = det._tail
+
+        def tail(head, frame_index, *args, **kw):  # the real tail, failing on one frame
+            if frame_index == 2:
+                raise RuntimeError("tail failed")
+            return real_tail(head, frame_index, *args, **kw)
+
+        monkeypatch.setattr(det, "_tail", tail)
+        due = []
+        with FrameStream(det) as stream:
+            for f in frames:
+                due += stream.push(f.image, f.index, f.stamp_ns, source="clip", fps=f.fps)
+                assert stream.in_flight <= Detector.TAILS_IN_FLIGHT
+            assert len(due) >= len(frames) - Detector.TAILS_IN_FLIGHT
+            due += stream.flush()
+        assert stream.in_flight == 0
+    assert len(due) == len(frames)
+    with pytest.raises(RuntimeError, match="tail failed"):
+        due[2].result()
+    assert [d.result().frame_index for i, d in enumerate(due) if i != 2] == [0, 1, 3, 4, 5]
+    assert due[3].result().camera_motion is None  # the frame before it has no tail: a gap
+    assert due[4].result().camera_motion is not None
 
 # ---------------------------------------------------------------------------- focus
 def _davis(name: str, index: int):
@@ -201,6 +228,38 @@ def test_focus_map_resolution_is_stated():
 
 def test_people_mask_union():
     assert people_mask([], 10, 10) is None
+
+
+def _random_people(rng, width: int, height: int) -> list[PersonDetection]:
+    out = []
+    for _ in range(int(rng.integers(1, 4))):
+        w, h = (int(v) for v in rng.integers(1, 300, size=2))
+        ox, oy = int(rng.integers(-80, width)), int(rng.integers(-80, height))
+        out.append(PersonDetection(box_xyxy=np.array([ox, oy, ox + w, oy + h], np.float32), confidence=0.9,
+                                   mask_origin_xy=np.array([ox, oy], np.int32),
+                                   mask=rng.random((h, w)) < rng.random()))
+    return out
+
+
+@pytest.mark.parametrize("width, height", [(1280, 720), (854, 480)])
+def test_people_mask_at_the_map_grid_gives_the_same_focus_map(width, height):
+    """The propagation fed the grid mask (a whole multiple) or the frame's union (else) draws the same map."""
+    rng = np.random.default_rng(3)
+    est = FocusEstimator(DetectorConfig())
+    mw, mh = est.map_size(width, height)
+    grid = 0
+    for _ in range(40):
+        people = _random_people(rng, width, height)
+        ev = EdgeEvidence(num=rng.random((mh, mw), dtype=np.float32), den=rng.random((mh, mw), dtype=np.float32),
+                          guide=rng.random((mh, mw), dtype=np.float32), sigma_edges=np.zeros(0, np.float32),
+                          work_width=640, px_scale=1.0, frame_width=width)
+        at = people_mask_at(people, width, height, (mw, mh))
+        full = people_mask(people, width, height)
+        assert (at is None) == (full is None)
+        grid += at is not None and at.shape == (mh, mw)
+        np.testing.assert_array_equal(est.propagate(ev, at).prob, est.propagate(ev, full).prob)
+    assert grid > 0 if width == 1280 else grid == 0
+
 
 
 # ---------------------------------------------------------------------------- sources
