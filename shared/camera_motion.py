@@ -63,6 +63,8 @@ SEARCH_MARGIN = 1.1
 DOLLY_AXIS = 0.9
 #: ... the share of the points taken as the far ones
 FAR_SHARE = 0.1
+#: a dolly is no dolly when its lower points scale less its way with a correlation below minus this
+GROUND_DENIES = 0.2
 #: the rotation given a translation direction is fitted again on the points within this many
 #: inlier distances of it, this many times
 TRIM_FACTOR = 2.0
@@ -253,7 +255,8 @@ def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earli
     share = explained_share(a, b, f, q * k, inlier_px=tol) if long else explained
     if share < EXPLAINED_SHARE:
         rot, t, inl_t = fit_rotation_translation(a, b, f, q[:3] * k, inlier_px=tol)
-        if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= share + PARALLAX_GAIN:
+        if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= share + PARALLAX_GAIN \
+                and not ground_denies_dolly(a, b, f, rot, t, inl_t):
             rot = rotation_given_direction(b0, b, f, t, inl_t, inlier_px=inlier_px) if long else rot
             t = dolly_sign(a, b, f, rot * k, t, inl_t)
             zoom = zoom_against_dolly(a, b, f, rot * k, t, inl_t) / k
@@ -295,6 +298,26 @@ def dolly_sign(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.
         return t
     lower_grows = float(np.corrcoef(mid[:, 1], scale)[0, 1])
     return -t if math.isfinite(lower_grows) and lower_grows * t[2] < 0.0 else t
+
+
+def ground_denies_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.ndarray,
+                        use: np.ndarray) -> bool:
+    """True when a dolly along t whose points all scale one way puts the ground beyond the walls:
+    the lower points scale less its way (correlation below -GROUND_DENIES), as no camera above
+    the ground looking about level sees. A zoom reads so where some tracks slide over a repeating
+    texture (the paving under a zoom out: their drift over the baseline looks like parallax, the
+    translation fit gives them depths, and they come out the farthest). A dolly-zoom, whose points
+    scale both ways, is dolly_sign's to judge."""
+    if abs(t[2]) < DOLLY_AXIS or use.sum() < MIN_POINTS:
+        return False
+    scale, mid = _radial_scales(p0, p1, f, rot, use)
+    if len(scale) < MIN_POINTS:
+        return False
+    lo, hi = np.percentile(scale, [100.0 * FAR_SHARE, 100.0 * (1.0 - FAR_SHARE)])
+    if lo < 0.0 < hi:
+        return False
+    lower_grows = float(np.corrcoef(mid[:, 1], scale * np.sign(t[2]))[0, 1])
+    return math.isfinite(lower_grows) and lower_grows < -GROUND_DENIES
 
 
 def zoom_against_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.ndarray,

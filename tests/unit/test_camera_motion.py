@@ -155,6 +155,28 @@ def test_a_dolly_zoom_takes_its_sign_from_the_ground(step, zoom):
     assert np.sign(cm.zoom_against_dolly(p0, p1, F, np.zeros(3), want, use)) == np.sign(zoom)
 
 
+def test_a_zoom_out_whose_ground_tracks_slide_is_no_dolly():
+    """Zooming out, the tracks on the paving slide (their scale over the baseline a third of the
+    true one): the translation fit reads a dolly out with the ground the farthest, which the ground
+    denies; a real dolly out over the same points keeps its reading."""
+    x = _ground_points(np.random.default_rng(9))
+    p0 = F * x[:, :2] / x[:, 2:3]
+    keep = (np.abs(p0[:, 0]) < 320) & (np.abs(p0[:, 1]) < 180)
+    x, p0 = x[keep], p0[keep]
+    ground = x[:, 1] == 1.6
+    zoomed = np.exp(-0.04) * p0
+    zoomed[ground] = p0[ground] + (zoomed[ground] - p0[ground]) / 3.0
+    use, t = np.ones(len(p0), dtype=bool), np.array([0.0, 0.0, -1.0])
+    assert cm.ground_denies_dolly(p0, zoomed, F, np.zeros(3), t, use)
+    x1 = x - np.array([0.0, 0.0, -0.4])
+    dolly = F * x1[:, :2] / x1[:, 2:3]
+    assert not cm.ground_denies_dolly(p0, dolly, F, np.zeros(3), t, use)
+    m = cm.frame_motion(0.5 * (p0 + zoomed), zoomed, F, earlier=p0, span=8)
+    assert not m.translation_dir.any() and m.log_zoom < 0.0
+    m = cm.frame_motion(0.5 * (p0 + dolly), dolly, F, earlier=p0, span=8)
+    np.testing.assert_allclose(m.translation_dir, t, atol=0.02)
+
+
 def test_a_dolly_whose_points_all_scale_one_way_keeps_its_sign():
     x = _ground_points(np.random.default_rng(8))
     p0 = F * x[:, :2] / x[:, 2:3]
