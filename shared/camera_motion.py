@@ -63,6 +63,12 @@ SEARCH_MARGIN = 1.1
 DOLLY_AXIS = 0.9
 #: ... the share of the points taken as the far ones
 FAR_SHARE = 0.1
+#: a dolly is no dolly when its lower points scale less its way with a correlation below minus this
+GROUND_DENIES = 0.2
+#: the rotation given a translation direction is fitted again on the points within this many
+#: inlier distances of it, this many times
+TRIM_FACTOR = 2.0
+TRIM_ROUNDS = 2
 
 
 def focal_px(width: int, hfov_deg: float = ASSUMED_HFOV_DEG) -> float:
@@ -195,13 +201,13 @@ def fit_rotation_translation(p0: np.ndarray, p1: np.ndarray, f: float, rot0: np.
 
     best = score(rot, t)
     found = max(((score(r_c, c), c, r_c) for c in _DIRECTIONS
-                 for r_c in [rotation_given_direction(p0, p1, f, c, use)]), key=lambda x: x[0])
+                 for r_c in [rotation_given_direction(p0, p1, f, c, use, inlier_px=inlier_px)]), key=lambda x: x[0])
     if found[0] > SEARCH_MARGIN * best:  # only a clearly better start: near ties keep the first fit's rotation
         t, rot = found[1], found[2]
     for i in range(iters):
         if i:
             t = _translation_dir(mid[use], flow[use] - basis[use] @ rot, f)
-        rot = rotation_given_direction(p0, p1, f, t, use)
+        rot = rotation_given_direction(p0, p1, f, t, use, inlier_px=inlier_px)
         if i >= 1:  # trim once the model has settled a little
             keep = _perpendicular(mid, flow, basis, rot, t, f) < 3.0 * inlier_px
             use = keep if keep.sum() >= MIN_POINTS else use
@@ -249,8 +255,9 @@ def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earli
     share = explained_share(a, b, f, q * k, inlier_px=tol) if long else explained
     if share < EXPLAINED_SHARE:
         rot, t, inl_t = fit_rotation_translation(a, b, f, q[:3] * k, inlier_px=tol)
-        if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= share + PARALLAX_GAIN:
-            rot = rotation_given_direction(b0, b, f, t, inl_t) if long else rot
+        if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= share + PARALLAX_GAIN \
+                and not ground_denies_dolly(a, b, f, rot, t, inl_t):
+            rot = rotation_given_direction(b0, b, f, t, inl_t, inlier_px=inlier_px) if long else rot
             t = dolly_sign(a, b, f, rot * k, t, inl_t)
             zoom = zoom_against_dolly(a, b, f, rot * k, t, inl_t) / k
             return FrameMotion(rot, zoom, t, n, explained)
@@ -293,6 +300,26 @@ def dolly_sign(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.
     return -t if math.isfinite(lower_grows) and lower_grows * t[2] < 0.0 else t
 
 
+def ground_denies_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.ndarray,
+                        use: np.ndarray) -> bool:
+    """True when a dolly along t whose points all scale one way puts the ground beyond the walls:
+    the lower points scale less its way (correlation below -GROUND_DENIES), as no camera above
+    the ground looking about level sees. A zoom reads so where some tracks slide over a repeating
+    texture (the paving under a zoom out: their drift over the baseline looks like parallax, the
+    translation fit gives them depths, and they come out the farthest). A dolly-zoom, whose points
+    scale both ways, is dolly_sign's to judge."""
+    if abs(t[2]) < DOLLY_AXIS or use.sum() < MIN_POINTS:
+        return False
+    scale, mid = _radial_scales(p0, p1, f, rot, use)
+    if len(scale) < MIN_POINTS:
+        return False
+    lo, hi = np.percentile(scale, [100.0 * FAR_SHARE, 100.0 * (1.0 - FAR_SHARE)])
+    if lo < 0.0 < hi:
+        return False
+    lower_grows = float(np.corrcoef(mid[:, 1], scale * np.sign(t[2]))[0, 1])
+    return math.isfinite(lower_grows) and lower_grows < -GROUND_DENIES
+
+
 def zoom_against_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.ndarray,
                        use: np.ndarray) -> float:
     """The log-zoom p0 -> p1 that a dolly along t cannot explain (0 when none is seen).
@@ -310,16 +337,27 @@ def zoom_against_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray
     return far * float(np.sign(t[2])) if far < 0.0 else 0.0
 
 
-def rotation_given_direction(p0: np.ndarray, p1: np.ndarray, f: float, t: np.ndarray, use: np.ndarray) -> np.ndarray:
+def rotation_given_direction(p0: np.ndarray, p1: np.ndarray, f: float, t: np.ndarray, use: np.ndarray, *,
+                             inlier_px: float | None = None) -> np.ndarray:
     """Rotation (3,) [rad] moving p0 to p1 (N, 2) with translation direction t, each point's depth
-    eliminated, over the points `use` (N,) (least squares): cross(flow - B rot, d) = 0 is linear in rot."""
+    eliminated, over the points `use` (N,) (least squares): cross(flow - B rot, d) = 0 is linear in rot.
+
+    With `inlier_px` the fit is repeated on the points within TRIM_FACTOR x inlier_px of it: the
+    rotation along the translation's lines is weakly seen (a tilt beside a pedestal, a pan beside a
+    truck), and the few tracks that drift across the lines would otherwise set it."""
     mid, flow = 0.5 * (p0 + p1), p1 - p0
     basis = rotation_zoom_basis(mid, f)[:, :, :3]
     d = np.stack([mid[:, 0] * t[2] - f * t[0], mid[:, 1] * t[2] - f * t[1]], axis=1)
     a = basis[:, 0, :] * d[:, 1:2] - basis[:, 1, :] * d[:, 0:1]
     b = flow[:, 0] * d[:, 1] - flow[:, 1] * d[:, 0]
     use = use if use.sum() >= MIN_POINTS else np.ones(len(mid), dtype=bool)
-    return np.linalg.lstsq(a[use], b[use], rcond=None)[0]
+    rot = np.linalg.lstsq(a[use], b[use], rcond=None)[0]
+    for _ in range(TRIM_ROUNDS if inlier_px is not None else 0):
+        keep = use & (_perpendicular(mid, flow, basis, rot, t, f) < TRIM_FACTOR * inlier_px)
+        if keep.sum() < MIN_POINTS:
+            break
+        rot = np.linalg.lstsq(a[keep], b[keep], rcond=None)[0]
+    return rot
 
 
 # --------------------------------------------------------------------------- per shot

@@ -108,6 +108,26 @@ def test_a_dolly_read_as_a_zoom_in_one_frame_shows_over_the_baseline():
     assert not short.translation_dir.any()
 
 
+def test_tracks_drifting_across_a_pedestal_do_not_set_its_rotation():
+    """Straight up past pillars and a wall: the tilt moves points along the vertical lines the
+    pedestal allows, so it is seen only through the little it moves them sideways: a third of the
+    tracks low on the right drifting 3 px sideways (the paving sliding under the tracker) set a
+    tilt of over 1 deg/s in plain least squares, and none once the fit is repeated on its inliers."""
+    rng = np.random.default_rng(11)
+    x = np.column_stack([rng.uniform(-8, 8, 400), rng.uniform(-3, 3, 400), rng.uniform(6, 25, 400)])
+    step = np.array([0.0, -0.2, 0.0])  # 0.6 m/s up over 8 frames at 24 frames/s
+    p0, p1 = F * x[:, :2] / x[:, 2:3], F * (x - step)[:, :2] / (x - step)[:, 2:3]
+    keep = (np.abs(p0[:, 0]) < 320) & (np.abs(p0[:, 1]) < 180)
+    p0, p1 = p0[keep], p1[keep]
+    drift = (np.arange(len(p0)) % 3 == 0) & (p0[:, 0] > 0) & (p0[:, 1] > 0)
+    p1[drift, 0] += 3.0
+    t, use = np.array([0.0, -1.0, 0.0]), np.ones(len(p0), dtype=bool)
+    plain = cm.rotation_given_direction(p0, p1, F, t, use)
+    trimmed = cm.rotation_given_direction(p0, p1, F, t, use, inlier_px=0.6)
+    assert np.degrees(plain[1]) * 3 > 1.0  # deg/s: 8 frames at 24 frames/s
+    np.testing.assert_allclose(trimmed, 0.0, atol=1e-4)
+
+
 def _ground_points(rng: np.random.Generator) -> np.ndarray:
     """A camera 1.6 m above flat ground looking level, a wall 25 m ahead: points (N, 3) in the camera
     frame (x right, y down, z forward); the lower in the image, the nearer."""
@@ -133,6 +153,28 @@ def test_a_dolly_zoom_takes_its_sign_from_the_ground(step, zoom):
         np.testing.assert_array_equal(cm.dolly_sign(p0, p1, F, np.zeros(3), given, use), want)
     # the zoom then comes from the farthest points, against the dolly
     assert np.sign(cm.zoom_against_dolly(p0, p1, F, np.zeros(3), want, use)) == np.sign(zoom)
+
+
+def test_a_zoom_out_whose_ground_tracks_slide_is_no_dolly():
+    """Zooming out, the tracks on the paving slide (their scale over the baseline a third of the
+    true one): the translation fit reads a dolly out with the ground the farthest, which the ground
+    denies; a real dolly out over the same points keeps its reading."""
+    x = _ground_points(np.random.default_rng(9))
+    p0 = F * x[:, :2] / x[:, 2:3]
+    keep = (np.abs(p0[:, 0]) < 320) & (np.abs(p0[:, 1]) < 180)
+    x, p0 = x[keep], p0[keep]
+    ground = x[:, 1] == 1.6
+    zoomed = np.exp(-0.04) * p0
+    zoomed[ground] = p0[ground] + (zoomed[ground] - p0[ground]) / 3.0
+    use, t = np.ones(len(p0), dtype=bool), np.array([0.0, 0.0, -1.0])
+    assert cm.ground_denies_dolly(p0, zoomed, F, np.zeros(3), t, use)
+    x1 = x - np.array([0.0, 0.0, -0.4])
+    dolly = F * x1[:, :2] / x1[:, 2:3]
+    assert not cm.ground_denies_dolly(p0, dolly, F, np.zeros(3), t, use)
+    m = cm.frame_motion(0.5 * (p0 + zoomed), zoomed, F, earlier=p0, span=8)
+    assert not m.translation_dir.any() and m.log_zoom < 0.0
+    m = cm.frame_motion(0.5 * (p0 + dolly), dolly, F, earlier=p0, span=8)
+    np.testing.assert_allclose(m.translation_dir, t, atol=0.02)
 
 
 def test_a_dolly_whose_points_all_scale_one_way_keeps_its_sign():
