@@ -12,6 +12,12 @@ goals (the joint-error goals by extraction and by truth, which must stay met).
 
 A transfer takes minutes on a loaded machine: `--only` picks moves by name; a run folder that
 already holds a report.json is read again rather than flown again (`--again` flies it anew).
+`--preroll S` is passed to the transfer. The sources are filmed from 1 s into the courtyard's
+walker loop (11.67 s long); with the transfer's default 5 s pre-roll the output's take films him
+elsewhere on the loop (walking away, then turning), a subject motion no camera move of the source
+can frame. `--preroll 12.667` starts the take at the same point of his loop, so the output's
+subject moves as the source's did and only the camera is under test.
+benchmarks/camera_motion_flight.py flies the same styles in-process in seconds (no rendering).
 """
 from __future__ import annotations
 
@@ -60,11 +66,12 @@ def judge_report(report: dict[str, Any]) -> dict[str, Any]:
             "met": agreement is not None and agreement >= AGREEMENT_GOAL and all(v == "met" for v in framing.values())}
 
 
-def transfer(source: Path, run: Path, scene: str, again: bool) -> dict[str, Any]:
+def transfer(source: Path, run: Path, scene: str, again: bool, preroll_s: float | None = None) -> dict[str, Any]:
     """Fly one source (unless its run already has a report) and judge its report."""
     report = run / "report.json"
     if again or not report.is_file():
         cmd = [sys.executable, "-m", "cinetransfer", "transfer", str(source), "--scene", scene, "-o", str(run)]
+        cmd += [] if preroll_s is None else ["--preroll", f"{preroll_s:g}"]
         done = subprocess.run(cmd, capture_output=True, text=True, check=False)
         if done.returncode != 0 or not report.is_file():
             tail = (done.stderr or done.stdout).strip().splitlines()[-1:] or ["no output"]
@@ -79,6 +86,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scene", default=SCENE, help="scene the moves are flown in (default %(default)s)")
     ap.add_argument("--only", nargs="*", default=None, help="names (or parts of names) of the moves to fly")
     ap.add_argument("--again", action="store_true", help="fly runs that already have a report again")
+    ap.add_argument("--preroll", type=float, default=None, metavar="S",
+                    help="the transfer's pre-roll [s] (default: the transfer's own)")
     ap.add_argument("--result", default="eval_camera_motion_transfer", help="result name or path")
     args = ap.parse_args(argv)
     videos = sorted(p for p in args.sources.glob("*.mp4") if p.with_suffix(".truth.json").is_file())
@@ -89,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     results = {}
     for v in videos:
-        r = transfer(v, args.runs / v.stem, args.scene, args.again)
+        r = transfer(v, args.runs / v.stem, args.scene, args.again, args.preroll)
         results[v.stem] = r
         if "error" in r:
             print(f"{v.stem:26s} {r['error']}", flush=True)
@@ -102,7 +111,8 @@ def main(argv: list[str] | None = None) -> int:
     met = sum(r["met"] for r in results.values())
     print(f"\n{met} of {len(results)} moves flown with output class agreement >= {AGREEMENT_GOAL} and the framing "
           f"goals met")
-    out = {"scene": args.scene, "agreement_goal": AGREEMENT_GOAL, "moves_met": met, "per_source": results}
+    out = {"scene": args.scene, "preroll_s": args.preroll, "agreement_goal": AGREEMENT_GOAL, "moves_met": met,
+           "per_source": results}
     print(f"wrote {write_result(args.result, out)}")
     return 0 if met == len(results) else 1
 

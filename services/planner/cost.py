@@ -447,6 +447,9 @@ class StageBuilder:
         out.append((wts["dolly_zoom"] * m[CM.DOLLY_ZOOM_MASK], distance_log_rate(rel, rel_vel) - m[CM.DISTANCE_RATE]))
         direction = ca.mtimes(r, m[CM.TRAVEL])  # the source camera's direction of travel, in the world
         out.append((wts["translation_dir"] * m[CM.TRAVEL_MASK], travel_residual(x[lay.V], direction, par.v_scale)))
+        # a camera that only turns or zooms stays where it is: held by J_v alone (0.5), the framing
+        # trucked and orbited it after the walker and the pan was read as orbit or truck (off by default)
+        out.append((wts["motion_still"] * m[CM.STILL], x[lay.V] * par.v_scale))
         return out
 
     def _motion_terms(self, terms: NlpTerms, k: int, par: NlpParams, **at):  # noqa: ANN003, ANN202
