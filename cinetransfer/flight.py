@@ -136,7 +136,7 @@ def fly_sim_time(style: M.Instructions, rec: Recorder, cond: Conductor, *, prero
     record every frame of every take; the edit joins the takes at the source's cuts."""
     k = style.image_targets.shape[0]
     fps = float(style.fps)
-    epoch = _flight_epoch(rec)
+    epoch = _flight_epoch(rec, cond)
     takes = shot_schedule(style, preroll_s=preroll_s, settle_s=settle_s, one_take=one_take, min_take_s=min_take_s)
     _schedule_takes(style, rec, cond, takes, epoch)
     rec.arm(Window(exact=True, n_slots=k, fps=fps, epoch_ns=epoch,
@@ -152,13 +152,28 @@ def fly_sim_time(style: M.Instructions, rec: Recorder, cond: Conductor, *, prero
             "takes": takes, "one_take": one_take}
 
 
-def _flight_epoch(rec: Recorder) -> int:
+def _flight_epoch(rec: Recorder, cond: Conductor) -> int:
     """Time zero of the flight [ns]: far ahead of the running simulation clock, so it is never
-    reached before the reset."""
-    if not rec.wait(lambda: rec.last_clock is not None, 30.0):
+    reached before the reset. The idle simulation may step only every few seconds (the own
+    deployment's slow idle pace): the bridge is asked for a step until a tick arrives (one
+    published before this session's subscription reached the router is lost)."""
+    if not _await_stepping(rec, cond, lambda: rec.last_clock is not None, 30.0):
         raise TransferError("the bridge publishes no simulation clock (is it a --realtime bridge? "
                             "then run transfer with --realtime)")
     return max(M.now_ns(), rec.last_clock.stamp_ns) + 600 * 10**9
+
+
+def _await_stepping(rec: Recorder, cond: Conductor, predicate, timeout: float) -> bool:
+    """Wait until `predicate()` holds, asking the bridge for a step (a 'clock' command without a
+    pace: it ends the bridge's pacing sleep) every second meanwhile; False after `timeout` s."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return False
+        cond.to_bridge("clock")
+        rec.wait(predicate, min(1.0, left))
+    return True
 
 
 def _schedule_takes(style: M.Instructions, rec: Recorder, cond: Conductor, takes: list[dict], epoch: int) -> None:
@@ -176,7 +191,7 @@ def _schedule_takes(style: M.Instructions, rec: Recorder, cond: Conductor, takes
         return h is not None and h.counters.get("sim_time") is True and \
             h.counters.get("scheduled") == len(takes) and h.counters.get("scheduled_at_ns") == last_at
 
-    if not rec.wait(acknowledged, 60.0):
+    if not _await_stepping(rec, cond, acknowledged, 60.0):  # the planner reads commands on a tick
         raise TransferError("the planner did not acknowledge the scheduled takes (is it following the "
                             "simulation clock? see OUTDIR/deploy/planner.log)")
 

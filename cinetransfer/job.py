@@ -51,14 +51,17 @@ class Background:
             raise TransferError(f"{self.what} failed (exit {rc}): cinetransfer {' '.join(self.args)}")
 
 
-#: simulated seconds per wall second of the own deployment's simulation before the take: a camera
-#: frame every ~0.4 s instead of 24 a second
-IDLE_PACE = 0.1
+#: simulated seconds per wall second of the own deployment's simulation before the take: a step
+#: (state, clock tick, a planner solve) every 5 s and a camera frame's truth every ~4 s. The take
+#: never waits for it: a command ends the bridge's pacing sleep, and the flight asks for steps
+IDLE_PACE = 0.01
 #: the nodes of the whole job, each a separate process (see deploy/dataflow.yaml)
 JOB_NODES = ("source", "detector", "smoother", "planner", "autopilot_bridge")
 #: the nodes that extract the style, and the flags the transfer's own deployment gives them (the
-#: style cache computes their effective settings from the same flags: cinetransfer/style_cache.py)
-EXTRACTION_ARGS = {"source": [], "detector": ["--input", "source"], "smoother": ["--end-idle", "0"]}
+#: style cache computes their effective settings from the same flags: cinetransfer/style_cache.py);
+#: the smoother publishes no streaming window: the transfer flies the whole sequence only
+EXTRACTION_ARGS = {"source": [], "detector": ["--input", "source"],
+                   "smoother": ["--end-idle", "0", "--publish-period", "0"]}
 
 
 def deploy_config(outdir: Path, port: int, rig: str, scene: str, *, realtime: bool = False,

@@ -30,7 +30,7 @@ import numpy as np
 
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
-from cinetransfer.runlog import RunWriter
+from cinetransfer.runlog import KEYFRAME_S, RunWriter
 from cinetransfer.shared.video import H264Writer
 from cinetransfer.take import Placed, TakeAssembler, TakeSummary
 
@@ -106,6 +106,10 @@ class Recorder:
         self._window: Window | None = None
         self._frames: TakeAssembler | None = None
         self._video = None
+        #: output.mp4's encoder makes run.mcap's camera stream too (one encode a frame) for as long as
+        #: both streams hold the same frames in the same order; `_packet`: the frame in hand's H.264
+        self._shared = True
+        self._packet: bytes | None = None
         self._q: queue.SimpleQueue = queue.SimpleQueue()
         self._progress = threading.Condition()
         self._worker = threading.Thread(target=self._work, name="recorder", daemon=True)
@@ -124,6 +128,7 @@ class Recorder:
                 return
             key, payload = item
             keep = True
+            self._packet = None
             try:
                 keep = self._handle(key, payload)
             except codec.DecodeError:
@@ -139,9 +144,12 @@ class Recorder:
     def _write(self, key: str, payload: bytes) -> None:
         if self.failure is not None:
             return
+        packet = self._packet if self._shared else None
+        if key == self.frame_key and packet is None and self._video is not None and self._video.frames:
+            self._shared = False  # run.mcap gets a frame output.mp4's stream has not: the streams part here
         try:
             self._check_space()
-            self.log.write(key, payload)
+            self.log.write(key, payload, video_packet=packet)
         except OSError as e:
             self._fail(e)
 
@@ -209,19 +217,24 @@ class Recorder:
             return
         self._check_space()  # before the frame is counted: a full disk must not count a frame it never wrote
         placed = self._frames.add(slot, frame)
-        for p in placed:
-            self._write_frame(p)
+        packets = [self._write_frame(p) for p in placed]
+        if len(placed) == 1 and placed[0].item is frame:
+            self._packet = packets[0]
+        elif placed:  # a repeated or held-back frame: output.mp4's stream is not run.mcap's any more
+            self._shared = False
         if placed:
             with self._progress:
                 self._progress.notify_all()
 
-    def _write_frame(self, p: Placed) -> None:
+    def _write_frame(self, p: Placed) -> bytes:
+        """Encode a placed frame into output.mp4; its H.264 packet (for run.mcap)."""
         if self._video is None:
-            self._video = H264Writer(self.outdir / "output.mp4", self._window.fps)
-        self._video.write(np.asarray(p.item.image))
+            self._video = H264Writer(self.outdir / "output.mp4", self._window.fps, stream_keyframe_s=KEYFRAME_S)
+        packet = self._video.write(np.asarray(p.item.image))
         self._shown.append(int(p.item.index))
         if self.on_frame is not None:
             self.on_frame(p.slot, p.item.image)
+        return packet
 
     # ------------------------------------------------------------------ control (main thread)
     def arm(self, window: Window) -> None:

@@ -162,8 +162,8 @@ class H264Stream:
         return b"".join(bytes(p) for p in self.ctx.encode(f))
 
 
-def _frame_views(key: str, frame: M.Frame, jpeg_quality: int, streams: dict[str, H264Stream] | None = None
-                 ) -> list[View]:
+def _frame_views(key: str, frame: M.Frame, jpeg_quality: int, streams: dict[str, H264Stream] | None = None,
+                 packet: bytes | None = None) -> list[View]:
     import cv2
     from foxglove.messages import CameraCalibration, CompressedImage, CompressedVideo
 
@@ -171,10 +171,9 @@ def _frame_views(key: str, frame: M.Frame, jpeg_quality: int, streams: dict[str,
     frame_id = "camera" if key.endswith("/camera/frame") else key.split("/")[2]
     h, w = img.shape[:2]
     if streams is not None and h % 2 == 0 and w % 2 == 0 and h and w:
-        st = streams.get(key)
-        if st is None or st.shape != (h, w):
-            st = streams[key] = H264Stream(w, h, frame.fps)
-        data = st.encode(img)
+        data = packet if packet is not None else _encoded(streams, key, img, frame.fps)
+        if packet is not None:  # the stream is another encoder's now: an own one must start afresh (keyframe)
+            streams.pop(key, None)
         image = _fox(key, CompressedVideo(timestamp=_ts(frame.stamp_ns), frame_id=frame_id, data=data,
                                           format="h264"), frame.stamp_ns, role="frame-video")
     else:
@@ -200,10 +199,18 @@ def _frame_views(key: str, frame: M.Frame, jpeg_quality: int, streams: dict[str,
     return out
 
 
+def _encoded(streams: dict[str, H264Stream], key: str, img: np.ndarray, fps: float) -> bytes:
+    st = streams.get(key)
+    if st is None or st.shape != img.shape[:2]:
+        st = streams[key] = H264Stream(img.shape[1], img.shape[0], fps)
+    return st.encode(img)
+
+
 def views(key: str, payload: bytes, *, jpeg_quality: int = JPEG_QUALITY,
-          video: dict[str, H264Stream] | None = None) -> list[View]:
+          video: dict[str, H264Stream] | None = None, packet: bytes | None = None) -> list[View]:
     """What one message of the rig becomes in a recording or the live view (see the module doc).
-    `video`: the H.264 streams of the frame topics (a recording's; None = JPEG frames)."""
+    `video`: the H.264 streams of the frame topics (a recording's; None = JPEG frames); `packet`:
+    this frame's H.264, encoded already by the caller as the next frame of the topic's stream."""
     try:
         msg = codec.decode(payload)
     except codec.DecodeError:
@@ -211,7 +218,7 @@ def views(key: str, payload: bytes, *, jpeg_quality: int = JPEG_QUALITY,
     rig = _rig_of(key)
     tf = f"{keys.ROOT}/{rig}/tf"
     if isinstance(msg, M.Frame):
-        return _frame_views(key, msg, jpeg_quality, video)
+        return _frame_views(key, msg, jpeg_quality, video, packet)
     out = [_json_view(key, msg)]
     if isinstance(msg, M.VehicleState):
         pos = _finite(msg.position_m)
@@ -270,10 +277,13 @@ class RunWriter:
             self._channels[ck] = cid
         return cid
 
-    def write(self, key: str, payload: bytes, t_ns: int | None = None) -> None:
+    def write(self, key: str, payload: bytes, t_ns: int | None = None, *, video_packet: bytes | None = None) -> None:
+        """`video_packet`: a frame's H.264 from the caller's encoder (the recorder's output.mp4, one
+        encode for both), the next packet of that encoder's stream: a stream that switches encoder
+        must begin again at a keyframe, which the caller sees to."""
         t = time.time_ns() if t_ns is None else t_ns
         try:
-            vs = views(key, payload, jpeg_quality=self.jpeg_quality, video=self._video)
+            vs = views(key, payload, jpeg_quality=self.jpeg_quality, video=self._video, packet=video_packet)
         except Exception as e:  # noqa: BLE001 - a message we cannot translate is still kept, as it travelled
             self.errors += 1
             if self.errors <= 5 or self.errors % 1000 == 0:

@@ -77,8 +77,9 @@ def _before(msgs: list[tuple[int, Any]], t0: int) -> list[Any]:
     return earlier[-1:]
 
 
-def take_faults(recording: Path, rig: str, takes: list[dict], *, epoch_ns: int, fps: float) -> list[TakeFaults]:
-    """Each take's faults, from the recording `recording` of rig `rig` (meta.json's takes and epoch)."""
+def read_facts(recording: Path, rig: str) -> dict[str, list[tuple[int, Any]]]:
+    """(receive time, message) of every message of the keys the faults are read from (truth, vehicle
+    state, the planner's and the bridge's Health), in recording order, by key."""
     want = {keys.SIM_TRUTH.key(rig): M.GroundTruth, keys.VEHICLE_STATE.key(rig): M.VehicleState,
             keys.health(rig, "planner"): M.Health, keys.health(rig, "autopilot_bridge"): M.Health}
     got: dict[str, list[tuple[int, Any]]] = {k: [] for k in want}
@@ -88,6 +89,15 @@ def take_faults(recording: Path, rig: str, takes: list[dict], *, epoch_ns: int, 
                 got[key].append((t, codec.decode(payload, want[key])))
             except codec.DecodeError:
                 continue
+    return got
+
+
+def take_faults(recording: Path, rig: str, takes: list[dict], *, epoch_ns: int, fps: float,
+                facts: dict[str, list[tuple[int, Any]]] | None = None) -> list[TakeFaults]:
+    """Each take's faults, from the recording `recording` of rig `rig` (meta.json's takes and epoch);
+    `facts`: what `read_facts` read from it already (the transfer keeps its vehicle states for the
+    report: the recording is read once)."""
+    got = read_facts(recording, rig) if facts is None else facts
     truths, states = got[keys.SIM_TRUTH.key(rig)], got[keys.VEHICLE_STATE.key(rig)]
     planner, bridge = got[keys.health(rig, "planner")], got[keys.health(rig, "autopilot_bridge")]
     out = []

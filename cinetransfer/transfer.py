@@ -209,14 +209,15 @@ def _output_style(out: Path, meta: dict, rec: Recorder, live: LiveOutputStyle | 
 
 
 def _evaluate(out: Path, src: Path, style_path: Path, rec: Recorder, meta: dict, live: dict,
-              clock: StageClock) -> dict:
+              clock: StageClock, states: list | None = None) -> dict:
     out_style = _output_style(out, meta, rec, live.get("output"), clock)
     figures = live.get("figures")
     from cinetransfer.report import build_report
 
     summary = build_report(out, source_style=style_path, output_style=out_style, truths=rec.truths,
                            source_video=src, output_video=out / "output.mp4", meta=meta,
-                           recording=out / "run.mcap", figure_worker=figures, floor_ahead=live.get("floor"))
+                           recording=out / "run.mcap", figure_worker=figures, floor_ahead=live.get("floor"),
+                           vehicle_states=states)
     if figures is not None:  # ended before the stage's CPU is read: its figures count in the report's
         figures.close(wait=True)
     clock.end("report_s")
@@ -273,17 +274,22 @@ def _resolve_rig(args) -> str | None:
     return None
 
 
-def _save_take(out: Path, style: M.Instructions, rec: Recorder, meta: dict, realtime: bool) -> None:
+def _save_take(out: Path, style: M.Instructions, rec: Recorder, meta: dict, realtime: bool) -> list | None:
     """What the take holds (meta.json, with each take's settle time and the state of its files)
-    and its truth (truth.msgpack)."""
+    and its truth (truth.msgpack). Returns the recording's vehicle states when it was read back
+    (the report's camera motion needs them: run.mcap is read once), else None."""
     meta.update(take_meta(rec, style, realtime))
     meta["files"] = recorded_files(out, int(style.image_targets.shape[0]), read_back=rec.failure is not None)
+    states = None
     if meta.get("takes") and meta.get("epoch_ns") is not None and meta["files"]["run.mcap"] in READABLE:
         from cinetransfer import take_faults
+        from cinetransfer.shared import keys as K
 
+        facts = take_faults.read_facts(out / "run.mcap", meta["rig"])
         faults = take_faults.take_faults(out / "run.mcap", meta["rig"], meta["takes"], epoch_ns=int(meta["epoch_ns"]),
-                                         fps=float(style.fps))
+                                         fps=float(style.fps), facts=facts)
         meta["faults"] = take_faults.summary(faults)
+        states = [m for _, m in facts[K.VEHICLE_STATE.key(meta["rig"])]]
     if meta.get("takes"):
         from cinetransfer.shots import settle_report
 
@@ -292,6 +298,7 @@ def _save_take(out: Path, style: M.Instructions, rec: Recorder, meta: dict, real
 
     write_truths(out / "truth.msgpack", rec.truths)
     write_json(out / "meta.json", meta)
+    return states
 
 
 def _transfer(args, src: Path, out: Path, meta: dict, t_start: float) -> int:
@@ -341,7 +348,7 @@ def _take_and_evaluate(args, src: Path, out: Path, meta: dict, clock: StageClock
         # the report's truth floor needs no output style: it is computed while the output's frames
         # are still being measured
         live["floor"] = floor_ahead(style_path, list(rec.truths), dict(meta))
-    _save_take(out, style, rec, meta, args.realtime)
+    states = _save_take(out, style, rec, meta, args.realtime)
     clock.end("save_take_s")
     if meta["interrupted"]:
         print(f"recorded {meta['recorded_frames']} frames to {out / 'output.mp4'} (interrupted)")
@@ -350,7 +357,7 @@ def _take_and_evaluate(args, src: Path, out: Path, meta: dict, clock: StageClock
     if args.no_eval:
         print(f"recorded {meta['recorded_frames']} frames to {out / 'output.mp4'} (no evaluation)")
         return NO_EVAL
-    return _evaluate(out, src, style_path, rec, meta, live, clock)
+    return _evaluate(out, src, style_path, rec, meta, live, clock, states)
 
 
 def _wind_down(live: dict, stopping: list, *, quiet: bool) -> None:

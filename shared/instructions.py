@@ -18,6 +18,7 @@ version this build reads), then the schema, then the shapes and values through t
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import math
 import os
@@ -290,7 +291,14 @@ def save_style(path: str | os.PathLike, instr: M.Instructions, diagnostics: dict
         fh.write("\n")
 
 
-def style_from_dict(d: Any, where: str = "style file") -> StyleFile:
+#: sha256 of the style-file texts that matched the schema in this process: the same text read
+#: again (a transfer reads its style.json up to four times) is not validated again (jsonschema
+#: takes ~0.3 CPU s for a 250-frame style)
+_MATCHED_SCHEMA: set[str] = set()
+
+
+def style_from_dict(d: Any, where: str = "style file", *, schema_checked: bool = False) -> StyleFile:
+    """The style file `d` (parsed JSON); `schema_checked`: this very content matched the schema before."""
     import jsonschema
 
     if not isinstance(d, dict) or d.get("format") != FORMAT_NAME:
@@ -301,7 +309,8 @@ def style_from_dict(d: Any, where: str = "style file") -> StyleFile:
                              f"version {FORMAT_VERSION} (re-create it with 'cinetransfer smooth' or "
                              f"'cinetransfer extract')")
     try:
-        jsonschema.validate(d, json_schema())
+        if not schema_checked:
+            jsonschema.validate(d, json_schema())
     except jsonschema.ValidationError as e:
         loc = "/".join(str(x) for x in e.absolute_path) or "(top)"
         raise StyleFileError(f"{where}: does not match the style-file schema at {loc}: {e.message}") from None
@@ -314,13 +323,16 @@ def load_style_file(path: str | os.PathLike) -> StyleFile:
     """Instructions and diagnostics (diagnostics: plain JSON values, NaN as None)."""
     p = Path(path)
     try:
-        with open(p, encoding="utf-8") as fh:
-            d = json.load(fh)
+        raw = p.read_bytes()
+        d = json.loads(raw.decode("utf-8"))
     except FileNotFoundError:
         raise StyleFileError(f"{p}: no such style file") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise StyleFileError(f"{p}: not valid JSON ({e})") from None
-    return style_from_dict(d, str(p))
+    digest = hashlib.sha256(raw).hexdigest()
+    style = style_from_dict(d, str(p), schema_checked=digest in _MATCHED_SCHEMA)
+    _MATCHED_SCHEMA.add(digest)  # (only reached when it matched)
+    return style
 
 
 def load_style(path: str | os.PathLike) -> M.Instructions:

@@ -299,6 +299,16 @@ class Node:
             self._stop.wait(min(left, 0.1))  # a signal only sets a flag: look at it every 0.1 s
         return self.running
 
+    def sleep_until(self, seconds: float, wake: Callable[[], bool]) -> bool:
+        """Sleep like `sleep`, but return as soon as `wake()` is true (a command must not wait for
+        the end of a long pacing sleep): looked at on every message an inbox receives and at least
+        every 0.1 s. Returns `running`."""
+        deadline = time.monotonic() + seconds
+        with self._cond:
+            while self.running and not wake() and (left := deadline - time.monotonic()) > 0:
+                self._cond.wait(min(left, 0.1))  # a signal only sets a flag: look at it every 0.1 s
+        return self.running
+
     def ready(self) -> None:
         """Declare the liveliness token: call once slow set-up is done."""
         self._token = self.session.liveliness().declare_token(keys.alive(self.rig, self.name))

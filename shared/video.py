@@ -4,6 +4,12 @@ browser plays it and knows its duration before the whole file has arrived. Writt
 
 Frame k is shown at k/fps exactly (time base 1/fps). Odd widths or heights are padded by one
 black pixel (yuv420p needs even sizes).
+
+`H264Writer(..., stream_keyframe_s=S)` also hands back each frame's H.264 as it is encoded, an
+Annex B packet that decodes on its own terms (x264 zerolatency: no lookahead, no B-frames, so the
+packet of frame k comes out with frame k; a keyframe every S seconds, with the SPS/PPS in front
+of it): what a recording keeps of a frame stream (cinetransfer/runlog.py), so that a frame
+written to both is encoded once.
 """
 from __future__ import annotations
 
@@ -17,7 +23,8 @@ import numpy as np
 class H264Writer:
     """`write(bgr)` frame by frame, then `close()` (also as a context manager)."""
 
-    def __init__(self, path: str | Path, fps: float, *, crf: int = 20, preset: str = "veryfast") -> None:
+    def __init__(self, path: str | Path, fps: float, *, crf: int = 20, preset: str = "veryfast",
+                 stream_keyframe_s: float | None = None) -> None:
         import av
 
         if not (fps > 0):
@@ -29,6 +36,7 @@ class H264Writer:
         self._container = av.open(str(self.path), mode="w", format="mp4", options={"movflags": "+faststart"})
         self._stream: Any = None
         self._crf, self._preset = crf, preset
+        self._keyframe_s = stream_keyframe_s
         self._size: tuple[int, int] | None = None
         self.frames = 0
 
@@ -40,9 +48,12 @@ class H264Writer:
         s.codec_context.time_base = 1 / self.fps
         # no B-frames: each frame is decodable once its packet arrives (also what Foxglove wants)
         s.options = {"crf": str(self._crf), "preset": self._preset, "bf": "0"}
+        if self._keyframe_s is not None:
+            s.options = {**s.options, "tune": "zerolatency", "g": str(max(1, int(round(self._keyframe_s * self.fps))))}
         self._stream, self._size = s, (h, w)
 
-    def write(self, bgr: np.ndarray) -> None:
+    def write(self, bgr: np.ndarray) -> bytes:
+        """Encode one frame; with `stream_keyframe_s`, its Annex B packet (see the module doc), else b""."""
         img = np.asarray(bgr)
         if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
             raise ValueError(f"expected a (H, W, 3) uint8 BGR image, got {img.shape} {img.dtype}")
@@ -56,9 +67,19 @@ class H264Writer:
         frame = self._av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="bgr24")
         frame.pts = self.frames
         frame.time_base = 1 / self.fps
+        out = []
         for pkt in self._stream.encode(frame):
+            if self._keyframe_s is not None:
+                out.append(self._annex_b(pkt))
             self._container.mux(pkt)
         self.frames += 1
+        return b"".join(out)
+
+    def _annex_b(self, pkt: Any) -> bytes:
+        """The packet as a stream decoder wants it: the mp4 keeps SPS/PPS once in its header
+        (extradata, Annex B from libx264), a stream repeats them before every keyframe."""
+        data = bytes(pkt)
+        return bytes(self._stream.codec_context.extradata or b"") + data if pkt.is_keyframe else data
 
     def close(self) -> None:
         if self._container is None:

@@ -83,7 +83,7 @@ def camera_roll_deg(states: Sequence[M.VehicleState], frame_stamps_ns: Sequence[
     return {"p50": round(float(p50), 2), "p95": round(float(p95), 2), "max": round(float(r.max()), 2)}
 
 
-def vehicle_states(run: Any) -> list[M.VehicleState]:
+def read_vehicle_states(run: Any) -> list[M.VehicleState]:
     """Every vehicle state of a run.mcap (by topic: the camera frames are not decoded)."""
     from cinetransfer.shared import codec
 
@@ -232,7 +232,8 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
                  truths: Sequence[M.GroundTruth], source_video: Path | str | None,
                  output_video: Path | str | None, meta: dict[str, Any] | None = None,
                  embed_images: bool = True, recording: Path | str | None = None,
-                 figure_worker: Any = None, floor_ahead: Any = None) -> dict[str, Any]:
+                 figure_worker: Any = None, floor_ahead: Any = None,
+                 vehicle_states: Sequence[M.VehicleState] | None = None) -> dict[str, Any]:
     """Compare a recorded run with its source style; write outdir/report.html, report.json and
     fig_*.png. Returns the summary (the content of report.json; its "headline" is a short digest).
 
@@ -240,7 +241,8 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
     None (or unreadable) means the extraction on the output failed: the report says so and
     the ground-truth half is still computed. figure_worker: a report.workers.FigureWorker that draws
     the figures beside the rest (None: drawn in this process; the same files either way); floor_ahead:
-    the truth floor computed ahead (`floor_facts`). truths: the simulator's GroundTruth, one per
+    the truth floor computed ahead (`floor_facts`); vehicle_states: the recording's vehicle states
+    when the caller read them already (None: read from `recording`). truths: the simulator's GroundTruth, one per
     recorded frame (may be empty). recording: the run's run.mcap, summarised in the report (size
     per second of flight, channels). Raises ValueError when the source style cannot be loaded or
     the recording is not a readable cinetransfer MCAP (shared.runlog.RunFormatError).
@@ -301,7 +303,8 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
 
     segs = ([(int(t["first_row"]), int(t["end_row"])) for t in meta["takes"]] if meta.get("takes")
             else shot_segments(source))
-    states = vehicle_states(run) if run and truths else []
+    states = (list(vehicle_states) if vehicle_states is not None else read_vehicle_states(run)) \
+        if run and truths else []
     motion, motion_fig = camera_motion_facts(outdir, source, output, states, truths, segs, figure_worker)
 
     from cinetransfer.report.people import make_people

@@ -8,7 +8,9 @@ One step of `period` simulated seconds (the control period, 0.05 s by default):
     3. if a planner is alive: wait for its setpoint stamped t (bounded wait, counted when hit)
     4. safety layer + watchdog at t (in simulation time), drive the simulated vehicle to t + period
        in sub-ticks at the bridge rate; every camera frame slot crossed is rendered
-    5. pace: sleep so that simulated time runs at `pace` x wall time (0 = as fast as possible)
+    5. pace: sleep so that simulated time runs at `pace` x wall time (0 = as fast as possible);
+       a command ends the sleep (it is handled in the next step at once), and so does a planner
+       that comes alive or goes (it gets its first tick at once)
 
 Where a step's wall time goes is counted in the Health counters (seconds, summed over the
 `waits_steps` steps since the last reset): `publish_s` (state, clock and frames out),
@@ -23,7 +25,9 @@ and planner give the same flight and the same frames. Bridge commands handled he
   setpoints and holds; with `pictures`, only frames with an index in one of the ranges [lo, hi)
   are rendered and published, the others get their ground truth only (a take's recording keeps
   no pre-roll frame: rendering them was a third of the README flight's renders);
-- 'clock' (args: pace=float): change the pace.
+- 'clock' (args: pace=float, optional): change the pace; without a pace it changes nothing, but
+  like every command it ends the pacing sleep, so the next step (and its clock tick) comes at
+  once: a take about to begin asks for a tick so, whatever the idle pace.
 """
 from __future__ import annotations
 
@@ -243,10 +247,9 @@ class SimClockLoop:
     def _clock_command(self, cmd: M.Command) -> bool:
         if cmd.action == "clock":
             pace = _opt_number(cmd.args, "pace", 0.0, 1000.0)
-            if pace is None:
-                raise ValueError("clock: pace is required")
-            self.pace = pace
-            self._pace_origin = (time.monotonic(), self.step)
+            if pace is not None:  # without a pace the command only woke the step: a tick now
+                self.pace = pace
+                self._pace_origin = (time.monotonic(), self.step)
             return False
         epoch, fps, pace = parse_reset(cmd.args)
         pictures = parse_pictures(cmd.args)
@@ -281,4 +284,7 @@ class SimClockLoop:
         if delay < -1.0:  # far behind (slow renders): don't burst to catch up
             self._pace_origin = (time.monotonic(), self.step)
         elif delay > 0:
-            self.node.sleep(delay)
+            # a command, or a planner that comes or goes, ends the wait: a slow idle pace never delays a
+            # take's reset, and a planner that has just started gets its first tick at once
+            alive, cmds = self.planner.alive, self.bridge.cmd_in
+            self.node.sleep_until(delay, lambda: len(cmds) > 0 or self.planner.alive != alive)

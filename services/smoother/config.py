@@ -93,8 +93,9 @@ class SmootherConfig:
                               help="streaming window: the newest frames each published instructions cover")
     history_s: float = setting(60.0, flag="--history", unit="s", range="> 0",
                                help="history used by each window solve, >= window_s")
-    publish_period_s: float = setting(0.25, flag="--publish-period", unit="s", range="(0, 0.5]",
-                                      help="at most one window per period (the lag bound)")
+    publish_period_s: float = setting(0.25, flag="--publish-period", unit="s", range="[0, 0.5]",
+                                      help="at most one window per period (the lag bound); 0 = no windows, "
+                                           "only the whole sequence at the end of stream")
     end_idle_s: float = setting(3.0, flag="--end-idle", unit="s", range=">= 0",
                                 help="end of stream after this long without measurements; 0 = only on command")
 
@@ -140,7 +141,8 @@ class SmootherConfig:
             ("focus_region_margin", 0.0 <= self.focus_region_margin <= 0.2, "0 <= value <= 0.2"),
             ("foreground_min_rows", 0.0 <= self.foreground_min_rows < 1.0, "0 <= value < 1"),
             ("history_s", self.history_s >= self.window_s, f">= window_s ({self.window_s})"),
-            ("publish_period_s", 0.0 < self.publish_period_s <= 0.5, "0 < value <= 0.5 (the lag bound)"),
+            ("publish_period_s", 0.0 <= self.publish_period_s <= 0.5,
+             "0 <= value <= 0.5 (the lag bound; 0 = no windows)"),
             ("end_idle_s", self.end_idle_s >= 0.0, ">= 0"),
         ]
 

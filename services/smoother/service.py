@@ -4,10 +4,11 @@
 
 Keys: subscribes `ct/{rig}/detector/measurement` (no-drop), `ct/{rig}/detector/end` (the
 detector's StreamEnd after a source's last frame) and `ct/{rig}/smoother/command` (no-drop);
-publishes `ct/{rig}/smoother/instructions`: streaming windows while measurements arrive, then the
-whole sequence (final=True, with the source's SourceInfo). End of stream = the detector's
-StreamEnd, a Command 'end' on the command key, `--end-idle` seconds without measurements, a
-measurement of another source, or SIGINT/SIGTERM (the final result is published before exiting).
+publishes `ct/{rig}/smoother/instructions`: streaming windows while measurements arrive (none with
+`--publish-period 0`), then the whole sequence (final=True, with the source's SourceInfo). End of
+stream = the detector's StreamEnd, a Command 'end' on the command key, `--end-idle` seconds without
+measurements, a measurement of another source, or SIGINT/SIGTERM (the final result is published
+before exiting).
 """
 from __future__ import annotations
 
@@ -97,6 +98,8 @@ class SmootherLoop:
                 self.finish(f"end of stream: {end.reason}", source=end.source)
 
     def publish_window(self) -> None:
+        if self.cfg.publish_period_s <= 0:  # windows off: a job that needs only the whole sequence
+            return
         now = time.monotonic()
         if self.state.dirty and now - self.last_pub >= self.cfg.publish_period_s:
             with self.node.timed():

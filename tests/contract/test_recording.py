@@ -244,3 +244,37 @@ def test_a_recorded_message_that_does_not_fit_its_schema_is_left_out_not_the_run
     # then reading it gives the two good ones and counts the bad one
     run = runlog.RunReader(path)
     assert [codec.decode(p).seq for _, _, p in run.messages()] == [1, 3] and run.skipped == 1
+
+
+def test_frames_encoded_once_give_the_recording_the_videos_very_pictures(tmp_path):
+    # given frames written to an mp4 whose writer hands back each frame's H.264 (the recorder's one
+    # encode for output.mp4 and run.mcap), and those packets given to the recording
+    import av
+    import numpy as np
+
+    from cinetransfer.shared.video import H264Writer
+
+    fps, n = 24.0, 30
+    yy, xx = np.mgrid[0:48, 0:64]
+    # a pattern drifting a pixel a frame (no scene cut for x264 to put a keyframe at)
+    imgs = [np.dstack([128 + 100 * np.sin((xx + k) / 6.0), 128 + 100 * np.cos((yy + k) / 5.0),
+                       128 + 60 * np.sin((xx + yy) / 9.0)]).astype(np.uint8) for k in range(n)]
+    video = H264Writer(tmp_path / "out.mp4", fps, stream_keyframe_s=runlog.KEYFRAME_S)
+    packets = []
+    with runlog.RunWriter(tmp_path / "run.mcap", {"description": "one encode"}) as w:
+        for k, img in enumerate(imgs):
+            packets.append(video.write(img))
+            w.write("ct/r/camera/frame", codec.encode(M.Frame(stamp_ns=k * 41_666_667, index=k, fps=fps, image=img)),
+                    video_packet=packets[-1])
+    video.close()
+    # then every frame came out with its own packet, a keyframe with SPS/PPS in front every second
+    assert all(packets)
+    sps = [p.startswith((b"\x00\x00\x00\x01\x67", b"\x00\x00\x01\x67")) for p in packets]
+    assert [k for k, s in enumerate(sps) if s] == [0, 24]
+    # and the recording's pictures, decoded as replay decodes them, are the mp4's pixel for pixel
+    with av.open(str(tmp_path / "out.mp4")) as c:
+        mp4 = [f.to_ndarray(format="bgr24") for f in c.decode(video=0)]
+    recorded = [codec.decode(p).image for _, key, p in runlog.RunReader(tmp_path / "run.mcap").messages()
+                if key == "ct/r/camera/frame"]
+    assert len(mp4) == len(recorded) == n
+    assert all(np.array_equal(a, b) for a, b in zip(mp4, recorded))

@@ -177,3 +177,29 @@ def test_a_clock_tick_600_s_back_resets_the_planners_warm_start_and_the_take_goe
     log = (tmp_path / "planner.log").read_text()
     assert rc_pl == 0 and rc_br == 0, log[-3000:]
     assert "Traceback" not in log and "warm start reset" in log, log[-3000:]
+
+
+@pytest.mark.slow
+def test_a_command_wakes_a_slowly_paced_bridge_at_once(tape, port, tmp_path):
+    # given a bridge paced so slowly that its next step would come 500 s after the first one
+    br = bridge(port, tmp_path, "--pace", "0.0001", "--no-frames-before-reset")
+    try:
+        wait_for(lambda: "autopilot_bridge" in tape.alive, 120, what="bridge alive")
+        wait_for(lambda: tape.of(keys.SIM_CLOCK), 120, what="the first clock tick")
+        n = len(tape.of(keys.SIM_CLOCK))
+
+        def ask(action, **args):  # (again each time: the first put may come before its subscription)
+            tape.session.put(keys.BRIDGE_COMMAND.key(RIG), codec.encode(M.Command(action=action, args=args)))
+            return False
+
+        # when a 'clock' command without a pace arrives, then the bridge steps at once: a new tick
+        wait_for(lambda: len(tape.of(keys.SIM_CLOCK)) > n or ask("clock"), 120, interval=2.0, what="a woken tick")
+        ticks = tape.of(keys.SIM_CLOCK)
+        assert ticks[-1].pace == pytest.approx(0.0001)  # the pace is kept
+        # and a reset is handled at once too: ticks of the new time zero, at its pace (as fast as possible)
+        epoch = ticks[-1].stamp_ns + 600 * 10**9
+        wait_for(lambda: any(t.epoch_ns == epoch for t in tape.of(keys.SIM_CLOCK))
+                 or ask("reset", epoch_ns=epoch, pace=0.0, pictures=[]), 120, interval=2.0, what="the reset's tick")
+        wait_for(lambda: sum(t.epoch_ns == epoch for t in tape.of(keys.SIM_CLOCK)) > 20, 120, what="20 ticks at pace 0")
+    finally:
+        assert stop(br) == 0

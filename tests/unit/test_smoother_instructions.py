@@ -66,6 +66,32 @@ def test_invalid_files_are_refused(tmp_path, result, mutate, needle):
         I.load_style(p)
 
 
+def test_the_same_text_is_validated_once_and_a_bad_one_every_time(tmp_path, result, monkeypatch):
+    import jsonschema
+
+    calls = []
+    real = jsonschema.validate
+    monkeypatch.setattr(jsonschema, "validate", lambda *a, **k: (calls.append(1), real(*a, **k)))
+    # given a style file read twice, and a copy of it under another name
+    p, q = tmp_path / "style.json", tmp_path / "copy.json"
+    ins = I.dataclasses.replace(result.instructions, mu_m=1.234)  # a text no other test has read
+    I.save_style(p, ins)
+    q.write_bytes(p.read_bytes())
+    a, b, c = I.load_style_file(p), I.load_style_file(p), I.load_style_file(q)
+    # then the schema was checked once for the three (the same content), and they read the same
+    assert len(calls) == 1
+    for s in (b, c):
+        np.testing.assert_array_equal(a.instructions.image_targets, s.instructions.image_targets)
+    # and a file whose content changed is checked again: a bad one is refused on every read
+    d = I.style_to_dict(ins)
+    d["instructions"].pop("mu_m")
+    p.write_text(json.dumps(d))
+    for _ in range(2):
+        with pytest.raises(I.StyleFileError, match="mu_m"):
+            I.load_style_file(p)
+    assert len(calls) == 3
+
+
 def test_not_json_is_refused(tmp_path):
     p = tmp_path / "x.json"
     p.write_text("{not json")

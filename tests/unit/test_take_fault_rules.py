@@ -43,3 +43,27 @@ def test_an_undisturbed_take_keeps_its_goals():
     summary = {"headline": {"goals_met": "1/1", "goals": {"a": "met"}}, "goals": [{"id": "a", "status": "met"}]}
     _judge_by_faults(summary, T.summary([T.judge(T.TakeFaults(take=0), 2.0)]))
     assert summary["headline"]["goals_met"] == "1/1" and summary["headline"]["take"]["degraded"] is False
+
+
+def test_the_facts_read_once_give_the_report_the_recordings_vehicle_states(tmp_path):
+    import numpy as np
+
+    from cinetransfer.report.build import read_vehicle_states
+    from cinetransfer.runlog import RunReader, RunWriter
+    from cinetransfer.shared import codec, keys
+    from cinetransfer.shared import messages as M
+
+    # given a recording with vehicle states among other messages of the rig
+    rig = "r"
+    with RunWriter(tmp_path / "run.mcap", {}) as w:
+        for k in range(5):
+            w.write(keys.VEHICLE_STATE.key(rig), codec.encode(M.VehicleState(
+                stamp_ns=k * 50_000_000, position_m=np.array([k, 0.5, -2.0]), holding=k % 2 == 0)))
+            w.write(keys.health(rig, "planner"), codec.encode(M.Health(stamp_ns=k, node="planner", uptime_s=k)))
+    # then the states the faults were read from are the ones the report would read itself, in order
+    facts = T.read_facts(tmp_path / "run.mcap", rig)
+    mine = [m for _, m in facts[keys.VEHICLE_STATE.key(rig)]]
+    theirs = read_vehicle_states(RunReader(tmp_path / "run.mcap"))
+    assert [s.stamp_ns for s in mine] == [s.stamp_ns for s in theirs] == [k * 50_000_000 for k in range(5)]
+    assert all(np.array_equal(a.position_m, b.position_m) and a.holding == b.holding for a, b in zip(mine, theirs))
+    assert len(facts[keys.health(rig, "planner")]) == 5
