@@ -94,9 +94,11 @@ def wrong_start_scene(walks: list[Walk] | None = None) -> KinematicScene:
 
 def planner_maker(cfg: PlannerConfig) -> Callable[[], Planner]:
     """A maker of fresh planners that share one solver: building a casadi solver takes seconds, and
-    a reset one behaves as new."""
+    a reset one behaves as new. The loop's clock waits for every solve, so the wall-time budget is
+    lifted as in the simulator's lockstep: a loaded machine must not change what a loop flies."""
     from cinetransfer.services.planner.solver import MpcSolver
     solver = MpcSolver(cfg.structure, cfg.bounds, cfg.weights, max_solve_time_s=cfg.max_solve_time_s)
+    solver.set_time_budget(None)
 
     def make() -> Planner:
         solver.reset()
