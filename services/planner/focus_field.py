@@ -1,0 +1,120 @@
+"""Where a row's depth of field goes in depth: the foreground band's ground, and the subject at the
+field's far edge when the background must be soft (pure maths, inverse depths x = 1/depth [1/m]).
+
+The foreground is the band of rows below the subject's feet (shared/focus_regions.py). On open
+ground it shows the ground from the feet, at the subject's own depth, down to the bottom row. A
+camera `h` above a plane, pitched p (positive up), sees the ground at image row v (0 top, 1 bottom)
+at depth along the optical axis x = h / (cos p t - sin p), t = (v - 1/2) h_s / f: the inverse depth
+is linear in the row, so the band's rows are spread evenly in inverse depth between the feet and the
+bottom row and its median is the mean of the two (ground_band).
+
+In inverse depth the depth of field of the planning circle c_s spans 1/s +- sigma (cost.py), and a
+circle `ratio` times larger spans 1/s +- ratio sigma: so a region whose pixels lie beyond the larger
+field's edge is visibly soft while one inside the small field is sharp (subject_sharp_limits).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+#: half the subject's own depth [m] (a torso and limbs about the centre joints): the planning field
+#: holds at least this either side of the subject's centre when the labels ask it to be narrow
+SUBJECT_HALF_DEPTH_M = 0.3
+#: the subject's back sits at the far limit of this fraction of the one circle (shared.camera.COC_MM)
+#: when the background must be soft: half the circle reads sharp on every texture and the estimator
+#: flips at one (tests/unit/test_focus_definition.py)
+SUBJECT_EDGE_COC = 0.75
+#: height of the ankle joint above the sole [m]: where the ground lies below the ankles
+ANKLE_HEIGHT_M = 0.08
+
+
+@dataclass(frozen=True)
+class Band:
+    """The foreground band's ground in inverse depth [1/m]: at the feet's row and at the bottom row."""
+
+    inv_top: float
+    inv_bottom: float
+
+    @property
+    def inv_median(self) -> float:
+        """The inverse depth half of the band's pixels lie nearer than (the rows are even in it)."""
+        return 0.5 * (self.inv_top + self.inv_bottom)
+
+    @property
+    def bottom_m(self) -> float:
+        """The depth of the ground at the bottom row [m]."""
+        return 1.0 / self.inv_bottom
+
+
+def ground_inverse_depth(v: float, *, height_m: float, pitch_rad: float, focal_mm: float,
+                         sensor_height_mm: float) -> float:
+    """Inverse depth along the optical axis [1/m] of the ground seen at normalised row `v` from a
+    camera `height_m` above it (level roll); <= 0 where the row looks at or above the horizon."""
+    t = (v - 0.5) * sensor_height_mm / focal_mm
+    return (math.cos(pitch_rad) * t - math.sin(pitch_rad)) / height_m
+
+
+def ground_band(v_feet: float, *, height_m: float, pitch_rad: float, focal_mm: float, sensor_height_mm: float,
+                min_rows: float) -> Band | None:
+    """The band below the feet's row `v_feet` as seen on the ground; None when it is under `min_rows`
+    (a fraction of the frame) high, the camera is not above the ground or its bottom row sees no ground."""
+    if not (math.isfinite(v_feet) and math.isfinite(height_m) and height_m > 0.1) or 1.0 - v_feet < min_rows:
+        return None
+    kw = {"height_m": height_m, "pitch_rad": pitch_rad, "focal_mm": focal_mm, "sensor_height_mm": sensor_height_mm}
+    bottom = ground_inverse_depth(1.0, **kw)
+    if not bottom > 0:
+        return None
+    return Band(max(ground_inverse_depth(max(v_feet, 0.0), **kw), 0.0), bottom)
+
+
+def narrowest_spread(focal_mm: float, f_number: float, coc_mm: float) -> float:
+    """Half the planning field's width in inverse depth [1/m] at the widest aperture: 1000 A c / f^2
+    (the far-focus limit of (s - f) / (s (H - f)), cost.inverse_dof_limits)."""
+    return 1000.0 * f_number * coc_mm / (focal_mm * focal_mm)
+
+
+def foreground_near_m(band: Band, keep_out_m: float, *, spread_min: float, soft_ratio: float) -> float:
+    """D_n* [m] of the planning circle for a row with the foreground sharp: the ground at the bottom
+    row, or, with the subject kept out by the far limit of the visible-defocus field at `keep_out_m`
+    (`soft_ratio` times the circle; inf: nothing kept out), no farther than the lens's narrowest field
+    puts it: 1 / (1/keep_out + (soft_ratio + 1) `spread_min`). A nearer target asks for a field the
+    lens cannot make, and the least-squares plan then let the subject back into it (parkour, only the
+    foreground sharp: the runner sharp in 16 % of the frames)."""
+    x_n = band.inv_bottom
+    if math.isfinite(keep_out_m) and keep_out_m > 0:
+        x_n = max(x_n, 1.0 / keep_out_m + (soft_ratio + 1.0) * spread_min)
+    return 1.0 / x_n
+
+
+def subject_sharp_limits(d_m: float, *, mu_m: float, fg: bool, bg: bool, fg_absent: bool, bg_absent: bool,
+                         band: Band | None, spread_min: float, edge_ratio: float, soft_ratio: float
+                         ) -> tuple[float, float]:
+    """Target depth-of-field limits (D_n*, D_f*) [m] of the planning circle for a row with the subject
+    sharp at depth `d_m` (shared.camera.desired_dof_limits' meaning: D_n* = 0 the foreground in focus,
+    D_f* = inf the background in focus). `spread_min`: the narrowest field the lens gives (narrowest_spread).
+
+    - Background soft (and present): the subject's back (d + SUBJECT_HALF_DEPTH_M) sits at the far
+      edge of the field of `edge_ratio` times the planning circle, the field as narrow as the lens
+      allows (and no narrower than the subject), so the background leaves it as near behind him as
+      can be: focus in front of him. Centred on him (d -+ mu), a small far subject's field reached
+      35 m to infinity and the background was sharp.
+    - Background sharp or absent, foreground soft (present, its `band` known): the near edge of the
+      visible-defocus field (`soft_ratio` times the circle) lies beyond the band's median, so most of
+      the band is soft, the subject staying inside the field. In front of a subject on open ground
+      the band reaches back to his feet, and a field ending mu in front of him held it sharp.
+    - Otherwise d -+ mu, as desired_dof_limits gives. A sharp foreground keeps D_n* = 0 (the caller
+      aims it at the band: foreground_near_m).
+    The foreground gives way to the background (the report's order, report.focus_reach.PRIORITY).
+    """
+    x_hi, x_lo = 1.0 / max(d_m - SUBJECT_HALF_DEPTH_M, 0.1), 1.0 / (d_m + SUBJECT_HALF_DEPTH_M)
+    if not (bg or bg_absent):
+        spread = max(spread_min, (x_hi - x_lo) / (2.0 * edge_ratio))
+        centre = x_lo + edge_ratio * spread
+        x_n, x_f = centre + spread, centre - spread
+    else:
+        x_f = 0.0 if bg else 1.0 / (d_m + mu_m)
+        x_n = 1.0 / max(d_m - mu_m, 0.1)
+        if not (fg or fg_absent) and band is not None:
+            cap = x_f + 2.0 * (band.inv_median - x_f) / (soft_ratio + 1.0)
+            x_n = max(min(x_n, cap), x_hi)
+    return (0.0 if fg else 1.0 / x_n), (math.inf if bg else 1.0 / x_f)
