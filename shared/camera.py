@@ -35,12 +35,6 @@ SIGMA_PER_DIAMETER = 0.25
 FOCUS_FLIP_SIGMA_PER_WIDTH = 0.9 / 640
 
 
-#: A region reads soft when its blur is this many times the circle of confusion: 1.5 circles read
-#: soft on every measured texture, half a circle sharp (tests/unit/test_focus_definition.py). The
-#: planner keeps a subject out of this larger field, and the report asks a region labelled soft to
-#: lie outside it before calling the label reachable.
-VISIBLE_DEFOCUS_COC_RATIO = 1.5
-
 #: a region (foreground, subject, background) is "in focus" when at least this share of its pixels
 #: lies inside the depth of field: the simulator's truth and the report's reachability use it.
 REGION_IN_FOCUS_SHARE = 0.5

@@ -9,12 +9,8 @@ asked labels, and where there is none says why.
 
 A region is in focus when at least half its pixels (camera.REGION_IN_FOCUS_SHARE) lie inside the
 depth of field; a region's depths come as an equal-weight sample of inverse depths (1/m, 0 = the
-sky). A region asked sharp is judged in the depth of field of the one circle, a region asked soft in
-that of the visibly soft circle (camera.VISIBLE_DEFOCUS_COC_RATIO times it): a blur between the two
-is neither sharp nor soft to the eye and the focus estimator, so a soft subject with a sharp lawn
-right behind him at his depth is out of reach although a setting whose field just misses his median
-depth exists. A label counts as reachable with a setting when the share lands within MARGIN of the
-asked side, so frames near the line are left to the controller, never excused.
+sky). A label counts as reachable with a setting when the share lands within MARGIN of the asked
+side, so frames near the line are left to the controller, never excused.
 
 Combinations: regions are taken in the order subject, background, foreground (the subject is the
 shot's point); a region is unreachable when no setting gives its label together with the labels
@@ -30,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cinetransfer.shared.camera import COC_MM, REGION_IN_FOCUS_SHARE, VISIBLE_DEFOCUS_COC_RATIO
+from cinetransfer.shared.camera import COC_MM, REGION_IN_FOCUS_SHARE
 
 REGIONS: tuple[str, ...] = ("foreground", "subject", "background")
 #: the order in which asked labels are granted (indices into REGIONS)
@@ -55,7 +51,6 @@ class Lens:
     focus_m: tuple[float, float]  # nearest and farthest focus distance [m]
     f_number: tuple[float, float]  # smallest and largest f-number
     coc_mm: float = COC_MM
-    soft_coc_ratio: float = VISIBLE_DEFOCUS_COC_RATIO  # a region asked soft lies outside this circle's field
 
 
 @dataclass(frozen=True)
@@ -99,20 +94,12 @@ def _grid(lo: float, hi: float, n: int) -> np.ndarray:
 def _feasible(lens: Lens, n: np.ndarray, s: np.ndarray, regions: list[int], asked: np.ndarray,
               inv_depth: np.ndarray) -> np.ndarray:
     """Per setting (n, s broadcast together): every region in `regions` gets its asked label."""
-    fields = _fields(lens, n, s)
-    ok = np.ones(fields[True][0].shape, bool)
+    inv_far, inv_near = dof_inverse(lens.focal_mm, n, s, lens.coc_mm)
+    ok = np.ones(inv_far.shape, bool)
     for r in regions:
-        inv_far, inv_near = fields[bool(asked[r])]
         ok &= _reaches(in_focus_share(inv_depth[r], inv_far.ravel(), inv_near.ravel()).reshape(ok.shape),
                        bool(asked[r]))
     return ok
-
-
-def _fields(lens: Lens, n: np.ndarray, s: np.ndarray) -> dict[bool, tuple[np.ndarray, np.ndarray]]:
-    """The depth of field each label is judged in, per setting: sharp (True) in the one circle's,
-    soft (False) in the visibly soft circle's."""
-    return {True: dof_inverse(lens.focal_mm, n, s, lens.coc_mm),
-            False: dof_inverse(lens.focal_mm, n, s, lens.coc_mm * lens.soft_coc_ratio)}
 
 
 def _settings(lens: Lens, n_range: tuple[float, float], s_range: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
@@ -225,14 +212,13 @@ def unreachable_labels(lens: Lens, asked: np.ndarray, present: np.ndarray,
     asked = np.asarray(asked, bool)
     inv_depth = np.asarray(inv_depth, float)
     n, s = _settings(lens, lens.f_number, lens.focus_m)
-    fields = _fields(lens, n, s)
+    inv_far, inv_near = dof_inverse(lens.focal_mm, n, s, lens.coc_mm)
     granted = np.ones(n.shape, bool)  # the settings that give every label granted so far
     kept: list[int] = []
     out: list[Unreachable] = []
     for r in PRIORITY:
         if not present[r] or inv_depth.shape[1] == 0 or not np.isfinite(inv_depth[r]).all():
             continue
-        inv_far, inv_near = fields[bool(asked[r])]
         with_r = granted & _reaches(in_focus_share(inv_depth[r], inv_far, inv_near), bool(asked[r]))
         if with_r.any():
             kept.append(r)

@@ -20,7 +20,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-from cinetransfer.shared.camera import COC_MM, SENSOR_HEIGHT_MM, SENSOR_WIDTH_MM, VISIBLE_DEFOCUS_COC_RATIO
+from cinetransfer.shared.camera import COC_MM, SENSOR_HEIGHT_MM, SENSOR_WIDTH_MM
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.nodeconfig import renamed_aliases, setting
 from cinetransfer.shared.paths import cache_dir
@@ -183,7 +183,7 @@ class Structure:
     # of field of coc_mm x sharp_coc_ratio (0.05 mm on CineMPC's sensor), a subject kept out beyond
     # that of coc_mm x defocus_coc_ratio (0.2 mm): blur that is seen ("Visible defocus")
     sharp_coc_ratio: float = 0.375
-    defocus_coc_ratio: float = VISIBLE_DEFOCUS_COC_RATIO
+    defocus_coc_ratio: float = 1.5
     defocus_when_none: bool = True  # no region in focus -> D_f* = d - mu (DESIGN's table: uncontrolled)
     pinhole_half_angle_deg: float = 60.0  # J_im is the exact pinhole error within this angle of the axis,
     #                                       extended monotonically beyond (cost.project_extended), (30, 80)
