@@ -38,8 +38,8 @@ from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject
                                                 reciprocal_targets,
                                                 subject_softness, switched_out)
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
-from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, SUBJECT_EDGE_COC, Band, foreground_near_m,
-                                                       ground_band, narrowest_spread, subject_sharp_limits)
+from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, Band, foreground_near_m, ground_band,
+                                                       narrowest_spread, subject_sharp_limits)
 from cinetransfer.services.planner.separation import (APERTURE_MARGIN, background_soft_distance_m, framing_k,
                                                       separation_distance_m)
 from cinetransfer.services.planner.solver import N_DOF, MpcSolver, SolveResult, StageData
@@ -451,6 +451,8 @@ class Planner:
         rows3 = focus.tolist() if focus.shape[-1:] == (3,) else []
         keeps_out = [far_keeps_subject_out(*row) for row in rows3]
         near_out = [near_keeps_subject_out(*row) for row in rows3]
+        # a rack to the background inside the horizon starts its long focus travel from the subject
+        rack_ahead = any(near_out[r] for r in rows if r < len(near_out))
         ratio = st.defocus_coc_ratio / st.sharp_coc_ratio
         dof = np.zeros((n, N_DOF))
         dof[:, 6:8] = 1.0  # the far and near limits' circle-of-confusion ratios (cost.defocus_ratio)
@@ -468,7 +470,8 @@ class Planner:
             # a row with no region labelled (a shot without a focus measurement) leaves the lens free
             if focus.shape[0] > r and focus.shape[1] == 3 and not absent[r].all():
                 band = self._foreground_band(xk, subj, t)
-                near, far = self._row_limits(focus[r], absent[r], depth, mu, band, float(xk[lay.F]))
+                near, far = self._row_limits(focus[r], absent[r], depth, mu, band, float(xk[lay.F]),
+                                             edge=not rack_ahead)
                 # with the subject kept out by the near limit the far limit of the sharpness circle (3/8 of
                 # the one circle) at infinity is margin enough: the extra margin would cap the focus at half
                 # its longest and the subject's blur with it (separation.py)
@@ -483,17 +486,20 @@ class Planner:
         return dof, dref
 
     def _row_limits(self, row: np.ndarray, absent: np.ndarray, depth: float, mu: float, band: Band | None,
-                    focal_mm: float) -> tuple[float, float]:
+                    focal_mm: float, *, edge: bool = True) -> tuple[float, float]:
         """Target limits (D_n*, D_f*) [m] of a row's labels (shared.camera.desired_dof_limits), shaped
-        where the subject is sharp by what lies around him (focus_field.subject_sharp_limits)."""
+        where the subject is sharp by what lies around him (focus_field.subject_sharp_limits); `edge`
+        False keeps a soft background's field centred on him (a rack to the background in the horizon:
+        from in front of him the focus travel after the switch was longer, the subject soft 0.5 s later
+        in the closed-loop rack)."""
         st = self.cfg.structure
         fg, subject, bg = cam.realisable_labels(*(bool(v) for v in row))
         spread = narrowest_spread(focal_mm, APERTURE_MARGIN * self.solver.bounds.f_number_min, st.plan_coc_mm)
         soft_ratio = st.defocus_coc_ratio / st.sharp_coc_ratio
         if subject:
             near, far = subject_sharp_limits(depth, mu_m=mu, fg=fg, bg=bg, fg_absent=bool(absent[0]),
-                                             bg_absent=bool(absent[2]), band=band, spread_min=spread,
-                                             edge_ratio=SUBJECT_EDGE_COC / st.sharp_coc_ratio, soft_ratio=soft_ratio)
+                                             bg_absent=bool(absent[2]) or not edge, band=band, spread_min=spread,
+                                             soft_ratio=soft_ratio)
         else:
             near, far = cam.desired_dof_limits(fg, subject, bg, depth, mu, defocus_when_none=st.defocus_when_none)
         if fg and band is not None:

@@ -54,24 +54,19 @@ def test_narrowest_spread_by_hand():
 
 def _limits(**kw):
     base = {"mu_m": 1.0, "fg": False, "bg": True, "fg_absent": True, "bg_absent": False, "band": None,
-            "spread_min": 1 / 60.0, "edge_ratio": 2.0, "soft_ratio": 4.0}
+            "spread_min": 1 / 60.0, "soft_ratio": 4.0}
     return FF.subject_sharp_limits(15.0, **{**base, **kw})
 
 
 def test_a_soft_background_puts_a_far_subject_at_the_far_edge():
     # given a runner 15 m away, the background soft, the lens's narrowest spread 1/60 per metre
     near, far = _limits(bg=False)
-    # then by hand: the back at 15.3 m on the far edge of twice the circle: 1/s = 1/15.3 + 2/60 (s = 10.13 m),
-    # the planning field's limits 1/s -+ 1/60
-    inv_s = 1 / 15.3 + 2 / 60.0
-    assert 1 / near == pytest.approx(inv_s + 1 / 60.0) and 1 / far == pytest.approx(inv_s - 1 / 60.0)
-    assert 1 / inv_s == pytest.approx(10.13, abs=0.01)
-    # the subject's front (14.7 m) is inside the doubled field, and the field ends nearer than centred on him
-    assert inv_s + 2 / 60.0 >= 1 / 14.7 and 1 / (inv_s - 2 / 60.0) == pytest.approx(15.3)
-    # and a lens that narrows further still holds the whole subject in the doubled field: 14.7 to 15.3 m
-    near, far = _limits(bg=False, spread_min=1e-4)
-    inv_s, spread = 0.5 * (1 / near + 1 / far), 0.5 * (1 / near - 1 / far)
-    assert 1 / (inv_s + 2 * spread) == pytest.approx(14.7) and 1 / (inv_s - 2 * spread) == pytest.approx(15.3)
+    # then by hand: his back (15.3 m) on the far limit, the field 2/60 per metre deep in front of it: the near
+    # limit at 1 / (1/15.3 + 2/60) = 10.13 m, focus at 1 / (1/15.3 + 1/60) = 12.19 m (centred on him: 15 m)
+    assert far == pytest.approx(15.3)
+    assert near == pytest.approx(1 / (1 / 15.3 + 2 / 60.0)) and near == pytest.approx(10.13, abs=0.01)
+    # and a lens that narrows further still holds the whole subject: 14.7 to 15.3 m
+    assert _limits(bg=False, spread_min=1e-4) == pytest.approx((14.7, 15.3))
 
 
 def test_a_soft_foreground_keeps_the_visible_field_beyond_the_bands_median():
