@@ -502,8 +502,10 @@ class Planner:
                                              soft_ratio=soft_ratio)
         else:
             near, far = cam.desired_dof_limits(fg, subject, bg, depth, mu, defocus_when_none=st.defocus_when_none)
-        if fg and band is not None:
-            near = foreground_near_m(band, far if not subject else math.inf, spread_min=spread, soft_ratio=soft_ratio)
+        if fg and not subject and band is not None:
+            # with the subject sharp too the field is deep and 1 m holds whatever the band shows: focus_hedge's
+            # hedge 1.7 m away in tos_clip01 went soft when aimed at the ground (foreground 1.00 -> 0.00)
+            near = foreground_near_m(band, far, spread_min=spread, soft_ratio=soft_ratio)
         return near, far
 
     def _foreground_band(self, xk: np.ndarray, subj: PredictedSubject, t: float) -> Band | None:
