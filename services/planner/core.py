@@ -39,7 +39,7 @@ from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject
                                                 subject_softness, switched_out)
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
 from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, Band, foreground_near_m, ground_band,
-                                                       narrowest_spread, subject_sharp_limits)
+                                                       narrowest_spread)
 from cinetransfer.services.planner.separation import (APERTURE_MARGIN, background_soft_distance_m, framing_k,
                                                       separation_distance_m)
 from cinetransfer.services.planner.solver import N_DOF, MpcSolver, SolveResult, StageData
@@ -451,8 +451,6 @@ class Planner:
         rows3 = focus.tolist() if focus.shape[-1:] == (3,) else []
         keeps_out = [far_keeps_subject_out(*row) for row in rows3]
         near_out = [near_keeps_subject_out(*row) for row in rows3]
-        # a rack to the background inside the horizon starts its long focus travel from the subject
-        rack_ahead = any(near_out[r] for r in rows if r < len(near_out))
         ratio = st.defocus_coc_ratio / st.sharp_coc_ratio
         dof = np.zeros((n, N_DOF))
         dof[:, 6:8] = 1.0  # the far and near limits' circle-of-confusion ratios (cost.defocus_ratio)
@@ -470,8 +468,7 @@ class Planner:
             # a row with no region labelled (a shot without a focus measurement) leaves the lens free
             if focus.shape[0] > r and focus.shape[1] == 3 and not absent[r].all():
                 band = self._foreground_band(xk, subj, t)
-                near, far = self._row_limits(focus[r], absent[r], depth, mu, band, float(xk[lay.F]),
-                                             edge=not rack_ahead)
+                near, far = self._row_limits(focus[r], depth, mu, band, float(xk[lay.F]))
                 # with the subject kept out by the near limit the far limit of the sharpness circle (3/8 of
                 # the one circle) at infinity is margin enough: the extra margin would cap the focus at half
                 # its longest and the subject's blur with it (separation.py)
@@ -485,27 +482,19 @@ class Planner:
                 dof[k, 2] *= float(far_previewed(focus, near_out, now_row, r))
         return dof, dref
 
-    def _row_limits(self, row: np.ndarray, absent: np.ndarray, depth: float, mu: float, band: Band | None,
-                    focal_mm: float, *, edge: bool = True) -> tuple[float, float]:
-        """Target limits (D_n*, D_f*) [m] of a row's labels (shared.camera.desired_dof_limits), shaped
-        where the subject is sharp by what lies around him (focus_field.subject_sharp_limits); `edge`
-        False keeps a soft background's field centred on him (a rack to the background in the horizon:
-        from in front of him the focus travel after the switch was longer, the subject soft 0.5 s later
-        in the closed-loop rack)."""
+    def _row_limits(self, row: np.ndarray, depth: float, mu: float, band: Band | None,
+                    focal_mm: float) -> tuple[float, float]:
+        """Target limits (D_n*, D_f*) [m] of a row's labels (shared.camera.desired_dof_limits), with
+        "only the foreground sharp" aimed at the ground the foreground band shows (focus_field)."""
         st = self.cfg.structure
         fg, subject, bg = cam.realisable_labels(*(bool(v) for v in row))
-        spread = narrowest_spread(focal_mm, APERTURE_MARGIN * self.solver.bounds.f_number_min, st.plan_coc_mm)
-        soft_ratio = st.defocus_coc_ratio / st.sharp_coc_ratio
-        if subject:
-            near, far = subject_sharp_limits(depth, mu_m=mu, fg=fg, bg=bg, fg_absent=bool(absent[0]),
-                                             bg_absent=bool(absent[2]) or not edge, band=band, spread_min=spread,
-                                             soft_ratio=soft_ratio)
-        else:
-            near, far = cam.desired_dof_limits(fg, subject, bg, depth, mu, defocus_when_none=st.defocus_when_none)
+        near, far = cam.desired_dof_limits(fg, subject, bg, depth, mu, defocus_when_none=st.defocus_when_none)
         if fg and not subject and band is not None:
             # with the subject sharp too the field is deep and 1 m holds whatever the band shows: focus_hedge's
             # hedge 1.7 m away in tos_clip01 went soft when aimed at the ground (foreground 1.00 -> 0.00)
-            near = foreground_near_m(band, far, spread_min=spread, soft_ratio=soft_ratio)
+            spread = narrowest_spread(focal_mm, APERTURE_MARGIN * self.solver.bounds.f_number_min, st.plan_coc_mm)
+            near = foreground_near_m(band, far, spread_min=spread,
+                                     soft_ratio=st.defocus_coc_ratio / st.sharp_coc_ratio)
         return near, far
 
     def _foreground_band(self, xk: np.ndarray, subj: PredictedSubject, t: float) -> Band | None:

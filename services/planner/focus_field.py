@@ -1,5 +1,5 @@
-"""Where a row's depth of field goes in depth: the foreground band's ground, and the subject at the
-field's far edge when the background must be soft (pure maths, inverse depths x = 1/depth [1/m]).
+"""Where "only the foreground sharp" puts the depth of field: the ground the foreground band shows
+(pure maths, inverse depths x = 1/depth [1/m]).
 
 The foreground is the band of rows below the subject's feet (shared/focus_regions.py). On open
 ground it shows the ground from the feet, at the subject's own depth, down to the bottom row. A
@@ -9,17 +9,14 @@ is linear in the row, so the band's rows are spread evenly in inverse depth betw
 bottom row and its median is the mean of the two (ground_band).
 
 In inverse depth the depth of field of the planning circle c_s spans 1/s +- sigma (cost.py), and a
-circle `ratio` times larger spans 1/s +- ratio sigma: so a region whose pixels lie beyond the larger
-field's edge is visibly soft while one inside the small field is sharp (subject_sharp_limits).
+circle `ratio` times larger spans 1/s +- ratio sigma: a subject beyond the larger field's far edge
+is visibly soft while the band inside the small field is sharp (foreground_near_m).
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 
-#: half the subject's own depth [m] (a torso and limbs about the centre joints): the planning field
-#: holds at least this either side of the subject's centre when the labels ask it to be narrow
-SUBJECT_HALF_DEPTH_M = 0.3
 #: height of the ankle joint above the sole [m]: where the ground lies below the ankles
 ANKLE_HEIGHT_M = 0.08
 
@@ -80,36 +77,3 @@ def foreground_near_m(band: Band, keep_out_m: float, *, spread_min: float, soft_
     if math.isfinite(keep_out_m) and keep_out_m > 0:
         x_n = max(x_n, 1.0 / keep_out_m + (soft_ratio + 1.0) * spread_min)
     return 1.0 / x_n
-
-
-def subject_sharp_limits(d_m: float, *, mu_m: float, fg: bool, bg: bool, fg_absent: bool, bg_absent: bool,
-                         band: Band | None, spread_min: float, soft_ratio: float) -> tuple[float, float]:
-    """Target depth-of-field limits (D_n*, D_f*) [m] of the planning circle for a row with the subject
-    sharp at depth `d_m` (shared.camera.desired_dof_limits' meaning: D_n* = 0 the foreground in focus,
-    D_f* = inf the background in focus). `spread_min`: the narrowest field the lens gives (narrowest_spread).
-
-    - Background soft (and present): the subject's back (d + SUBJECT_HALF_DEPTH_M) sits at the far
-      limit of the planning circle, the field as narrow as the lens allows (and no narrower than the
-      subject), so the background leaves it as near behind him as can be: focus in front of him.
-      Centred on him (d -+ mu), a small far subject's field reached 35 m to infinity and the
-      background was sharp. (At the far limit of twice the planning circle, 0.75 of the one circle,
-      the focus estimator read a subject 6 m away soft in 46 % of tos_clip01's frames.)
-    - Background sharp or absent, foreground soft (present, its `band` known): the near edge of the
-      visible-defocus field (`soft_ratio` times the circle) lies beyond the band's median, so most of
-      the band is soft, the subject staying inside the field. In front of a subject on open ground
-      the band reaches back to his feet, and a field ending mu in front of him held it sharp.
-    - Otherwise d -+ mu, as desired_dof_limits gives. A sharp foreground keeps D_n* = 0 (the caller
-      aims it at the band: foreground_near_m).
-    The foreground gives way to the background (the report's order, report.focus_reach.PRIORITY).
-    """
-    x_hi, x_lo = 1.0 / max(d_m - SUBJECT_HALF_DEPTH_M, 0.1), 1.0 / (d_m + SUBJECT_HALF_DEPTH_M)
-    if not (bg or bg_absent):
-        x_f = x_lo
-        x_n = max(x_lo + 2.0 * spread_min, x_hi)
-    else:
-        x_f = 0.0 if bg else 1.0 / (d_m + mu_m)
-        x_n = 1.0 / max(d_m - mu_m, 0.1)
-        if not (fg or fg_absent) and band is not None:
-            cap = x_f + 2.0 * (band.inv_median - x_f) / (soft_ratio + 1.0)
-            x_n = max(min(x_n, cap), x_hi)
-    return (0.0 if fg else 1.0 / x_n), (math.inf if bg else 1.0 / x_f)

@@ -380,30 +380,3 @@ def test_only_the_foreground_sharp_aims_at_the_ground_the_band_shows(planner, in
     want = max(1.0 / t, 1.0 / (dref[0] - ins.mu_m) + 5.0 * sigma)
     assert t > 0 and dof[0, 0] == 1.0 and dof[0, 1] == pytest.approx(want, rel=1e-6)
     assert dof[0, 3] == pytest.approx(1.0 / (dref[0] - ins.mu_m))
-
-
-def test_a_soft_background_puts_the_subject_at_the_far_edge_unless_a_rack_is_in_the_horizon(planner, instructions):
-    from cinetransfer.services.planner.focus_field import SUBJECT_HALF_DEPTH_M
-
-    # given a style whose first half wants only the subject sharp and whose second half only the background
-    k = instructions.image_targets.shape[0]
-    focus = np.tile([False, True, False], (k, 1))
-    focus[k // 2:] = [False, False, True]
-    sm = focus.astype(np.float32)
-    sm[:, 0] = np.nan  # no foreground shown
-    ins = dataclasses.replace(instructions, focus_smoothed=sm, focus_raw=sm, focus_in=focus)
-    sim = KinematicSim(wrong_start_scene())
-    x0 = planner._measured_state(T0, sim.vehicle_state(T0))
-    subj = predict_subject(sim.subject_state(T0), T0)
-    # when the horizon holds no switch: the subject's back (d + 0.3 m) on the far limit, the field as narrow
-    # as the lens gives (1/D_n* - 1/D_f* = 2 sigma_min) and no narrower than the subject
-    dof, dref = planner._dof_targets(T0, ins, [0, 1], 0, x0, subj)
-    lay, st, b = planner.layout, planner.cfg.structure, planner.solver.bounds
-    sigma = 1000.0 * 1.2 * b.f_number_min * st.plan_coc_mm / x0[lay.F] ** 2
-    x_lo = 1.0 / (dref[0] + SUBJECT_HALF_DEPTH_M)
-    assert dof[0, 3] == pytest.approx(x_lo)
-    assert dof[0, 1] == pytest.approx(max(x_lo + 2.0 * sigma, 1.0 / (dref[0] - SUBJECT_HALF_DEPTH_M)))
-    # and with the switch to the background inside the horizon: centred on him, d -+ mu
-    dof, dref = planner._dof_targets(T0, ins, [k // 2 - 1, k // 2], k // 2 - 1, x0, subj)
-    assert dof[0, 3] == pytest.approx(1.0 / (dref[0] + ins.mu_m))
-    assert dof[0, 1] == pytest.approx(1.0 / (dref[0] - ins.mu_m))

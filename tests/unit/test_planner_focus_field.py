@@ -52,43 +52,6 @@ def test_narrowest_spread_by_hand():
     assert FF.narrowest_spread(60.0, 1.2, 0.05) == pytest.approx(1 / 60.0)
 
 
-def _limits(**kw):
-    base = {"mu_m": 1.0, "fg": False, "bg": True, "fg_absent": True, "bg_absent": False, "band": None,
-            "spread_min": 1 / 60.0, "soft_ratio": 4.0}
-    return FF.subject_sharp_limits(15.0, **{**base, **kw})
-
-
-def test_a_soft_background_puts_a_far_subject_at_the_far_edge():
-    # given a runner 15 m away, the background soft, the lens's narrowest spread 1/60 per metre
-    near, far = _limits(bg=False)
-    # then by hand: his back (15.3 m) on the far limit, the field 2/60 per metre deep in front of it: the near
-    # limit at 1 / (1/15.3 + 2/60) = 10.13 m, focus at 1 / (1/15.3 + 1/60) = 12.19 m (centred on him: 15 m)
-    assert far == pytest.approx(15.3)
-    assert near == pytest.approx(1 / (1 / 15.3 + 2 / 60.0)) and near == pytest.approx(10.13, abs=0.01)
-    # and a lens that narrows further still holds the whole subject: 14.7 to 15.3 m
-    assert _limits(bg=False, spread_min=1e-4) == pytest.approx((14.7, 15.3))
-
-
-def test_a_soft_foreground_keeps_the_visible_field_beyond_the_bands_median():
-    band = FF.Band(inv_top=1 / 15.0, inv_bottom=1 / 5.0)  # median 1/7.5
-    # given the background sharp (far limit at infinity): the visible near edge (4 x) at the band's median
-    near, far = _limits(fg_absent=False, band=band)
-    assert far == math.inf
-    # by hand: 1/s = x_n / 2, 1/s + 4 x_n / 2 = 1/7.5 -> x_n = 2 / (5 x 7.5); clipped to hold the subject (14.7 m)
-    assert 1 / near == pytest.approx(max(2 / 37.5, 1 / 14.7))
-    # and with a deep band whose median is 30 m away the subject's own margin (d - mu) stays
-    deep = FF.Band(inv_top=1 / 60.0, inv_bottom=1 / 20.0)
-    assert _limits(fg_absent=False, band=deep)[0] == pytest.approx(1 / max(min(1 / 14.0, 2 / 5 * deep.inv_median),
-                                                                           1 / 14.7))
-    # and with no band known, or the foreground sharp, nothing changes: d - mu, and D_n* = 0
-    assert _limits(fg_absent=False)[0] == pytest.approx(14.0)
-    assert _limits(fg=True, fg_absent=False, band=band)[0] == 0.0
-
-
-def test_no_background_keeps_the_centred_field():
-    assert _limits(bg=False, bg_absent=True) == pytest.approx((14.0, 16.0))
-
-
 def test_a_sharp_foreground_is_aimed_at_the_bottom_row_within_what_the_lens_can_narrow():
     band = FF.Band(inv_top=1 / 15.0, inv_bottom=1 / 10.0)
     # given nothing kept out: the bottom row's ground, 10 m
