@@ -38,16 +38,21 @@ from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject
                                                 reciprocal_targets,
                                                 subject_softness, switched_out)
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
-from cinetransfer.services.planner.separation import background_soft_distance_m, framing_k, separation_distance_m
+from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, Band, foreground_near_m, ground_band,
+                                                       narrowest_spread)
+from cinetransfer.services.planner.separation import (APERTURE_MARGIN, background_soft_distance_m, framing_k,
+                                                      separation_distance_m)
 from cinetransfer.services.planner.solver import N_DOF, MpcSolver, SolveResult, StageData
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.facing import by_image_side
+from cinetransfer.shared.focus_regions import FOREGROUND_MIN_ROWS
 from cinetransfer.shared.plausible import unusable_targets
 
 log = logging.getLogger("cinetransfer.planner")
 
 CENTRE_JOINTS = ("left_shoulder", "right_shoulder", "left_hip", "right_hip")
+FEET_JOINTS = ("left_ankle", "right_ankle")
 STATES = ("idle", "recording", "paused", "holding", "stopped")
 
 
@@ -462,8 +467,8 @@ class Planner:
             dref[k] = depth
             # a row with no region labelled (a shot without a focus measurement) leaves the lens free
             if focus.shape[0] > r and focus.shape[1] == 3 and not absent[r].all():
-                near, far = cam.desired_dof_limits(bool(focus[r, 0]), bool(focus[r, 1]), bool(focus[r, 2]),
-                                                   depth, mu, defocus_when_none=st.defocus_when_none)
+                band = self._foreground_band(xk, subj, t)
+                near, far = self._row_limits(focus[r], depth, mu, band, float(xk[lay.F]))
                 # with the subject kept out by the near limit the far limit of the sharpness circle (3/8 of
                 # the one circle) at infinity is margin enough: the extra margin would cap the focus at half
                 # its longest and the subject's blur with it (separation.py)
@@ -476,6 +481,40 @@ class Planner:
                 dof[k, 7] = defocus_ratio(near_out[r] and switched_out(near_out, now_row, r), ratio, soft)
                 dof[k, 2] *= float(far_previewed(focus, near_out, now_row, r))
         return dof, dref
+
+    def _row_limits(self, row: np.ndarray, depth: float, mu: float, band: Band | None,
+                    focal_mm: float) -> tuple[float, float]:
+        """Target limits (D_n*, D_f*) [m] of a row's labels (shared.camera.desired_dof_limits), with
+        "only the foreground sharp" aimed at the ground the foreground band shows (focus_field)."""
+        st = self.cfg.structure
+        fg, subject, bg = cam.realisable_labels(*(bool(v) for v in row))
+        near, far = cam.desired_dof_limits(fg, subject, bg, depth, mu, defocus_when_none=st.defocus_when_none)
+        if fg and not subject and band is not None:
+            # with the subject sharp too the field is deep and 1 m holds whatever the band shows: focus_hedge's
+            # hedge 1.7 m away in tos_clip01 went soft when aimed at the ground (foreground 1.00 -> 0.00)
+            spread = narrowest_spread(focal_mm, APERTURE_MARGIN * self.solver.bounds.f_number_min, st.plan_coc_mm)
+            near = foreground_near_m(band, far, spread_min=spread,
+                                     soft_ratio=st.defocus_coc_ratio / st.sharp_coc_ratio)
+        return near, far
+
+    def _foreground_band(self, xk: np.ndarray, subj: PredictedSubject, t: float) -> Band | None:
+        """The ground the foreground band shows from the planned camera `xk`, `t` s ahead: below the
+        subject's ankles, from the row of his soles down (focus_field.ground_band); None without an ankle."""
+        idx = [subj.names.index(n) for n in FEET_JOINTS if n in subj.names and subj.finite[subj.names.index(n)]]
+        if not idx:
+            return None
+        st, lay = self.cfg.structure, self.layout
+        soles = subj.joints[idx] + subj.vel * t
+        ground_z = float(soles[:, 2].min()) - ANKLE_HEIGHT_M
+        soles[:, 2] = ground_z
+        ypr = np.array([float(a) for a in lay.angles(xk)])
+        v = cam.project_world(soles, xk[lay.P], ypr, float(xk[lay.F]),
+                              cam.Sensor(st.sensor_width_mm, st.sensor_height_mm))[:, 1]
+        if not np.isfinite(v).any():
+            return None
+        return ground_band(float(np.nanmax(v)), height_m=float(xk[lay.P][2]) - ground_z, pitch_rad=float(ypr[1]),
+                           focal_mm=float(xk[lay.F]), sensor_height_mm=st.sensor_height_mm,
+                           min_rows=FOREGROUND_MIN_ROWS)
 
     def _rows(self, now_ns: int, ins: M.Instructions, n: int, dt: float) -> tuple[list[int], int]:
         """Instruction rows of stages 1..n and the source frame index followed now."""

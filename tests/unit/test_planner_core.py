@@ -349,3 +349,34 @@ def test_style_rows_are_planned_as_one_depth_of_field_gives_them():
     # then only the impossible row changes: its foreground gives way, as the report grants labels
     assert realisable_rows(rows).tolist() == [[False, False, True], [True, True, True], [False, False, True],
                                               [True, False, False]]
+
+
+def test_only_the_foreground_sharp_aims_at_the_ground_the_band_shows(planner, instructions):
+    from cinetransfer.services.planner.focus_field import ANKLE_HEIGHT_M
+    from cinetransfer.shared import camera as cam
+
+    # given a style that wants only the foreground (the band below the feet) in focus, every region present
+    k = instructions.image_targets.shape[0]
+    sm = np.tile(np.array([1.0, 0.0, 0.0], dtype=np.float32), (k, 1))
+    ins = dataclasses.replace(instructions, focus_smoothed=sm, focus_raw=sm,
+                              focus_in=np.tile([True, False, False], (k, 1)))
+    # and a camera 7 m behind the subject, 2.5 m up, pitched 0.2 rad down at 40 mm: his feet at row ~0.9
+    scene = dataclasses.replace(wrong_start_scene(), vehicle_position_m=(-7.0, 0.0, 2.5),
+                                camera_ypr_rad=(0.0, -0.2, 0.0))
+    sim = KinematicSim(scene)
+    x0 = planner._measured_state(T0, sim.vehicle_state(T0))
+    subj = predict_subject(sim.subject_state(T0), T0)
+    dof, dref = planner._dof_targets(T0, ins, [0], 0, x0, subj)
+    lay, st, b = planner.layout, planner.cfg.structure, planner.solver.bounds
+    # then by ray and plane: the bottom row's ray from the camera meets the ground below the ankles at
+    # depth t along the axis
+    ground = min(subj.joints[subj.names.index(n), 2] for n in ("left_ankle", "right_ankle")) - ANKLE_HEIGHT_M
+    ray = cam.rotation_ypr(*lay.angles(x0)) @ np.array([1.0, 0.0, -0.5 * st.sensor_height_mm / x0[lay.F]])
+    t = (ground - x0[lay.P][2]) / ray[2]
+    assert planner._foreground_band(x0, subj, 0.0).bottom_m == pytest.approx(t, rel=1e-9)
+    # and the near limit aims there, or no farther than the lens's narrowest field with the subject kept out
+    # at d - mu by the visible field (4 x the planning circle): 1/(d - mu) + 5 x 1000 (1.2 A_min) c_s / f^2
+    sigma = 1000.0 * 1.2 * b.f_number_min * st.plan_coc_mm / x0[lay.F] ** 2
+    want = max(1.0 / t, 1.0 / (dref[0] - ins.mu_m) + 5.0 * sigma)
+    assert t > 0 and dof[0, 0] == 1.0 and dof[0, 1] == pytest.approx(want, rel=1e-6)
+    assert dof[0, 3] == pytest.approx(1.0 / (dref[0] - ins.mu_m))

@@ -1,0 +1,79 @@
+"""Where "only the foreground sharp" puts the depth of field: the ground the foreground band shows
+(pure maths, inverse depths x = 1/depth [1/m]).
+
+The foreground is the band of rows below the subject's feet (shared/focus_regions.py). On open
+ground it shows the ground from the feet, at the subject's own depth, down to the bottom row. A
+camera `h` above a plane, pitched p (positive up), sees the ground at image row v (0 top, 1 bottom)
+at depth along the optical axis x = h / (cos p t - sin p), t = (v - 1/2) h_s / f: the inverse depth
+is linear in the row, so the band's rows are spread evenly in inverse depth between the feet and the
+bottom row and its median is the mean of the two (ground_band).
+
+In inverse depth the depth of field of the planning circle c_s spans 1/s +- sigma (cost.py), and a
+circle `ratio` times larger spans 1/s +- ratio sigma: a subject beyond the larger field's far edge
+is visibly soft while the band inside the small field is sharp (foreground_near_m).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+#: height of the ankle joint above the sole [m]: where the ground lies below the ankles
+ANKLE_HEIGHT_M = 0.08
+
+
+@dataclass(frozen=True)
+class Band:
+    """The foreground band's ground in inverse depth [1/m]: at the feet's row and at the bottom row."""
+
+    inv_top: float
+    inv_bottom: float
+
+    @property
+    def inv_median(self) -> float:
+        """The inverse depth half of the band's pixels lie nearer than (the rows are even in it)."""
+        return 0.5 * (self.inv_top + self.inv_bottom)
+
+    @property
+    def bottom_m(self) -> float:
+        """The depth of the ground at the bottom row [m]."""
+        return 1.0 / self.inv_bottom
+
+
+def ground_inverse_depth(v: float, *, height_m: float, pitch_rad: float, focal_mm: float,
+                         sensor_height_mm: float) -> float:
+    """Inverse depth along the optical axis [1/m] of the ground seen at normalised row `v` from a
+    camera `height_m` above it (level roll); <= 0 where the row looks at or above the horizon."""
+    t = (v - 0.5) * sensor_height_mm / focal_mm
+    return (math.cos(pitch_rad) * t - math.sin(pitch_rad)) / height_m
+
+
+def ground_band(v_feet: float, *, height_m: float, pitch_rad: float, focal_mm: float, sensor_height_mm: float,
+                min_rows: float) -> Band | None:
+    """The band below the feet's row `v_feet` as seen on the ground; None when it is under `min_rows`
+    (a fraction of the frame) high, the camera is not above the ground or its bottom row sees no ground."""
+    if not (math.isfinite(v_feet) and math.isfinite(height_m) and height_m > 0.1) or 1.0 - v_feet < min_rows:
+        return None
+    kw = {"height_m": height_m, "pitch_rad": pitch_rad, "focal_mm": focal_mm, "sensor_height_mm": sensor_height_mm}
+    bottom = ground_inverse_depth(1.0, **kw)
+    if not bottom > 0:
+        return None
+    return Band(max(ground_inverse_depth(max(v_feet, 0.0), **kw), 0.0), bottom)
+
+
+def narrowest_spread(focal_mm: float, f_number: float, coc_mm: float) -> float:
+    """Half the planning field's width in inverse depth [1/m] at the widest aperture: 1000 A c / f^2
+    (the far-focus limit of (s - f) / (s (H - f)), cost.inverse_dof_limits)."""
+    return 1000.0 * f_number * coc_mm / (focal_mm * focal_mm)
+
+
+def foreground_near_m(band: Band, keep_out_m: float, *, spread_min: float, soft_ratio: float) -> float:
+    """D_n* [m] of the planning circle for a row with the foreground sharp: the ground at the bottom
+    row, or, with the subject kept out by the far limit of the visible-defocus field at `keep_out_m`
+    (`soft_ratio` times the circle; inf: nothing kept out), no farther than the lens's narrowest field
+    puts it: 1 / (1/keep_out + (soft_ratio + 1) `spread_min`). A nearer target asks for a field the
+    lens cannot make, and the least-squares plan then let the subject back into it (parkour, only the
+    foreground sharp: the runner sharp in 16 % of the frames)."""
+    x_n = band.inv_bottom
+    if math.isfinite(keep_out_m) and keep_out_m > 0:
+        x_n = max(x_n, 1.0 / keep_out_m + (soft_ratio + 1.0) * spread_min)
+    return 1.0 / x_n

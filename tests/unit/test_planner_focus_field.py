@@ -1,0 +1,64 @@
+"""Where a row's depth of field goes (services/planner/focus_field.py), against hand-computed values."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from cinetransfer.services.planner import focus_field as FF
+from cinetransfer.shared import camera as cam
+
+H_S = 13.365
+
+
+def test_ground_depth_by_hand():
+    # given a level camera 2 m up whose bottom row looks 0.5 (the focal length equals the sensor height) below
+    # its axis: tan = 0.5, the ground 4 m ahead
+    assert FF.ground_inverse_depth(1.0, height_m=2.0, pitch_rad=0.0, focal_mm=H_S, sensor_height_mm=H_S) \
+        == pytest.approx(1 / 4.0)
+    # and a camera pitched 30 deg down sees the ground on its axis 2 / sin 30 = 4 m away
+    assert FF.ground_inverse_depth(0.5, height_m=2.0, pitch_rad=-math.pi / 6, focal_mm=50.0, sensor_height_mm=H_S) \
+        == pytest.approx(1 / 4.0)
+    # and a level camera's centre row meets the ground only at infinity
+    assert FF.ground_inverse_depth(0.5, height_m=2.0, pitch_rad=0.0, focal_mm=50.0, sensor_height_mm=H_S) == 0.0
+
+
+def test_ground_depth_matches_the_projection_of_a_ground_point():
+    # given a camera 3 m up, pitched 8 deg down at 60 mm, and a ground point 14 m ahead, 1 m to the side
+    pos, ypr = np.array([0.0, 0.0, 3.0]), np.array([0.0, math.radians(-8.0), 0.0])
+    p = np.array([14.0, 1.0, 0.0])
+    v = float(cam.project_world(p, pos, ypr, 60.0)[1])
+    depth = float(cam.world_to_camera(p, pos, ypr)[0])
+    # then the row it is seen at gives its depth along the axis
+    x = FF.ground_inverse_depth(v, height_m=3.0, pitch_rad=ypr[1], focal_mm=60.0, sensor_height_mm=H_S)
+    assert 1.0 / x == pytest.approx(depth, rel=1e-9)
+
+
+def test_the_band_spans_feet_to_bottom_and_its_median_is_the_mean():
+    kw = {"height_m": 2.0, "pitch_rad": 0.0, "focal_mm": H_S, "sensor_height_mm": H_S, "min_rows": 0.03}
+    band = FF.ground_band(0.75, **kw)
+    # rows 0.75 and 1.0: t = 0.25 and 0.5, depths 8 m and 4 m; the rows are even in inverse depth
+    assert band.inv_top == pytest.approx(1 / 8.0) and band.inv_bottom == pytest.approx(1 / 4.0)
+    assert band.inv_median == pytest.approx(0.5 * (1 / 8.0 + 1 / 4.0)) and band.bottom_m == pytest.approx(4.0)
+    # and there is no band under 3 % of the frame high, from under the ground, or looking above the horizon
+    assert FF.ground_band(0.98, **kw) is None
+    assert FF.ground_band(0.75, **{**kw, "height_m": -1.0}) is None
+    assert FF.ground_band(0.75, **{**kw, "pitch_rad": math.radians(40)}) is None
+
+
+def test_narrowest_spread_by_hand():
+    # 1000 A c / f^2: f/1.2, 0.05 mm, 60 mm -> 60 / 3600 per metre
+    assert FF.narrowest_spread(60.0, 1.2, 0.05) == pytest.approx(1 / 60.0)
+
+
+def test_a_sharp_foreground_is_aimed_at_the_bottom_row_within_what_the_lens_can_narrow():
+    band = FF.Band(inv_top=1 / 15.0, inv_bottom=1 / 10.0)
+    # given nothing kept out: the bottom row's ground, 10 m
+    assert FF.foreground_near_m(band, math.inf, spread_min=1 / 60.0, soft_ratio=4.0) == pytest.approx(10.0)
+    # given the subject kept out 14 m away by the visible field (4 x the circle) and a lens whose narrowest
+    # spread is 1/60 per metre: the near limit no farther than 1 / (1/14 + 5/60) = 6.46 m
+    near = FF.foreground_near_m(band, 14.0, spread_min=1 / 60.0, soft_ratio=4.0)
+    assert near == pytest.approx(1 / (1 / 14.0 + 5 / 60.0)) and near == pytest.approx(6.46, abs=0.01)
+    # and a lens that narrows enough aims it at the bottom row again
+    assert FF.foreground_near_m(band, 14.0, spread_min=1e-3, soft_ratio=4.0) == pytest.approx(10.0)
