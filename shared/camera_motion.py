@@ -276,6 +276,20 @@ def _radial_scales(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray,
     return np.einsum("nk,nk->n", resid[ok], mid[ok]) / r2[ok], mid[ok]
 
 
+def _dolly_scales(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.ndarray,
+                  use: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool] | None:
+    """The radial scales of a dolly's points, their image positions and whether they scale both ways
+    (a zoom against the dolly: FAR_SHARE's percentiles either side of 0); None when t is no dolly
+    or too few points are seen."""
+    if abs(t[2]) < DOLLY_AXIS or use.sum() < MIN_POINTS:
+        return None
+    scale, mid = _radial_scales(p0, p1, f, rot, use)
+    if len(scale) < MIN_POINTS:
+        return None
+    lo, hi = np.percentile(scale, [100.0 * FAR_SHARE, 100.0 * (1.0 - FAR_SHARE)])
+    return scale, mid, bool(lo < 0.0 < hi)
+
+
 def dolly_sign(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.ndarray,
                use: np.ndarray) -> np.ndarray:
     """The translation t (3,) with the sign of a dolly-zoom that its points alone cannot tell.
@@ -288,14 +302,10 @@ def dolly_sign(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.
     image, the nearer it is (a camera above the ground looking about level), and the nearer a
     point, the more a dolly makes it scale its way (grow going in). Any other translation, and a
     dolly whose points all scale the same way, keeps its sign."""
-    if abs(t[2]) < DOLLY_AXIS or use.sum() < MIN_POINTS:
+    seen = _dolly_scales(p0, p1, f, rot, t, use)
+    if seen is None or not seen[2]:
         return t
-    scale, mid = _radial_scales(p0, p1, f, rot, use)
-    if len(scale) < MIN_POINTS:
-        return t
-    lo, hi = np.percentile(scale, [100.0 * FAR_SHARE, 100.0 * (1.0 - FAR_SHARE)])
-    if not lo < 0.0 < hi:
-        return t
+    scale, mid, _ = seen
     lower_grows = float(np.corrcoef(mid[:, 1], scale)[0, 1])
     return -t if math.isfinite(lower_grows) and lower_grows * t[2] < 0.0 else t
 
@@ -308,14 +318,10 @@ def ground_denies_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarra
     texture (the paving under a zoom out: their drift over the baseline looks like parallax, the
     translation fit gives them depths, and they come out the farthest). A dolly-zoom, whose points
     scale both ways, is dolly_sign's to judge."""
-    if abs(t[2]) < DOLLY_AXIS or use.sum() < MIN_POINTS:
+    seen = _dolly_scales(p0, p1, f, rot, t, use)
+    if seen is None or seen[2]:
         return False
-    scale, mid = _radial_scales(p0, p1, f, rot, use)
-    if len(scale) < MIN_POINTS:
-        return False
-    lo, hi = np.percentile(scale, [100.0 * FAR_SHARE, 100.0 * (1.0 - FAR_SHARE)])
-    if lo < 0.0 < hi:
-        return False
+    scale, mid, _ = seen
     lower_grows = float(np.corrcoef(mid[:, 1], scale * np.sign(t[2]))[0, 1])
     return math.isfinite(lower_grows) and lower_grows < -GROUND_DENIES
 
