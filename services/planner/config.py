@@ -123,7 +123,8 @@ class Weights:
     dolly_zoom: float = 100.0  # (d ln(subject distance)/dt - source's zoom rate [1/s])^2 per s, in a dolly zoom
     motion_still: float = 0.0  # (v / v_max)^2 per s in a row that turns or zooms the camera in place (pan, tilt,
     #                             roll, zoom): the camera's own speed. Off: at 50 a pan transfer followed the class
-    #                             (agreement 0.62 -> 0.88) but missed the truth framing goal (0.034 > 0.03)
+    #                             (agreement 0.62 -> 0.88) but missed the truth framing goal (0.034 > 0.03); at 1
+    #                             it kept the framing but read 0.77, and 1.25-3 turned the pan into an orbit
 
     def validate(self) -> "Weights":
         for f in dataclasses.fields(self):
