@@ -127,6 +127,8 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool) -> np.ndarray
             out[DOLLY_ZOOM_MASK], out[DISTANCE_RATE] = 1.0, zoom
     if cls is not None and any(n in cls for n in STILL_CLASSES) and not any(n in cls for n in TRAVEL_CLASSES):
         out[STILL] = 1.0
+        if not zoom_asked:  # held in place, the framing would zoom after the subject's distance instead
+            out[ZOOM_MASK] = 1.0
     travel = style.travel[row]
     if travel.any() and (cls is None or any(n in cls for n in TRAVEL_CLASSES)):
         out[TRAVEL], out[TRAVEL_MASK] = travel, 1.0

@@ -227,6 +227,13 @@ def travel_residual(vel, direction, v_scale):  # noqa: ANN001, ANN201
     return ca.vertcat(off * v_scale, ca.fmin(along, 0) * v_scale)
 
 
+def sideways_velocity(vel, forward, v_scale):  # noqa: ANN001, ANN201
+    """The velocity off the optical axis `forward` (unit, world) / v_max: what reads as truck,
+    pedestal or orbit; travel along the axis is left to the framing."""
+    along = vel[0] * forward[0] + vel[1] * forward[1] + vel[2] * forward[2]
+    return (vel - along * forward) * v_scale
+
+
 def reciprocal_targets(near_m: float, far_m: float, *, near_foreground_m: float, far_margin_inv_m: float,
                        fg_absent: bool = False) -> tuple[float, float, float, float, float, float]:
     """Map desired limits (D_n*, D_f*) from shared.camera.desired_dof_limits to cost parameters.
@@ -447,9 +454,10 @@ class StageBuilder:
         out.append((wts["dolly_zoom"] * m[CM.DOLLY_ZOOM_MASK], distance_log_rate(rel, rel_vel) - m[CM.DISTANCE_RATE]))
         direction = ca.mtimes(r, m[CM.TRAVEL])  # the source camera's direction of travel, in the world
         out.append((wts["translation_dir"] * m[CM.TRAVEL_MASK], travel_residual(x[lay.V], direction, par.v_scale)))
-        # a camera that only turns or zooms stays where it is: held by J_v alone (0.5), the framing
-        # trucked and orbited it after the walker and the pan was read as orbit or truck (off by default)
-        out.append((wts["motion_still"] * m[CM.STILL], x[lay.V] * par.v_scale))
+        # a camera that only turns or zooms does not slide sideways: held by J_v alone (0.5), the framing
+        # trucked and orbited it after the walker and the pan was read as orbit or truck; held in every
+        # direction, it lost the framing (docs/planner.md, "Stand still")
+        out.append((wts["motion_still"] * m[CM.STILL], sideways_velocity(x[lay.V], r[:, 0], par.v_scale)))
         return out
 
     def _motion_terms(self, terms: NlpTerms, k: int, par: NlpParams, **at):  # noqa: ANN003, ANN202

@@ -118,6 +118,12 @@ def test_log_rates_and_travel_residual_by_hand():
     assert r == pytest.approx([0, 0.5, 0, 0])
     r = ca.DM(J.travel_residual(ca.DM([-1.0, 0.0, 0.0]), ca.DM([1.0, 0.0, 0.0]), 0.5)).full().ravel()
     assert r == pytest.approx([0, 0, 0, -0.5])
+    # sideways speed off the optical axis: along it nothing; 1 m/s left and 2 m/s forward at v_max 2: 0.5 left
+    r = ca.DM(J.sideways_velocity(ca.DM([2.0, 1.0, 0.0]), ca.DM([1.0, 0.0, 0.0]), 0.5)).full().ravel()
+    assert r == pytest.approx([0, 0.5, 0])
+    s2 = math.sqrt(0.5)  # axis at 45 deg in x-y: (1, 0, 0) splits into (0.5, 0.5, 0) along, (0.5, -0.5, 0) off
+    r = ca.DM(J.sideways_velocity(ca.DM([1.0, 0.0, 0.0]), ca.DM([s2, s2, 0.0]), 1.0)).full().ravel()
+    assert r == pytest.approx([0.5, -0.5, 0])
 
 
 def test_motion_classes_and_direction_conversion():
@@ -147,6 +153,7 @@ def test_row_terms_follow_the_class():
     assert t[CM.RATES.start] == pytest.approx(math.radians(10)) and t[CM.RATE_MASKS].tolist() == [1, 0, 0]
     t = CM.row_terms(_style("roll", roll=5.0), 0, control_roll=False)
     assert not t[CM.RATE_MASKS].any() and t[CM.STILL] == 1  # no roll control: no roll term (the camera stays put)
+    assert t[CM.ZOOM_MASK] == 1 and t[CM.ZOOM] == 0  # turned in place without a zoom: the focal length holds
     t = CM.row_terms(_style("dolly_zoom", zoom=0.1, travel=(0, 0, -1)), 0, control_roll=False)
     assert t[CM.ZOOM] == 0.1 and t[CM.ZOOM_MASK] == 1 and t[CM.DOLLY_ZOOM_MASK] == 1 and t[CM.DISTANCE_RATE] == 0.1
     assert t[CM.TRAVEL].tolist() == [-1, 0, 0] and t[CM.TRAVEL_MASK] == 1
@@ -154,7 +161,7 @@ def test_row_terms_follow_the_class():
     assert t[CM.ZOOM_MASK] == 1 and t[CM.DOLLY_ZOOM_MASK] == 0 and t[CM.TRAVEL_MASK] == 0
     t = CM.row_terms(_style("pan", pan=float("nan")), 0, control_roll=False)
     # the class names a pan whose rate is unknown: no rate term, but the camera turned in place
-    assert t[CM.STILL] == 1 and not np.delete(t, CM.STILL).any()
+    assert t[CM.STILL] == 1 and t[CM.ZOOM_MASK] == 1 and not np.delete(t, [CM.STILL, CM.ZOOM_MASK]).any()
     assert CM.row_terms(_style("pan+truck", pan=5.0, travel=(1, 0, 0)), 0, control_roll=False)[CM.STILL] == 0
 
 
