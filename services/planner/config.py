@@ -262,6 +262,11 @@ class PlannerConfig:
                               help="start recording when the first instructions arrive (else wait for a 'start' "
                                    "command)")
     mu_default_m: float = 1.0  # DoF margin when the instructions carry none (mu <= 0) [m]
+    #: how far beyond the subject's centre the near limit keeps him out when only the background is to be
+    #: sharp [m]; 0 = mu. His own depth (0.3 m: a body's back) filmed parkour's lawn right behind him sharp
+    #: (truth background 0.65 -> 0.90) but a rack to the background softened the subject later (the
+    #: dance-twirl rack's truth subject 0.96 -> 0.94), so it is off by default (docs/planner.md)
+    subject_keep_out_m: float = 0.0
     #: how far ahead (within the take) a style row wanting the subject soft before a sharp background
     #: raises the minimum subject distance to the standoff that choice needs (separation.py) [s]; 0 = off
     separation_lookahead_s: float = 6.0
@@ -306,7 +311,8 @@ class PlannerConfig:
                            "and a finite factor >= 0")
         if not (self.background_behind_m > 0):  # inf is allowed: an unknown background
             raise _bad("", "background_behind_m", self.background_behind_m, "a value > 0 (inf: unknown)")
-        for name in ("tail_max_s", "setpoint_lead_s", "clamp_tolerance", "feasibility_tol", "separation_lookahead_s"):
+        for name in ("tail_max_s", "setpoint_lead_s", "clamp_tolerance", "feasibility_tol", "separation_lookahead_s",
+                     "subject_keep_out_m"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise _bad("", name, v, "a finite value >= 0")

@@ -394,7 +394,7 @@ class Planner:
             rows[kind][1].append(defocus_ratio(True, ratio, soft))
         mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
         subject_soft = separation_distance_m(*rows["subject_soft"], f_number_min=b.f_number_min, coc_mm=st.plan_coc_mm,
-                                             mu_m=mu, focus_max_m=b.focus_distance_max_m,
+                                             mu_m=self._keep_out_m(mu), focus_max_m=b.focus_distance_max_m,
                                              focal_max_mm=b.focal_length_max_mm)
         background_soft = 0.0 if math.isinf(self.cfg.background_behind_m) else background_soft_distance_m(
             *rows["background_soft"], f_number_min=b.f_number_min, coc_mm=st.plan_coc_mm,
@@ -485,10 +485,15 @@ class Planner:
     def _row_limits(self, row: np.ndarray, depth: float, mu: float, band: Band | None,
                     focal_mm: float) -> tuple[float, float]:
         """Target limits (D_n*, D_f*) [m] of a row's labels (shared.camera.desired_dof_limits), with
+        "only the background sharp" keeping the subject out by `subject_keep_out_m` when given, and
         "only the foreground sharp" aimed at the ground the foreground band shows (focus_field)."""
         st = self.cfg.structure
         fg, subject, bg = cam.realisable_labels(*(bool(v) for v in row))
         near, far = cam.desired_dof_limits(fg, subject, bg, depth, mu, defocus_when_none=st.defocus_when_none)
+        if bg and not subject:
+            # only the subject is kept out, by the visible circle's near limit: with a keep-out given, past his
+            # own back rather than mu past his centre (parkour, subject soft: the lawn right behind him went soft)
+            near = depth + self._keep_out_m(mu)
         if fg and not subject and band is not None:
             # with the subject sharp too the field is deep and 1 m holds whatever the band shows: focus_hedge's
             # hedge 1.7 m away in tos_clip01 went soft when aimed at the ground (foreground 1.00 -> 0.00)
@@ -496,6 +501,11 @@ class Planner:
             near = foreground_near_m(band, far, spread_min=spread,
                                      soft_ratio=st.defocus_coc_ratio / st.sharp_coc_ratio)
         return near, far
+
+    def _keep_out_m(self, mu: float) -> float:
+        """How far past the subject's centre a row wanting only the background sharp keeps him out [m]:
+        `subject_keep_out_m`, or mu when that is 0."""
+        return self.cfg.subject_keep_out_m if self.cfg.subject_keep_out_m > 0 else mu
 
     def _foreground_band(self, xk: np.ndarray, subj: PredictedSubject, t: float) -> Band | None:
         """The ground the foreground band shows from the planned camera `xk`, `t` s ahead: below the

@@ -3,7 +3,8 @@
 Keeping the framing, the focal length grows with the distance (f = k d, k in mm per metre), and the
 hyperfocal distance with its square. Only the background in focus asks for the far limit of the
 sharpness circle c at infinity (focus s >= H = f^2 / (A c)) while the near limit of the visible-defocus
-circle r c lies beyond the subject (D_n >= d + mu). With s = H that near limit is H / (1 + r), so
+circle r c lies beyond the subject (D_n >= d + mu; the planner's subject_keep_out_m when given). With s = H
+that near limit is H / (1 + r), so
 
     k^2 d^2 / (1000 A c) >= (1 + r) (d + mu)   ->   d >= (a + sqrt(a^2 + 4 a mu)) / 2,  a = 1000 A c (1 + r) / k^2
 

@@ -297,6 +297,10 @@ def test_only_the_background_in_focus_keeps_the_subject_out_by_the_near_limit(pl
     assert dof[0, 0] == 1.0 and dof[0, 1] == pytest.approx(1.0 / (dref[0] + ins.mu_m))
     assert dof[0, 5] == 0.0
     assert dof[0, 7] == pytest.approx(st.defocus_coc_ratio / st.sharp_coc_ratio) and dof[0, 6] == 1.0
+    # and with a keep-out of the subject's own depth given (0.3 m, mu = 1 m) just past his back
+    near_back = Planner(dataclasses.replace(planner.cfg, subject_keep_out_m=0.3), solver=planner.solver)
+    dof, dref = near_back._dof_targets(T0, ins, [0, 1], 0, x0, subj)
+    assert ins.mu_m == 1.0 and dof[0, 0] == 1.0 and dof[0, 1] == pytest.approx(1.0 / (dref[0] + 0.3))
 
 
 def _roll_after(level: float, tilt_deg: float) -> float:
