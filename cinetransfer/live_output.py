@@ -1,8 +1,9 @@
 """The output's style, measured while the take is filmed instead of in a second pass afterwards.
 
 The recorder hands over every frame it places in the take, in slot order (`feed`); a worker
-thread runs the same detector that `cinetransfer extract` runs and keeps the smoother's features
-of each frame; `finish` smooths them into OUTDIR/output_style.json with the takes' first rows as
+thread streams them through the same detector that `cinetransfer extract` runs, the same way (a
+frame's tail beside the next frame's pose: `FrameStream`), and keeps the smoother's features of
+each frame; `finish` smooths them into OUTDIR/output_style.json with the takes' first rows as
 the shots, exactly as `extract output.mp4 --cuts ...` would. What differs is the pixels: these are
 the camera's frames as the simulator rendered them, before output.mp4's H.264 compression.
 
@@ -24,9 +25,12 @@ import queue
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from cinetransfer.services.detector.core import FrameStream
 
 log = logging.getLogger("cinetransfer.transfer")
 #: frames waiting to be measured beyond which the measuring stops (~450 MB of 960x540 frames)
@@ -63,30 +67,14 @@ class LiveOutputStyle:
         det = None
         try:
             from cinetransfer.services.detector.config import DetectorConfig
-            from cinetransfer.services.detector.core import Detector
+            from cinetransfer.services.detector.core import Detector, FrameStream
             from cinetransfer.services.smoother.config import SmootherConfig
             from cinetransfer.services.smoother.core import feature_options
-            from cinetransfer.services.smoother.features import frame_features
 
             # the settings `cinetransfer extract` measures output.mp4 with: the code defaults
             det = Detector(DetectorConfig())
-            opts = feature_options(SmootherConfig())
-            while True:
-                item = self._q.get()
-                if item is None:
-                    return
-                if self.error is not None:
-                    continue  # drain: the evaluation falls back to the second pass
-                slot, image = item
-                if slot != self._next_slot:
-                    self.error = f"frame for slot {slot} arrived where slot {self._next_slot} was due"
-                    continue
-                t = time.monotonic()
-                stamp = int(round(slot * 1e9 / self.fps))
-                m = det.process(np.ascontiguousarray(image), slot, stamp, source=str(self.video_path), fps=self.fps)
-                self._feats.append(frame_features(m, **opts))
-                self._next_slot += 1
-                self.busy_s += time.monotonic() - t
+            with FrameStream(det) as stream:
+                self._measure(stream, feature_options(SmootherConfig()))
         except Exception as e:  # noqa: BLE001 - the evaluation falls back to measuring output.mp4
             self.error = f"{type(e).__name__}: {e}"
             log.warning("measuring the output while filming failed (%s); it is measured from output.mp4 instead",
@@ -94,6 +82,36 @@ class LiveOutputStyle:
         finally:
             if det is not None:
                 det.close()
+
+    def _measure(self, stream: FrameStream, opts: dict[str, float]) -> None:
+        """Push the queued frames through the detector's stream (a frame's tail overlaps the next
+        frame's pose, as in `cinetransfer extract`: the same measurements) until the end marker."""
+        while True:
+            item = self._q.get()
+            if item is None:
+                break
+            if self.error is not None:
+                continue  # drain: the evaluation falls back to the second pass
+            slot, image = item
+            if slot != self._next_slot:
+                self.error = f"frame for slot {slot} arrived where slot {self._next_slot} was due"
+                continue
+            t = time.monotonic()
+            stamp = int(round(slot * 1e9 / self.fps))
+            self._keep(stream.push(np.ascontiguousarray(image), slot, stamp, source=str(self.video_path),
+                                   fps=self.fps), opts)
+            self._next_slot += 1
+            self.busy_s += time.monotonic() - t
+        if self.error is None:
+            t = time.monotonic()
+            self._keep(stream.flush(), opts)
+            self.busy_s += time.monotonic() - t
+
+    def _keep(self, due: list, opts: dict[str, float]) -> None:
+        from cinetransfer.services.smoother.features import frame_features
+
+        for fut in due:  # oldest first: the features stay in slot order
+            self._feats.append(frame_features(fut.result(), **opts))
 
     def cancel(self) -> None:
         """Nothing will be evaluated (an interrupted or failed take): stop measuring."""

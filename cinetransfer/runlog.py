@@ -556,6 +556,29 @@ class RunReader:
                 if out is not None:
                     yield out
 
+    def typed(self, only: Collection[str]) -> Iterator[tuple[int, str, Any]]:
+        """(log_time_ns, key, message) of the typed messages of the keys `only`, as message objects:
+        a reader that wants the objects skips the codec's encode and decode of each (`messages`
+        hands codec bytes, as replay publishes them). Frames and raw channels are not among them."""
+        from mcap.records import Channel, Message, Schema
+
+        st = _ReadState()
+        for rec in _records(self.path, self.salvage):
+            if isinstance(rec, Schema):
+                st.schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                st.chans[rec.id] = rec
+            elif isinstance(rec, Message):
+                ch = st.chans[rec.channel_id]
+                if ch.metadata.get(ROLE, "") != "message" or ch.topic not in only or not ch.schema_id:
+                    continue
+                cls = st.types_by_schema.get(st.schemas[ch.schema_id].name)
+                try:
+                    if cls is not None:
+                        yield rec.log_time, ch.topic, jsonmsg.from_json(cls, self._json(rec.data, ch.topic), ch.topic)
+                except (RunFormatError, jsonmsg.JsonMessageError) as e:
+                    self._skip(e)
+
     def _message(self, st: _ReadState, rec: Any, ch: Any, role: str) -> tuple[int, str, bytes] | None:
         """One recorded message as (log_time_ns, key, payload), or None: left out, or half of a
         frame (image and info are joined by stamp, whichever comes first waits for the other)."""

@@ -14,8 +14,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
-from cinetransfer.runlog import read_run
-from cinetransfer.shared import codec, keys
+from cinetransfer.runlog import RunReader
+from cinetransfer.shared import keys
 from cinetransfer.shared import messages as M
 
 MAX_HOLD_SHARE = 0.10  #: a take that held for more of its time than this is degraded
@@ -83,12 +83,10 @@ def read_facts(recording: Path, rig: str) -> dict[str, list[tuple[int, Any]]]:
     want = {keys.SIM_TRUTH.key(rig): M.GroundTruth, keys.VEHICLE_STATE.key(rig): M.VehicleState,
             keys.health(rig, "planner"): M.Health, keys.health(rig, "autopilot_bridge"): M.Health}
     got: dict[str, list[tuple[int, Any]]] = {k: [] for k in want}
-    for t, key, payload in read_run(recording, only=want):  # not the camera frames: decoding them cost ~2 CPU s
-        if key in want:
-            try:
-                got[key].append((t, codec.decode(payload, want[key])))
-            except codec.DecodeError:
-                continue
+    # not the camera frames (decoding them cost ~2 CPU s), and the objects themselves: no codec round trip
+    for t, key, msg in RunReader(recording).typed(want):
+        if isinstance(msg, want[key]):
+            got[key].append((t, msg))
     return got
 
 

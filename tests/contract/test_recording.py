@@ -120,6 +120,20 @@ def test_a_reader_of_some_keys_gets_exactly_those_messages_of_the_whole_read(tmp
     assert list(runlog.read_run(path, only=[])) == []
 
 
+def test_typed_messages_are_the_decoded_messages_of_those_keys_without_frames_or_raw(tmp_path):
+    path = tmp_path / "run.mcap"
+    _write_samples(path)
+    everything = list(runlog.read_run(path))
+    typed_keys = {k for _, k, p in everything if k not in ("ct/r/camera/frame", "ct/r/garbage/x")}
+    got = list(runlog.RunReader(path).typed(typed_keys | {"ct/r/camera/frame", "ct/r/garbage/x"}))
+    want = [(t, k, codec.decode(p)) for t, k, p in everything if k in typed_keys]
+    assert [(t, k) for t, k, _ in got] == [(t, k) for t, k, _ in want] and len(got) > 3
+    for (_, _, a), (_, _, b) in zip(got, want):
+        assert type(a) is type(b)
+        assert_same(b, a)
+    assert list(runlog.RunReader(path).typed(set())) == []
+
+
 def test_foreign_and_damaged_files_get_a_clear_error(tmp_path):
     from mcap.writer import Writer
 
