@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
+import threading
 import time
 
 from tqdm import tqdm
@@ -84,13 +86,29 @@ class _Publishers:
             pub.undeclare()
 
 
+def stop_on_signals() -> threading.Event:
+    """An event that SIGINT and SIGTERM set. The replay looks at it between messages: a flag set by
+    a handler cannot be lost, where a KeyboardInterrupt can be dropped by whatever code it lands in
+    (a looping replay once kept playing 15 s after its SIGINT, on a loaded machine)."""
+    stop = threading.Event()
+
+    def handler(signum: int, frame: object) -> None:  # noqa: ARG001 - signal's handler signature
+        stop.set()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, handler)
+    return stop
+
+
 def _play_once(run: RunReader, out: _Publishers, *, only: list[str], speed: float, start: float = 0.0,
-               end: float | None = None) -> None:
+               end: float | None = None, stop: threading.Event | None = None) -> None:
     """Publish the recording's messages (those whose key contains one of `only`, if given, logged
     between `start` and `end` seconds after its first message) once, at `speed` times their
-    recorded pace (0: as fast as possible)."""
+    recorded pace (0: as fast as possible); return early once `stop` is set."""
+    stop = stop or threading.Event()
     t_first, t0 = None, 0.0
     for t_ns, key, payload in tqdm(run.messages(), desc="replay", unit="msg", disable=None):
+        if stop.is_set():
+            return
         t_rel = (t_ns - run.info.start_ns) / 1e9
         if end is not None and t_rel > end:
             break
@@ -100,8 +118,8 @@ def _play_once(run: RunReader, out: _Publishers, *, only: list[str], speed: floa
             t_first, t0 = t_ns, time.monotonic()
         if speed > 0:
             delay = t0 + (t_ns - t_first) / 1e9 / speed - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
+            if delay > 0 and stop.wait(delay):
+                return
         out.put(key, payload)
 
 
@@ -120,15 +138,16 @@ def main(argv: list[str]) -> int:
         log.warning("%s has no summary (the run was interrupted): replaying the %d messages it holds",
                     args.log, run.info.messages)
     log.info("replaying %s (%s)", args.log, run.meta.get("description", run.meta.get("source", "")))
+    stop = stop_on_signals()
     with zenoh_config.open_session(opts) as s:
         out = _Publishers(s, args.rig)
         try:
-            window = {"only": args.only, "speed": args.speed, "start": args.start, "end": args.end}
+            window = {"only": args.only, "speed": args.speed, "start": args.start, "end": args.end, "stop": stop}
             _play_once(run, out, **window)
-            while args.loop:
+            while args.loop and not stop.is_set():
                 _play_once(run, out, **window)
-        except KeyboardInterrupt:
-            log.info("interrupted")
+            if stop.is_set():
+                log.info("interrupted")
         except RunFormatError as e:
             print(f"cinetransfer replay: {e}", file=sys.stderr)
             return 2
