@@ -430,8 +430,8 @@ def _damaged(e: Exception, path: Path, salvage: bool, what: str) -> None:
 
 @dataclass
 class _ReadState:
-    """What RunReader.messages() keeps while it reads: schemas and channels so far, halves of
-    frames waiting for the other half, protobuf classes and H.264 decoders per topic."""
+    """What RunReader keeps while it reads (messages, typed, records): schemas and channels so far,
+    halves of frames waiting for the other half, protobuf classes and H.264 decoders per topic."""
 
     schemas: dict[int, Any] = field(default_factory=dict)
     chans: dict[int, Any] = field(default_factory=dict)
@@ -520,18 +520,9 @@ class RunReader:
     def records(self) -> Iterator[tuple[Any, Any, Any]]:
         """(message record, its channel record, its schema record or None) of every message as
         stored, derived channels included (for tools that show the recording as it is)."""
-        from mcap.records import Channel, Message, Schema
-
-        schemas: dict[int, Any] = {}
-        chans: dict[int, Any] = {}
-        for rec in _records(self.path, self.salvage):
-            if isinstance(rec, Schema):
-                schemas[rec.id] = rec
-            elif isinstance(rec, Channel):
-                chans[rec.id] = rec
-            elif isinstance(rec, Message):
-                ch = chans[rec.channel_id]
-                yield rec, ch, schemas.get(ch.schema_id)
+        st = _ReadState()
+        for rec, ch in self._stored(st):
+            yield rec, ch, st.schemas.get(ch.schema_id)
 
     def messages(self, key_prefix: str = "", *,
                  only: Collection[str] | None = None) -> Iterator[tuple[int, str, bytes]]:
@@ -539,45 +530,42 @@ class RunReader:
         from their JPEG and info (the image is lossy: JPEG), raw channels as they travelled.
         `only`: just these keys (the others are not decoded: a reader of a few small keys does not
         pay for rebuilding every camera frame)."""
-        from mcap.records import Channel, Message, Schema
-
         st = _ReadState()
-        for rec in _records(self.path, self.salvage):
-            if isinstance(rec, Schema):
-                st.schemas[rec.id] = rec
-            elif isinstance(rec, Channel):
-                st.chans[rec.id] = rec
-            elif isinstance(rec, Message):
-                ch = st.chans[rec.channel_id]
-                role = ch.metadata.get(ROLE, "")
-                if role == "derived" or not ch.topic.startswith(key_prefix) or not _wanted(ch.topic, role, only):
-                    continue
-                out = self._message(st, rec, ch, role)
-                if out is not None:
-                    yield out
+        for rec, ch in self._stored(st):
+            role = ch.metadata.get(ROLE, "")
+            if role == "derived" or not ch.topic.startswith(key_prefix) or not _wanted(ch.topic, role, only):
+                continue
+            out = self._message(st, rec, ch, role)
+            if out is not None:
+                yield out
 
     def typed(self, only: Collection[str]) -> Iterator[tuple[int, str, Any]]:
         """(log_time_ns, key, message) of the typed messages of the keys `only`, as message objects:
         a reader that wants the objects skips the codec's encode and decode of each (`messages`
         hands codec bytes, as replay publishes them). Frames and raw channels are not among them."""
+        st = _ReadState()
+        for rec, ch in self._stored(st):
+            if ch.metadata.get(ROLE, "") != "message" or ch.topic not in only or not ch.schema_id:
+                continue
+            cls = st.types_by_schema.get(st.schemas[ch.schema_id].name)
+            try:
+                if cls is not None:
+                    yield rec.log_time, ch.topic, jsonmsg.from_json(cls, self._json(rec.data, ch.topic), ch.topic)
+            except (RunFormatError, jsonmsg.JsonMessageError) as e:
+                self._skip(e)
+
+    def _stored(self, st: _ReadState) -> Iterator[tuple[Any, Any]]:
+        """(message record, its channel record) in file order, `st` filled with the schemas and
+        channels met so far."""
         from mcap.records import Channel, Message, Schema
 
-        st = _ReadState()
         for rec in _records(self.path, self.salvage):
             if isinstance(rec, Schema):
                 st.schemas[rec.id] = rec
             elif isinstance(rec, Channel):
                 st.chans[rec.id] = rec
             elif isinstance(rec, Message):
-                ch = st.chans[rec.channel_id]
-                if ch.metadata.get(ROLE, "") != "message" or ch.topic not in only or not ch.schema_id:
-                    continue
-                cls = st.types_by_schema.get(st.schemas[ch.schema_id].name)
-                try:
-                    if cls is not None:
-                        yield rec.log_time, ch.topic, jsonmsg.from_json(cls, self._json(rec.data, ch.topic), ch.topic)
-                except (RunFormatError, jsonmsg.JsonMessageError) as e:
-                    self._skip(e)
+                yield rec, st.chans[rec.channel_id]
 
     def _message(self, st: _ReadState, rec: Any, ch: Any, role: str) -> tuple[int, str, bytes] | None:
         """One recorded message as (log_time_ns, key, payload), or None: left out, or half of a
