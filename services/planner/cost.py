@@ -223,13 +223,12 @@ def travel_residual(vel, direction, v_scale):  # noqa: ANN001, ANN201
     """(velocity off the direction, velocity against it) / v_max for a unit world `direction`:
     nothing for travel along it at any speed (the style gives a direction, not a speed)."""
     along = vel[0] * direction[0] + vel[1] * direction[1] + vel[2] * direction[2]
-    off = vel - along * direction
-    return ca.vertcat(off * v_scale, ca.fmin(along, 0) * v_scale)
+    return ca.vertcat(sideways_velocity(vel, direction, v_scale), ca.fmin(along, 0) * v_scale)
 
 
 def sideways_velocity(vel, forward, v_scale):  # noqa: ANN001, ANN201
-    """The velocity off the optical axis `forward` (unit, world) / v_max: what reads as truck,
-    pedestal or orbit; travel along the axis is left to the framing."""
+    """The velocity off the unit world direction `forward` / v_max. Off the optical axis it is what
+    reads as truck, pedestal or orbit; travel along the axis is left to the framing."""
     along = vel[0] * forward[0] + vel[1] * forward[1] + vel[2] * forward[2]
     return (vel - along * forward) * v_scale
 
