@@ -8,9 +8,15 @@ lens range (thin lens, the one circle of confusion of shared/camera.py) for a se
 asked labels, and where there is none says why.
 
 A region is in focus when at least half its pixels (camera.REGION_IN_FOCUS_SHARE) lie inside the
-depth of field; a region's depths come as an equal-weight sample of inverse depths (1/m, 0 = the
-sky). A label counts as reachable with a setting when the share lands within MARGIN of the asked
-side, so frames near the line are left to the controller, never excused.
+depth of field; a region's depths come as its n quantiles at (i + 1/2) / n (truth.depth_sample, the
+inverted CDF). When k of them lie inside a depth of field, its true share of the region's pixels lies
+strictly between (k - 1) / n and (k + 1) / n. A label counts as reachable with a setting when that
+bound does not rule it out (sharp: (k + 1) / n > the threshold; soft: (k - 1) / n below it), so a
+frame is excused only when the sample proves every setting wrong, never for being near the line.
+
+The focus distances searched are, per f-number, those where a limit of the depth of field meets a
+sample's depth and the ones between (the shares change only there), so no window of settings between
+grid points is missed.
 
 Combinations: regions are taken in the order subject, background, foreground (the subject is the
 shot's point); a region is unreachable when no setting gives its label together with the labels
@@ -31,10 +37,9 @@ from cinetransfer.shared.camera import COC_MM, REGION_IN_FOCUS_SHARE
 REGIONS: tuple[str, ...] = ("foreground", "subject", "background")
 #: the order in which asked labels are granted (indices into REGIONS)
 PRIORITY: tuple[int, ...] = (1, 2, 0)
-#: a setting reaches a label when the region's in-focus share is within this of the asked side
-MARGIN = 0.1
-#: the search grid: focus distances and f-numbers, log-spaced over the range searched
-N_FOCUS, N_APERTURE = 240, 96
+#: the search grid's f-numbers, log-spaced over the range searched (the focus distances are where a
+#: limit meets a sample's depth: _focus_events)
+N_APERTURE = 96
 #: how far the reason's search relaxes the lens: any f-number in this range, focus out to this
 RELAXED_F_NUMBER = (0.05, 256.0)
 RELAXED_FOCUS_MAX_M = 1.0e5
@@ -74,17 +79,28 @@ def dof_inverse(focal_mm: float, f_number: np.ndarray, focus_m: np.ndarray,
     return inv_far, inv_near
 
 
+def in_focus_count(inv_depth: np.ndarray, inv_far: np.ndarray, inv_near: np.ndarray) -> np.ndarray:
+    """How many of a region's depth samples lie inside each depth of field: (S,) samples, (G,) settings -> (G,)."""
+    d = np.sort(np.asarray(inv_depth, float))
+    return np.searchsorted(d, inv_near, side="right") - np.searchsorted(d, inv_far, side="left")
+
+
 def in_focus_share(inv_depth: np.ndarray, inv_far: np.ndarray, inv_near: np.ndarray) -> np.ndarray:
     """Share of a region's depth sample inside each depth of field: (S,) samples, (G,) settings -> (G,)."""
-    d = np.sort(np.asarray(inv_depth, float))
-    inside = np.searchsorted(d, inv_near, side="right") - np.searchsorted(d, inv_far, side="left")
-    return inside / d.size
+    return in_focus_count(inv_depth, inv_far, inv_near) / np.asarray(inv_depth).size
 
 
-def _reaches(share: np.ndarray, sharp: bool) -> np.ndarray:
+def may_reach(inside: np.ndarray, n: int, sharp: bool) -> np.ndarray:
+    """Whether `inside` of a region's n quantiles in the depth of field leaves its asked label possible:
+    the true share lies strictly between (inside - 1) / n and (inside + 1) / n (module docstring)."""
+    inside = np.asarray(inside)
     if sharp:
-        return share >= REGION_IN_FOCUS_SHARE - MARGIN
-    return share < REGION_IN_FOCUS_SHARE + MARGIN
+        return inside + 1 > REGION_IN_FOCUS_SHARE * n
+    return inside - 1 < REGION_IN_FOCUS_SHARE * n
+
+
+def _reaches(inv_depth: np.ndarray, inv_far: np.ndarray, inv_near: np.ndarray, sharp: bool) -> np.ndarray:
+    return may_reach(in_focus_count(inv_depth, inv_far, inv_near), np.asarray(inv_depth).size, sharp)
 
 
 def _grid(lo: float, hi: float, n: int) -> np.ndarray:
@@ -97,21 +113,47 @@ def _feasible(lens: Lens, n: np.ndarray, s: np.ndarray, regions: list[int], aske
     inv_far, inv_near = dof_inverse(lens.focal_mm, n, s, lens.coc_mm)
     ok = np.ones(inv_far.shape, bool)
     for r in regions:
-        ok &= _reaches(in_focus_share(inv_depth[r], inv_far.ravel(), inv_near.ravel()).reshape(ok.shape),
-                       bool(asked[r]))
+        ok &= _reaches(inv_depth[r], inv_far.ravel(), inv_near.ravel(), bool(asked[r])).reshape(ok.shape)
     return ok
 
 
-def _settings(lens: Lens, n_range: tuple[float, float], s_range: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+def _focus_events(focal_mm: float, f_number: np.ndarray, x: np.ndarray, coc_mm: float) -> np.ndarray:
+    """Per f-number (N,), the focus distances [m] (N, 2 M) at which the far and the near limit meet
+    each inverse depth x (M,) > 0 (NaN where none does): from dof_inverse, 1/far = x at
+    s = H / (1 + x (H - f)) and 1/near = x at s = (H - 2 f) / (x (H - f) - 1)."""
+    f = focal_mm / 1000.0
+    h = ((focal_mm * focal_mm / (np.asarray(f_number, float) * coc_mm) + focal_mm) / 1000.0)[:, None]
+    x = np.asarray(x, float)[None, :]
+    far = h / (1.0 + x * (h - f))
+    den = x * (h - f) - 1.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        near = np.where(den > 0, (h - 2.0 * f) / den, np.nan)
+    return np.concatenate([far, near], axis=1)
+
+
+def _settings(lens: Lens, n_range: tuple[float, float], s_range: tuple[float, float],
+              inv_depth: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(f-numbers, focus distances) to search: N_APERTURE f-numbers, each with the focus distances in
+    s_range where a limit meets one of the samples `inv_depth` (any shape; NaN and 0 ignored), the
+    range's ends and the geometric midpoints between consecutive ones (every share they give)."""
     n = _grid(*n_range, N_APERTURE)
-    s = _grid(*s_range, N_FOCUS)
-    nn, ss = np.meshgrid(n, s, indexing="ij")
-    return nn.ravel(), ss.ravel()
+    x = np.asarray(inv_depth if inv_depth is not None else [], float).ravel()
+    x = np.unique(x[np.isfinite(x) & (x > 0)])
+    ev = _focus_events(lens.focal_mm, n, x, lens.coc_mm)
+    lo, hi = s_range
+    ev = np.where((ev >= lo) & (ev <= hi), ev, np.nan)
+    ev = np.sort(np.concatenate([ev, np.full((n.size, 1), lo), np.full((n.size, 1), hi)], axis=1), axis=1)
+    with np.errstate(invalid="ignore"):
+        mid = np.sqrt(ev[:, 1:] * ev[:, :-1])
+    s = np.concatenate([ev, mid], axis=1)
+    nn = np.broadcast_to(n[:, None], s.shape)
+    keep = np.isfinite(s)
+    return nn[keep], s[keep]
 
 
 def _any(lens: Lens, n_range, s_range, regions, asked, inv_depth) -> tuple[np.ndarray, np.ndarray]:
-    """The settings of the grid over n_range x s_range that give every label: (f-numbers, focus)."""
-    n, s = _settings(lens, n_range, s_range)
+    """The settings over n_range x s_range that give every label: (f-numbers, focus)."""
+    n, s = _settings(lens, n_range, s_range, inv_depth[regions])
     ok = _feasible(lens, n, s, regions, asked, inv_depth)
     return n[ok], s[ok]
 
@@ -211,7 +253,8 @@ def unreachable_labels(lens: Lens, asked: np.ndarray, present: np.ndarray,
     region's inverse depths [1/m] (0 = infinity). Regions absent or without depths are skipped."""
     asked = np.asarray(asked, bool)
     inv_depth = np.asarray(inv_depth, float)
-    n, s = _settings(lens, lens.f_number, lens.focus_m)
+    present = np.asarray(present, bool)
+    n, s = _settings(lens, lens.f_number, lens.focus_m, inv_depth[present])
     inv_far, inv_near = dof_inverse(lens.focal_mm, n, s, lens.coc_mm)
     granted = np.ones(n.shape, bool)  # the settings that give every label granted so far
     kept: list[int] = []
@@ -219,7 +262,7 @@ def unreachable_labels(lens: Lens, asked: np.ndarray, present: np.ndarray,
     for r in PRIORITY:
         if not present[r] or inv_depth.shape[1] == 0 or not np.isfinite(inv_depth[r]).all():
             continue
-        with_r = granted & _reaches(in_focus_share(inv_depth[r], inv_far, inv_near), bool(asked[r]))
+        with_r = granted & _reaches(inv_depth[r], inv_far, inv_near, bool(asked[r]))
         if with_r.any():
             kept.append(r)
             granted = with_r

@@ -38,8 +38,8 @@ from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject
                                                 reciprocal_targets,
                                                 subject_softness, switched_out)
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
-from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, Band, foreground_near_m, ground_band,
-                                                       narrowest_spread)
+from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, Band, foreground_limits, foreground_near_m,
+                                                       ground_band, narrowest_spread)
 from cinetransfer.services.planner.separation import (APERTURE_MARGIN, background_soft_distance_m, framing_k,
                                                       separation_distance_m)
 from cinetransfer.services.planner.solver import N_DOF, MpcSolver, SolveResult, StageData
@@ -468,7 +468,9 @@ class Planner:
             # a row with no region labelled (a shot without a focus measurement) leaves the lens free
             if focus.shape[0] > r and focus.shape[1] == 3 and not absent[r].all():
                 band = self._foreground_band(xk, subj, t)
-                near, far = self._row_limits(focus[r], depth, mu, band, float(xk[lay.F]))
+                soft = subject_softness(float(b_subject[r]), float(ins.theta)) if len(b_subject) > r else 1.0
+                dof[k, 6] = defocus_ratio(keeps_out[r] and switched_out(keeps_out, now_row, r), ratio, soft)
+                near, far = self._row_limits(focus[r], depth, mu, band, float(xk[lay.F]), dof[k, 6])
                 # with the subject kept out by the near limit the far limit of the sharpness circle (3/8 of
                 # the one circle) at infinity is margin enough: the extra margin would cap the focus at half
                 # its longest and the subject's blur with it (separation.py)
@@ -476,17 +478,16 @@ class Planner:
                                                 far_margin_inv_m=0.0 if near_out[r] else st.far_margin_inv_m,
                                                 # a near limit that keeps the subject out stays two-sided
                                                 fg_absent=bool(absent[r, 0]) and not near_out[r])
-                soft = subject_softness(float(b_subject[r]), float(ins.theta)) if len(b_subject) > r else 1.0
-                dof[k, 6] = defocus_ratio(keeps_out[r] and switched_out(keeps_out, now_row, r), ratio, soft)
                 dof[k, 7] = defocus_ratio(near_out[r] and switched_out(near_out, now_row, r), ratio, soft)
                 dof[k, 2] *= float(far_previewed(focus, near_out, now_row, r))
         return dof, dref
 
     def _row_limits(self, row: np.ndarray, depth: float, mu: float, band: Band | None,
-                    focal_mm: float) -> tuple[float, float]:
+                    focal_mm: float, far_ratio: float = 1.0) -> tuple[float, float]:
         """Target limits (D_n*, D_f*) [m] of a row's labels (shared.camera.desired_dof_limits), with
         "only the background sharp" keeping the subject out by `subject_keep_out_m` when given, and
-        "only the foreground sharp" aimed at the ground the foreground band shows (focus_field)."""
+        "only the foreground sharp" aimed at the ground the foreground band shows (focus_field; the far
+        limit's circle is `far_ratio` times the planning circle)."""
         st = self.cfg.structure
         fg, subject, bg = cam.realisable_labels(*(bool(v) for v in row))
         near, far = cam.desired_dof_limits(fg, subject, bg, depth, mu, defocus_when_none=st.defocus_when_none)
@@ -498,8 +499,9 @@ class Planner:
             # with the subject sharp too the field is deep and 1 m holds whatever the band shows: focus_hedge's
             # hedge 1.7 m away in tos_clip01 went soft when aimed at the ground (foreground 1.00 -> 0.00)
             spread = narrowest_spread(focal_mm, APERTURE_MARGIN * self.solver.bounds.f_number_min, st.plan_coc_mm)
-            near = foreground_near_m(band, far, spread_min=spread,
-                                     soft_ratio=st.defocus_coc_ratio / st.sharp_coc_ratio)
+            limits = foreground_limits(depth, spread=spread, sharp_ratio=st.sharp_coc_ratio, far_ratio=far_ratio)
+            near, far = limits or (foreground_near_m(band, far, spread_min=spread,
+                                                     soft_ratio=st.defocus_coc_ratio / st.sharp_coc_ratio), far)
         return near, far
 
     def _keep_out_m(self, mu: float) -> float:

@@ -11,6 +11,12 @@ bottom row and its median is the mean of the two (ground_band).
 In inverse depth the depth of field of the planning circle c_s spans 1/s +- sigma (cost.py), and a
 circle `ratio` times larger spans 1/s +- ratio sigma: a subject beyond the larger field's far edge
 is visibly soft while the band inside the small field is sharp (foreground_near_m).
+
+The band starts at the subject's own depth, so whatever keeps the subject soft also loses the band's
+far rows; the ground's median row is often only 3-5 m nearer than a subject 14 m away.
+foreground_limits therefore puts the focus where the subject is blurred by SUBJECT_BLUR_CIRCLES of the
+one circle c (1/s = 1/d + b sigma_c) and no more, with the narrowest field the planner uses: the band
+from just in front of him is then inside the field of c.
 """
 from __future__ import annotations
 
@@ -19,6 +25,10 @@ from dataclasses import dataclass
 
 #: height of the ankle joint above the sole [m]: where the ground lies below the ankles
 ANKLE_HEIGHT_M = 0.08
+#: the subject's blur with only the foreground sharp, in circles of the one circle of confusion: above
+#: every texture's flip of the focus estimator (0.88-1.22 circles, docs/report.md), below the 1.5 of the
+#: visible circle, which left the band's median outside the field (parkour: truth foreground 0.13-0.24)
+SUBJECT_BLUR_CIRCLES = 1.3
 
 
 @dataclass(frozen=True)
@@ -77,3 +87,25 @@ def foreground_near_m(band: Band, keep_out_m: float, *, spread_min: float, soft_
     if math.isfinite(keep_out_m) and keep_out_m > 0:
         x_n = max(x_n, 1.0 / keep_out_m + (soft_ratio + 1.0) * spread_min)
     return 1.0 / x_n
+
+
+def foreground_limits(depth_m: float, *, spread: float, sharp_ratio: float, far_ratio: float,
+                      subject_blur: float = SUBJECT_BLUR_CIRCLES) -> tuple[float, float] | None:
+    """(D_n*, D_f*) [m] of the planning circle c_s for a row with only the foreground sharp: the focus
+    where the subject `depth_m` away is blurred by `subject_blur` circles c = c_s / `sharp_ratio`,
+    1/s = 1/d + subject_blur sigma / sharp_ratio, with the field `spread` = sigma (the planning
+    circle's half-width at the aperture planned for, narrowest_spread): the far limit of the circle
+    `far_ratio` c_s (the far limit's, cost.defocus_ratio) at 1/s - far_ratio sigma and the near limit
+    of c_s at 1/s + sigma: a field the lens makes, so the least-squares plan meets both. A nearer near
+    target (the band's bottom row) asks for a deeper field, which at the same far limit moves the focus
+    nearer and the field's far edge off the band's far rows. None (the caller keeps its targets) when
+    `far_ratio` c_s is smaller than the asked blur: the far limit is then the sharpness circle's, which
+    previews a switch still ahead (cost.switched_out) or follows a borderline label, and those keep the
+    lens's move for after the switch; or when the far limit would lie at or beyond infinity."""
+    if not (depth_m > 0 and spread > 0 and sharp_ratio > 0) or far_ratio * sharp_ratio < subject_blur:
+        return None
+    x_s = 1.0 / depth_m + subject_blur * spread / sharp_ratio
+    x_far = x_s - far_ratio * spread
+    if x_far <= 0:
+        return None
+    return 1.0 / (x_s + spread), 1.0 / x_far

@@ -378,9 +378,11 @@ def test_only_the_foreground_sharp_aims_at_the_ground_the_band_shows(planner, in
     ray = cam.rotation_ypr(*lay.angles(x0)) @ np.array([1.0, 0.0, -0.5 * st.sensor_height_mm / x0[lay.F]])
     t = (ground - x0[lay.P][2]) / ray[2]
     assert planner._foreground_band(x0, subj, 0.0).bottom_m == pytest.approx(t, rel=1e-9)
-    # and the near limit aims there, or no farther than the lens's narrowest field with the subject kept out
-    # at d - mu by the visible field (4 x the planning circle): 1/(d - mu) + 5 x 1000 (1.2 A_min) c_s / f^2
+    # and the focus is where the subject is blurred by 1.3 of the one circle c = c_s / sharp_coc_ratio at the
+    # aperture planned for (1.2 A_min, sigma = 1000 A c_s / f^2 per metre): 1/s = 1/d + 1.3 sigma / ratio,
+    # with the near limit of c_s at 1/s + sigma and the far limit of the visible circle (4 c_s) at 1/s - 4 sigma
     sigma = 1000.0 * 1.2 * b.f_number_min * st.plan_coc_mm / x0[lay.F] ** 2
-    want = max(1.0 / t, 1.0 / (dref[0] - ins.mu_m) + 5.0 * sigma)
-    assert t > 0 and dof[0, 0] == 1.0 and dof[0, 1] == pytest.approx(want, rel=1e-6)
-    assert dof[0, 3] == pytest.approx(1.0 / (dref[0] - ins.mu_m))
+    x_s = 1.0 / dref[0] + 1.3 * sigma / st.sharp_coc_ratio
+    assert t > 0 and dof[0, 0] == 1.0 and dof[0, 6] == pytest.approx(4.0)
+    assert dof[0, 1] == pytest.approx(x_s + sigma, rel=1e-6)
+    assert dof[0, 3] == pytest.approx(x_s - 4.0 * sigma, rel=1e-6)

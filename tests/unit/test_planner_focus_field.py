@@ -62,3 +62,16 @@ def test_a_sharp_foreground_is_aimed_at_the_bottom_row_within_what_the_lens_can_
     assert near == pytest.approx(1 / (1 / 14.0 + 5 / 60.0)) and near == pytest.approx(6.46, abs=0.01)
     # and a lens that narrows enough aims it at the bottom row again
     assert FF.foreground_near_m(band, 14.0, spread_min=1e-3, soft_ratio=4.0) == pytest.approx(10.0)
+
+
+def test_only_the_foreground_sharp_blurs_the_subject_by_the_asked_circles_by_hand():
+    # given the subject 14 m away, a planning circle 3/8 of the one circle, its half-width 1/60 per metre at
+    # the aperture planned for, and the far limit's circle 4 x the planning circle
+    near, far = FF.foreground_limits(14.0, spread=1 / 60.0, sharp_ratio=0.375, far_ratio=4.0, subject_blur=1.3)
+    # then the focus 1/s = 1/14 + 1.3 (1/60) / 0.375: the subject 1.3 circles of c out of focus
+    x_s = 1 / 14.0 + 1.3 / 60.0 / 0.375
+    assert 1 / near == pytest.approx(x_s + 1 / 60.0) and 1 / far == pytest.approx(x_s - 4 / 60.0)
+    # the field of c (8/3 x the planning circle's, 2/45 per metre) ends at 1/14 + 0.3 x 2/45: 11.8 m
+    assert 1 / (x_s - 1 / 60.0 / 0.375) == pytest.approx(11.80, abs=0.01)
+    # and a far limit of the sharpness circle alone (a switch previewed) keeps the caller's targets
+    assert FF.foreground_limits(14.0, spread=1 / 60.0, sharp_ratio=0.375, far_ratio=1.0) is None

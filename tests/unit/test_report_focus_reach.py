@@ -83,12 +83,57 @@ def test_reachable_combinations_are_never_excused():
     for asked in ([False, True, False], [True, True, True], [False, False, True], [True, False, False],
                   [False, True, True], [True, True, False], [False, False, False]):
         assert FR.unreachable_labels(lens, np.array(asked), present, inv) == [], asked
-    # and a region with a spread of depths at the threshold's side by less than the margin stays reachable:
-    # 45 % of the background at 8 m (inside any depth of field holding the subject), the rest at infinity
+    # and a region whose sample leaves its label possible stays reachable: 9 of the background's 20 quantiles
+    # at 8 m (inside any depth of field holding the subject), the rest at infinity: its true share in focus
+    # lies between 8/20 and 10/20, so it may be under half
     spread = np.where(np.arange(S) < 9, 1 / 8.0, 0.0)
     inv2 = np.array([ABSENT, at(8.0), spread])
     out = FR.unreachable_labels(lens, np.array([False, True, False]), np.array([False, True, True]), inv2)
     assert out == []
+
+
+def test_the_sample_bounds_the_true_share_by_one_quantile():
+    # given a region's 20 quantiles at (i + 1/2) / 20 of its pixels: with k of them inside a depth of field,
+    # its true share inside lies strictly between (k - 1) / 20 and (k + 1) / 20 (inverted CDF)
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        pix = rng.gamma(rng.uniform(0.5, 4.0), size=rng.integers(50, 4000))
+        q = np.quantile(pix, (np.arange(S) + 0.5) / S, method="inverted_cdf")
+        a, b = np.sort(rng.uniform(pix.min(), pix.max(), 2))
+        k = int(FR.in_focus_count(q, np.array([a]), np.array([b]))[0])
+        share = float(np.mean((pix >= a) & (pix <= b)))
+        assert (k - 1) / S < share < (k + 1) / S or (k == 0 and share < 1 / S)
+    # then "sharp" is possible with 10 of 20 inside and not with 9; "soft" with 10 and not with 11
+    assert FR.may_reach(np.array([9, 10]), S, sharp=True).tolist() == [False, True]
+    assert FR.may_reach(np.array([10, 11]), S, sharp=False).tolist() == [True, False]
+
+
+def test_a_foreground_that_cannot_drop_below_half_is_out_of_reach():
+    # given the subject at 8 m asked sharp and the foreground asked soft, 11 of its 20 quantiles at the
+    # subject's depth and 9 at 3 m: any depth of field holding the subject holds those 11, so at least
+    # 10/20 of its pixels are in focus whatever the lens does (a share of 11/20 used to pass as "within
+    # 0.1 of the asked side")
+    lens = FR.Lens(50.0, (0.5, 100.0), (1.0, 22.0))
+    fg = np.where(np.arange(S) < 11, 1 / 8.0, 1 / 3.0)
+    inv = np.array([fg, at(8.0), at(40.0)])
+    out = FR.unreachable_labels(lens, np.array([False, True, False]), np.ones(3, bool), inv)
+    assert [(u.region, u.kind) for u in out] == [(0, "depth")]
+    # and with 10 of 20 there it may be under half, so it stays the controller's to meet
+    fg10 = np.where(np.arange(S) < 10, 1 / 8.0, 1 / 3.0)
+    inv10 = np.array([fg10, at(8.0), at(40.0)])
+    assert FR.unreachable_labels(lens, np.array([False, True, False]), np.ones(3, bool), inv10) == []
+
+
+def test_a_window_narrower_than_a_focus_grid_step_is_found():
+    # given a thin foreground slab 10.00-10.02 m away asked sharp, the subject 10.1 m away asked soft, and a
+    # 200 mm lens at f/2 only: its depth of field holds the slab without the subject only with its far limit
+    # between 10.02 and 10.1 m, focus 9.40-9.47 m (0.75 %), under one step of a 240-point log grid over
+    # 0.5-100 m (2.2 %, which called it out of reach)
+    lens = FR.Lens(200.0, (0.5, 100.0), (2.0, 2.0))
+    fg = 1.0 / np.linspace(10.0, 10.02, S)
+    inv = np.array([fg, at(10.1), SKY])
+    # then the focus distances where a limit meets a quantile's depth find it
+    assert FR.unreachable_labels(lens, np.array([True, False, False]), np.ones(3, bool), inv) == []
 
 
 def _truths_with_depths(k: int, inv_depth: np.ndarray, focal_mm: float = 100.0) -> list:
