@@ -269,11 +269,6 @@ class PlannerConfig:
     #: how long after a switch to "only the background sharp" (a rack focus) the rows keep the subject out by
     #: mu rather than subject_keep_out_m [s]: with the nearer limit the focus left him later (core.keep_out_rows)
     keep_out_settle_s: float = 1.5
-    #: the subject's blur, as a fraction of the one circle (Structure.coc_mm), when he is to be sharp before a
-    #: soft background: the focus in front of him with the field as narrow as the lens gives, so that the far
-    #: limit ends as close behind him as it can (core.Planner._front_focus_limits); 0 = the field centred on
-    #: him (d -+ mu). Half the circle reads sharp on every texture (tests/unit/test_focus_definition.py)
-    front_focus_blur: float = 0.0
     #: how far ahead (within the take) a style row wanting the subject soft before a sharp background
     #: raises the minimum subject distance to the standoff that choice needs (separation.py) [s]; 0 = off
     separation_lookahead_s: float = 6.0
@@ -319,7 +314,7 @@ class PlannerConfig:
         if not (self.background_behind_m > 0):  # inf is allowed: an unknown background
             raise _bad("", "background_behind_m", self.background_behind_m, "a value > 0 (inf: unknown)")
         for name in ("tail_max_s", "setpoint_lead_s", "clamp_tolerance", "feasibility_tol", "separation_lookahead_s",
-                     "subject_keep_out_m", "keep_out_settle_s", "front_focus_blur"):
+                     "subject_keep_out_m", "keep_out_settle_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise _bad("", name, v, "a finite value >= 0")

@@ -482,8 +482,6 @@ class Planner:
                 band = self._foreground_band(xk, subj, t)
                 near, far = self._row_limits(focus[r], depth, mu, band, float(xk[lay.F]),
                                              keep_out_m=self._keep_out_m(mu) if keep[r] else mu)
-                if self.cfg.front_focus_blur > 0 and background_kept_out(focus[r], absent[r]):
-                    near, far = self._front_focus_limits(depth, float(xk[lay.F]))
                 # with the subject kept out by the near limit the far limit of the sharpness circle (3/8 of
                 # the one circle) at infinity is margin enough: the extra margin would cap the focus at half
                 # its longest and the subject's blur with it (separation.py)
@@ -517,17 +515,6 @@ class Planner:
             near = foreground_near_m(band, far, spread_min=spread,
                                      soft_ratio=st.defocus_coc_ratio / st.sharp_coc_ratio)
         return near, far
-
-    def _front_focus_limits(self, depth: float, focal_mm: float) -> tuple[float, float]:
-        """Target limits (D_n*, D_f*) [m] of the planning circle for the subject sharp before a soft
-        background: the focus in front of him, the field as narrow as the lens makes it (1.2 x the widest
-        aperture) with his blur `front_focus_blur` of the one circle, so that the far limit of the one
-        circle ends as close behind him as the lens allows. Centred on him (d -+ mu), that far limit
-        lay 24-45 m away in the parkour rack's first half, beyond the lawn's median depth (20-29 m)."""
-        st = self.cfg.structure
-        spread = narrowest_spread(focal_mm, APERTURE_MARGIN * self.solver.bounds.f_number_min, st.plan_coc_mm)
-        inv_focus = 1.0 / depth + self.cfg.front_focus_blur / st.sharp_coc_ratio * spread
-        return 1.0 / (inv_focus + spread), 1.0 / max(inv_focus - spread, 1e-6)
 
     def _keep_out_m(self, mu: float) -> float:
         """How far past the subject's centre a row wanting only the background sharp keeps him out [m]:
@@ -797,13 +784,6 @@ def absent_regions(ins: M.Instructions) -> np.ndarray:
     focus = np.asarray(ins.focus_in, dtype=bool)
     sm = np.asarray(ins.focus_smoothed, dtype=float) if ins.focus_smoothed is not None else np.zeros((0, 3))
     return ~np.isfinite(sm) if sm.shape == focus.shape else np.zeros(focus.shape, dtype=bool)
-
-
-def background_kept_out(row: np.ndarray, absent: np.ndarray) -> bool:
-    """A realisable focus row wanting the subject sharp in front of a present, soft background, with
-    no sharp foreground to reach for (core.Planner._front_focus_limits)."""
-    b_fg, b_subject, b_bg = cam.realisable_labels(*(bool(v) for v in row))
-    return b_subject and not b_bg and not b_fg and not bool(absent[2])
 
 
 def separation_kind(row: np.ndarray, absent: np.ndarray) -> str | None:
