@@ -492,6 +492,11 @@ class Planner:
                 soft = subject_softness(float(b_subject[r]), float(ins.theta)) if len(b_subject) > r else 1.0
                 dof[k, 6] = defocus_ratio(keeps_out[r] and switched_out(keeps_out, now_row, r), ratio, soft)
                 dof[k, 7] = defocus_ratio(near_out[r] and switched_out(near_out, now_row, r), ratio, soft)
+                if near_out[r] and keep[r]:
+                    # settled on the subject soft, the background needs only the one circle's far limit at
+                    # infinity, not the sharpness circle's: the parkour rack's soft runner read soft in 10
+                    # more of its last frames (the focus a little farther), nothing else measured moved
+                    dof[k, 6] = 1.0 / st.sharp_coc_ratio
                 dof[k, 2] *= float(far_previewed(focus, near_out, now_row, r))
         return dof, dref
 
