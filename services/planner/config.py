@@ -264,9 +264,11 @@ class PlannerConfig:
     mu_default_m: float = 1.0  # DoF margin when the instructions carry none (mu <= 0) [m]
     #: how far beyond the subject's centre the near limit keeps him out when only the background is to be
     #: sharp [m]; 0 = mu. His own depth (0.3 m: a body's back) filmed parkour's lawn right behind him sharp
-    #: (truth background 0.65 -> 0.90) but a rack to the background softened the subject later (the
-    #: dance-twirl rack's truth subject 0.96 -> 0.94), so it is off by default (docs/planner.md)
-    subject_keep_out_m: float = 0.0
+    #: (truth background 0.65 -> 0.90); the first keep_out_settle_s after a rack's switch keep mu
+    subject_keep_out_m: float = 0.3
+    #: how long after a switch to "only the background sharp" (a rack focus) the rows keep the subject out by
+    #: mu rather than subject_keep_out_m [s]: with the nearer limit the focus left him later (core.keep_out_rows)
+    keep_out_settle_s: float = 1.5
     #: how far ahead (within the take) a style row wanting the subject soft before a sharp background
     #: raises the minimum subject distance to the standoff that choice needs (separation.py) [s]; 0 = off
     separation_lookahead_s: float = 6.0
@@ -312,7 +314,7 @@ class PlannerConfig:
         if not (self.background_behind_m > 0):  # inf is allowed: an unknown background
             raise _bad("", "background_behind_m", self.background_behind_m, "a value > 0 (inf: unknown)")
         for name in ("tail_max_s", "setpoint_lead_s", "clamp_tolerance", "feasibility_tol", "separation_lookahead_s",
-                     "subject_keep_out_m"):
+                     "subject_keep_out_m", "keep_out_settle_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise _bad("", name, v, "a finite value >= 0")

@@ -121,6 +121,7 @@ class Planner:
         self.last_result: SolveResult | None = None
         self._motion_cache: tuple[object, MotionStyle | None] = (None, None)
         self._focus_cache: tuple[object, np.ndarray] = (None, np.zeros((0, 3), bool))
+        self._keep_out_cache: tuple[object, np.ndarray] = (None, np.zeros(0, bool))
 
     # ------------------------------------------------------------------ runtime parameters
     def set_weights(self, weights: Weights) -> None:
@@ -383,7 +384,9 @@ class Planner:
         ratio = st.defocus_coc_ratio / st.sharp_coc_ratio
         ne = min(jw.shape[0], ins.image_targets.shape[1])
         z = np.where(jmask[:ne] > 0, jw[:ne, 2], np.nan)
-        rows = {"subject_soft": ([], []), "background_soft": ([], [])}
+        mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
+        keep = self._keep_out_rows(ins)
+        rows = {"subject_soft": ([], [], []), "background_soft": ([], [], [])}
         for r in range(max(now_row, 0), hi + 1):
             kind = separation_kind(focus[r], absent[r])
             if kind is None:
@@ -392,12 +395,13 @@ class Planner:
             soft = subject_softness(float(smoothed[r, region]), float(ins.theta)) if len(smoothed) > r else 1.0
             rows[kind][0].append(framing_k(np.asarray(ins.image_targets[r, :ne, 1], float), z, st.sensor_height_mm))
             rows[kind][1].append(defocus_ratio(True, ratio, soft))
-        mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
-        subject_soft = separation_distance_m(*rows["subject_soft"], f_number_min=b.f_number_min, coc_mm=st.plan_coc_mm,
-                                             mu_m=self._keep_out_m(mu), focus_max_m=b.focus_distance_max_m,
+            rows[kind][2].append(self._keep_out_m(mu) if keep[r] else mu)
+        ks, ratios, keep_outs = rows["subject_soft"]
+        subject_soft = separation_distance_m(ks, ratios, f_number_min=b.f_number_min, coc_mm=st.plan_coc_mm,
+                                             mu_m=keep_outs, focus_max_m=b.focus_distance_max_m,
                                              focal_max_mm=b.focal_length_max_mm)
         background_soft = 0.0 if math.isinf(self.cfg.background_behind_m) else background_soft_distance_m(
-            *rows["background_soft"], f_number_min=b.f_number_min, coc_mm=st.plan_coc_mm,
+            *rows["background_soft"][:2], f_number_min=b.f_number_min, coc_mm=st.plan_coc_mm,
             behind_m=self.cfg.background_behind_m, focal_max_mm=b.focal_length_max_mm)
         self.counters["separation_background_soft_m"] = round(background_soft, 2)
         return max(subject_soft, background_soft)
@@ -408,6 +412,13 @@ class Planner:
             max_rows = int(round(RACK_THROUGH_MAX_S * _fps(ins)))
             self._focus_cache = (ins, planned_focus_rows(ins.focus_in, absent_regions(ins), max_rows))
         return self._focus_cache[1]
+
+    def _keep_out_rows(self, ins: M.Instructions) -> np.ndarray:
+        """The rows that keep the subject out by `subject_keep_out_m` (keep_out_rows), once per instructions message."""
+        if self._keep_out_cache[0] is not ins:
+            settle = int(round(self.cfg.keep_out_settle_s * _fps(ins)))
+            self._keep_out_cache = (ins, keep_out_rows(self._planned_focus(ins), absent_regions(ins), settle))
+        return self._keep_out_cache[1]
 
     def _motion_style(self, ins: M.Instructions) -> MotionStyle | None:
         """The instructions' camera-motion style, read once per instructions message."""
@@ -452,6 +463,7 @@ class Planner:
         keeps_out = [far_keeps_subject_out(*row) for row in rows3]
         near_out = [near_keeps_subject_out(*row) for row in rows3]
         ratio = st.defocus_coc_ratio / st.sharp_coc_ratio
+        keep = self._keep_out_rows(ins)
         dof = np.zeros((n, N_DOF))
         dof[:, 6:8] = 1.0  # the far and near limits' circle-of-confusion ratios (cost.defocus_ratio)
         dref = np.zeros(n)
@@ -470,7 +482,8 @@ class Planner:
                 band = self._foreground_band(xk, subj, t)
                 soft = subject_softness(float(b_subject[r]), float(ins.theta)) if len(b_subject) > r else 1.0
                 dof[k, 6] = defocus_ratio(keeps_out[r] and switched_out(keeps_out, now_row, r), ratio, soft)
-                near, far = self._row_limits(focus[r], depth, mu, band, float(xk[lay.F]), dof[k, 6])
+                near, far = self._row_limits(focus[r], depth, mu, band, float(xk[lay.F]), dof[k, 6],
+                                             keep_out_m=self._keep_out_m(mu) if keep[r] else mu)
                 # with the subject kept out by the near limit the far limit of the sharpness circle (3/8 of
                 # the one circle) at infinity is margin enough: the extra margin would cap the focus at half
                 # its longest and the subject's blur with it (separation.py)
@@ -479,22 +492,28 @@ class Planner:
                                                 # a near limit that keeps the subject out stays two-sided
                                                 fg_absent=bool(absent[r, 0]) and not near_out[r])
                 dof[k, 7] = defocus_ratio(near_out[r] and switched_out(near_out, now_row, r), ratio, soft)
+                if near_out[r] and keep[r]:
+                    # settled on the subject soft, the background needs only the one circle's far limit at
+                    # infinity, not the sharpness circle's: the parkour rack's soft runner read soft in 10
+                    # more of its last frames (the focus a little farther), nothing else measured moved
+                    dof[k, 6] = 1.0 / st.sharp_coc_ratio
                 dof[k, 2] *= float(far_previewed(focus, near_out, now_row, r))
         return dof, dref
 
     def _row_limits(self, row: np.ndarray, depth: float, mu: float, band: Band | None,
-                    focal_mm: float, far_ratio: float = 1.0) -> tuple[float, float]:
+                    focal_mm: float, far_ratio: float = 1.0, keep_out_m: float | None = None) -> tuple[float, float]:
         """Target limits (D_n*, D_f*) [m] of a row's labels (shared.camera.desired_dof_limits), with
-        "only the background sharp" keeping the subject out by `subject_keep_out_m` when given, and
-        "only the foreground sharp" aimed at the ground the foreground band shows (focus_field; the far
-        limit's circle is `far_ratio` times the planning circle)."""
+        "only the background sharp" keeping the subject out by `keep_out_m` past his centre (the row's
+        keep-out, keep_out_rows; `subject_keep_out_m` when None), and "only the foreground sharp" aimed
+        at the ground the foreground band shows (focus_field; the far limit's circle is `far_ratio` times
+        the planning circle)."""
         st = self.cfg.structure
         fg, subject, bg = cam.realisable_labels(*(bool(v) for v in row))
         near, far = cam.desired_dof_limits(fg, subject, bg, depth, mu, defocus_when_none=st.defocus_when_none)
         if bg and not subject:
             # only the subject is kept out, by the visible circle's near limit: with a keep-out given, past his
             # own back rather than mu past his centre (parkour, subject soft: the lawn right behind him went soft)
-            near = depth + self._keep_out_m(mu)
+            near = depth + (self._keep_out_m(mu) if keep_out_m is None else keep_out_m)
         if fg and not subject and band is not None:
             # with the subject sharp too the field is deep and 1 m holds whatever the band shows: focus_hedge's
             # hedge 1.7 m away in tos_clip01 went soft when aimed at the ground (foreground 1.00 -> 0.00)
@@ -693,6 +712,25 @@ def planned_focus_rows(focus_in: np.ndarray, absent: np.ndarray, max_rows: int) 
             out[k:end] = (False, False, True)
         k = end
     return out
+
+
+def keep_out_rows(focus: np.ndarray, absent: np.ndarray, settle_rows: int) -> np.ndarray:
+    """(K,) bool: the rows wanting only the background sharp (focus: the planned rows, planned_focus_rows)
+    that keep the subject out by his own depth (`subject_keep_out_m`) rather than mu: all of them but
+    the first `settle_rows` after a switch from a labelled row that kept him in (a rack focus onto the
+    background). Right after the switch the focus is still travelling past the subject, and the nearer
+    near limit let it arrive later: in the closed-loop rack his blur 1 s after the switch fell from
+    above 1.1 circles to 1.095. A shot that asks for it from its first row, or after rows without a
+    label, keeps him out by his own depth throughout."""
+    focus = np.asarray(focus, dtype=bool)
+    if focus.ndim != 2 or focus.shape[1] != 3:
+        return np.zeros(len(focus), dtype=bool)
+    out = np.array([near_keeps_subject_out(*row) for row in focus.tolist()], dtype=bool)
+    labelled = ~absent.all(axis=1) if absent.shape == focus.shape else np.ones(len(focus), dtype=bool)
+    keep = out.copy()
+    for k in np.flatnonzero(out[1:] & ~out[:-1] & labelled[:-1]) + 1:
+        keep[k:k + settle_rows] = False
+    return keep
 
 
 def far_previewed(focus: np.ndarray, near_out: list[bool], now_row: int, row: int) -> bool:

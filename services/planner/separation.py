@@ -83,15 +83,17 @@ def framing_k(target_v: np.ndarray, joints_z_m: np.ndarray, sensor_height_mm: fl
 
 
 def separation_distance_m(ks: Sequence[float], ratios: Sequence[float], *, f_number_min: float, coc_mm: float,
-                          mu_m: float, focus_max_m: float, focal_max_mm: float) -> float:
+                          mu_m: float | Sequence[float], focus_max_m: float, focal_max_mm: float) -> float:
     """The minimum subject distance [m] the planner keeps for the rows ahead that want the subject
-    soft and the background sharp (per row: its framing `ks`, framing_k, and its visible-defocus
-    circle ratio `ratios`); 0 when no row does or no framing is known. Per row never beyond the
+    soft and the background sharp (per row: its framing `ks`, framing_k, its visible-defocus circle
+    ratio `ratios` and how far past his centre it keeps him out, `mu_m`: one for all rows or one per
+    row); 0 when no row does or no framing is known. Per row never beyond the
     distance of the softest subject (best_separation_m) nor the longest focal length's: past them the
     choice is out of the lens's reach, and the report says so per frame."""
     best = 0.0
-    for k, r in zip(ks, ratios):
-        need = standoff_m(k, f_number=APERTURE_MARGIN * f_number_min, coc_mm=coc_mm, defocus_ratio=r, mu_m=mu_m)
+    mus = np.broadcast_to(np.asarray(mu_m, dtype=float), (len(ks),))
+    for k, r, mu in zip(ks, ratios, mus):
+        need = standoff_m(k, f_number=APERTURE_MARGIN * f_number_min, coc_mm=coc_mm, defocus_ratio=r, mu_m=float(mu))
         if not math.isfinite(need):
             continue
         cap = min(best_separation_m(k, f_number_min=f_number_min, coc_mm=coc_mm, focus_max_m=focus_max_m),

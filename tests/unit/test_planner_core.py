@@ -292,15 +292,41 @@ def test_only_the_background_in_focus_keeps_the_subject_out_by_the_near_limit(pl
     subj = predict_subject(sim.subject_state(T0), T0)
     dof, dref = planner._dof_targets(T0, ins, [0, 1], 0, x0, subj)
     st = planner.cfg.structure
-    # then the near limit aims beyond the subject (d + mu), two-sided although no foreground is shown
-    # (one-sided it would let the limit come nearer, the subject back in focus), with the larger circle
-    assert dof[0, 0] == 1.0 and dof[0, 1] == pytest.approx(1.0 / (dref[0] + ins.mu_m))
+    # then the near limit aims beyond the subject, just past his back (the keep-out of his own depth,
+    # 0.3 m by default, not mu = 1 m: the shot asks for it from its first row, no rack), two-sided although
+    # no foreground is shown (one-sided it would let the limit come nearer, the subject back in focus),
+    # with the larger circle
+    assert planner.cfg.subject_keep_out_m == 0.3 and ins.mu_m == 1.0
+    assert dof[0, 0] == 1.0 and dof[0, 1] == pytest.approx(1.0 / (dref[0] + 0.3))
     assert dof[0, 5] == 0.0
-    assert dof[0, 7] == pytest.approx(st.defocus_coc_ratio / st.sharp_coc_ratio) and dof[0, 6] == 1.0
-    # and with a keep-out of the subject's own depth given (0.3 m, mu = 1 m) just past his back
-    near_back = Planner(dataclasses.replace(planner.cfg, subject_keep_out_m=0.3), solver=planner.solver)
-    dof, dref = near_back._dof_targets(T0, ins, [0, 1], 0, x0, subj)
-    assert ins.mu_m == 1.0 and dof[0, 0] == 1.0 and dof[0, 1] == pytest.approx(1.0 / (dref[0] + 0.3))
+    assert dof[0, 7] == pytest.approx(st.defocus_coc_ratio / st.sharp_coc_ratio)
+    # and the far limit at infinity is the one circle's (no rack: settled from the first row)
+    assert dof[0, 4] == 1.0 and dof[0, 3] == 0.0 and dof[0, 6] == pytest.approx(1.0 / st.sharp_coc_ratio)
+    # and without a keep-out (0) mu past his centre
+    by_mu = Planner(dataclasses.replace(planner.cfg, subject_keep_out_m=0.0), solver=planner.solver)
+    dof, dref = by_mu._dof_targets(T0, ins, [0, 1], 0, x0, subj)
+    assert dof[0, 0] == 1.0 and dof[0, 1] == pytest.approx(1.0 / (dref[0] + ins.mu_m))
+
+
+def test_right_after_a_rack_onto_the_background_the_subject_is_kept_out_by_mu(planner, instructions):
+    # given a style that racks from the subject to the background at row 10 (24 rows a second)
+    k = instructions.image_targets.shape[0]
+    assert k > 10 + 48
+    focus = np.tile([False, True, False], (k, 1))
+    focus[10:] = (False, False, True)
+    sm = np.where(focus, 1.0, 0.0).astype(np.float32)
+    sm[:, 0] = np.nan
+    ins = dataclasses.replace(instructions, focus_smoothed=sm, focus_raw=sm, focus_in=focus, fps=24.0)
+    sim = KinematicSim(wrong_start_scene())
+    x0 = planner._measured_state(T0, sim.vehicle_state(T0))
+    subj = predict_subject(sim.subject_state(T0), T0)
+    settle = int(round(planner.cfg.keep_out_settle_s * 24.0))
+    dof, dref = planner._dof_targets(T0, ins, [10, 10 + settle - 1, 10 + settle], 10, x0, subj)
+    # then the rows of the first keep_out_settle_s after the switch aim the near limit mu past his centre
+    # with the sharpness circle's far limit at infinity, the later ones just past his back with the one
+    # circle's
+    np.testing.assert_allclose(dof[:, 1], 1.0 / (dref + np.array([1.0, 1.0, 0.3])), rtol=1e-9)
+    np.testing.assert_allclose(dof[:, 6], [1.0, 1.0, 1.0 / planner.cfg.structure.sharp_coc_ratio])
 
 
 def _roll_after(level: float, tilt_deg: float) -> float:

@@ -61,6 +61,12 @@ def test_separation_distance_takes_the_hardest_row_and_the_caps():
     assert separation_distance_m([6.0, 4.2], [4.0, 4.0], **kw) == pytest.approx(16.836, abs=1e-3)
     # and the longest focal length caps it too (k d <= f_max)
     assert separation_distance_m([4.2], [4.0], **{**kw, "focal_max_mm": 60.0}) == pytest.approx(60.0 / 4.2)
+    # a keep-out per row: each row's own
+    per_row = {**kw, "mu_m": [1.0, 0.3]}
+    assert separation_distance_m([6.0, 6.0], [4.0, 4.0], **per_row) == pytest.approx(
+        standoff_m(6.0, f_number=APERTURE_MARGIN, coc_mm=0.05, defocus_ratio=4.0, mu_m=1.0))
+    assert separation_distance_m([6.0], [4.0], **{**kw, "mu_m": [0.3]}) == pytest.approx(
+        standoff_m(6.0, f_number=APERTURE_MARGIN, coc_mm=0.05, defocus_ratio=4.0, mu_m=0.3))
 
 
 def test_framing_k_from_a_row_by_hand():
@@ -154,6 +160,25 @@ def test_a_rack_focus_read_through_nothing_sharp_is_filmed_racking_through():
     absent = present.copy()
     absent[2:4] = True
     assert np.array_equal(planned_focus_rows(rows, absent, 2)[2:4], [none, none])
+
+
+def test_the_keep_out_waits_for_a_rack_to_settle():
+    import numpy as np
+
+    from cinetransfer.services.planner.core import keep_out_rows
+    sub, bg, none = (False, True, False), (False, False, True), (False, False, False)
+    rows = np.array([bg, bg, bg, sub, sub, bg, bg, bg, bg, none, bg, bg], dtype=bool)
+    present = np.zeros(rows.shape, bool)
+    # a shot that asks for the background alone from its first row keeps the subject out by his own depth
+    # at once; after a rack from the subject (row 5) the first two rows keep mu; after "nothing in focus"
+    # (a labelled row that keeps him out as well, row 9) too
+    want = [True, True, True, False, False, False, False, True, True, False, False, False]
+    assert keep_out_rows(rows, present, 2).tolist() == want
+    assert keep_out_rows(rows, present, 0).tolist() == [bool(r[2] and not r[1]) for r in rows.tolist()]
+    # after rows without a label (a shot the focus map could not read) there is no switch to wait for
+    absent = present.copy()
+    absent[9] = True
+    assert keep_out_rows(rows, absent, 2)[10:].tolist() == [True, True]
 
 
 def test_the_far_limit_opens_only_once_the_rack_has_switched():
