@@ -354,10 +354,10 @@ def test_a_jpeg_is_sized_from_its_header_before_it_is_decoded():
     sof = next(i for i in range(2, len(small) - 1) if small[i] == 0xFF and small[i + 1] == 0xC0)
     bomb = small[:sof + 5] + (30000).to_bytes(2, "big") * 2 + small[sof + 9:]
     assert codec.jpeg_size(bomb) == (30000, 30000)
-    t = time.perf_counter()
+    t = time.thread_time()  # CPU, not wall: a loaded machine must not fail it
     with pytest.raises(codec.DecodeError, match="exceeds the limit of 40000000 pixels"):
         codec._jpeg_array(memoryview(bomb), "uint8", [30000, 30000, 3], 30000 * 30000 * 3, "f")
     with pytest.raises(codec.DecodeError, match="does not match the declared shape"):
         codec._jpeg_array(memoryview(bomb), "uint8", [10, 20, 3], 600, "f")  # the header lies about it
-    assert time.perf_counter() - t < 0.5  # nothing was decoded
+    assert time.thread_time() - t < 0.5  # nothing was decoded
     assert codec.jpeg_size(b"not a jpeg") is None

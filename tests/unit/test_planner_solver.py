@@ -1,6 +1,5 @@
 """The NLP solvers (SQP real-time iteration, IPOPT): warm start, agreement, time budget, generated code."""
 import os
-import time
 
 import numpy as np
 import pytest
@@ -36,11 +35,18 @@ class _Dummy:
         pass
 
 
+def unbudgeted(solver: MpcSolver) -> MpcSolver:
+    """The solver with its wall-time budget lifted, as the simulator's lockstep does: these tests judge
+    iterations and optima, and a loaded machine must not turn them into budget stops."""
+    solver.set_time_budget(None)
+    return solver
+
+
 @pytest.mark.parametrize("solver", ["sqp_rti", "ipopt"])
 def test_warm_start_needs_fewer_iterations_than_cold(solver):
     cfg = pc.replace(pc.PlannerConfig(max_solve_time_s=1.0), **{"structure.solver": solver})
     data = stage_data(cfg)
-    solver = MpcSolver(cfg.structure, cfg.bounds, cfg.weights, max_solve_time_s=1.0)
+    solver = unbudgeted(MpcSolver(cfg.structure, cfg.bounds, cfg.weights, max_solve_time_s=1.0))
     cold = solver.solve(data)
     assert cold.ok and cold.iterations > 5
     # given the same problem 50 ms later, the shifted solution is a much better start
@@ -49,7 +55,7 @@ def test_warm_start_needs_fewer_iterations_than_cold(solver):
     np.testing.assert_allclose(warm.x[0], data.x0)  # the measured state is stage 0
     # and without warm start (the baseline's setting) every solve starts cold
     st = pc.replace(cfg, **{"structure.warm_start": False}).structure
-    nowarm = MpcSolver(st, cfg.bounds, cfg.weights, max_solve_time_s=1.0)
+    nowarm = unbudgeted(MpcSolver(st, cfg.bounds, cfg.weights, max_solve_time_s=1.0))
     r1, r2 = nowarm.solve(data), nowarm.solve(data, shift_s=0.05)
     assert r1.iterations == r2.iterations
 
@@ -58,8 +64,8 @@ def test_mx_baseline_and_sx_agree():
     # given the same problem built in MX (no expand, the CineMPC-like baseline) and in SX
     cfg = pc.replace(pc.PlannerConfig(max_solve_time_s=5.0), **{"structure.solver": "ipopt"})
     data = stage_data(cfg)
-    sx = MpcSolver(cfg.structure, max_solve_time_s=5.0).solve(data)
-    mx = MpcSolver(pc.replace(cfg, **{"structure.expand": False}).structure, max_solve_time_s=5.0).solve(data)
+    sx = unbudgeted(MpcSolver(cfg.structure)).solve(data)
+    mx = unbudgeted(MpcSolver(pc.replace(cfg, **{"structure.expand": False}).structure)).solve(data)
     # then both find the same optimum
     assert sx.ok and mx.ok
     assert mx.cost == pytest.approx(sx.cost, rel=1e-3)
@@ -72,7 +78,7 @@ def test_budget_exceeded_is_reported():
     cfg = pc.replace(pc.PlannerConfig(), **{"structure.max_iter": 1, "structure.max_iter_cold": 1,
                                             "structure.solver": "ipopt"})
     data = stage_data(cfg)
-    r = MpcSolver(cfg.structure, accept_suboptimal=False).solve(data)
+    r = unbudgeted(MpcSolver(cfg.structure, accept_suboptimal=False)).solve(data)
     assert not r.ok and "Maximum_Iterations_Exceeded" in r.status
 
 
@@ -81,9 +87,8 @@ def test_sqp_converges_to_the_ipopt_optimum(qp_solver):
     # given one problem (the vehicle off the shot, N = 20), solved cold by the SQP and by IPOPT
     cfg = pc.replace(pc.PlannerConfig(), **{"structure.horizon_steps": 20, "structure.qp_solver": qp_solver})
     data = stage_data(cfg)
-    sqp = MpcSolver(cfg.structure, max_solve_time_s=5.0, max_cold_solve_time_s=5.0).solve(data)
-    ref = MpcSolver(pc.replace(cfg, **{"structure.solver": "ipopt"}).structure, max_solve_time_s=5.0,
-                    max_cold_solve_time_s=5.0).solve(data)
+    sqp = unbudgeted(MpcSolver(cfg.structure)).solve(data)
+    ref = unbudgeted(MpcSolver(pc.replace(cfg, **{"structure.solver": "ipopt"}).structure)).solve(data)
     # then the SQP iterates to the same optimum, feasible, with the measured state in front
     assert sqp.ok and ref.ok and sqp.status == "Solve_Succeeded", sqp.status
     assert sqp.cost == pytest.approx(ref.cost, rel=1e-4)
@@ -136,7 +141,7 @@ def test_qp_failure_is_a_failed_solve_never_nan():
     data = stage_data(cfg)
     data.x0 = data.x0.copy()
     data.x0[3] = 3.0
-    r = MpcSolver(cfg.structure).solve(data)
+    r = unbudgeted(MpcSolver(cfg.structure)).solve(data)
     # then the solve fails (the planner flies its tail / holds), with a reason, and nothing is NaN-poisoned
     assert not r.ok and r.status.startswith("QP failed"), r.status
 
@@ -151,17 +156,16 @@ def test_generated_code_is_compiled_once_and_cached(tmp_path, solver, copies, n_
                         "structure.sqp_input_copies": copies,
                         "structure.compile_flags": ("-O0", "-fPIC", "-shared"), "structure.horizon_steps": 8})
     data = stage_data(cfg)
-    s1 = MpcSolver(cfg.structure, max_solve_time_s=2.0)
+    s1 = unbudgeted(MpcSolver(cfg.structure))
     libs = sorted(tmp_path.glob("cinempc_*.so"))
     assert len(libs) == n_libs
     mtime = os.path.getmtime(libs[0])
-    # when built again, the cached library is loaded (no compile: fast, same file)
-    t = time.perf_counter()
-    s2 = MpcSolver(cfg.structure, max_solve_time_s=2.0)
-    assert time.perf_counter() - t < 5.0 and os.path.getmtime(libs[0]) == mtime
+    # when built again, the cached library is loaded (no compile: the same file, untouched)
+    s2 = unbudgeted(MpcSolver(cfg.structure))
+    assert os.path.getmtime(libs[0]) == mtime
     assert sorted(tmp_path.glob("cinempc_*.so")) == libs
     # then it solves like the in-memory SX solver
-    ref = MpcSolver(pc.replace(cfg, **{"structure.codegen": False}).structure, max_solve_time_s=2.0).solve(data)
+    ref = unbudgeted(MpcSolver(pc.replace(cfg, **{"structure.codegen": False}).structure)).solve(data)
     r1, r2 = s1.solve(data), s2.solve(data)
     assert r1.ok and r2.ok and ref.ok
     assert r1.cost == pytest.approx(ref.cost, rel=1e-6)
@@ -172,7 +176,7 @@ def test_sqp_without_input_copies_keeps_the_optimum_on_warm_steps():
     # given the HPIPM SQP whose warm iterations drop the input-change cross-stage Hessian terms
     cfg = pc.replace(pc.PlannerConfig(), **{"structure.sqp_input_copies": False})
     data = stage_data(cfg)
-    solver = MpcSolver(cfg.structure, max_solve_time_s=1.0, max_cold_solve_time_s=5.0)
+    solver = unbudgeted(MpcSolver(cfg.structure))
     cold = solver.solve(data)
     assert cold.ok and cold.status == "Solve_Succeeded"
     # when it makes real-time iterations on the same problem, the plan stays feasible and optimal
