@@ -9,12 +9,16 @@ source's (the report's truth agreement) and the framing are known in seconds rat
 the real transfer (benchmarks/eval_camera_motion_transfer.py) remains the judge.
 
     .venv/bin/python benchmarks/camera_motion_flight.py RUN/style.json [...] [--scene courtyard]
+
+`--mark` lets the courtyard's walker wait on his mark (where the rendered sources film him first)
+for the pre-roll, as an actor does before a take (camera_motion_mark.py); `--preroll` sets how long.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +29,11 @@ from cinetransfer.services.smoother.camera_motion import motion_style
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import camera_motion as cm
 from cinetransfer.shared import messages as M
+
+try:
+    from camera_motion_mark import write_mark_scene
+except ImportError:  # imported as a package
+    from benchmarks.camera_motion_mark import write_mark_scene
 
 PREROLL_S = 5.0  #: cinetransfer transfer's default pre-roll
 T0_NS = 1_700_000_000_000_000_000
@@ -97,6 +106,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scene", default="courtyard")
     ap.add_argument("--preroll", type=float, default=PREROLL_S)
     ap.add_argument("--weight", nargs="*", default=[], metavar="NAME=VALUE", help="planner cost weights to change")
+    ap.add_argument("--mark", action="store_true",
+                    help="the courtyard's walker waits on his mark for the pre-roll (camera_motion_mark.py)")
     args = ap.parse_args(argv)
     from cinetransfer.plan import make_sim
     from cinetransfer.services.planner.config import PlannerConfig
@@ -109,9 +120,13 @@ def main(argv: list[str] | None = None) -> int:
     cfg = dataclasses.replace(cfg, weights=weights)
     cfg = dataclasses.replace(cfg, max_solve_time_s=max(cfg.max_solve_time_s, 10.0 / cfg.rate_hz))
     make = planner_maker(cfg)
+    scene = args.scene
+    if args.mark:
+        scene = str(write_mark_scene(Path(tempfile.mkdtemp(prefix="ct_mark_")) / "scene.yaml", wait_s=args.preroll,
+                                     scene=args.scene))
     for path in args.styles:
         ins = load_style(str(path))
-        sim, _ = make_sim(args.scene)
+        sim, _ = make_sim(scene)
         try:
             r = fly(ins, make(), sim, preroll_s=args.preroll)
         finally:

@@ -16,7 +16,10 @@ already holds a report.json is read again rather than flown again (`--again` fli
 walker loop (11.67 s long); with the transfer's default 5 s pre-roll the output's take films him
 elsewhere on the loop (walking away, then turning), a subject motion no camera move of the source
 can frame. `--preroll 12.667` starts the take at the same point of his loop, so the output's
-subject moves as the source's did and only the camera is under test.
+subject moves as the source's did and only the camera is under test, but he walks a whole loop
+(four turns) in that pre-roll and the drone starts the take wherever chasing him left it.
+`--mark --preroll S` lets him wait on his mark for the S s pre-roll instead, as an actor does
+(camera_motion_mark.py): the drone settles on the first frame's framing round a subject who stands.
 benchmarks/camera_motion_flight.py flies the same styles in-process in seconds (no rendering).
 """
 from __future__ import annotations
@@ -29,8 +32,10 @@ from pathlib import Path
 from typing import Any
 
 try:
+    from camera_motion_mark import write_mark_scene
     from harness import write_result
 except ImportError:  # imported as a package
+    from benchmarks.camera_motion_mark import write_mark_scene
     from benchmarks.harness import write_result
 
 AGREEMENT_GOAL = 0.8
@@ -88,8 +93,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--again", action="store_true", help="fly runs that already have a report again")
     ap.add_argument("--preroll", type=float, default=None, metavar="S",
                     help="the transfer's pre-roll [s] (default: the transfer's own)")
+    ap.add_argument("--mark", action="store_true",
+                    help="the walker waits on his mark for the pre-roll (camera_motion_mark.py; needs --preroll)")
     ap.add_argument("--result", default="eval_camera_motion_transfer", help="result name or path")
     args = ap.parse_args(argv)
+    if args.mark and args.preroll is None:
+        print("eval_camera_motion_transfer: --mark needs --preroll (how long the walker waits)", file=sys.stderr)
+        return 2
     videos = sorted(p for p in args.sources.glob("*.mp4") if p.with_suffix(".truth.json").is_file())
     if args.only:
         videos = [v for v in videos if any(o in v.stem for o in args.only)]
@@ -98,7 +108,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     results = {}
     for v in videos:
-        r = transfer(v, args.runs / v.stem, args.scene, args.again, args.preroll)
+        scene = args.scene
+        if args.mark:
+            scene = str(write_mark_scene(args.runs / v.stem / "scene.yaml", wait_s=args.preroll, scene=args.scene))
+        r = transfer(v, args.runs / v.stem, scene, args.again, args.preroll)
         results[v.stem] = r
         if "error" in r:
             print(f"{v.stem:26s} {r['error']}", flush=True)
@@ -111,8 +124,8 @@ def main(argv: list[str] | None = None) -> int:
     met = sum(r["met"] for r in results.values())
     print(f"\n{met} of {len(results)} moves flown with output class agreement >= {AGREEMENT_GOAL} and the framing "
           f"goals met")
-    out = {"scene": args.scene, "preroll_s": args.preroll, "agreement_goal": AGREEMENT_GOAL, "moves_met": met,
-           "per_source": results}
+    out = {"scene": args.scene, "mark": args.mark, "preroll_s": args.preroll, "agreement_goal": AGREEMENT_GOAL,
+           "moves_met": met, "per_source": results}
     print(f"wrote {write_result(args.result, out)}")
     return 0 if met == len(results) else 1
 

@@ -8,10 +8,10 @@ translation in the source camera's frame (x right, y down, z forward; zeros = no
 where unknown. Instructions without these fields (older styles) ask nothing: every mask is 0.
 
 A term is asked of a stage only where its row's class names the move and the rate is finite; a
-static row asks the angular rates and the zoom rate to be 0 (the source camera held still: the
-framing alone let the camera pan and zoom after a dancing subject, 79 % of a static source's rows
-flown as moves); rows with no class (a style that carries rates only) use the rates that are
-clearly non-zero.
+static row asks the angular rates and the zoom rate to be 0 and the camera to stand still (the
+source camera held still: the framing alone let the camera pan and zoom after a dancing subject,
+79 % of a static source's rows flown as moves, and following a walker slid it into an orbit); rows
+with no class (a style that carries rates only) use the rates that are clearly non-zero.
 
 Per-stage parameter layout (N_MOTION values), read by cost.StageBuilder:
     0-1   wanted horizontal bearing of the camera round the subject (unit vector), 2 its mask
@@ -20,8 +20,11 @@ Per-stage parameter layout (N_MOTION values), read by cost.StageBuilder:
     11-13 direction of travel in the planner's camera frame (x forward, y left, z up), 14 its mask
     15    dolly-zoom mask, 16 the rate d ln(subject distance)/dt asked then (the zoom rate)
     17    1 = the camera stands still (the velocity term's reference is 0 instead of the subject's
-          velocity): a row whose class turns or zooms the camera without moving it (pan, tilt,
-          roll, zoom_in, zoom_out), where following a walking subject would undo the pan
+          velocity, and no sideways velocity): a static row, or one whose class turns or zooms the
+          camera without moving it (pan, tilt, roll, zoom_in, zoom_out), where following a walking
+          subject would undo the pan
+    18    1 = it stands still along its optical axis too: a row whose class zooms in place (zoom_in,
+          zoom_out without a translating class), where moving along the axis reads as a dolly-zoom
 """
 from __future__ import annotations
 
@@ -30,15 +33,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-N_MOTION = 18
+N_MOTION = 19
 SIDE, SIDE_MASK = slice(0, 2), 2
 RATES, RATE_MASKS = slice(3, 6), slice(6, 9)
 ZOOM, ZOOM_MASK = 9, 10
 TRAVEL, TRAVEL_MASK = slice(11, 14), 14
-DOLLY_ZOOM_MASK, DISTANCE_RATE, STILL = 15, 16, 17
+DOLLY_ZOOM_MASK, DISTANCE_RATE, STILL, STILL_ALONG = 15, 16, 17, 18
 SIDE_PARAMS = slice(0, 3)  #: the side-of-subject parameters (bearing vector and mask), set by the planner core
 FLOWN_RATE_COLUMNS = [ZOOM]  #: the lens's rate target, planned slower (core.flown_rate_factor)
-MOTION_MASKS = [6, 7, 8, ZOOM_MASK, TRAVEL_MASK, DOLLY_ZOOM_MASK, STILL]  #: the camera-motion terms' masks
+#: the camera-motion terms' masks
+MOTION_MASKS = [6, 7, 8, ZOOM_MASK, TRAVEL_MASK, DOLLY_ZOOM_MASK, STILL, STILL_ALONG]
 
 #: which classes ask for which term
 RATE_CLASSES = (("pan", "orbit"), ("tilt",), ("roll",))
@@ -111,6 +115,7 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool) -> np.ndarray
         n_rates = 3 if control_roll else 2
         out[RATE_MASKS.start:RATE_MASKS.start + n_rates] = 1.0  # each rate's target 0
         out[ZOOM_MASK] = 1.0
+        out[STILL] = 1.0  # the source camera stood still: following the subject would turn it to keep him framed
         return out
     for i, names in enumerate(RATE_CLASSES):
         rate = float(style.rates_radps[row, i])
@@ -129,6 +134,8 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool) -> np.ndarray
         out[STILL] = 1.0
         if not zoom_asked:  # held in place, the framing would zoom after the subject's distance instead
             out[ZOOM_MASK] = 1.0
+        elif any(n in cls for n in ZOOM_CLASSES):  # held sideways only, it backed off as it zoomed: a dolly-zoom
+            out[STILL_ALONG] = 1.0
     travel = style.travel[row]
     if travel.any() and (cls is None or any(n in cls for n in TRAVEL_CLASSES)):
         out[TRAVEL], out[TRAVEL_MASK] = travel, 1.0

@@ -123,7 +123,9 @@ class Weights:
     dolly_zoom: float = 100.0  # (d ln(subject distance)/dt - source's zoom rate [1/s])^2 per s, in a dolly zoom
     motion_still: float = 20.0  # (v off the optical axis / v_max)^2 per s in a row that turns or zooms the camera in
     #                              place (pan, tilt, roll, zoom): sideways it stands still, along the axis the framing
-    #                              keeps the size (docs/planner.md, "Stand still sideways"); static rows never take it
+    #                              keeps the size (docs/planner.md, "Stand still sideways"); static rows take it too
+    zoom_still: float = 0.0  # (v along the optical axis / v_max)^2 per s in a row that zooms in place: moving
+    #                           there reads as a dolly-zoom (docs/planner.md, "Stand still sideways")
 
     def validate(self) -> "Weights":
         for f in dataclasses.fields(self):

@@ -54,6 +54,9 @@ log = logging.getLogger("cinetransfer.planner")
 CENTRE_JOINTS = ("left_shoulder", "right_shoulder", "left_hip", "right_hip")
 FEET_JOINTS = ("left_ankle", "right_ankle")
 STATES = ("idle", "recording", "paused", "holding", "stopped")
+#: a subject slower than this in the pre-roll is waiting for the take: the camera settles free of the
+#: style's camera motion (docs/planner.md, "Camera motion"); one already walking is met with the take's holds
+SETTLE_MAX_SUBJECT_SPEED_MPS = 0.3
 
 
 @dataclass
@@ -348,6 +351,10 @@ class Planner:
         targets, mask = stage_targets(image_targets, rows, ctrl, jmask, seen)
         motion = stage_motion(self._motion_style(ins), rows, control_roll=self.layout.control_roll)
         motion[:, FLOWN_RATE_COLUMNS] /= flown_rate_factor(self.cfg.setpoint_lead_s, self.cfg.rate_hz)
+        if float(np.linalg.norm(subj.vel[:2])) < SETTLE_MAX_SUBJECT_SPEED_MPS:
+            # the pre-roll is not filmed: round a subject who waits on his mark it only settles the framing
+            # (held to the take's moves, the camera could not get round him to the first frame's bearing)
+            motion[self._settle_stages(now_ns, n, dt)] = 0.0
         if by_name:
             bearing = camera_bearing(x0[self.layout.P], subj.centre)
             ne = min(len(ctrl), image_targets.shape[1])
@@ -546,6 +553,11 @@ class Planner:
         return ground_band(float(np.nanmax(v)), height_m=float(xk[lay.P][2]) - ground_z, pitch_rad=float(ypr[1]),
                            focal_mm=float(xk[lay.F]), sensor_height_mm=st.sensor_height_mm,
                            min_rows=FOREGROUND_MIN_ROWS)
+
+    def _settle_stages(self, now_ns: int, n: int, dt: float) -> np.ndarray:
+        """Which of stages 1..n still lie in the take's pre-roll (recording, before instruction time 0)."""
+        t = self.recording_time_s(now_ns) + dt * np.arange(1, n + 1)
+        return (t < 0.0) & (self.state == "recording")
 
     def _rows(self, now_ns: int, ins: M.Instructions, n: int, dt: float) -> tuple[list[int], int]:
         """Instruction rows of stages 1..n and the source frame index followed now."""

@@ -226,11 +226,16 @@ def travel_residual(vel, direction, v_scale):  # noqa: ANN001, ANN201
     return ca.vertcat(sideways_velocity(vel, direction, v_scale), ca.fmin(along, 0) * v_scale)
 
 
+def along_velocity(vel, forward, v_scale):  # noqa: ANN001, ANN201
+    """The velocity along the unit world direction `forward` / v_max (a zoom flown while moving
+    along the optical axis reads as a dolly-zoom)."""
+    return (vel[0] * forward[0] + vel[1] * forward[1] + vel[2] * forward[2]) * v_scale
+
+
 def sideways_velocity(vel, forward, v_scale):  # noqa: ANN001, ANN201
     """The velocity off the unit world direction `forward` / v_max. Off the optical axis it is what
     reads as truck, pedestal or orbit; travel along the axis is left to the framing."""
-    along = vel[0] * forward[0] + vel[1] * forward[1] + vel[2] * forward[2]
-    return (vel - along * forward) * v_scale
+    return (vel - along_velocity(vel, forward, 1.0) * forward) * v_scale
 
 
 def reciprocal_targets(near_m: float, far_m: float, *, near_foreground_m: float, far_margin_inv_m: float,
@@ -457,6 +462,8 @@ class StageBuilder:
         # trucked and orbited it after the walker and the pan was read as orbit or truck; held in every
         # direction, it lost the framing (docs/planner.md, "Stand still")
         out.append((wts["motion_still"] * m[CM.STILL], sideways_velocity(x[lay.V], r[:, 0], par.v_scale)))
+        # a camera that only zooms holds its distance too: moved along the axis it reads as a dolly-zoom
+        out.append((wts["zoom_still"] * m[CM.STILL_ALONG], along_velocity(x[lay.V], r[:, 0], par.v_scale)))
         return out
 
     def _motion_terms(self, terms: NlpTerms, k: int, par: NlpParams, **at):  # noqa: ANN003, ANN202

@@ -40,3 +40,10 @@ def test_a_move_is_met_only_with_agreement_and_framing(ev):
     assert not framing["met"] and framing["framing"]["truth_joint_error"] == "missed"
     nothing = ev.judge_report({"headline": {}})
     assert not nothing["met"] and nothing["agreement"] is None and nothing["framing"]["truth_joint_error"] == "missing"
+
+
+def test_the_mark_needs_the_pre_roll_it_waits_for(ev, tmp_path, capsys):
+    # the walker waits on his mark for the pre-roll: without --preroll there is no wait to write
+    assert ev.main([str(tmp_path), "-o", str(tmp_path / "runs"), "--mark"]) == 2
+    assert "--mark needs --preroll" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists()

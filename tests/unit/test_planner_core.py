@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cinetransfer.services.planner import config as pc
+from cinetransfer.services.planner.camera_motion import MOTION_MASKS
 from cinetransfer.services.planner.core import Planner, absent_regions, instructions_from_arrays, predict_subject
 from cinetransfer.services.planner.kinematic_sim import KinematicSim
 from cinetransfer.services.planner.scenarios import reference_instructions, standing_shot, wrong_start_scene
@@ -412,3 +413,26 @@ def test_only_the_foreground_sharp_aims_at_the_ground_the_band_shows(planner, in
     assert t > 0 and dof[0, 0] == 1.0 and dof[0, 6] == pytest.approx(4.0)
     assert dof[0, 1] == pytest.approx(x_s + sigma, rel=1e-6)
     assert dof[0, 3] == pytest.approx(x_s - 4.0 * sigma, rel=1e-6)
+
+
+def test_the_pre_roll_asks_no_camera_motion(planner, instructions):
+    # given a static style (every row holds the camera still) and a take with a 0.5 s pre-roll
+    k = instructions.image_targets.shape[0]
+    ins = dataclasses.replace(instructions, camera_motion_class=["static"] * k)
+    sim = KinematicSim(wrong_start_scene())
+    assert planner.command(M.Command(action="start", args={"start_frame": 0, "preroll_s": 0.5}), T0)
+    # when the horizon (15 stages of 0.1 s) is staged 0.25 s into the pre-roll
+    now = T0 + S // 4
+    data, _ = planner._stage_data(now, ins, sim.vehicle_state(now), sim.subject_state(now))
+    # then the stages 0.35 - 0.45 s ahead are in the pre-roll (not filmed: only the framing settles)
+    # and ask nothing of the camera's motion (the side of the subject is framing); the take's stages
+    # ask the static row's hold
+    asked = data.motion[:, MOTION_MASKS].any(axis=1)
+    assert planner._settle_stages(now, 15, 0.1).tolist() == [True, True] + [False] * 13
+    assert not asked[:2].any() and asked[2:].all()
+    assert not planner._settle_stages(T0 + S, 15, 0.1).any()
+    # but round a subject already walking (1 m/s) the take's holds apply in the pre-roll too: no settle
+    # can place the camera round him, and chasing him there left it in a worse place
+    walking = dataclasses.replace(sim.subject_state(now), velocity_mps=np.array([1.0, 0.0, 0.0]))
+    data, _ = planner._stage_data(now, ins, sim.vehicle_state(now), walking)
+    assert data.motion[:, MOTION_MASKS].any(axis=1).all()

@@ -124,6 +124,9 @@ def test_log_rates_and_travel_residual_by_hand():
     s2 = math.sqrt(0.5)  # axis at 45 deg in x-y: (1, 0, 0) splits into (0.5, 0.5, 0) along, (0.5, -0.5, 0) off
     r = ca.DM(J.sideways_velocity(ca.DM([1.0, 0.0, 0.0]), ca.DM([s2, s2, 0.0]), 1.0)).full().ravel()
     assert r == pytest.approx([0.5, -0.5, 0])
+    # speed along the optical axis: 2 m/s forward at v_max 2 is 1; at 45 deg, (1, 0, 0) has sqrt(0.5) along
+    assert _f(J.along_velocity(ca.DM([2.0, 1.0, 0.0]), ca.DM([1.0, 0.0, 0.0]), 0.5)) == pytest.approx(1.0)
+    assert _f(J.along_velocity(ca.DM([1.0, 0.0, 0.0]), ca.DM([s2, s2, 0.0]), 1.0)) == pytest.approx(s2)
 
 
 def test_motion_classes_and_direction_conversion():
@@ -144,10 +147,10 @@ def _style(cls, pan=np.nan, tilt=np.nan, roll=np.nan, zoom=np.nan, travel=(0.0, 
 
 
 def test_row_terms_follow_the_class():
-    # static (hold still): every rate and the zoom asked to be 0, whatever the measured rates say
+    # static (hold still): every rate and the zoom asked to be 0, whatever the measured rates say, in place
     t = CM.row_terms(_style("static", pan=0.1, zoom=0.001), 0, control_roll=True)
-    assert t[CM.RATE_MASKS].tolist() == [1, 1, 1] and t[CM.ZOOM_MASK] == 1
-    assert not t[CM.RATES].any() and t[CM.ZOOM] == 0 and not np.delete(t, [6, 7, 8, CM.ZOOM_MASK]).any()
+    assert t[CM.RATE_MASKS].tolist() == [1, 1, 1] and t[CM.ZOOM_MASK] == 1 and t[CM.STILL] == 1
+    assert not t[CM.RATES].any() and t[CM.ZOOM] == 0 and not np.delete(t, [6, 7, 8, CM.ZOOM_MASK, CM.STILL]).any()
     assert CM.row_terms(_style("static"), 0, control_roll=False)[CM.RATE_MASKS].tolist() == [1, 1, 0]
     t = CM.row_terms(_style("pan", pan=10.0, tilt=3.0), 0, control_roll=False)
     assert t[CM.RATES.start] == pytest.approx(math.radians(10)) and t[CM.RATE_MASKS].tolist() == [1, 0, 0]
@@ -163,6 +166,11 @@ def test_row_terms_follow_the_class():
     # the class names a pan whose rate is unknown: no rate term, but the camera turned in place
     assert t[CM.STILL] == 1 and t[CM.ZOOM_MASK] == 1 and not np.delete(t, [CM.STILL, CM.ZOOM_MASK]).any()
     assert CM.row_terms(_style("pan+truck", pan=5.0, travel=(1, 0, 0)), 0, control_roll=False)[CM.STILL] == 0
+    # a zoom in place stands still along the axis too (there, moving reads as a dolly-zoom); a pan or a
+    # static row only sideways (the framing keeps a walker's size by moving along it)
+    held = {c: CM.row_terms(_style(c, pan=5.0, zoom=0.1), 0, control_roll=False)[[CM.STILL, CM.STILL_ALONG]].tolist()
+            for c in ("zoom_in", "pan+zoom_out", "pan", "static", "dolly_zoom")}
+    assert held == {"zoom_in": [1, 1], "pan+zoom_out": [1, 1], "pan": [1, 0], "static": [1, 0], "dolly_zoom": [0, 0]}
 
 
 def test_row_terms_without_a_class_use_clear_rates():
