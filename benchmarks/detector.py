@@ -160,7 +160,8 @@ def _resolution(frames: list, warmup: int, quick: bool, base: DetectorConfig) ->
         res["HOG fallback only"] = _time(lambda f, i: hog.detect(f), frames, warmup)
     with Detector(base) as det:
         res[STREAMED] = _time_stream(det, frames, warmup, 41_666_667)
-    rows = (("full, 2 threads (default)", base),) if quick else (
+    label = "full, 2 threads (default)" if base == DetectorConfig() else "full, 2 threads (--set)"
+    rows = ((label, base),) if quick else (
         ("full, 1 thread", base.replace(threads=1)), ("full, 2 threads (default)", base.replace(threads=2)),
         ("full, 2 threads, SSD every frame", base.replace(threads=2, bf_ssd_every=1)),
         ("full + HOG fallback, 2 threads", base.replace(threads=2, person_fallback="hog")))
