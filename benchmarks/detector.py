@@ -15,12 +15,22 @@ on an idle 2-core machine frames/s can reach at most 2000 / CPU-ms).
           goal (detector speed): >= 30 frames/s at 1280x720 (one person), >= 10 frames/s on TUD
 
     python benchmarks/detector.py [--frames 100] [--warmup 10]
+    python benchmarks/detector.py --quick --set bf_threads=2          # a setting tried, 1280x720 only
+    python benchmarks/detector.py --stages [--set ...]                 # thread CPU per stage, streamed
+
+`--stages` times each stage in the thread that runs it (`time.thread_time` around the stage's
+function), so its ms a frame hold on a loaded machine too; the stages overlap in four threads
+(caller: the tracking crop; pose worker: the SSD and the second look; focus worker: the edges and
+the shot signature; tail: the mask refinement, the propagation, the camera motion).
 
 Writes benchmarks/results/detector.json.
 """
 from __future__ import annotations
 
 import argparse
+import ast
+import collections
+import functools
 import os
 import time
 
@@ -28,6 +38,7 @@ import cv2
 import numpy as np
 
 from eval_detector_common import data_dir, stats, write_result
+from cinetransfer.services.detector import box_first, camera_motion, shots, subject_mask
 from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.services.detector.core import Detector
 from cinetransfer.services.detector.focus import FocusEstimator
@@ -59,7 +70,7 @@ def _time(fn, frames, warmup: int) -> dict:
             "caller_thread_cpu_ms_per_frame": 1e3 * main / len(frames), "idle_estimate_fps": 1e3 / idle_ms}
 
 
-def _time_stream(det: Detector, frames, warmup: int, period_ns: int) -> dict:
+def _time_stream(det: Detector, frames, warmup: int, period_ns: int, on_measure=lambda: None) -> dict:
     """`_time` for `Detector.process_frames` (the path of `process_source` and `cinetransfer detect`):
     frame k's tail overlaps frame k + 1's pose, so a frame's latency is not defined here; the latency
     columns give the time between consecutive measurements handed out."""
@@ -69,6 +80,7 @@ def _time_stream(det: Detector, frames, warmup: int, period_ns: int) -> dict:
 
     for _ in det.process_frames(seq(0, warmup)):
         pass
+    on_measure()  # the warm-up is over (its tails too)
     lat = []
     c0, m0, t0 = time.process_time(), time.thread_time(), time.perf_counter()
     t = t0
@@ -92,10 +104,51 @@ def _line(name: str, r: dict) -> str:
             f"(caller {r['caller_thread_cpu_ms_per_frame']:5.1f})   idle est. {r['idle_estimate_fps']:5.1f} frames/s")
 
 
-def _resolution(frames: list, warmup: int, quick: bool) -> dict:
-    """Every row at one resolution (`quick`: the default detector only, per frame and streamed)."""
+#: (owner, function, stage name) timed by `--stages`
+STAGES = ((box_first.BoxFirstPose, "landmarks", "landmark crops"), (box_first.BoxFirstPose, "boxes", "SSD"),
+          (box_first.BoxFirstPose, "_candidate", "candidates"), (FocusEstimator, "measure_edges", "focus edges"),
+          (FocusEstimator, "propagate", "focus propagation"), (subject_mask, "refine_people", "mask refinement"),
+          (camera_motion.CameraMotionTracker, "update", "camera motion"), (shots, "colour_signature", "shot signature"))
+
+
+def _stages(frames: list, warmup: int, cfg: DetectorConfig) -> dict:
+    """Thread CPU per stage a frame and calls a frame, streamed (each stage timed in its own thread)."""
+    cpu: dict = collections.defaultdict(float)
+    calls: dict = collections.defaultdict(int)
+    saved = [(owner, name, getattr(owner, name)) for owner, name, _ in STAGES]
+
+    def timed(fn, label):
+        @functools.wraps(fn)
+        def run(*a, **k):
+            t0 = time.thread_time()
+            try:
+                return fn(*a, **k)
+            finally:
+                cpu[label] += time.thread_time() - t0
+                calls[label] += 1
+        return run
+
+    try:
+        for (owner, name, label), (_, _, fn) in zip(STAGES, saved):
+            setattr(owner, name, timed(fn, label))
+        with Detector(cfg) as det:
+            whole = _time_stream(det, frames, warmup, 41_666_667, on_measure=lambda: (cpu.clear(), calls.clear()))
+    finally:
+        for owner, name, fn in saved:
+            setattr(owner, name, fn)
+    n = len(frames)
+    out = {label: {"cpu_ms_per_frame": 1e3 * cpu[label] / n, "calls_per_frame": calls[label] / n}
+           for _, _, label in STAGES}
+    for label, r in sorted(out.items(), key=lambda kv: -kv[1]["cpu_ms_per_frame"]):
+        print(f"  {label:<20} {r['cpu_ms_per_frame']:6.1f} ms CPU a frame   {r['calls_per_frame']:.2f} calls a frame")
+    print(f"  {'process':<20} {whole['cpu_ms_per_frame']:6.1f} ms CPU a frame   (caller thread "
+          f"{whole['caller_thread_cpu_ms_per_frame']:.1f})")
+    return out
+
+
+def _resolution(frames: list, warmup: int, quick: bool, base: DetectorConfig) -> dict:
+    """Every row at one resolution (`quick`: the detector only, per frame and streamed)."""
     res: dict = {}
-    base = DetectorConfig()
     if not quick:
         for be in ("box_first", "mediapipe"):
             with Detector(base.replace(backend=be, focus=False, threads=1)) as det:
@@ -107,7 +160,8 @@ def _resolution(frames: list, warmup: int, quick: bool) -> dict:
         res["HOG fallback only"] = _time(lambda f, i: hog.detect(f), frames, warmup)
     with Detector(base) as det:
         res[STREAMED] = _time_stream(det, frames, warmup, 41_666_667)
-    rows = (("full, 2 threads (default)", base),) if quick else (
+    label = "full, 2 threads (default)" if base == DetectorConfig() else "full, 2 threads (--set)"
+    rows = ((label, base),) if quick else (
         ("full, 1 thread", base.replace(threads=1)), ("full, 2 threads (default)", base.replace(threads=2)),
         ("full, 2 threads, SSD every frame", base.replace(threads=2, bf_ssd_every=1)),
         ("full + HOG fallback, 2 threads", base.replace(threads=2, person_fallback="hog")))
@@ -146,17 +200,29 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--warmup", type=int, default=10)
     ap.add_argument("--quick", action="store_true",
-                    help="1280x720 only, the default detector per frame and streamed; writes no result file")
+                    help="1280x720 only, the detector per frame and streamed; writes no result file")
+    ap.add_argument("--stages", action="store_true",
+                    help="1280x720 streamed: thread CPU per stage a frame; writes no result file")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="DetectorConfig overrides for the 1280x720 rows (--quick or --stages only)")
     a = ap.parse_args()
+    if a.set and not (a.quick or a.stages):
+        ap.error("--set needs --quick or --stages (the result file holds the default settings)")
+    base = DetectorConfig(**{kv.split("=", 1)[0]: ast.literal_eval(kv.split("=", 1)[1]) for kv in a.set})
     src = [f.image for f in iter_frames(data_dir() / "sam2_juggle_1280x720.mp4", stop=a.frames)]
     load = os.getloadavg()[0]
     print(f"load average before: {load:.2f} on {os.cpu_count()} CPUs "
           f"({'quiet' if load < 0.5 else 'UNDER LOAD: numbers are pessimistic'})")
+    if a.stages:
+        print(f"1280x720, {len(src)} frames, streamed, thread CPU per stage:")
+        _stages([cv2.resize(img, (1280, 720), interpolation=cv2.INTER_AREA) for img in src], a.warmup, base)
+        print(f"load average after: {os.getloadavg()[0]:.2f}")
+        return
     results: dict = {}
     for w, h in RESOLUTIONS[-1:] if a.quick else RESOLUTIONS:
         frames = [cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA) for img in src]
         print(f"{w}x{h}, {len(frames)} frames:")
-        results[f"{w}x{h}"] = _resolution(frames, a.warmup, a.quick)
+        results[f"{w}x{h}"] = _resolution(frames, a.warmup, a.quick, base)
     if not a.quick:
         tud = [f.image for f in iter_frames(data_dir() / "tud_stadtmitte_640x480.mp4", stop=a.frames)]
         print(f"TUD-Stadtmitte 640x480, {len(tud)} frames:")

@@ -48,8 +48,8 @@ class DetectorConfig:
     # bf_ssd_skip_max_people of them: in a crowd people come and go) was confirmed by it, is followed by its
     # landmarks again (pose flag >= bf_track_min_pose_flag) and no one is missing; between, a person's box is
     # its mask's box carried by the last SSD box's offset from it. 1 = every frame. A person entering the
-    # frame is found at most N - 1 frames late (5 at 6: 0.21 s at 24 frames/s)
-    bf_ssd_every: int = setting(6, flag="--ssd-every", range="[1, 10]", metavar="N",
+    # frame is found at most N - 1 frames late (9 at 10: 0.375 s at 24 frames/s)
+    bf_ssd_every: int = setting(10, flag="--ssd-every", range="[1, 10]", metavar="N",
                                 help="box_first, video mode: run the person-box SSD every Nth frame while "
                                      "everyone is followed by landmarks (1 = every frame)")
     bf_ssd_skip_max_people: int = 2  # ... only while at most this many people are followed, 1..50
