@@ -79,7 +79,7 @@ class WorldRenderer:
 
     def subject_joints(self, t_s: float, camera_pos_m: np.ndarray) -> np.ndarray:
         """The person's COCO-17 joints [m, world] at t_s (the same whatever the camera: a real body)."""
-        return self.actor.body_at(t_s).joints_m
+        return self.actor.joints_at(t_s)
 
     def subject_heading(self, t_s: float) -> float:
         return self.actor.heading_at(t_s)
