@@ -110,6 +110,7 @@ class Recorder:
         #: both streams hold the same frames in the same order; `_packet`: the frame in hand's H.264
         self._shared = True
         self._packet: bytes | None = None
+        self._msg: Any = None  #: the message in hand, when decoded already (run.mcap's views need it too)
         self._q: queue.SimpleQueue = queue.SimpleQueue()
         self._progress = threading.Condition()
         self._worker = threading.Thread(target=self._work, name="recorder", daemon=True)
@@ -128,7 +129,7 @@ class Recorder:
                 return
             key, payload = item
             keep = True
-            self._packet = None
+            self._packet = self._msg = None
             try:
                 keep = self._handle(key, payload)
             except codec.DecodeError:
@@ -149,7 +150,7 @@ class Recorder:
             self._shared = False  # run.mcap gets a frame output.mp4's stream has not: the streams part here
         try:
             self._check_space()
-            self.log.write(key, payload, video_packet=packet)
+            self.log.write(key, payload, video_packet=packet, msg=self._msg)
         except OSError as e:
             self._fail(e)
 
@@ -200,7 +201,7 @@ class Recorder:
     def _handle_take(self, key: str, payload: bytes) -> bool:
         if self._window is None:
             return False  # not armed: no take yet
-        msg = codec.decode(payload)
+        msg = self._msg = codec.decode(payload)  # kept for run.mcap's views: decoded once
         # (real time: the frame shown first may be a bit older than the window)
         start = self._window.epoch_ns if self._window.exact else self._window.t0_ns - 10**9
         if not isinstance(msg, (M.Frame, M.GroundTruth)) or msg.stamp_ns < start:

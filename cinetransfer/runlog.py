@@ -207,14 +207,16 @@ def _encoded(streams: dict[str, H264Stream], key: str, img: np.ndarray, fps: flo
 
 
 def views(key: str, payload: bytes, *, jpeg_quality: int = JPEG_QUALITY,
-          video: dict[str, H264Stream] | None = None, packet: bytes | None = None) -> list[View]:
+          video: dict[str, H264Stream] | None = None, packet: bytes | None = None, msg: Any = None) -> list[View]:
     """What one message of the rig becomes in a recording or the live view (see the module doc).
     `video`: the H.264 streams of the frame topics (a recording's; None = JPEG frames); `packet`:
-    this frame's H.264, encoded already by the caller as the next frame of the topic's stream."""
-    try:
-        msg = codec.decode(payload)
-    except codec.DecodeError:
-        return [View(key, "", "", b"", RAW_ENCODING, bytes(payload), "raw")]
+    this frame's H.264, encoded already by the caller as the next frame of the topic's stream;
+    `msg`: the payload decoded already by the caller (None: decoded here)."""
+    if msg is None:
+        try:
+            msg = codec.decode(payload)
+        except codec.DecodeError:
+            return [View(key, "", "", b"", RAW_ENCODING, bytes(payload), "raw")]
     rig = _rig_of(key)
     tf = f"{keys.ROOT}/{rig}/tf"
     if isinstance(msg, M.Frame):
@@ -277,13 +279,15 @@ class RunWriter:
             self._channels[ck] = cid
         return cid
 
-    def write(self, key: str, payload: bytes, t_ns: int | None = None, *, video_packet: bytes | None = None) -> None:
+    def write(self, key: str, payload: bytes, t_ns: int | None = None, *, video_packet: bytes | None = None,
+              msg: Any = None) -> None:
         """`video_packet`: a frame's H.264 from the caller's encoder (the recorder's output.mp4, one
         encode for both), the next packet of that encoder's stream: a stream that switches encoder
-        must begin again at a keyframe, which the caller sees to."""
+        must begin again at a keyframe, which the caller sees to. `msg`: `payload` decoded already
+        by the caller (the recorder decodes the take's frames and truths: not twice)."""
         t = time.time_ns() if t_ns is None else t_ns
         try:
-            vs = views(key, payload, jpeg_quality=self.jpeg_quality, video=self._video, packet=video_packet)
+            vs = views(key, payload, jpeg_quality=self.jpeg_quality, video=self._video, packet=video_packet, msg=msg)
         except Exception as e:  # noqa: BLE001 - a message we cannot translate is still kept, as it travelled
             self.errors += 1
             if self.errors <= 5 or self.errors % 1000 == 0:

@@ -287,7 +287,12 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
                          pool=figure_worker)
     floor_summary, floor = floor_facts(source, truths, meta, fid, floor_ahead)
     _, src_idx, out_idx = figs.frame_picks(s)
-    keep: tuple[dict, dict] = ({i: None for i in src_idx}, {i: None for i in out_idx})
+    from cinetransfer.report.people import make_people, middle_frame_index
+
+    # the people picture's source frame is kept from the video's decode too (a seek decodes again)
+    mid = middle_frame_index(source_video) if meta.get("subject") and source_video else None
+    keep: tuple[dict, dict] = ({i: None for i in [*src_idx, *([mid] if mid is not None else [])]},
+                               {i: None for i in out_idx})
     video, video_error = None, ""
     try:
         from cinetransfer.report.video import side_by_side
@@ -297,7 +302,9 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
     except Exception as e:  # noqa: BLE001 - the numbers are still worth a report
         video_error = f"{type(e).__name__}: {e}"
         log.warning("side-by-side video not made: %s", video_error)
-    decoded = tuple({i: im for i, im in d.items() if im is not None} for d in keep) if video else None
+    decoded = tuple({i: im for i, im in d.items() if im is not None and i in picks}
+                    for d, picks in zip(keep, (set(src_idx), set(out_idx)))) if video else None
+    middle = keep[0].get(mid) if video and mid is not None else None  # RGB, as the figures keep them
     frames = figs.Drawing(outdir, fig_series, [figs.FRAMES_FIGURE], pool=figure_worker, source_video=source_video,
                           output_video=output_video, credit=credit, decoded=decoded)
 
@@ -307,10 +314,9 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
         if run and truths else []
     motion, motion_fig = camera_motion_facts(outdir, source, output, states, truths, segs, figure_worker)
 
-    from cinetransfer.report.people import make_people
-
     try:
-        people = make_people(outdir, meta, source_video)
+        people = make_people(outdir, meta, source_video,
+                             middle=None if middle is None else cv2.cvtColor(middle, cv2.COLOR_RGB2BGR))
     except (OSError, ValueError, KeyError, cv2.error) as e:  # the report never fails on this picture
         people = {"error": str(e)}
     shots = per_shot(source, output, list(truths), output_fps, meta.get("takes"), floor)

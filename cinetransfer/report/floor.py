@@ -145,7 +145,7 @@ def body_joints(sc: Scene, stamps_ns: Sequence[int], epoch_ns: int,
     idx = _coco_index(joint_names)
     out = np.full((len(stamps_ns), len(joint_names), 3), np.nan)
     for i, stamp in enumerate(stamps_ns):
-        joints = actor.body_at((int(stamp) - int(epoch_ns)) * 1e-9).joints_m
+        joints = actor.joints_at((int(stamp) - int(epoch_ns)) * 1e-9)
         for e, j in enumerate(idx):
             if j >= 0:
                 out[i, e] = joints[j]

@@ -44,18 +44,32 @@ def _fit(img: np.ndarray) -> np.ndarray:
     return cv2.resize(img, (max(1, int(round(img.shape[1] * s))), HEIGHT_PX), interpolation=cv2.INTER_AREA)
 
 
-def make_people(outdir: Path, meta: dict[str, Any], source_video: str | Path | None) -> dict[str, Any]:
-    """{'source_person', 'target_person', 'figure' (path or None)}; writes fig_people.png."""
+def middle_frame_index(source_video: str | Path | None) -> int | None:
+    """The index of the source frame the picture shows (None: the video cannot be opened)."""
+    cap = cv2.VideoCapture(str(source_video))
+    try:
+        return max(0, int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0) // 2) if cap.isOpened() else None
+    finally:
+        cap.release()
+
+
+def make_people(outdir: Path, meta: dict[str, Any], source_video: str | Path | None,
+                middle: np.ndarray | None = None) -> dict[str, Any]:
+    """{'source_person', 'target_person', 'figure' (path or None)}; writes fig_people.png. `middle`:
+    the source's frame `middle_frame_index` (BGR) when the caller decoded it already (else it is
+    sought and decoded here: the same pixels)."""
     out = {"source_person": source_person(source_video), "target_person": meta.get("target_person"),
            "subject": meta.get("subject"), "figure": None}
     subject = meta.get("subject")
     if not subject:
         return out
-    cap = cv2.VideoCapture(str(source_video))
-    n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
-    cap.set(cv2.CAP_PROP_POS_FRAMES, max(0, n // 2))
-    ok, frame = cap.read()
-    cap.release()
+    ok, frame = middle is not None, middle
+    if not ok:
+        cap = cv2.VideoCapture(str(source_video))
+        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+        cap.set(cv2.CAP_PROP_POS_FRAMES, max(0, n // 2))
+        ok, frame = cap.read()
+        cap.release()
     cut = _cutout(subject)
     if not ok or cut is None:
         return out

@@ -227,3 +227,51 @@ def test_each_person_is_detected_once_from_front_side_and_back(pose_detector, pe
     # nested in hers, arms raised, both skeletons on her, were 22/24 before duplicate removal looked at
     # nested boxes)
     assert once >= 0.95 * visible, f"{person}: detected as exactly one person in {once}/{visible} views"
+
+
+def _views_round(scene, n: int) -> list[View]:
+    v = scene.vehicle
+    return [View(np.array(v.position_m, float) + [0.5 * k, -0.3 * k, 0.2 * k],
+                 np.array(v.camera_ypr_rad, float) + np.radians([7.0 * k - 10.0, -2.0 * k, 0.0]),
+                 v.focal_length_mm + 5.0 * k, 6.0, 2.8, 320, 180) for k in range(n)]
+
+
+@pytest.mark.parametrize("scene_name", ["open_country", "focus_hedge"])
+def test_a_frame_drawn_for_its_truth_alone_has_the_pictures_depths_and_surfaces(scene_name):
+    """The truth of a frame without its picture (pre-roll, settle, idle) is a depth-only draw: no
+    shading and no texture but a cut-out's alpha; its depths, surface ids and truth are the colour
+    draw's to the bit, cut-outs included."""
+    from cinetransfer.services.autopilot_bridge.sim.renderer3d import WorldRenderer
+
+    _canvas_or_skip(8, 8).close()
+    r = WorldRenderer(load_scene(scene_name), 320, 180)
+    try:
+        views = _views_round(r.scene, 4)
+        assert any(m.alpha for m in r.meshes(views[0], r.body_at(0.0), 0.0))  # a cut-out is drawn
+        for k, view in enumerate(views):
+            t = 0.4 * k
+            bgr, depth, surface, _ = r.draw(view, t)
+            none, depth_only, surface_only, _ = r.draw(view, t, colour=False)
+            assert none is None and bgr is not None
+            assert np.array_equal(depth, depth_only) and np.array_equal(surface, surface_only)
+            _, geo = r.render(view, t)
+            alone = r.truth_only(view, t)
+            assert alone.keys() == geo.keys()
+            for name, value in geo.items():
+                if isinstance(value, np.ndarray):
+                    assert np.array_equal(value, alone[name], equal_nan=value.dtype.kind == "f"), name
+        assert len({s.tobytes() for s in [r.draw(v, 0.0, colour=False)[2] for v in views]}) > 1  # views differ
+    finally:
+        r.close()
+
+
+def test_the_subjects_joints_alone_are_the_skinned_bodys():
+    """The subject's state and the report's floor pose the joints without skinning the mesh: the same
+    float numbers as the whole body's."""
+    from cinetransfer.services.autopilot_bridge.sim.actor import Actor
+
+    spec = load_scene("courtyard").subject
+    whole, alone = Actor(spec), Actor(spec)
+    for t in np.arange(0.0, 12.0, 0.37):
+        a, b = whole.body_at(float(t)).joints_m, alone.joints_at(float(t))
+        assert a.dtype == b.dtype and np.array_equal(a, b)

@@ -81,23 +81,38 @@ class Actor:
         last = self._last  # one read: the render thread and the control loop both ask
         if last is not None and last[0] == t_s:
             return last[1]
-        body = self._body_at(t_s)
+        pose, motion, t_motion, heading = self._placing(t_s)
+        posed = self.person.pose(motion, t_motion)
+        verts, joints = self._placed(motion, t_motion, heading, pose, posed.vertices_m, posed.joints_m)
+        body = Body(vertices_m=verts.astype(np.float32), joints_m=joints, heading_rad=heading, pose=pose)
         self._last = (t_s, body)
         return body
 
-    def _body_at(self, t_s: float) -> Body:
+    def joints_at(self, t_s: float) -> np.ndarray:
+        """(17, 3) COCO-17 joints [m, world] at t_s: `body_at(t_s).joints_m`, the same numbers,
+        without skinning the mesh (the subject's state at every step, the report's floor)."""
+        last = self._last
+        if last is not None and last[0] == t_s:
+            return last[1].joints_m
+        pose, motion, t_motion, heading = self._placing(t_s)
+        return self._placed(motion, t_motion, heading, pose, None, self.person.pose_joints(motion, t_motion))[1]
+
+    def _placing(self, t_s: float):
+        """(the script's pose, the motion playing, the time in it, the heading) at t_s."""
         pose = self.script.pose_at(t_s)
         t, k = self.heading.segment_at(t_s)
         seg_t0 = self.script.segments[k][0]
         motion = motion_for(pose.action)
         speed = float(np.hypot(*pose.velocity_mps[:2]))
         rate = speed / motion.speed_mps if (motion.speed_mps and speed > 0) else 1.0
-        t_motion = max(t - seg_t0, 0.0) * rate
-        posed = self.person.pose(motion, t_motion)
-        heading = self.heading_at(t_s)
+        return pose, motion, max(t - seg_t0, 0.0) * rate, self.heading_at(t_s)
+
+    @staticmethod
+    def _placed(motion, t_motion: float, heading: float, pose: SubjectPose, vertices_m, joints_m):
+        """The posed body's vertices (None: not wanted) and joints [m, world] where the script puts it."""
         rot = yaw_matrix(heading)
         # a moving motion's mean advance is the script's to make (the body's own sway and bob stay)
         origin = np.array([(motion.speed_mps or 0.0) * t_motion, 0.0, 0.0])
-        verts = (np.asarray(posed.vertices_m, float) - origin) @ rot.T + pose.position_m
-        joints = (np.asarray(posed.joints_m, float) - origin) @ rot.T + pose.position_m
-        return Body(vertices_m=verts.astype(np.float32), joints_m=joints, heading_rad=heading, pose=pose)
+        verts = None if vertices_m is None else (np.asarray(vertices_m, float) - origin) @ rot.T + pose.position_m
+        joints = (np.asarray(joints_m, float) - origin) @ rot.T + pose.position_m
+        return verts, joints

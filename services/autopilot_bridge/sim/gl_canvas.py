@@ -113,9 +113,25 @@ _FRAGMENT_TAIL = """
 """
 
 
-def fragment_source(mode: str, detail: bool, lit: bool, alpha: bool = False) -> str:
+#: a depth-only draw (the truth of a frame without its picture): no colour is computed, and only a
+#: cut-out samples its texture, for the alpha that decides which of its pixels exist (the very test of
+#: the colour pass, so the depth and surface ids are the same bytes)
+_FRAGMENT_DEPTH_ONLY = """
+void main() {
+#ifdef ALPHA
+    if (textureLod(tex, v_uv, area_lod(tex, v_uv)).a < 0.5) discard;
+#endif
+    f_color = vec4(0.0, 0.0, 0.0, 1.0);
+"""
+_AREA_LOD = _FRAGMENT_BODY["uv"][:_FRAGMENT_BODY["uv"].index("void main()")]
+
+
+def fragment_source(mode: str, detail: bool, lit: bool, alpha: bool = False, depth_only: bool = False) -> str:
     defines = "".join(f"#define {d}\n" for d, on in (("DETAIL", detail), ("LIT", lit), ("ALPHA", alpha)) if on)
     head = _FRAGMENT_HEAD.replace("#version 330\n", "#version 330\n" + defines, 1)
+    if depth_only:
+        return head + (_AREA_LOD if alpha else "") + _FRAGMENT_DEPTH_ONLY + _FRAGMENT_TAIL[_FRAGMENT_TAIL.index(
+            "    f_depth_id"):]
     return head + _FRAGMENT_BODY[mode] + _FRAGMENT_TAIL
 
 
@@ -166,7 +182,8 @@ class GLCanvas:
         self._owner: int | None = None
         self._textures: dict[str, tuple[np.ndarray, bool]] = {}
         self._gl_textures: dict = {}
-        self._static: dict[str, tuple] = {}
+        self._static: dict[str, tuple] = {}  # mesh name -> (vertex buffer, index buffer, shape)
+        self._vaos: dict[tuple[str, tuple], object] = {}  # (mesh name, program key) -> its vertex array
 
     # -- resources -------------------------------------------------------------------------
     def add_texture(self, key: str, bgr: np.ndarray, repeat: bool = True) -> None:
@@ -193,7 +210,7 @@ class GLCanvas:
 
         ctx = self._ctx
         self._cull_face = moderngl.CULL_FACE
-        self._programs: dict[tuple[str, bool, bool, bool], object] = {}
+        self._programs: dict[tuple[str, bool, bool, bool, bool], object] = {}
         self._color = ctx.renderbuffer((self.width, self.height), 4)
         self._depth_id = ctx.renderbuffer((self.width, self.height), 2, dtype="f4")
         self._zbuf = ctx.depth_renderbuffer((self.width, self.height))
@@ -207,8 +224,13 @@ class GLCanvas:
             t.filter = (moderngl.LINEAR_MIPMAP_NEAREST, moderngl.LINEAR)
             self._gl_textures[key] = t
 
-    def _program(self, mesh: MeshData):
-        key = (mesh.mode, mesh.detail is not None and mesh.detail_gain > 0, mesh.lit, mesh.alpha)
+    @staticmethod
+    def _program_key(mesh: MeshData, depth_only: bool) -> tuple:
+        if depth_only:  # one program for every mesh but the cut-outs
+            return (mesh.mode if mesh.alpha else "uv", False, False, mesh.alpha, True)
+        return (mesh.mode, mesh.detail is not None and mesh.detail_gain > 0, mesh.lit, mesh.alpha, False)
+
+    def _program(self, key: tuple):
         prog = self._programs.get(key)
         if prog is None:
             prog = self._ctx.program(vertex_shader=_VERTEX, fragment_shader=fragment_source(*key))
@@ -218,35 +240,51 @@ class GLCanvas:
             self._programs[key] = prog
         return prog
 
-    def _vao(self, mesh: MeshData, static: bool):
-        """The mesh's vertex array: made on first use, its buffers rewritten each draw unless `static`."""
+    def _vao(self, mesh: MeshData, static: bool, key: tuple):
+        """The mesh's vertex array for program `key`: its buffers made on first use and rewritten each
+        draw unless `static`; one vertex array per program that draws it, on the same buffers."""
         cached = self._static.get(mesh.name)
         shape = (len(mesh.vertices), len(mesh.faces))
-        if cached is not None and static:
-            return cached[2]
+        if cached is None or not (static or cached[2] == shape):
+            self._rebuffer(mesh, shape)
+        elif not static:
+            vbo, ibo, _ = cached
+            vbo.write(self._vertex_bytes(mesh, shape))
+            ibo.write(np.ascontiguousarray(mesh.faces, np.int32).tobytes())
+        vao = self._vaos.get((mesh.name, key))
+        if vao is None:
+            vbo, ibo, _ = self._static[mesh.name]
+            vao = self._ctx.vertex_array(self._program(key), [(vbo, "3f 2f 3f", "in_pos", "in_uv", "in_col")],
+                                         index_buffer=ibo, index_element_size=4, skip_errors=True)
+            self._vaos[(mesh.name, key)] = vao
+        return vao
+
+    @staticmethod
+    def _vertex_bytes(mesh: MeshData, shape: tuple[int, int]) -> bytes:
         n = shape[0]
         uv = mesh.uv if mesh.uv is not None else np.zeros((n, 2), np.float32)
         col = mesh.colours if mesh.colours is not None else np.ones((n, 3), np.float32)
-        data = np.hstack([mesh.vertices, uv, col]).astype(np.float32).tobytes()
-        faces = np.ascontiguousarray(mesh.faces, np.int32).tobytes()
-        if cached is not None and cached[3] == shape:
-            cached[0].write(data)
-            cached[1].write(faces)
-            return cached[2]
+        return np.hstack([mesh.vertices, uv, col]).astype(np.float32).tobytes()
+
+    def _rebuffer(self, mesh: MeshData, shape: tuple[int, int]) -> None:
+        """New buffers for `mesh` (first use, or another size): its vertex arrays are made again."""
+        cached = self._static.pop(mesh.name, None)
+        for k in [k for k in self._vaos if k[0] == mesh.name]:
+            self._vaos.pop(k).release()
         if cached is not None:
-            for obj in cached[:3]:
+            for obj in cached[:2]:
                 obj.release()
-        vbo, ibo = self._ctx.buffer(data), self._ctx.buffer(faces)
-        vao = self._ctx.vertex_array(self._program(mesh), [(vbo, "3f 2f 3f", "in_pos", "in_uv", "in_col")],
-                                     index_buffer=ibo, index_element_size=4, skip_errors=True)
-        self._static[mesh.name] = (vbo, ibo, vao, shape)
-        return vao
+        faces = np.ascontiguousarray(mesh.faces, np.int32).tobytes()
+        self._static[mesh.name] = (self._ctx.buffer(self._vertex_bytes(mesh, shape)), self._ctx.buffer(faces), shape)
 
     # -- drawing ---------------------------------------------------------------------------
     def draw(self, meshes: list[MeshData], position_m: np.ndarray, ypr_rad: np.ndarray, focal_mm: float,
-             sensor: cam.Sensor, static: set[str] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             sensor: cam.Sensor, static: set[str] | None = None, colour: bool = True
+             ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
         """(BGR uint8 (h, w, 3), depth [m] float32 (h, w), surface uint8 (h, w)) of `meshes` seen by
-        the camera; meshes named in `static` keep the vertex buffer of their first draw."""
+        the camera; meshes named in `static` keep the vertex buffer of their first draw. `colour`
+        False: depth and surface only (the same bytes), no picture (None): no texture is sampled but
+        a cut-out's alpha, and nothing is shaded."""
         import moderngl
 
         ctx = self._context()
@@ -260,9 +298,11 @@ class GLCanvas:
         static = static or set()
         camera = {"mvp": mvp.T.astype(np.float32).tobytes(), "depth_row": tuple(float(x) for x in row)}
         for mesh in meshes:
-            self._draw_one(mesh, mesh.name in static, camera)
-        bgr = np.empty((self.height, self.width, 3), np.uint8)  # a new array each frame: frames are handed on
-        self._fbo.read_into(bgr, components=3, attachment=0, alignment=1)
+            self._draw_one(mesh, mesh.name in static, camera, not colour)
+        bgr = None
+        if colour:
+            bgr = np.empty((self.height, self.width, 3), np.uint8)  # a new array each frame: frames are handed on
+            self._fbo.read_into(bgr, components=3, attachment=0, alignment=1)
         di = np.empty((self.height, self.width, 2), np.float32)
         self._fbo.read_into(di, components=2, attachment=1, dtype="f4", alignment=1)
         surface = di[..., 1].astype(np.uint8)
@@ -270,9 +310,10 @@ class GLCanvas:
         depth[surface == SURFACE_SKY] = SKY_DEPTH
         return bgr, depth, surface
 
-    def _draw_one(self, mesh: MeshData, static: bool, camera: dict) -> None:
-        p = self._program(mesh)
-        vao = self._vao(mesh, static)
+    def _draw_one(self, mesh: MeshData, static: bool, camera: dict, depth_only: bool = False) -> None:
+        key = self._program_key(mesh, depth_only)
+        p = self._program(key)
+        vao = self._vao(mesh, static, key)
         p["mvp"].write(camera["mvp"])
         p["depth_row"].value = camera["depth_row"]
         values = {"detail_period_m": float(mesh.detail_period_m), "detail_gain": float(mesh.detail_gain),
@@ -289,7 +330,7 @@ class GLCanvas:
             self._ctx.disable(self._cull_face)
         if mesh.texture is not None:
             self._gl_textures[mesh.texture].use(0)
-        if mesh.detail is not None:
+        if mesh.detail is not None and not depth_only:
             self._gl_textures[mesh.detail].use(1)
         vao.render(mode=self._ctx.TRIANGLES)
 

@@ -135,18 +135,29 @@ class Person:
 
     def pose(self, motion: Motion, t_s: float) -> Posed:
         """The body at time `t_s` of `motion` (see the module docstring for the frame)."""
+        return self.skin(*self._bones_at(motion, t_s))
+
+    def pose_joints(self, motion: Motion, t_s: float) -> np.ndarray:
+        """(17, 3) float32: `pose(motion, t_s).joints_m`, the same numbers, without skinning the mesh
+        (the subject's state and the report's floor need the joints only)."""
+        g, p = forward_kinematics(self.bone_heads_m, *self._bones_at(motion, t_s))
+        return self._joints(g, p)
+
+    def _bones_at(self, motion: Motion, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         quats, offset = motion.sample(t_s)
-        offset = offset * np.array([1.0, 1.0, self.root_height_scale], np.float32)
-        return self.skin(quat_to_matrix(quats), offset)
+        return quat_to_matrix(quats), offset * np.array([1.0, 1.0, self.root_height_scale], np.float32)
 
     def skin(self, rotations: np.ndarray, root_offset: np.ndarray) -> Posed:
         """Skin with (B, 3, 3) local rotations (world-aligned axes) and the root's (3,) offset from rest."""
         g, p = forward_kinematics(self.bone_heads_m, rotations, root_offset)
         v = skin_vertices(self.vertices_m, self.skin_bones, self.skin_weights, bone_matrices(g, p, self.bone_heads_m))
+        return Posed(vertices_m=v.astype(np.float32), joints_m=self._joints(g, p), root_m=p[0].astype(np.float32))
+
+    def _joints(self, g: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """The COCO-17 joints (17, 3) float32 of the bones' world rotations g and heads p."""
         joints = (np.einsum("bij,kbj->ki", g, self.joint_moments)
                   + self.joint_weights @ (p - np.einsum("bij,bj->bi", g, self.bone_heads_m)))
-        return Posed(vertices_m=v.astype(np.float32), joints_m=joints.astype(np.float32),
-                     root_m=p[0].astype(np.float32))
+        return joints.astype(np.float32)
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:

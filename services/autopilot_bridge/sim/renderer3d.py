@@ -79,7 +79,7 @@ class WorldRenderer:
 
     def subject_joints(self, t_s: float, camera_pos_m: np.ndarray) -> np.ndarray:
         """The person's COCO-17 joints [m, world] at t_s (the same whatever the camera: a real body)."""
-        return self.actor.body_at(t_s).joints_m
+        return self.actor.joints_at(t_s)
 
     def subject_heading(self, t_s: float) -> float:
         return self.actor.heading_at(t_s)
@@ -98,11 +98,12 @@ class WorldRenderer:
         out += [layer_mesh(i, spec, size, view.position_m, yaw, cut) for i, spec, size, cut in self._layers]
         return out
 
-    def draw(self, view: View, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, Body]:
-        """(sharp BGR image, depth [m], surface ids, the body) of the view at t_s."""
+    def draw(self, view: View, t_s: float,
+             colour: bool = True) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, Body]:
+        """(sharp BGR image (None without `colour`), depth [m], surface ids, the body) of the view at t_s."""
         body = self.body_at(t_s)
         bgr, depth, surface = self.canvas.draw(self.meshes(view, body, t_s), view.position_m, view.ypr_rad,
-                                               view.focal_mm, view.sensor, static=self._static_names)
+                                               view.focal_mm, view.sensor, static=self._static_names, colour=colour)
         return bgr, depth, surface, body
 
     def render(self, view: View, t_s: float, *, truth: bool = True) -> tuple[np.ndarray, dict]:
@@ -115,8 +116,9 @@ class WorldRenderer:
         return img, geo
 
     def truth_only(self, view: View, t_s: float) -> dict:
-        """The truth of a frame without its image (a render with truth but no picture)."""
-        _, depth, surface, body = self.draw(view, t_s)
+        """The truth of a frame without its image (a render with truth but no picture): a depth-only
+        draw, whose depths and surface ids are the colour draw's bytes."""
+        _, depth, surface, body = self.draw(view, t_s, colour=False)
         geo = self.geometry(view, body)
         geo.update(self.truth(view, depth, surface, geo))
         return geo
