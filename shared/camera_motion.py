@@ -183,13 +183,15 @@ _DIRECTIONS = _hemisphere(48)
 
 
 def fit_rotation_translation(p0: np.ndarray, p1: np.ndarray, f: float, rot0: np.ndarray, *, inlier_px: float,
-                             iters: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                             iters: int = 5, shown: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rotation (3,) [rad], translation direction (3,) and inliers (N,) moving p0 to p1 with
     parallax: alternate the direction given the rotation and the rotation given the direction
-    (linear in each), from `rot0`, dropping the points far off the model (moving things); and again
-    from the optical axis, keeping the one that explains more points. The depth of every point is
-    eliminated, so a zoom and a dolly past a flat background are the same
-    to it: call it only when rotation + zoom does not explain the points."""
+    (linear in each), from `rot0`, dropping the points far off the model (moving things). When that
+    explains at least the share `shown` of the points (a translation is seen), the alternation runs
+    again from the optical axis and the one that explains more points is kept: it chooses the
+    direction, never whether there is one. The depth of every point is eliminated, so a zoom and a
+    dolly past a flat background are the same to it: call it only when rotation + zoom does not
+    explain the points."""
     mid, flow = 0.5 * (p0 + p1), p1 - p0
     basis = rotation_zoom_basis(mid, f)[:, :, :3]
     rot = np.asarray(rot0, dtype=float).copy()
@@ -205,11 +207,14 @@ def fit_rotation_translation(p0: np.ndarray, p1: np.ndarray, f: float, rot0: np.
                  for r_c in [rotation_given_direction(p0, p1, f, c, use, inlier_px=inlier_px)]), key=lambda x: x[0])
     if found[0] > SEARCH_MARGIN * best:  # only a clearly better start: near ties keep the first fit's rotation
         t, rot = found[1], found[2]
-    fits = [_alternate(p0, p1, f, start, inlier_px, iters) for start in (t, _OPTICAL_AXIS)]
+    first = _alternate(p0, p1, f, t, inlier_px, iters)
+    if first[2].mean() < shown:
+        return first
     # the alternation settles where it starts: past a dolly-zoom a start off to the side settled on
     # a truck with a pan that explains fewer points than the dolly; the one from the optical axis
     # is kept when it explains more
-    return fits[1] if fits[1][2].sum() > fits[0][2].sum() else fits[0]
+    axis = _alternate(p0, p1, f, _OPTICAL_AXIS, inlier_px, iters)
+    return axis if axis[2].sum() > first[2].sum() else first
 
 
 _OPTICAL_AXIS = np.array([0.0, 0.0, 1.0])
@@ -273,7 +278,8 @@ def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earli
     tol = inlier_px * LONG_INLIER_FACTOR if long else inlier_px
     share = explained_share(a, b, f, q * k, inlier_px=tol) if long else explained
     if share < EXPLAINED_SHARE:
-        rot, t, inl_t = fit_rotation_translation(a, b, f, q[:3] * k, inlier_px=tol)
+        rot, t, inl_t = fit_rotation_translation(a, b, f, q[:3] * k, inlier_px=tol,
+                                                 shown=max(EXPLAINED_SHARE, share + PARALLAX_GAIN))
         if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= share + PARALLAX_GAIN \
                 and not ground_denies_dolly(a, b, f, rot, t, inl_t):
             rot = rotation_given_direction(b0, b, f, t, inl_t, inlier_px=inlier_px) if long else rot
