@@ -8,10 +8,10 @@ class accuracy (goal >= 90 % of sources right) and per rate the relative error o
 (goal within 20 % of the truth; rates whose truth is below the least move of a class are judged by
 the class instead).
 
-Also (`--clips`): what the same extraction says of each bundled clip of ../shared/data, per shot,
-and the camera-motion stage's own cost per frame.
+Also (`--clips [NAME ...]`): what the same extraction says of each bundled clip of ../shared/data
+(or of those named), per shot, and the camera-motion stage's own cost per frame.
 
-    .venv/bin/python benchmarks/eval_camera_motion.py [SOURCES] [--clips]
+    .venv/bin/python benchmarks/eval_camera_motion.py [SOURCES] [--clips [NAME ...]]
 
 SOURCES: a folder of pairs (default: made afresh from the static clips in a temporary folder).
 Writes benchmarks/results/eval_camera_motion.json.
@@ -113,11 +113,21 @@ def evaluate_sources(folder: Path, cfg: SmootherConfig) -> tuple[list[dict], dic
     return results, summary
 
 
+def _bundled_clips(names: list[str]) -> list[Path]:
+    """The bundled clips of ../shared/data, all or those named (a name not found is an error)."""
+    clips = sorted(p for p in DATA.iterdir() if p.suffix in (".mp4", ".avi"))
+    missing = sorted(set(names) - {p.name for p in clips})
+    if missing:
+        raise SystemExit(f"eval_camera_motion: no bundled clip {missing}; known: {[p.name for p in clips]}")
+    return [p for p in clips if not names or p.name in names]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("sources", type=Path, nargs="?", default=None,
                     help="folder of NAME.mp4 + NAME.truth.json pairs (default: made from the static clips)")
-    ap.add_argument("--clips", action="store_true", help="also classify every bundled clip of ../shared/data")
+    ap.add_argument("--clips", nargs="*", default=None, metavar="NAME",
+                    help="also classify the bundled clips of ../shared/data (all, or those named)")
     ap.add_argument("--result", default="eval_camera_motion", help="result name or path (default %(default)s)")
     args = ap.parse_args(argv)
     cfg = SmootherConfig()
@@ -137,9 +147,9 @@ def main(argv: list[str] | None = None) -> int:
     out = {"summary": summary, "stage_cpu_ms_1280x720": stage_cost_ms(DATA / "sam2_juggle_1280x720.mp4"),
            "per_source": {r["name"]: {k: r[k] for k in ("truth_class", "class", "rates", "rate_errors")}
                           for r in results}}
-    if args.clips:
+    if args.clips is not None:
         out["clips"] = {}
-        for clip in sorted(p for p in DATA.iterdir() if p.suffix in (".mp4", ".avi")):
+        for clip in _bundled_clips(args.clips):
             out["clips"][clip.name] = clip_classes(clip, cfg)
             print(clip.name, [s["class"] for s in out["clips"][clip.name]["shots"]], flush=True)
     print(f"wrote {write_result(args.result, out)}")

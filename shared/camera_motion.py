@@ -183,12 +183,15 @@ _DIRECTIONS = _hemisphere(48)
 
 
 def fit_rotation_translation(p0: np.ndarray, p1: np.ndarray, f: float, rot0: np.ndarray, *, inlier_px: float,
-                             iters: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                             iters: int = 5, shown: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rotation (3,) [rad], translation direction (3,) and inliers (N,) moving p0 to p1 with
     parallax: alternate the direction given the rotation and the rotation given the direction
-    (linear in each), from `rot0`, dropping the points far off the model (moving things). The
-    depth of every point is eliminated, so a zoom and a dolly past a flat background are the same
-    to it: call it only when rotation + zoom does not explain the points."""
+    (linear in each), from `rot0`, dropping the points far off the model (moving things). When that
+    explains at least the share `shown` of the points (a translation is seen), the alternation runs
+    again from the optical axis and the one that explains more points is kept: it chooses the
+    direction, never whether there is one. The depth of every point is eliminated, so a zoom and a
+    dolly past a flat background are the same to it: call it only when rotation + zoom does not
+    explain the points."""
     mid, flow = 0.5 * (p0 + p1), p1 - p0
     basis = rotation_zoom_basis(mid, f)[:, :, :3]
     rot = np.asarray(rot0, dtype=float).copy()
@@ -204,6 +207,27 @@ def fit_rotation_translation(p0: np.ndarray, p1: np.ndarray, f: float, rot0: np.
                  for r_c in [rotation_given_direction(p0, p1, f, c, use, inlier_px=inlier_px)]), key=lambda x: x[0])
     if found[0] > SEARCH_MARGIN * best:  # only a clearly better start: near ties keep the first fit's rotation
         t, rot = found[1], found[2]
+    first = _alternate(p0, p1, f, t, inlier_px, iters)
+    if first[2].mean() < shown:
+        return first
+    # the alternation settles where it starts: past a dolly-zoom a start off to the side settled on
+    # a truck with a pan that explains fewer points than the dolly; the one from the optical axis
+    # is kept when it explains more
+    axis = _alternate(p0, p1, f, _OPTICAL_AXIS, inlier_px, iters)
+    return axis if axis[2].sum() > first[2].sum() else first
+
+
+_OPTICAL_AXIS = np.array([0.0, 0.0, 1.0])
+
+
+def _alternate(p0: np.ndarray, p1: np.ndarray, f: float, t: np.ndarray, inlier_px: float,
+               iters: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """fit_rotation_translation's alternation from the direction t: rotation (3,), direction (3,) and
+    inliers (N,)."""
+    mid, flow = 0.5 * (p0 + p1), p1 - p0
+    basis = rotation_zoom_basis(mid, f)[:, :, :3]
+    use = np.ones(len(mid), dtype=bool)
+    rot = np.zeros(3)
     for i in range(iters):
         if i:
             t = _translation_dir(mid[use], flow[use] - basis[use] @ rot, f)
@@ -254,12 +278,13 @@ def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earli
     tol = inlier_px * LONG_INLIER_FACTOR if long else inlier_px
     share = explained_share(a, b, f, q * k, inlier_px=tol) if long else explained
     if share < EXPLAINED_SHARE:
-        rot, t, inl_t = fit_rotation_translation(a, b, f, q[:3] * k, inlier_px=tol)
+        rot, t, inl_t = fit_rotation_translation(a, b, f, q[:3] * k, inlier_px=tol,
+                                                 shown=max(EXPLAINED_SHARE, share + PARALLAX_GAIN))
         if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= share + PARALLAX_GAIN \
                 and not ground_denies_dolly(a, b, f, rot, t, inl_t):
             rot = rotation_given_direction(b0, b, f, t, inl_t, inlier_px=inlier_px) if long else rot
             t = dolly_sign(a, b, f, rot * k, t, inl_t)
-            zoom = zoom_against_dolly(a, b, f, rot * k, t, inl_t) / k
+            zoom = zoom_against_dolly(a, b, f, rot * k, t, inl_t, inlier_px=tol) / k
             return FrameMotion(rot, zoom, t, n, explained)
     return FrameMotion(q[:3].copy(), float(q[3]), np.zeros(3), n, explained)
 
@@ -327,20 +352,76 @@ def ground_denies_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarra
 
 
 def zoom_against_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.ndarray,
-                       use: np.ndarray) -> float:
+                       use: np.ndarray, *, inlier_px: float = INLIER_PX) -> float:
     """The log-zoom p0 -> p1 that a dolly along t cannot explain (0 when none is seen).
 
     Past a dolly each point's image scales at t_z / depth plus the zoom, so a zoom the same way
     as the dolly is the dolly to any point at a finite depth: it is not reported. One the other way
-    (the dolly-zoom: in while zooming out) makes the far points shrink as no depth can; the farthest
-    points (the FAR_SHARE with the least scale along the dolly) then carry the zoom alone."""
+    (the dolly-zoom: in while zooming out) makes the far points shrink as no depth can. A point at
+    depth d_b scales at s (1 - d_s / d_b) when the zoom s holds a subject at d_s, so the farthest
+    points (the FAR_SHARE with the least scale along the dolly) give only part of it (0.64 s for a
+    wall 25 m behind a subject 9 m away); the ground gives all of it where it is seen
+    (`zoom_at_horizon`, the camera taken to move parallel to it, so that the horizon is the focus
+    of expansion's row), never less than the farthest points show."""
     if abs(t[2]) < DOLLY_AXIS or use.sum() < MIN_POINTS:
         return 0.0
     scale = _radial_scales(p0, p1, f, rot, use)[0] * np.sign(t[2])
     if len(scale) < MIN_POINTS:
         return 0.0
     far = float(np.percentile(scale, 100.0 * FAR_SHARE))
-    return far * float(np.sign(t[2])) if far < 0.0 else 0.0
+    if far >= 0.0:
+        return 0.0
+    mid = 0.5 * (p0 + p1)[use]
+    resid = ((p1 - p0) - rotation_zoom_basis(0.5 * (p0 + p1), f)[:, :, :3] @ rot)[use]
+    ground = zoom_at_horizon(mid, resid * np.sign(t[2]), f * t[:2] / t[2], f, inlier_px=inlier_px)
+    return (min(ground, far) if math.isfinite(ground) else far) * float(np.sign(t[2]))
+
+
+def zoom_at_horizon(mid: np.ndarray, resid: np.ndarray, foe: np.ndarray, f: float, *, inlier_px: float,
+                    iters: int = 200) -> float:
+    """The zoom s (per the points' time step) of a camera moving parallel to flat ground, from the
+    points' flow with the rotation taken out `resid` (N, 2) at `mid` (N, 2, centred px), flow signed
+    so that the translation makes points grow, and the focus of expansion `foe` (2,); NaN when no
+    ground is seen.
+
+    Each point moves by s p + w (p - e), w = t_z / depth. The camera moving parallel to the ground,
+    the horizon is the row of e, and on the ground w = beta (y - e_y) (its inverse depth grows
+    linearly with the row below the horizon): along u = (p - e) / |p - e| the flow is
+    s (p . u) + beta (y - e_y) |p - e|, across u it is s (p x u), both linear in (s, beta).
+    Anything seen below the horizon is at most as far as the ground behind it, so the ground is the
+    lower envelope of the points below the horizon: RANSAC over point pairs scores a line by the
+    points that fit it both ways less twice those that fit across it and lie clearly under it,
+    then least squares on its inliers."""
+    e = np.asarray(foe, dtype=float)
+    d = mid - e
+    dist = np.linalg.norm(d, axis=1)
+    below = (mid[:, 1] > e[1] + 0.05 * f) & (dist > 0.1 * f)
+    if below.sum() < MIN_POINTS:
+        return math.nan
+    u = d[below] / dist[below, None]
+    n = np.column_stack([-u[:, 1], u[:, 0]])
+    p, r = mid[below], resid[below]
+    m_along, m_across = np.einsum("nk,nk->n", r, u), np.einsum("nk,nk->n", r, n)
+    a_along = np.column_stack([np.einsum("nk,nk->n", p, u), (p[:, 1] - e[1]) * dist[below]])
+    a_across = np.column_stack([np.einsum("nk,nk->n", p, n), np.zeros(len(p))])
+    pairs = np.random.default_rng(0).integers(0, len(p), size=(iters, 2))
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    ok = np.abs(np.linalg.det(a_along[pairs])) > 1e-9
+    hyps = np.linalg.solve(a_along[pairs][ok], m_along[pairs][ok][..., None])[..., 0]
+    hyps = hyps[hyps[:, 1] > 0.0]  # the ground comes nearer lower down
+    if not len(hyps):
+        return math.nan
+    off_along = m_along[None] - hyps @ a_along.T
+    fits_across = np.abs(m_across[None] - hyps @ a_across.T) < inlier_px
+    score = ((np.abs(off_along) < inlier_px) & fits_across).sum(axis=1) \
+        - 2 * ((off_along < -inlier_px) & fits_across).sum(axis=1)
+    best = int(np.argmax(score))
+    inl = (np.abs(off_along[best]) < inlier_px) & fits_across[best]
+    if inl.sum() < MIN_POINTS:
+        return math.nan
+    s, beta = np.linalg.lstsq(np.vstack([a_along[inl], a_across[inl]]),
+                              np.concatenate([m_along[inl], m_across[inl]]), rcond=None)[0]
+    return float(s) if beta > 0.0 else math.nan
 
 
 def rotation_given_direction(p0: np.ndarray, p1: np.ndarray, f: float, t: np.ndarray, use: np.ndarray, *,

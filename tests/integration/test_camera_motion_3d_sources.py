@@ -1,6 +1,7 @@
 """Moves rendered in the 3-D world (benchmarks/camera_motion_3d_sources.py) with truth from the
-camera's poses: the tracker and the smoother read a slow dolly, a truck and a still camera from
-the rendered frames (parallax over the tracks' baseline), and the truth file says what was flown."""
+camera's poses: the tracker and the smoother read a slow dolly, a truck, a still camera and the
+dolly-zooms' zoom rates from the rendered frames (parallax over the tracks' baseline), and the
+truth file says what was flown."""
 from __future__ import annotations
 
 import json
@@ -25,7 +26,8 @@ def rendered(sources, tmp_path_factory):
     except Exception as e:  # noqa: BLE001 - no EGL here: setup.sh names the apt packages
         pytest.skip(f"no EGL context: {e}")
     out = tmp_path_factory.mktemp("cm3d")
-    moves = tuple(m for m in sources.MOVES if m.name in ("static", "dolly_in_slow", "truck_right"))
+    moves = tuple(m for m in sources.MOVES if m.name in ("static", "dolly_in_slow", "truck_right", "dolly_zoom_in",
+                                                         "dolly_zoom_out"))
     sources.make_all(out, frames=40, moves=moves)
     return out
 
@@ -54,6 +56,19 @@ def test_a_rendered_move_is_read_from_its_parallax(rendered, name, want):
     assert truth["class"] == want and truth["frames"] == 40
     got, _ = _read(video)
     assert got == want
+
+
+@pytest.mark.parametrize("name", ["dolly_zoom_in", "dolly_zoom_out"])
+def test_a_rendered_dolly_zoom_gives_its_zoom_rate(rendered, name):
+    """The zoom is read from the ground, not only from the wall 25 m away (which shows 0.64 of it)."""
+    from cinetransfer.report.camera_motion import shot_motion
+
+    video = rendered / f"world3d_{name}.mp4"
+    truth = json.loads(video.with_suffix(".truth.json").read_text())
+    want = float(np.nanmedian(np.array(truth["zoom_rate"], dtype=float)))
+    got, rates = _read(video)
+    assert got == "dolly_zoom"
+    assert shot_motion(rates, 0, len(rates["class"]))["zoom_rate"] == pytest.approx(want, rel=0.2)
 
 
 def test_the_truth_follows_the_poses(sources):
