@@ -86,12 +86,15 @@ class CameraMotionTracker:
         self._prev = None
 
     def update(self, image_bgr: np.ndarray, people: list[PersonDetection], *, source: str, frame_index: int,
-               lens: LensState | None = None) -> CameraMotion | None:
-        """The motion since the previous frame (None when this is not the next frame of one source)."""
+               lens: LensState | None = None, grey: np.ndarray | None = None) -> CameraMotion | None:
+        """The motion since the previous frame (None when this is not the next frame of one source).
+        `grey`: the frame in grey at full size when the caller has it already (saves converting it)."""
         h, w = image_bgr.shape[:2]
         ww = min(self.work_width, w)
         size = (ww, max(int(round(h * ww / w)), 8))
-        grey = cv2.resize(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY), size, interpolation=cv2.INTER_AREA)
+        if grey is None:
+            grey = image_bgr if image_bgr.ndim == 2 else cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY)
+        grey = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
         mask = background_mask(people, w, h, size)
         prev = self._prev
         out = None
