@@ -165,9 +165,19 @@ def _translation_dir(mid: np.ndarray, resid: np.ndarray, f: float) -> np.ndarray
 def _perpendicular(mid: np.ndarray, flow: np.ndarray, basis: np.ndarray, rot: np.ndarray, t: np.ndarray,
                    f: float) -> np.ndarray:
     """Each point's residual flow across its translation line (N,) [px]: zero when a depth explains it."""
+    return _off_lines(flow, basis, rot, *_lines(mid, t, f))
+
+
+def _lines(mid: np.ndarray, t: np.ndarray, f: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's translation line's direction d (N, 2) for the direction t, and |d| (N,) (at least 1e-9)."""
     d = np.stack([mid[:, 0] * t[2] - f * t[0], mid[:, 1] * t[2] - f * t[1]], axis=1)
+    return d, np.maximum(np.linalg.norm(d, axis=1), 1e-9)
+
+
+def _off_lines(flow: np.ndarray, basis: np.ndarray, rot: np.ndarray, d: np.ndarray, norm_d: np.ndarray) -> np.ndarray:
+    """_perpendicular from the points' lines `_lines` (computed once for all the rotations tried along them)."""
     r = flow - basis @ rot
-    return np.abs(r[:, 0] * d[:, 1] - r[:, 1] * d[:, 0]) / np.maximum(np.linalg.norm(d, axis=1), 1e-9)
+    return np.abs(r[:, 0] * d[:, 1] - r[:, 1] * d[:, 0]) / norm_d
 
 
 def _hemisphere(n: int) -> tuple[np.ndarray, ...]:
@@ -195,47 +205,87 @@ def fit_rotation_translation(p0: np.ndarray, p1: np.ndarray, f: float, rot0: np.
     mid, flow = 0.5 * (p0 + p1), p1 - p0
     basis = rotation_zoom_basis(mid, f)[:, :, :3]
     rot = np.asarray(rot0, dtype=float).copy()
-    use = np.ones(len(mid), dtype=bool)
     t = _translation_dir(mid, flow - basis @ rot, f)
     # the rotation fitted first has taken up what of a sideways move looks like a pan: a coarse
     # search over directions (each with its own rotation) starts the alternation where it belongs
-    def score(r_c: np.ndarray, t_c: np.ndarray) -> int:
-        return int((_perpendicular(mid, flow, basis, r_c, t_c, f) < inlier_px).sum())
-
-    best = score(rot, t)
-    found = max(((score(r_c, c), c, r_c) for c in _DIRECTIONS
-                 for r_c in [rotation_given_direction(p0, p1, f, c, use, inlier_px=inlier_px)]), key=lambda x: x[0])
-    if found[0] > SEARCH_MARGIN * best:  # only a clearly better start: near ties keep the first fit's rotation
-        t, rot = found[1], found[2]
-    first = _alternate(p0, p1, f, t, inlier_px, iters)
+    best = int((_perpendicular(mid, flow, basis, rot, t, f) < inlier_px).sum())
+    scores = _search_scores(mid, flow, basis, f, inlier_px)
+    k = int(np.argmax(scores))  # the first of the best, as the search over _DIRECTIONS in order
+    if scores[k] > SEARCH_MARGIN * best:  # only a clearly better start: near ties keep the first fit's rotation
+        t = _DIRECTIONS[k]
+    first = _alternate_on(mid, flow, basis, f, t, inlier_px, iters)
     if first[2].mean() < shown:
         return first
     # the alternation settles where it starts: past a dolly-zoom a start off to the side settled on
     # a truck with a pan that explains fewer points than the dolly; the one from the optical axis
     # is kept when it explains more
-    axis = _alternate(p0, p1, f, _OPTICAL_AXIS, inlier_px, iters)
+    axis = _alternate_on(mid, flow, basis, f, _OPTICAL_AXIS, inlier_px, iters)
     return axis if axis[2].sum() > first[2].sum() else first
 
 
 _OPTICAL_AXIS = np.array([0.0, 0.0, 1.0])
+_DIRECTION_ARRAY = np.array(_DIRECTIONS)
+
+
+def _search_scores(mid: np.ndarray, flow: np.ndarray, basis: np.ndarray, f: float, inlier_px: float) -> np.ndarray:
+    """For each of _DIRECTIONS the points (K,) within inlier_px of it with its own rotation
+    (rotation_given_direction over all the points, trimmed as there): all directions at once, each
+    least squares by an SVD of its rows (those off its trim zeroed), the counts the loop's."""
+    t = _DIRECTION_ARRAY
+    d = np.stack([mid[None, :, 0] * t[:, 2:3] - f * t[:, 0:1], mid[None, :, 1] * t[:, 2:3] - f * t[:, 1:2]], axis=2)
+    a = basis[None, :, 0, :] * d[..., 1:2] - basis[None, :, 1, :] * d[..., 0:1]  # (K, N, 3)
+    b = flow[None, :, 0] * d[..., 1] - flow[None, :, 1] * d[..., 0]  # (K, N)
+    norm_d = np.maximum(np.linalg.norm(d, axis=2), 1e-9)
+
+    def perpendicular(rot: np.ndarray) -> np.ndarray:  # _perpendicular for every direction (K, N)
+        r = flow[None] - np.einsum("nkj,hj->hnk", basis, rot)
+        return np.abs(r[..., 0] * d[..., 1] - r[..., 1] * d[..., 0]) / norm_d
+
+    use = np.ones(b.shape, dtype=bool)
+    rot = _masked_lstsq(a, b, use)
+    live = np.ones(len(t), dtype=bool)
+    for _ in range(TRIM_ROUNDS):
+        keep = use & (perpendicular(rot) < TRIM_FACTOR * inlier_px)
+        live &= keep.sum(axis=1) >= MIN_POINTS  # a direction with too few kept stops refitting
+        if not live.any():
+            break
+        rot[live] = _masked_lstsq(a[live], b[live], keep[live])
+    return (perpendicular(rot) < inlier_px).sum(axis=1)
+
+
+def _masked_lstsq(a: np.ndarray, b: np.ndarray, use: np.ndarray) -> np.ndarray:
+    """Least squares x (K, 3) of each a[k][use[k]] x = b[k][use[k]] (a (K, N, 3), b and use (K, N)):
+    the rows left out zeroed, the minimum-norm solution by SVD as numpy's lstsq (its cut-off on the
+    singular values included)."""
+    w = use.astype(float)
+    u, s, vt = np.linalg.svd(a * w[..., None], full_matrices=False)
+    cut = np.finfo(float).eps * np.maximum(use.sum(axis=1), a.shape[2])[:, None] * s[:, :1]
+    inv = np.where(s > cut, 1.0 / np.where(s > 0, s, 1.0), 0.0)
+    return np.einsum("hji,hj->hi", vt, inv * np.einsum("hnj,hn->hj", u, b * w))
 
 
 def _alternate(p0: np.ndarray, p1: np.ndarray, f: float, t: np.ndarray, inlier_px: float,
                iters: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """fit_rotation_translation's alternation from the direction t: rotation (3,), direction (3,) and
     inliers (N,)."""
-    mid, flow = 0.5 * (p0 + p1), p1 - p0
-    basis = rotation_zoom_basis(mid, f)[:, :, :3]
+    mid = 0.5 * (p0 + p1)
+    return _alternate_on(mid, p1 - p0, rotation_zoom_basis(mid, f)[:, :, :3], f, t, inlier_px, iters)
+
+
+def _alternate_on(mid: np.ndarray, flow: np.ndarray, basis: np.ndarray, f: float, t: np.ndarray, inlier_px: float,
+                  iters: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """_alternate over the points' midpoints, flows and rotation basis (N, 2, 3), computed once per fit."""
     use = np.ones(len(mid), dtype=bool)
     rot = np.zeros(3)
     for i in range(iters):
         if i:
             t = _translation_dir(mid[use], flow[use] - basis[use] @ rot, f)
-        rot = rotation_given_direction(p0, p1, f, t, use, inlier_px=inlier_px)
+        lines = _lines(mid, t, f)
+        rot = _rotation_on_lines(flow, basis, lines, use, inlier_px)
         if i >= 1:  # trim once the model has settled a little
-            keep = _perpendicular(mid, flow, basis, rot, t, f) < 3.0 * inlier_px
+            keep = _off_lines(flow, basis, rot, *lines) < 3.0 * inlier_px
             use = keep if keep.sum() >= MIN_POINTS else use
-    return rot, t, _perpendicular(mid, flow, basis, rot, t, f) < inlier_px
+    return rot, t, _off_lines(flow, basis, rot, *lines) < inlier_px
 
 
 def frame_motion(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float = INLIER_PX,
@@ -432,15 +482,20 @@ def rotation_given_direction(p0: np.ndarray, p1: np.ndarray, f: float, t: np.nda
     With `inlier_px` the fit is repeated on the points within TRIM_FACTOR x inlier_px of it: the
     rotation along the translation's lines is weakly seen (a tilt beside a pedestal, a pan beside a
     truck), and the few tracks that drift across the lines would otherwise set it."""
-    mid, flow = 0.5 * (p0 + p1), p1 - p0
-    basis = rotation_zoom_basis(mid, f)[:, :, :3]
-    d = np.stack([mid[:, 0] * t[2] - f * t[0], mid[:, 1] * t[2] - f * t[1]], axis=1)
+    mid = 0.5 * (p0 + p1)
+    return _rotation_on_lines(p1 - p0, rotation_zoom_basis(mid, f)[:, :, :3], _lines(mid, t, f), use, inlier_px)
+
+
+def _rotation_on_lines(flow: np.ndarray, basis: np.ndarray, lines: tuple[np.ndarray, np.ndarray], use: np.ndarray,
+                       inlier_px: float | None) -> np.ndarray:
+    """rotation_given_direction from the points' flows, rotation basis (N, 2, 3) and translation lines `_lines`."""
+    d = lines[0]
     a = basis[:, 0, :] * d[:, 1:2] - basis[:, 1, :] * d[:, 0:1]
     b = flow[:, 0] * d[:, 1] - flow[:, 1] * d[:, 0]
-    use = use if use.sum() >= MIN_POINTS else np.ones(len(mid), dtype=bool)
+    use = use if use.sum() >= MIN_POINTS else np.ones(len(flow), dtype=bool)
     rot = np.linalg.lstsq(a[use], b[use], rcond=None)[0]
     for _ in range(TRIM_ROUNDS if inlier_px is not None else 0):
-        keep = use & (_perpendicular(mid, flow, basis, rot, t, f) < TRIM_FACTOR * inlier_px)
+        keep = use & (_off_lines(flow, basis, rot, *lines) < TRIM_FACTOR * inlier_px)
         if keep.sum() < MIN_POINTS:
             break
         rot = np.linalg.lstsq(a[keep], b[keep], rcond=None)[0]

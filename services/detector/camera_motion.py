@@ -3,7 +3,8 @@ copy of the frame (people masked out), then fitted by shared/camera_motion.py.
 
 Cost: about 4-5 ms of CPU per frame at 1280x720 (a 320 px wide grey copy, up to 200 corners
 carried from frame to frame, pyramidal Lucas-Kanade forward and back, the fit), measured on a
-loaded 2-core machine.
+loaded 2-core machine; about 15 ms where a translation is fitted in most frames (the transfer's
+rendered output video, the camera following its subject).
 """
 from __future__ import annotations
 
@@ -86,12 +87,15 @@ class CameraMotionTracker:
         self._prev = None
 
     def update(self, image_bgr: np.ndarray, people: list[PersonDetection], *, source: str, frame_index: int,
-               lens: LensState | None = None) -> CameraMotion | None:
-        """The motion since the previous frame (None when this is not the next frame of one source)."""
+               lens: LensState | None = None, grey: np.ndarray | None = None) -> CameraMotion | None:
+        """The motion since the previous frame (None when this is not the next frame of one source).
+        `grey`: the frame in grey at full size when the caller has it already (saves converting it)."""
         h, w = image_bgr.shape[:2]
         ww = min(self.work_width, w)
         size = (ww, max(int(round(h * ww / w)), 8))
-        grey = cv2.resize(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY), size, interpolation=cv2.INTER_AREA)
+        if grey is None:
+            grey = image_bgr if image_bgr.ndim == 2 else cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY)
+        grey = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
         mask = background_mask(people, w, h, size)
         prev = self._prev
         out = None

@@ -72,6 +72,11 @@ def make_backend(cfg: DetectorConfig):
     raise DetectorError(f"unknown backend {cfg.backend!r}")
 
 
+def _grey(image: np.ndarray) -> np.ndarray:
+    """The frame in grey (as it is when it is grey already)."""
+    return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+
+
 class _Head(NamedTuple):
     """A frame after its pose: what its tail needs."""
 
@@ -81,6 +86,7 @@ class _Head(NamedTuple):
     edges: object  # the focus estimator's EdgeEvidence, or None
     signature: np.ndarray
     refined: bool  # the people's masks are refined already
+    grey: np.ndarray | None = None  # the frame in grey at full size (the focus edges' and the camera motion's)
 
 
 def people_mask(people: list[PersonDetection], width: int, height: int) -> np.ndarray | None:
@@ -202,8 +208,10 @@ class Detector:
             return self.fallback.detect(image_bgr) if self.fallback is not None else []
 
         def side_work():  # everything that does not need the pose result (runs on the other core)
-            ev = self.focus.measure_edges(image_bgr) if self.focus is not None else None
-            return ev, shots.colour_signature(image_bgr)
+            # one grey frame for the focus edges and the camera motion (~0.6 ms at 1280x720)
+            grey = _grey(image_bgr) if self.focus is not None or self.motion is not None else None
+            ev = self.focus.measure_edges(grey) if self.focus is not None else None
+            return ev, shots.colour_signature(image_bgr), grey
 
         pool = self._pool
         extra_fut = pool.submit(fallback_work) if pool is not None and self.fallback is not None else None
@@ -215,10 +223,10 @@ class Detector:
                                                     radius=self.cfg.mask_refine_radius_px)
         finally:
             extra = extra_fut.result() if extra_fut is not None else fallback_work()
-            ev, sig = side_fut.result() if side_fut is not None else side_work()
+            ev, sig, grey = side_fut.result() if side_fut is not None else side_work()
         if extra:
             people = self._merge_fallback(people, extra)
-        return _Head(image_bgr, people, skeletons, ev, sig, refine)
+        return _Head(image_bgr, people, skeletons, ev, sig, refine, grey)
 
     def _refined(self, head: "_Head") -> "_Head":
         """The head with its people's masks refined (snapped to the image's edges, cut to their own
@@ -250,7 +258,7 @@ class Detector:
             if self.motion is None:
                 return None
             return self.motion.update(head.image, head.people, source=source, frame_index=int(frame_index),
-                                      lens=lens)
+                                      lens=lens, grey=head.grey)
 
         pool = self._pool if overlap else None
         motion_fut = pool.submit(motion_of) if pool is not None else None
