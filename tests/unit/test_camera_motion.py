@@ -109,6 +109,26 @@ def test_a_dolly_read_as_a_zoom_in_one_frame_shows_over_the_baseline():
     assert not short.translation_dir.any()
 
 
+def test_a_swaying_camera_that_does_not_move_shows_no_parallax_over_the_baseline():
+    """A hovering camera turns a little differently every frame: the baseline's rotation is the sum
+    of its frames', not the last frame's times the span. Judged by the last frame's rate the
+    baseline is unexplained and the translation fit reads the points as parallax."""
+    rng = np.random.default_rng(7)
+    x = np.column_stack([rng.uniform(-10, 10, 300), rng.uniform(-3, 3, 300), rng.uniform(4, 40, 300)])
+    pans = [0.0, 0.004, -0.002, 0.003, -0.003, 0.001, 0.004, -0.001, 0.005]  # attitude per frame [rad]
+    views = [F * (x @ _rot((0, 1, 0), a))[:, :2] / (x @ _rot((0, 1, 0), a))[:, 2:3] for a in pans]
+    keep = np.all([(np.abs(v[:, 0]) < 320) & (np.abs(v[:, 1]) < 180) for v in views], axis=0)
+    earlier, p0, p1 = views[0][keep], views[7][keep], views[8][keep]
+    m = cm.frame_motion(p0, p1, F, earlier=earlier, span=8)
+    assert not m.translation_dir.any()
+    # the frame's own rotation: 0.006 rad of pan (turning right: negative), no zoom
+    np.testing.assert_allclose(m.rotation_rad, (-0.006, 0.0, 0.0), atol=2e-4)
+    assert abs(m.log_zoom) < 1e-4
+    # the last frame's rate over 8 frames mispredicts the baseline by ~20 px; its own fit explains all
+    q = cm.fit_rotation_zoom(p0, p1, F, inlier_px=cm.INLIER_PX)[0]
+    assert cm.explained_share(earlier, p1, F, q * 8, inlier_px=2 * cm.INLIER_PX) > 0.95
+
+
 def test_tracks_drifting_across_a_pedestal_do_not_set_its_rotation():
     """Straight up past pillars and a wall: the tilt moves points along the vertical lines the
     pedestal allows, so it is seen only through the little it moves them sideways: a third of the
