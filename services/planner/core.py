@@ -391,8 +391,7 @@ class Planner:
         ratio = st.defocus_coc_ratio / st.sharp_coc_ratio
         ne = min(jw.shape[0], ins.image_targets.shape[1])
         z = np.where(jmask[:ne] > 0, jw[:ne, 2], np.nan)
-        mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
-        keep = self._keep_out_rows(ins)
+        keep_outs_m = self._keep_outs_m(ins)
         rows = {"subject_soft": ([], [], []), "background_soft": ([], [], [])}
         for r in range(max(now_row, 0), hi + 1):
             kind = separation_kind(focus[r], absent[r])
@@ -402,7 +401,7 @@ class Planner:
             soft = subject_softness(float(smoothed[r, region]), float(ins.theta)) if len(smoothed) > r else 1.0
             rows[kind][0].append(framing_k(np.asarray(ins.image_targets[r, :ne, 1], float), z, st.sensor_height_mm))
             rows[kind][1].append(defocus_ratio(True, ratio, soft))
-            rows[kind][2].append(self._keep_out_m(mu) if keep[r] else mu)
+            rows[kind][2].append(float(keep_outs_m[r]))
         ks, ratios, keep_outs = rows["subject_soft"]
         subject_soft = separation_distance_m(ks, ratios, f_number_min=b.f_number_min, coc_mm=st.plan_coc_mm,
                                              mu_m=keep_outs, focus_max_m=b.focus_distance_max_m,
@@ -419,6 +418,16 @@ class Planner:
             max_rows = int(round(RACK_THROUGH_MAX_S * _fps(ins)))
             self._focus_cache = (ins, planned_focus_rows(ins.focus_in, absent_regions(ins), max_rows))
         return self._focus_cache[1]
+
+    def _mu_m(self, ins: M.Instructions) -> float:
+        """The instructions' depth-of-field margin mu [m], or `mu_default_m` when they carry none."""
+        return float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
+
+    def _keep_outs_m(self, ins: M.Instructions) -> np.ndarray:
+        """How far past the subject's centre each row keeps him out [m] (K,): `_keep_out_m` on the rows
+        of keep_out_rows, mu on the others."""
+        mu = self._mu_m(ins)
+        return np.where(self._keep_out_rows(ins), self._keep_out_m(mu), mu)
 
     def _keep_out_rows(self, ins: M.Instructions) -> np.ndarray:
         """The rows that keep the subject out by `subject_keep_out_m` (keep_out_rows), once per instructions message."""
@@ -462,7 +471,7 @@ class Planner:
         `now_row` is the instruction row followed now (visible defocus: cost.switched_out)."""
         st, lay = self.cfg.structure, self.layout
         n, dt = len(rows), st.dt_s
-        mu = float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
+        mu = self._mu_m(ins)
         focus = self._planned_focus(ins)
         absent = absent_regions(ins)
         b_subject = smoothed_subject_focus(ins)
@@ -470,7 +479,7 @@ class Planner:
         keeps_out = [far_keeps_subject_out(*row) for row in rows3]
         near_out = [near_keeps_subject_out(*row) for row in rows3]
         ratio = st.defocus_coc_ratio / st.sharp_coc_ratio
-        keep = self._keep_out_rows(ins)
+        keep, keep_outs_m = self._keep_out_rows(ins), self._keep_outs_m(ins)
         dof = np.zeros((n, N_DOF))
         dof[:, 6:8] = 1.0  # the far and near limits' circle-of-confusion ratios (cost.defocus_ratio)
         dref = np.zeros(n)
@@ -490,7 +499,7 @@ class Planner:
                 soft = subject_softness(float(b_subject[r]), float(ins.theta)) if len(b_subject) > r else 1.0
                 dof[k, 6] = defocus_ratio(keeps_out[r] and switched_out(keeps_out, now_row, r), ratio, soft)
                 near, far = self._row_limits(focus[r], depth, mu, band, float(xk[lay.F]), dof[k, 6],
-                                             keep_out_m=self._keep_out_m(mu) if keep[r] else mu)
+                                             keep_out_m=float(keep_outs_m[r]))
                 # with the subject kept out by the near limit the far limit of the sharpness circle (3/8 of
                 # the one circle) at infinity is margin enough: the extra margin would cap the focus at half
                 # its longest and the subject's blur with it (separation.py)
@@ -508,10 +517,10 @@ class Planner:
         return dof, dref
 
     def _row_limits(self, row: np.ndarray, depth: float, mu: float, band: Band | None,
-                    focal_mm: float, far_ratio: float = 1.0, keep_out_m: float | None = None) -> tuple[float, float]:
+                    focal_mm: float, far_ratio: float, keep_out_m: float) -> tuple[float, float]:
         """Target limits (D_n*, D_f*) [m] of a row's labels (shared.camera.desired_dof_limits), with
         "only the background sharp" keeping the subject out by `keep_out_m` past his centre (the row's
-        keep-out, keep_out_rows; `subject_keep_out_m` when None), and "only the foreground sharp" aimed
+        keep-out, _keep_outs_m), and "only the foreground sharp" aimed
         at the ground the foreground band shows (focus_field; the far limit's circle is `far_ratio` times
         the planning circle)."""
         st = self.cfg.structure
@@ -520,7 +529,7 @@ class Planner:
         if bg and not subject:
             # only the subject is kept out, by the visible circle's near limit: with a keep-out given, past his
             # own back rather than mu past his centre (parkour, subject soft: the lawn right behind him went soft)
-            near = depth + (self._keep_out_m(mu) if keep_out_m is None else keep_out_m)
+            near = depth + keep_out_m
         if fg and not subject and band is not None:
             # with the subject sharp too the field is deep and 1 m holds whatever the band shows: focus_hedge's
             # hedge 1.7 m away in tos_clip01 went soft when aimed at the ground (foreground 1.00 -> 0.00)
