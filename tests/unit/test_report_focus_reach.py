@@ -231,3 +231,20 @@ def test_a_recording_without_depths_is_never_judged():
     assert s["focus_reach"]["frames_judged"] == 0
     fo = s["truth"]["focus"]["subject"]
     assert fo["agreement_reachable"] == fo["agreement"] and fo["n_frames_unreachable"] == 0
+
+
+def test_the_report_names_the_lens_hold_of_every_knife_edge_frame():
+    # given 24 frames at 35 mm asking the subject soft before a sharp sky, the subject where only f/1.03 or
+    # wider gives it (by hand: reachable only at the lens's widest, on a knife edge for its 0.05 f-number hold)
+    k = 24
+    d = next(x for x in np.arange(4.0, 14.0, 0.001) if _needed_f_number_for_soft_subject_before_sky(x, 35.0, 100.0)
+             < 1.03)
+    src = synth.instructions(k, focus_in=np.tile([False, False, True], (k, 1)))
+    truths = _truths_with_depths(k, np.array([at(d), at(d), SKY]), focal_mm=35.0)
+    fid = F.compute_fidelity(src, None, truths)
+    # then every frame's background is out of reach, each frame saying with which hold it was judged
+    reach = fid.series["reach"]
+    assert reach.unreachable[:, 2].all() and not reach.unreachable[:, :2].any()
+    assert all(r == "background sharp with subject soft: only on a knife edge, narrower than the lens holds "
+                    "(focus ±2 %, f-number ±0.05)" for r in reach.reasons[:, 2])
+    assert fid.summary["focus_reach"]["unreachable_frames"] == {"foreground": 0, "subject": 0, "background": k}
