@@ -51,6 +51,12 @@ def coc_mm_for_sensor(sensor_width_mm: float) -> float:
 #: the circle of confusion of CineMPC's sensor [mm] (0.134)
 COC_MM = coc_mm_for_sensor(SENSOR_WIDTH_MM)
 
+#: How closely the lens holds a wanted setting: the autopilot bridge sends a lens change only when it
+#: exceeds this (focus: relative, times max(1, the sent value in m)), so the lens settles anywhere
+#: within it of what the planner asks. The report's reach search asks a setting to give the labels
+#: over this whole hold, not on a knife edge (report.focus_reach).
+LENS_HOLD = {"focal_length_mm": 0.5, "focus_distance_m": 0.02, "f_number": 0.05}
+
 
 @dataclass(frozen=True)
 class Sensor:

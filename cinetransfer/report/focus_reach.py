@@ -24,6 +24,12 @@ of the reachable regions before it. The reason names the first relaxation that w
 reachable: a wider aperture or a smaller one ("needs f/0.64"), focus beyond the lens's range
 ("needs focus at 4.0 m or beyond"), both, or none at all (the region lies at the depth of a region
 asked otherwise: "foreground at the subject's depth").
+
+The lens holds a wanted setting only to within shared.camera.LENS_HOLD (the bridge sends no smaller
+change): a label counts as reachable only when some wanted setting gives it, together with the labels
+granted before it, wherever inside that hold the lens settles. A combination that only a window
+narrower than the hold gives is out of reach "on a knife edge" (kind 'hold'), the hold named in the
+reason of every such frame.
 """
 from __future__ import annotations
 
@@ -32,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cinetransfer.shared.camera import COC_MM, REGION_IN_FOCUS_SHARE
+from cinetransfer.shared.camera import COC_MM, LENS_HOLD, REGION_IN_FOCUS_SHARE
 
 REGIONS: tuple[str, ...] = ("foreground", "subject", "background")
 #: the order in which asked labels are granted (indices into REGIONS)
@@ -56,12 +62,15 @@ class Lens:
     focus_m: tuple[float, float]  # nearest and farthest focus distance [m]
     f_number: tuple[float, float]  # smallest and largest f-number
     coc_mm: float = COC_MM
+    #: how closely the lens holds a wanted focus (relative, x max(1, focus in m)) and f-number
+    hold_focus: float = LENS_HOLD["focus_distance_m"]
+    hold_f_number: float = LENS_HOLD["f_number"]
 
 
 @dataclass(frozen=True)
 class Unreachable:
     region: int
-    kind: str  # 'depth' | 'f_number' | 'focus' | 'f_number_and_focus'
+    kind: str  # 'depth' | 'f_number' | 'focus' | 'f_number_and_focus' | 'hold'
     reason: str
     needs_f_number: float | None = None
     needs_focus_m: float | None = None
@@ -200,6 +209,62 @@ def _needed_focus(lens: Lens, regions, asked, inv_depth) -> float | None:
     return _bisect(ok_at, float(near.max()), lens.focus_m[0]) if near.size else None
 
 
+def _held_focus_fits(a: float, b: float, lens: Lens) -> bool:
+    """Whether some wanted focus puts every focus the lens may settle at (within the hold) inside [a, b];
+    an end of [a, b] at an end of the lens's range is open (the lens goes no further)."""
+    lo, hi = lens.focus_m
+    rel = lens.hold_focus
+    # the least wanted focus whose hold starts at a or later: a settled focus x holds s when |s - x| <= rel max(1, x)
+    s0 = lo if a <= lo else (a * (1.0 + rel) if a >= 1.0 else a + rel)
+    if s0 > hi:
+        return False
+    top = s0 / (1.0 - rel) if s0 >= 1.0 - rel else s0 + rel
+    return b >= hi or top <= b
+
+
+def _held_reaches(lens: Lens, regions: list[int], asked: np.ndarray, inv_depth: np.ndarray) -> bool:
+    """Whether a wanted setting gives every label of `regions` over its whole hold (module docstring).
+
+    Per wanted f-number n the lens settles within [n - h, n + h] (clipped to its range): the depth of field
+    is narrowest at the smallest and widest at the largest, and every other one lies between them, so a
+    sharp label is judged at the smallest, a soft one at the largest. Over focus the shares change only
+    where a limit meets a sample; between those the verdict is constant, and a wanted focus works when its
+    hold lies within one run of good stretches."""
+    lo_n, hi_n = lens.f_number
+    n0 = _grid(lo_n, hi_n, N_APERTURE)
+    n_at = {True: np.maximum(lo_n, n0 - lens.hold_f_number), False: np.minimum(hi_n, n0 + lens.hold_f_number)}
+    events = []
+    for sharp in (True, False):
+        x = inv_depth[[r for r in regions if bool(asked[r]) == sharp]].ravel()
+        x = np.unique(x[np.isfinite(x) & (x >= 0)])
+        events.append(_focus_events(lens.focal_mm, n_at[sharp], x, lens.coc_mm))
+    lo, hi = lens.focus_m
+    ev = np.concatenate(events, axis=1)
+    ev = np.where((ev > lo) & (ev < hi), ev, np.nan)
+    ends = np.ones((n0.size, 1))
+    ev = np.sort(np.concatenate([lo * ends, ev, hi * ends], axis=1), axis=1)
+    with np.errstate(invalid="ignore"):
+        mid = np.sqrt(ev[:, 1:] * ev[:, :-1])
+    good = np.isfinite(mid)
+    mid = np.where(good, mid, lo)
+    for r in regions:
+        sharp = bool(asked[r])
+        inv_far, inv_near = dof_inverse(lens.focal_mm, n_at[sharp][:, None], mid, lens.coc_mm)
+        good &= _reaches(inv_depth[r], inv_far.ravel(), inv_near.ravel(), sharp).reshape(good.shape)
+    for g in np.flatnonzero(good.any(axis=1)):
+        idx = np.flatnonzero(good[g])
+        for run in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
+            if _held_focus_fits(float(ev[g, run[0]]), float(ev[g, run[-1] + 1]), lens):
+                return True
+    return False
+
+
+def _knife_edge(lens: Lens, r: int, kept: list[int], asked: np.ndarray) -> Unreachable:
+    what = _label(r, asked) + (" with " + ", ".join(_label(k, asked) for k in kept) if kept else "")
+    return Unreachable(r, "hold", f"{what}: only on a knife edge, narrower than the lens holds "
+                                  f"(focus ±{100 * lens.hold_focus:g} %, f-number ±{lens.hold_f_number:g})")
+
+
 def _label(r: int, asked: np.ndarray) -> str:
     return f"{REGIONS[r]} {'sharp' if asked[r] else 'soft'}"
 
@@ -263,9 +328,11 @@ def unreachable_labels(lens: Lens, asked: np.ndarray, present: np.ndarray,
         if not present[r] or inv_depth.shape[1] == 0 or not np.isfinite(inv_depth[r]).all():
             continue
         with_r = granted & _reaches(inv_depth[r], inv_far, inv_near, bool(asked[r]))
-        if with_r.any():
+        if not with_r.any():
+            out.append(_why(lens, r, kept, asked, inv_depth))
+        elif not _held_reaches(lens, kept + [r], asked, inv_depth):
+            out.append(_knife_edge(lens, r, kept, asked))
+        else:
             kept.append(r)
             granted = with_r
-        else:
-            out.append(_why(lens, r, kept, asked, inv_depth))
     return out

@@ -22,10 +22,12 @@ import math
 from typing import Any, Callable
 
 from cinetransfer.services.autopilot_bridge.mav_commands import CommandRetries, InFlight
+from cinetransfer.shared.camera import LENS_HOLD
 
 LENS_AXES = ("focal_length_mm", "focus_distance_m", "f_number")
-#: a change smaller than this is not sent (focus: relative, x max(1, value))
-LENS_EPS = {"focal_length_mm": 0.5, "focus_distance_m": 0.02, "f_number": 0.05}
+#: a change smaller than this is not sent (focus: relative, x max(1, value)): the lens's hold, which the
+#: report's reach search also uses
+LENS_EPS = LENS_HOLD
 
 
 class CameraLink:

@@ -129,11 +129,45 @@ def test_a_window_narrower_than_a_focus_grid_step_is_found():
     # 200 mm lens at f/2 only: its depth of field holds the slab without the subject only with its far limit
     # between 10.02 and 10.1 m, focus 9.40-9.47 m (0.75 %), under one step of a 240-point log grid over
     # 0.5-100 m (2.2 %, which called it out of reach)
-    lens = FR.Lens(200.0, (0.5, 100.0), (2.0, 2.0))
+    exact = FR.Lens(200.0, (0.5, 100.0), (2.0, 2.0), hold_focus=0.0, hold_f_number=0.0)
     fg = 1.0 / np.linspace(10.0, 10.02, S)
     inv = np.array([fg, at(10.1), SKY])
-    # then the focus distances where a limit meets a quantile's depth find it
-    assert FR.unreachable_labels(lens, np.array([True, False, False]), np.ones(3, bool), inv) == []
+    asked = np.array([True, False, False])
+    # then, for a lens that held its focus exactly, the focus distances where a limit meets a quantile's depth
+    # find it
+    assert FR.unreachable_labels(exact, asked, np.ones(3, bool), inv) == []
+    # and the lens as the bridge holds it (focus within 2 %: a wanted s settles anywhere in [s / 1.02, s / 0.98],
+    # which needs a window 4.1 % wide) cannot keep it: out of reach on a knife edge, the hold named
+    out = FR.unreachable_labels(dataclasses.replace(exact, hold_focus=0.02), asked, np.ones(3, bool), inv)
+    assert [(u.region, u.kind) for u in out] == [(0, "hold")]
+    assert out[0].reason.endswith("only on a knife edge, narrower than the lens holds (focus ±2 %, f-number ±0)")
+
+
+def _needed_f_number_for_soft_subject_before_sky(d_m: float, focal_mm: float, focus_m: float) -> float:
+    """By hand (thin lens): the largest f-number whose near limit lies beyond d_m when focused at focus_m."""
+    f = focal_mm / 1000.0
+    h = (d_m * focus_m - 2.0 * d_m * f + focus_m * f) / (focus_m - d_m)  # D_n = s (H - f) / (H + s - 2 f) = d
+    return focal_mm ** 2 / ((h - f) * 1000.0 * cam.COC_MM)
+
+
+def test_a_subject_soft_only_wide_open_is_a_knife_edge_for_the_aperture_hold():
+    # given the subject soft before a sharp sky at 35 mm, the lens f/1-22 focusing out to 100 m, and the
+    # subject where only f/1.03 or wider gives it (the focus at 100 m, by hand): the lens, asked f/1, may
+    # settle at f/1.05 (the bridge sends no change under 0.05)
+    lens = FR.Lens(35.0, (0.5, 100.0), (1.0, 22.0))
+    asked, present = np.array([False, False, True]), np.array([False, True, True])
+    d = next(x for x in np.arange(4.0, 14.0, 0.001) if _needed_f_number_for_soft_subject_before_sky(x, 35.0, 100.0)
+             < 1.03)
+    inv = np.array([ABSENT, at(d), SKY])
+    # then a lens that held f/1 exactly reaches it, the held lens only on a knife edge
+    assert FR.unreachable_labels(dataclasses.replace(lens, hold_focus=0.0, hold_f_number=0.0), asked, present,
+                                 inv) == []
+    assert [(u.region, u.kind) for u in FR.unreachable_labels(lens, asked, present, inv)] == [(2, "hold")]
+    # and where f/1.15 does (still f/1.148 with the focus 2 % short of 100 m, by hand) it is reachable
+    d2 = next(x for x in np.arange(4.0, 14.0, 0.001) if _needed_f_number_for_soft_subject_before_sky(x, 35.0, 100.0)
+              < 1.15)
+    assert _needed_f_number_for_soft_subject_before_sky(d2, 35.0, 100.0 / 1.02) > 1.05
+    assert FR.unreachable_labels(lens, asked, present, np.array([ABSENT, at(d2), SKY])) == []
 
 
 def _truths_with_depths(k: int, inv_depth: np.ndarray, focal_mm: float = 100.0) -> list:
@@ -197,3 +231,20 @@ def test_a_recording_without_depths_is_never_judged():
     assert s["focus_reach"]["frames_judged"] == 0
     fo = s["truth"]["focus"]["subject"]
     assert fo["agreement_reachable"] == fo["agreement"] and fo["n_frames_unreachable"] == 0
+
+
+def test_the_report_names_the_lens_hold_of_every_knife_edge_frame():
+    # given 24 frames at 35 mm asking the subject soft before a sharp sky, the subject where only f/1.03 or
+    # wider gives it (by hand: reachable only at the lens's widest, on a knife edge for its 0.05 f-number hold)
+    k = 24
+    d = next(x for x in np.arange(4.0, 14.0, 0.001) if _needed_f_number_for_soft_subject_before_sky(x, 35.0, 100.0)
+             < 1.03)
+    src = synth.instructions(k, focus_in=np.tile([False, False, True], (k, 1)))
+    truths = _truths_with_depths(k, np.array([at(d), at(d), SKY]), focal_mm=35.0)
+    fid = F.compute_fidelity(src, None, truths)
+    # then every frame's background is out of reach, each frame saying with which hold it was judged
+    reach = fid.series["reach"]
+    assert reach.unreachable[:, 2].all() and not reach.unreachable[:, :2].any()
+    assert all(r == "background sharp with subject soft: only on a knife edge, narrower than the lens holds "
+                    "(focus ±2 %, f-number ±0.05)" for r in reach.reasons[:, 2])
+    assert fid.summary["focus_reach"]["unreachable_frames"] == {"foreground": 0, "subject": 0, "background": k}
