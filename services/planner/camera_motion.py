@@ -12,13 +12,16 @@ static row asks the angular rates and the zoom rate to be 0 and the camera to st
 source camera held still: the framing alone let the camera pan and zoom after a dancing subject,
 79 % of a static source's rows flown as moves, and following a walker slid it into an orbit); rows
 with no class (a style that carries rates only) use the rates that are clearly non-zero.
+A dolly row holds the lens as the source's held and asks the subject's distance to change as in
+the source (the style gives the travel a direction only; left free, the lens took the move).
 
 Per-stage parameter layout (N_MOTION values), read by cost.StageBuilder:
     0-1   wanted horizontal bearing of the camera round the subject (unit vector), 2 its mask
     3-5   yaw, pitch, roll rate targets [rad/s], 6-8 their masks
     9     zoom rate target [1/s], 10 its mask
     11-13 direction of travel in the planner's camera frame (x forward, y left, z up), 14 its mask
-    15    dolly-zoom mask, 16 the rate d ln(subject distance)/dt asked then (the zoom rate)
+    15    distance-rate mask, 16 the rate d ln(subject distance)/dt asked then: a dolly-zoom's zoom rate,
+          or a dolly's, read from the source subject's size against its lens (subject_distance_rate)
     17    1 = the camera stands still (the velocity term's reference is 0 instead of the subject's
           velocity, and no sideways velocity): a static row, or one whose class turns or zooms the
           camera without moving it (pan, tilt, roll, zoom_in, zoom_out), where following a walking
@@ -52,6 +55,10 @@ STILL_CLASSES = ("pan", "tilt", "roll", "zoom_in", "zoom_out")
 STATIC = frozenset({"static"})  #: hold still: every angular rate and the zoom rate 0
 #: with no class, a rate counts when at least this large (deg/s; 1/s for the zoom)
 MIN_RATE_DPS, MIN_ZOOM_RATE = 1.0, 0.01
+#: a dolly: flown with the lens held, at the source's rate of change of the subject's distance
+DOLLY_CLASSES = ("dolly_in", "dolly_out")
+#: the subject's size is read over this long a window for that rate [s] (the smoother's 0.5 s)
+DISTANCE_WINDOW_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -62,6 +69,8 @@ class MotionStyle:
     rates_radps: np.ndarray  #: (K, 3) yaw, pitch, roll rates, NaN = unknown
     zoom_rate: np.ndarray  #: (K,) d ln f / dt, NaN = unknown
     travel: np.ndarray  #: (K, 3) unit direction in the planner's camera frame, zeros = none
+    #: (K,) d ln(subject distance)/dt of the source camera [1/s], NaN = unknown (subject_distance_rate)
+    distance_rate: np.ndarray | None = None
 
 
 def motion_classes(text: object) -> frozenset[str] | None:
@@ -104,7 +113,38 @@ def read_motion_style(ins: object) -> MotionStyle | None:
         and len(raw_cls) == k else [None] * k
     travel_src = _column(ins, "translation_dir", k, 3)
     travel = np.stack([planner_camera_direction(t) for t in travel_src]) if k else np.zeros((0, 3))
-    return MotionStyle(classes, rates, _column(ins, "zoom_rate", k), travel)
+    zoom = _column(ins, "zoom_rate", k)
+    box = _column(ins, "subject_box", k, 4)
+    starts = getattr(ins, "shot_start", None)
+    starts = np.asarray(starts, dtype=bool) if starts is not None and len(starts) == k else np.zeros(k, dtype=bool)
+    fps = float(getattr(ins, "fps", 0.0) or 0.0)
+    distance = subject_distance_rate(box[:, 3] - box[:, 1], zoom, fps, starts) if fps > 0 else np.full(k, np.nan)
+    return MotionStyle(classes, rates, zoom, travel, distance)
+
+
+def subject_distance_rate(heights: np.ndarray, zoom_rate: np.ndarray, fps: float, starts: np.ndarray,
+                          window_s: float = DISTANCE_WINDOW_S) -> np.ndarray:
+    """d ln(subject distance)/dt of the source camera per row [1/s]: a subject of height H at distance
+    d fills f H / d of the image, so ln d = ln f - ln h + const and the rate is the zoom rate less
+    d ln h/dt. The slope of ln h is a least-squares line over a centred window inside the row's shot
+    (a walker's box breathes with his gait from frame to frame); NaN where fewer than half the
+    window is seen or the zoom rate is unknown."""
+    h = np.asarray(heights, dtype=float)
+    n = len(h)
+    out = np.full(n, np.nan)
+    half = max(1, int(round(0.5 * window_s * fps)))
+    shot = np.cumsum(np.asarray(starts, dtype=bool) | (np.arange(n) == 0))
+    logh = np.where(np.isfinite(h) & (h > 0), np.log(np.where(h > 0, h, 1.0)), np.nan)
+    for k in range(n):
+        lo, hi = max(0, k - half), min(n, k + half + 1)
+        idx = np.arange(lo, hi)
+        idx = idx[(shot[idx] == shot[k]) & np.isfinite(logh[idx])]
+        if len(idx) < max(3, half + 1) or not math.isfinite(float(zoom_rate[k])):
+            continue
+        t = (idx - idx.mean()) / fps
+        slope = float(np.dot(t, logh[idx] - logh[idx].mean()) / np.dot(t, t))
+        out[k] = float(zoom_rate[k]) - slope
+    return out
 
 
 def row_terms(style: MotionStyle, row: int, *, control_roll: bool) -> np.ndarray:
@@ -139,7 +179,20 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool) -> np.ndarray
     travel = style.travel[row]
     if travel.any() and (cls is None or any(n in cls for n in TRAVEL_CLASSES)):
         out[TRAVEL], out[TRAVEL_MASK] = travel, 1.0
+    if cls is not None and any(n in cls for n in DOLLY_CLASSES) and not any(n in cls for n in ZOOM_CLASSES):
+        _dolly_terms(out, style, row)
     return out
+
+
+def _dolly_terms(out: np.ndarray, style: MotionStyle, row: int) -> None:
+    """A dolly's lens and speed. The style gives the travel a direction only; left free, the lens
+    kept the subject's size and the camera stood (the slow dolly flown static). The lens holds as
+    the source's did, and the subject's distance changes at the source's rate, read from his size."""
+    zoom = float(style.zoom_rate[row])
+    out[ZOOM], out[ZOOM_MASK] = (zoom if math.isfinite(zoom) else 0.0), 1.0
+    rate = math.nan if style.distance_rate is None else float(style.distance_rate[row])
+    if math.isfinite(rate):
+        out[DOLLY_ZOOM_MASK], out[DISTANCE_RATE] = 1.0, rate
 
 
 def stage_motion(style: MotionStyle | None, rows: list[int], *, control_roll: bool) -> np.ndarray:

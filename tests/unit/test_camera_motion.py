@@ -158,6 +158,28 @@ def _ground_points(rng: np.random.Generator) -> np.ndarray:
     return np.vstack([ground, wall])
 
 
+def test_a_cluster_of_tracks_sliding_one_way_is_no_dolly():
+    """16 tracks at the lower left slide right (+7, -1 px) and 2 at the right too: a dolly out whose
+    focus of expansion is (0, 0.1 F) explains the left ones in front of the camera (they move towards
+    it) but puts the right ones behind it (16/18 = 0.89 in front, under 0.9), and they all lie to one
+    side of it. A dolly seen all round its focus of expansion is one."""
+    t = np.array([0.0, -0.1, -1.0]) / math.hypot(0.1, 1.0)
+    left = np.column_stack([np.linspace(-150.0, -60.0, 16), np.linspace(45.0, 75.0, 16)])
+    right = np.array([[25.0, 60.0], [35.0, 55.0]])
+    p0 = np.vstack([left, right])
+    p1 = p0 + np.array([7.0, -1.0])
+    use = np.ones(len(p0), dtype=bool)
+    assert cm.sliding_tracks(p0, p1, F, np.zeros(3), t, use, 1.2)
+    # the same dolly out past points all round its focus of expansion, each moving towards it
+    rng = np.random.default_rng(3)
+    ring = rng.uniform(-200.0, 200.0, (40, 2))
+    e = F * t[:2] / t[2]
+    q1 = ring - 0.03 * (ring - e)
+    assert not cm.sliding_tracks(ring, q1, F, np.zeros(3), t, np.ones(40, dtype=bool), 1.2)
+    # a truck is not judged so (its lines are parallel, there is no focus of expansion in view)
+    assert not cm.sliding_tracks(p0, p1, F, np.zeros(3), np.array([1.0, 0.0, 0.0]), use, 1.2)
+
+
 @pytest.mark.parametrize("step, zoom", [(0.05, -0.004), (-0.05, 0.004)])
 def test_a_dolly_zoom_takes_its_sign_from_the_ground(step, zoom):
     """In while zooming out and out while zooming in fit every point with positive depths, mirror

@@ -1,4 +1,5 @@
 """Pure pieces of the side-of-subject and camera-motion terms, against hand-computed values."""
+import dataclasses
 import math
 
 import casadi as ca
@@ -191,3 +192,44 @@ def test_the_zoom_rate_is_planned_slower_by_the_setpoint_lead_in_steps():
     assert flown_rate_factor(0.05, 20.0) == pytest.approx(1.0)
     assert flown_rate_factor(0.0, 20.0) == 1.0  # no lead: nothing to scale
     assert flown_rate_factor(1.0, 200.0) == 4.0  # bounded
+
+
+def test_subject_distance_rate_reads_the_size_against_the_lens():
+    fps, n = 24.0, 30
+    t = np.arange(n) / fps
+    # receding at 0.1 /s with the lens held: the box shrinks as exp(-0.1 t)
+    h = 0.4 * np.exp(-0.1 * t)
+    rate = CM.subject_distance_rate(h, np.zeros(n), fps, np.zeros(n, dtype=bool))
+    assert rate == pytest.approx(np.full(n, 0.1), abs=1e-9)
+    # zooming in at 0.05 /s while the box grows at 0.02 /s: the subject recedes at 0.03 /s
+    h = 0.4 * np.exp(0.02 * t)
+    assert CM.subject_distance_rate(h, np.full(n, 0.05), fps, np.zeros(n, dtype=bool)) == pytest.approx(
+        np.full(n, 0.03), abs=1e-9)
+
+
+def test_subject_distance_rate_stays_inside_its_shot_and_needs_what_it_reads():
+    fps, n = 24.0, 30
+    h = np.r_[np.full(15, 0.2), np.full(15, 0.5)]  # a cut at row 15: each shot's size holds
+    starts = np.zeros(n, dtype=bool)
+    starts[15] = True
+    assert CM.subject_distance_rate(h, np.zeros(n), fps, starts) == pytest.approx(np.zeros(n), abs=1e-12)
+    assert np.abs(CM.subject_distance_rate(h, np.zeros(n), fps, np.zeros(n, dtype=bool))[15]) > 1.0  # across it
+    zoom = np.zeros(n)
+    zoom[3] = np.nan
+    h = np.full(n, 0.3)
+    h[20:] = np.nan  # the subject lost: too little of the window seen near the end
+    rate = CM.subject_distance_rate(h, zoom, fps, np.zeros(n, dtype=bool))
+    assert math.isnan(rate[3]) and math.isnan(rate[29]) and rate[0] == 0.0 and rate[10] == 0.0
+
+
+def test_a_dolly_holds_the_lens_and_asks_the_sources_distance_rate():
+    style = _style("dolly_in", zoom=0.0, travel=(0, 0, 1))
+    t = CM.row_terms(dataclasses.replace(style, distance_rate=np.array([-0.04])), 0, control_roll=False)
+    assert t[CM.ZOOM_MASK] == 1 and t[CM.ZOOM] == 0 and t[CM.TRAVEL_MASK] == 1 and t[CM.STILL] == 0
+    assert t[CM.DOLLY_ZOOM_MASK] == 1 and t[CM.DISTANCE_RATE] == -0.04
+    t = CM.row_terms(style, 0, control_roll=False)  # no size read: the lens still holds, no distance term
+    assert t[CM.ZOOM_MASK] == 1 and t[CM.DOLLY_ZOOM_MASK] == 0
+    # a dolly with a zoom of its own (or a dolly-zoom) is the zoom's to set
+    t = CM.row_terms(dataclasses.replace(_style("zoom_in+dolly_in", zoom=0.1, travel=(0, 0, 1)),
+                                         distance_rate=np.array([-0.04])), 0, control_roll=False)
+    assert t[CM.ZOOM] == 0.1 and t[CM.DOLLY_ZOOM_MASK] == 0
