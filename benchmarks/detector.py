@@ -23,6 +23,10 @@ function), so its ms a frame hold on a loaded machine too; the stages overlap in
 (caller: the tracking crop; pose worker: the SSD and the second look; focus worker: the edges and
 the shot signature; tail: the mask refinement, the propagation, the camera motion).
 
+Each streamed row also prints `where` a frame's CPU went: each thread's CPU, user / system time,
+context switches, minor page faults and the time the host stole (docs/detector.md: why a frame's
+CPU differs from run to run).
+
 Writes benchmarks/results/detector.json.
 """
 from __future__ import annotations
