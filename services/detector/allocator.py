@@ -8,7 +8,8 @@ threads allocated and freed so far, so the same code paid ~3 000 page faults a f
 touched afresh, 5-7 ms of kernel CPU) in one run and almost none in another; in a virtual machine
 a fresh page can cost the host's work as well. Fixed thresholds make it the same every run: blocks
 up to 32 MB come from the heap and freed ones are reused, and a heap's top is given back only past
-`TRIM_BYTES`. Process-wide, set once when a Detector is made (as OpenCV's thread count is).
+`TRIM_BYTES`. Process-wide, set once when a Detector is made with `keep_freed_memory` (off by
+default: docs/detector.md has the measurements), as OpenCV's thread count is.
 """
 from __future__ import annotations
 
