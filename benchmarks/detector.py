@@ -23,6 +23,10 @@ function), so its ms a frame hold on a loaded machine too; the stages overlap in
 (caller: the tracking crop; pose worker: the SSD and the second look; focus worker: the edges and
 the shot signature; tail: the mask refinement, the propagation, the camera motion).
 
+Each streamed row also prints `where` a frame's CPU went: each thread's CPU, user / system time,
+context switches, minor page faults and the time the host stole (docs/detector.md: why a frame's
+CPU differs from run to run).
+
 Writes benchmarks/results/detector.json.
 """
 from __future__ import annotations
@@ -32,6 +36,8 @@ import ast
 import collections
 import functools
 import os
+import resource
+import threading
 import time
 
 import cv2
@@ -70,10 +76,55 @@ def _time(fn, frames, warmup: int) -> dict:
             "caller_thread_cpu_ms_per_frame": 1e3 * main / len(frames), "idle_estimate_fps": 1e3 / idle_ms}
 
 
+def _thread_cpu_ns() -> dict[int, int]:
+    """CPU time of each of this process's threads now [ns] (the scheduler's own count, by thread id)."""
+    out = {}
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{tid}/schedstat") as f:
+                out[int(tid)] = int(f.read().split()[0])
+        except (OSError, ValueError):  # the thread ended meanwhile
+            continue
+    return out
+
+
+def _where(before: tuple, after: tuple, names: dict[int, str], n: int) -> dict:
+    """Where the streamed frames' CPU went, a frame: each thread (by its name's prefix: MainThread,
+    focus, box_first, tail; threads that Python did not start, i.e. native pools, as `native`),
+    user / system time, context switches, minor page faults, and the time the hypervisor stole from
+    the machine's CPUs meanwhile (both CPUs, whoever ran). Explains a frame's CPU that the stages' own
+    times do not: a pool spinning, the kernel, faults, a busy host."""
+    (cpu0, ru0, st0), (cpu1, ru1, st1) = before, after
+    threads: dict[str, float] = collections.defaultdict(float)
+    for tid, ns in cpu1.items():
+        name = names.get(tid, "native").rsplit("_", 1)[0]
+        threads[name] += (ns - cpu0.get(tid, 0)) / 1e6 / n
+    return {"thread_cpu_ms_per_frame": dict(threads), "user_ms_per_frame": 1e3 * (ru1.ru_utime - ru0.ru_utime) / n,
+            "system_ms_per_frame": 1e3 * (ru1.ru_stime - ru0.ru_stime) / n,
+            "voluntary_switches_per_frame": (ru1.ru_nvcsw - ru0.ru_nvcsw) / n,
+            "involuntary_switches_per_frame": (ru1.ru_nivcsw - ru0.ru_nivcsw) / n,
+            "minor_faults_per_frame": (ru1.ru_minflt - ru0.ru_minflt) / n,
+            "stolen_ms_per_frame": 1e3 * (st1 - st0) / n}
+
+
+def _stolen_s() -> float:
+    """CPU time the hypervisor took from this virtual machine's CPUs so far [s] (/proc/stat, all CPUs)."""
+    try:
+        with open("/proc/stat") as f:
+            return int(f.readline().split()[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return float("nan")
+
+
+def _snapshot() -> tuple:
+    return _thread_cpu_ns(), resource.getrusage(resource.RUSAGE_SELF), _stolen_s()
+
+
 def _time_stream(det: Detector, frames, warmup: int, period_ns: int, on_measure=lambda: None) -> dict:
     """`_time` for `Detector.process_frames` (the path of `process_source` and `cinetransfer detect`):
     frame k's tail overlaps frame k + 1's pose, so a frame's latency is not defined here; the latency
-    columns give the time between consecutive measurements handed out."""
+    columns give the time between consecutive measurements handed out. `where`: see `_where` (taken
+    at the last measurement, before the stream's tail thread ends)."""
     def seq(first: int, n: int):
         return (SourceFrame(first + i, (first + i) * period_ns, frames[(first + i) % len(frames)], 24.0, "bench")
                 for i in range(n))
@@ -81,20 +132,23 @@ def _time_stream(det: Detector, frames, warmup: int, period_ns: int, on_measure=
     for _ in det.process_frames(seq(0, warmup)):
         pass
     on_measure()  # the warm-up is over (its tails too)
-    lat = []
+    lat, names = [], {}
+    before = _snapshot()
     c0, m0, t0 = time.process_time(), time.thread_time(), time.perf_counter()
     t = t0
     for _ in det.process_frames(seq(warmup, len(frames))):
         now = time.perf_counter()
         lat.append(now - t)
         t = now
-    wall = time.perf_counter() - t0
-    cpu = time.process_time() - c0
-    main = time.thread_time() - m0
+        names.update((th.native_id, th.name) for th in threading.enumerate())
+        if len(lat) == len(frames):
+            wall, cpu, main = now - t0, time.process_time() - c0, time.thread_time() - m0
+            after = _snapshot()
     idle_ms = 1e3 * max(main, cpu / 2) / len(frames)
     return {"fps": len(frames) / wall, "latency_ms": stats(1e3 * np.asarray(lat)), "cpu_cores_used": cpu / wall,
             "cpu_ms_per_frame": 1e3 * cpu / len(frames),
-            "caller_thread_cpu_ms_per_frame": 1e3 * main / len(frames), "idle_estimate_fps": 1e3 / idle_ms}
+            "caller_thread_cpu_ms_per_frame": 1e3 * main / len(frames), "idle_estimate_fps": 1e3 / idle_ms,
+            "where": _where(before, after, names, len(frames))}
 
 
 def _line(name: str, r: dict) -> str:
@@ -102,6 +156,21 @@ def _line(name: str, r: dict) -> str:
     return (f"  {name:<34} {r['fps']:6.1f} frames/s   median {lat['median']:6.1f} ms   p95 {lat['p95']:6.1f} ms   "
             f"max {lat['max']:6.1f} ms   cores {r['cpu_cores_used']:.2f}   CPU {r['cpu_ms_per_frame']:5.1f} ms/frame "
             f"(caller {r['caller_thread_cpu_ms_per_frame']:5.1f})   idle est. {r['idle_estimate_fps']:5.1f} frames/s")
+
+
+def _where_line(w: dict) -> str:
+    threads = ", ".join(f"{k} {v:.1f}" for k, v in sorted(w["thread_cpu_ms_per_frame"].items(), key=lambda kv: -kv[1]))
+    return (f"    where (ms CPU a frame): {threads}; user {w['user_ms_per_frame']:.1f}, system "
+            f"{w['system_ms_per_frame']:.1f}; a frame: {w['voluntary_switches_per_frame']:.0f} voluntary / "
+            f"{w['involuntary_switches_per_frame']:.0f} involuntary switches, "
+            f"{w['minor_faults_per_frame']:.0f} minor faults; stolen by the host {w['stolen_ms_per_frame']:.1f}")
+
+
+def _print_rows(res: dict) -> None:
+    for k, r in res.items():
+        print(_line(k, r))
+        if "where" in r:
+            print(_where_line(r["where"]))
 
 
 #: (owner, function, stage name) timed by `--stages`
@@ -143,6 +212,7 @@ def _stages(frames: list, warmup: int, cfg: DetectorConfig) -> dict:
         print(f"  {label:<20} {r['cpu_ms_per_frame']:6.1f} ms CPU a frame   {r['calls_per_frame']:.2f} calls a frame")
     print(f"  {'process':<20} {whole['cpu_ms_per_frame']:6.1f} ms CPU a frame   (caller thread "
           f"{whole['caller_thread_cpu_ms_per_frame']:.1f})")
+    print(_where_line(whole["where"]))
     return out
 
 
@@ -168,8 +238,7 @@ def _resolution(frames: list, warmup: int, quick: bool, base: DetectorConfig) ->
     for name, cfg in rows:
         with Detector(cfg) as det:
             res[name] = _time(lambda f, i: det.process(f, i, i * 41_666_667), frames, warmup)
-    for k, r in res.items():
-        print(_line(k, r))
+    _print_rows(res)
     return res
 
 
@@ -183,8 +252,7 @@ def _tud(frames: list, warmup: int) -> dict:
                       ("full, 2 threads, mediapipe backend", DetectorConfig(backend="mediapipe"))):
         with Detector(cfg) as det:
             res[name] = _time(lambda f, i: det.process(f, i, i * 40_000_000), frames, warmup)
-    for k, r in res.items():
-        print(_line(k, r))
+    _print_rows(res)
     return res
 
 

@@ -120,6 +120,10 @@ class DetectorConfig:
     # The detector already spreads its stages over both cores; OpenCV splitting each call over them as
     # well costs ~10 % more CPU a frame at 1280x720 (benchmarks/detector.py) for no gain
     cv_threads: int = 1  # 0..8
+    # glibc's malloc keeps freed blocks of up to 32 MB for reuse instead of returning them to the kernel
+    # (process-wide, set when a Detector is made; allocator.py): a frame's arrays then cost no page faults.
+    # Off: the default stream paid few faults anyway, and the README command's peak memory rose 786 -> 944 MB
+    keep_freed_memory: bool = False
 
     def validate(self) -> "DetectorConfig":
         def need(cond: bool, name: str, allowed: str) -> None:

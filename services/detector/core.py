@@ -29,7 +29,7 @@ from typing import Iterable, Iterator, NamedTuple
 import cv2
 import numpy as np
 
-from cinetransfer.services.detector import shots, subject_mask
+from cinetransfer.services.detector import allocator, shots, subject_mask
 from cinetransfer.services.detector.camera_motion import CameraMotionTracker
 from cinetransfer.services.detector.config import DetectorConfig
 from cinetransfer.services.detector.focus import FocusEstimator, FocusResult
@@ -147,6 +147,8 @@ class Detector:
         self.cfg = (cfg or DetectorConfig()).validate()
         if self.cfg.cv_threads > 0:
             cv2.setNumThreads(self.cfg.cv_threads)
+        if self.cfg.keep_freed_memory:
+            allocator.keep_freed_memory()
         self.backend = backend if backend is not None else make_backend(self.cfg)
         self.focus = FocusEstimator(self.cfg) if self.cfg.focus else None
         self.fallback = None
