@@ -280,6 +280,10 @@ class PlannerConfig:
     #: "Which gives way")
     zoom_yields_to_focus: bool = True
     zoom_yield_lead_s: float = 1.5
+    #: the subject's blur [circles of the one circle] asked where a shot has settled on only the background sharp
+    #: (after keep_out_settle_s): the visible circle's 1.5 (defocus_coc_ratio). Less starts the sharp zone nearer
+    #: behind him, but the estimator then read the far runner sharp (docs/planner.md, "Which gives way")
+    settled_subject_blur: float = 1.5
     #: how far behind the subject the background stands [m]; inf = unknown, and then a row wanting the
     #: subject sharp before a soft background asks for no standoff. Given, such a row raises the minimum
     #: subject distance until the depth of field ends before it (separation.py). Off by default: the
@@ -326,6 +330,8 @@ class PlannerConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise _bad("", name, v, "a finite value >= 0")
+        if not (math.isfinite(self.settled_subject_blur) and self.settled_subject_blur > 1.0):
+            raise _bad("", "settled_subject_blur", self.settled_subject_blur, "a finite value > 1 (soft)")
         if self.left_right not in LEFT_RIGHT:
             raise _bad("", "left_right", self.left_right, " | ".join(LEFT_RIGHT))
         return self

@@ -531,6 +531,8 @@ class Planner:
                     # infinity, not the sharpness circle's: the parkour rack's soft runner read soft in 10
                     # more of its last frames (the focus a little farther), nothing else measured moved
                     dof[k, 6] = 1.0 / st.sharp_coc_ratio
+                    settled_ratio = self.cfg.settled_subject_blur / st.sharp_coc_ratio
+                    dof[k, 7] = defocus_ratio(switched_out(near_out, now_row, r), settled_ratio, soft)
                 dof[k, 2] *= float(far_previewed(focus, near_out, now_row, r))
         return dof, dref
 

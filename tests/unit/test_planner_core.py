@@ -297,13 +297,19 @@ def test_only_the_background_in_focus_keeps_the_subject_out_by_the_near_limit(pl
     # then the near limit aims beyond the subject, just past his back (the keep-out of his own depth,
     # 0.3 m by default, not mu = 1 m: the shot asks for it from its first row, no rack), two-sided although
     # no foreground is shown (one-sided it would let the limit come nearer, the subject back in focus),
-    # with the larger circle
+    # with the larger circle (settled from the first row: settled_subject_blur, by default the visible circle)
     assert planner.cfg.subject_keep_out_m == 0.3 and ins.mu_m == 1.0
     assert dof[0, 0] == 1.0 and dof[0, 1] == pytest.approx(1.0 / (dref[0] + 0.3))
     assert dof[0, 5] == 0.0
+    assert planner.cfg.settled_subject_blur == st.defocus_coc_ratio == 1.5
     assert dof[0, 7] == pytest.approx(st.defocus_coc_ratio / st.sharp_coc_ratio)
     # and the far limit at infinity is the one circle's (no rack: settled from the first row)
     assert dof[0, 4] == 1.0 and dof[0, 3] == 0.0 and dof[0, 6] == pytest.approx(1.0 / st.sharp_coc_ratio)
+    # and a settled blur of 1.4 circles asks the near limit of 1.4 circles past his back
+    less = Planner(dataclasses.replace(planner.cfg, settled_subject_blur=1.4), solver=planner.solver)
+    assert less._dof_targets(T0, ins, [0, 1], 0, x0, subj)[0][0, 7] == pytest.approx(1.4 / st.sharp_coc_ratio)
+    with pytest.raises(Exception, match="settled_subject_blur"):
+        dataclasses.replace(planner.cfg, settled_subject_blur=0.9).validate()
     # and without a keep-out (0) mu past his centre
     by_mu = Planner(dataclasses.replace(planner.cfg, subject_keep_out_m=0.0), solver=planner.solver)
     dof, dref = by_mu._dof_targets(T0, ins, [0, 1], 0, x0, subj)
@@ -489,3 +495,4 @@ def test_a_zoom_gives_way_round_a_rack_focus(planner, instructions):
     now = T0 + int(20 / 24.0 * S)
     data, _ = off._stage_data(now, ins, sim.vehicle_state(now), sim.subject_state(now))
     assert data.motion[:, LENS_MOTION_COLUMNS].any(axis=1).all()
+
