@@ -451,7 +451,8 @@ class Planner:
             fps = _fps(ins)
             lead = int(round(self.cfg.zoom_yield_lead_s * fps)) if self.cfg.zoom_yields_to_focus else -1
             settle = int(round(self.cfg.keep_out_settle_s * fps))
-            self._lens_cache = (ins, lens_for_focus_rows(self._planned_focus(ins), absent_regions(ins), lead, settle))
+            self._lens_cache = (ins, lens_for_focus_rows(self._planned_focus(ins), absent_regions(ins), lead, settle,
+                                                         getattr(ins, "shot_start", None)))
         return self._lens_cache[1]
 
     def _motion_style(self, ins: M.Instructions) -> MotionStyle | None:
@@ -774,9 +775,11 @@ def keep_out_rows(focus: np.ndarray, absent: np.ndarray, settle_rows: int) -> np
     return keep
 
 
-def lens_for_focus_rows(focus: np.ndarray, absent: np.ndarray, lead_rows: int, settle_rows: int) -> np.ndarray:
-    """(K,) bool: the rows round a switch of the subject's label between two labelled rows (a rack focus):
-    the `lead_rows` rows before the switch and the `settle_rows` from it (none when `lead_rows` < 0).
+def lens_for_focus_rows(focus: np.ndarray, absent: np.ndarray, lead_rows: int, settle_rows: int,
+                        shot_start: np.ndarray | None = None) -> np.ndarray:
+    """(K,) bool: the rows round a switch of the subject's label between two labelled rows of one shot (a
+    rack focus): the `lead_rows` rows before the switch and the `settle_rows` from it, within the shot
+    (`shot_start`: the rows where each shot begins; a new shot is its own take), none when `lead_rows` < 0.
     There the lens travels to the new focus choice; the source's zoom, held by its camera for its own
     reasons, pulled the other way and held the parkour rack's subject sharp through its soft half
     (docs/planner.md, "Which gives way"). In a settled choice the standoff gives it and the zoom is flown."""
@@ -785,9 +788,15 @@ def lens_for_focus_rows(focus: np.ndarray, absent: np.ndarray, lead_rows: int, s
     if lead_rows < 0 or focus.ndim != 2 or focus.shape[1] != 3:
         return out
     labelled = ~absent.all(axis=1) if absent.shape == focus.shape else np.ones(len(focus), dtype=bool)
-    switched = (focus[1:, 1] != focus[:-1, 1]) & labelled[1:] & labelled[:-1]
+    starts = np.zeros(len(focus), dtype=bool)
+    if shot_start is not None and np.shape(shot_start) == (len(focus),):
+        starts = np.asarray(shot_start, dtype=bool).copy()
+    starts[:1] = True
+    shot = np.cumsum(starts)
+    switched = (focus[1:, 1] != focus[:-1, 1]) & labelled[1:] & labelled[:-1] & ~starts[1:]
     for k in np.flatnonzero(switched) + 1:
-        out[max(0, k - lead_rows):k + settle_rows] = True
+        rows = np.arange(max(0, k - lead_rows), min(len(focus), k + settle_rows))
+        out[rows[shot[rows] == shot[k]]] = True
     return out
 
 

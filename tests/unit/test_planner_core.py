@@ -455,6 +455,12 @@ def test_the_rows_round_a_switch_of_the_subjects_label_give_the_zoom_way():
     # before them and the settle's from them
     assert lens_for_focus_rows(focus, absent, 2, 1).tolist() == [0, 0, 1, 1, 1, 0, 1, 1, 1]
     assert lens_for_focus_rows(focus, absent, 0, 2).tolist() == [0, 0, 0, 0, 1, 1, 0, 0, 1]
+    # and a switch where a new shot starts (its own take) is no rack; a lead or settle stops at a shot's edge
+    starts = np.zeros(9, dtype=bool)
+    starts[4] = True
+    assert lens_for_focus_rows(focus, absent, 2, 1, starts).tolist() == [0, 0, 0, 0, 0, 0, 1, 1, 1]
+    starts[4], starts[7] = False, True
+    assert lens_for_focus_rows(focus, absent, 2, 1, starts).tolist() == [0, 0, 1, 1, 1, 0, 0, 1, 1]
     # and a shot that keeps the subject soft throughout flies its zoom; a negative lead (the option off) too
     assert not lens_for_focus_rows(focus[4:6], absent[4:6], 2, 1).any()
     assert not lens_for_focus_rows(focus, absent, -1, 1).any()
