@@ -274,6 +274,16 @@ class PlannerConfig:
     #: how far ahead (within the take) a style row wanting the subject soft before a sharp background
     #: raises the minimum subject distance to the standoff that choice needs (separation.py) [s]; 0 = off
     separation_lookahead_s: float = 6.0
+    #: the style's zoom and distance terms (zoom rate, dolly-zoom, standing still along the axis) give way
+    #: round a rack focus (the subject's label switching): from zoom_yield_lead_s before the switch [s] to
+    #: keep_out_settle_s after it, while the lens travels (core.lens_for_focus_rows; docs/planner.md,
+    #: "Which gives way")
+    zoom_yields_to_focus: bool = True
+    zoom_yield_lead_s: float = 1.5
+    #: the subject's blur [circles of the one circle] asked where a shot has settled on only the background sharp
+    #: (after keep_out_settle_s): the visible circle's 1.5 (defocus_coc_ratio). Less starts the sharp zone nearer
+    #: behind him, but the estimator then read the far runner sharp (docs/planner.md, "Which gives way")
+    settled_subject_blur: float = 1.5
     #: how far behind the subject the background stands [m]; inf = unknown, and then a row wanting the
     #: subject sharp before a soft background asks for no standoff. Given, such a row raises the minimum
     #: subject distance until the depth of field ends before it (separation.py). Off by default: the
@@ -316,10 +326,12 @@ class PlannerConfig:
         if not (self.background_behind_m > 0):  # inf is allowed: an unknown background
             raise _bad("", "background_behind_m", self.background_behind_m, "a value > 0 (inf: unknown)")
         for name in ("tail_max_s", "setpoint_lead_s", "clamp_tolerance", "feasibility_tol", "separation_lookahead_s",
-                     "subject_keep_out_m", "keep_out_settle_s"):
+                     "subject_keep_out_m", "keep_out_settle_s", "zoom_yield_lead_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise _bad("", name, v, "a finite value >= 0")
+        if not (math.isfinite(self.settled_subject_blur) and self.settled_subject_blur > 1.0):
+            raise _bad("", "settled_subject_blur", self.settled_subject_blur, "a finite value > 1 (soft)")
         if self.left_right not in LEFT_RIGHT:
             raise _bad("", "left_right", self.left_right, " | ".join(LEFT_RIGHT))
         return self

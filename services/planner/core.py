@@ -29,8 +29,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from cinetransfer.services.planner import constraints as C
-from cinetransfer.services.planner.camera_motion import (FLOWN_RATE_COLUMNS, MOTION_MASKS, SIDE_PARAMS, MotionStyle,
-                                                         read_motion_style, stage_motion)
+from cinetransfer.services.planner.camera_motion import (DOLLY_ZOOM_MASK, FLOWN_RATE_COLUMNS, MOTION_MASKS, SIDE_PARAMS,
+                                                         STILL_ALONG, ZOOM_MASK, MotionStyle, read_motion_style,
+                                                         stage_motion)
 from cinetransfer.services.planner.side_of_subject import camera_bearing, side_targets
 from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
 from cinetransfer.services.planner.lens_axes import pinned_bounds
@@ -57,6 +58,9 @@ STATES = ("idle", "recording", "paused", "holding", "stopped")
 #: a subject slower than this in the pre-roll is waiting for the take: the camera settles free of the
 #: style's camera motion (docs/planner.md, "Camera motion"); one already walking is met with the take's holds
 SETTLE_MAX_SUBJECT_SPEED_MPS = 0.3
+#: the camera-motion terms that hold the lens or the subject's distance (the zoom rate, the dolly-zoom's distance
+#: rate, standing still along the axis): they give way where a row's focus choice needs the lens (lens_for_focus_rows)
+LENS_MOTION_COLUMNS = [ZOOM_MASK, DOLLY_ZOOM_MASK, STILL_ALONG]
 
 
 @dataclass
@@ -125,6 +129,7 @@ class Planner:
         self._motion_cache: tuple[object, MotionStyle | None] = (None, None)
         self._focus_cache: tuple[object, np.ndarray] = (None, np.zeros((0, 3), bool))
         self._keep_out_cache: tuple[object, np.ndarray] = (None, np.zeros(0, bool))
+        self._lens_cache: tuple[object, np.ndarray] = (None, np.zeros(0, bool))
 
     # ------------------------------------------------------------------ runtime parameters
     def set_weights(self, weights: Weights) -> None:
@@ -355,6 +360,9 @@ class Planner:
             # the pre-roll is not filmed: round a subject who waits on his mark it only settles the framing
             # (held to the take's moves, the camera could not get round him to the first frame's bearing)
             motion[self._settle_stages(now_ns, n, dt)] = 0.0
+        lens_yields = self._lens_for_focus(ins)[rows]
+        motion[np.ix_(lens_yields, LENS_MOTION_COLUMNS)] = 0.0
+        self.counters["zoom_yields_to_focus"] = bool(lens_yields.any())
         if by_name:
             bearing = camera_bearing(x0[self.layout.P], subj.centre)
             ne = min(len(ctrl), image_targets.shape[1])
@@ -436,6 +444,17 @@ class Planner:
             self._keep_out_cache = (ins, keep_out_rows(self._planned_focus(ins), absent_regions(ins), settle))
         return self._keep_out_cache[1]
 
+    def _lens_for_focus(self, ins: M.Instructions) -> np.ndarray:
+        """(K,) bool: the rows whose zoom and distance motion terms give way to the focus choice
+        (lens_for_focus_rows), once per instructions message."""
+        if self._lens_cache[0] is not ins:
+            fps = _fps(ins)
+            lead = int(round(self.cfg.zoom_yield_lead_s * fps)) if self.cfg.zoom_yields_to_focus else -1
+            settle = int(round(self.cfg.keep_out_settle_s * fps))
+            self._lens_cache = (ins, lens_for_focus_rows(self._planned_focus(ins), absent_regions(ins), lead, settle,
+                                                         getattr(ins, "shot_start", None)))
+        return self._lens_cache[1]
+
     def _motion_style(self, ins: M.Instructions) -> MotionStyle | None:
         """The instructions' camera-motion style, read once per instructions message."""
         if self._motion_cache[0] is not ins:
@@ -513,6 +532,8 @@ class Planner:
                     # infinity, not the sharpness circle's: the parkour rack's soft runner read soft in 10
                     # more of its last frames (the focus a little farther), nothing else measured moved
                     dof[k, 6] = 1.0 / st.sharp_coc_ratio
+                    settled_ratio = self.cfg.settled_subject_blur / st.sharp_coc_ratio
+                    dof[k, 7] = defocus_ratio(switched_out(near_out, now_row, r), settled_ratio, soft)
                 dof[k, 2] *= float(far_previewed(focus, near_out, now_row, r))
         return dof, dref
 
@@ -752,6 +773,31 @@ def keep_out_rows(focus: np.ndarray, absent: np.ndarray, settle_rows: int) -> np
     for k in np.flatnonzero(out[1:] & ~out[:-1] & labelled[:-1]) + 1:
         keep[k:k + settle_rows] = False
     return keep
+
+
+def lens_for_focus_rows(focus: np.ndarray, absent: np.ndarray, lead_rows: int, settle_rows: int,
+                        shot_start: np.ndarray | None = None) -> np.ndarray:
+    """(K,) bool: the rows round a switch of the subject's label between two labelled rows of one shot (a
+    rack focus): the `lead_rows` rows before the switch and the `settle_rows` from it, within the shot
+    (`shot_start`: the rows where each shot begins; a new shot is its own take), none when `lead_rows` < 0.
+    There the lens travels to the new focus choice; the source's zoom, held by its camera for its own
+    reasons, pulled the other way and held the parkour rack's subject sharp through its soft half
+    (docs/planner.md, "Which gives way"). In a settled choice the standoff gives it and the zoom is flown."""
+    focus = np.asarray(focus, dtype=bool)
+    out = np.zeros(len(focus), dtype=bool)
+    if lead_rows < 0 or focus.ndim != 2 or focus.shape[1] != 3:
+        return out
+    labelled = ~absent.all(axis=1) if absent.shape == focus.shape else np.ones(len(focus), dtype=bool)
+    starts = np.zeros(len(focus), dtype=bool)
+    if shot_start is not None and np.shape(shot_start) == (len(focus),):
+        starts = np.asarray(shot_start, dtype=bool).copy()
+    starts[:1] = True
+    shot = np.cumsum(starts)
+    switched = (focus[1:, 1] != focus[:-1, 1]) & labelled[1:] & labelled[:-1] & ~starts[1:]
+    for k in np.flatnonzero(switched) + 1:
+        rows = np.arange(max(0, k - lead_rows), min(len(focus), k + settle_rows))
+        out[rows[shot[rows] == shot[k]]] = True
+    return out
 
 
 def far_previewed(focus: np.ndarray, near_out: list[bool], now_row: int, row: int) -> bool:

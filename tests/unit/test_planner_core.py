@@ -7,7 +7,8 @@ import pytest
 
 from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.camera_motion import MOTION_MASKS
-from cinetransfer.services.planner.core import Planner, absent_regions, instructions_from_arrays, predict_subject
+from cinetransfer.services.planner.core import (LENS_MOTION_COLUMNS, Planner, absent_regions, instructions_from_arrays,
+                                                lens_for_focus_rows, predict_subject)
 from cinetransfer.services.planner.kinematic_sim import KinematicSim
 from cinetransfer.services.planner.scenarios import reference_instructions, standing_shot, wrong_start_scene
 from cinetransfer.shared import codec
@@ -296,13 +297,19 @@ def test_only_the_background_in_focus_keeps_the_subject_out_by_the_near_limit(pl
     # then the near limit aims beyond the subject, just past his back (the keep-out of his own depth,
     # 0.3 m by default, not mu = 1 m: the shot asks for it from its first row, no rack), two-sided although
     # no foreground is shown (one-sided it would let the limit come nearer, the subject back in focus),
-    # with the larger circle
+    # with the larger circle (settled from the first row: settled_subject_blur, by default the visible circle)
     assert planner.cfg.subject_keep_out_m == 0.3 and ins.mu_m == 1.0
     assert dof[0, 0] == 1.0 and dof[0, 1] == pytest.approx(1.0 / (dref[0] + 0.3))
     assert dof[0, 5] == 0.0
+    assert planner.cfg.settled_subject_blur == st.defocus_coc_ratio == 1.5
     assert dof[0, 7] == pytest.approx(st.defocus_coc_ratio / st.sharp_coc_ratio)
     # and the far limit at infinity is the one circle's (no rack: settled from the first row)
     assert dof[0, 4] == 1.0 and dof[0, 3] == 0.0 and dof[0, 6] == pytest.approx(1.0 / st.sharp_coc_ratio)
+    # and a settled blur of 1.4 circles asks the near limit of 1.4 circles past his back
+    less = Planner(dataclasses.replace(planner.cfg, settled_subject_blur=1.4), solver=planner.solver)
+    assert less._dof_targets(T0, ins, [0, 1], 0, x0, subj)[0][0, 7] == pytest.approx(1.4 / st.sharp_coc_ratio)
+    with pytest.raises(Exception, match="settled_subject_blur"):
+        dataclasses.replace(planner.cfg, settled_subject_blur=0.9).validate()
     # and without a keep-out (0) mu past his centre
     by_mu = Planner(dataclasses.replace(planner.cfg, subject_keep_out_m=0.0), solver=planner.solver)
     dof, dref = by_mu._dof_targets(T0, ins, [0, 1], 0, x0, subj)
@@ -436,3 +443,62 @@ def test_the_pre_roll_asks_no_camera_motion(planner, instructions):
     walking = dataclasses.replace(sim.subject_state(now), velocity_mps=np.array([1.0, 0.0, 0.0]))
     data, _ = planner._stage_data(now, ins, sim.vehicle_state(now), walking)
     assert data.motion[:, MOTION_MASKS].any(axis=1).all()
+
+
+def test_the_rows_round_a_switch_of_the_subjects_label_give_the_zoom_way():
+    # given rows: subject sharp (0-3), only the background (4-5), unlabelled (6), only the foreground (7),
+    # all sharp (8)
+    focus = np.array([[0, 1, 0]] * 4 + [[0, 0, 1]] * 2 + [[0, 0, 0], [1, 0, 0], [1, 1, 1]], dtype=bool)
+    absent = np.zeros((9, 3), dtype=bool)
+    absent[6] = True
+    # then the switches between labelled rows (at 4 and 8; not round the unlabelled row) take the lead's rows
+    # before them and the settle's from them
+    assert lens_for_focus_rows(focus, absent, 2, 1).tolist() == [0, 0, 1, 1, 1, 0, 1, 1, 1]
+    assert lens_for_focus_rows(focus, absent, 0, 2).tolist() == [0, 0, 0, 0, 1, 1, 0, 0, 1]
+    # and a switch where a new shot starts (its own take) is no rack; a lead or settle stops at a shot's edge
+    starts = np.zeros(9, dtype=bool)
+    starts[4] = True
+    assert lens_for_focus_rows(focus, absent, 2, 1, starts).tolist() == [0, 0, 0, 0, 0, 0, 1, 1, 1]
+    starts[4], starts[7] = False, True
+    assert lens_for_focus_rows(focus, absent, 2, 1, starts).tolist() == [0, 0, 1, 1, 1, 0, 0, 1, 1]
+    # and a shot that keeps the subject soft throughout flies its zoom; a negative lead (the option off) too
+    assert not lens_for_focus_rows(focus[4:6], absent[4:6], 2, 1).any()
+    assert not lens_for_focus_rows(focus, absent, -1, 1).any()
+
+
+def test_a_zoom_gives_way_round_a_rack_focus(planner, instructions):
+    # given a style zooming out throughout (a handheld source camera), racking from the subject to the
+    # background at row 40 (24 rows a second)
+    k = instructions.image_targets.shape[0]
+    assert k > 120
+    focus = np.tile([False, True, False], (k, 1))
+    focus[40:] = (False, False, True)
+    sm = np.where(focus, 1.0, 0.0).astype(np.float32)
+    sm[:, 0] = np.nan
+    ins = dataclasses.replace(instructions, focus_smoothed=sm, focus_raw=sm, focus_in=focus, fps=24.0,
+                              camera_motion_class=["pan+zoom_out"] * k, zoom_rate=np.full(k, -0.2),
+                              pan_rate_dps=np.full(k, 5.0))
+    sim = KinematicSim(wrong_start_scene())
+    assert planner.command(M.Command(action="start", args={"start_frame": 0}), T0)
+    lead, settle = (int(round(s * 24.0)) for s in (planner.cfg.zoom_yield_lead_s, planner.cfg.keep_out_settle_s))
+    assert (lead, settle) == (36, 36)
+    # when the horizon is staged from rows 0, 20 and 80
+    for first_row in (0, 20, 80):
+        now = T0 + int(first_row / 24.0 * S)
+        data, _ = planner._stage_data(now, ins, sim.vehicle_state(now), sim.subject_state(now))
+        rows = np.array(planner._rows(now, ins, 15, 0.1)[0])
+        # then the zoom (and standing still along the axis) is asked only of stages outside the lead before
+        # the switch and the settle after it; the pan is asked of every stage
+        flown = (rows < 40 - lead) | (rows >= 40 + settle)
+        assert flown.any() != (first_row == 20)
+        zoom = data.motion[:, LENS_MOTION_COLUMNS].any(axis=1)
+        assert (zoom == flown).all(), (rows, zoom)
+        assert (data.motion[:, 6] == 1.0).all()
+        assert planner.counters["zoom_yields_to_focus"] is bool((~flown).any())
+    # and with the option off the zoom is asked of every stage
+    off = Planner(dataclasses.replace(planner.cfg, zoom_yields_to_focus=False), solver=planner.solver)
+    assert off.command(M.Command(action="start", args={"start_frame": 0}), T0)
+    now = T0 + int(20 / 24.0 * S)
+    data, _ = off._stage_data(now, ins, sim.vehicle_state(now), sim.subject_state(now))
+    assert data.motion[:, LENS_MOTION_COLUMNS].any(axis=1).all()
+
