@@ -24,7 +24,7 @@ class H264Writer:
     """`write(bgr)` frame by frame, then `close()` (also as a context manager)."""
 
     def __init__(self, path: str | Path, fps: float, *, crf: int = 20, preset: str = "veryfast",
-                 stream_keyframe_s: float | None = None) -> None:
+                 stream_keyframe_s: float | None = None, x264_params: str = "") -> None:
         import av
 
         if not (fps > 0):
@@ -35,7 +35,7 @@ class H264Writer:
         self._av = av
         self._container = av.open(str(self.path), mode="w", format="mp4", options={"movflags": "+faststart"})
         self._stream: Any = None
-        self._crf, self._preset = crf, preset
+        self._crf, self._preset, self._x264_params = crf, preset, x264_params
         self._keyframe_s = stream_keyframe_s
         self._size: tuple[int, int] | None = None
         self.frames = 0
@@ -48,6 +48,8 @@ class H264Writer:
         s.codec_context.time_base = 1 / self.fps
         # no B-frames: each frame is decodable once its packet arrives (also what Foxglove wants)
         s.options = {"crf": str(self._crf), "preset": self._preset, "bf": "0"}
+        if self._x264_params:  # libx264's own key=value:... settings on top of the preset
+            s.options = {**s.options, "x264-params": self._x264_params}
         if self._keyframe_s is not None:
             s.options = {**s.options, "tune": "zerolatency", "g": str(max(1, int(round(self._keyframe_s * self.fps))))}
         self._stream, self._size = s, (h, w)

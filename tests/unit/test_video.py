@@ -40,6 +40,26 @@ def test_h264_with_faststart_and_every_frame(tmp_path, size):
     assert max(float(np.abs(a.astype(int) - b).mean()) for a, b in zip(frames, back)) < 4.0
 
 
+def test_x264_params_reach_the_encoder_and_the_video_still_plays(tmp_path):
+    # given the report's cheaper motion search on top of the preset
+    from cinetransfer.report.video import X264_PARAMS
+
+    path = tmp_path / "v.mp4"
+    frames = _frames(30)
+    with H264Writer(path, 24.0, crf=23, x264_params=X264_PARAMS) as w:
+        for f in frames:
+            w.write(f)
+    # then x264's own settings record (an SEI in the stream) names them, where the default has hex / 7
+    data = path.read_bytes()
+    assert b"me=dia" in data and b"subme=1" in data
+    with H264Writer(tmp_path / "d.mp4", 24.0, crf=23) as w:
+        w.write(frames[0])
+    assert b"me=hex" in (tmp_path / "d.mp4").read_bytes()
+    # and the video is still a browser's H.264 with every frame
+    info = probe(path)
+    assert (info["codec"], info["pix_fmt"], info["faststart"], info["frames"]) == ("h264", "yuv420p", True, 30)
+
+
 def test_bad_frames_are_refused(tmp_path):
     w = H264Writer(tmp_path / "v.mp4", 24.0)
     try:
@@ -52,3 +72,11 @@ def test_bad_frames_are_refused(tmp_path):
         w.close()
     with pytest.raises(ValueError, match="fps"):
         H264Writer(tmp_path / "x.mp4", 0.0)
+
+
+def test_the_reports_halves_average_areas_only_on_a_whole_factor():
+    # 720 -> 360 and 360 -> 360 shrink by a whole factor (OpenCV's fast area path); 540 -> 360 is bilinear
+    from cinetransfer.report.video import _interpolation
+
+    assert [_interpolation(h) for h in (720, 360, 1080, 540, 480)] == [
+        cv2.INTER_AREA, cv2.INTER_AREA, cv2.INTER_AREA, cv2.INTER_LINEAR, cv2.INTER_LINEAR]
