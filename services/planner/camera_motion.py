@@ -28,6 +28,9 @@ Per-stage parameter layout (N_MOTION values), read by cost.StageBuilder:
           subject would undo the pan
     18    1 = it stands still along its optical axis too: a row whose class zooms in place (zoom_in,
           zoom_out without a translating class), where moving along the axis reads as a dolly-zoom
+    19    bearing-rate mask, 20 the rate d(bearing of the camera round the subject)/dt asked then [rad/s,
+          positive as the pan]: a truck's, read from the source's pan rate and the subject's
+          drift across its image (subject_bearing_rate)
 """
 from __future__ import annotations
 
@@ -36,16 +39,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-N_MOTION = 19
+from cinetransfer.shared.camera_motion import ASSUMED_HFOV_DEG
+
+N_MOTION = 21
 SIDE, SIDE_MASK = slice(0, 2), 2
 RATES, RATE_MASKS = slice(3, 6), slice(6, 9)
 ZOOM, ZOOM_MASK = 9, 10
 TRAVEL, TRAVEL_MASK = slice(11, 14), 14
 DOLLY_ZOOM_MASK, DISTANCE_RATE, STILL, STILL_ALONG = 15, 16, 17, 18
+BEARING_RATE_MASK, BEARING_RATE = 19, 20
 SIDE_PARAMS = slice(0, 3)  #: the side-of-subject parameters (bearing vector and mask), set by the planner core
 FLOWN_RATE_COLUMNS = [ZOOM]  #: the lens's rate target, planned slower (core.flown_rate_factor)
 #: the camera-motion terms' masks
-MOTION_MASKS = [6, 7, 8, ZOOM_MASK, TRAVEL_MASK, DOLLY_ZOOM_MASK, STILL, STILL_ALONG]
+MOTION_MASKS = [6, 7, 8, ZOOM_MASK, TRAVEL_MASK, DOLLY_ZOOM_MASK, STILL, STILL_ALONG, BEARING_RATE_MASK]
 
 #: which classes ask for which term
 RATE_CLASSES = (("pan", "orbit"), ("tilt",), ("roll",))
@@ -59,6 +65,9 @@ MIN_RATE_DPS, MIN_ZOOM_RATE = 1.0, 0.01
 DOLLY_CLASSES = ("dolly_in", "dolly_out")
 #: the subject's size is read over this long a window for that rate [s] (the smoother's 0.5 s)
 DISTANCE_WINDOW_S = 0.5
+#: a truck: flown at the source's rate of turn round the subject (subject_bearing_rate). An orbit
+#: asked it too flew no more of its rows as orbit and framed worse (docs/camera_motion.md)
+SWING_CLASSES = ("truck",)
 
 
 @dataclass(frozen=True)
@@ -71,6 +80,8 @@ class MotionStyle:
     travel: np.ndarray  #: (K, 3) unit direction in the planner's camera frame, zeros = none
     #: (K,) d ln(subject distance)/dt of the source camera [1/s], NaN = unknown (subject_distance_rate)
     distance_rate: np.ndarray | None = None
+    #: (K,) d(bearing of the source camera round the subject)/dt [rad/s], NaN = unknown (subject_bearing_rate)
+    bearing_rate: np.ndarray | None = None
 
 
 def motion_classes(text: object) -> frozenset[str] | None:
@@ -119,7 +130,41 @@ def read_motion_style(ins: object) -> MotionStyle | None:
     starts = np.asarray(starts, dtype=bool) if starts is not None and len(starts) == k else np.zeros(k, dtype=bool)
     fps = float(getattr(ins, "fps", 0.0) or 0.0)
     distance = subject_distance_rate(box[:, 3] - box[:, 1], zoom, fps, starts) if fps > 0 else np.full(k, np.nan)
-    return MotionStyle(classes, rates, zoom, travel, distance)
+    bearing = subject_bearing_rate(0.5 * (box[:, 0] + box[:, 2]), rates[:, 0], fps, starts) if fps > 0 \
+        else np.full(k, np.nan)
+    return MotionStyle(classes, rates, zoom, travel, distance, bearing)
+
+
+def _window_slopes(values: np.ndarray, fps: float, starts: np.ndarray, window_s: float) -> np.ndarray:
+    """Per row the least-squares slope (per s) of `values` over a centred window inside the row's shot;
+    NaN where fewer than half the window is finite."""
+    n = len(values)
+    out = np.full(n, np.nan)
+    half = max(1, int(round(0.5 * window_s * fps)))
+    shot = np.cumsum(np.asarray(starts, dtype=bool) | (np.arange(n) == 0))
+    for k in range(n):
+        lo, hi = max(0, k - half), min(n, k + half + 1)
+        idx = np.arange(lo, hi)
+        idx = idx[(shot[idx] == shot[k]) & np.isfinite(values[idx])]
+        if len(idx) < max(3, half + 1):
+            continue
+        t = (idx - idx.mean()) / fps
+        out[k] = float(np.dot(t, values[idx] - values[idx].mean()) / np.dot(t, t))
+    return out
+
+
+def subject_bearing_rate(centre_x: np.ndarray, pan_rate_radps: np.ndarray, fps: float, starts: np.ndarray,
+                         window_s: float = DISTANCE_WINDOW_S, hfov_deg: float = ASSUMED_HFOV_DEG) -> np.ndarray:
+    """d(bearing of the source camera round the subject)/dt per row [rad/s, positive as the pan]: the
+    subject lies at yaw + a from the camera, a = atan((0.5 - x) 2 tan(hfov/2)) his bearing off the
+    optical axis (x his box's normalised centre; positive to the left), so the camera's bearing round
+    him turns at the pan rate plus da/dt. A truck to the right with the rotation held turns it at
+    v/d, an orbit at its own rate; the subject's walk is inside it, as in the dolly's rate. The slope
+    of a is a line over the window inside the row's shot (the lens taken as the extraction's assumed
+    one: these rows zoom not); NaN where the window is short or the pan rate unknown."""
+    x = np.asarray(centre_x, dtype=float)
+    a = np.arctan((0.5 - x) * 2.0 * math.tan(math.radians(hfov_deg) / 2.0))
+    return np.asarray(pan_rate_radps, dtype=float) + _window_slopes(a, fps, starts, window_s)
 
 
 def subject_distance_rate(heights: np.ndarray, zoom_rate: np.ndarray, fps: float, starts: np.ndarray,
@@ -181,7 +226,18 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool) -> np.ndarray
         out[TRAVEL], out[TRAVEL_MASK] = travel, 1.0
     if cls is not None and any(n in cls for n in DOLLY_CLASSES) and not any(n in cls for n in ZOOM_CLASSES):
         _dolly_terms(out, style, row)
+    if cls is not None and any(n in cls for n in SWING_CLASSES):
+        _swing_terms(out, style, row)
     return out
+
+
+def _swing_terms(out: np.ndarray, style: MotionStyle, row: int) -> None:
+    """A truck's speed: the camera's bearing round the subject turns at the source's rate. The style
+    gives the travel a direction only; left free, the framing panned after the walker and the truck
+    was flown as a pan."""
+    rate = math.nan if style.bearing_rate is None else float(style.bearing_rate[row])
+    if math.isfinite(rate):
+        out[BEARING_RATE_MASK], out[BEARING_RATE] = 1.0, rate
 
 
 def _dolly_terms(out: np.ndarray, style: MotionStyle, row: int) -> None:

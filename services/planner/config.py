@@ -121,6 +121,7 @@ class Weights:
     zoom_rate: float = 100.0  # (d ln f/dt - source's [1/s])^2 per s
     translation_dir: float = 5.0  # (velocity off the source's direction of travel / v_max)^2 per s
     dolly_zoom: float = 100.0  # (d ln(subject distance)/dt - source's zoom rate [1/s])^2 per s, in a dolly zoom
+    bearing_rate: float = 100.0  # (d(camera's bearing round the subject)/dt - source's [rad/s])^2 per s, truck/orbit
     motion_still: float = 20.0  # (v off the optical axis / v_max)^2 per s in a row that turns or zooms the camera in
     #                              place (pan, tilt, roll, zoom): sideways it stands still, along the axis the framing
     #                              keeps the size (docs/planner.md, "Stand still sideways"); static rows take it too

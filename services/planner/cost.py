@@ -219,6 +219,12 @@ def distance_log_rate(rel, rel_vel):  # noqa: ANN001, ANN201
         rel[0] ** 2 + rel[1] ** 2 + rel[2] ** 2 + 1e-6)
 
 
+def bearing_rate(rel, rel_vel):  # noqa: ANN001, ANN201
+    """d(bearing of the camera round the subject)/dt in the horizontal plane [rad/s] for the camera's
+    offset `rel` from the subject and its velocity relative to him: (rel x rel_vel)_z / |rel_xy|^2."""
+    return (rel[0] * rel_vel[1] - rel[1] * rel_vel[0]) / (rel[0] ** 2 + rel[1] ** 2 + 1e-6)
+
+
 def travel_residual(vel, direction, v_scale):  # noqa: ANN001, ANN201
     """(velocity off the direction, velocity against it) / v_max for a unit world `direction`:
     nothing for travel along it at any speed (the style gives a direction, not a speed)."""
@@ -456,6 +462,7 @@ class StageBuilder:
         out.append((wts["zoom_rate"] * m[CM.ZOOM_MASK], log_rate(u[lay.F_RATE], f_mm) - m[CM.ZOOM]))
         rel_vel = x[lay.V] - par.vel
         out.append((wts["dolly_zoom"] * m[CM.DOLLY_ZOOM_MASK], distance_log_rate(rel, rel_vel) - m[CM.DISTANCE_RATE]))
+        out.append((wts["bearing_rate"] * m[CM.BEARING_RATE_MASK], bearing_rate(rel, rel_vel) - m[CM.BEARING_RATE]))
         direction = ca.mtimes(r, m[CM.TRAVEL])  # the source camera's direction of travel, in the world
         out.append((wts["translation_dir"] * m[CM.TRAVEL_MASK], travel_residual(x[lay.V], direction, par.v_scale)))
         # a camera that only turns or zooms does not slide sideways: held by J_v alone (0.5), the framing

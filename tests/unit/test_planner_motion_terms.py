@@ -233,3 +233,43 @@ def test_a_dolly_holds_the_lens_and_asks_the_sources_distance_rate():
     t = CM.row_terms(dataclasses.replace(_style("zoom_in+dolly_in", zoom=0.1, travel=(0, 0, 1)),
                                          distance_rate=np.array([-0.04])), 0, control_roll=False)
     assert t[CM.ZOOM] == 0.1 and t[CM.DOLLY_ZOOM_MASK] == 0
+
+
+def test_bearing_rate_round_the_subject_by_hand():
+    # camera 4 m behind the subject along -x, sliding right (-y) at 1 m/s: its bearing round him turns left at 1/4
+    assert _f(J.bearing_rate(ca.DM([-4.0, 0.0, 0.0]), ca.DM([0.0, -1.0, 0.0]))) == pytest.approx(0.25, abs=1e-6)
+    # moving straight at him, or straight up, does not turn it
+    assert _f(J.bearing_rate(ca.DM([-4.0, 0.0, 0.0]), ca.DM([1.0, 0.0, 0.5]))) == pytest.approx(0.0, abs=1e-9)
+    # off the diagonal (3, 4): 1 m/s across the line of sight at 5 m turns it at 0.2, sign as the yaw
+    assert _f(J.bearing_rate(ca.DM([3.0, 4.0, 1.0]), ca.DM([-0.8, 0.6, 0.0]))) == pytest.approx(0.2, abs=1e-6)
+
+
+def test_subject_bearing_rate_adds_the_drift_across_the_image_to_the_pan():
+    fps, n = 24.0, 30
+    t = np.arange(n) / fps
+    k = 2.0 * math.tan(math.radians(CM.ASSUMED_HFOV_DEG) / 2.0)
+    x = 0.5 - np.tan(0.1 * t) / k  # the subject drifts left off the axis at 0.1 rad/s
+    rate = CM.subject_bearing_rate(x, np.full(n, 0.05), fps, np.zeros(n, dtype=bool))
+    assert rate == pytest.approx(np.full(n, 0.15), abs=1e-9)
+    pan = np.full(n, 0.05)
+    pan[4] = np.nan
+    x[25:] = np.nan  # the subject lost near the end
+    starts = np.zeros(n, dtype=bool)
+    starts[10] = True
+    x[10:] = np.where(np.isfinite(x[10:]), 0.5, np.nan)  # after the cut he holds the centre: the pan alone
+    rate = CM.subject_bearing_rate(x, pan, fps, starts)
+    assert math.isnan(rate[4]) and math.isnan(rate[29])
+    assert rate[2] == pytest.approx(0.15, abs=1e-9) and rate[12] == pytest.approx(0.05, abs=1e-12)
+
+
+def test_a_truck_asks_the_sources_bearing_rate():
+    style = dataclasses.replace(_style("truck", pan=0.0, travel=(1, 0, 0)), bearing_rate=np.array([0.12]))
+    t = CM.row_terms(style, 0, control_roll=False)
+    assert t[CM.BEARING_RATE_MASK] == 1 and t[CM.BEARING_RATE] == 0.12 and t[CM.TRAVEL_MASK] == 1
+    t = CM.row_terms(dataclasses.replace(style, classes=[CM.motion_classes("pan+truck")]), 0, control_roll=False)
+    assert t[CM.BEARING_RATE_MASK] == 1 and t[CM.RATE_MASKS.start] == 1  # the pan stays asked too
+    for other in ("pan", "dolly_in", "static", "orbit"):  # an orbit flew no better with it
+        t = CM.row_terms(dataclasses.replace(style, classes=[CM.motion_classes(other)]), 0, control_roll=False)
+        assert t[CM.BEARING_RATE_MASK] == 0 and t[CM.BEARING_RATE] == 0
+    assert CM.row_terms(_style("truck", travel=(1, 0, 0)), 0, control_roll=False)[CM.BEARING_RATE_MASK] == 0
+    assert CM.BEARING_RATE_MASK in CM.MOTION_MASKS
