@@ -25,6 +25,9 @@ Per-stage parameter layout (N_MOTION values), read by cost.StageBuilder:
           subject would undo the pan
     18    1 = it stands still along its optical axis too: a row whose class zooms in place (zoom_in,
           zoom_out without a translating class), where moving along the axis reads as a dolly-zoom
+    19-20 ln of the least and the greatest focal length [mm] the lens may stand at, 21 their mask:
+          room for the zoom still to come in the take (a dolly-zoom in zooms out by e^-0.27 over its
+          2 s, and started at the source's 32.6 mm the lens hit its 30 mm end half-way through)
 """
 from __future__ import annotations
 
@@ -33,16 +36,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-N_MOTION = 19
+N_MOTION = 22
 SIDE, SIDE_MASK = slice(0, 2), 2
 RATES, RATE_MASKS = slice(3, 6), slice(6, 9)
 ZOOM, ZOOM_MASK = 9, 10
 TRAVEL, TRAVEL_MASK = slice(11, 14), 14
 DOLLY_ZOOM_MASK, DISTANCE_RATE, STILL, STILL_ALONG = 15, 16, 17, 18
+LOG_FOCAL_FLOOR, LOG_FOCAL_CEILING, HEADROOM_MASK = 19, 20, 21
+#: the columns of the take's moves, which the pre-roll drops; the lens's headroom stays (it is set up there)
+TAKE_COLUMNS = slice(0, LOG_FOCAL_FLOOR)
 SIDE_PARAMS = slice(0, 3)  #: the side-of-subject parameters (bearing vector and mask), set by the planner core
 FLOWN_RATE_COLUMNS = [ZOOM]  #: the lens's rate target, planned slower (core.flown_rate_factor)
 #: the camera-motion terms' masks
-MOTION_MASKS = [6, 7, 8, ZOOM_MASK, TRAVEL_MASK, DOLLY_ZOOM_MASK, STILL, STILL_ALONG]
+MOTION_MASKS = [6, 7, 8, ZOOM_MASK, TRAVEL_MASK, DOLLY_ZOOM_MASK, STILL, STILL_ALONG, HEADROOM_MASK]
 
 #: which classes ask for which term
 RATE_CLASSES = (("pan", "orbit"), ("tilt",), ("roll",))
@@ -52,6 +58,8 @@ STILL_CLASSES = ("pan", "tilt", "roll", "zoom_in", "zoom_out")
 STATIC = frozenset({"static"})  #: hold still: every angular rate and the zoom rate 0
 #: with no class, a rate counts when at least this large (deg/s; 1/s for the zoom)
 MIN_RATE_DPS, MIN_ZOOM_RATE = 1.0, 0.01
+#: the lens's headroom is the zoom still to come times e^this (the style's rates are read, not exact)
+HEADROOM_MARGIN = 0.05
 
 
 @dataclass(frozen=True)
@@ -62,6 +70,8 @@ class MotionStyle:
     rates_radps: np.ndarray  #: (K, 3) yaw, pitch, roll rates, NaN = unknown
     zoom_rate: np.ndarray  #: (K,) d ln f / dt, NaN = unknown
     travel: np.ndarray  #: (K, 3) unit direction in the planner's camera frame, zeros = none
+    #: (K, 2) ln of how far the lens still zooms out and in from each row to the end of the take (>= 0)
+    zoom_to_come: np.ndarray | None = None
 
 
 def motion_classes(text: object) -> frozenset[str] | None:
@@ -104,12 +114,56 @@ def read_motion_style(ins: object) -> MotionStyle | None:
         and len(raw_cls) == k else [None] * k
     travel_src = _column(ins, "translation_dir", k, 3)
     travel = np.stack([planner_camera_direction(t) for t in travel_src]) if k else np.zeros((0, 3))
-    return MotionStyle(classes, rates, _column(ins, "zoom_rate", k), travel)
+    zoom = _column(ins, "zoom_rate", k)
+    asked = np.array([_zoom_asked(c, float(z)) for c, z in zip(classes, zoom)], dtype=bool)
+    fps = _rows_per_s(ins)
+    to_come = zoom_to_come(np.where(asked, zoom, 0.0), fps) if fps > 0 else np.zeros((k, 2))
+    return MotionStyle(classes, rates, zoom, travel, to_come)
 
 
-def row_terms(style: MotionStyle, row: int, *, control_roll: bool) -> np.ndarray:
-    """The N_MOTION parameters of one row (the side-of-subject ones 0)."""
+def _rows_per_s(ins: object) -> float:
+    """The instructions' rows per second (0 when unknown)."""
+    fps = float(getattr(ins, "fps", 0.0) or 0.0)
+    if not (math.isfinite(fps) and fps > 0):
+        dur = float(getattr(ins, "frame_duration_s", 0.0) or 0.0)
+        fps = 1.0 / dur if math.isfinite(dur) and dur > 0 else 0.0
+    return fps
+
+
+def _zoom_asked(cls: frozenset[str] | None, zoom: float) -> bool:
+    """Whether a row asks the lens to zoom: its class names a zoom, or it has no class and a clear rate."""
+    if cls is not None:
+        return any(n in cls for n in ZOOM_CLASSES)
+    return math.isfinite(zoom) and abs(zoom) >= MIN_ZOOM_RATE
+
+
+def zoom_to_come(zoom_rate: np.ndarray, fps: float) -> np.ndarray:
+    """(K, 2): from each row on, ln of the furthest the lens zooms out and in over the rest of the
+    take at the rows' zoom rates `zoom_rate` (K,) [1/s] (0 where none, NaN read as 0), both >= 0."""
+    step = np.nan_to_num(np.asarray(zoom_rate, dtype=float)) / fps
+    level = np.concatenate([[0.0], np.cumsum(step)])  # ln f after each row, relative to the take's start
+    lowest = np.minimum.accumulate(level[::-1])[::-1][1:]  # the least level reached after each row's start
+    highest = np.maximum.accumulate(level[::-1])[::-1][1:]
+    return np.column_stack([np.maximum(level[:-1] - lowest, 0.0), np.maximum(highest - level[:-1], 0.0)])
+
+
+def lens_headroom(to_come: np.ndarray, focal_range_mm: tuple[float, float]) -> tuple[float, float]:
+    """ln of the least and greatest focal length [mm] that leave the lens room for the zoom still to
+    come `to_come` (ln out, ln in), within the lens's range (the floor never above the ceiling)."""
+    lo, hi = math.log(focal_range_mm[0]), math.log(focal_range_mm[1])
+    out, zin = (float(v) + HEADROOM_MARGIN if v > 0 else 0.0 for v in to_come)
+    floor, ceiling = min(lo + out, hi), max(hi - zin, lo)
+    return (floor, ceiling) if floor <= ceiling else (0.5 * (floor + ceiling),) * 2
+
+
+def row_terms(style: MotionStyle, row: int, *, control_roll: bool,
+              focal_range_mm: tuple[float, float] | None = None) -> np.ndarray:
+    """The N_MOTION parameters of one row (the side-of-subject ones 0); the lens's headroom when
+    the lens's `focal_range_mm` is given and a zoom is still to come."""
     out = np.zeros(N_MOTION)
+    if focal_range_mm is not None and style.zoom_to_come is not None and style.zoom_to_come[row].any():
+        out[LOG_FOCAL_FLOOR], out[LOG_FOCAL_CEILING] = lens_headroom(style.zoom_to_come[row], focal_range_mm)
+        out[HEADROOM_MASK] = 1.0
     cls = style.classes[row]
     if cls == STATIC:
         n_rates = 3 if control_roll else 2
@@ -124,8 +178,7 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool) -> np.ndarray
         if asked and math.isfinite(rate) and (i < 2 or control_roll):
             out[RATES.start + i], out[RATE_MASKS.start + i] = rate, 1.0
     zoom = float(style.zoom_rate[row])
-    zoom_asked = (cls is not None and any(n in cls for n in ZOOM_CLASSES)) or \
-        (cls is None and math.isfinite(zoom) and abs(zoom) >= MIN_ZOOM_RATE)
+    zoom_asked = _zoom_asked(cls, zoom)
     if zoom_asked and math.isfinite(zoom):
         out[ZOOM], out[ZOOM_MASK] = zoom, 1.0
         if cls is not None and "dolly_zoom" in cls:
@@ -142,12 +195,13 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool) -> np.ndarray
     return out
 
 
-def stage_motion(style: MotionStyle | None, rows: list[int], *, control_roll: bool) -> np.ndarray:
+def stage_motion(style: MotionStyle | None, rows: list[int], *, control_roll: bool,
+                 focal_range_mm: tuple[float, float] | None = None) -> np.ndarray:
     """(N, N_MOTION) parameters of the horizon's stages from their instruction rows."""
     out = np.zeros((len(rows), N_MOTION))
     if style is None:
         return out
     for k, r in enumerate(rows):
         if 0 <= r < len(style.classes):
-            out[k] = row_terms(style, r, control_roll=control_roll)
+            out[k] = row_terms(style, r, control_roll=control_roll, focal_range_mm=focal_range_mm)
     return out
