@@ -60,6 +60,8 @@ STATIC = frozenset({"static"})  #: hold still: every angular rate and the zoom r
 MIN_RATE_DPS, MIN_ZOOM_RATE = 1.0, 0.01
 #: the lens's headroom is the zoom still to come times e^this (the style's rates are read, not exact)
 HEADROOM_MARGIN = 0.05
+#: ... and a side with no zoom to come is set this far (ln) outside the lens's range, where it never acts
+UNUSED_SIDE = 1.0
 
 
 @dataclass(frozen=True)
@@ -149,10 +151,13 @@ def zoom_to_come(zoom_rate: np.ndarray, fps: float) -> np.ndarray:
 
 def lens_headroom(to_come: np.ndarray, focal_range_mm: tuple[float, float]) -> tuple[float, float]:
     """ln of the least and greatest focal length [mm] that leave the lens room for the zoom still to
-    come `to_come` (ln out, ln in), within the lens's range (the floor never above the ceiling)."""
+    come `to_come` (ln out, ln in), within the lens's range (the floor never above the ceiling).
+    A side with no zoom to come lies UNUSED_SIDE beyond the range: a floor at the lens's own end
+    touched a lens resting there (a slow dolly's flight moved, 0.52 -> 0.31 by the video)."""
     lo, hi = math.log(focal_range_mm[0]), math.log(focal_range_mm[1])
-    out, zin = (float(v) + HEADROOM_MARGIN if v > 0 else 0.0 for v in to_come)
-    floor, ceiling = min(lo + out, hi), max(hi - zin, lo)
+    out, zin = (float(v) for v in to_come)
+    floor = min(lo + out + HEADROOM_MARGIN, hi) if out > 0 else lo - UNUSED_SIDE
+    ceiling = max(hi - zin - HEADROOM_MARGIN, lo) if zin > 0 else hi + UNUSED_SIDE
     return (floor, ceiling) if floor <= ceiling else (0.5 * (floor + ceiling),) * 2
 
 

@@ -204,9 +204,10 @@ def test_lens_headroom_by_hand():
     lo, hi = CM.lens_headroom(np.array([0.27, 0.0]), (30.0, 500.0))
     # room to zoom out by e^-0.27 (and the margin) from 30 mm: at least 30 e^0.32 = 41.3 mm; no zoom in asked
     assert math.exp(lo) == pytest.approx(30.0 * math.exp(0.27 + CM.HEADROOM_MARGIN))
-    assert math.exp(hi) == pytest.approx(500.0)
+    assert hi == pytest.approx(math.log(500.0) + CM.UNUSED_SIDE)  # no zoom in to come: no ceiling inside the range
     lo, hi = CM.lens_headroom(np.array([0.0, 0.1]), (30.0, 500.0))
-    assert math.exp(lo) == pytest.approx(30.0) and math.exp(hi) == pytest.approx(500.0 * math.exp(-0.15))
+    assert lo == pytest.approx(math.log(30.0) - CM.UNUSED_SIDE)
+    assert math.exp(hi) == pytest.approx(500.0 * math.exp(-0.15))
     lo, hi = CM.lens_headroom(np.array([3.0, 3.0]), (30.0, 500.0))  # more than the range: the middle
     assert lo == hi == pytest.approx(0.5 * (math.log(30.0) + math.log(500.0)))
 
