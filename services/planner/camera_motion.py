@@ -31,6 +31,9 @@ Per-stage parameter layout (N_MOTION values), read by cost.StageBuilder:
     19    bearing-rate mask, 20 the rate d(bearing of the camera round the subject)/dt asked then [rad/s,
           positive as the pan]: a truck's, read from the source's pan rate and the subject's
           drift across its image (subject_bearing_rate)
+    21-22 ln of the least and the greatest focal length [mm] the lens may stand at, 23 their mask:
+          room for the zoom still to come in the take (a dolly-zoom in zooms out by e^-0.27 over its
+          2 s, and started at the source's 32.6 mm the lens hit its 30 mm end half-way through)
 """
 from __future__ import annotations
 
@@ -41,17 +44,21 @@ import numpy as np
 
 from cinetransfer.shared.camera_motion import ASSUMED_HFOV_DEG
 
-N_MOTION = 21
+N_MOTION = 24
 SIDE, SIDE_MASK = slice(0, 2), 2
 RATES, RATE_MASKS = slice(3, 6), slice(6, 9)
 ZOOM, ZOOM_MASK = 9, 10
 TRAVEL, TRAVEL_MASK = slice(11, 14), 14
 DOLLY_ZOOM_MASK, DISTANCE_RATE, STILL, STILL_ALONG = 15, 16, 17, 18
 BEARING_RATE_MASK, BEARING_RATE = 19, 20
+LOG_FOCAL_FLOOR, LOG_FOCAL_CEILING, HEADROOM_MASK = 21, 22, 23
+#: the columns of the take's moves, which the pre-roll drops; the lens's headroom stays (it is set up there)
+TAKE_COLUMNS = slice(0, LOG_FOCAL_FLOOR)
 SIDE_PARAMS = slice(0, 3)  #: the side-of-subject parameters (bearing vector and mask), set by the planner core
 FLOWN_RATE_COLUMNS = [ZOOM]  #: the lens's rate target, planned slower (core.flown_rate_factor)
 #: the camera-motion terms' masks
-MOTION_MASKS = [6, 7, 8, ZOOM_MASK, TRAVEL_MASK, DOLLY_ZOOM_MASK, STILL, STILL_ALONG, BEARING_RATE_MASK]
+MOTION_MASKS = [6, 7, 8, ZOOM_MASK, TRAVEL_MASK, DOLLY_ZOOM_MASK, STILL, STILL_ALONG, BEARING_RATE_MASK,
+                HEADROOM_MASK]
 
 #: which classes ask for which term
 RATE_CLASSES = (("pan", "orbit"), ("tilt",), ("roll",))
@@ -68,6 +75,10 @@ DISTANCE_WINDOW_S = 0.5
 #: a truck: flown at the source's rate of turn round the subject (subject_bearing_rate). An orbit
 #: asked it too flew no more of its rows as orbit and framed worse (docs/camera_motion.md)
 SWING_CLASSES = ("truck",)
+#: the lens's headroom is the zoom still to come times e^this (the style's rates are read, not exact)
+HEADROOM_MARGIN = 0.05
+#: ... and a side with no zoom to come is set this far (ln) outside the lens's range, where it never acts
+UNUSED_SIDE = 1.0
 
 
 @dataclass(frozen=True)
@@ -82,6 +93,8 @@ class MotionStyle:
     distance_rate: np.ndarray | None = None
     #: (K,) d(bearing of the source camera round the subject)/dt [rad/s], NaN = unknown (subject_bearing_rate)
     bearing_rate: np.ndarray | None = None
+    #: (K, 2) ln of how far the lens still zooms out and in from each row to the end of the take (>= 0)
+    zoom_to_come: np.ndarray | None = None
 
 
 def motion_classes(text: object) -> frozenset[str] | None:
@@ -128,11 +141,13 @@ def read_motion_style(ins: object) -> MotionStyle | None:
     box = _column(ins, "subject_box", k, 4)
     starts = getattr(ins, "shot_start", None)
     starts = np.asarray(starts, dtype=bool) if starts is not None and len(starts) == k else np.zeros(k, dtype=bool)
-    fps = float(getattr(ins, "fps", 0.0) or 0.0)
+    fps = _rows_per_s(ins)
     distance = subject_distance_rate(box[:, 3] - box[:, 1], zoom, fps, starts) if fps > 0 else np.full(k, np.nan)
     bearing = subject_bearing_rate(0.5 * (box[:, 0] + box[:, 2]), rates[:, 0], fps, starts) if fps > 0 \
         else np.full(k, np.nan)
-    return MotionStyle(classes, rates, zoom, travel, distance, bearing)
+    asked = np.array([_zoom_asked(c, float(z)) for c, z in zip(classes, zoom)], dtype=bool)
+    to_come = zoom_to_come(np.where(asked, zoom, 0.0), fps) if fps > 0 else np.zeros((k, 2))
+    return MotionStyle(classes, rates, zoom, travel, distance, bearing, to_come)
 
 
 def _window_slopes(values: np.ndarray, fps: float, starts: np.ndarray, window_s: float) -> np.ndarray:
@@ -192,9 +207,50 @@ def subject_distance_rate(heights: np.ndarray, zoom_rate: np.ndarray, fps: float
     return out
 
 
-def row_terms(style: MotionStyle, row: int, *, control_roll: bool) -> np.ndarray:
-    """The N_MOTION parameters of one row (the side-of-subject ones 0)."""
+def _rows_per_s(ins: object) -> float:
+    """The instructions' rows per second (0 when unknown)."""
+    fps = float(getattr(ins, "fps", 0.0) or 0.0)
+    if not (math.isfinite(fps) and fps > 0):
+        dur = float(getattr(ins, "frame_duration_s", 0.0) or 0.0)
+        fps = 1.0 / dur if math.isfinite(dur) and dur > 0 else 0.0
+    return fps
+
+
+def _zoom_asked(cls: frozenset[str] | None, zoom: float) -> bool:
+    """Whether a row asks the lens to zoom: its class names a zoom, or it has no class and a clear rate."""
+    if cls is not None:
+        return any(n in cls for n in ZOOM_CLASSES)
+    return math.isfinite(zoom) and abs(zoom) >= MIN_ZOOM_RATE
+
+
+def zoom_to_come(zoom_rate: np.ndarray, fps: float) -> np.ndarray:
+    """(K, 2): from each row on, ln of the furthest the lens zooms out and in over the rest of the
+    take at the rows' zoom rates `zoom_rate` (K,) [1/s] (0 where none, NaN read as 0), both >= 0."""
+    step = np.nan_to_num(np.asarray(zoom_rate, dtype=float)) / fps
+    level = np.concatenate([[0.0], np.cumsum(step)])  # ln f after each row, relative to the take's start
+    lowest = np.minimum.accumulate(level[::-1])[::-1][1:]  # the least level reached after each row's start
+    highest = np.maximum.accumulate(level[::-1])[::-1][1:]
+    return np.column_stack([np.maximum(level[:-1] - lowest, 0.0), np.maximum(highest - level[:-1], 0.0)])
+
+
+def lens_headroom(to_come: np.ndarray, focal_range_mm: tuple[float, float]) -> tuple[float, float]:
+    """ln of the least and greatest focal length [mm] that leave the lens room for the zoom still to
+    come `to_come` (ln out, ln in), within the lens's range (the floor never above the ceiling).
+    A side with no zoom to come lies UNUSED_SIDE beyond the range: a floor at the lens's own end
+    touched a lens resting there (a slow dolly's flight moved, 0.52 -> 0.31 by the video)."""
+    lo, hi = math.log(focal_range_mm[0]), math.log(focal_range_mm[1])
+    out, zin = (float(v) for v in to_come)
+    floor = min(lo + out + HEADROOM_MARGIN, hi) if out > 0 else lo - UNUSED_SIDE
+    ceiling = max(hi - zin - HEADROOM_MARGIN, lo) if zin > 0 else hi + UNUSED_SIDE
+    return (floor, ceiling) if floor <= ceiling else (0.5 * (floor + ceiling),) * 2
+
+
+def row_terms(style: MotionStyle, row: int, *, control_roll: bool,
+              focal_range_mm: tuple[float, float] | None = None) -> np.ndarray:
+    """The N_MOTION parameters of one row (the side-of-subject ones 0); the lens's headroom when
+    the lens's `focal_range_mm` is given and a zoom is still to come."""
     out = np.zeros(N_MOTION)
+    _headroom_terms(out, style, row, focal_range_mm)
     cls = style.classes[row]
     if cls == STATIC:
         n_rates = 3 if control_roll else 2
@@ -209,8 +265,7 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool) -> np.ndarray
         if asked and math.isfinite(rate) and (i < 2 or control_roll):
             out[RATES.start + i], out[RATE_MASKS.start + i] = rate, 1.0
     zoom = float(style.zoom_rate[row])
-    zoom_asked = (cls is not None and any(n in cls for n in ZOOM_CLASSES)) or \
-        (cls is None and math.isfinite(zoom) and abs(zoom) >= MIN_ZOOM_RATE)
+    zoom_asked = _zoom_asked(cls, zoom)
     if zoom_asked and math.isfinite(zoom):
         out[ZOOM], out[ZOOM_MASK] = zoom, 1.0
         if cls is not None and "dolly_zoom" in cls:
@@ -229,6 +284,14 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool) -> np.ndarray
     if cls is not None and any(n in cls for n in SWING_CLASSES):
         _swing_terms(out, style, row)
     return out
+
+
+def _headroom_terms(out: np.ndarray, style: MotionStyle, row: int,
+                    focal_range_mm: tuple[float, float] | None) -> None:
+    """Room on the lens for the zoom still to come in the take, when the lens's range is known."""
+    if focal_range_mm is not None and style.zoom_to_come is not None and style.zoom_to_come[row].any():
+        out[LOG_FOCAL_FLOOR], out[LOG_FOCAL_CEILING] = lens_headroom(style.zoom_to_come[row], focal_range_mm)
+        out[HEADROOM_MASK] = 1.0
 
 
 def _swing_terms(out: np.ndarray, style: MotionStyle, row: int) -> None:
@@ -251,12 +314,13 @@ def _dolly_terms(out: np.ndarray, style: MotionStyle, row: int) -> None:
         out[DOLLY_ZOOM_MASK], out[DISTANCE_RATE] = 1.0, rate
 
 
-def stage_motion(style: MotionStyle | None, rows: list[int], *, control_roll: bool) -> np.ndarray:
+def stage_motion(style: MotionStyle | None, rows: list[int], *, control_roll: bool,
+                 focal_range_mm: tuple[float, float] | None = None) -> np.ndarray:
     """(N, N_MOTION) parameters of the horizon's stages from their instruction rows."""
     out = np.zeros((len(rows), N_MOTION))
     if style is None:
         return out
     for k, r in enumerate(rows):
         if 0 <= r < len(style.classes):
-            out[k] = row_terms(style, r, control_roll=control_roll)
+            out[k] = row_terms(style, r, control_roll=control_roll, focal_range_mm=focal_range_mm)
     return out

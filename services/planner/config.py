@@ -127,6 +127,7 @@ class Weights:
     #                              keeps the size (docs/planner.md, "Stand still sideways"); static rows take it too
     zoom_still: float = 0.0  # (v along the optical axis / v_max)^2 per s in a row that zooms in place: moving
     #                           there reads as a dolly-zoom (docs/planner.md, "Stand still sideways")
+    zoom_headroom: float = 100.0  # (ln f beyond the focal length that leaves room for the zoom to come)^2 per s
 
     def validate(self) -> "Weights":
         for f in dataclasses.fields(self):

@@ -30,8 +30,8 @@ import numpy as np
 
 from cinetransfer.services.planner import constraints as C
 from cinetransfer.services.planner.camera_motion import (DOLLY_ZOOM_MASK, FLOWN_RATE_COLUMNS, MOTION_MASKS, SIDE_PARAMS,
-                                                         STILL_ALONG, ZOOM_MASK, MotionStyle, read_motion_style,
-                                                         stage_motion)
+                                                         STILL_ALONG, TAKE_COLUMNS, ZOOM_MASK, MotionStyle,
+                                                         read_motion_style, stage_motion)
 from cinetransfer.services.planner.side_of_subject import camera_bearing, side_targets
 from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
 from cinetransfer.services.planner.lens_axes import pinned_bounds
@@ -354,12 +354,14 @@ class Planner:
         seen = self._seen_now(x0, jw[:len(ctrl)], jmask[:len(ctrl)], by_name=by_name)
         image_targets = np.asarray(ins.image_targets, dtype=float)
         targets, mask = stage_targets(image_targets, rows, ctrl, jmask, seen)
-        motion = stage_motion(self._motion_style(ins), rows, control_roll=self.layout.control_roll)
+        lens_range = (self.solver.bounds.focal_length_min_mm, self.solver.bounds.focal_length_max_mm)
+        motion = stage_motion(self._motion_style(ins), rows, control_roll=self.layout.control_roll,
+                              focal_range_mm=lens_range)
         motion[:, FLOWN_RATE_COLUMNS] /= flown_rate_factor(self.cfg.setpoint_lead_s, self.cfg.rate_hz)
         if float(np.linalg.norm(subj.vel[:2])) < SETTLE_MAX_SUBJECT_SPEED_MPS:
             # the pre-roll is not filmed: round a subject who waits on his mark it only settles the framing
             # (held to the take's moves, the camera could not get round him to the first frame's bearing)
-            motion[self._settle_stages(now_ns, n, dt)] = 0.0
+            motion[self._settle_stages(now_ns, n, dt), TAKE_COLUMNS] = 0.0
         lens_yields = self._lens_for_focus(ins)[rows]
         motion[np.ix_(lens_yields, LENS_MOTION_COLUMNS)] = 0.0
         self.counters["zoom_yields_to_focus"] = bool(lens_yields.any())

@@ -225,6 +225,13 @@ def bearing_rate(rel, rel_vel):  # noqa: ANN001, ANN201
     return (rel[0] * rel_vel[1] - rel[1] * rel_vel[0]) / (rel[0] ** 2 + rel[1] ** 2 + 1e-6)
 
 
+def headroom_shortfall(f_mm, log_floor, log_ceiling):  # noqa: ANN001, ANN201
+    """(ln f below the floor, ln f above the ceiling), each 0 inside: how far the focal length
+    stands from leaving the lens room for the zoom still to come."""
+    log_f = ca.log(ca.fmax(f_mm, 1e-3))
+    return ca.vertcat(ca.fmax(log_floor - log_f, 0), ca.fmax(log_f - log_ceiling, 0))
+
+
 def travel_residual(vel, direction, v_scale):  # noqa: ANN001, ANN201
     """(velocity off the direction, velocity against it) / v_max for a unit world `direction`:
     nothing for travel along it at any speed (the style gives a direction, not a speed)."""
@@ -471,6 +478,9 @@ class StageBuilder:
         out.append((wts["motion_still"] * m[CM.STILL], sideways_velocity(x[lay.V], r[:, 0], par.v_scale)))
         # a camera that only zooms holds its distance too: moved along the axis it reads as a dolly-zoom
         out.append((wts["zoom_still"] * m[CM.STILL_ALONG], along_velocity(x[lay.V], r[:, 0], par.v_scale)))
+        # room on the lens for the zoom still to come: at the end of its range it cannot follow the style
+        out.append((wts["zoom_headroom"] * m[CM.HEADROOM_MASK],
+                     headroom_shortfall(x[lay.F], m[CM.LOG_FOCAL_FLOOR], m[CM.LOG_FOCAL_CEILING])))
         return out
 
     def _motion_terms(self, terms: NlpTerms, k: int, par: NlpParams, **at):  # noqa: ANN003, ANN202

@@ -273,3 +273,44 @@ def test_a_truck_asks_the_sources_bearing_rate():
         assert t[CM.BEARING_RATE_MASK] == 0 and t[CM.BEARING_RATE] == 0
     assert CM.row_terms(_style("truck", travel=(1, 0, 0)), 0, control_roll=False)[CM.BEARING_RATE_MASK] == 0
     assert CM.BEARING_RATE_MASK in CM.MOTION_MASKS
+
+
+def test_zoom_to_come_by_hand():
+    # at 10 frames/s: out 0.1/s for 2 rows, in 0.3/s for 1, none for 1 -> ln f steps -0.01, -0.01, +0.03, 0
+    got = CM.zoom_to_come(np.array([-0.1, -0.1, 0.3, np.nan]), 10.0)
+    # from row 0: down to -0.02 (out 0.02), up to +0.01 (in 0.01); row 1: out 0.01, in 0.02; row 2: in 0.03
+    assert got == pytest.approx(np.array([[0.02, 0.01], [0.01, 0.02], [0.0, 0.03], [0.0, 0.0]]))
+
+
+def test_lens_headroom_by_hand():
+    lo, hi = CM.lens_headroom(np.array([0.27, 0.0]), (30.0, 500.0))
+    # room to zoom out by e^-0.27 (and the margin) from 30 mm: at least 30 e^0.32 = 41.3 mm; no zoom in asked
+    assert math.exp(lo) == pytest.approx(30.0 * math.exp(0.27 + CM.HEADROOM_MARGIN))
+    assert hi == pytest.approx(math.log(500.0) + CM.UNUSED_SIDE)  # no zoom in to come: no ceiling inside the range
+    lo, hi = CM.lens_headroom(np.array([0.0, 0.1]), (30.0, 500.0))
+    assert lo == pytest.approx(math.log(30.0) - CM.UNUSED_SIDE)
+    assert math.exp(hi) == pytest.approx(500.0 * math.exp(-0.15))
+    lo, hi = CM.lens_headroom(np.array([3.0, 3.0]), (30.0, 500.0))  # more than the range: the middle
+    assert lo == hi == pytest.approx(0.5 * (math.log(30.0) + math.log(500.0)))
+
+
+def test_rows_with_a_zoom_to_come_ask_the_lens_for_room():
+    fps = 24.0
+    ins = M.Instructions(image_targets=np.zeros((3, 4, 2), dtype=np.float32), fps=fps,
+                         camera_motion_class=["dolly_zoom", "dolly_zoom", "static"],
+                         zoom_rate=np.array([-0.12, -0.12, 0.0], dtype=np.float32))
+    style = CM.read_motion_style(ins)
+    assert style.zoom_to_come[:, 0] == pytest.approx([0.24 / fps, 0.12 / fps, 0.0], rel=1e-5)
+    rows = CM.stage_motion(style, [0, 2], control_roll=False, focal_range_mm=(30.0, 500.0))
+    assert rows[0, CM.HEADROOM_MASK] == 1 and rows[1, CM.HEADROOM_MASK] == 0  # nothing left to zoom
+    assert math.exp(rows[0, CM.LOG_FOCAL_FLOOR]) == pytest.approx(30.0 * math.exp(0.01 + CM.HEADROOM_MARGIN), rel=1e-5)
+    # without the lens's range (a caller that gives none) no headroom is asked
+    assert not CM.stage_motion(style, [0], control_roll=False)[0, CM.HEADROOM_MASK]
+
+
+def test_headroom_shortfall_by_hand():
+    f = ca.SX.sym("f")
+    h = ca.Function("h", [f], [J.headroom_shortfall(f, math.log(40.0), math.log(100.0))])
+    assert np.array(h(32.0)).ravel() == pytest.approx([math.log(40 / 32), 0.0])
+    assert np.array(h(50.0)).ravel() == pytest.approx([0.0, 0.0])
+    assert np.array(h(200.0)).ravel() == pytest.approx([0.0, math.log(2.0)])
