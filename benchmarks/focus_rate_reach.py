@@ -1,7 +1,7 @@
 """How many frames of a recorded run no lens moving at the vehicle's lens rates could give the source's
 focus labels (focus_reach.rate_unreachable), next to what the flight gave (the truth's region_in_focus).
 
-    python benchmarks/focus_rate_reach.py RUN_DIR [RUN_DIR ...] [--vehicle cinempc]
+    python benchmarks/focus_rate_reach.py RUN_DIR [RUN_DIR ...] [--vehicle cinempc] [--json FILE]
 
 RUN_DIR: a transfer's output directory (report.json, truth.msgpack, style.json). Prints, per run, the
 fewest frames any lens moving at the rates misses (each region alone, and the subject and background
@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from harness import write_result  # noqa: E402
 
 from cinetransfer.report import focus_reach as FR  # noqa: E402
 from cinetransfer.report import reach_frames as RF  # noqa: E402
@@ -61,11 +63,17 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("runs", nargs="+", type=Path)
     p.add_argument("--vehicle", default="cinempc")
+    p.add_argument("--json", type=Path, help="also write the results here")
     a = p.parse_args()
     lens = load_vehicle(a.vehicle).lens
     rates = FR.LensRates(lens.focus_rate_mps, lens.f_number_rate_ps)
+    results = {}
     for run in a.runs:
-        print(run, json.dumps(judge(run, rates)))
+        results[str(run)] = judge(run, rates)
+        print(run, json.dumps(results[str(run)]))
+    if a.json:
+        write_result(a.json, {"vehicle": a.vehicle, "rates": [rates.focus_mps, rates.f_number_ps],
+                              "grid_substeps": list(FR.RATE_SUBSTEPS), "results": results})
 
 
 if __name__ == "__main__":
