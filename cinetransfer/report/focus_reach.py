@@ -30,6 +30,10 @@ change): a label counts as reachable only when some wanted setting gives it, tog
 granted before it, wherever inside that hold the lens settles. A combination that only a window
 narrower than the hold gives is out of reach "on a knife edge" (kind 'hold'), the hold named in the
 reason of every such frame.
+
+Over time the lens moves its focus and f-number at most at the vehicle's rates: rate_min_misses counts
+the fewest frames a lens so limited misses the asked labels (a dynamic programme over a grid of
+settings), a bound on a run, not a verdict per frame (docs/report.md, "The lens's rates").
 """
 from __future__ import annotations
 
@@ -336,3 +340,74 @@ def unreachable_labels(lens: Lens, asked: np.ndarray, present: np.ndarray,
             kept.append(r)
             granted = with_r
     return out
+
+
+#: the rate grid's cells per frame of travel (focus, f-number): a move of the lens's rate over one frame
+#: is RATE_SUBSTEPS cells, so the grid's moves are exactly the ones the rates allow at the nominal frame step
+RATE_SUBSTEPS = (8, 4)
+
+
+@dataclass(frozen=True)
+class LensRates:
+    """How fast the vehicle's lens moves (the vehicle profile's lens rates)."""
+
+    focus_mps: float
+    f_number_ps: float
+
+
+def _rate_grid(lens: Lens, rates: LensRates, dt_s: float) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """(focus distances, f-numbers) of the rate grid, uniform in metres and in f-number, and the cells
+    one frame step's move spans: each step is the rate's move over dt_s / RATE_SUBSTEPS."""
+    steps = (rates.focus_mps * dt_s / RATE_SUBSTEPS[0], rates.f_number_ps * dt_s / RATE_SUBSTEPS[1])
+    axes = [np.append(np.arange(lo, hi, st), hi) for (lo, hi), st in zip((lens.focus_m, lens.f_number), steps)]
+    return axes[0], axes[1], RATE_SUBSTEPS
+
+
+def _spread_min(cost: np.ndarray, cells: tuple[int, int]) -> np.ndarray:
+    """Per grid setting, the least cost of a setting within `cells` of it (per axis): where a lens that
+    ended the last frame anywhere may be now (the box the rates allow)."""
+    out = cost
+    for axis, k in enumerate(cells):
+        src, out = out, out.copy()
+        n = src.shape[axis]
+        for shift in range(1, min(k, n - 1) + 1):
+            lo, hi = [slice(None)] * src.ndim, [slice(None)] * src.ndim
+            lo[axis], hi[axis] = slice(shift, None), slice(None, n - shift)
+            np.minimum(out[tuple(lo)], src[tuple(hi)], out=out[tuple(lo)])
+            np.minimum(out[tuple(hi)], src[tuple(lo)], out=out[tuple(hi)])
+    return out
+
+
+def _grid_feasible(lens: Lens, s: np.ndarray, n: np.ndarray, r: int, asked: np.ndarray,
+                   inv_depth: np.ndarray) -> np.ndarray:
+    """(S, N) grid: the setting gives region r its asked label (the may_reach rule)."""
+    inv_far, inv_near = dof_inverse(lens.focal_mm, n[None, :], s[:, None], lens.coc_mm)
+    return _reaches(inv_depth[r], inv_far.ravel(), inv_near.ravel(), bool(asked[r])).reshape(inv_far.shape)
+
+
+def rate_min_misses(lenses: list[Lens | None], asked: np.ndarray, judged: np.ndarray, inv_depth: np.ndarray,
+                    rates: LensRates, dt_s: float, regions: tuple[int, ...]) -> int:
+    """The fewest frames in which a lens moving at most at `rates` misses a judged label of `regions`.
+
+    lenses: one per frame (None = nothing judged; the lens moves on); asked, judged: (N, 3) bool, the
+    asked labels and where they count (the region present and within each frame's own reach,
+    unreachable_labels); inv_depth: (N, 3, S); frames dt_s apart. A dynamic programme over the frames:
+    per lens setting, the fewest misses of any path ending there, the path moving at most a frame's
+    travel of focus and f-number between frames. The settings are a grid uniform in metres of focus and
+    in f-number whose cells are a frame's travel / RATE_SUBSTEPS, so every grid path is one the rates
+    allow. The focal length is taken as filmed (it is the framing's)."""
+    asked, judged = np.asarray(asked, bool), np.asarray(judged, bool)
+    cost: np.ndarray | None = None
+    cells = RATE_SUBSTEPS
+    for i, lens in enumerate(lenses):
+        if lens is None:  # nothing judged, the lens moves on at its rates
+            cost = _spread_min(cost, cells) if cost is not None else None
+            continue
+        s, n, cells = _rate_grid(lens, rates, dt_s)
+        ok = np.ones((s.size, n.size), bool)
+        for r in regions:
+            if judged[i, r]:
+                ok &= _grid_feasible(lens, s, n, r, asked[i], inv_depth[i])
+        here = np.where(ok, 0, 1) if ok.any() else np.zeros(ok.shape, int)  # none on the grid: not judged
+        cost = here if cost is None else _spread_min(cost, cells) + here
+    return int(cost.min()) if cost is not None else 0

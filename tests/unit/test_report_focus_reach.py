@@ -248,3 +248,54 @@ def test_the_report_names_the_lens_hold_of_every_knife_edge_frame():
     assert all(r == "background sharp with subject soft: only on a knife edge, narrower than the lens holds "
                     "(focus ±2 %, f-number ±0.05)" for r in reach.reasons[:, 2])
     assert fid.summary["focus_reach"]["unreachable_frames"] == {"foreground": 0, "subject": 0, "background": k}
+
+
+# --- the lens's rates: a rack from the subject to the background ---------------------------------
+# 50 mm, f/2 only, c = 0.05 mm: H = 25.05 m. The subject (all samples at 10 m) is sharp for focus in
+# [H / (1 + 0.1 (H - f)), (H - 2 f) / (0.1 (H - f) - 1)] = [7.157, 16.633] m; the background (all at
+# 40 m) is sharp from H / (1 + 0.025 (H - f)) = 15.415 m on. Subject sharp with background soft:
+# [7.157, 15.415); subject soft with background sharp: beyond 16.633 m, 1.218 m further.
+RACK_LENS = FR.Lens(50.0, (0.5, 100.0), (2.0, 2.0), coc_mm=0.05, hold_focus=0.0, hold_f_number=0.0)
+RACK_DEPTH = np.array([np.full(20, np.nan), np.full(20, 0.1), np.full(20, 0.025)])
+
+
+def _rack(n_frames: int, switch: int):
+    asked = np.array([[False, i < switch, i >= switch] for i in range(n_frames)])
+    present = np.tile([False, True, True], (n_frames, 1))
+    return asked, present, np.repeat(RACK_DEPTH[None], n_frames, axis=0)
+
+
+def test_rack_limits_by_hand():
+    h = 50.0 * 50.0 / (2.0 * 0.05) / 1000.0 + 0.05
+    assert h == pytest.approx(25.05)
+    inv_far, inv_near = FR.dof_inverse(50.0, np.array([2.0] * 3), np.array([7.16, 15.42, 16.64]), 0.05)
+    assert inv_far[0] < 0.1 < inv_near[0]  # 7.16 m: the subject inside
+    assert inv_far[1] < 0.025  # 15.42 m: the background inside
+    assert inv_near[2] < 0.1  # 16.64 m: the subject out, in front of the field
+
+
+def test_rate_limited_rack_misses_the_frames_the_focus_travels():
+    asked, judged, depth = _rack(8, 3)
+    lenses, slow = [RACK_LENS] * 8, FR.LensRates(0.5, 1.0)
+    # the focus moves 0.5 m a frame and both labels need a jump of 1.218 m (15.415 -> 16.633 m): any
+    # path misses the combination in two frames (e.g. 15.4, 15.9, 16.4, 16.9 m: frames 3 and 4)
+    assert FR.rate_min_misses(lenses, asked, judged, depth, slow, 1.0, (1, 2)) == 2
+    # each region alone: the subject turns soft in front of the field (under 7.157 m, one step from 7.2 m)
+    # and the background is sharp from 15.415 m, inside the subject's sharp field: no miss
+    assert FR.rate_min_misses(lenses, asked, judged, depth, slow, 1.0, (1,)) == 0
+    assert FR.rate_min_misses(lenses, asked, judged, depth, slow, 1.0, (2,)) == 0
+    # 2 m a frame: 15.4 -> 17.4 m in one frame, nothing is missed
+    assert FR.rate_min_misses(lenses, asked, judged, depth, FR.LensRates(2.0, 1.0), 1.0, (1, 2)) == 0
+    # 0.25 m a frame: 15.4 -> 16.65 m takes five frames, four missed, with six frames on either side;
+    # with three before the switch, missing those three (the focus far all along) is the fewer
+    long = _rack(12, 6)
+    assert FR.rate_min_misses([RACK_LENS] * 12, *long, FR.LensRates(0.25, 1.0), 1.0, (1, 2)) == 4
+    assert FR.rate_min_misses(lenses, asked, judged, depth, FR.LensRates(0.25, 1.0), 1.0, (1, 2)) == 3
+
+
+def test_rate_limited_rack_moves_on_where_a_frame_is_not_judged():
+    asked, judged, depth = _rack(8, 3)
+    lenses = [RACK_LENS] * 3 + [None] + [RACK_LENS] * 4  # no truth at the switch: the lens still moves 0.5 m
+    assert FR.rate_min_misses(lenses, asked, judged, depth, FR.LensRates(0.5, 1.0), 1.0, (1, 2)) == 1
+    judged[3:5, 1] = False  # the subject not judged at frames 3-4: the background alone is sharp on the way
+    assert FR.rate_min_misses([RACK_LENS] * 8, asked, judged, depth, FR.LensRates(0.5, 1.0), 1.0, (1, 2)) == 0
