@@ -190,21 +190,8 @@ def subject_distance_rate(heights: np.ndarray, zoom_rate: np.ndarray, fps: float
     (a walker's box breathes with his gait from frame to frame); NaN where fewer than half the
     window is seen or the zoom rate is unknown."""
     h = np.asarray(heights, dtype=float)
-    n = len(h)
-    out = np.full(n, np.nan)
-    half = max(1, int(round(0.5 * window_s * fps)))
-    shot = np.cumsum(np.asarray(starts, dtype=bool) | (np.arange(n) == 0))
     logh = np.where(np.isfinite(h) & (h > 0), np.log(np.where(h > 0, h, 1.0)), np.nan)
-    for k in range(n):
-        lo, hi = max(0, k - half), min(n, k + half + 1)
-        idx = np.arange(lo, hi)
-        idx = idx[(shot[idx] == shot[k]) & np.isfinite(logh[idx])]
-        if len(idx) < max(3, half + 1) or not math.isfinite(float(zoom_rate[k])):
-            continue
-        t = (idx - idx.mean()) / fps
-        slope = float(np.dot(t, logh[idx] - logh[idx].mean()) / np.dot(t, t))
-        out[k] = float(zoom_rate[k]) - slope
-    return out
+    return np.asarray(zoom_rate, dtype=float) - _window_slopes(logh, fps, starts, window_s)
 
 
 def _rows_per_s(ins: object) -> float:
