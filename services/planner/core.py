@@ -24,7 +24,9 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -126,10 +128,8 @@ class Planner:
         self.counters.update(scheduled=0, over_budget=0)
         self._scheduled: list[M.Command] = []
         self.last_result: SolveResult | None = None
-        self._motion_cache: tuple[object, MotionStyle | None] = (None, None)
-        self._focus_cache: tuple[object, np.ndarray] = (None, np.zeros((0, 3), bool))
-        self._keep_out_cache: tuple[object, np.ndarray] = (None, np.zeros(0, bool))
-        self._lens_cache: tuple[object, np.ndarray] = (None, np.zeros(0, bool))
+        #: what is read from one instructions message, by name: (the message, the value) (_per_message)
+        self._read_once: dict[str, tuple[object, Any]] = {}
 
     # ------------------------------------------------------------------ runtime parameters
     def set_weights(self, weights: Weights) -> None:
@@ -424,10 +424,8 @@ class Planner:
 
     def _planned_focus(self, ins: M.Instructions) -> np.ndarray:
         """The style's focus rows as the planner films them (planned_focus_rows), once per instructions message."""
-        if self._focus_cache[0] is not ins:
-            max_rows = int(round(RACK_THROUGH_MAX_S * _fps(ins)))
-            self._focus_cache = (ins, planned_focus_rows(ins.focus_in, absent_regions(ins), max_rows))
-        return self._focus_cache[1]
+        max_rows = int(round(RACK_THROUGH_MAX_S * _fps(ins)))
+        return self._per_message("focus", ins, lambda: planned_focus_rows(ins.focus_in, absent_regions(ins), max_rows))
 
     def _mu_m(self, ins: M.Instructions) -> float:
         """The instructions' depth-of-field margin mu [m], or `mu_default_m` when they carry none."""
@@ -441,27 +439,29 @@ class Planner:
 
     def _keep_out_rows(self, ins: M.Instructions) -> np.ndarray:
         """The rows that keep the subject out by `subject_keep_out_m` (keep_out_rows), once per instructions message."""
-        if self._keep_out_cache[0] is not ins:
-            settle = int(round(self.cfg.keep_out_settle_s * _fps(ins)))
-            self._keep_out_cache = (ins, keep_out_rows(self._planned_focus(ins), absent_regions(ins), settle))
-        return self._keep_out_cache[1]
+        settle = int(round(self.cfg.keep_out_settle_s * _fps(ins)))
+        return self._per_message("keep_out", ins,
+                                 lambda: keep_out_rows(self._planned_focus(ins), absent_regions(ins), settle))
 
     def _lens_for_focus(self, ins: M.Instructions) -> np.ndarray:
         """(K,) bool: the rows whose zoom and distance motion terms give way to the focus choice
         (lens_for_focus_rows), once per instructions message."""
-        if self._lens_cache[0] is not ins:
-            fps = _fps(ins)
-            lead = int(round(self.cfg.zoom_yield_lead_s * fps)) if self.cfg.zoom_yields_to_focus else -1
-            settle = int(round(self.cfg.keep_out_settle_s * fps))
-            self._lens_cache = (ins, lens_for_focus_rows(self._planned_focus(ins), absent_regions(ins), lead, settle,
-                                                         getattr(ins, "shot_start", None)))
-        return self._lens_cache[1]
+        fps = _fps(ins)
+        lead = int(round(self.cfg.zoom_yield_lead_s * fps)) if self.cfg.zoom_yields_to_focus else -1
+        settle = int(round(self.cfg.keep_out_settle_s * fps))
+        return self._per_message("lens", ins, lambda: lens_for_focus_rows(
+            self._planned_focus(ins), absent_regions(ins), lead, settle, getattr(ins, "shot_start", None)))
 
     def _motion_style(self, ins: M.Instructions) -> MotionStyle | None:
         """The instructions' camera-motion style, read once per instructions message."""
-        if self._motion_cache[0] is not ins:
-            self._motion_cache = (ins, read_motion_style(ins))
-        return self._motion_cache[1]
+        return self._per_message("motion", ins, lambda: read_motion_style(ins))
+
+    def _per_message(self, name: str, ins: M.Instructions, read: Callable[[], Any]) -> Any:
+        """`read()` once per instructions message: kept under `name` until another message comes."""
+        held = self._read_once.get(name)
+        if held is None or held[0] is not ins:
+            held = self._read_once[name] = (ins, read())
+        return held[1]
 
     def _measured_state(self, now_ns: int, vehicle: M.VehicleState) -> np.ndarray:
         """The state x0 the solve starts from: the vehicle's, position predicted to `now`, yaw
