@@ -163,10 +163,12 @@ def floor_facts(source: M.Instructions, truths: Sequence[M.GroundTruth], meta: d
 
 
 def per_shot(source: M.Instructions, output: M.Instructions | None, truths: list, output_fps: float | None,
-             takes: list[dict] | None = None, floor: Any = None) -> list[dict[str, Any]]:
+             takes: list[dict] | None = None, floor: Any = None, reach_memo: RF.Memo | None = None
+             ) -> list[dict[str, Any]]:
     """Goals per shot of a multi-shot source (output frame k follows instruction row k), with the
     take's settle figures when the recording was made one take per shot, and each shot's share of
-    the truth joint error's floor (`floor`: floor.Floor on the instruction rows, or None)."""
+    the truth joint error's floor (`floor`: floor.Floor on the instruction rows, or None).
+    `reach_memo`: the whole run's focus-reach verdicts (a shot's frames are not judged again)."""
     # the takes as flown (very short shots are filmed on in the take before), else the source's shots
     segs = [(int(t["first_row"]), int(t["end_row"])) for t in takes] if takes else shot_segments(source)
     if len(segs) < 2:
@@ -180,7 +182,7 @@ def per_shot(source: M.Instructions, output: M.Instructions | None, truths: list
             outp = dataclasses.replace(slice_instructions(output, a, b, final=True), first_frame=0)
         tr = [dataclasses.replace(t, frame_index=int(t.frame_index) - a) for t in truths if a <= int(t.frame_index) < b]
         fid = F.compute_fidelity(dataclasses.replace(src, first_frame=0), outp, tr, output_fps=output_fps,
-                                 output_frames=b - a)
+                                 output_frames=b - a, reach_memo=reach_memo)
         h = fid.summary["headline"]
         take = by_row.get(a, {})
         out.append({"shot": i, "rows": [a, b], "goals_met": h["goals_met"], "goals": h["goals"],
@@ -274,8 +276,9 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
         output_fps = vinfo.get("fps") if vinfo.get("fps", 0) > 0 else None
     output_frames = vinfo.get("frames") if vinfo.get("frames", 0) > 0 else None
 
+    reach_memo: RF.Memo = {}  # each frame's focus reach judged once: the shots compare the same frames
     fid = F.compute_fidelity(source, output, truths, output_fps=output_fps, output_frames=output_frames,
-                             output_missing_reason=reason)
+                             output_missing_reason=reason, reach_memo=reach_memo)
     credit = str(meta.get("credit") or figs.credit_for(source_video))
     shot_rows = ([int(t["first_row"]) for t in meta["takes"]] if meta.get("takes") else
                  [a for a, _ in shot_segments(source)])[1:]
@@ -319,7 +322,7 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
                              middle=None if middle is None else cv2.cvtColor(middle, cv2.COLOR_RGB2BGR))
     except (OSError, ValueError, KeyError, cv2.error) as e:  # the report never fails on this picture
         people = {"error": str(e)}
-    shots = per_shot(source, output, list(truths), output_fps, meta.get("takes"), floor)
+    shots = per_shot(source, output, list(truths), output_fps, meta.get("takes"), floor, reach_memo)
     figures, fig_errors = _drawn(plots, frames)
     figures.update(motion_fig())
     summary: dict[str, Any] = {

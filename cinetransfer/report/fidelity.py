@@ -352,12 +352,14 @@ class Fidelity:
 
 def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
                      truths: Sequence[M.GroundTruth] = (), *, output_fps: float | None = None,
-                     output_frames: int | None = None, output_missing_reason: str = "") -> Fidelity:
+                     output_frames: int | None = None, output_missing_reason: str = "",
+                     reach_memo: RF.Memo | None = None) -> Fidelity:
     """Compare the output (extraction and/or truth) with the source instructions.
 
     `output_fps` defaults to the output extraction's fps, else the source's. The output timeline
     is as long as the longest of `output_frames` (e.g. the recorded video's frame count), the
-    output extraction and the truths.
+    output extraction and the truths. `reach_memo`: the focus-reach verdicts of frames judged
+    before (reach_frames.reach), shared by the calls of one report.
     """
     joint_names = list(source.joint_names)
     E = len(joint_names)
@@ -384,7 +386,8 @@ def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
         else empty_track(n, E)
     tru_tr = truth_track(truths, joint_names, n_out).take(np.flatnonzero(keep)) if truths else empty_track(n, E)
     by_frame = RF.truths_by_frame(truths, n_out, truth_frame_offset(truths)) if truths else [None] * n_out
-    reach = RF.reach(src.focus_in, src.present & tru_tr.present, [by_frame[i] for i in np.flatnonzero(keep)])
+    reach = RF.reach(src.focus_in, src.present & tru_tr.present, [by_frame[i] for i in np.flatnonzero(keep)],
+                     reach_memo)
 
     measures: dict[str, Any] = {}
     errs: dict[str, np.ndarray] = {}

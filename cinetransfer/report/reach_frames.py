@@ -48,9 +48,21 @@ def truths_by_frame(truths: Sequence[M.GroundTruth], n: int, offset: int) -> lis
     return out
 
 
-def reach(asked: np.ndarray, present: np.ndarray, truths: Sequence[M.GroundTruth | None]) -> Reach:
+#: a frame's verdicts by what they are computed from (`frame_key`): see `reach`'s `memo`
+Memo = dict[tuple, list[FR.Unreachable]]
+
+
+def frame_key(lens: FR.Lens, asked: np.ndarray, present: np.ndarray, inv_depth: np.ndarray) -> tuple:
+    """Everything `unreachable_labels` reads of one frame, as a dictionary key (exact values)."""
+    return (lens, np.asarray(asked, bool).tobytes(), np.asarray(present, bool).tobytes(), inv_depth.shape,
+            inv_depth.tobytes())
+
+
+def reach(asked: np.ndarray, present: np.ndarray, truths: Sequence[M.GroundTruth | None],
+          memo: Memo | None = None) -> Reach:
     """Reach of the asked labels `asked` (N, 3) where `present` (N, 3) (the region present on both
-    sides), one truth (or None) per frame."""
+    sides), one truth (or None) per frame. `memo`: verdicts of frames judged before (filled here),
+    so that one report judges each frame once (its shots compare the same frames again)."""
     n = len(truths)
     out = Reach.none(n)
     for i, t in enumerate(truths):
@@ -60,7 +72,14 @@ def reach(asked: np.ndarray, present: np.ndarray, truths: Sequence[M.GroundTruth
         out.judged[i] = True
         if not present[i].any():
             continue
-        for u in FR.unreachable_labels(lens, asked[i], present[i], np.asarray(t.region_inverse_depth, float)):
+        inv = np.asarray(t.region_inverse_depth, float)
+        key = frame_key(lens, asked[i], present[i], inv) if memo is not None else None
+        found = memo.get(key) if key is not None else None
+        if found is None:
+            found = FR.unreachable_labels(lens, asked[i], present[i], inv)
+            if key is not None:
+                memo[key] = found
+        for u in found:
             out.unreachable[i, u.region] = True
             out.reasons[i, u.region] = u.reason
     return out
