@@ -76,6 +76,10 @@ DISTANCE_WINDOW_S = 0.5
 #: a truck or an orbit: flown at the source's rate of turn round the subject (subject_bearing_rate), with
 #: the lens and the subject's distance as a dolly's (left free, the lens zoomed in after a walker leaving)
 SWING_CLASSES = ("truck", "orbit")
+#: ... unless the row also tilts or rolls: a handheld operator's sway (parkour's orbit rows all do), whose
+#: lens serves the framing and the focus (held, parkour's soft runner read sharp: extraction 0.91 -> 0.86).
+#: A truck keeps its bearing rate there, as before
+HANDHELD_CLASSES = ("tilt", "roll")
 #: the lens's headroom is the zoom still to come times e^this (the style's rates are read, not exact)
 HEADROOM_MARGIN = 0.05
 #: ... and a side with no zoom to come is set this far (ln) outside the lens's range, where it never acts
@@ -267,12 +271,19 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool,
     travel = style.travel[row]
     if travel.any() and (cls is None or any(n in cls for n in TRAVEL_CLASSES)):
         out[TRAVEL], out[TRAVEL_MASK] = travel, 1.0
-    if cls is not None and any(n in cls for n in DOLLY_CLASSES + SWING_CLASSES) \
-            and not any(n in cls for n in ZOOM_CLASSES):
-        _dolly_terms(out, style, row)
-    if cls is not None and any(n in cls for n in SWING_CLASSES):
-        _swing_terms(out, style, row)
+    if cls is not None:
+        _speed_terms(out, style, row, cls)
     return out
+
+
+def _speed_terms(out: np.ndarray, style: MotionStyle, row: int, cls: frozenset[str]) -> None:
+    """A dolly's lens and distance; a truck's or orbit's too, with its bearing rate (a handheld one's: a
+    truck's bearing rate only)."""
+    swing = any(n in cls for n in SWING_CLASSES) and not any(n in cls for n in HANDHELD_CLASSES)
+    if (swing or any(n in cls for n in DOLLY_CLASSES)) and not any(n in cls for n in ZOOM_CLASSES):
+        _dolly_terms(out, style, row)
+    if swing or "truck" in cls:
+        _swing_terms(out, style, row)
 
 
 def _headroom_terms(out: np.ndarray, style: MotionStyle, row: int,

@@ -275,6 +275,10 @@ def test_a_truck_or_an_orbit_asks_the_sources_bearing_rate_with_a_dollys_lens_an
     for other in ("pan", "dolly_in", "static"):
         t = CM.row_terms(dataclasses.replace(style, classes=[CM.motion_classes(other)]), 0, control_roll=False)
         assert t[CM.BEARING_RATE_MASK] == 0 and t[CM.BEARING_RATE] == 0
+    # a handheld one (it tilts or rolls too): its lens is the framing's; a truck keeps its bearing rate
+    for name, bearing in (("tilt+roll+orbit", 0), ("roll+orbit", 0), ("tilt+truck", 1)):
+        t = CM.row_terms(dataclasses.replace(style, classes=[CM.motion_classes(name)]), 0, control_roll=False)
+        assert t[CM.ZOOM_MASK] == 0 and t[CM.DOLLY_ZOOM_MASK] == 0 and t[CM.BEARING_RATE_MASK] == bearing
     # an orbit with a zoom of its own is the zoom's to set: no distance term
     zoomed = dataclasses.replace(style, classes=[CM.motion_classes("zoom_in+orbit")], zoom_rate=np.array([0.1]))
     t = CM.row_terms(zoomed, 0, control_roll=False)
