@@ -12,8 +12,9 @@ static row asks the angular rates and the zoom rate to be 0 and the camera to st
 source camera held still: the framing alone let the camera pan and zoom after a dancing subject,
 79 % of a static source's rows flown as moves, and following a walker slid it into an orbit); rows
 with no class (a style that carries rates only) use the rates that are clearly non-zero.
-A dolly row holds the lens as the source's held and asks the subject's distance to change as in
-the source (the style gives the travel a direction only; left free, the lens took the move).
+A dolly, truck or orbit row holds the lens as the source's held and asks the subject's distance to
+change as in the source (the style gives the travel a direction only; left free, the lens took the
+move); a truck or orbit row also asks the camera's bearing round the subject to turn at the source's rate.
 
 Per-stage parameter layout (N_MOTION values), read by cost.StageBuilder:
     0-1   wanted horizontal bearing of the camera round the subject (unit vector), 2 its mask
@@ -30,7 +31,7 @@ Per-stage parameter layout (N_MOTION values), read by cost.StageBuilder:
           zoom_out without a translating class), where moving along the axis reads as a dolly-zoom
     19    bearing-rate mask, 20 the rate d(bearing of the camera round the subject)/dt asked then [rad/s,
           positive as the pan]: a truck's, read from the source's pan rate and the subject's
-          drift across its image (subject_bearing_rate)
+          drift across its image (subject_bearing_rate); an orbit's the same way
     21-22 ln of the least and the greatest focal length [mm] the lens may stand at, 23 their mask:
           room for the zoom still to come in the take (a dolly-zoom in zooms out by e^-0.27 over its
           2 s, and started at the source's 32.6 mm the lens hit its 30 mm end half-way through)
@@ -72,9 +73,13 @@ MIN_RATE_DPS, MIN_ZOOM_RATE = 1.0, 0.01
 DOLLY_CLASSES = ("dolly_in", "dolly_out")
 #: the subject's size is read over this long a window for that rate [s] (the smoother's 0.5 s)
 DISTANCE_WINDOW_S = 0.5
-#: a truck: flown at the source's rate of turn round the subject (subject_bearing_rate). An orbit
-#: asked it too flew no more of its rows as orbit and framed worse (docs/camera_motion.md)
-SWING_CLASSES = ("truck",)
+#: a truck or an orbit: flown at the source's rate of turn round the subject (subject_bearing_rate), with
+#: the lens and the subject's distance as a dolly's (left free, the lens zoomed in after a walker leaving)
+SWING_CLASSES = ("truck", "orbit")
+#: ... unless the row also tilts or rolls: a handheld operator's sway (parkour's orbit rows all do), whose
+#: lens serves the framing and the focus (held, parkour's soft runner read sharp: extraction 0.91 -> 0.86).
+#: A truck keeps its bearing rate there, as before
+HANDHELD_CLASSES = ("tilt", "roll")
 #: the lens's headroom is the zoom still to come times e^this (the style's rates are read, not exact)
 HEADROOM_MARGIN = 0.05
 #: ... and a side with no zoom to come is set this far (ln) outside the lens's range, where it never acts
@@ -266,11 +271,19 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool,
     travel = style.travel[row]
     if travel.any() and (cls is None or any(n in cls for n in TRAVEL_CLASSES)):
         out[TRAVEL], out[TRAVEL_MASK] = travel, 1.0
-    if cls is not None and any(n in cls for n in DOLLY_CLASSES) and not any(n in cls for n in ZOOM_CLASSES):
-        _dolly_terms(out, style, row)
-    if cls is not None and any(n in cls for n in SWING_CLASSES):
-        _swing_terms(out, style, row)
+    if cls is not None:
+        _speed_terms(out, style, row, cls)
     return out
+
+
+def _speed_terms(out: np.ndarray, style: MotionStyle, row: int, cls: frozenset[str]) -> None:
+    """A dolly's lens and distance; a truck's or orbit's too, with its bearing rate (a handheld one's: a
+    truck's bearing rate only)."""
+    swing = any(n in cls for n in SWING_CLASSES) and not any(n in cls for n in HANDHELD_CLASSES)
+    if (swing or any(n in cls for n in DOLLY_CLASSES)) and not any(n in cls for n in ZOOM_CLASSES):
+        _dolly_terms(out, style, row)
+    if swing or "truck" in cls:
+        _swing_terms(out, style, row)
 
 
 def _headroom_terms(out: np.ndarray, style: MotionStyle, row: int,
@@ -282,7 +295,7 @@ def _headroom_terms(out: np.ndarray, style: MotionStyle, row: int,
 
 
 def _swing_terms(out: np.ndarray, style: MotionStyle, row: int) -> None:
-    """A truck's speed: the camera's bearing round the subject turns at the source's rate. The style
+    """A truck's or orbit's speed: the camera's bearing round the subject turns at the source's rate. The style
     gives the travel a direction only; left free, the framing panned after the walker and the truck
     was flown as a pan."""
     rate = math.nan if style.bearing_rate is None else float(style.bearing_rate[row])
@@ -291,9 +304,10 @@ def _swing_terms(out: np.ndarray, style: MotionStyle, row: int) -> None:
 
 
 def _dolly_terms(out: np.ndarray, style: MotionStyle, row: int) -> None:
-    """A dolly's lens and speed. The style gives the travel a direction only; left free, the lens
-    kept the subject's size and the camera stood (the slow dolly flown static). The lens holds as
-    the source's did, and the subject's distance changes at the source's rate, read from his size."""
+    """A dolly's lens and speed, and a truck's or orbit's lens and distance. The style gives the travel
+    a direction only; left free, the lens kept the subject's size and the camera stood (the slow dolly
+    flown static; a truck and an orbit zoomed in after a walker leaving them). The lens holds as the
+    source's did, and the subject's distance changes at the source's rate, read from his size."""
     zoom = float(style.zoom_rate[row])
     out[ZOOM], out[ZOOM_MASK] = (zoom if math.isfinite(zoom) else 0.0), 1.0
     rate = math.nan if style.distance_rate is None else float(style.distance_rate[row])

@@ -730,14 +730,38 @@ def realisable_rows(focus_in: np.ndarray) -> np.ndarray:
 RACK_THROUGH_MAX_S = 1.0
 
 
+def held_subject_labels(focus_in: np.ndarray, absent: np.ndarray) -> np.ndarray:
+    """The style's focus rows (K, 3) with the subject's label held from the nearest earlier row that
+    measured him (the first such row for the rows before it) where the source has no label for him but
+    has one for another region. His label is False there only because nothing was measured: read as
+    "the subject soft", a walker who left the rendered truck's and orbit's frames 10-14 rows before
+    the end turned the take's last 1.5 s into a rack (the zoom gave way) and planned the lens long to
+    blur him (the output zoomed in where the source held). Rows with no region labelled stay as they are."""
+    focus = np.asarray(focus_in, dtype=bool)
+    if focus.ndim != 2 or focus.shape[1] != 3 or absent.shape != focus.shape:
+        return focus
+    missing = absent[:, 1] & ~absent.all(axis=1)
+    seen = np.flatnonzero(~absent[:, 1])
+    if not missing.any() or not len(seen):
+        return focus
+    out = focus.copy()
+    rows = np.flatnonzero(missing)
+    before = np.searchsorted(seen, rows) - 1  # the last row measuring him before each, -1 = none
+    out[rows, 1] = focus[seen[np.maximum(before, 0)], 1]
+    return out
+
+
 def planned_focus_rows(focus_in: np.ndarray, absent: np.ndarray, max_rows: int) -> np.ndarray:
-    """The style's focus rows (K, 3) as the planner films them: as one depth of field can give them
+    """The style's focus rows (K, 3) as the planner films them: the subject's label held over rows that
+    do not measure him (held_subject_labels), as one depth of field can give them
     (realisable_rows), and a run of at most `max_rows` rows with nothing in focus right before a row
     with only the background in focus as background-only. That run is how a rack focus from the
     subject to the background reads through the smoother's window (a few frames with nothing sharp
     while the focus travels); planned as asked, its depth of field in front of the subject pulled the
     focus the other way just before the longest move of the rack (dance-twirl's rack focus: 7 rows,
     the subject still sharp 8 frames after the switch)."""
+    if absent.shape == np.shape(focus_in):
+        focus_in = held_subject_labels(focus_in, absent)
     focus = realisable_rows(focus_in)
     if focus.ndim != 2 or focus.shape[1] != 3 or absent.shape != focus.shape:
         return focus

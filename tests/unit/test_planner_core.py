@@ -7,8 +7,9 @@ import pytest
 
 from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.camera_motion import MOTION_MASKS
-from cinetransfer.services.planner.core import (LENS_MOTION_COLUMNS, Planner, absent_regions, instructions_from_arrays,
-                                                lens_for_focus_rows, predict_subject)
+from cinetransfer.services.planner.core import (LENS_MOTION_COLUMNS, Planner, absent_regions, held_subject_labels,
+                                                instructions_from_arrays, lens_for_focus_rows, planned_focus_rows,
+                                                predict_subject)
 from cinetransfer.services.planner.kinematic_sim import KinematicSim
 from cinetransfer.services.planner.scenarios import reference_instructions, standing_shot, wrong_start_scene
 from cinetransfer.shared import codec
@@ -464,6 +465,31 @@ def test_the_rows_round_a_switch_of_the_subjects_label_give_the_zoom_way():
     # and a shot that keeps the subject soft throughout flies its zoom; a negative lead (the option off) too
     assert not lens_for_focus_rows(focus[4:6], absent[4:6], 2, 1).any()
     assert not lens_for_focus_rows(focus, absent, -1, 1).any()
+
+
+def test_a_subject_the_source_does_not_measure_keeps_his_last_label():
+    # given a subject sharp (rows 0-3) who leaves the frame (rows 4-6: his region absent, the background
+    # still labelled sharp, so his label reads False) and a row with nothing labelled (7)
+    sub_bg, bg = [0, 1, 1], [0, 0, 1]
+    focus = np.array([sub_bg] * 4 + [bg] * 3 + [[0, 0, 0]], dtype=bool)
+    absent = np.zeros((8, 3), dtype=bool)
+    absent[4:7, 1] = True
+    absent[7] = True
+    # then his label is held over the rows that lost him, and the unlabelled row stays as it is
+    want = np.array([sub_bg] * 7 + [[0, 0, 0]], dtype=bool)
+    assert np.array_equal(held_subject_labels(focus, absent), want)
+    # so the planner films no rack there: no soft subject planned, no zoom giving way
+    assert np.array_equal(planned_focus_rows(focus, absent, 2), want)
+    assert not lens_for_focus_rows(planned_focus_rows(focus, absent, 2), absent, 2, 1).any()
+    # read as measured, the same rows were a rack onto the background (the zoom gave way round row 4)
+    assert lens_for_focus_rows(focus, absent, 2, 1)[2:5].all()
+    # and rows before the first that measures him take that first label
+    first = np.array([bg, bg, [1, 0, 1], [1, 0, 1]], dtype=bool)
+    gone = np.zeros((4, 3), dtype=bool)
+    gone[:2, 1] = True
+    assert held_subject_labels(first, gone)[:, 1].tolist() == [False, False, False, False]
+    gone_soft = np.array([bg, bg, sub_bg, sub_bg], dtype=bool)
+    assert held_subject_labels(gone_soft, gone)[:, 1].tolist() == [True, True, True, True]
 
 
 def test_a_zoom_gives_way_round_a_rack_focus(planner, instructions):

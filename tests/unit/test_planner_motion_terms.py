@@ -262,15 +262,27 @@ def test_subject_bearing_rate_adds_the_drift_across_the_image_to_the_pan():
     assert rate[2] == pytest.approx(0.15, abs=1e-9) and rate[12] == pytest.approx(0.05, abs=1e-12)
 
 
-def test_a_truck_asks_the_sources_bearing_rate():
-    style = dataclasses.replace(_style("truck", pan=0.0, travel=(1, 0, 0)), bearing_rate=np.array([0.12]))
-    t = CM.row_terms(style, 0, control_roll=False)
-    assert t[CM.BEARING_RATE_MASK] == 1 and t[CM.BEARING_RATE] == 0.12 and t[CM.TRAVEL_MASK] == 1
+def test_a_truck_or_an_orbit_asks_the_sources_bearing_rate_with_a_dollys_lens_and_distance():
+    style = dataclasses.replace(_style("truck", pan=0.0, zoom=0.0, travel=(1, 0, 0)), bearing_rate=np.array([0.12]),
+                                distance_rate=np.array([0.05]))
+    for name in ("truck", "orbit"):
+        t = CM.row_terms(dataclasses.replace(style, classes=[CM.motion_classes(name)]), 0, control_roll=False)
+        assert t[CM.BEARING_RATE_MASK] == 1 and t[CM.BEARING_RATE] == 0.12 and t[CM.TRAVEL_MASK] == 1
+        # the lens held as the source's, the subject's distance changing at its rate (a dolly's terms)
+        assert t[CM.ZOOM_MASK] == 1 and t[CM.ZOOM] == 0 and t[CM.DOLLY_ZOOM_MASK] == 1 and t[CM.DISTANCE_RATE] == 0.05
     t = CM.row_terms(dataclasses.replace(style, classes=[CM.motion_classes("pan+truck")]), 0, control_roll=False)
     assert t[CM.BEARING_RATE_MASK] == 1 and t[CM.RATE_MASKS.start] == 1  # the pan stays asked too
-    for other in ("pan", "dolly_in", "static", "orbit"):  # an orbit flew no better with it
+    for other in ("pan", "dolly_in", "static"):
         t = CM.row_terms(dataclasses.replace(style, classes=[CM.motion_classes(other)]), 0, control_roll=False)
         assert t[CM.BEARING_RATE_MASK] == 0 and t[CM.BEARING_RATE] == 0
+    # a handheld one (it tilts or rolls too): its lens is the framing's; a truck keeps its bearing rate
+    for name, bearing in (("tilt+roll+orbit", 0), ("roll+orbit", 0), ("tilt+truck", 1)):
+        t = CM.row_terms(dataclasses.replace(style, classes=[CM.motion_classes(name)]), 0, control_roll=False)
+        assert t[CM.ZOOM_MASK] == 0 and t[CM.DOLLY_ZOOM_MASK] == 0 and t[CM.BEARING_RATE_MASK] == bearing
+    # an orbit with a zoom of its own is the zoom's to set: no distance term
+    zoomed = dataclasses.replace(style, classes=[CM.motion_classes("zoom_in+orbit")], zoom_rate=np.array([0.1]))
+    t = CM.row_terms(zoomed, 0, control_roll=False)
+    assert t[CM.ZOOM] == 0.1 and t[CM.DOLLY_ZOOM_MASK] == 0 and t[CM.BEARING_RATE_MASK] == 1
     assert CM.row_terms(_style("truck", travel=(1, 0, 0)), 0, control_roll=False)[CM.BEARING_RATE_MASK] == 0
     assert CM.BEARING_RATE_MASK in CM.MOTION_MASKS
 
