@@ -4,10 +4,14 @@ Per compared output frame and region: the label the source asks (its `focus_in`)
 depths and the filmed focal length from the simulator's truth (`GroundTruth.region_inverse_depth`,
 `focal_length_mm`, `lens_limits`), judged by focus_reach.unreachable_labels. Frames whose truth
 predates those fields (an older recording) are never called unreachable.
+
+Given the lens's rates, misses the flight made round a switch of the asked labels are excused (kind
+'rate') where the focus rate forces them, never more than focus_reach's proven lower bound
+(focus_reach.rate_windows); the windows, with the flight's misses against the bound, are kept.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
@@ -23,6 +27,7 @@ class Reach:
     unreachable: np.ndarray  # (N, 3) bool
     reasons: np.ndarray  # (N, 3) object (str)
     judged: np.ndarray  # (N,) the frame had what the judgement needs (truth with depths and lens)
+    rate_windows: list[FR.RateWindow] = field(default_factory=list)
 
     @classmethod
     def none(cls, n: int) -> "Reach":
@@ -48,9 +53,10 @@ def truths_by_frame(truths: Sequence[M.GroundTruth], n: int, offset: int) -> lis
     return out
 
 
-def reach(asked: np.ndarray, present: np.ndarray, truths: Sequence[M.GroundTruth | None]) -> Reach:
+def reach(asked: np.ndarray, present: np.ndarray, truths: Sequence[M.GroundTruth | None],
+          rates: FR.LensRates | None = None) -> Reach:
     """Reach of the asked labels `asked` (N, 3) where `present` (N, 3) (the region present on both
-    sides), one truth (or None) per frame."""
+    sides), one truth (or None) per frame; with the lens's `rates`, the misses they force too."""
     n = len(truths)
     out = Reach.none(n)
     for i, t in enumerate(truths):
@@ -63,7 +69,57 @@ def reach(asked: np.ndarray, present: np.ndarray, truths: Sequence[M.GroundTruth
         for u in FR.unreachable_labels(lens, asked[i], present[i], np.asarray(t.region_inverse_depth, float)):
             out.unreachable[i, u.region] = True
             out.reasons[i, u.region] = u.reason
+    if rates is not None and out.judged.any():
+        _excuse_rate_misses(out, np.asarray(asked, bool), np.asarray(present, bool), truths, rates)
     return out
+
+
+def rate_frames(asked: np.ndarray, judged: np.ndarray, truths: Sequence[M.GroundTruth | None],
+                rates: FR.LensRates) -> tuple[list[FR.RateFrame], FR.RateGrid]:
+    """Each frame for the rates' lower bound, at its truth's simulation time, with the cells that may give its
+    judged labels, and the grid (over every lens range filmed, a frame's travel at the frames' usual step); a
+    frame without a judged truth keeps the last one's time (no time is assumed to pass)."""
+    lenses = [_lens_of(t) if t is not None else None for t in truths]
+    have = [(t, lens) for t, lens in zip(truths, lenses) if lens is not None]
+    dt = float(np.median(np.diff([t.stamp_ns for t, _ in have]))) * 1e-9 if len(have) > 1 else 1.0
+    grid = FR.rate_grid((min(x.focus_m[0] for _, x in have), max(x.focus_m[1] for _, x in have)),
+                        (min(x.f_number[0] for _, x in have), max(x.f_number[1] for _, x in have)), rates, dt)
+    t_s, out = have[0][0].stamp_ns * 1e-9, []
+    for i, (t, lens) in enumerate(zip(truths, lenses)):
+        possible = None
+        if lens is not None:
+            t_s = t.stamp_ns * 1e-9
+            if judged[i].any():
+                possible = FR.possible_cells(grid, lens, asked[i], judged[i], np.asarray(t.region_inverse_depth, float))
+        out.append(FR.RateFrame(t_s, possible))
+    return out, grid
+
+
+def _excuse_rate_misses(out: Reach, asked: np.ndarray, present: np.ndarray, truths: Sequence[M.GroundTruth | None],
+                        rates: FR.LensRates) -> None:
+    """Mark the misses rate_windows excuses: per excused frame one region the flight missed, of those whose
+    label the switch changed if any, the last in the order labels are granted (as a combination out of reach
+    is reported), with the rates and the bound."""
+    stamps = [t.stamp_ns for t in truths if t is not None and _lens_of(t) is not None]
+    if np.any(np.diff(stamps) <= 0):  # no time between frames would stop the lens: no bound without a clock
+        return
+    depths = np.array([np.isfinite(np.asarray(t.region_inverse_depth, float)).all(axis=1)
+                       if j else np.zeros(3, bool) for t, j in zip(truths, out.judged)], bool).reshape(-1, 3)
+    judged = present & ~out.unreachable & depths
+    got = np.array([t.region_in_focus if t is not None else np.zeros(3, bool) for t in truths], bool).reshape(-1, 3)
+    wrong = judged & (got != asked)
+    frames, grid = rate_frames(asked, judged, truths, rates)
+    out.rate_windows.extend(FR.rate_windows(frames, grid, asked, wrong.any(axis=1)))
+    for w in out.rate_windows:
+        for i in w.excused:
+            switched = asked[w.switch] != asked[w.switch - 1]  # the regions racked first, else any missed
+            r = next((r for r in reversed(FR.PRIORITY) if wrong[i, r] and switched[r]), None)
+            r = next(r for r in reversed(FR.PRIORITY) if wrong[i, r]) if r is None else r
+            out.unreachable[i, r] = True
+            out.reasons[i, r] = (f"{FR.REGIONS[r]} {'sharp' if asked[i, r] else 'soft'}: the focus moves at most "
+                                 f"{rates.focus_mps:g} m/s and the f-number {rates.f_number_ps:g}/s, so any lens "
+                                 f"misses at least {w.least} of frames {w.first}-{w.last} round the switch at frame "
+                                 f"{w.switch} (this flight missed {len(w.missed)} of them)")
 
 
 def runs(rch: Reach, t_s: np.ndarray, rows: np.ndarray, shot_rows: Sequence[int] = ()) -> list[dict[str, Any]]:
@@ -85,3 +141,11 @@ def runs(rch: Reach, t_s: np.ndarray, rows: np.ndarray, shot_rows: Sequence[int]
                         "frames": int(seg.size), "t_s": [float(t_s[a]), float(t_s[b])],
                         "reason": first, "reason_last": last if last != first else None})
     return out
+
+
+def window_rows(rch: Reach, t_s: np.ndarray) -> list[dict[str, Any]]:
+    """The rate windows as report rows: the switch, the window's frames and time span, the least misses any
+    lens at the rates makes there against the flight's misses, and how many of those are excused."""
+    return [{"switch_frame": w.switch, "first_frame": w.first, "last_frame": w.last,
+             "t_s": [float(t_s[w.first]), float(t_s[w.last])], "least_misses": w.least,
+             "flown_misses": len(w.missed), "excused": len(w.excused)} for w in rch.rate_windows]
