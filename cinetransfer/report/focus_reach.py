@@ -421,7 +421,7 @@ def rate_min_misses(lenses: list[Lens | None], asked: np.ndarray, judged: np.nda
 #: the lower bound's cells per frame's travel (focus, f-number): finer is tighter and costs more
 RATE_BOUND_CELLS = (2, 2)
 #: the pieces a focus cell is judged in, at most this far apart in 1/focus [1/m]
-RATE_SUB_INVERSE_M = 0.002
+RATE_SUB_INVERSE_M = 0.008
 
 
 @dataclass(frozen=True)
@@ -431,6 +431,9 @@ class RateGrid:
     focus_edges: np.ndarray
     f_number_edges: np.ndarray
     rates: LensRates
+    #: the focus cells cut into pieces (_sub_edges): their edges, and the first piece of every cell
+    pieces: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    piece_of: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
 
     def reach(self, dt_s: float) -> tuple[int, int]:
         """How many cells away a lens may be dt_s later: cells whose gap, (k - 1) cells, the rate can cross."""
@@ -444,8 +447,8 @@ def rate_grid(focus_m: tuple[float, float], f_number: tuple[float, float], rates
     def edges(lo: float, hi: float, step: float) -> np.ndarray:
         return np.append(np.arange(lo, hi, step), hi) if hi > lo else np.array([lo, lo + step])
 
-    return RateGrid(edges(*focus_m, rates.focus_mps * dt_s / cells[0]),
-                    edges(*f_number, rates.f_number_ps * dt_s / cells[1]), rates)
+    focus = edges(*focus_m, rates.focus_mps * dt_s / cells[0])
+    return RateGrid(focus, edges(*f_number, rates.f_number_ps * dt_s / cells[1]), rates, *_sub_edges(focus))
 
 
 @dataclass(frozen=True)
@@ -459,10 +462,10 @@ class RateFrame:
 
 @dataclass(frozen=True)
 class RateWindow:
-    """Round the label switch `switch`: frames first..last force at least `least` misses on any lens moving
-    at most at the rates; `missed` the flight's misses there, `excused` the ones excused."""
+    """Round the label switches `switches`: frames first..last force at least `least` misses on any lens
+    moving at most at the rates; `missed` the flight's misses there, `excused` the ones excused."""
 
-    switch: int
+    switches: tuple[int, ...]
     first: int
     last: int
     least: int
@@ -484,18 +487,21 @@ def possible_cells(grid: RateGrid, lens: Lens, asked: np.ndarray, judged: np.nda
     field in a cell lies inside [1/far(n_b, s_b), 1/near(n_b, s_a)] and holds [1/far(n_a, s_a),
     1/near(n_a, s_b)]: a sharp label may be given in the cell when the outer interval may give it, a soft
     one when the inner may (the may_reach rule), each region alone."""
-    s, parent = _sub_edges(np.clip(grid.focus_edges, *lens.focus_m))
-    n = np.clip(grid.f_number_edges, *lens.f_number)
-    sa, sb, na, nb = s[:-1, None], s[1:, None], n[None, :-1], n[None, 1:]
-    f, c = lens.focal_mm, lens.coc_mm
-    out_far, in_far = dof_inverse(f, nb, sb, c)[0], dof_inverse(f, na, sa, c)[0]
-    out_near, in_near = dof_inverse(f, nb, sa, c)[1], dof_inverse(f, na, sb, c)[1]
+    s = np.clip(grid.pieces, *lens.focus_m)
+    f = lens.focal_mm / 1000.0
+    # the field in inverse depth is 1/s -+ (1 - f/s) n c / f^2 (dof_inverse: 1/far + 1/near = 2/s), the far
+    # end clipped at 0: separable in focus and f-number
+    u, a = 1.0 / s, 1.0 - f / s
+    b = np.clip(grid.f_number_edges, *lens.f_number) * lens.coc_mm / 1000.0 / (f * f)
+    ua, ub, aa, ab, na, nb = u[:-1, None], u[1:, None], a[:-1, None], a[1:, None], b[None, :-1], b[None, 1:]
+    out_far, out_near = np.maximum(ub - ab * nb, 0.0), ua + aa * nb
+    in_far, in_near = np.maximum(ua - aa * na, 0.0), ub + ab * na
     ok = np.ones(out_far.shape, bool)
     for r in np.flatnonzero(judged):
         sharp = bool(asked[r])
         count = _count_in(inv_depth[r], out_far, out_near) if sharp else _count_in(inv_depth[r], in_far, in_near)
         ok &= may_reach(count, inv_depth[r].size, sharp)
-    return np.logical_or.reduceat(ok, parent, axis=0)
+    return np.logical_or.reduceat(ok, grid.piece_of, axis=0)
 
 
 def _sub_edges(edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -541,26 +547,39 @@ def label_switches(asked: np.ndarray) -> list[int]:
     return [int(i) for i in np.flatnonzero((asked[1:] != asked[:-1]).any(axis=1)) + 1]
 
 
-def rate_windows(frames: list[RateFrame], grid: RateGrid, asked: np.ndarray, missed: np.ndarray) -> list[RateWindow]:
-    """Per switch of the asked labels (N, 3), the frames the lens's rates force any lens to miss there, and
-    which of the flight's misses `missed` (N,) bool that excuses.
+def _parts(frames: list[RateFrame], grid: RateGrid, switches: list[int]) -> list[tuple[int, int, list[int]]]:
+    """Parts [a, b) of the timeline with their switches: cut halfway between two switches only where the
+    parts' bounds add up to the whole's (a cut through a lens's travel would lose forced misses)."""
+    out, a, group = [], 0, switches[:1]
+    for nxt in switches[1:]:
+        c = (group[-1] + nxt) // 2
+        both = rate_least_misses(frames[a:c], grid) + rate_least_misses(frames[c:], grid)
+        if both == rate_least_misses(frames[a:], grid):
+            out.append((a, c, group))
+            a, group = c, []
+        group.append(nxt)
+    out.append((a, len(frames), group))
+    return out
 
-    The timeline is cut halfway between switches. A part's least misses (rate_least_misses) bound the window
-    of that many frames either side of its switch, inside the part; the window's own bound holds for it
-    alone, and the windows do not overlap, so they add up to no more than the run's. In a window at most its
-    bound of the flight's own misses are excused, the nearest the switch first."""
+
+def rate_windows(frames: list[RateFrame], grid: RateGrid, asked: np.ndarray, missed: np.ndarray) -> list[RateWindow]:
+    """Per switch of the asked labels (N, 3), or run of switches a lens travels through, the frames the lens's
+    rates force any lens to miss there, and which of the flight's misses `missed` (N,) bool that excuses.
+
+    The timeline is cut into parts (_parts). A part's least misses k (rate_least_misses) set the window: k
+    frames before its first switch to k after its last, inside the part. The window's own bound holds for
+    it alone, and the windows do not overlap, so they add up to no more than the run's. In a window at most
+    its bound of the flight's own misses are excused, the nearest a switch first."""
     out: list[RateWindow] = []
     switches = label_switches(np.asarray(asked, bool))
-    cuts = [0, *[(x + y) // 2 for x, y in zip(switches, switches[1:])], len(frames)]
-    for j, sw in enumerate(switches):
-        a, b = cuts[j], cuts[j + 1]
+    for a, b, sw in _parts(frames, grid, switches) if switches else []:
         part = rate_least_misses(frames[a:b], grid)
         if part == 0:
             continue
-        first, end = max(a, sw - part), min(b, sw + part)
+        first, end = max(a, sw[0] - part), min(b, sw[-1] + part)
         least = rate_least_misses(frames[first:end], grid)
         miss = [i for i in range(first, end) if missed[i]]
-        near = sorted(miss, key=lambda i: (abs(i - sw + 0.5), i))[:least]
+        near = sorted(miss, key=lambda i: (min(abs(i - s + 0.5) for s in sw), i))[:least]
         if least:
-            out.append(RateWindow(sw, first, end - 1, least, tuple(miss), tuple(sorted(near))))
+            out.append(RateWindow(tuple(sw), first, end - 1, least, tuple(miss), tuple(sorted(near))))
     return out

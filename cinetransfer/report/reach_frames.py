@@ -108,18 +108,28 @@ def _excuse_rate_misses(out: Reach, asked: np.ndarray, present: np.ndarray, trut
     judged = present & ~out.unreachable & depths
     got = np.array([t.region_in_focus if t is not None else np.zeros(3, bool) for t in truths], bool).reshape(-1, 3)
     wrong = judged & (got != asked)
+    sw = np.asarray(FR.label_switches(asked), int)
+    if not ((asked[sw] != asked[sw - 1]) & judged[sw] & judged[sw - 1]).any():
+        return  # no judged label switches: nothing for the lens to travel between (and no cells to build)
     frames, grid = rate_frames(asked, judged, truths, rates)
     out.rate_windows.extend(FR.rate_windows(frames, grid, asked, wrong.any(axis=1)))
     for w in out.rate_windows:
         for i in w.excused:
-            switched = asked[w.switch] != asked[w.switch - 1]  # the regions racked first, else any missed
+            at = min(w.switches, key=lambda s: abs(i - s + 0.5))
+            switched = asked[at] != asked[at - 1]  # the regions the nearest switch racked first, else any missed
             r = next((r for r in reversed(FR.PRIORITY) if wrong[i, r] and switched[r]), None)
             r = next(r for r in reversed(FR.PRIORITY) if wrong[i, r]) if r is None else r
             out.unreachable[i, r] = True
             out.reasons[i, r] = (f"{FR.REGIONS[r]} {'sharp' if asked[i, r] else 'soft'}: the focus moves at most "
                                  f"{rates.focus_mps:g} m/s and the f-number {rates.f_number_ps:g}/s, so any lens "
-                                 f"misses at least {w.least} of frames {w.first}-{w.last} round the switch at frame "
-                                 f"{w.switch} (this flight missed {len(w.missed)} of them)")
+                                 f"misses at least {w.least} of frames {w.first}-{w.last} round the "
+                                 f"{_switch_words(w.switches)} (this flight missed {len(w.missed)} of them)")
+
+
+def _switch_words(switches: tuple[int, ...]) -> str:
+    if len(switches) == 1:
+        return f"switch at frame {switches[0]}"
+    return f"switches at frames {', '.join(map(str, switches[:-1]))} and {switches[-1]}"
 
 
 def runs(rch: Reach, t_s: np.ndarray, rows: np.ndarray, shot_rows: Sequence[int] = ()) -> list[dict[str, Any]]:
@@ -146,6 +156,6 @@ def runs(rch: Reach, t_s: np.ndarray, rows: np.ndarray, shot_rows: Sequence[int]
 def window_rows(rch: Reach, t_s: np.ndarray) -> list[dict[str, Any]]:
     """The rate windows as report rows: the switch, the window's frames and time span, the least misses any
     lens at the rates makes there against the flight's misses, and how many of those are excused."""
-    return [{"switch_frame": w.switch, "first_frame": w.first, "last_frame": w.last,
+    return [{"switch_frames": list(w.switches), "first_frame": w.first, "last_frame": w.last,
              "t_s": [float(t_s[w.first]), float(t_s[w.last])], "least_misses": w.least,
              "flown_misses": len(w.missed), "excused": len(w.excused)} for w in rch.rate_windows]

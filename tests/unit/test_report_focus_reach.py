@@ -390,7 +390,7 @@ def test_rate_windows_excuse_only_the_flights_misses_near_the_switch_up_to_the_b
     missed = np.zeros(12, bool)
     missed[[0, 6, 7, 8, 9, 10]] = True  # the flight lags five frames, and missed frame 0
     (w,) = FR.rate_windows(frames, grid, asked, missed)
-    assert (w.switch, w.first, w.last, w.least) == (6, 2, 9, 4)
+    assert (w.switches, w.first, w.last, w.least) == ((6,), 2, 9, 4)
     assert w.missed == (6, 7, 8, 9) and w.excused == (6, 7, 8, 9)
     # a flight that missed fewer than the bound has only those excused; one that missed nothing none
     missed[:] = False
@@ -411,8 +411,16 @@ def test_rate_windows_of_two_racks_apart():
     frames = _rate_frames(asked, judged, np.repeat(RACK_DEPTH[None], 24, axis=0), grid)
     assert FR.rate_least_misses(frames, grid) == 8
     out = FR.rate_windows(frames, grid, asked, np.ones(24, bool))
-    assert [(w.switch, w.first, w.last, w.least, w.excused) for w in out] == \
-        [(6, 2, 9, 4, (4, 5, 6, 7)), (18, 14, 21, 4, (16, 17, 18, 19))]
+    assert [(w.switches, w.first, w.last, w.least, w.excused) for w in out] == \
+        [((6,), 2, 9, 4, (4, 5, 6, 7)), ((18,), 14, 21, 4, (16, 17, 18, 19))]
+    # racked back 3 frames after: any lens misses three (frames 6-8, or as many on its travels); cut at frame
+    # 7 the parts force 1 (frame 5 or 6) and 2 (frames 7-8 or 9-10), adding up to the whole's 3, so it is cut
+    back = np.array([[False, not 6 <= i < 9, 6 <= i < 9] for i in range(24)])
+    frames = _rate_frames(back, judged, np.repeat(RACK_DEPTH[None], 24, axis=0), grid)
+    assert FR.rate_least_misses(frames, grid) == 3
+    out = FR.rate_windows(frames, grid, back, np.ones(24, bool))
+    assert [(w.switches, w.first, w.last, w.least, w.excused) for w in out] == \
+        [((6,), 5, 6, 1, (5,)), ((9,), 7, 10, 2, (8, 9))]
 
 
 def test_the_report_excuses_rate_misses_per_frame_with_the_rates_and_the_bound():
