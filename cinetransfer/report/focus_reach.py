@@ -33,11 +33,11 @@ reason of every such frame.
 
 Over time the lens moves its focus and f-number at most at the vehicle's rates. rate_min_misses counts
 the fewest frames a grid lens so limited misses the asked labels (a dynamic programme over a grid of
-settings: an upper bound on the fewest). focus_rate_least_misses is a proven lower bound: the focus alone
-at its rate, any f-number in range each frame, each frame's settings widened to cells that may give
-the labels. rate_windows turns it into a verdict per frame (kind 'rate'): round each switch of the asked
-labels, the smallest window that forces that many misses, and in it no more of the flight's own misses
-than the bound (docs/report.md, "The lens's rates").
+settings: an upper bound on the fewest, for benchmarks). rate_least_misses is a proven lower bound (cells
+that may give the labels, a lens anywhere in a cell, moving one cell further than the rates allow).
+rate_windows turns it into a verdict per frame (kind 'rate'): round the label switches, a window that
+forces that many misses, and in it no more of the flight's own misses than the bound (docs/report.md,
+"The lens's rates").
 """
 from __future__ import annotations
 
@@ -562,16 +562,18 @@ def _parts(frames: list[RateFrame], grid: RateGrid, switches: list[int]) -> list
     return out
 
 
-def rate_windows(frames: list[RateFrame], grid: RateGrid, asked: np.ndarray, missed: np.ndarray) -> list[RateWindow]:
+def rate_windows(frames: list[RateFrame], grid: RateGrid, asked: np.ndarray, missed: np.ndarray,
+                 switches: list[int] | None = None) -> list[RateWindow]:
     """Per switch of the asked labels (N, 3), or run of switches a lens travels through, the frames the lens's
     rates force any lens to miss there, and which of the flight's misses `missed` (N,) bool that excuses.
 
     The timeline is cut into parts (_parts). A part's least misses k (rate_least_misses) set the window: k
     frames before its first switch to k after its last, inside the part. The window's own bound holds for
     it alone, and the windows do not overlap, so they add up to no more than the run's. In a window at most
-    its bound of the flight's own misses are excused, the nearest a switch first."""
+    its bound of the flight's own misses are excused, the nearest a switch first. `switches`: the ones to
+    judge (default every switch of `asked`; leaving one out can only excuse less)."""
     out: list[RateWindow] = []
-    switches = label_switches(np.asarray(asked, bool))
+    switches = label_switches(np.asarray(asked, bool)) if switches is None else switches
     for a, b, sw in _parts(frames, grid, switches) if switches else []:
         part = rate_least_misses(frames[a:b], grid)
         if part == 0:

@@ -75,24 +75,44 @@ def reach(asked: np.ndarray, present: np.ndarray, truths: Sequence[M.GroundTruth
 
 
 def rate_frames(asked: np.ndarray, judged: np.ndarray, truths: Sequence[M.GroundTruth | None],
-                rates: FR.LensRates) -> tuple[list[FR.RateFrame], FR.RateGrid]:
+                rates: FR.LensRates, only: Sequence[int] | None = None) -> tuple[list[FR.RateFrame], FR.RateGrid]:
     """Each frame for the rates' lower bound, at its truth's simulation time, with the cells that may give its
-    judged labels, and the grid (over every lens range filmed, a frame's travel at the frames' usual step); a
-    frame without a judged truth keeps the last one's time (no time is assumed to pass)."""
+    judged labels (only for the frames `only`, if given), and the grid (over every lens range filmed, a
+    frame's travel at the frames' usual step); a frame without a judged truth keeps the last one's time (no
+    time is assumed to pass)."""
     lenses = [_lens_of(t) if t is not None else None for t in truths]
     have = [(t, lens) for t, lens in zip(truths, lenses) if lens is not None]
     dt = float(np.median(np.diff([t.stamp_ns for t, _ in have]))) * 1e-9 if len(have) > 1 else 1.0
     grid = FR.rate_grid((min(x.focus_m[0] for _, x in have), max(x.focus_m[1] for _, x in have)),
                         (min(x.f_number[0] for _, x in have), max(x.f_number[1] for _, x in have)), rates, dt)
+    wanted = set(range(len(truths)) if only is None else only)
     t_s, out = have[0][0].stamp_ns * 1e-9, []
     for i, (t, lens) in enumerate(zip(truths, lenses)):
         possible = None
         if lens is not None:
             t_s = t.stamp_ns * 1e-9
-            if judged[i].any():
+            if judged[i].any() and i in wanted:
                 possible = FR.possible_cells(grid, lens, asked[i], judged[i], np.asarray(t.region_inverse_depth, float))
         out.append(FR.RateFrame(t_s, possible))
     return out, grid
+
+
+#: the frames either side of a switch (or of a run of switches closer than twice that) the first look judges
+FIRST_LOOK = 12
+
+
+def _binding_switches(asked: np.ndarray, judged: np.ndarray, truths: Sequence[M.GroundTruth | None],
+                      rates: FR.LensRates) -> list[int]:
+    """The label switches, judged on both sides, round which any lens misses a frame: a first look at
+    FIRST_LOOK frames either side of each run of them (a switch left out is only excused less)."""
+    sw = np.asarray(FR.label_switches(asked), int)
+    sw = [int(s) for s in sw[((asked[sw] != asked[sw - 1]) & judged[sw] & judged[sw - 1]).any(axis=1)]]
+    if not sw:
+        return []
+    runs = np.split(np.asarray(sw), np.flatnonzero(np.diff(sw) > 2 * FIRST_LOOK) + 1)  # switches a lens may race
+    spans = [(max(0, int(r[0]) - FIRST_LOOK), min(len(truths), int(r[-1]) + FIRST_LOOK)) for r in runs]
+    frames, grid = rate_frames(asked, judged, truths, rates, only=[i for a, b in spans for i in range(a, b)])
+    return [int(s) for r, (a, b) in zip(runs, spans) if FR.rate_least_misses(frames[a:b], grid) > 0 for s in r]
 
 
 def _excuse_rate_misses(out: Reach, asked: np.ndarray, present: np.ndarray, truths: Sequence[M.GroundTruth | None],
@@ -108,11 +128,11 @@ def _excuse_rate_misses(out: Reach, asked: np.ndarray, present: np.ndarray, trut
     judged = present & ~out.unreachable & depths
     got = np.array([t.region_in_focus if t is not None else np.zeros(3, bool) for t in truths], bool).reshape(-1, 3)
     wrong = judged & (got != asked)
-    sw = np.asarray(FR.label_switches(asked), int)
-    if not ((asked[sw] != asked[sw - 1]) & judged[sw] & judged[sw - 1]).any():
-        return  # no judged label switches: nothing for the lens to travel between (and no cells to build)
+    binding = _binding_switches(asked, judged, truths, rates)
+    if not binding:
+        return  # no switch the lens cannot follow from one frame to the next: no cells to build
     frames, grid = rate_frames(asked, judged, truths, rates)
-    out.rate_windows.extend(FR.rate_windows(frames, grid, asked, wrong.any(axis=1)))
+    out.rate_windows.extend(FR.rate_windows(frames, grid, asked, wrong.any(axis=1), binding))
     for w in out.rate_windows:
         for i in w.excused:
             at = min(w.switches, key=lambda s: abs(i - s + 0.5))
