@@ -75,7 +75,8 @@ def reach(asked: np.ndarray, present: np.ndarray, truths: Sequence[M.GroundTruth
 
 
 def rate_frames(asked: np.ndarray, judged: np.ndarray, truths: Sequence[M.GroundTruth | None],
-                rates: FR.LensRates, only: Sequence[int] | None = None) -> tuple[list[FR.RateFrame], FR.RateGrid]:
+                rates: FR.LensRates, only: Sequence[int] | None = None,
+                cells: tuple[int, int] = FR.RATE_BOUND_CELLS) -> tuple[list[FR.RateFrame], FR.RateGrid]:
     """Each frame for the rates' lower bound, at its truth's simulation time, with the cells that may give its
     judged labels (only for the frames `only`, if given), and the grid (over every lens range filmed, a
     frame's travel at the frames' usual step); a frame without a judged truth keeps the last one's time (no
@@ -84,7 +85,8 @@ def rate_frames(asked: np.ndarray, judged: np.ndarray, truths: Sequence[M.Ground
     have = [(t, lens) for t, lens in zip(truths, lenses) if lens is not None]
     dt = float(np.median(np.diff([t.stamp_ns for t, _ in have]))) * 1e-9 if len(have) > 1 else 1.0
     grid = FR.rate_grid((min(x.focus_m[0] for _, x in have), max(x.focus_m[1] for _, x in have)),
-                        (min(x.f_number[0] for _, x in have), max(x.f_number[1] for _, x in have)), rates, dt)
+                        (min(x.f_number[0] for _, x in have), max(x.f_number[1] for _, x in have)), rates, dt,
+                        cells)
     wanted = set(range(len(truths)) if only is None else only)
     t_s, out = have[0][0].stamp_ns * 1e-9, []
     for i, (t, lens) in enumerate(zip(truths, lenses)):
@@ -99,19 +101,25 @@ def rate_frames(asked: np.ndarray, judged: np.ndarray, truths: Sequence[M.Ground
 
 #: the frames either side of a switch (or of a run of switches closer than twice that) the first look judges
 FIRST_LOOK = 12
+#: its cells per frame's travel (coarser than the verdict's: a looser bound, found for less)
+FIRST_LOOK_CELLS = (1, 1)
 
 
 def _binding_switches(asked: np.ndarray, judged: np.ndarray, truths: Sequence[M.GroundTruth | None],
-                      rates: FR.LensRates) -> list[int]:
-    """The label switches, judged on both sides, round which any lens misses a frame: a first look at
-    FIRST_LOOK frames either side of each run of them (a switch left out is only excused less)."""
+                      rates: FR.LensRates, missed: np.ndarray) -> list[int]:
+    """The label switches, judged on both sides, round which any lens misses a frame and the flight did: a
+    first look at FIRST_LOOK frames either side of each run of them (a switch left out is only excused
+    less)."""
     sw = np.asarray(FR.label_switches(asked), int)
     sw = [int(s) for s in sw[((asked[sw] != asked[sw - 1]) & judged[sw] & judged[sw - 1]).any(axis=1)]]
     if not sw:
         return []
     runs = np.split(np.asarray(sw), np.flatnonzero(np.diff(sw) > 2 * FIRST_LOOK) + 1)  # switches a lens may race
     spans = [(max(0, int(r[0]) - FIRST_LOOK), min(len(truths), int(r[-1]) + FIRST_LOOK)) for r in runs]
-    frames, grid = rate_frames(asked, judged, truths, rates, only=[i for a, b in spans for i in range(a, b)])
+    keep = [k for k, (a, b) in enumerate(spans) if missed[a:b].any()]
+    runs, spans = [runs[k] for k in keep], [spans[k] for k in keep]
+    frames, grid = rate_frames(asked, judged, truths, rates, only=[i for a, b in spans for i in range(a, b)],
+                               cells=FIRST_LOOK_CELLS)
     return [int(s) for r, (a, b) in zip(runs, spans) if FR.rate_least_misses(frames[a:b], grid) > 0 for s in r]
 
 
@@ -128,7 +136,7 @@ def _excuse_rate_misses(out: Reach, asked: np.ndarray, present: np.ndarray, trut
     judged = present & ~out.unreachable & depths
     got = np.array([t.region_in_focus if t is not None else np.zeros(3, bool) for t in truths], bool).reshape(-1, 3)
     wrong = judged & (got != asked)
-    binding = _binding_switches(asked, judged, truths, rates)
+    binding = _binding_switches(asked, judged, truths, rates, wrong.any(axis=1))
     if not binding:
         return  # no switch the lens cannot follow from one frame to the next: no cells to build
     frames, grid = rate_frames(asked, judged, truths, rates)
