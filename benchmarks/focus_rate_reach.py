@@ -7,10 +7,10 @@ per frame (kind 'rate') excuses.
 RUN_DIR: a transfer's output directory (report.json, truth.msgpack, style.json). Prints, per run, over the
 frames the report judges (present, within each frame's own reach): the proven lower bound on the frames any
 lens misses (focus_reach.rate_least_misses: cells a lens may be in, moving one cell further than the rates
-allow), for the subject and
-background together and for every region; with --grid also the grid count rate_min_misses (an upper bound
-on the fewest, ~20 CPU s a run); the windows round the label switches with the flight's misses against the
-bound; and the truth's focus agreement over the reachable frames without and with the rates' verdict.
+allow), for the subject and background together and for every region; with --grid, on runs where the rates
+bind, also the grid count rate_min_misses (an upper bound on the fewest, ~20 CPU s a run); the windows round
+the label switches with the flight's misses against the bound; and the truth's focus agreement over the
+reachable frames without and with the rates' verdict.
 """
 from __future__ import annotations
 
@@ -69,7 +69,7 @@ def judge(run: Path, rates: FR.LensRates, grid: bool) -> dict:
         only = judged & np.isin(np.arange(3), regions)[None, :]
         least[name] = FR.rate_least_misses(*RF.rate_frames(asked, only, by_frame, rates))
     out["least_misses_lower_bound"] = least
-    if grid:
+    if grid and out["rate_windows"]:  # only where the rates bind: ~20 CPU s a run
         lenses = [RF._lens_of(t) if t is not None else None for t in by_frame]
         inv = np.array([np.asarray(t.region_inverse_depth, float) for t in by_frame])
         dt = float(np.median(np.diff(t_s)))
@@ -82,7 +82,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("runs", nargs="+", type=Path)
     p.add_argument("--vehicle", default="cinempc")
-    p.add_argument("--grid", action="store_true", help="also the grid's upper bound (slow)")
+    p.add_argument("--grid", action="store_true", help="also the grid's upper bound where the rates bind (slow)")
     p.add_argument("--json", type=Path, help="also write the results here")
     a = p.parse_args()
     lens = load_vehicle(a.vehicle).lens
