@@ -6,7 +6,7 @@ depths and the filmed focal length from the simulator's truth (`GroundTruth.regi
 predates those fields (an older recording) are never called unreachable.
 
 Given the lens's rates, misses the flight made round a switch of the asked labels are excused (kind
-'rate') where the focus rate forces them, never more than focus_reach's proven lower bound
+'rate') where the rates force them, never more than focus_reach's proven lower bound
 (focus_reach.rate_windows); the windows, with the flight's misses against the bound, are kept.
 """
 from __future__ import annotations
@@ -138,20 +138,24 @@ def _excuse_rate_misses(out: Reach, asked: np.ndarray, present: np.ndarray, trut
     wrong = judged & (got != asked)
     binding = _binding_switches(asked, judged, truths, rates, wrong.any(axis=1))
     if not binding:
-        return  # no switch the lens cannot follow from one frame to the next: no cells to build
+        return  # no switch round which a lens must miss and this flight did: no cells to build
     frames, grid = rate_frames(asked, judged, truths, rates)
     out.rate_windows.extend(FR.rate_windows(frames, grid, asked, wrong.any(axis=1), binding))
     for w in out.rate_windows:
         for i in w.excused:
-            at = min(w.switches, key=lambda s: abs(i - s + 0.5))
-            switched = asked[at] != asked[at - 1]  # the regions the nearest switch racked first, else any missed
-            r = next((r for r in reversed(FR.PRIORITY) if wrong[i, r] and switched[r]), None)
-            r = next(r for r in reversed(FR.PRIORITY) if wrong[i, r]) if r is None else r
+            r = _excused_region(i, w.switches, asked, wrong[i])
             out.unreachable[i, r] = True
             out.reasons[i, r] = (f"{FR.REGIONS[r]} {'sharp' if asked[i, r] else 'soft'}: the focus moves at most "
                                  f"{rates.focus_mps:g} m/s and the f-number {rates.f_number_ps:g}/s, so any lens "
                                  f"misses at least {w.least} of frames {w.first}-{w.last} round the "
                                  f"{_switch_words(w.switches)} (this flight missed {len(w.missed)} of them)")
+
+
+def _excused_region(i: int, switches: tuple[int, ...], asked: np.ndarray, wrong: np.ndarray) -> int:
+    """Of the regions the flight missed in frame i, one the nearest switch racked if any, the last granted."""
+    at = min(switches, key=lambda s: abs(i - s + 0.5))
+    racked = [r for r in reversed(FR.PRIORITY) if wrong[r] and asked[at, r] != asked[at - 1, r]]
+    return racked[0] if racked else next(r for r in reversed(FR.PRIORITY) if wrong[r])
 
 
 def _switch_words(switches: tuple[int, ...]) -> str:

@@ -449,6 +449,13 @@ def test_the_report_excuses_rate_misses_per_frame_with_the_rates_and_the_bound()
                                     "flight missed 3 of them)")
     assert fid.summary["truth"]["focus"]["background"]["agreement_reachable"] == pytest.approx(29 / 33)
     assert not F.compute_fidelity(src, None, truths).series["reach"].unreachable.any()
+    # a flight that racks on time has nothing excused (nor any window: nothing to excuse), nor one whose lens
+    # moves fast enough (240 m/s: 10 m a frame, the gap in one)
+    on_time = [dataclasses.replace(t, region_in_focus=asked[i]) for i, t in enumerate(truths)]
+    assert F.compute_fidelity(src, None, on_time, lens_rates=FR.LensRates(24.0, 3.0)).summary["focus_reach"][
+        "rate_windows"] == []
+    assert F.compute_fidelity(src, None, truths, lens_rates=FR.LensRates(240.0, 3.0)).summary["focus_reach"][
+        "rate_windows"] == []
     # and truths without a clock (every stamp 0) are never excused
     still = [dataclasses.replace(t, stamp_ns=0) for t in truths]
     assert F.compute_fidelity(src, None, still, lens_rates=FR.LensRates(24.0, 3.0)).summary["focus_reach"][
