@@ -458,6 +458,9 @@ class RateFrame:
 
     t_s: float
     possible: np.ndarray | None
+    #: after a gap in the frames (a new take, frames lost): the lens may be anywhere, not only where the rates
+    #: take it (a take may set the lens as it starts)
+    fresh: bool = False
 
 
 @dataclass(frozen=True)
@@ -536,7 +539,7 @@ def rate_least_misses(frames: list[RateFrame], grid: RateGrid) -> int:
     cost = np.zeros((grid.focus_edges.size - 1, grid.f_number_edges.size - 1), np.int32)
     t_prev = frames[0].t_s
     for f in frames:
-        cost = _spread(cost, grid.reach(max(f.t_s - t_prev, 0.0)))
+        cost = np.full_like(cost, cost.min()) if f.fresh else _spread(cost, grid.reach(max(f.t_s - t_prev, 0.0)))
         t_prev = f.t_s
         if f.possible is not None and f.possible.any():
             cost += ~f.possible

@@ -80,7 +80,7 @@ def rate_frames(asked: np.ndarray, judged: np.ndarray, truths: Sequence[M.Ground
     """Each frame for the rates' lower bound, at its truth's simulation time, with the cells that may give its
     judged labels (only for the frames `only`, if given), and the grid (over every lens range filmed, a
     frame's travel at the frames' usual step); a frame without a judged truth keeps the last one's time (no
-    time is assumed to pass)."""
+    time is assumed to pass), one after a gap (GAP_STEPS) starts afresh."""
     lenses = [_lens_of(t) if t is not None else None for t in truths]
     have = [(t, lens) for t, lens in zip(truths, lenses) if lens is not None]
     dt = float(np.median(np.diff([t.stamp_ns for t, _ in have]))) * 1e-9 if len(have) > 1 else 1.0
@@ -90,15 +90,18 @@ def rate_frames(asked: np.ndarray, judged: np.ndarray, truths: Sequence[M.Ground
     wanted = set(range(len(truths)) if only is None else only)
     t_s, out = have[0][0].stamp_ns * 1e-9, []
     for i, (t, lens) in enumerate(zip(truths, lenses)):
-        possible = None
+        possible, fresh = None, False
         if lens is not None:
-            t_s = t.stamp_ns * 1e-9
+            fresh, t_s = t.stamp_ns * 1e-9 - t_s > GAP_STEPS * dt, t.stamp_ns * 1e-9
             if judged[i].any() and i in wanted:
                 possible = FR.possible_cells(grid, lens, asked[i], judged[i], np.asarray(t.region_inverse_depth, float))
-        out.append(FR.RateFrame(t_s, possible))
+        out.append(FR.RateFrame(t_s, possible, fresh))
     return out, grid
 
 
+#: more time than this many frames' steps between two truths is a gap (a new take, frames lost): after it
+#: the lens may be anywhere
+GAP_STEPS = 1.5
 #: the frames either side of a switch (or of a run of switches closer than twice that) the first look judges
 FIRST_LOOK = 12
 #: its cells per frame's travel (coarser than the verdict's: a looser bound, found for less)

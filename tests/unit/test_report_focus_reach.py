@@ -456,6 +456,10 @@ def test_the_report_excuses_rate_misses_per_frame_with_the_rates_and_the_bound()
         "rate_windows"] == []
     assert F.compute_fidelity(src, None, truths, lens_rates=FR.LensRates(240.0, 3.0)).summary["focus_reach"][
         "rate_windows"] == []
+    # a new take at the switch (half a second between two frames: more than 1.5 steps) may set the lens anew
+    retake = [dataclasses.replace(t, stamp_ns=t.stamp_ns + int(0.5e9) * (i >= sw)) for i, t in enumerate(truths)]
+    assert F.compute_fidelity(src, None, retake, lens_rates=FR.LensRates(24.0, 3.0)).summary["focus_reach"][
+        "rate_windows"] == []
     # and truths without a clock (every stamp 0) are never excused
     still = [dataclasses.replace(t, stamp_ns=0) for t in truths]
     assert F.compute_fidelity(src, None, still, lens_rates=FR.LensRates(24.0, 3.0)).summary["focus_reach"][
