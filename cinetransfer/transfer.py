@@ -440,6 +440,7 @@ def main(argv: list[str]) -> int:
     created = not out.exists()
     t_start = time.monotonic()
     meta: dict = {"source": str(src), "scene": args.scene, "rig": args.rig, **people,
+                  **({"vehicle": args.vehicle} if getattr(args, "vehicle", None) else {}),  # the report's lens rates
                   "started": time.strftime("%Y-%m-%d %H:%M:%S")}
     try:
         out.mkdir(parents=True, exist_ok=True)

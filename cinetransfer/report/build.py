@@ -17,11 +17,13 @@ import numpy as np
 
 from cinetransfer.report import fidelity as F
 from cinetransfer.report import figures as figs
+from cinetransfer.report import focus_reach as FR
 from cinetransfer.report import reach_frames as RF
 from cinetransfer.report.html import write_html
 from cinetransfer.report.style import StyleLike, StyleLoadError, load_style_any
 from cinetransfer.shared.instructions import shot_segments, slice_instructions
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.vehicle import load_vehicle
 
 log = logging.getLogger("cinetransfer.report")
 
@@ -163,8 +165,8 @@ def floor_facts(source: M.Instructions, truths: Sequence[M.GroundTruth], meta: d
 
 
 def per_shot(source: M.Instructions, output: M.Instructions | None, truths: list, output_fps: float | None,
-             takes: list[dict] | None = None, floor: Any = None, reach_memo: RF.Memo | None = None
-             ) -> list[dict[str, Any]]:
+             takes: list[dict] | None = None, floor: Any = None, reach_memo: RF.Memo | None = None,
+             lens_rates: FR.LensRates | None = None) -> list[dict[str, Any]]:
     """Goals per shot of a multi-shot source (output frame k follows instruction row k), with the
     take's settle figures when the recording was made one take per shot, and each shot's share of
     the truth joint error's floor (`floor`: floor.Floor on the instruction rows, or None).
@@ -182,7 +184,7 @@ def per_shot(source: M.Instructions, output: M.Instructions | None, truths: list
             outp = dataclasses.replace(slice_instructions(output, a, b, final=True), first_frame=0)
         tr = [dataclasses.replace(t, frame_index=int(t.frame_index) - a) for t in truths if a <= int(t.frame_index) < b]
         fid = F.compute_fidelity(dataclasses.replace(src, first_frame=0), outp, tr, output_fps=output_fps,
-                                 output_frames=b - a, reach_memo=reach_memo)
+                                 output_frames=b - a, reach_memo=reach_memo, lens_rates=lens_rates)
         h = fid.summary["headline"]
         take = by_row.get(a, {})
         out.append({"shot": i, "rows": [a, b], "goals_met": h["goals_met"], "goals": h["goals"],
@@ -228,6 +230,17 @@ def _judge_by_faults(summary: dict[str, Any], faults: dict[str, Any] | None) -> 
         shot["faults"] = tf
         if tf.get("degraded"):
             shot["goals_met"] = f"0/{shot['goals_met'].split('/')[-1]} (degraded)"
+
+
+def lens_rates(meta: dict[str, Any]) -> FR.LensRates | None:
+    """The lens rates of the run's vehicle profile (meta's "vehicle", else the default one), or None
+    when it cannot be read (the misses the rates force are then not excused)."""
+    try:
+        lens = load_vehicle(meta.get("vehicle") or None).lens
+    except (OSError, ValueError) as e:
+        log.warning("lens rates not known (%s): no frame is excused by them", e)
+        return None
+    return FR.LensRates(lens.focus_rate_mps, lens.f_number_rate_ps)
 
 
 def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLike | None,
@@ -276,9 +289,10 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
         output_fps = vinfo.get("fps") if vinfo.get("fps", 0) > 0 else None
     output_frames = vinfo.get("frames") if vinfo.get("frames", 0) > 0 else None
 
+    rates = lens_rates(meta)
     reach_memo: RF.Memo = {}  # each frame's focus reach judged once: the shots compare the same frames
     fid = F.compute_fidelity(source, output, truths, output_fps=output_fps, output_frames=output_frames,
-                             output_missing_reason=reason, reach_memo=reach_memo)
+                             output_missing_reason=reason, reach_memo=reach_memo, lens_rates=rates)
     credit = str(meta.get("credit") or figs.credit_for(source_video))
     shot_rows = ([int(t["first_row"]) for t in meta["takes"]] if meta.get("takes") else
                  [a for a, _ in shot_segments(source)])[1:]
@@ -322,7 +336,7 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
                              middle=None if middle is None else cv2.cvtColor(middle, cv2.COLOR_RGB2BGR))
     except (OSError, ValueError, KeyError, cv2.error) as e:  # the report never fails on this picture
         people = {"error": str(e)}
-    shots = per_shot(source, output, list(truths), output_fps, meta.get("takes"), floor, reach_memo)
+    shots = per_shot(source, output, list(truths), output_fps, meta.get("takes"), floor, reach_memo, rates)
     figures, fig_errors = _drawn(plots, frames)
     figures.update(motion_fig())
     summary: dict[str, Any] = {

@@ -42,6 +42,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from cinetransfer.report import focus_reach as FR
 from cinetransfer.report import reach_frames as RF
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.facing import faces_opposite, mirror_permutation
@@ -353,13 +354,15 @@ class Fidelity:
 def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
                      truths: Sequence[M.GroundTruth] = (), *, output_fps: float | None = None,
                      output_frames: int | None = None, output_missing_reason: str = "",
-                     reach_memo: RF.Memo | None = None) -> Fidelity:
+                     reach_memo: RF.Memo | None = None,
+                     lens_rates: FR.LensRates | None = None) -> Fidelity:
     """Compare the output (extraction and/or truth) with the source instructions.
 
     `output_fps` defaults to the output extraction's fps, else the source's. The output timeline
     is as long as the longest of `output_frames` (e.g. the recorded video's frame count), the
     output extraction and the truths. `reach_memo`: the focus-reach verdicts of frames judged
-    before (reach_frames.reach), shared by the calls of one report.
+    before (reach_frames.reach), shared by the calls of one report. `lens_rates`: the vehicle's lens
+    rates, to excuse the misses they force round a switch of the focus labels (reach_frames).
     """
     joint_names = list(source.joint_names)
     E = len(joint_names)
@@ -387,7 +390,7 @@ def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
     tru_tr = truth_track(truths, joint_names, n_out).take(np.flatnonzero(keep)) if truths else empty_track(n, E)
     by_frame = RF.truths_by_frame(truths, n_out, truth_frame_offset(truths)) if truths else [None] * n_out
     reach = RF.reach(src.focus_in, src.present & tru_tr.present, [by_frame[i] for i in np.flatnonzero(keep)],
-                     reach_memo)
+                     reach_memo, rates=lens_rates)
 
     measures: dict[str, Any] = {}
     errs: dict[str, np.ndarray] = {}
@@ -432,7 +435,8 @@ def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
     summary = {"joint_names": joint_names, "regions": list(REGIONS), "alignment": alignment,
                "focus_reach": {"frames_judged": int(reach.judged.sum()),
                                "unreachable_frames": {r: int(reach.unreachable[:, i].sum())
-                                                      for i, r in enumerate(REGIONS)}},
+                                                      for i, r in enumerate(REGIONS)},
+                               "rate_windows": RF.window_rows(reach, t)},
                "extraction": measures["extraction"], "truth": measures["truth"], "goals": goal_list,
                "headline": headline}
     series = {"t_s": t, "k": k, "joint_names": joint_names, "source_first_frame": int(source.first_frame),

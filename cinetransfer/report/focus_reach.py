@@ -31,14 +31,18 @@ granted before it, wherever inside that hold the lens settles. A combination tha
 narrower than the hold gives is out of reach "on a knife edge" (kind 'hold'), the hold named in the
 reason of every such frame.
 
-Over time the lens moves its focus and f-number at most at the vehicle's rates: rate_min_misses counts
-the fewest frames a lens so limited misses the asked labels (a dynamic programme over a grid of
-settings), a bound on a run, not a verdict per frame (docs/report.md, "The lens's rates").
+Over time the lens moves its focus and f-number at most at the vehicle's rates. rate_min_misses counts
+the fewest frames a grid lens so limited misses the asked labels (a dynamic programme over a grid of
+settings: an upper bound on the fewest, for benchmarks). rate_least_misses is a proven lower bound (cells
+that may give the labels, a lens anywhere in a cell, moving one cell further than the rates allow).
+rate_windows turns it into a verdict per frame (kind 'rate'): round the label switches, a window that
+forces that many misses, and in it no more of the flight's own misses than the bound (docs/report.md,
+"The lens's rates").
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -74,7 +78,7 @@ class Lens:
 @dataclass(frozen=True)
 class Unreachable:
     region: int
-    kind: str  # 'depth' | 'f_number' | 'focus' | 'f_number_and_focus' | 'hold'
+    kind: str  # 'depth' | 'f_number' | 'focus' | 'f_number_and_focus' | 'hold' | 'rate'
     reason: str
     needs_f_number: float | None = None
     needs_focus_m: float | None = None
@@ -411,3 +415,176 @@ def rate_min_misses(lenses: list[Lens | None], asked: np.ndarray, judged: np.nda
         here = np.where(ok, 0, 1) if ok.any() else np.zeros(ok.shape, int)  # none on the grid: not judged
         cost = here if cost is None else _spread_min(cost, cells) + here
     return int(cost.min()) if cost is not None else 0
+
+
+# --- a lower bound on the misses the lens's rates force, and the frames it excuses -----------------
+#: the lower bound's cells per frame's travel (focus, f-number): finer is tighter and costs more
+RATE_BOUND_CELLS = (2, 2)
+#: the pieces a focus cell is judged in, at most this far apart in 1/focus [1/m]
+RATE_SUB_INVERSE_M = 0.008
+
+
+@dataclass(frozen=True)
+class RateGrid:
+    """Cells of focus [m] and f-number, uniform, each a frame's travel at the rates / RATE_BOUND_CELLS."""
+
+    focus_edges: np.ndarray
+    f_number_edges: np.ndarray
+    rates: LensRates
+    #: the focus cells cut into pieces (_sub_edges): their edges, and the first piece of every cell
+    pieces: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    piece_of: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+
+    def reach(self, dt_s: float) -> tuple[int, int]:
+        """How many cells away a lens may be dt_s later: cells whose gap, (k - 1) cells, the rate can cross."""
+        w = (self.focus_edges[1] - self.focus_edges[0], self.f_number_edges[1] - self.f_number_edges[0])
+        moves = (self.rates.focus_mps * dt_s / w[0], self.rates.f_number_ps * dt_s / w[1])
+        return int(moves[0] + 1.0 + 1e-9), int(moves[1] + 1.0 + 1e-9)
+
+
+def rate_grid(focus_m: tuple[float, float], f_number: tuple[float, float], rates: LensRates, dt_s: float,
+              cells: tuple[int, int] = RATE_BOUND_CELLS) -> RateGrid:
+    def edges(lo: float, hi: float, step: float) -> np.ndarray:
+        return np.append(np.arange(lo, hi, step), hi) if hi > lo else np.array([lo, lo + step])
+
+    focus = edges(*focus_m, rates.focus_mps * dt_s / cells[0])
+    return RateGrid(focus, edges(*f_number, rates.f_number_ps * dt_s / cells[1]), rates, *_sub_edges(focus))
+
+
+@dataclass(frozen=True)
+class RateFrame:
+    """One frame as the lower bound sees it: when (simulation time), and per cell of the grid whether some
+    setting in it may give every judged label (None: nothing judged)."""
+
+    t_s: float
+    possible: np.ndarray | None
+    #: after a gap in the frames (a new take, frames lost): the lens may be anywhere, not only where the rates
+    #: take it (a take may set the lens as it starts)
+    fresh: bool = False
+
+
+@dataclass(frozen=True)
+class RateWindow:
+    """Round the label switches `switches`: frames first..last force at least `least` misses on any lens
+    moving at most at the rates; `missed` the flight's misses there, `excused` the ones excused."""
+
+    switches: tuple[int, ...]
+    first: int
+    last: int
+    least: int
+    missed: tuple[int, ...]
+    excused: tuple[int, ...] = field(default=())
+
+
+def _count_in(inv_depth: np.ndarray, inv_far: np.ndarray, inv_near: np.ndarray) -> np.ndarray:
+    return np.maximum(in_focus_count(inv_depth, inv_far.ravel(), inv_near.ravel()), 0).reshape(inv_far.shape)
+
+
+def possible_cells(grid: RateGrid, lens: Lens, asked: np.ndarray, judged: np.ndarray,
+                   inv_depth: np.ndarray) -> np.ndarray:
+    """(S, N) cells of focus [s_a, s_b] x f-number [n_a, n_b] where some setting may give every judged label
+    (a superset: no cell holding a setting that gives them is left out; settings outside the lens's range
+    are clipped to it).
+
+    Both limits of the field (as inverse depths) fall as the focus grows and as the f-number falls, so every
+    field in a cell lies inside [1/far(n_b, s_b), 1/near(n_b, s_a)] and holds [1/far(n_a, s_a),
+    1/near(n_a, s_b)]: a sharp label may be given in the cell when the outer interval may give it, a soft
+    one when the inner may (the may_reach rule), each region alone."""
+    s = np.clip(grid.pieces, *lens.focus_m)
+    f = lens.focal_mm / 1000.0
+    # the field in inverse depth is 1/s -+ (1 - f/s) n c / f^2 (dof_inverse: 1/far + 1/near = 2/s), the far
+    # end clipped at 0: separable in focus and f-number
+    u, a = 1.0 / s, 1.0 - f / s
+    b = np.clip(grid.f_number_edges, *lens.f_number) * lens.coc_mm / 1000.0 / (f * f)
+    ua, ub, aa, ab, na, nb = u[:-1, None], u[1:, None], a[:-1, None], a[1:, None], b[None, :-1], b[None, 1:]
+    out_far, out_near = np.maximum(ub - ab * nb, 0.0), ua + aa * nb
+    in_far, in_near = np.maximum(ua - aa * na, 0.0), ub + ab * na
+    ok = np.ones(out_far.shape, bool)
+    for r in np.flatnonzero(judged):
+        sharp = bool(asked[r])
+        count = _count_in(inv_depth[r], out_far, out_near) if sharp else _count_in(inv_depth[r], in_far, in_near)
+        ok &= may_reach(count, inv_depth[r].size, sharp)
+    return np.logical_or.reduceat(ok, grid.piece_of, axis=0)
+
+
+def _sub_edges(edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The focus cells cut into pieces at most RATE_SUB_INVERSE_M apart in 1/focus (the field's centre), and
+    where each cell's first piece starts. Where a frame's travel sweeps the field far (a short focus), a
+    whole cell would let one region's label be judged at one end and another's at the other."""
+    inv = 1.0 / edges
+    k = np.maximum(np.ceil((inv[:-1] - inv[1:]) / RATE_SUB_INVERSE_M), 1).astype(int)
+    pieces = [np.linspace(a, b, m + 1)[:-1] for a, b, m in zip(edges[:-1], edges[1:], k)]
+    return np.append(np.concatenate(pieces), edges[-1]), np.concatenate([[0], np.cumsum(k)[:-1]])
+
+
+def _spread(cost: np.ndarray, cells: tuple[int, int]) -> np.ndarray:
+    """_spread_min, with a reach across a whole axis taken at once (a gap between takes)."""
+    for axis, k in enumerate(cells):
+        if k >= cost.shape[axis] - 1:
+            cost = np.broadcast_to(cost.min(axis=axis, keepdims=True), cost.shape).copy()
+            cells = (0, cells[1]) if axis == 0 else (cells[0], 0)
+    return _spread_min(cost, cells)
+
+
+def rate_least_misses(frames: list[RateFrame], grid: RateGrid) -> int:
+    """A lower bound on the frames any lens moving at most at the grid's rates misses.
+
+    The relaxation: a frame's labels given anywhere in its possible cells (a superset), a lens anywhere in
+    a cell, so between frames it may reach every cell whose gap the rates cross (one cell further than a
+    point could), the start anywhere. Over the cells the fewest misses are counted exactly (a dynamic
+    programme), so no lens misses fewer. A frame with nothing judged, or no possible cell at all (nothing
+    gives its labels, not the rate: the reach per frame's business), costs nothing."""
+    if not frames:
+        return 0
+    cost = np.zeros((grid.focus_edges.size - 1, grid.f_number_edges.size - 1), np.int32)
+    t_prev = frames[0].t_s
+    for f in frames:
+        cost = np.full_like(cost, cost.min()) if f.fresh else _spread(cost, grid.reach(max(f.t_s - t_prev, 0.0)))
+        t_prev = f.t_s
+        if f.possible is not None and f.possible.any():
+            cost += ~f.possible
+    return int(cost.min())
+
+
+def label_switches(asked: np.ndarray) -> list[int]:
+    return [int(i) for i in np.flatnonzero((asked[1:] != asked[:-1]).any(axis=1)) + 1]
+
+
+def _parts(frames: list[RateFrame], grid: RateGrid, switches: list[int]) -> list[tuple[int, int, list[int]]]:
+    """Parts [a, b) of the timeline with their switches: cut halfway between two switches only where the
+    parts' bounds add up to the whole's (a cut through a lens's travel would lose forced misses)."""
+    out, a, group = [], 0, switches[:1]
+    for nxt in switches[1:]:
+        c = (group[-1] + nxt) // 2
+        both = rate_least_misses(frames[a:c], grid) + rate_least_misses(frames[c:], grid)
+        if both == rate_least_misses(frames[a:], grid):
+            out.append((a, c, group))
+            a, group = c, []
+        group.append(nxt)
+    out.append((a, len(frames), group))
+    return out
+
+
+def rate_windows(frames: list[RateFrame], grid: RateGrid, asked: np.ndarray, missed: np.ndarray,
+                 switches: list[int] | None = None) -> list[RateWindow]:
+    """Per switch of the asked labels (N, 3), or run of switches a lens travels through, the frames the lens's
+    rates force any lens to miss there, and which of the flight's misses `missed` (N,) bool that excuses.
+
+    The timeline is cut into parts (_parts). A part's least misses k (rate_least_misses) set the window: k
+    frames before its first switch to k after its last, inside the part. The window's own bound holds for
+    it alone, and the windows do not overlap, so they add up to no more than the run's. In a window at most
+    its bound of the flight's own misses are excused, the nearest a switch first. `switches`: the ones to
+    judge (default every switch of `asked`; leaving one out can only excuse less)."""
+    out: list[RateWindow] = []
+    switches = label_switches(np.asarray(asked, bool)) if switches is None else switches
+    for a, b, sw in _parts(frames, grid, switches) if switches else []:
+        part = rate_least_misses(frames[a:b], grid)
+        if part == 0:
+            continue
+        first, end = max(a, sw[0] - part), min(b, sw[-1] + part)
+        least = rate_least_misses(frames[first:end], grid)
+        miss = [i for i in range(first, end) if missed[i]]
+        near = sorted(miss, key=lambda i: (min(abs(i - s + 0.5) for s in sw), i))[:least]
+        if least:
+            out.append(RateWindow(tuple(sw), first, end - 1, least, tuple(miss), tuple(sorted(near))))
+    return out

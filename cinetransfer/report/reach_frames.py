@@ -4,10 +4,14 @@ Per compared output frame and region: the label the source asks (its `focus_in`)
 depths and the filmed focal length from the simulator's truth (`GroundTruth.region_inverse_depth`,
 `focal_length_mm`, `lens_limits`), judged by focus_reach.unreachable_labels. Frames whose truth
 predates those fields (an older recording) are never called unreachable.
+
+Given the lens's rates, misses the flight made round a switch of the asked labels are excused (kind
+'rate') where the rates force them, never more than focus_reach's proven lower bound
+(focus_reach.rate_windows); the windows, with the flight's misses against the bound, are kept.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
@@ -23,6 +27,7 @@ class Reach:
     unreachable: np.ndarray  # (N, 3) bool
     reasons: np.ndarray  # (N, 3) object (str)
     judged: np.ndarray  # (N,) the frame had what the judgement needs (truth with depths and lens)
+    rate_windows: list[FR.RateWindow] = field(default_factory=list)
 
     @classmethod
     def none(cls, n: int) -> "Reach":
@@ -59,10 +64,11 @@ def frame_key(lens: FR.Lens, asked: np.ndarray, present: np.ndarray, inv_depth: 
 
 
 def reach(asked: np.ndarray, present: np.ndarray, truths: Sequence[M.GroundTruth | None],
-          memo: Memo | None = None) -> Reach:
+          memo: Memo | None = None, rates: FR.LensRates | None = None) -> Reach:
     """Reach of the asked labels `asked` (N, 3) where `present` (N, 3) (the region present on both
-    sides), one truth (or None) per frame. `memo`: verdicts of frames judged before (filled here),
-    so that one report judges each frame once (its shots compare the same frames again)."""
+    sides), one truth (or None) per frame; with the lens's `rates`, the misses they force too.
+    `memo`: verdicts of frames judged before (filled here), so that one report judges each frame
+    once (its shots compare the same frames again)."""
     n = len(truths)
     out = Reach.none(n)
     for i, t in enumerate(truths):
@@ -82,7 +88,102 @@ def reach(asked: np.ndarray, present: np.ndarray, truths: Sequence[M.GroundTruth
         for u in found:
             out.unreachable[i, u.region] = True
             out.reasons[i, u.region] = u.reason
+    if rates is not None and out.judged.any():
+        _excuse_rate_misses(out, np.asarray(asked, bool), np.asarray(present, bool), truths, rates)
     return out
+
+
+def rate_frames(asked: np.ndarray, judged: np.ndarray, truths: Sequence[M.GroundTruth | None],
+                rates: FR.LensRates, only: Sequence[int] | None = None,
+                cells: tuple[int, int] = FR.RATE_BOUND_CELLS) -> tuple[list[FR.RateFrame], FR.RateGrid]:
+    """Each frame for the rates' lower bound, at its truth's simulation time, with the cells that may give its
+    judged labels (only for the frames `only`, if given), and the grid (over every lens range filmed, a
+    frame's travel at the frames' usual step); a frame without a judged truth keeps the last one's time (no
+    time is assumed to pass), one after a gap (GAP_STEPS) starts afresh."""
+    lenses = [_lens_of(t) if t is not None else None for t in truths]
+    have = [(t, lens) for t, lens in zip(truths, lenses) if lens is not None]
+    dt = float(np.median(np.diff([t.stamp_ns for t, _ in have]))) * 1e-9 if len(have) > 1 else 1.0
+    grid = FR.rate_grid((min(x.focus_m[0] for _, x in have), max(x.focus_m[1] for _, x in have)),
+                        (min(x.f_number[0] for _, x in have), max(x.f_number[1] for _, x in have)), rates, dt,
+                        cells)
+    wanted = set(range(len(truths)) if only is None else only)
+    t_s, out = have[0][0].stamp_ns * 1e-9, []
+    for i, (t, lens) in enumerate(zip(truths, lenses)):
+        possible, fresh = None, False
+        if lens is not None:
+            fresh, t_s = t.stamp_ns * 1e-9 - t_s > GAP_STEPS * dt, t.stamp_ns * 1e-9
+            if judged[i].any() and i in wanted:
+                possible = FR.possible_cells(grid, lens, asked[i], judged[i], np.asarray(t.region_inverse_depth, float))
+        out.append(FR.RateFrame(t_s, possible, fresh))
+    return out, grid
+
+
+#: more time than this many frames' steps between two truths is a gap (a new take, frames lost): after it
+#: the lens may be anywhere
+GAP_STEPS = 1.5
+#: the frames either side of a switch (or of a run of switches closer than twice that) the first look judges
+FIRST_LOOK = 12
+#: its cells per frame's travel (coarser than the verdict's: a looser bound, found for less)
+FIRST_LOOK_CELLS = (1, 1)
+
+
+def _binding_switches(asked: np.ndarray, judged: np.ndarray, truths: Sequence[M.GroundTruth | None],
+                      rates: FR.LensRates, missed: np.ndarray) -> list[int]:
+    """The label switches, judged on both sides, round which any lens misses a frame and the flight did: a
+    first look at FIRST_LOOK frames either side of each run of them (a switch left out is only excused
+    less)."""
+    sw = np.asarray(FR.label_switches(asked), int)
+    sw = [int(s) for s in sw[((asked[sw] != asked[sw - 1]) & judged[sw] & judged[sw - 1]).any(axis=1)]]
+    if not sw:
+        return []
+    runs = np.split(np.asarray(sw), np.flatnonzero(np.diff(sw) > 2 * FIRST_LOOK) + 1)  # switches a lens may race
+    spans = [(max(0, int(r[0]) - FIRST_LOOK), min(len(truths), int(r[-1]) + FIRST_LOOK)) for r in runs]
+    keep = [k for k, (a, b) in enumerate(spans) if missed[a:b].any()]
+    runs, spans = [runs[k] for k in keep], [spans[k] for k in keep]
+    frames, grid = rate_frames(asked, judged, truths, rates, only=[i for a, b in spans for i in range(a, b)],
+                               cells=FIRST_LOOK_CELLS)
+    return [int(s) for r, (a, b) in zip(runs, spans) if FR.rate_least_misses(frames[a:b], grid) > 0 for s in r]
+
+
+def _excuse_rate_misses(out: Reach, asked: np.ndarray, present: np.ndarray, truths: Sequence[M.GroundTruth | None],
+                        rates: FR.LensRates) -> None:
+    """Mark the misses rate_windows excuses: per excused frame one region the flight missed, of those whose
+    label the switch changed if any, the last in the order labels are granted (as a combination out of reach
+    is reported), with the rates and the bound."""
+    stamps = [t.stamp_ns for t in truths if t is not None and _lens_of(t) is not None]
+    if np.any(np.diff(stamps) <= 0):  # no time between frames would stop the lens: no bound without a clock
+        return
+    depths = np.array([np.isfinite(np.asarray(t.region_inverse_depth, float)).all(axis=1)
+                       if j else np.zeros(3, bool) for t, j in zip(truths, out.judged)], bool).reshape(-1, 3)
+    judged = present & ~out.unreachable & depths
+    got = np.array([t.region_in_focus if t is not None else np.zeros(3, bool) for t in truths], bool).reshape(-1, 3)
+    wrong = judged & (got != asked)
+    binding = _binding_switches(asked, judged, truths, rates, wrong.any(axis=1))
+    if not binding:
+        return  # no switch round which a lens must miss and this flight did: no cells to build
+    frames, grid = rate_frames(asked, judged, truths, rates)
+    out.rate_windows.extend(FR.rate_windows(frames, grid, asked, wrong.any(axis=1), binding))
+    for w in out.rate_windows:
+        for i in w.excused:
+            r = _excused_region(i, w.switches, asked, wrong[i])
+            out.unreachable[i, r] = True
+            out.reasons[i, r] = (f"{FR.REGIONS[r]} {'sharp' if asked[i, r] else 'soft'}: the focus moves at most "
+                                 f"{rates.focus_mps:g} m/s and the f-number {rates.f_number_ps:g}/s, so any lens "
+                                 f"misses at least {w.least} of frames {w.first}-{w.last} round the "
+                                 f"{_switch_words(w.switches)} (this flight missed {len(w.missed)} of them)")
+
+
+def _excused_region(i: int, switches: tuple[int, ...], asked: np.ndarray, wrong: np.ndarray) -> int:
+    """Of the regions the flight missed in frame i, one the nearest switch racked if any, the last granted."""
+    at = min(switches, key=lambda s: abs(i - s + 0.5))
+    racked = [r for r in reversed(FR.PRIORITY) if wrong[r] and asked[at, r] != asked[at - 1, r]]
+    return racked[0] if racked else next(r for r in reversed(FR.PRIORITY) if wrong[r])
+
+
+def _switch_words(switches: tuple[int, ...]) -> str:
+    if len(switches) == 1:
+        return f"switch at frame {switches[0]}"
+    return f"switches at frames {', '.join(map(str, switches[:-1]))} and {switches[-1]}"
 
 
 def runs(rch: Reach, t_s: np.ndarray, rows: np.ndarray, shot_rows: Sequence[int] = ()) -> list[dict[str, Any]]:
@@ -104,3 +205,11 @@ def runs(rch: Reach, t_s: np.ndarray, rows: np.ndarray, shot_rows: Sequence[int]
                         "frames": int(seg.size), "t_s": [float(t_s[a]), float(t_s[b])],
                         "reason": first, "reason_last": last if last != first else None})
     return out
+
+
+def window_rows(rch: Reach, t_s: np.ndarray) -> list[dict[str, Any]]:
+    """The rate windows as report rows: the switch, the window's frames and time span, the least misses any
+    lens at the rates makes there against the flight's misses, and how many of those are excused."""
+    return [{"switch_frames": list(w.switches), "first_frame": w.first, "last_frame": w.last,
+             "t_s": [float(t_s[w.first]), float(t_s[w.last])], "least_misses": w.least,
+             "flown_misses": len(w.missed), "excused": len(w.excused)} for w in rch.rate_windows]

@@ -197,7 +197,8 @@ def test_the_report_excludes_unreachable_frames_from_the_judged_agreement_and_sh
     assert fo["n_frames_reachable"] == 36 and fo["n_frames_unreachable"] == 12
     assert fo["agreement_reachable"] == 0.0
     assert fid.summary["focus_reach"] == {"frames_judged": 48,
-                                          "unreachable_frames": {"foreground": 12, "subject": 0, "background": 0}}
+                                          "unreachable_frames": {"foreground": 12, "subject": 0, "background": 0},
+                                          "rate_windows": []}
     reach = fid.series["reach"]
     assert reach.unreachable[:12, 0].all() and not reach.unreachable[12:].any()
     assert reach.reasons[0, 0].startswith("foreground at the subject's depth")
@@ -299,3 +300,167 @@ def test_rate_limited_rack_moves_on_where_a_frame_is_not_judged():
     assert FR.rate_min_misses(lenses, asked, judged, depth, FR.LensRates(0.5, 1.0), 1.0, (1, 2)) == 1
     judged[3:5, 1] = False  # the subject not judged at frames 3-4: the background alone is sharp on the way
     assert FR.rate_min_misses([RACK_LENS] * 8, asked, judged, depth, FR.LensRates(0.5, 1.0), 1.0, (1, 2)) == 0
+
+
+# --- the rates' proven lower bound and the frames it excuses ---------------------------------------
+# RACK_LENS (f/2 only). With cells of 1/8 of a frame's travel (0.0625 m at 0.5 m a frame): the settings for
+# the subject sharp with the background soft end in the cell holding 15.415 m (15.375-15.4375), those for
+# the opposite start in the one holding 16.633 m (16.625-16.6875), 20 cells further; a lens may reach cells
+# whose gap a frame's travel crosses: 9 cells a frame, 3 steps, two frames missed (as rate_min_misses).
+FINE = (8, 1)
+
+
+def _grid(rate_mps: float, dt_s: float = 1.0, cells=FINE) -> FR.RateGrid:
+    return FR.rate_grid(RACK_LENS.focus_m, RACK_LENS.f_number, FR.LensRates(rate_mps, 1.0), dt_s, cells)
+
+
+def _rate_frames(asked, judged, depth, grid: FR.RateGrid, dt_s: float = 1.0) -> list:
+    return [FR.RateFrame(i * dt_s, FR.possible_cells(grid, RACK_LENS, asked[i], judged[i], depth[i]))
+            for i in range(len(asked))]
+
+
+def _least(asked, judged, depth, rate_mps: float, dt_s: float = 1.0, cells=FINE) -> int:
+    grid = _grid(rate_mps, dt_s, cells)
+    return FR.rate_least_misses(_rate_frames(asked, judged, depth, grid, dt_s), grid)
+
+
+def test_possible_cells_are_the_cells_holding_the_rack_settings_by_hand():
+    asked, judged, depth = _rack(2, 1)
+    grid = _grid(0.5)
+    edges = grid.focus_edges
+    before = np.flatnonzero(FR.possible_cells(grid, RACK_LENS, asked[0], judged[0], depth[0])[:, 0])
+    after = np.flatnonzero(FR.possible_cells(grid, RACK_LENS, asked[1], judged[1], depth[1])[:, 0])
+    # before: from the cell holding 7.157 m to the one holding 15.415 m; after: from the one holding 16.633 m
+    assert (edges[before[0]], edges[before[-1] + 1]) == pytest.approx((7.125, 15.4375))
+    assert before.size == before[-1] - before[0] + 1
+    assert edges[after[0]] == pytest.approx(16.625) and edges[after[-1] + 1] == pytest.approx(100.0)
+    assert after[0] - before[-1] == 20
+
+
+def test_possible_cells_keep_every_setting_that_gives_the_labels():
+    # given random scenes and lenses, every (focus, f-number) that gives the labels lies in a possible cell
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        lens = FR.Lens(float(rng.uniform(30, 200)), (0.5, 100.0), (1.0, 22.0))
+        grid = FR.rate_grid(lens.focus_m, lens.f_number, FR.LensRates(15.0, 3.0), 1 / 24)
+        depth = np.sort(1.0 / rng.uniform(2.0, 80.0, (3, 20)), axis=1)
+        asked, judged = rng.random(3) < 0.5, rng.random(3) < 0.8
+        cells = FR.possible_cells(grid, lens, asked, judged, depth)
+        s, n = np.meshgrid(np.geomspace(0.5, 99.9, 500), np.geomspace(1.0, 21.9, 80))
+        ok = FR._feasible(lens, n.ravel(), s.ravel(), list(np.flatnonzero(judged)), asked, depth)
+        i = np.searchsorted(grid.focus_edges, s.ravel(), side="right") - 1
+        j = np.searchsorted(grid.f_number_edges, n.ravel(), side="right") - 1
+        assert cells[i[ok], j[ok]].all()
+
+
+def test_rate_least_misses_by_hand_equals_the_grid_count_on_the_racks():
+    asked, judged, depth = _rack(8, 3)
+    # 0.5 m a frame: two frames missed; 2 m: none; 0.25 m (39 cells, 9 a frame: five steps, four missed, or
+    # the three frames before the switch if fewer)
+    assert _least(asked, judged, depth, 0.5) == 2
+    assert _least(asked, judged, depth, 2.0) == 0
+    assert _least(asked, judged, depth, 0.25) == 3
+    long = _rack(12, 6)
+    assert _least(*long, 0.25) == 4
+    # half a second between frames halves the travel: 0.5 m/s moves as 0.25 m a frame
+    assert _least(*long, 0.5, dt_s=0.5) == 4
+    # each equals rate_min_misses (an upper bound): the bound is exact on these racks
+    assert FR.rate_min_misses([RACK_LENS] * 12, *long, FR.LensRates(0.25, 1.0), 1.0, (1, 2)) == 4
+    # a frame with nothing judged at the switch: the lens moves on, one frame missed (the grid count's too)
+    grid = _grid(0.5)
+    frames = _rate_frames(asked, judged, depth, grid)
+    frames[3] = FR.RateFrame(3.0, None)
+    assert FR.rate_least_misses(frames, grid) == 1
+
+
+def test_the_lower_bound_gives_way_on_coarse_cells():
+    # the report's cells (1/2 of a frame's travel, 0.25 m): the settings end in 15.25-15.5 m and start in
+    # 16.5-16.75 m, 5 cells apart, 3 cells a frame: two steps, one frame missed where any lens misses two;
+    # a lower bound may be under the fewest, never over
+    asked, judged, depth = _rack(8, 3)
+    assert _least(asked, judged, depth, 0.5, cells=FR.RATE_BOUND_CELLS) == 1
+    assert FR.rate_min_misses([RACK_LENS] * 8, asked, judged, depth, FR.LensRates(0.5, 1.0), 1.0, (1, 2)) == 2
+
+
+def test_rate_windows_excuse_only_the_flights_misses_near_the_switch_up_to_the_bound():
+    # given the 12-frame rack at 0.25 m a frame (4 frames forced): the window is four frames either side
+    asked, judged, depth = _rack(12, 6)
+    grid = _grid(0.25)
+    frames = _rate_frames(asked, judged, depth, grid)
+    missed = np.zeros(12, bool)
+    missed[[0, 6, 7, 8, 9, 10]] = True  # the flight lags five frames, and missed frame 0
+    (w,) = FR.rate_windows(frames, grid, asked, missed)
+    assert (w.switches, w.first, w.last, w.least) == ((6,), 2, 9, 4)
+    assert w.missed == (6, 7, 8, 9) and w.excused == (6, 7, 8, 9)
+    # a flight that missed fewer than the bound has only those excused; one that missed nothing none
+    missed[:] = False
+    missed[[5, 11]] = True
+    (w,) = FR.rate_windows(frames, grid, asked, missed)
+    assert w.missed == (5,) and w.excused == (5,)
+    assert FR.rate_windows(frames, grid, asked, np.zeros(12, bool))[0].excused == ()
+    # a rate the rack does not bind: no window
+    fast = _grid(2.0)
+    assert FR.rate_windows(_rate_frames(asked, judged, depth, fast), fast, asked, np.ones(12, bool)) == []
+
+
+def test_rate_windows_of_two_racks_apart():
+    # given a rack to the background at frame 6 and back at 18, 0.25 m a frame: four frames forced at each
+    asked = np.array([[False, not 6 <= i < 18, 6 <= i < 18] for i in range(24)])
+    judged = np.tile([False, True, True], (24, 1))
+    grid = _grid(0.25)
+    frames = _rate_frames(asked, judged, np.repeat(RACK_DEPTH[None], 24, axis=0), grid)
+    assert FR.rate_least_misses(frames, grid) == 8
+    out = FR.rate_windows(frames, grid, asked, np.ones(24, bool))
+    assert [(w.switches, w.first, w.last, w.least, w.excused) for w in out] == \
+        [((6,), 2, 9, 4, (4, 5, 6, 7)), ((18,), 14, 21, 4, (16, 17, 18, 19))]
+    # racked back 3 frames after: any lens misses three (frames 6-8, or as many on its travels); cut at frame
+    # 7 the parts force 1 (frame 5 or 6) and 2 (frames 7-8 or 9-10), adding up to the whole's 3, so it is cut
+    back = np.array([[False, not 6 <= i < 9, 6 <= i < 9] for i in range(24)])
+    frames = _rate_frames(back, judged, np.repeat(RACK_DEPTH[None], 24, axis=0), grid)
+    assert FR.rate_least_misses(frames, grid) == 3
+    out = FR.rate_windows(frames, grid, back, np.ones(24, bool))
+    assert [(w.switches, w.first, w.last, w.least, w.excused) for w in out] == \
+        [((6,), 5, 6, 1, (5,)), ((9,), 7, 10, 2, (8, 9))]
+
+
+def test_the_report_excuses_rate_misses_per_frame_with_the_rates_and_the_bound():
+    # given a rack at 100 mm, f/2 (c = 0.13365 mm: H = 37.51 m), the subject 10 m away and the background 40 m:
+    # the subject is sharp up to focus (H - 2 f) / (0.1 (H - f) - 1) = 13.61 m, the background from
+    # H / (1 + 0.025 (H - f)) = 19.38 m; frames 1/24 s apart, a focus rate of 24 m/s (1 m a frame); the report's
+    # cells of 0.5 m: 13.5-14.0 m and 19.0-19.5 m, 11 cells apart, 3 a frame: four steps, three frames
+    # forced (any lens misses five); the flight films the switch seven frames late
+    k, sw = 36, 12
+    asked = np.array([[False, i < sw, i >= sw] for i in range(k)])
+    src = synth.instructions(k, focus_in=asked)
+    truths = _truths_with_depths(k, RACK_DEPTH, focal_mm=100.0)
+    filmed = np.array([[False, i < sw + 7, i >= sw + 7] for i in range(k)])
+    truths = [dataclasses.replace(t, lens_limits=np.float32([0.5, 100.0, 2.0, 2.0]), region_in_focus=filmed[i],
+                                  stamp_ns=int(i * 1e9 / 24)) for i, t in enumerate(truths)]
+    fid = F.compute_fidelity(src, None, truths, lens_rates=FR.LensRates(24.0, 3.0))
+    reach = fid.series["reach"]
+    # then the window is three frames either side (9-14); the three of the flight's misses in it are excused,
+    # the background (granted after the subject), each naming the rates and the bound; without the rates none
+    (w,) = fid.summary["focus_reach"]["rate_windows"]
+    assert (w["first_frame"], w["last_frame"], w["least_misses"], w["flown_misses"], w["excused"]) == (9, 14, 3, 3, 3)
+    assert np.flatnonzero(reach.unreachable[:, 2]).tolist() == [12, 13, 14]
+    assert not reach.unreachable[:, :2].any()
+    assert reach.reasons[12, 2] == ("background sharp: the focus moves at most 24 m/s and the f-number 3/s, so any "
+                                    "lens misses at least 3 of frames 9-14 round the switch at frame 12 (this "
+                                    "flight missed 3 of them)")
+    assert fid.summary["truth"]["focus"]["background"]["agreement_reachable"] == pytest.approx(29 / 33)
+    assert not F.compute_fidelity(src, None, truths).series["reach"].unreachable.any()
+    # a flight that racks on time has nothing excused (nor any window: nothing to excuse), nor one whose lens
+    # moves fast enough (240 m/s: 10 m a frame, the gap in one)
+    on_time = [dataclasses.replace(t, region_in_focus=asked[i]) for i, t in enumerate(truths)]
+    assert F.compute_fidelity(src, None, on_time, lens_rates=FR.LensRates(24.0, 3.0)).summary["focus_reach"][
+        "rate_windows"] == []
+    assert F.compute_fidelity(src, None, truths, lens_rates=FR.LensRates(240.0, 3.0)).summary["focus_reach"][
+        "rate_windows"] == []
+    # a new take at the switch (half a second between two frames: more than 1.5 steps) may set the lens anew
+    retake = [dataclasses.replace(t, stamp_ns=t.stamp_ns + int(0.5e9) * (i >= sw)) for i, t in enumerate(truths)]
+    assert F.compute_fidelity(src, None, retake, lens_rates=FR.LensRates(24.0, 3.0)).summary["focus_reach"][
+        "rate_windows"] == []
+    # and truths without a clock (every stamp 0) are never excused
+    still = [dataclasses.replace(t, stamp_ns=0) for t in truths]
+    assert F.compute_fidelity(src, None, still, lens_rates=FR.LensRates(24.0, 3.0)).summary["focus_reach"][
+        "rate_windows"] == []
