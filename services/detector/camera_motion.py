@@ -3,8 +3,9 @@ copy of the frame (people masked out), then fitted by shared/camera_motion.py.
 
 Cost: about 4-5 ms of CPU per frame at 1280x720 (a 320 px wide grey copy, up to 200 corners
 carried from frame to frame, pyramidal Lucas-Kanade forward and back, the fit), measured on a
-loaded 2-core machine; about 15 ms where a translation is fitted in most frames (the transfer's
-rendered output video, the camera following its subject).
+loaded 2-core machine, and about 2 ms more for telling the tracks on edges (`edge_normals`); about
+15 ms where a translation is fitted in most frames (the transfer's rendered output video, the
+camera following its subject).
 """
 from __future__ import annotations
 
