@@ -95,6 +95,30 @@ def rotation_zoom_basis(pts: np.ndarray, f: float) -> np.ndarray:
     return out
 
 
+def edge_tracks(normals: np.ndarray | None, n: int) -> np.ndarray:
+    """(n,) True for the tracks that are edges: those with a unit normal in `normals` (N, 2), whose
+    rows of zeros are corners; all False without normals."""
+    if normals is None:
+        return np.zeros(n, dtype=bool)
+    return np.any(np.asarray(normals) != 0.0, axis=1)
+
+
+def project_normal(v: np.ndarray, normals: np.ndarray | None) -> np.ndarray:
+    """`v` (N, 2) or (N, 2, k) with each edge track's vector replaced by its part along the edge's
+    normal, n (n . v); a corner's unchanged. An edge track keeps only the motion across the edge
+    (the aperture problem): a point-to-line residual, as in normal flow."""
+    edge = edge_tracks(normals, len(v))
+    if not edge.any():
+        return v
+    n = np.asarray(normals, dtype=float)[edge]
+    out = np.array(v, dtype=float, copy=True)
+    if out.ndim == 2:
+        out[edge] = n * np.einsum("nk,nk->n", n, out[edge])[:, None]
+    else:
+        out[edge] = n[:, :, None] * np.einsum("nk,nkj->nj", n, out[edge])[:, None, :]
+    return out
+
+
 @dataclass(frozen=True)
 class FrameMotion:
     """The camera's motion between two frames, per frame (not per second)."""
@@ -118,14 +142,19 @@ def _solve(basis: np.ndarray, flow: np.ndarray) -> np.ndarray:
 
 
 def fit_rotation_zoom(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float, iters: int = 64,
-                      rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
+                      rng: np.random.Generator | None = None,
+                      normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Pan, tilt, roll [rad] and log-zoom (4,) moving points p0 to p1 (N, 2, centred px), and the
-    inlier mask (N,): RANSAC over two-point samples, then least squares on the best inliers."""
+    inlier mask (N,): RANSAC over two-point samples, then least squares on the best inliers.
+    An edge track (a unit normal in `normals`, see project_normal) is fitted and judged by its
+    motion across the edge alone; the samples are drawn from the corners when there are two."""
     rng = rng or np.random.default_rng(0)
-    mid, flow = 0.5 * (p0 + p1), p1 - p0
-    basis = rotation_zoom_basis(mid, f)
-    n = len(p0)
-    pairs = rng.integers(0, n, size=(iters, 2))
+    mid = 0.5 * (p0 + p1)
+    flow = project_normal(p1 - p0, normals)
+    basis = project_normal(rotation_zoom_basis(mid, f), normals)
+    corner = np.flatnonzero(~edge_tracks(normals, len(p0)))
+    pool = corner if len(corner) >= 2 else np.arange(len(p0))
+    pairs = pool[rng.integers(0, len(pool), size=(iters, 2))]
     pairs = pairs[pairs[:, 0] != pairs[:, 1]]
     a = basis[pairs].reshape(len(pairs), 4, 4)  # two points x (u, v) rows per hypothesis
     b = flow[pairs].reshape(len(pairs), 4)
@@ -142,7 +171,8 @@ def fit_rotation_zoom(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: fl
     return q, inl
 
 
-def explained_share(p0: np.ndarray, p1: np.ndarray, f: float, q0: np.ndarray, *, inlier_px: float) -> float:
+def explained_share(p0: np.ndarray, p1: np.ndarray, f: float, q0: np.ndarray, *, inlier_px: float,
+                    normals: np.ndarray | None = None) -> float:
     """Share of the points p0 -> p1 (a baseline of several frames) that rotation + zoom explains:
     the more of the parameters `q0` (4,) (the frame's own fit scaled to the baseline) refitted on
     their inliers once, and rotation + zoom fitted to the baseline by itself (RANSAC).
@@ -151,16 +181,18 @@ def explained_share(p0: np.ndarray, p1: np.ndarray, f: float, q0: np.ndarray, *,
     span: a hovering camera sways (its pan swings between -2 and +5 deg/s from frame to frame) and
     a pan speeds up, and the last frame's rate scaled to 8 frames then mispredicts every point by
     pixels (the output of a static take: 0-10 % explained where the baseline's own fit explains
-    95-100 %), which the translation fit then took for parallax."""
-    mid, flow = 0.5 * (p0 + p1), p1 - p0
-    basis = rotation_zoom_basis(mid, f)
+    95-100 %), which the translation fit then took for parallax. Edge tracks: by their motion
+    across the edge (`normals`, see project_normal)."""
+    mid = 0.5 * (p0 + p1)
+    flow = project_normal(p1 - p0, normals)
+    basis = project_normal(rotation_zoom_basis(mid, f), normals)
     inl = np.linalg.norm(basis @ q0 - flow, axis=1) < inlier_px
     if inl.sum() >= 2:
         inl = np.linalg.norm(basis @ _solve(basis[inl], flow[inl]) - flow, axis=1) < inlier_px
     seeded = float(inl.mean())
     if seeded >= EXPLAINED_SHARE:  # the frame's own rates explain the baseline: no second RANSAC
         return seeded
-    return max(seeded, float(fit_rotation_zoom(p0, p1, f, inlier_px=inlier_px)[1].mean()))
+    return max(seeded, float(fit_rotation_zoom(p0, p1, f, inlier_px=inlier_px, normals=normals)[1].mean()))
 
 
 def _translation_dir(mid: np.ndarray, resid: np.ndarray, f: float) -> np.ndarray:
@@ -302,7 +334,7 @@ def _alternate_on(mid: np.ndarray, flow: np.ndarray, basis: np.ndarray, f: float
 
 
 def frame_motion(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float = INLIER_PX,
-                 earlier: np.ndarray | None = None, span: int = 1) -> FrameMotion:
+                 earlier: np.ndarray | None = None, span: int = 1, normals: np.ndarray | None = None) -> FrameMotion:
     """The camera's motion between two frames from background points p0 -> p1 (N, 2, centred px,
     at the resolution whose focal length is `f` px). A translation is reported only when parallax
     shows it: rotation + zoom leaves much unexplained and rotation + translation explains it.
@@ -310,7 +342,13 @@ def frame_motion(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float =
     `earlier` (N, 2): the same points `span` frames before p1, NaN where a point was not tracked
     that long. Parallax grows with the baseline while the tracking noise hardly does, so the test
     for a translation (and its direction) runs on earlier -> p1 over the points tracked that long
-    when span >= MIN_SPAN; the per-frame rotation then comes from p0 -> p1 given it."""
+    when span >= MIN_SPAN; the per-frame rotation then comes from p0 -> p1 given it.
+
+    `normals` (N, 2): the unit normal of each track that lies on an edge, zeros for a corner. An
+    edge track keeps only the motion across its edge (it slides along it), so rotation + zoom (its
+    fit and the share it explains), the checks on a dolly and the dolly-zoom's zoom use only that
+    of it (project_normal); the translation's direction and rotation are fitted in 2-D as before.
+    With fewer than MIN_POINTS corners they are all taken as corners."""
     p0, p1 = np.asarray(p0, dtype=float).reshape(-1, 2), np.asarray(p1, dtype=float).reshape(-1, 2)
     fin = np.isfinite(p0).all(axis=1) & np.isfinite(p1).all(axis=1)
     if earlier is not None:
@@ -319,17 +357,20 @@ def frame_motion(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float =
     n = len(p0)
     if n < MIN_POINTS:
         return FrameMotion.unknown(n)
+    if normals is not None:
+        normals = np.nan_to_num(np.asarray(normals, dtype=float).reshape(-1, 2)[fin])
+        normals = None if (~edge_tracks(normals, n)).sum() < MIN_POINTS else normals
     try:
-        return _fit_frame(p0, p1, f, inlier_px, earlier, span)
+        return _fit_frame(p0, p1, f, inlier_px, earlier, span, normals)
     except np.linalg.LinAlgError:  # degenerate points (all on a line, ...): the frame's motion is unknown
         return FrameMotion.unknown(n)
 
 
 def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earlier: np.ndarray | None,
-               span: int) -> FrameMotion:
+               span: int, normals: np.ndarray | None) -> FrameMotion:
     """frame_motion on finite points."""
     n = len(p0)
-    q, inl = fit_rotation_zoom(p0, p1, f, inlier_px=inlier_px)
+    q, inl = fit_rotation_zoom(p0, p1, f, inlier_px=inlier_px, normals=normals)
     explained = float(inl.mean())
     sel = np.ones(n, dtype=bool)
     if earlier is not None and span >= MIN_SPAN:
@@ -338,40 +379,46 @@ def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earli
     k = span if long else 1
     a = np.asarray(earlier, dtype=float).reshape(-1, 2)[sel] if long else p0
     b, b0 = (p1[sel], p0[sel]) if long else (p1, p0)
+    nb = normals[sel] if long and normals is not None else normals
     tol = inlier_px * LONG_INLIER_FACTOR if long else inlier_px
-    share = explained_share(a, b, f, q * k, inlier_px=tol) if long else explained
+    share = explained_share(a, b, f, q * k, inlier_px=tol, normals=nb) if long else explained
     if share < EXPLAINED_SHARE:
+        # the direction and rotation are fitted on every track in 2-D: given an edge track only
+        # across its edge, its depth takes up all of it and it tells nothing (docs/camera_motion.md)
         rot, t, inl_t = fit_rotation_translation(a, b, f, q[:3] * k, inlier_px=tol,
                                                  shown=max(EXPLAINED_SHARE, share + PARALLAX_GAIN))
         if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= share + PARALLAX_GAIN \
-                and not ground_denies_dolly(a, b, f, rot, t, inl_t) and not sliding_tracks(a, b, f, rot, t, inl_t, tol):
+                and not ground_denies_dolly(a, b, f, rot, t, inl_t, nb) \
+                and not sliding_tracks(a, b, f, rot, t, inl_t, tol, nb):
             rot = rotation_given_direction(b0, b, f, t, inl_t, inlier_px=inlier_px) if long else rot
-            t = dolly_sign(a, b, f, rot * k, t, inl_t)
-            zoom = zoom_against_dolly(a, b, f, rot * k, t, inl_t, inlier_px=tol) / k
+            t = dolly_sign(a, b, f, rot * k, t, inl_t, nb)
+            zoom = zoom_against_dolly(a, b, f, rot * k, t, inl_t, inlier_px=tol, normals=nb) / k
             return FrameMotion(rot, zoom, t, n, explained)
     return FrameMotion(q[:3].copy(), float(q[3]), np.zeros(3), n, explained)
 
 
 def _radial_scales(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray,
-                   use: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                   use: np.ndarray, normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Each point's scale rate along its radial line once the rotation is taken out (M,), and the
     midpoints (M, 2) it was read at: the points `use` away from the centre (there a scale is lost in
-    the noise)."""
+    the noise). An edge track's scale is read across its edge, (n . r) / (n . p), where its normal
+    lies within 60 deg of the radial line (`normals`, see project_normal)."""
     mid = 0.5 * (p0 + p1)
-    resid = (p1 - p0) - rotation_zoom_basis(mid, f)[:, :, :3] @ rot
+    resid = project_normal((p1 - p0) - rotation_zoom_basis(mid, f)[:, :, :3] @ rot, normals)
     r2 = np.einsum("nk,nk->n", mid, mid)
-    ok = use & (r2 > (0.1 * f) ** 2)
-    return np.einsum("nk,nk->n", resid[ok], mid[ok]) / r2[ok], mid[ok]
+    seen = np.einsum("nk,nk->n", mid, project_normal(mid, normals))  # m . P m: r2 for a corner
+    ok = use & (seen > (0.1 * f) ** 2) & (seen >= 0.25 * r2)
+    return np.einsum("nk,nk->n", resid[ok], mid[ok]) / seen[ok], mid[ok]
 
 
 def _dolly_scales(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.ndarray,
-                  use: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool] | None:
+                  use: np.ndarray, normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, bool] | None:
     """The radial scales of a dolly's points, their image positions and whether they scale both ways
     (a zoom against the dolly: FAR_SHARE's percentiles either side of 0); None when t is no dolly
     or too few points are seen."""
     if abs(t[2]) < DOLLY_AXIS or use.sum() < MIN_POINTS:
         return None
-    scale, mid = _radial_scales(p0, p1, f, rot, use)
+    scale, mid = _radial_scales(p0, p1, f, rot, use, normals)
     if len(scale) < MIN_POINTS:
         return None
     lo, hi = np.percentile(scale, [100.0 * FAR_SHARE, 100.0 * (1.0 - FAR_SHARE)])
@@ -379,7 +426,7 @@ def _dolly_scales(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: 
 
 
 def dolly_sign(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.ndarray,
-               use: np.ndarray) -> np.ndarray:
+               use: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
     """The translation t (3,) with the sign of a dolly-zoom that its points alone cannot tell.
 
     Past a dolly with a zoom against it some points grow and some shrink, and two moves fit every
@@ -390,7 +437,7 @@ def dolly_sign(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.
     image, the nearer it is (a camera above the ground looking about level), and the nearer a
     point, the more a dolly makes it scale its way (grow going in). Any other translation, and a
     dolly whose points all scale the same way, keeps its sign."""
-    seen = _dolly_scales(p0, p1, f, rot, t, use)
+    seen = _dolly_scales(p0, p1, f, rot, t, use, normals)
     if seen is None or not seen[2]:
         return t
     scale, mid, _ = seen
@@ -399,14 +446,14 @@ def dolly_sign(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.
 
 
 def ground_denies_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.ndarray,
-                        use: np.ndarray) -> bool:
+                        use: np.ndarray, normals: np.ndarray | None = None) -> bool:
     """True when a dolly along t whose points all scale one way puts the ground beyond the walls:
     the lower points scale less its way (correlation below -GROUND_DENIES), as no camera above
     the ground looking about level sees. A zoom reads so where some tracks slide over a repeating
     texture (the paving under a zoom out: their drift over the baseline looks like parallax, the
     translation fit gives them depths, and they come out the farthest). A dolly-zoom, whose points
     scale both ways, is dolly_sign's to judge."""
-    seen = _dolly_scales(p0, p1, f, rot, t, use)
+    seen = _dolly_scales(p0, p1, f, rot, t, use, normals)
     if seen is None or seen[2]:
         return False
     scale, mid, _ = seen
@@ -415,7 +462,7 @@ def ground_denies_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarra
 
 
 def sliding_tracks(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.ndarray, use: np.ndarray,
-                   inlier_px: float) -> bool:
+                   inlier_px: float, normals: np.ndarray | None = None) -> bool:
     """True when what a dolly along t explains beyond rotation is tracks sliding by themselves: its
     parallax points (those of `use` that the rotation leaves more than inlier_px off) lie to one side
     of the focus of expansion and many would be behind the camera. Under a tilt over the paving, a
@@ -427,7 +474,7 @@ def sliding_tracks(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t:
     if abs(t[2]) < DOLLY_AXIS:
         return False
     mid = 0.5 * (p0 + p1)
-    resid = (p1 - p0) - rotation_zoom_basis(mid, f)[:, :, :3] @ rot
+    resid = project_normal((p1 - p0) - rotation_zoom_basis(mid, f)[:, :, :3] @ rot, normals)
     big = use & (np.linalg.norm(resid, axis=1) > inlier_px)
     if big.sum() < MIN_POINTS:
         return False
@@ -438,7 +485,7 @@ def sliding_tracks(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t:
 
 
 def zoom_against_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray, t: np.ndarray,
-                       use: np.ndarray, *, inlier_px: float = INLIER_PX) -> float:
+                       use: np.ndarray, *, inlier_px: float = INLIER_PX, normals: np.ndarray | None = None) -> float:
     """The log-zoom p0 -> p1 that a dolly along t cannot explain (0 when none is seen).
 
     Past a dolly each point's image scales at t_z / depth plus the zoom, so a zoom the same way
@@ -451,7 +498,7 @@ def zoom_against_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray
     of expansion's row), never less than the farthest points show."""
     if abs(t[2]) < DOLLY_AXIS or use.sum() < MIN_POINTS:
         return 0.0
-    scale = _radial_scales(p0, p1, f, rot, use)[0] * np.sign(t[2])
+    scale = _radial_scales(p0, p1, f, rot, use, normals)[0] * np.sign(t[2])
     if len(scale) < MIN_POINTS:
         return 0.0
     far = float(np.percentile(scale, 100.0 * FAR_SHARE))
@@ -459,12 +506,13 @@ def zoom_against_dolly(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray
         return 0.0
     mid = 0.5 * (p0 + p1)[use]
     resid = ((p1 - p0) - rotation_zoom_basis(0.5 * (p0 + p1), f)[:, :, :3] @ rot)[use]
-    ground = zoom_at_horizon(mid, resid * np.sign(t[2]), f * t[:2] / t[2], f, inlier_px=inlier_px)
+    ground = zoom_at_horizon(mid, resid * np.sign(t[2]), f * t[:2] / t[2], f, inlier_px=inlier_px,
+                             normals=None if normals is None else normals[use])
     return (min(ground, far) if math.isfinite(ground) else far) * float(np.sign(t[2]))
 
 
 def zoom_at_horizon(mid: np.ndarray, resid: np.ndarray, foe: np.ndarray, f: float, *, inlier_px: float,
-                    iters: int = 200) -> float:
+                    iters: int = 200, normals: np.ndarray | None = None) -> float:
     """The zoom s (per the points' time step) of a camera moving parallel to flat ground, from the
     points' flow with the rotation taken out `resid` (N, 2) at `mid` (N, 2, centred px), flow signed
     so that the translation makes points grow, and the focus of expansion `foe` (2,); NaN when no
@@ -477,7 +525,8 @@ def zoom_at_horizon(mid: np.ndarray, resid: np.ndarray, foe: np.ndarray, f: floa
     Anything seen below the horizon is at most as far as the ground behind it, so the ground is the
     lower envelope of the points below the horizon: RANSAC over point pairs scores a line by the
     points that fit it both ways less twice those that fit across it and lie clearly under it,
-    then least squares on its inliers."""
+    then least squares on its inliers. An edge track (`normals`, see project_normal) gives one
+    equation, its flow across the edge, in place of the two, and always fits across."""
     e = np.asarray(foe, dtype=float)
     d = mid - e
     dist = np.linalg.norm(d, axis=1)
@@ -490,6 +539,8 @@ def zoom_at_horizon(mid: np.ndarray, resid: np.ndarray, foe: np.ndarray, f: floa
     m_along, m_across = np.einsum("nk,nk->n", r, u), np.einsum("nk,nk->n", r, n)
     a_along = np.column_stack([np.einsum("nk,nk->n", p, u), (p[:, 1] - e[1]) * dist[below]])
     a_across = np.column_stack([np.einsum("nk,nk->n", p, n), np.zeros(len(p))])
+    if normals is not None:
+        _edge_rows(np.asarray(normals, dtype=float)[below], u, p, r, a_along, m_along, a_across, m_across)
     pairs = np.random.default_rng(0).integers(0, len(p), size=(iters, 2))
     pairs = pairs[pairs[:, 0] != pairs[:, 1]]
     ok = np.abs(np.linalg.det(a_along[pairs])) > 1e-9
@@ -508,6 +559,21 @@ def zoom_at_horizon(mid: np.ndarray, resid: np.ndarray, foe: np.ndarray, f: floa
     s, beta = np.linalg.lstsq(np.vstack([a_along[inl], a_across[inl]]),
                               np.concatenate([m_along[inl], m_across[inl]]), rcond=None)[0]
     return float(s) if beta > 0.0 else math.nan
+
+
+def _edge_rows(normals: np.ndarray, u: np.ndarray, p: np.ndarray, r: np.ndarray, a_along: np.ndarray,
+               m_along: np.ndarray, a_across: np.ndarray, m_across: np.ndarray) -> None:
+    """zoom_at_horizon's rows of the edge tracks, in place: the flow across the edge, its normal n
+    turned to u's side, s (n . p) + beta (y - e_y) |p - e| (n . u) = n . r as the along row (the
+    ground's part along u scaled by n . u), and a row of zeros across."""
+    edge = edge_tracks(normals, len(u))
+    if not edge.any():
+        return
+    n = normals[edge] * np.where(np.einsum("nk,nk->n", normals[edge], u[edge]) < 0.0, -1.0, 1.0)[:, None]
+    nu = np.einsum("nk,nk->n", n, u[edge])
+    a_along[edge] = np.column_stack([np.einsum("nk,nk->n", n, p[edge]), a_along[edge, 1] * nu])
+    m_along[edge] = np.einsum("nk,nk->n", n, r[edge])
+    a_across[edge], m_across[edge] = 0.0, 0.0
 
 
 def rotation_given_direction(p0: np.ndarray, p1: np.ndarray, f: float, t: np.ndarray, use: np.ndarray, *,
