@@ -345,9 +345,11 @@ def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earli
                                                  shown=max(EXPLAINED_SHARE, share + PARALLAX_GAIN))
         if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= share + PARALLAX_GAIN \
                 and not ground_denies_dolly(a, b, f, rot, t, inl_t) and not sliding_tracks(a, b, f, rot, t, inl_t, tol):
+            # the baseline's own rotation judges its points (a swaying camera's last frame times the
+            # span mispredicts them by pixels); the frame's rotation comes from its two frames given t
+            t = dolly_sign(a, b, f, rot, t, inl_t)
+            zoom = zoom_against_dolly(a, b, f, rot, t, inl_t, inlier_px=tol) / k
             rot = rotation_given_direction(b0, b, f, t, inl_t, inlier_px=inlier_px) if long else rot
-            t = dolly_sign(a, b, f, rot * k, t, inl_t)
-            zoom = zoom_against_dolly(a, b, f, rot * k, t, inl_t, inlier_px=tol) / k
             return FrameMotion(rot, zoom, t, n, explained)
     return FrameMotion(q[:3].copy(), float(q[3]), np.zeros(3), n, explained)
 
