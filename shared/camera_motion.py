@@ -540,6 +540,18 @@ def _rotation_on_lines(flow: np.ndarray, basis: np.ndarray, lines: tuple[np.ndar
     return rot
 
 
+def parallax_untested(m: FrameMotion) -> FrameMotion:
+    """The motion of a frame whose parallax could not be tested (no baseline of MIN_SPAN frames yet:
+    a shot's first frames, or just after the tracks were found afresh), its zoom and translation
+    unknown: from one frame a dolly's parallax is within the tracking noise, so the rotation + zoom
+    fit reads any dolly as a zoom (the output videos' dollies read zoom_in or zoom_out on their first
+    rows), while the smoother fills unknown rows from the frames around them that were tested. A
+    translation seen even so is kept."""
+    if np.any(m.translation_dir):
+        return m
+    return FrameMotion(m.rotation_rad, math.nan, np.full(3, np.nan), m.points, m.explained)
+
+
 # --------------------------------------------------------------------------- per shot
 def smooth_rates(x: np.ndarray, window: int) -> np.ndarray:
     """Median then mean over a centred window of `window` rows (NaN ignored; NaN where the window

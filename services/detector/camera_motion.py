@@ -111,6 +111,8 @@ class CameraMotionTracker:
             fm = cm.frame_motion(p0 - centre, p1 - centre, f_work, inlier_px=cm.INLIER_PX * ww / cm.WORK_WIDTH,
                                  earlier=None if start is None else history[start] - centre,
                                  span=0 if start is None else len(history) - 1 - start)
+            if start is None or len(history) - 1 - start < cm.MIN_SPAN:
+                fm = cm.parallax_untested(fm)
             out = CameraMotion(rotation_rad=fm.rotation_rad.astype(float), log_zoom=float(fm.log_zoom),
                                translation_dir=fm.translation_dir.astype(float), focal_px=float(f_work * w / ww),
                                points=int(fm.points), explained=float(fm.explained))

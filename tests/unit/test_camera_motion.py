@@ -318,6 +318,24 @@ def test_a_swaying_camera_that_dollies_keeps_its_dolly_and_no_zoom():
     assert m.rotation_rad[0] == pytest.approx(-0.005, abs=3e-4)
 
 
+def test_a_frame_whose_parallax_was_not_tested_leaves_its_zoom_and_translation_unknown():
+    """From one frame a dolly reads as a zoom: until the tracks span MIN_SPAN frames the zoom and the
+    translation are unknown and the smoother takes them from the tested frames around; a
+    translation seen anyway, and the rotation, are kept."""
+    zoom = cm.FrameMotion(np.array([0.001, 0.0, 0.0]), 0.002, np.zeros(3), 150, 0.97)
+    m = cm.parallax_untested(zoom)
+    assert math.isnan(m.log_zoom) and np.isnan(m.translation_dir).all()
+    np.testing.assert_array_equal(m.rotation_rad, zoom.rotation_rad)
+    assert (m.points, m.explained) == (150, 0.97)
+    truck = cm.FrameMotion(np.zeros(3), 0.0, np.array([1.0, 0.0, 0.0]), 150, 0.5)
+    assert cm.parallax_untested(truck) is truck
+    # a dolly read from frame 4 on: the first three rows take the window's dolly, not a zoom
+    untested = np.array([[0.0, 0.0, 0.0, math.nan, math.nan, math.nan, math.nan]] * 3)
+    tested = np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]] * 9)
+    style = motion_style(np.vstack([untested, tested]), 24.0, np.zeros(12, dtype=bool))
+    assert style["camera_motion_class"][1:4] == ["dolly_in"] * 3
+
+
 def test_a_dolly_whose_points_all_scale_one_way_keeps_its_sign():
     x = _ground_points(np.random.default_rng(8))
     p0 = F * x[:, :2] / x[:, 2:3]
