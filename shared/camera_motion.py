@@ -390,9 +390,11 @@ def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earli
         if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= share + PARALLAX_GAIN \
                 and not ground_denies_dolly(a, b, f, rot, t, inl_t, nb) \
                 and not sliding_tracks(a, b, f, rot, t, inl_t, tol, nb):
+            # the baseline's own rotation judges its points (a swaying camera's last frame times the
+            # span mispredicts them by pixels); the frame's rotation comes from its two frames given t
+            t = dolly_sign(a, b, f, rot, t, inl_t, nb)
+            zoom = zoom_against_dolly(a, b, f, rot, t, inl_t, inlier_px=tol, normals=nb) / k
             rot = rotation_given_direction(b0, b, f, t, inl_t, inlier_px=inlier_px) if long else rot
-            t = dolly_sign(a, b, f, rot * k, t, inl_t, nb)
-            zoom = zoom_against_dolly(a, b, f, rot * k, t, inl_t, inlier_px=tol, normals=nb) / k
             return FrameMotion(rot, zoom, t, n, explained)
     return FrameMotion(q[:3].copy(), float(q[3]), np.zeros(3), n, explained)
 
@@ -602,6 +604,18 @@ def _rotation_on_lines(flow: np.ndarray, basis: np.ndarray, lines: tuple[np.ndar
             break
         rot = np.linalg.lstsq(a[keep], b[keep], rcond=None)[0]
     return rot
+
+
+def parallax_untested(m: FrameMotion) -> FrameMotion:
+    """The motion of a frame whose parallax could not be tested (no baseline of MIN_SPAN frames yet:
+    a shot's first frames, or just after the tracks were found afresh), its zoom and translation
+    unknown: from one frame a dolly's parallax is within the tracking noise, so the rotation + zoom
+    fit reads any dolly as a zoom (the output videos' dollies read zoom_in or zoom_out on their first
+    rows), while the smoother fills unknown rows from the frames around them that were tested. A
+    translation seen even so is kept."""
+    if np.any(m.translation_dir):
+        return m
+    return FrameMotion(m.rotation_rad, math.nan, np.full(3, np.nan), m.points, m.explained)
 
 
 # --------------------------------------------------------------------------- per shot

@@ -144,6 +144,8 @@ class CameraMotionTracker:
                                  earlier=None if start is None else history[start] - centre,
                                  span=0 if start is None else len(history) - 1 - start,
                                  normals=edge_normals(grey, p1))
+            if start is None or len(history) - 1 - start < cm.MIN_SPAN:
+                fm = cm.parallax_untested(fm)
             out = CameraMotion(rotation_rad=fm.rotation_rad.astype(float), log_zoom=float(fm.log_zoom),
                                translation_dir=fm.translation_dir.astype(float), focal_px=float(f_work * w / ww),
                                points=int(fm.points), explained=float(fm.explained))

@@ -364,6 +364,45 @@ def test_a_zoom_out_whose_ground_tracks_slide_is_no_dolly():
     np.testing.assert_allclose(m.translation_dir, t, atol=0.02)
 
 
+def test_a_swaying_camera_that_dollies_keeps_its_dolly_and_no_zoom():
+    """A drone dollying in at 1.2 m/s sways as it flies (its pan changes every frame). The dolly's
+    sign and its zoom are judged over the baseline with the baseline's own rotation: the last
+    frame's pan times the span mispredicted the points by pixels, the far ones seemed to shrink,
+    and the output video read a dolly-zoom or a dolly out with a zoom (rows flipping between them)."""
+    rng = np.random.default_rng(4)
+    pillars = np.column_stack([rng.choice([-3.0, 2.5], 80), rng.uniform(-3.0, 1.6, 80), rng.choice([7.0, 12.0], 80)])
+    x = np.vstack([_ground_points(rng), pillars])
+    pans = [0.0, 0.003, -0.002, 0.004, -0.003, 0.002, 0.005, -0.001, 0.004]  # attitude per frame [rad]
+    views = []
+    for k, a in enumerate(pans):
+        xc = (x - np.array([0.0, 0.0, 0.05 * k])) @ _rot((0, 1, 0), a)
+        views.append(F * xc[:, :2] / xc[:, 2:3])
+    keep = np.all([(np.abs(v[:, 0]) < 320) & (np.abs(v[:, 1]) < 180) for v in views], axis=0)
+    earlier, p0, p1 = views[0][keep], views[7][keep], views[8][keep]
+    m = cm.frame_motion(p0, p1, F, earlier=earlier, span=8)
+    assert m.translation_dir[2] > 0.99 and m.log_zoom == 0.0
+    # the frame's own pan: 0.005 rad (turning right: negative)
+    assert m.rotation_rad[0] == pytest.approx(-0.005, abs=3e-4)
+
+
+def test_a_frame_whose_parallax_was_not_tested_leaves_its_zoom_and_translation_unknown():
+    """From one frame a dolly reads as a zoom: until the tracks span MIN_SPAN frames the zoom and the
+    translation are unknown and the smoother takes them from the tested frames around; a
+    translation seen anyway, and the rotation, are kept."""
+    zoom = cm.FrameMotion(np.array([0.001, 0.0, 0.0]), 0.002, np.zeros(3), 150, 0.97)
+    m = cm.parallax_untested(zoom)
+    assert math.isnan(m.log_zoom) and np.isnan(m.translation_dir).all()
+    np.testing.assert_array_equal(m.rotation_rad, zoom.rotation_rad)
+    assert (m.points, m.explained) == (150, 0.97)
+    truck = cm.FrameMotion(np.zeros(3), 0.0, np.array([1.0, 0.0, 0.0]), 150, 0.5)
+    assert cm.parallax_untested(truck) is truck
+    # a dolly read from frame 4 on: the first three rows take the window's dolly, not a zoom
+    untested = np.array([[0.0, 0.0, 0.0, math.nan, math.nan, math.nan, math.nan]] * 3)
+    tested = np.array([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]] * 9)
+    style = motion_style(np.vstack([untested, tested]), 24.0, np.zeros(12, dtype=bool))
+    assert style["camera_motion_class"][1:4] == ["dolly_in"] * 3
+
+
 def test_a_dolly_whose_points_all_scale_one_way_keeps_its_sign():
     x = _ground_points(np.random.default_rng(8))
     p0 = F * x[:, :2] / x[:, 2:3]
