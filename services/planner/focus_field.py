@@ -29,6 +29,13 @@ ANKLE_HEIGHT_M = 0.08
 #: every texture's flip of the focus estimator (0.88-1.22 circles, docs/report.md), below the 1.5 of the
 #: visible circle, which left the band's median outside the field (parkour: truth foreground 0.13-0.24)
 SUBJECT_BLUR_CIRCLES = 1.3
+#: the blur [circles of the one circle] a sharp subject may carry with only him sharp, so that the focus can stand in
+#: front of him and blur the background more: half the circle reads sharp on every texture
+#: (tests/unit/test_focus_definition.py)
+SHARP_SUBJECT_BLUR = 0.5
+#: the blur [circles] the foreground band's median keeps when the focus moves in front of a sharp subject: the
+#: visible circle's 1.5, where the focus estimator reads every texture soft
+SOFT_BAND_BLUR = 1.5
 
 
 @dataclass(frozen=True)
@@ -109,3 +116,35 @@ def foreground_limits(depth_m: float, *, spread: float, sharp_ratio: float, far_
     if x_far <= 0:
         return None
     return 1.0 / (x_s + spread), 1.0 / x_far
+
+
+def focus_ahead_inv_m(depth_m: float, band: Band | None, *, fg_absent: bool, spread: float,
+                      subject_blur: float = SHARP_SUBJECT_BLUR, band_blur: float = SOFT_BAND_BLUR) -> float:
+    """How far in front of a sharp subject `depth_m` away the focus may stand [1/m, inverse depth] with only
+    him sharp: where the lens cannot make a field as narrow as he is deep, the plan centres its field on him
+    and the background right behind reads sharp to the focus estimator (under 1.5 circles); the focus moved
+    in front of him blurs it by up to `subject_blur` circles more, while he stays sharp. `spread` is the one
+    circle's half-width at the aperture planned for (narrowest_spread with the one circle: the subject's
+    blur is then at most `subject_blur`). The foreground gives way as far as it has blur to spare: with no
+    foreground in the source the whole `subject_blur`; with the band's median (ground_band) soft by
+    `band_blur` circles or more, only what keeps it that soft; with the median inside the one circle's field
+    anyway (under 1 circle; the foreground out of reach with the background soft, as the report judges it)
+    the whole `subject_blur`; between the two, or with no band known, nothing."""
+    if not (depth_m > 0 and spread > 0):
+        return 0.0
+    if fg_absent:
+        return subject_blur * spread
+    if band is None:
+        return 0.0
+    band_circles = (band.inv_median - 1.0 / depth_m) / spread
+    if band_circles < 1.0:
+        return subject_blur * spread
+    return min(max(band_circles - band_blur, 0.0), subject_blur) * spread
+
+
+def shifted_limits(near_m: float, far_m: float, shift_inv_m: float) -> tuple[float, float]:
+    """(D_n*, D_f*) [m] moved nearer by `shift_inv_m` in inverse depth, their width in it kept: where the
+    lens cannot make them, the least-squares plan centres its field on their midpoint. A far limit moved to
+    or past infinity is infinity."""
+    x_n, x_f = 1.0 / near_m + shift_inv_m, 1.0 / far_m + shift_inv_m
+    return 1.0 / x_n, (1.0 / x_f if x_f > 0 else math.inf)

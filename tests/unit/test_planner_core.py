@@ -502,3 +502,27 @@ def test_a_zoom_gives_way_round_a_rack_focus(planner, instructions):
     data, _ = off._stage_data(now, ins, sim.vehicle_state(now), sim.subject_state(now))
     assert data.motion[:, LENS_MOTION_COLUMNS].any(axis=1).all()
 
+
+
+def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instructions):
+    # given a style that wants only the subject sharp before a background, no foreground shown
+    k = instructions.image_targets.shape[0]
+    sm = np.tile(np.array([np.nan, 1.0, 0.0], dtype=np.float32), (k, 1))
+    ins = dataclasses.replace(instructions, focus_smoothed=sm, focus_raw=sm,
+                              focus_in=np.tile([False, True, False], (k, 1)))
+    sim = KinematicSim(wrong_start_scene())
+    x0 = planner._measured_state(T0, sim.vehicle_state(T0))
+    subj = predict_subject(sim.subject_state(T0), T0)
+    dof, dref = planner._dof_targets(T0, ins, [0], 0, x0, subj)
+    lay, st, b = planner.layout, planner.cfg.structure, planner.solver.bounds
+    # then d -+ mu move nearer by half the one circle's spread at the aperture planned for (1.2 A_min,
+    # 1000 A c / f^2 per metre): the focus in front of him, his blur at most half the circle
+    shift = 0.5 * 1000.0 * 1.2 * b.f_number_min * st.coc_mm / x0[lay.F] ** 2
+    assert dof[0, 0] == 1.0 and dof[0, 2] == 1.0
+    assert dof[0, 1] == pytest.approx(1.0 / (dref[0] - ins.mu_m) + shift)
+    assert dof[0, 3] == pytest.approx(1.0 / (dref[0] + ins.mu_m) + shift)
+    # and with the option off, centred on him again
+    off = Planner(dataclasses.replace(planner.cfg, subject_only_focus_ahead=False), solver=planner.solver)
+    dof, dref = off._dof_targets(T0, ins, [0], 0, x0, subj)
+    assert dof[0, 1] == pytest.approx(1.0 / (dref[0] - ins.mu_m))
+    assert dof[0, 3] == pytest.approx(1.0 / (dref[0] + ins.mu_m))

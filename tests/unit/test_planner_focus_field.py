@@ -75,3 +75,34 @@ def test_only_the_foreground_sharp_blurs_the_subject_by_the_asked_circles_by_han
     assert 1 / (x_s - 1 / 60.0 / 0.375) == pytest.approx(11.80, abs=0.01)
     # and a far limit of the sharpness circle alone (a switch previewed) keeps the caller's targets
     assert FF.foreground_limits(14.0, spread=1 / 60.0, sharp_ratio=0.375, far_ratio=1.0) is None
+
+
+def test_with_only_the_subject_sharp_the_focus_stands_in_front_of_him_as_far_as_the_foreground_spares():
+    sigma = 0.04  # the one circle's half-width per metre (58 mm, f/1: parkour)
+    # given no foreground in the source: half a circle in front of him, 0.02 per metre
+    assert FF.focus_ahead_inv_m(14.0, None, fg_absent=True, spread=sigma) == pytest.approx(0.5 * sigma)
+    # given the band's median 2 circles in front of him (1/14 + 0.08): it keeps 1.5, the focus moves 0.5
+    band = FF.Band(inv_top=1 / 14.0, inv_bottom=1 / 14.0 + 0.16)
+    assert FF.focus_ahead_inv_m(14.0, band, fg_absent=False, spread=sigma) == pytest.approx(0.5 * sigma)
+    # given it 1.7 circles in front: 0.2 circles to spare, 0.008 per metre
+    band = FF.Band(inv_top=1 / 14.0, inv_bottom=1 / 14.0 + 2 * 1.7 * sigma)
+    assert FF.focus_ahead_inv_m(14.0, band, fg_absent=False, spread=sigma) == pytest.approx(0.2 * sigma)
+    # given it 1.2 circles in front (soft by the one circle, none to spare): nothing
+    band = FF.Band(inv_top=1 / 14.0, inv_bottom=1 / 14.0 + 2 * 1.2 * sigma)
+    assert FF.focus_ahead_inv_m(14.0, band, fg_absent=False, spread=sigma) == 0.0
+    # given it 0.78 circles in front (inside the one circle's field with the focus on him: parkour's): half a circle
+    band = FF.Band(inv_top=1 / 14.0, inv_bottom=1 / 14.0 + 2 * 0.78 * sigma)
+    assert FF.focus_ahead_inv_m(14.0, band, fg_absent=False, spread=sigma) == pytest.approx(0.5 * sigma)
+    # and a foreground shown but no band known: nothing
+    assert FF.focus_ahead_inv_m(14.0, None, fg_absent=False, spread=sigma) == 0.0
+
+
+def test_shifted_limits_keep_their_width_in_inverse_depth_by_hand():
+    # given d -+ mu = 13 and 15 m moved 0.02 per metre nearer
+    near, far = FF.shifted_limits(13.0, 15.0, 0.02)
+    # then 1 / (1/13 + 0.02) = 10.32 m and 1 / (1/15 + 0.02) = 11.54 m
+    assert near == pytest.approx(1 / (1 / 13 + 0.02)) and near == pytest.approx(10.32, abs=0.01)
+    assert far == pytest.approx(11.54, abs=0.01)
+    assert 1 / near - 1 / far == pytest.approx(1 / 13 - 1 / 15)
+    # and unmoved they are the same
+    assert FF.shifted_limits(13.0, 15.0, 0.0) == pytest.approx((13.0, 15.0))
