@@ -286,13 +286,12 @@ class PlannerConfig:
     #: (after keep_out_settle_s): the visible circle's 1.5 (defocus_coc_ratio). Less starts the sharp zone nearer
     #: behind him, but the estimator then read the far runner sharp (docs/planner.md, "Which gives way")
     settled_subject_blur: float = 1.5
-    #: with only the subject sharp before a present background, the focus stands in front of him as far as he stays
-    #: sharp (half the one circle) and the foreground band has blur to spare (focus_field.focus_ahead_inv_m): centred
-    #: on him, a field wider than he is deep left the background under the 1.5 circles the estimator reads as soft
+    #: with only the subject sharp before a present background, the focus stands a quarter of the one circle in
+    #: front of him where the ground below his feet lies inside the field anyway (focus_field.focus_ahead_inv_m):
+    #: centred on him, parkour's backdrop stayed under the 1.5 circles the estimator reads as soft. Not in a shot
+    #: that racks away from him (core.Planner._centred_before_rack; docs/planner.md, "Only the subject sharp: the
+    #: focus in front of him")
     subject_only_focus_ahead: bool = True
-    #: how long before a rack away from the subject (his label switching) the focus stays centred on him [s]: in
-    #: front of him it has that much farther to travel past him, and the parkour rack's subject read sharp longer
-    subject_only_ahead_lead_s: float = 0.5
     #: how far behind the subject the background stands [m]; inf = unknown, and then a row wanting the
     #: subject sharp before a soft background asks for no standoff. Given, such a row raises the minimum
     #: subject distance until the depth of field ends before it (separation.py). Off by default: the
@@ -335,7 +334,7 @@ class PlannerConfig:
         if not (self.background_behind_m > 0):  # inf is allowed: an unknown background
             raise _bad("", "background_behind_m", self.background_behind_m, "a value > 0 (inf: unknown)")
         for name in ("tail_max_s", "setpoint_lead_s", "clamp_tolerance", "feasibility_tol", "separation_lookahead_s",
-                     "subject_keep_out_m", "keep_out_settle_s", "zoom_yield_lead_s", "subject_only_ahead_lead_s"):
+                     "subject_keep_out_m", "keep_out_settle_s", "zoom_yield_lead_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise _bad("", name, v, "a finite value >= 0")

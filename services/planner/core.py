@@ -454,11 +454,12 @@ class Planner:
             self._planned_focus(ins), absent_regions(ins), lead, settle, getattr(ins, "shot_start", None)))
 
     def _centred_before_rack(self, ins: M.Instructions) -> np.ndarray:
-        """(K,) bool: the rows of the last `subject_only_ahead_lead_s` before a switch of the subject's label
-        (lens_for_focus_rows without the settle), where only the subject sharp keeps the focus on him."""
-        lead = int(round(self.cfg.subject_only_ahead_lead_s * _fps(ins)))
+        """(K,) bool: the rows of a shot before a switch of the subject's label in it (a rack focus;
+        lens_for_focus_rows with a lead of the whole style), where only the subject sharp keeps the focus on
+        him: in front of him it has farther to travel past him at the switch (docs/planner.md)."""
+        k = len(ins.focus_in) if ins.focus_in is not None else 0
         return self._per_message("centred", ins, lambda: lens_for_focus_rows(
-            self._planned_focus(ins), absent_regions(ins), lead, 0, getattr(ins, "shot_start", None)))
+            self._planned_focus(ins), absent_regions(ins), k, 0, getattr(ins, "shot_start", None)))
 
     def _motion_style(self, ins: M.Instructions) -> MotionStyle | None:
         """The instructions' camera-motion style, read once per instructions message."""

@@ -77,23 +77,28 @@ def test_only_the_foreground_sharp_blurs_the_subject_by_the_asked_circles_by_han
     assert FF.foreground_limits(14.0, spread=1 / 60.0, sharp_ratio=0.375, far_ratio=1.0) is None
 
 
-def test_with_only_the_subject_sharp_the_focus_stands_in_front_of_him_as_far_as_the_foreground_spares():
+def test_with_only_the_subject_sharp_the_focus_stands_in_front_of_him_where_the_field_is_wide():
     sigma = 0.04  # the one circle's half-width per metre (58 mm, f/1: parkour)
-    # given no foreground in the source: half a circle in front of him, 0.02 per metre
-    assert FF.focus_ahead_inv_m(14.0, None, fg_absent=True, spread=sigma) == pytest.approx(0.5 * sigma)
-    # given the band's median 2 circles in front of him (1/14 + 0.08): it keeps 1.5, the focus moves 0.5
-    band = FF.Band(inv_top=1 / 14.0, inv_bottom=1 / 14.0 + 0.16)
-    assert FF.focus_ahead_inv_m(14.0, band, fg_absent=False, spread=sigma) == pytest.approx(0.5 * sigma)
-    # given it 1.7 circles in front: 0.2 circles to spare, 0.008 per metre
-    band = FF.Band(inv_top=1 / 14.0, inv_bottom=1 / 14.0 + 2 * 1.7 * sigma)
-    assert FF.focus_ahead_inv_m(14.0, band, fg_absent=False, spread=sigma) == pytest.approx(0.2 * sigma)
-    # given it 1.2 circles in front (soft by the one circle, none to spare): nothing
-    band = FF.Band(inv_top=1 / 14.0, inv_bottom=1 / 14.0 + 2 * 1.2 * sigma)
-    assert FF.focus_ahead_inv_m(14.0, band, fg_absent=False, spread=sigma) == 0.0
-    # given it 0.78 circles in front (inside the one circle's field with the focus on him: parkour's): half a circle
-    band = FF.Band(inv_top=1 / 14.0, inv_bottom=1 / 14.0 + 2 * 0.78 * sigma)
-    assert FF.focus_ahead_inv_m(14.0, band, fg_absent=False, spread=sigma) == pytest.approx(0.5 * sigma)
-    # and a foreground shown but no band known: nothing
+
+    def band(circles: float) -> FF.Band:  # the band's median `circles` of c in front of a subject 14 m away
+        return FF.Band(inv_top=1 / 14.0, inv_bottom=1 / 14.0 + 2 * circles * sigma)
+
+    # given the band's median 0.78 circles in front of him (inside c's field with the focus on him: parkour's):
+    # a quarter of a circle in front of him, 0.01 per metre
+    assert FF.SHARP_SUBJECT_BLUR == 0.25
+    assert FF.focus_ahead_inv_m(14.0, band(0.78), fg_absent=False, spread=sigma) == pytest.approx(0.01)
+    # given it 1.2 circles in front: (1.5 - 1.2) / 0.5 of that, 0.006 per metre
+    assert FF.focus_ahead_inv_m(14.0, band(1.2), fg_absent=False, spread=sigma) == pytest.approx(0.006)
+    # and half a circle asked: 0.02 and 0.012 per metre
+    assert FF.focus_ahead_inv_m(14.0, band(0.78), fg_absent=False, spread=sigma, subject_blur=0.5) \
+        == pytest.approx(0.02)
+    assert FF.focus_ahead_inv_m(14.0, band(1.2), fg_absent=False, spread=sigma, subject_blur=0.5) \
+        == pytest.approx(0.012)
+    # given it 1.5 circles or more in front (the dancer's 1.8-2.0): nothing
+    assert FF.focus_ahead_inv_m(14.0, band(1.5), fg_absent=False, spread=sigma) == 0.0
+    assert FF.focus_ahead_inv_m(14.0, band(2.0), fg_absent=False, spread=sigma) == 0.0
+    # and no foreground in the source, or no band known: nothing
+    assert FF.focus_ahead_inv_m(14.0, band(0.78), fg_absent=True, spread=sigma) == 0.0
     assert FF.focus_ahead_inv_m(14.0, None, fg_absent=False, spread=sigma) == 0.0
 
 
