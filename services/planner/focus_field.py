@@ -36,8 +36,8 @@ ANKLE_HEIGHT_M = 0.08
 #: visible circle, which left the band's median outside the field (parkour: truth foreground 0.13-0.24)
 SUBJECT_BLUR_CIRCLES = 1.3
 #: the blur [circles of the one circle] a sharp subject may carry with only him sharp, so that the focus can stand in
-#: front of him and blur the background more: at half the circle (0.6 wide open) the dancer read soft in 6 of 90
-#: frames and focus_hedge's hedge in front of her sharp in 36 (docs/planner.md)
+#: front of him and blur the background more: at half the circle (0.6 wide open) the dancer read soft (extraction
+#: 1.00 -> 0.93) and focus_hedge's hedge in front of her sharp (1.00 -> 0.60; docs/planner.md)
 SHARP_SUBJECT_BLUR = 0.25
 #: the blur [circles] the foreground band's median keeps when the focus moves in front of a sharp subject: the
 #: visible circle's 1.5, where the focus estimator reads every texture soft
