@@ -286,6 +286,12 @@ class PlannerConfig:
     #: (after keep_out_settle_s): the visible circle's 1.5 (defocus_coc_ratio). Less starts the sharp zone nearer
     #: behind him, but the estimator then read the far runner sharp (docs/planner.md, "Which gives way")
     settled_subject_blur: float = 1.5
+    #: with only the subject sharp before a present background, the focus stands a quarter of the one circle in
+    #: front of him where the ground below his feet lies inside the field anyway (focus_field.focus_ahead_inv_m):
+    #: centred on him, parkour's backdrop stayed under the 1.5 circles the estimator reads as soft. Not in a shot
+    #: that racks away from him (core.Planner._centred_before_rack; docs/planner.md, "Only the subject sharp: the
+    #: focus in front of him")
+    subject_only_focus_ahead: bool = True
     #: how far behind the subject the background stands [m]; inf = unknown, and then a row wanting the
     #: subject sharp before a soft background asks for no standoff. Given, such a row raises the minimum
     #: subject distance until the depth of field ends before it (separation.py). Off by default: the

@@ -41,7 +41,8 @@ from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject
                                                 reciprocal_targets,
                                                 subject_softness, switched_out)
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
-from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, Band, foreground_limits, foreground_near_m,
+from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, Band, focus_ahead_inv_m, foreground_limits,
+                                                       foreground_near_m, shifted_limits,
                                                        ground_band, narrowest_spread)
 from cinetransfer.services.planner.separation import (APERTURE_MARGIN, background_soft_distance_m, framing_k,
                                                       separation_distance_m)
@@ -452,6 +453,14 @@ class Planner:
         return self._per_message("lens", ins, lambda: lens_for_focus_rows(
             self._planned_focus(ins), absent_regions(ins), lead, settle, getattr(ins, "shot_start", None)))
 
+    def _centred_before_rack(self, ins: M.Instructions) -> np.ndarray:
+        """(K,) bool: the rows of a shot before a switch of the subject's label in it (a rack focus;
+        lens_for_focus_rows with a lead of the whole style), where only the subject sharp keeps the focus on
+        him: in front of him it has farther to travel past him at the switch (docs/planner.md)."""
+        k = len(ins.focus_in) if ins.focus_in is not None else 0
+        return self._per_message("centred", ins, lambda: lens_for_focus_rows(
+            self._planned_focus(ins), absent_regions(ins), k, 0, getattr(ins, "shot_start", None)))
+
     def _motion_style(self, ins: M.Instructions) -> MotionStyle | None:
         """The instructions' camera-motion style, read once per instructions message."""
         return self._per_message("motion", ins, lambda: read_motion_style(ins))
@@ -501,6 +510,9 @@ class Planner:
         near_out = [near_keeps_subject_out(*row) for row in rows3]
         ratio = st.defocus_coc_ratio / st.sharp_coc_ratio
         keep, keep_outs_m = self._keep_out_rows(ins), self._keep_outs_m(ins)
+        # rows centred on the subject whatever the background: marked as if it were absent
+        centred = np.zeros_like(absent)
+        centred[:, 2] = self._centred_before_rack(ins)
         dof = np.zeros((n, N_DOF))
         dof[:, 6:8] = 1.0  # the far and near limits' circle-of-confusion ratios (cost.defocus_ratio)
         dref = np.zeros(n)
@@ -520,7 +532,8 @@ class Planner:
                 soft = subject_softness(float(b_subject[r]), float(ins.theta)) if len(b_subject) > r else 1.0
                 dof[k, 6] = defocus_ratio(keeps_out[r] and switched_out(keeps_out, now_row, r), ratio, soft)
                 near, far = self._row_limits(focus[r], depth, mu, band, float(xk[lay.F]), dof[k, 6],
-                                             keep_out_m=float(keep_outs_m[r]))
+                                             keep_out_m=float(keep_outs_m[r]),
+                                             absent_row=absent[r] | centred[r])
                 # with the subject kept out by the near limit the far limit of the sharpness circle (3/8 of
                 # the one circle) at infinity is margin enough: the extra margin would cap the focus at half
                 # its longest and the subject's blur with it (separation.py)
@@ -540,15 +553,19 @@ class Planner:
         return dof, dref
 
     def _row_limits(self, row: np.ndarray, depth: float, mu: float, band: Band | None,
-                    focal_mm: float, far_ratio: float, keep_out_m: float) -> tuple[float, float]:
+                    focal_mm: float, far_ratio: float, keep_out_m: float,
+                    absent_row: np.ndarray) -> tuple[float, float]:
         """Target limits (D_n*, D_f*) [m] of a row's labels (shared.camera.desired_dof_limits), with
         "only the background sharp" keeping the subject out by `keep_out_m` past his centre (the row's
-        keep-out, _keep_outs_m), and "only the foreground sharp" aimed
+        keep-out, _keep_outs_m), "only the subject sharp" before a present background moved in front of
+        him (_subject_only_limits), and "only the foreground sharp" aimed
         at the ground the foreground band shows (focus_field; the far limit's circle is `far_ratio` times
         the planning circle)."""
         st = self.cfg.structure
         fg, subject, bg = cam.realisable_labels(*(bool(v) for v in row))
         near, far = cam.desired_dof_limits(fg, subject, bg, depth, mu, defocus_when_none=st.defocus_when_none)
+        if subject and not (fg or bg) and not absent_row[2] and near > 0:
+            return self._subject_only_limits(near, far, depth, band, focal_mm, fg_absent=bool(absent_row[0]))
         if bg and not subject:
             # only the subject is kept out, by the visible circle's near limit: with a keep-out given, past his
             # own back rather than mu past his centre (parkour, subject soft: the lawn right behind him went soft)
@@ -561,6 +578,18 @@ class Planner:
             near, far = limits or (foreground_near_m(band, far, spread_min=spread,
                                                      soft_ratio=st.defocus_coc_ratio / st.sharp_coc_ratio), far)
         return near, far
+
+    def _subject_only_limits(self, near: float, far: float, depth: float, band: Band | None, focal_mm: float, *,
+                             fg_absent: bool) -> tuple[float, float]:
+        """(D_n*, D_f*) [m] of "only the subject sharp" with the background present: d -+ mu moved in front of
+        him by focus_ahead_inv_m, the one circle's spread taken at the widest aperture planned for. Centred on
+        him, a field wider than he is deep left parkour's backdrop 1.0-1.35 circles soft: sharp to the focus
+        estimator (docs/planner.md, "Only the subject sharp: the focus in front of him")."""
+        if not self.cfg.subject_only_focus_ahead:
+            return near, far
+        f_number = APERTURE_MARGIN * self.solver.bounds.f_number_min
+        spread = narrowest_spread(focal_mm, f_number, self.cfg.structure.coc_mm)
+        return shifted_limits(near, far, focus_ahead_inv_m(depth, band, fg_absent=fg_absent, spread=spread))
 
     def _keep_out_m(self, mu: float) -> float:
         """How far past the subject's centre a row wanting only the background sharp keeps him out [m]:

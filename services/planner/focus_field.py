@@ -1,5 +1,6 @@
-"""Where "only the foreground sharp" puts the depth of field: the ground the foreground band shows
-(pure maths, inverse depths x = 1/depth [1/m]).
+"""Where "only the foreground sharp" puts the depth of field: the ground the foreground band shows; and
+how far in front of him "only the subject sharp" may put the focus (pure maths, inverse depths
+x = 1/depth [1/m]).
 
 The foreground is the band of rows below the subject's feet (shared/focus_regions.py). On open
 ground it shows the ground from the feet, at the subject's own depth, down to the bottom row. A
@@ -17,6 +18,11 @@ far rows; the ground's median row is often only 3-5 m nearer than a subject 14 m
 foreground_limits therefore puts the focus where the subject is blurred by SUBJECT_BLUR_CIRCLES of the
 one circle c (1/s = 1/d + b sigma_c) and no more, with the narrowest field the planner uses: the band
 from just in front of him is then inside the field of c.
+
+With only the subject sharp and the field wider than he is deep (parkour at 50-60 mm and f/1), a field
+centred on him leaves the background behind him only 1.0-1.35 circles soft: sharp to the focus
+estimator, which reads a texture soft from 1.5 circles. A focus b circles in front of him adds b
+circles to everything behind him and takes b from the foreground band's median (focus_ahead_inv_m).
 """
 from __future__ import annotations
 
@@ -29,6 +35,13 @@ ANKLE_HEIGHT_M = 0.08
 #: every texture's flip of the focus estimator (0.88-1.22 circles, docs/report.md), below the 1.5 of the
 #: visible circle, which left the band's median outside the field (parkour: truth foreground 0.13-0.24)
 SUBJECT_BLUR_CIRCLES = 1.3
+#: the blur [circles of the one circle] a sharp subject may carry with only him sharp, so that the focus can stand in
+#: front of him and blur the background more: at half the circle (0.6 wide open) the dancer read soft (extraction
+#: 1.00 -> 0.93) and focus_hedge's hedge in front of her sharp (1.00 -> 0.60; docs/planner.md)
+SHARP_SUBJECT_BLUR = 0.25
+#: the blur [circles] the foreground band's median keeps when the focus moves in front of a sharp subject: the
+#: visible circle's 1.5, where the focus estimator reads every texture soft
+SOFT_BAND_BLUR = 1.5
 
 
 @dataclass(frozen=True)
@@ -109,3 +122,32 @@ def foreground_limits(depth_m: float, *, spread: float, sharp_ratio: float, far_
     if x_far <= 0:
         return None
     return 1.0 / (x_s + spread), 1.0 / x_far
+
+
+def focus_ahead_inv_m(depth_m: float, band: Band | None, *, fg_absent: bool, spread: float,
+                      subject_blur: float = SHARP_SUBJECT_BLUR, band_blur: float = SOFT_BAND_BLUR) -> float:
+    """How far in front of a sharp subject `depth_m` away the focus stands [1/m, inverse depth] with only
+    him sharp. The foreground band (ground_band) tells how wide the field is against the depths round him:
+    with its median inside the one circle's field while the focus is on him (under 1 circle), what lies as
+    far behind him is inside it too and sharp to the focus estimator (parkour: the backdrop 1.0-1.35
+    circles), and the band is out of reach anyway with the background soft, as the report judges it; the
+    focus then stands `subject_blur` circles in front of him, which adds that much blur to everything behind
+    him while he stays sharp. From there to `band_blur` circles (where the estimator reads every texture
+    soft) the move shrinks linearly to nothing: the band keeps its blur, and the background, as far behind,
+    is soft already (the dancer's, 1.5-1.7 circles). Nothing with no band known or no foreground in the source:
+    the move then only blurs the subject. `spread` is the one circle's half-width at the aperture planned for
+    (narrowest_spread with the one circle at 1.2 x the widest f-number): wide open his blur is up to
+    1.2 `subject_blur`, 0.3 circles (parkour: 0.29-0.31, the dancer 0.32, both read sharp)."""
+    if fg_absent or band is None or not (depth_m > 0 and spread > 0 and band_blur > 1.0):
+        return 0.0
+    band_circles = (band.inv_median - 1.0 / depth_m) / spread
+    share = min(max((band_blur - band_circles) / (band_blur - 1.0), 0.0), 1.0)
+    return share * subject_blur * spread
+
+
+def shifted_limits(near_m: float, far_m: float, shift_inv_m: float) -> tuple[float, float]:
+    """(D_n*, D_f*) [m] moved nearer by `shift_inv_m` in inverse depth, their width in it kept: where the
+    lens cannot make them, the least-squares plan centres its field on their midpoint. A far limit moved to
+    or past infinity is infinity."""
+    x_n, x_f = 1.0 / near_m + shift_inv_m, 1.0 / far_m + shift_inv_m
+    return 1.0 / x_n, (1.0 / x_f if x_f > 0 else math.inf)

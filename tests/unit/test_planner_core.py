@@ -528,3 +528,42 @@ def test_a_zoom_gives_way_round_a_rack_focus(planner, instructions):
     data, _ = off._stage_data(now, ins, sim.vehicle_state(now), sim.subject_state(now))
     assert data.motion[:, LENS_MOTION_COLUMNS].any(axis=1).all()
 
+
+
+def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instructions):
+    from cinetransfer.services.planner.focus_field import focus_ahead_inv_m
+
+    # given a style that wants only the subject sharp, a soft foreground and background shown
+    k = instructions.image_targets.shape[0]
+    sm = np.tile(np.array([0.0, 1.0, 0.0], dtype=np.float32), (k, 1))
+    ins = dataclasses.replace(instructions, focus_smoothed=sm, focus_raw=sm,
+                              focus_in=np.tile([False, True, False], (k, 1)))
+    # and a camera 9 m behind the subject, 2 m up, pitched 0.15 rad down: his feet low in the frame
+    scene = dataclasses.replace(wrong_start_scene(), vehicle_position_m=(-9.0, 0.0, 2.0),
+                                camera_ypr_rad=(0.0, -0.15, 0.0))
+    sim = KinematicSim(scene)
+    x0 = planner._measured_state(T0, sim.vehicle_state(T0))
+    subj = predict_subject(sim.subject_state(T0), T0)
+    dof, dref = planner._dof_targets(T0, ins, [0], 0, x0, subj)
+    lay, st, b = planner.layout, planner.cfg.structure, planner.solver.bounds
+    # then d -+ mu move nearer by what focus_ahead_inv_m gives for the
+    # band seen from the planned camera, with the one circle's spread at the aperture planned for (1.2 A_min,
+    # 1000 A c / f^2 per metre)
+    spread = 1000.0 * 1.2 * b.f_number_min * st.coc_mm / x0[lay.F] ** 2
+    band = planner._foreground_band(x0, subj, st.dt_s)
+    shift = focus_ahead_inv_m(dref[0], band, fg_absent=False, spread=spread)
+    assert shift > 0.0
+    assert dof[0, 0] == 1.0 and dof[0, 2] == 1.0
+    assert dof[0, 1] == pytest.approx(1.0 / (dref[0] - ins.mu_m) + shift)
+    assert dof[0, 3] == pytest.approx(1.0 / (dref[0] + ins.mu_m) + shift)
+    # and with the option off, centred on him as before
+    off = Planner(dataclasses.replace(planner.cfg, subject_only_focus_ahead=False), solver=planner.solver)
+    dof, dref = off._dof_targets(T0, ins, [0], 0, x0, subj)
+    assert dof[0, 1] == pytest.approx(1.0 / (dref[0] - ins.mu_m))
+    assert dof[0, 3] == pytest.approx(1.0 / (dref[0] + ins.mu_m))
+    # and in a shot that racks to the background at row 30, centred on him before the switch too
+    focus = np.tile([False, True, False], (k, 1))
+    focus[30:] = (False, False, True)
+    rack = dataclasses.replace(ins, focus_in=focus, focus_smoothed=np.where(focus, 1.0, 0.0).astype(np.float32))
+    dof, dref = planner._dof_targets(T0, rack, [0, 29], 0, x0, subj)
+    np.testing.assert_allclose(dof[:, 1], 1.0 / (dref - ins.mu_m), rtol=1e-9)

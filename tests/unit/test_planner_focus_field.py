@@ -75,3 +75,39 @@ def test_only_the_foreground_sharp_blurs_the_subject_by_the_asked_circles_by_han
     assert 1 / (x_s - 1 / 60.0 / 0.375) == pytest.approx(11.80, abs=0.01)
     # and a far limit of the sharpness circle alone (a switch previewed) keeps the caller's targets
     assert FF.foreground_limits(14.0, spread=1 / 60.0, sharp_ratio=0.375, far_ratio=1.0) is None
+
+
+def test_with_only_the_subject_sharp_the_focus_stands_in_front_of_him_where_the_field_is_wide():
+    sigma = 0.04  # the one circle's half-width per metre (58 mm, f/1: parkour)
+
+    def band(circles: float) -> FF.Band:  # the band's median `circles` of c in front of a subject 14 m away
+        return FF.Band(inv_top=1 / 14.0, inv_bottom=1 / 14.0 + 2 * circles * sigma)
+
+    # given the band's median 0.78 circles in front of him (inside c's field with the focus on him: parkour's):
+    # a quarter of a circle in front of him, 0.01 per metre
+    assert FF.SHARP_SUBJECT_BLUR == 0.25
+    assert FF.focus_ahead_inv_m(14.0, band(0.78), fg_absent=False, spread=sigma) == pytest.approx(0.01)
+    # given it 1.2 circles in front: (1.5 - 1.2) / 0.5 of that, 0.006 per metre
+    assert FF.focus_ahead_inv_m(14.0, band(1.2), fg_absent=False, spread=sigma) == pytest.approx(0.006)
+    # and half a circle asked: 0.02 and 0.012 per metre
+    assert FF.focus_ahead_inv_m(14.0, band(0.78), fg_absent=False, spread=sigma, subject_blur=0.5) \
+        == pytest.approx(0.02)
+    assert FF.focus_ahead_inv_m(14.0, band(1.2), fg_absent=False, spread=sigma, subject_blur=0.5) \
+        == pytest.approx(0.012)
+    # given it 1.5 circles or more in front (the dancer's 1.8-2.0): nothing
+    assert FF.focus_ahead_inv_m(14.0, band(1.5), fg_absent=False, spread=sigma) == 0.0
+    assert FF.focus_ahead_inv_m(14.0, band(2.0), fg_absent=False, spread=sigma) == 0.0
+    # and no foreground in the source, or no band known: nothing
+    assert FF.focus_ahead_inv_m(14.0, band(0.78), fg_absent=True, spread=sigma) == 0.0
+    assert FF.focus_ahead_inv_m(14.0, None, fg_absent=False, spread=sigma) == 0.0
+
+
+def test_shifted_limits_keep_their_width_in_inverse_depth_by_hand():
+    # given d -+ mu = 13 and 15 m moved 0.02 per metre nearer
+    near, far = FF.shifted_limits(13.0, 15.0, 0.02)
+    # then 1 / (1/13 + 0.02) = 10.32 m and 1 / (1/15 + 0.02) = 11.54 m
+    assert near == pytest.approx(1 / (1 / 13 + 0.02)) and near == pytest.approx(10.32, abs=0.01)
+    assert far == pytest.approx(11.54, abs=0.01)
+    assert 1 / near - 1 / far == pytest.approx(1 / 13 - 1 / 15)
+    # and unmoved they are the same
+    assert FF.shifted_limits(13.0, 15.0, 0.0) == pytest.approx((13.0, 15.0))
