@@ -95,23 +95,28 @@ def test_planner_service_tracks_and_exits_cleanly(port, peer, tmp_path):
                     break
         else:
             raise AssertionError("planner never reported state=recording\n" + log.read_text())
-        # when the simulator flies the setpoints it receives for a while
+        # when the simulator flies the setpoints it receives for at least 3 s of its time and 20 setpoints
+        # (counted, not timed: a loaded machine may solve slower, never differently)
         with peer.lock:
             n0 = len(peer.setpoints)
-        t_end = time.monotonic() + 3.0
-        while time.monotonic() < t_end:
+        steps, deadline = 0, time.monotonic() + 120
+        while time.monotonic() < deadline:
             with peer.lock:
                 sp = peer.setpoints[-1] if peer.setpoints else None
+                fresh = len(peer.setpoints) - n0
+            if steps >= 60 and fresh >= 20:
+                break
             if sp is not None:
                 sim.apply(sp)
             sim.step(0.05)
+            steps += 1
             feed()
             time.sleep(0.05)
         # then setpoints arrive at about the configured rate, tracking, valid, finite, with the horizon
         with peer.lock:
             got = peer.setpoints[n0:]
             health = peer.health[-1]
-        assert len(got) >= 20, f"{len(got)} setpoints in 3 s"
+        assert len(got) >= 20, f"{len(got)} setpoints in {steps} steps"
         tracking = [s for s in got if s.mode == "track" and s.valid]
         assert len(tracking) >= 0.8 * len(got), [s.solver_status for s in got[:5]]
         sp = tracking[-1]
