@@ -3,7 +3,7 @@ copy of the frame (people masked out), then fitted by shared/camera_motion.py.
 
 Cost: about 4-5 ms of CPU per frame at 1280x720 (a 320 px wide grey copy, up to 200 corners
 carried from frame to frame, pyramidal Lucas-Kanade forward and back, the fit), measured on a
-loaded 2-core machine, and about 2 ms more for telling the tracks on edges (`edge_normals`); about
+loaded 2-core machine, and about 1 ms more for telling the tracks on edges (`edge_normals`); about
 15 ms where a translation is fitted in most frames (the transfer's rendered output video, the
 camera following its subject).
 """
@@ -50,8 +50,8 @@ _LK = dict(winSize=(11, 11), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.T
 
 
 class TensorScratch:
-    """The reused images of `edge_normals` for one grey size (fresh arrays each frame cost page
-    faults: about 0.6 ms of a 1.6 ms call)."""
+    """The images `edge_normals` reuses for one grey size: fresh ones each frame cost page faults
+    (0.6-1.1 ms of system time a call, measured)."""
 
     def __init__(self) -> None:
         self.shape: tuple[int, ...] | None = None
