@@ -3,7 +3,7 @@ copy of the frame (people masked out), then fitted by shared/camera_motion.py.
 
 Cost: about 4-5 ms of CPU per frame at 1280x720 (a 320 px wide grey copy, up to 200 corners
 carried from frame to frame, pyramidal Lucas-Kanade forward and back, the fit), measured on a
-loaded 2-core machine, and about 2 ms more for telling the tracks on edges (`edge_normals`); about
+loaded 2-core machine, and about 1 ms more for telling the tracks on edges (`edge_normals`); about
 15 ms where a translation is fitted in most frames (the transfer's rendered output video, the
 camera following its subject).
 """
@@ -49,23 +49,74 @@ def _baseline_start(history: np.ndarray | None) -> int | None:
 _LK = dict(winSize=(11, 11), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.03))
 
 
-def edge_normals(grey: np.ndarray, pts: np.ndarray) -> np.ndarray:
+class TensorScratch:
+    """The images `edge_normals` reuses for one grey size: fresh ones each frame cost page faults
+    (0.6-1.1 ms of system time a call, measured)."""
+
+    def __init__(self) -> None:
+        self.shape: tuple[int, ...] | None = None
+
+    def fit(self, shape: tuple[int, ...]) -> TensorScratch:
+        if self.shape != shape:
+            pad = EDGE_WINDOWS_PX[-1] // 2
+            h, w = shape[0] + 2 * pad, shape[1] + 2 * pad
+            self.shape = shape
+            self.gx, self.gy = np.empty(shape, np.int16), np.empty(shape, np.int16)
+            self.px, self.py = np.empty((h, w), np.int16), np.empty((h, w), np.int16)
+            self.product = np.empty((h, w), np.float32)
+            self.table = np.empty((h + 1, w + 1), np.float64)
+        return self
+
+
+def _window_corners(xi: np.ndarray, yi: np.ndarray, stride: int) -> list[tuple[np.ndarray, ...]]:
+    """For each of EDGE_WINDOWS_PX, the flat indices into a summed-area table (`stride` wide, of the
+    image padded by the largest window's half) of the four corners of each point's window."""
+    pad = EDGE_WINDOWS_PX[-1] // 2
+    out = []
+    for size in EDGE_WINDOWS_PX:
+        first = (yi + pad - size // 2) * stride + (xi + pad - size // 2)
+        out.append((first, first + size, first + size * stride, first + size * stride + size))
+    return out
+
+
+def tensor_sums(grey: np.ndarray, xi: np.ndarray, yi: np.ndarray, scratch: TensorScratch | None = None) -> list:
+    """For each of EDGE_WINDOWS_PX, (N, 3) float32 the structure tensor's gx², gx gy, gy² of the 3x3
+    Sobel gradients summed over the window round each pixel (xi, yi), the image's border reflected
+    (BORDER_REFLECT_101): exactly cv2.boxFilter's sums (unnormalised) at those pixels. The products
+    are whole numbers and a summed-area table in float64 holds their sums exactly, so the window's
+    sum is exact before its one rounding to float32, as the box filter's double sums are; the table
+    is read at the points only, not filtered over the whole image twice."""
+    s = (scratch or TensorScratch()).fit(grey.shape)
+    pad = EDGE_WINDOWS_PX[-1] // 2
+    cv2.Sobel(grey, cv2.CV_16S, 1, 0, dst=s.gx, ksize=3)
+    cv2.Sobel(grey, cv2.CV_16S, 0, 1, dst=s.gy, ksize=3)
+    cv2.copyMakeBorder(s.gx, pad, pad, pad, pad, cv2.BORDER_REFLECT_101, dst=s.px)
+    cv2.copyMakeBorder(s.gy, pad, pad, pad, pad, cv2.BORDER_REFLECT_101, dst=s.py)
+    corners = _window_corners(xi, yi, s.table.shape[1])
+    out = [np.empty((len(xi), 3), np.float32) for _ in EDGE_WINDOWS_PX]
+    for j, (u, v) in enumerate(((s.px, s.px), (s.px, s.py), (s.py, s.py))):
+        cv2.multiply(u, v, dst=s.product, dtype=cv2.CV_32F)
+        cv2.integral(s.product, sum=s.table, sdepth=cv2.CV_64F)
+        flat = s.table.reshape(-1)
+        for k, (top_left, top_right, bottom_left, bottom_right) in enumerate(corners):
+            out[k][:, j] = flat[bottom_right] - flat[top_right] - flat[bottom_left] + flat[top_left]
+    return out
+
+
+def edge_normals(grey: np.ndarray, pts: np.ndarray, scratch: TensorScratch | None = None) -> np.ndarray:
     """(N, 2) the unit normal of the edge each point (N, 2, work px) lies on, from the structure
-    tensor of the grey image summed over the EDGE_WINDOWS_PX windows round it (the normal from the
-    first); zeros where any window holds a corner (or nothing): its lesser eigenvalue at least
-    EDGE_RATIO of the greater."""
+    tensor of the grey image (uint8) summed over the EDGE_WINDOWS_PX windows round it (the normal
+    from the first); zeros where any window holds a corner (or nothing): its lesser eigenvalue at
+    least EDGE_RATIO of the greater. `scratch`: images kept from the previous call (saves page faults)."""
     out = np.zeros((len(pts), 2))
     if not len(pts):
         return out
-    g = grey.astype(np.float32)
-    gx, gy = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
     h, w = grey.shape
     xi = np.clip(np.round(pts[:, 0]).astype(int), 0, w - 1)
     yi = np.clip(np.round(pts[:, 1]).astype(int), 0, h - 1)
     edge = np.ones(len(pts), dtype=bool)
-    for size in EDGE_WINDOWS_PX:
-        a, b, c = (cv2.boxFilter(m, -1, (size, size), normalize=False)[yi, xi].astype(float)
-                   for m in (gx * gx, gx * gy, gy * gy))
+    for size, sums in zip(EDGE_WINDOWS_PX, tensor_sums(grey, xi, yi, scratch)):
+        a, b, c = (sums[:, j].astype(float) for j in range(3))
         half, root = 0.5 * (a + c), np.sqrt((0.5 * (a - c)) ** 2 + b * b)
         edge &= (half + root > 0.0) & (half - root < EDGE_RATIO * (half + root))
         if size == EDGE_WINDOWS_PX[0]:
@@ -114,6 +165,7 @@ class CameraMotionTracker:
         self.work_width = int(work_width)
         # source, index, grey, corners, their positions over the last frames (frames, N, 2)
         self._prev: tuple | None = None
+        self._scratch = TensorScratch()
 
     def reset(self) -> None:
         self._prev = None
@@ -143,7 +195,7 @@ class CameraMotionTracker:
             fm = cm.frame_motion(p0 - centre, p1 - centre, f_work, inlier_px=cm.INLIER_PX * ww / cm.WORK_WIDTH,
                                  earlier=None if start is None else history[start] - centre,
                                  span=0 if start is None else len(history) - 1 - start,
-                                 normals=edge_normals(grey, p1))
+                                 normals=edge_normals(grey, p1, self._scratch))
             if start is None or len(history) - 1 - start < cm.MIN_SPAN:
                 fm = cm.parallax_untested(fm)
             out = CameraMotion(rotation_rad=fm.rotation_rad.astype(float), log_zoom=float(fm.log_zoom),
