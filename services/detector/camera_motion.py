@@ -160,9 +160,12 @@ def frame_focal_px(lens: LensState | None, width: int, hfov_deg: float) -> float
 class CameraMotionTracker:
     """Consecutive frames of one source in, the camera's motion between them out."""
 
-    def __init__(self, hfov_deg: float = cm.ASSUMED_HFOV_DEG, work_width: int = cm.WORK_WIDTH) -> None:
+    def __init__(self, hfov_deg: float = cm.ASSUMED_HFOV_DEG, work_width: int = cm.WORK_WIDTH,
+                 edge_tracks: bool = False) -> None:
         self.hfov_deg = float(hfov_deg)
         self.work_width = int(work_width)
+        # judge tracks on an edge across it only (edge_normals): off, see DetectorConfig.camera_motion_edge_tracks
+        self.edge_tracks = bool(edge_tracks)
         # source, index, grey, corners, their positions over the last frames (frames, N, 2)
         self._prev: tuple | None = None
         self._scratch = TensorScratch()
@@ -195,7 +198,7 @@ class CameraMotionTracker:
             fm = cm.frame_motion(p0 - centre, p1 - centre, f_work, inlier_px=cm.INLIER_PX * ww / cm.WORK_WIDTH,
                                  earlier=None if start is None else history[start] - centre,
                                  span=0 if start is None else len(history) - 1 - start,
-                                 normals=edge_normals(grey, p1, self._scratch))
+                                 normals=edge_normals(grey, p1, self._scratch) if self.edge_tracks else None)
             if start is None or len(history) - 1 - start < cm.MIN_SPAN:
                 fm = cm.parallax_untested(fm)
             out = CameraMotion(rotation_rad=fm.rotation_rad.astype(float), log_zoom=float(fm.log_zoom),

@@ -157,7 +157,8 @@ class Detector:
 
             self.fallback = HogPeople(self.cfg)
         self._prev_shot: tuple[str, int, np.ndarray] | None = None  # (source, frame index, signature)
-        self.motion = CameraMotionTracker(self.cfg.camera_hfov_deg) if self.cfg.camera_motion else None
+        self.motion = (CameraMotionTracker(self.cfg.camera_hfov_deg, edge_tracks=self.cfg.camera_motion_edge_tracks)
+                       if self.cfg.camera_motion else None)
         self._pool = (cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="focus")
                       if self.cfg.threads > 1 else None)
 
