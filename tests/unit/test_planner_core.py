@@ -390,21 +390,25 @@ def test_style_rows_are_planned_as_one_depth_of_field_gives_them():
                                               [True, False, False]]
 
 
+def _labels_seen_from(planner, instructions, labels, position_m, pitch_rad):
+    """The instructions asking `labels` (fg, subject, bg) in focus on every row, and the planner's measured
+    state and subject prediction with the camera at `position_m`, pitched `pitch_rad`."""
+    k = instructions.image_targets.shape[0]
+    sm = np.tile(np.asarray(labels, dtype=np.float32), (k, 1))
+    ins = dataclasses.replace(instructions, focus_smoothed=sm, focus_raw=sm, focus_in=np.tile(labels, (k, 1)))
+    scene = dataclasses.replace(wrong_start_scene(), vehicle_position_m=position_m,
+                                camera_ypr_rad=(0.0, pitch_rad, 0.0))
+    sim = KinematicSim(scene)
+    return ins, planner._measured_state(T0, sim.vehicle_state(T0)), predict_subject(sim.subject_state(T0), T0)
+
+
 def test_only_the_foreground_sharp_aims_at_the_ground_the_band_shows(planner, instructions):
     from cinetransfer.services.planner.focus_field import ANKLE_HEIGHT_M
     from cinetransfer.shared import camera as cam
 
-    # given a style that wants only the foreground (the band below the feet) in focus, every region present
-    k = instructions.image_targets.shape[0]
-    sm = np.tile(np.array([1.0, 0.0, 0.0], dtype=np.float32), (k, 1))
-    ins = dataclasses.replace(instructions, focus_smoothed=sm, focus_raw=sm,
-                              focus_in=np.tile([True, False, False], (k, 1)))
+    # given a style that wants only the foreground (the band below the feet) in focus, every region present,
     # and a camera 7 m behind the subject, 2.5 m up, pitched 0.2 rad down at 40 mm: his feet at row ~0.9
-    scene = dataclasses.replace(wrong_start_scene(), vehicle_position_m=(-7.0, 0.0, 2.5),
-                                camera_ypr_rad=(0.0, -0.2, 0.0))
-    sim = KinematicSim(scene)
-    x0 = planner._measured_state(T0, sim.vehicle_state(T0))
-    subj = predict_subject(sim.subject_state(T0), T0)
+    ins, x0, subj = _labels_seen_from(planner, instructions, (True, False, False), (-7.0, 0.0, 2.5), -0.2)
     dof, dref = planner._dof_targets(T0, ins, [0], 0, x0, subj)
     lay, st, b = planner.layout, planner.cfg.structure, planner.solver.bounds
     # then by ray and plane: the bottom row's ray from the camera meets the ground below the ankles at
@@ -529,21 +533,13 @@ def test_a_zoom_gives_way_round_a_rack_focus(planner, instructions):
     assert data.motion[:, LENS_MOTION_COLUMNS].any(axis=1).all()
 
 
-
 def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instructions):
     from cinetransfer.services.planner.focus_field import focus_ahead_inv_m
 
-    # given a style that wants only the subject sharp, a soft foreground and background shown
-    k = instructions.image_targets.shape[0]
-    sm = np.tile(np.array([0.0, 1.0, 0.0], dtype=np.float32), (k, 1))
-    ins = dataclasses.replace(instructions, focus_smoothed=sm, focus_raw=sm,
-                              focus_in=np.tile([False, True, False], (k, 1)))
+    # given a style that wants only the subject sharp, a soft foreground and background shown,
     # and a camera 9 m behind the subject, 2 m up, pitched 0.15 rad down: his feet low in the frame
-    scene = dataclasses.replace(wrong_start_scene(), vehicle_position_m=(-9.0, 0.0, 2.0),
-                                camera_ypr_rad=(0.0, -0.15, 0.0))
-    sim = KinematicSim(scene)
-    x0 = planner._measured_state(T0, sim.vehicle_state(T0))
-    subj = predict_subject(sim.subject_state(T0), T0)
+    ins, x0, subj = _labels_seen_from(planner, instructions, (False, True, False), (-9.0, 0.0, 2.0), -0.15)
+    k = len(ins.focus_in)
     dof, dref = planner._dof_targets(T0, ins, [0], 0, x0, subj)
     lay, st, b = planner.layout, planner.cfg.structure, planner.solver.bounds
     # then d -+ mu move nearer by what focus_ahead_inv_m gives for the
