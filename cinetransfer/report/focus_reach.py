@@ -550,18 +550,20 @@ def label_switches(asked: np.ndarray) -> list[int]:
     return [int(i) for i in np.flatnonzero((asked[1:] != asked[:-1]).any(axis=1)) + 1]
 
 
-def _parts(frames: list[RateFrame], grid: RateGrid, switches: list[int]) -> list[tuple[int, int, list[int]]]:
-    """Parts [a, b) of the timeline with their switches: cut halfway between two switches only where the
-    parts' bounds add up to the whole's (a cut through a lens's travel would lose forced misses)."""
+def _parts(frames: list[RateFrame], grid: RateGrid, switches: list[int]) -> list[tuple[int, int, list[int], int]]:
+    """Parts [a, b) of the timeline with their switches and least misses: cut halfway between two switches
+    only where the parts' bounds add up to the whole's (a cut through a lens's travel would lose forced
+    misses)."""
     out, a, group = [], 0, switches[:1]
+    rest = rate_least_misses(frames, grid)  # the bound of frames[a:]
     for nxt in switches[1:]:
         c = (group[-1] + nxt) // 2
-        both = rate_least_misses(frames[a:c], grid) + rate_least_misses(frames[c:], grid)
-        if both == rate_least_misses(frames[a:], grid):
-            out.append((a, c, group))
-            a, group = c, []
+        left, right = rate_least_misses(frames[a:c], grid), rate_least_misses(frames[c:], grid)
+        if left + right == rest:
+            out.append((a, c, group, left))
+            a, group, rest = c, [], right
         group.append(nxt)
-    out.append((a, len(frames), group))
+    out.append((a, len(frames), group, rest))
     return out
 
 
@@ -577,8 +579,7 @@ def rate_windows(frames: list[RateFrame], grid: RateGrid, asked: np.ndarray, mis
     judge (default every switch of `asked`; leaving one out can only excuse less)."""
     out: list[RateWindow] = []
     switches = label_switches(np.asarray(asked, bool)) if switches is None else switches
-    for a, b, sw in _parts(frames, grid, switches) if switches else []:
-        part = rate_least_misses(frames[a:b], grid)
+    for a, b, sw, part in _parts(frames, grid, switches) if switches else []:
         if part == 0:
             continue
         first, end = max(a, sw[0] - part), min(b, sw[-1] + part)
