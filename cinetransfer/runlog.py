@@ -55,8 +55,8 @@ JPEG_QUALITY = 75
 VIDEO_CRF = 23
 KEYFRAME_S = 1.0
 #: x264 on top of veryfast for recorded frames: a diamond motion search and one sub-pixel refinement
-#: (the report's comparison video's choice): output.mp4 of the README take 23 % less encoding CPU, 19 %
-#: more bytes at the same CRF, no lower PSNR (docs/transfer.md)
+#: (the report's comparison video's choice): output.mp4 of the README take ~23 % less encoding CPU,
+#: 19-29 % more bytes at the same CRF, no lower PSNR (docs/transfer.md)
 VIDEO_X264_PARAMS = "me=dia:subme=1"
 
 
