@@ -86,11 +86,11 @@ def output_measuring(frames: list[np.ndarray], fps: float) -> dict[str, float]:
 
 
 def recorder_encode(frames: list[np.ndarray], fps: float, scratch: Path) -> dict[str, float]:
-    from cinetransfer.runlog import KEYFRAME_S
+    from cinetransfer.runlog import KEYFRAME_S, VIDEO_X264_PARAMS
     from cinetransfer.shared.video import H264Writer
 
     t = time.process_time()
-    with H264Writer(scratch / "encode.mp4", fps, stream_keyframe_s=KEYFRAME_S) as w:
+    with H264Writer(scratch / "encode.mp4", fps, stream_keyframe_s=KEYFRAME_S, x264_params=VIDEO_X264_PARAMS) as w:
         for img in frames:
             w.write(img)
     return {"ms_per_frame": round(1e3 * (time.process_time() - t) / max(len(frames), 1), 1)}

@@ -30,7 +30,7 @@ import numpy as np
 
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
-from cinetransfer.runlog import KEYFRAME_S, RunWriter
+from cinetransfer.runlog import KEYFRAME_S, VIDEO_X264_PARAMS, RunWriter
 from cinetransfer.shared.video import H264Writer
 from cinetransfer.take import Placed, TakeAssembler, TakeSummary
 
@@ -230,7 +230,8 @@ class Recorder:
     def _write_frame(self, p: Placed) -> bytes:
         """Encode a placed frame into output.mp4; its H.264 packet (for run.mcap)."""
         if self._video is None:
-            self._video = H264Writer(self.outdir / "output.mp4", self._window.fps, stream_keyframe_s=KEYFRAME_S)
+            self._video = H264Writer(self.outdir / "output.mp4", self._window.fps, stream_keyframe_s=KEYFRAME_S,
+                                     x264_params=VIDEO_X264_PARAMS)
         packet = self._video.write(np.asarray(p.item.image))
         self._shown.append(int(p.item.index))
         if self.on_frame is not None:

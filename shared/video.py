@@ -66,7 +66,9 @@ class H264Writer:
             raise ValueError(f"frame {self.frames} is {w}x{h}; the video is {self._size[1]}x{self._size[0]}")
         if h % 2 or w % 2:
             img = np.pad(img, ((0, h % 2), (0, w % 2), (0, 0)))
-        frame = self._av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="bgr24")
+        # the frame wraps the array's memory (no copy into a freshly allocated picture, ~1.3 ms a 960x540
+        # frame): encode() converts it to yuv420p before it returns, so nothing holds on to the array
+        frame = self._av.VideoFrame.from_numpy_buffer(np.ascontiguousarray(img), format="bgr24")
         frame.pts = self.frames
         frame.time_base = 1 / self.fps
         out = []

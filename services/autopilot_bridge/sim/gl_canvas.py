@@ -62,7 +62,7 @@ uniform float detail_period_m;  // detail repeats per texture repeat
 uniform float detail_gain;
 uniform float detail_lod_offset;  // the detail's mip level minus the texture's (a constant per mesh)
 uniform float surface;
-uniform float fixed_depth;      // > 0: write this depth (the sky)
+uniform float fixed_depth;      // > 0: write this depth (the sky: inf)
 uniform vec3 sun;
 uniform float ambient;
 in vec3 v_world;
@@ -306,8 +306,10 @@ class GLCanvas:
         di = np.empty((self.height, self.width, 2), np.float32)
         self._fbo.read_into(di, components=2, attachment=1, dtype="f4", alignment=1)
         surface = di[..., 1].astype(np.uint8)
-        depth = np.where(surface == SURFACE_NONE, np.float32(np.inf), di[..., 0])
-        depth[surface == SURFACE_SKY] = SKY_DEPTH
+        depth = np.ascontiguousarray(di[..., 0])  # the sky's draw wrote SKY_DEPTH itself
+        nothing = surface == SURFACE_NONE  # (none where the sky fills the frame: one look, no write)
+        if nothing.any():
+            depth[nothing] = np.float32(np.inf)
         return bgr, depth, surface
 
     def _draw_one(self, mesh: MeshData, static: bool, camera: dict, depth_only: bool = False) -> None:
@@ -318,7 +320,7 @@ class GLCanvas:
         p["depth_row"].value = camera["depth_row"]
         values = {"detail_period_m": float(mesh.detail_period_m), "detail_gain": float(mesh.detail_gain),
                   "detail_lod_offset": self._detail_lod_offset(mesh),
-                  "surface": float(mesh.surface), "fixed_depth": 1.0e30 if mesh.sky else 0.0}
+                  "surface": float(mesh.surface), "fixed_depth": SKY_DEPTH if mesh.sky else 0.0}
         for name, value in values.items():
             if name in p:
                 p[name].value = value
