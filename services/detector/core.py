@@ -238,7 +238,7 @@ class Detector:
         if head.refined or self.cfg.mask_refine_radius_px <= 0:
             return head
         people = subject_mask.refine_people(head.image, head.people, head.skeletons,
-                                            radius=self.cfg.mask_refine_radius_px)
+                                            radius=self.cfg.mask_refine_radius_px, grey=head.grey)
         return head._replace(people=people, refined=True)
 
     def _focus_of(self, head: "_Head") -> FocusResult | None:

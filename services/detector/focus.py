@@ -49,6 +49,15 @@ def _box(img: np.ndarray, r: int) -> np.ndarray:
     return cv2.boxFilter(img, -1, (2 * r + 1, 2 * r + 1), normalize=True, borderType=cv2.BORDER_REFLECT)
 
 
+def _magnitude(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """sqrt(x^2 + y^2), correctly rounded. Not `cv2.magnitude`: its vector path takes an approximate
+    square root (a third of the pixels off by up to 8e-6) and its exact scalar path a varying few
+    pixels, so the same frame gave a different focus map now and then."""
+    out = x * x
+    out += y * y
+    return np.sqrt(out, out=out)
+
+
 def guided_filter(guide: np.ndarray, src: np.ndarray, radius: int, eps: float) -> np.ndarray:
     """He et al. (2010) guided filter, grey guide, float32 inputs in [0, 1]."""
     mean_i = _box(guide, radius)
@@ -94,8 +103,8 @@ class FocusEstimator:
         gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
         g1x = cv2.Sobel(g1, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
         g1y = cv2.Sobel(g1, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
-        mag = cv2.magnitude(gx, gy)
-        mag1 = cv2.magnitude(g1x, g1y)
+        mag = _magnitude(gx, gy)
+        mag1 = _magnitude(g1x, g1y)
         t = cfg.focus_edge_threshold
         # Canny's 3x3 Sobel magnitude is ~8x the central-difference gradient per pixel.
         # flat indices: one index array instead of two (a third of the pixels are edges)

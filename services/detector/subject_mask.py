@@ -54,10 +54,11 @@ def own_pieces(mask: np.ndarray, joints_xy: np.ndarray) -> np.ndarray:
 
 
 def refine_person(image_bgr: np.ndarray, person: PersonDetection, skeleton: Skeleton | None, *,
-                  radius: int = 3, eps: float = 1e-3) -> PersonDetection:
+                  radius: int = 3, eps: float = 1e-3, grey: np.ndarray | None = None) -> PersonDetection:
     """The person with its mask snapped to the image edges and cut to its own body, within its
     crop rectangle (box, crop, confidence and track id kept). A person without a mask is returned
-    as is."""
+    as is. `grey`: the whole frame in grey, when the caller has it already (the same pixels as
+    converting the crop: the conversion is per pixel)."""
     mask = np.asarray(person.mask, dtype=bool)
     if mask.size == 0 or not mask.any():
         return person
@@ -72,8 +73,8 @@ def refine_person(image_bgr: np.ndarray, person: PersonDetection, skeleton: Skel
     sx0, sy0 = max(0, x0 - ox), max(0, y0 - oy)  # part of the mask inside the frame
     sx1, sy1 = min(mask.shape[1], x1 - ox), min(mask.shape[0], y1 - oy)
     local[oy + sy0 - y0:oy + sy1 - y0, ox + sx0 - x0:ox + sx1 - x0] = mask[sy0:sy1, sx0:sx1]
-    grey = cv2.cvtColor(image_bgr[y0:y1, x0:x1], cv2.COLOR_BGR2GRAY)
-    out = snap_to_edges(grey, local, radius=radius, eps=eps)
+    part = grey[y0:y1, x0:x1] if grey is not None else cv2.cvtColor(image_bgr[y0:y1, x0:x1], cv2.COLOR_BGR2GRAY)
+    out = snap_to_edges(part, local, radius=radius, eps=eps)
     if skeleton is not None:
         ok = np.asarray(skeleton.confidences) >= JOINT_CONFIDENCE
         out = own_pieces(out, np.asarray(skeleton.keypoints_px, dtype=float)[ok] - (x0, y0))

@@ -96,6 +96,23 @@ def test_refine_person_keeps_box_confidence_and_track_and_stays_in_the_frame(par
     assert np.array_equal(q.mask_origin_xy, p.mask_origin_xy) and q.mask.shape == p.mask.shape
 
 
+def test_refine_person_with_the_frame_grey_gives_the_same_mask(parkour):
+    # given a person whose mask touches the frame's corner (the crop is clipped there)
+    image, truth = parkour
+    mask = cv2.dilate(truth.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    mask[0:40, 0:40] = True
+    p = _person(mask)
+    ys, xs = np.nonzero(truth)
+    sk = _skeleton(np.array([[xs.mean(), ys.mean()]]))
+    # when it is refined with the whole frame's grey handed in, and without
+    grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    given = subject_mask.refine_person(image, p, sk, grey=grey)
+    converted = subject_mask.refine_person(image, p, sk)
+    # then the masks are the same pixel for pixel, and the refinement did move the edge
+    assert np.array_equal(given.mask, converted.mask)
+    assert not np.array_equal(given.mask, p.mask)
+
+
 def test_refine_person_without_a_mask_is_unchanged(parkour):
     image, _ = parkour
     p = PersonDetection(box_xyxy=np.array([10, 10, 50, 90], np.float32), confidence=0.5,
