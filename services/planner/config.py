@@ -286,6 +286,10 @@ class PlannerConfig:
     #: (after keep_out_settle_s): the visible circle's 1.5 (defocus_coc_ratio). Less starts the sharp zone nearer
     #: behind him, but the estimator then read the far runner sharp (docs/planner.md, "Which gives way")
     settled_subject_blur: float = 1.5
+    #: ask less of that blur (down to focus_field.LEAST_SOFT_SUBJECT_BLUR) where the ground behind him, as the
+    #: camera's height and pitch show it, needs the sharp zone nearer (core.Planner._settled_blur): parkour's lawn
+    #: 6-8 m behind the runner, half of the truth's background
+    settled_blur_from_ground: bool = True
     #: with only the subject sharp before a present background, the focus stands a quarter of the one circle in
     #: front of him where the ground below his feet lies inside the field anyway (focus_field.focus_ahead_inv_m):
     #: centred on him, parkour's backdrop stayed under the 1.5 circles the estimator reads as soft. Not in a shot

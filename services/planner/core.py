@@ -41,7 +41,8 @@ from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject
                                                 reciprocal_targets,
                                                 subject_softness, switched_out)
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
-from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, Band, focus_ahead_inv_m, foreground_limits,
+from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, GROUND_BEHIND_SHARE, Band, focus_ahead_inv_m,
+                                                       foreground_limits, ground_behind_inv_m, settled_subject_blur,
                                                        foreground_near_m, shifted_limits,
                                                        ground_band, narrowest_spread)
 from cinetransfer.services.planner.separation import (APERTURE_MARGIN, background_soft_distance_m, framing_k,
@@ -547,7 +548,8 @@ class Planner:
                     # infinity, not the sharpness circle's: the parkour rack's soft runner read soft in 10
                     # more of its last frames (the focus a little farther), nothing else measured moved
                     dof[k, 6] = 1.0 / st.sharp_coc_ratio
-                    settled_ratio = self.cfg.settled_subject_blur / st.sharp_coc_ratio
+                    blur = self._settled_blur(xk, subj, t, depth + float(keep_outs_m[r]))
+                    settled_ratio = blur / st.sharp_coc_ratio
                     dof[k, 7] = defocus_ratio(switched_out(near_out, now_row, r), settled_ratio, soft)
                 dof[k, 2] *= float(far_previewed(focus, near_out, now_row, r))
         return dof, dref
@@ -599,6 +601,12 @@ class Planner:
     def _foreground_band(self, xk: np.ndarray, subj: PredictedSubject, t: float) -> Band | None:
         """The ground the foreground band shows from the planned camera `xk`, `t` s ahead: below the
         subject's ankles, from the row of his soles down (focus_field.ground_band); None without an ankle."""
+        view = self._ground_view(xk, subj, t)
+        return None if view is None else ground_band(view[0], **view[1], min_rows=FOREGROUND_MIN_ROWS)
+
+    def _ground_view(self, xk: np.ndarray, subj: PredictedSubject, t: float) -> tuple[float, dict] | None:
+        """The row of the subject's soles from the planned camera `xk`, `t` s ahead, and how that camera sees
+        the ground they stand on (focus_field.ground_inverse_depth's keywords); None without an ankle."""
         idx = [subj.names.index(n) for n in FEET_JOINTS if n in subj.names and subj.finite[subj.names.index(n)]]
         if not idx:
             return None
@@ -611,9 +619,22 @@ class Planner:
                               cam.Sensor(st.sensor_width_mm, st.sensor_height_mm))[:, 1]
         if not np.isfinite(v).any():
             return None
-        return ground_band(float(np.nanmax(v)), height_m=float(xk[lay.P][2]) - ground_z, pitch_rad=float(ypr[1]),
-                           focal_mm=float(xk[lay.F]), sensor_height_mm=st.sensor_height_mm,
-                           min_rows=FOREGROUND_MIN_ROWS)
+        return float(np.nanmax(v)), {"height_m": float(xk[lay.P][2]) - ground_z, "pitch_rad": float(ypr[1]),
+                                     "focal_mm": float(xk[lay.F]), "sensor_height_mm": st.sensor_height_mm}
+
+    def _settled_blur(self, xk: np.ndarray, subj: PredictedSubject, t: float, back_m: float) -> float:
+        """The blur [circles] a settled soft subject is asked with only the background sharp: settled_subject_blur,
+        less where the ground behind him (focus_field.ground_behind_inv_m) needs the sharp zone nearer, never
+        under focus_field.LEAST_SOFT_SUBJECT_BLUR (focus_field.settled_subject_blur; option
+        settled_blur_from_ground)."""
+        most = self.cfg.settled_subject_blur
+        view = self._ground_view(xk, subj, t) if self.cfg.settled_blur_from_ground else None
+        if view is None:
+            return most
+        ground = ground_behind_inv_m(view[0], GROUND_BEHIND_SHARE, **view[1])
+        spread = narrowest_spread(view[1]["focal_mm"], APERTURE_MARGIN * self.solver.bounds.f_number_min,
+                                  self.cfg.structure.coc_mm)
+        return settled_subject_blur(back_m, ground, spread=spread, most=most)
 
     def _settle_stages(self, now_ns: int, n: int, dt: float) -> np.ndarray:
         """Which of stages 1..n still lie in the take's pre-roll (recording, before instruction time 0)."""

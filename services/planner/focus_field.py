@@ -39,6 +39,14 @@ SUBJECT_BLUR_CIRCLES = 1.3
 #: front of him and blur the background more: at half the circle (0.6 wide open) the dancer read soft (extraction
 #: 1.00 -> 0.93) and focus_hedge's hedge in front of her sharp (1.00 -> 0.60; docs/planner.md)
 SHARP_SUBJECT_BLUR = 0.25
+#: with only the background sharp, the least blur [circles] a settled soft subject is asked where the ground
+#: behind him needs the sharp zone nearer (settled_subject_blur): the highest flip of the focus estimator over
+#: the textures measured (1.22 circles, docs/report.md) with a margin, as SUBJECT_BLUR_CIRCLES
+LEAST_SOFT_SUBJECT_BLUR = 1.3
+#: the share of the background's rows that may show ground nearer than the one circle's sharp zone behind a
+#: settled soft subject: the truth calls the background sharp from half its pixels inside the field, and the
+#: rows beside and above him hold more than the ground right behind him
+GROUND_BEHIND_SHARE = 0.35
 #: the blur [circles] the foreground band's median keeps when the focus moves in front of a sharp subject: the
 #: visible circle's 1.5, where the focus estimator reads every texture soft
 SOFT_BAND_BLUR = 1.5
@@ -151,3 +159,29 @@ def shifted_limits(near_m: float, far_m: float, shift_inv_m: float) -> tuple[flo
     or past infinity is infinity."""
     x_n, x_f = 1.0 / near_m + shift_inv_m, 1.0 / far_m + shift_inv_m
     return 1.0 / x_n, (1.0 / x_f if x_f > 0 else math.inf)
+
+
+def ground_behind_inv_m(v_feet: float, share: float, *, height_m: float, pitch_rad: float, focal_mm: float,
+                        sensor_height_mm: float) -> float:
+    """The inverse depth [1/m] of the ground nearer than which `share` of the background's rows (those above
+    the feet's row `v_feet`) lie: the rows from the feet up see the ground behind the subject ever farther,
+    linearly in inverse depth (ground_inverse_depth), up to the horizon. 0 when that row sees no ground (at or
+    above the horizon: the sky, or whatever stands far behind) or the view is unknown."""
+    if not (math.isfinite(v_feet) and math.isfinite(height_m) and height_m > 0.1 and 0.0 <= share <= 1.0):
+        return 0.0
+    v = (1.0 - share) * min(max(v_feet, 0.0), 1.0)
+    return max(ground_inverse_depth(v, height_m=height_m, pitch_rad=pitch_rad, focal_mm=focal_mm,
+                                    sensor_height_mm=sensor_height_mm), 0.0)
+
+
+def settled_subject_blur(back_m: float, ground_inv_m: float, *, spread: float, most: float,
+                         least: float = LEAST_SOFT_SUBJECT_BLUR) -> float:
+    """The blur [circles of the one circle] to ask of a soft subject whose back lies `back_m` away, with only the
+    background sharp, so that the one circle's sharp zone starts at the ground `ground_inv_m` [1/m]
+    (ground_behind_inv_m): with the focus behind him and his back b circles soft, the zone starts at
+    1/back - (b - 1) `spread` (the one circle's half-width in inverse depth), so b = 1 + (1/back -
+    ground_inv_m) / `spread`, within [least, most]. A ground beyond what `most` gives (or none: 0) asks `most`."""
+    if not (back_m > 0 and spread > 0 and math.isfinite(ground_inv_m)) or ground_inv_m <= 0:
+        return most
+    b = 1.0 + (1.0 / back_m - ground_inv_m) / spread
+    return min(max(b, least), most)

@@ -14,6 +14,7 @@ from cinetransfer.services.planner.kinematic_sim import KinematicSim
 from cinetransfer.services.planner.scenarios import reference_instructions, standing_shot, wrong_start_scene
 from cinetransfer.shared import codec
 from cinetransfer.shared import messages as M
+from cinetransfer.shared import camera as cam
 
 T0 = 1_700_000_000_000_000_000
 S = 1_000_000_000
@@ -315,6 +316,33 @@ def test_only_the_background_in_focus_keeps_the_subject_out_by_the_near_limit(pl
     by_mu = Planner(dataclasses.replace(planner.cfg, subject_keep_out_m=0.0), solver=planner.solver)
     dof, dref = by_mu._dof_targets(T0, ins, [0, 1], 0, x0, subj)
     assert dof[0, 0] == 1.0 and dof[0, 1] == pytest.approx(1.0 / (dref[0] + ins.mu_m))
+
+
+def test_a_settled_soft_subject_is_asked_less_blur_where_the_ground_behind_him_is_near(planner):
+    from cinetransfer.services.planner import focus_field as FF
+    from cinetransfer.services.planner.separation import APERTURE_MARGIN
+
+    # given the planner's camera and subject at the start of the wrong-start scene, and the ground he stands on
+    sim = KinematicSim(wrong_start_scene())
+    x0 = planner._measured_state(T0, sim.vehicle_state(T0))
+    subj = predict_subject(sim.subject_state(T0), T0)
+    view = planner._ground_view(x0, subj, 0.0)
+    assert view is not None
+    ground = FF.ground_behind_inv_m(view[0], FF.GROUND_BEHIND_SHARE, **view[1])
+    assert ground > 0
+    spread = FF.narrowest_spread(view[1]["focal_mm"], APERTURE_MARGIN * planner.solver.bounds.f_number_min,
+                                 planner.cfg.structure.coc_mm)
+    back = float(cam.world_to_camera(subj.centre, x0[planner.layout.P],
+                                     np.array(planner.layout.angles(x0), float))[0]) + 0.3
+    # then the blur asked is the one that starts the sharp zone at that ground, within [1.3, 1.5]
+    got = planner._settled_blur(x0, subj, 0.0, back)
+    assert got == pytest.approx(FF.settled_subject_blur(back, ground, spread=spread, most=1.5))
+    assert FF.LEAST_SOFT_SUBJECT_BLUR <= got <= planner.cfg.settled_subject_blur == 1.5
+    # and a back far beyond that ground (the zone would start behind it at any blur) is asked the least
+    assert planner._settled_blur(x0, subj, 0.0, 10.0 / ground) == pytest.approx(FF.LEAST_SOFT_SUBJECT_BLUR)
+    # and with the option off, settled_subject_blur whatever the ground
+    off = Planner(dataclasses.replace(planner.cfg, settled_blur_from_ground=False), solver=planner.solver)
+    assert off._settled_blur(x0, subj, 0.0, 10.0 / ground) == 1.5
 
 
 def test_right_after_a_rack_onto_the_background_the_subject_is_kept_out_by_mu(planner, instructions):

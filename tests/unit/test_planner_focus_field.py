@@ -111,3 +111,32 @@ def test_shifted_limits_keep_their_width_in_inverse_depth_by_hand():
     assert 1 / near - 1 / far == pytest.approx(1 / 13 - 1 / 15)
     # and unmoved they are the same
     assert FF.shifted_limits(13.0, 15.0, 0.0) == pytest.approx((13.0, 15.0))
+
+
+def test_the_ground_behind_the_subject_by_hand():
+    # given a level camera 2 m up whose focal length equals the sensor height, the feet at row 0.75: the ground
+    # there 2 / 0.25 = 8 m away, the horizon at the centre row
+    kw = {"height_m": 2.0, "pitch_rad": 0.0, "focal_mm": H_S, "sensor_height_mm": H_S}
+    assert FF.ground_behind_inv_m(0.75, 0.0, **kw) == pytest.approx(1 / 8.0)
+    # then a fifth of the rows above the feet (0.6-0.75) see the ground nearer than at row 0.6: 2 / 0.1 = 20 m
+    assert FF.ground_behind_inv_m(0.75, 0.2, **kw) == pytest.approx(1 / 20.0)
+    # and half of them reach above the horizon (row 0.375): no ground there, 0
+    assert FF.ground_behind_inv_m(0.75, 0.5, **kw) == 0.0
+    # and an unknown view says nothing
+    assert FF.ground_behind_inv_m(math.nan, 0.2, **kw) == 0.0
+
+
+def test_the_settled_soft_subject_blur_starts_the_sharp_zone_at_the_ground_by_hand():
+    # given his back 20 m away, the one circle's half-width 0.025 per metre, the ground at 25 m: the zone at
+    # 1/20 - (b - 1) 0.025 = 1/25 asks b = 1.4
+    b = FF.settled_subject_blur(20.0, 1 / 25.0, spread=0.025, most=1.5)
+    assert b == pytest.approx(1.4)
+    # (the focus then at 1/20 - 1.4 x 0.025 = 0.015 per metre, the zone's near edge at 0.015 + 0.025 = 1/25)
+    assert 1 / 20.0 - b * 0.025 + 0.025 == pytest.approx(1 / 25.0)
+    # and a ground 30 m away would allow 1.67: `most` (1.5) is asked
+    assert FF.settled_subject_blur(20.0, 1 / 30.0, spread=0.025, most=1.5) == 1.5
+    # and a ground 22 m away would ask 1.18: never under LEAST_SOFT_SUBJECT_BLUR (1.3)
+    assert FF.LEAST_SOFT_SUBJECT_BLUR == 1.3
+    assert FF.settled_subject_blur(20.0, 1 / 22.0, spread=0.025, most=1.5) == pytest.approx(1.3)
+    # and no ground behind him (0): `most`
+    assert FF.settled_subject_blur(20.0, 0.0, spread=0.025, most=1.5) == 1.5
