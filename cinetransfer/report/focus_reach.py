@@ -34,7 +34,7 @@ reason of every such frame.
 Over time the lens moves its focus and f-number at most at the vehicle's rates. rate_min_misses counts
 the fewest frames a grid lens so limited misses the asked labels (a dynamic programme over a grid of
 settings: an upper bound on the fewest, for benchmarks). rate_least_misses is a proven lower bound (cells
-that may give the labels, a lens anywhere in a cell, moving one cell further than the rates allow).
+that may give the labels, a lens anywhere in a cell, moving as many cells as a frame's travel spans).
 rate_windows turns it into a verdict per frame (kind 'rate'): round the label switches, a window that
 forces that many misses, and in it no more of the flight's own misses than the bound (docs/report.md,
 "The lens's rates").
@@ -546,8 +546,8 @@ def rate_least_misses(frames: list[RateFrame], grid: RateGrid) -> int:
     """A lower bound on the frames any lens moving at most at the grid's rates misses.
 
     The relaxation: a frame's labels given anywhere in its possible cells (a superset), a lens anywhere in
-    a cell, so between frames it may reach every cell whose gap the rates cross (one cell further than a
-    point could), the start anywhere. Over the cells the fewest misses are counted exactly (a dynamic
+    a cell, so between frames it may reach every cell a move at the rates can end in (RateGrid.reach), the
+    start anywhere. Over the cells the fewest misses are counted exactly (a dynamic
     programme), so no lens misses fewer. A frame with nothing judged, or no possible cell at all (nothing
     gives its labels, not the rate: the reach per frame's business), costs nothing."""
     if not frames:
