@@ -34,7 +34,7 @@ reason of every such frame.
 Over time the lens moves its focus and f-number at most at the vehicle's rates. rate_min_misses counts
 the fewest frames a grid lens so limited misses the asked labels (a dynamic programme over a grid of
 settings: an upper bound on the fewest, for benchmarks). rate_least_misses is a proven lower bound (cells
-that may give the labels, a lens anywhere in a cell, moving one cell further than the rates allow).
+that may give the labels, a lens anywhere in a cell, moving as many cells as a frame's travel spans).
 rate_windows turns it into a verdict per frame (kind 'rate'): round the label switches, a window that
 forces that many misses, and in it no more of the flight's own misses than the bound (docs/report.md,
 "The lens's rates").
@@ -434,21 +434,37 @@ class RateGrid:
     #: the focus cells cut into pieces (_sub_edges): their edges, and the first piece of every cell
     pieces: np.ndarray = field(default_factory=lambda: np.zeros(0))
     piece_of: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    #: how much longer than its stamps say a step between frames may be (the stamps' rounding)
+    slack_s: float = 0.0
 
     def reach(self, dt_s: float) -> tuple[int, int]:
-        """How many cells away a lens may be dt_s later: cells whose gap, (k - 1) cells, the rate can cross."""
+        """How many cells away a lens may be dt_s later: ceil(m) for a move of m cells.
+
+        Cells are half-open, [e_i, e_i + w): a lens in cell i moved by at most m w lands below e_i + (1 + m) w,
+        so in cell i + ceil(m) at most (i + m for a whole m, where the edge itself is the next cell's); the same
+        downwards. A move within ROUNDING_CELLS of a whole number of cells counts as that number (float
+        rounding of the product, not a physical move: 1e-9 of a cell is a third of a nanometre of focus)."""
         w = (self.focus_edges[1] - self.focus_edges[0], self.f_number_edges[1] - self.f_number_edges[0])
-        moves = (self.rates.focus_mps * dt_s / w[0], self.rates.f_number_ps * dt_s / w[1])
-        return int(moves[0] + 1.0 + 1e-9), int(moves[1] + 1.0 + 1e-9)
+        dt = dt_s + self.slack_s
+        moves = (self.rates.focus_mps * dt / w[0], self.rates.f_number_ps * dt / w[1])
+        return (max(math.ceil(moves[0] - ROUNDING_CELLS), 0), max(math.ceil(moves[1] - ROUNDING_CELLS), 0))
+
+
+#: RateGrid.reach: a move this close above a whole number of cells is float rounding
+ROUNDING_CELLS = 1e-9
 
 
 def rate_grid(focus_m: tuple[float, float], f_number: tuple[float, float], rates: LensRates, dt_s: float,
-              cells: tuple[int, int] = RATE_BOUND_CELLS) -> RateGrid:
+              cells: tuple[int, int] = RATE_BOUND_CELLS, slack_s: float = 0.0) -> RateGrid:
+    """Cells of a move over dt_s + slack_s / `cells` (per axis): a step of up to dt_s moves a lens that many
+    cells at most (RateGrid.reach), none more."""
     def edges(lo: float, hi: float, step: float) -> np.ndarray:
         return np.append(np.arange(lo, hi, step), hi) if hi > lo else np.array([lo, lo + step])
 
-    focus = edges(*focus_m, rates.focus_mps * dt_s / cells[0])
-    return RateGrid(focus, edges(*f_number, rates.f_number_ps * dt_s / cells[1]), rates, *_sub_edges(focus))
+    dt = dt_s + slack_s
+    focus = edges(*focus_m, rates.focus_mps * dt / cells[0])
+    return RateGrid(focus, edges(*f_number, rates.f_number_ps * dt / cells[1]), rates, *_sub_edges(focus),
+                    slack_s=slack_s)
 
 
 @dataclass(frozen=True)
@@ -530,8 +546,8 @@ def rate_least_misses(frames: list[RateFrame], grid: RateGrid) -> int:
     """A lower bound on the frames any lens moving at most at the grid's rates misses.
 
     The relaxation: a frame's labels given anywhere in its possible cells (a superset), a lens anywhere in
-    a cell, so between frames it may reach every cell whose gap the rates cross (one cell further than a
-    point could), the start anywhere. Over the cells the fewest misses are counted exactly (a dynamic
+    a cell, so between frames it may reach every cell a move at the rates can end in (RateGrid.reach), the
+    start anywhere. Over the cells the fewest misses are counted exactly (a dynamic
     programme), so no lens misses fewer. A frame with nothing judged, or no possible cell at all (nothing
     gives its labels, not the rate: the reach per frame's business), costs nothing."""
     if not frames:

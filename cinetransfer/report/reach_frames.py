@@ -102,22 +102,33 @@ def rate_frames(asked: np.ndarray, judged: np.ndarray, truths: Sequence[M.Ground
     time is assumed to pass), one after a gap (GAP_STEPS) starts afresh."""
     lenses = [_lens_of(t) if t is not None else None for t in truths]
     have = [(t, lens) for t, lens in zip(truths, lenses) if lens is not None]
-    dt = float(np.median(np.diff([t.stamp_ns for t, _ in have]))) * 1e-9 if len(have) > 1 else 1.0
+    steps = np.diff([t.stamp_ns for t, _ in have]) * 1e-9
+    dt = float(np.median(steps)) if len(have) > 1 else 1.0
+    # the cells are a move over the longest step between consecutive frames (not a gap), so that every such
+    # step moves the lens `cells` cells at most, however the stamps round
+    regular = steps[(steps > 0) & (steps <= GAP_STEPS * dt)]
     grid = FR.rate_grid((min(x.focus_m[0] for _, x in have), max(x.focus_m[1] for _, x in have)),
-                        (min(x.f_number[0] for _, x in have), max(x.f_number[1] for _, x in have)), rates, dt,
-                        cells)
+                        (min(x.f_number[0] for _, x in have), max(x.f_number[1] for _, x in have)), rates,
+                        float(regular.max()) if regular.size else dt, cells, slack_s=STAMP_SLACK_S)
     wanted = set(range(len(truths)) if only is None else only)
-    t_s, out = have[0][0].stamp_ns * 1e-9, []
+    # times from the first stamp, in whole nanoseconds first: a stamp since the epoch (1.8e18 ns) in float
+    # seconds keeps only about 0.2 microseconds: half the parkour rack's steps read as 2.000004 cells
+    t0 = int(have[0][0].stamp_ns)
+    t_s, out = 0.0, []
     for i, (t, lens) in enumerate(zip(truths, lenses)):
         possible, fresh = None, False
         if lens is not None:
-            fresh, t_s = t.stamp_ns * 1e-9 - t_s > GAP_STEPS * dt, t.stamp_ns * 1e-9
+            now = (int(t.stamp_ns) - t0) * 1e-9
+            fresh, t_s = now - t_s > GAP_STEPS * dt, now
             if judged[i].any() and i in wanted:
                 possible = FR.possible_cells(grid, lens, asked[i], judged[i], np.asarray(t.region_inverse_depth, float))
         out.append(FR.RateFrame(t_s, possible, fresh))
     return out, grid
 
 
+#: a step between two frames may be this much longer than their stamps say (each stamp rounded to the
+#: nanosecond)
+STAMP_SLACK_S = 1e-9
 #: more time than this many frames' steps between two truths is a gap (a new take, frames lost): after it
 #: the lens may be anywhere
 GAP_STEPS = 1.5

@@ -296,6 +296,15 @@ class PlannerConfig:
     #: that racks away from him (core.Planner._centred_before_rack; docs/planner.md, "Only the subject sharp: the
     #: focus in front of him")
     subject_only_focus_ahead: bool = True
+    #: a rack away from the subject (his label sharp -> soft inside a shot) is planned ahead, each stage as the
+    #: switch's row once half the focus's travel from him to one circle behind takes longer than the time left,
+    #: at most rack_lead_max_s [s] ahead, where he then stays soft at least rack_lead_min_hold_s [s]
+    #: (core.rack_switch_ahead, Planner._subject_travel_s): started at the switch, that travel left the parkour
+    #: runner sharp for 22 frames after it (docs/planner.md, "A rack away from the subject, planned ahead").
+    #: 0 = off, the default: at 1.5 the parkour rack's runner went soft on time (truth 0.88 -> 0.98) but the
+    #: dancer's distant background, asked soft before her switch, went sharp early (1.00 -> 0.80)
+    rack_lead_max_s: float = 0.0
+    rack_lead_min_hold_s: float = 1.0
     #: how far behind the subject the background stands [m]; inf = unknown, and then a row wanting the
     #: subject sharp before a soft background asks for no standoff. Given, such a row raises the minimum
     #: subject distance until the depth of field ends before it (separation.py). Off by default: the
@@ -338,7 +347,8 @@ class PlannerConfig:
         if not (self.background_behind_m > 0):  # inf is allowed: an unknown background
             raise _bad("", "background_behind_m", self.background_behind_m, "a value > 0 (inf: unknown)")
         for name in ("tail_max_s", "setpoint_lead_s", "clamp_tolerance", "feasibility_tol", "separation_lookahead_s",
-                     "subject_keep_out_m", "keep_out_settle_s", "zoom_yield_lead_s"):
+                     "subject_keep_out_m", "keep_out_settle_s", "zoom_yield_lead_s", "rack_lead_max_s",
+                     "rack_lead_min_hold_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise _bad("", name, v, "a finite value >= 0")

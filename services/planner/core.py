@@ -429,6 +429,24 @@ class Planner:
         max_rows = int(round(RACK_THROUGH_MAX_S * _fps(ins)))
         return self._per_message("focus", ins, lambda: planned_focus_rows(ins.focus_in, absent_regions(ins), max_rows))
 
+    def _rack_ahead(self, ins: M.Instructions) -> np.ndarray:
+        """(K,) the switch row of the rack away from the subject each row may plan ahead of (rack_switch_ahead),
+        -1 for none, once per instructions message."""
+        fps = _fps(ins)
+        lead, hold = int(round(self.cfg.rack_lead_max_s * fps)), int(round(self.cfg.rack_lead_min_hold_s * fps))
+        return self._per_message("rack_ahead", ins, lambda: rack_switch_ahead(
+            self._planned_focus(ins), absent_regions(ins), lead, hold, getattr(ins, "shot_start", None)))
+
+    def _subject_travel_s(self, depth_m: float, focal_mm: float) -> float:
+        """How long the focus takes at the lens's rate from the subject `depth_m` away to where he is one circle
+        soft behind it (1/s = 1/d - sigma, the one circle's spread at the aperture planned for, as
+        _subject_only_limits; the lens's far end where that lies beyond it)."""
+        b = self.solver.bounds
+        spread = narrowest_spread(focal_mm, APERTURE_MARGIN * b.f_number_min, self.cfg.structure.coc_mm)
+        x1 = 1.0 / depth_m - spread
+        s1 = min(1.0 / x1, b.focus_distance_max_m) if x1 > 0 else b.focus_distance_max_m
+        return max(s1 - depth_m, 0.0) / b.focus_rate_mps
+
     def _mu_m(self, ins: M.Instructions) -> float:
         """The instructions' depth-of-field margin mu [m], or `mu_default_m` when they carry none."""
         return float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
@@ -511,6 +529,7 @@ class Planner:
         near_out = [near_keeps_subject_out(*row) for row in rows3]
         ratio = st.defocus_coc_ratio / st.sharp_coc_ratio
         keep, keep_outs_m = self._keep_out_rows(ins), self._keep_outs_m(ins)
+        rack_ahead, fps = self._rack_ahead(ins), _fps(ins)
         # rows centred on the subject whatever the background: marked as if it were absent
         centred = np.zeros_like(absent)
         centred[:, 2] = self._centred_before_rack(ins)
@@ -527,6 +546,9 @@ class Planner:
             depth = float(cam.world_to_camera(subj.centre + subj.vel * t, xk[lay.P], np.array([yaw, pitch, roll]))[0])
             depth = max(depth, 0.5)
             dref[k] = depth
+            ahead = int(rack_ahead[r]) if r < len(rack_ahead) else -1
+            if ahead >= 0 and (ahead - r) / fps <= RACK_LEAD_SHARE * self._subject_travel_s(depth, float(xk[lay.F])):
+                r = ahead  # the rack away from him starts so that his travel to soft straddles the switch
             # a row with no region labelled (a shot without a focus measurement) leaves the lens free
             if focus.shape[0] > r and focus.shape[1] == 3 and not absent[r].all():
                 band = self._foreground_band(xk, subj, t)
@@ -775,6 +797,9 @@ def realisable_rows(focus_in: np.ndarray) -> np.ndarray:
     return np.array([cam.realisable_labels(*row) for row in focus.tolist()], dtype=bool).reshape(focus.shape)
 
 
+#: the share of the focus's travel past the subject that a rack away from him is planned ahead
+#: (Planner._dof_targets): half, so that the frames the travel costs fall either side of the switch
+RACK_LEAD_SHARE = 0.5
 #: the longest run of "nothing in focus" rows [s] right before a background-only row that the planner
 #: films as background-only (planned_focus_rows)
 RACK_THROUGH_MAX_S = 1.0
@@ -829,6 +854,39 @@ def planned_focus_rows(focus_in: np.ndarray, absent: np.ndarray, max_rows: int) 
         if end < len(focus) and background_only[end] and end - k <= max_rows:
             out[k:end] = (False, False, True)
         k = end
+    return out
+
+
+def rack_switch_ahead(focus: np.ndarray, absent: np.ndarray, lead_rows: int, min_hold_rows: int,
+                      shot_start: np.ndarray | None = None) -> np.ndarray:
+    """(K,) int: for the rows at most `lead_rows` before a rack away from the subject (his label sharp -> soft
+    between two labelled rows of one shot, the rows before it sharp and labelled), the switch's row; -1
+    elsewhere. Only where he then stays soft for at least `min_hold_rows` labelled rows: a brief excursion is
+    not led, the rows it would cost before the switch are more than it gains. The planner plans such a row
+    as the switch's once half the focus's travel past the subject takes longer than the time left
+    (Planner._subject_travel_s, RACK_LEAD_SHARE): started at the switch, that travel left the parkour runner
+    sharp for 22 frames after it (docs/planner.md, "A rack away from the subject, planned ahead")."""
+    focus = np.asarray(focus, dtype=bool)
+    out = np.full(len(focus), -1, dtype=int)
+    if lead_rows <= 0 or focus.ndim != 2 or focus.shape[1] != 3 or absent.shape != focus.shape:
+        return out
+    labelled = ~absent.all(axis=1)
+    starts = np.zeros(len(focus), dtype=bool)
+    if shot_start is not None and np.shape(shot_start) == (len(focus),):
+        starts = np.asarray(shot_start, dtype=bool).copy()
+    starts[:1] = True
+    shot = np.cumsum(starts)
+    for k in np.flatnonzero(focus[:-1, 1] & ~focus[1:, 1] & labelled[:-1] & labelled[1:] & ~starts[1:]) + 1:
+        end = k
+        while end < len(focus) and not focus[end, 1] and labelled[end] and shot[end] == shot[k]:
+            end += 1
+        if end - k < min_hold_rows:
+            continue
+        first = k
+        while first > 0 and k - first < lead_rows and shot[first - 1] == shot[k] and labelled[first - 1] \
+                and focus[first - 1, 1]:
+            first -= 1
+        out[first:k] = k
     return out
 
 

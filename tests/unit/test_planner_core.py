@@ -7,9 +7,9 @@ import pytest
 
 from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.camera_motion import MOTION_MASKS
-from cinetransfer.services.planner.core import (LENS_MOTION_COLUMNS, Planner, absent_regions, held_subject_labels,
-                                                instructions_from_arrays, lens_for_focus_rows, planned_focus_rows,
-                                                predict_subject)
+from cinetransfer.services.planner.core import (LENS_MOTION_COLUMNS, RACK_LEAD_SHARE, Planner, _fps, absent_regions,
+                                                held_subject_labels, instructions_from_arrays, lens_for_focus_rows,
+                                                planned_focus_rows, predict_subject, rack_switch_ahead)
 from cinetransfer.services.planner.kinematic_sim import KinematicSim
 from cinetransfer.services.planner.scenarios import reference_instructions, standing_shot, wrong_start_scene
 from cinetransfer.shared import codec
@@ -478,6 +478,28 @@ def test_the_pre_roll_asks_no_camera_motion(planner, instructions):
     assert data.motion[:, MOTION_MASKS].any(axis=1).all()
 
 
+def test_the_rows_that_may_plan_a_rack_away_from_the_subject_ahead():
+    # given a shot: subject sharp (0-5), only the background (6-11), the subject sharp again (12-13)
+    sharp, bg = [0, 1, 0], [0, 0, 1]
+    focus = np.array([sharp] * 6 + [bg] * 6 + [sharp] * 2, dtype=bool)
+    absent = np.zeros(focus.shape, dtype=bool)
+    # then with a lead of 2 rows and a hold of 6, rows 4-5 may plan the switch's row 6; the rack back is not led
+    assert rack_switch_ahead(focus, absent, 2, 6).tolist() == [-1] * 4 + [6, 6] + [-1] * 8
+    # and a choice held for fewer rows than the hold (a brief excursion), a lead of 0, a new shot at the
+    # switch or an unlabelled row before it lead nothing
+    assert (rack_switch_ahead(focus, absent, 2, 7) == -1).all()
+    assert (rack_switch_ahead(focus, absent, 0, 6) == -1).all()
+    starts = np.zeros(len(focus), dtype=bool)
+    starts[6] = True
+    assert (rack_switch_ahead(focus, absent, 2, 6, starts) == -1).all()
+    unlabelled = absent.copy()
+    unlabelled[5] = True
+    assert (rack_switch_ahead(focus, unlabelled, 2, 6) == -1).all()
+    # and a lead stops at the start of the shot
+    starts[6], starts[5] = False, True
+    assert rack_switch_ahead(focus, absent, 3, 6, starts).tolist()[:7] == [-1] * 5 + [6, -1]
+
+
 def test_the_rows_round_a_switch_of_the_subjects_label_give_the_zoom_way():
     # given rows: subject sharp (0-3), only the background (4-5), unlabelled (6), only the foreground (7),
     # all sharp (8)
@@ -585,9 +607,28 @@ def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instruc
     dof, dref = off._dof_targets(T0, ins, [0], 0, x0, subj)
     assert dof[0, 1] == pytest.approx(1.0 / (dref[0] - ins.mu_m))
     assert dof[0, 3] == pytest.approx(1.0 / (dref[0] + ins.mu_m))
-    # and in a shot that racks to the background at row 30, centred on him before the switch too
+    # and in a shot that racks to the background at row 40 (the subject then soft to the end): centred on him
+    # before the switch, and with the rack planned ahead (rack_lead_max_s), from where half the focus's travel
+    # from him to one circle behind (_subject_travel_s: 1/s = 1/d - sigma at the aperture planned for, at the
+    # lens's rate; the lens's far end where that lies beyond it) takes longer than the time left, at most
+    # rack_lead_max_s, planned as the switch's row
+    sw = 40
+    led = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=1.5), solver=planner.solver)
+    assert k - sw >= led.cfg.rack_lead_min_hold_s * _fps(ins)
     focus = np.tile([False, True, False], (k, 1))
-    focus[30:] = (False, False, True)
+    focus[sw:] = (False, False, True)
     rack = dataclasses.replace(ins, focus_in=focus, focus_smoothed=np.where(focus, 1.0, 0.0).astype(np.float32))
-    dof, dref = planner._dof_targets(T0, rack, [0, 29], 0, x0, subj)
+    travel = led._subject_travel_s(dref[0], x0[lay.F])
+    x1 = 1.0 / dref[0] - 1000.0 * 1.2 * b.f_number_min * st.coc_mm / x0[lay.F] ** 2
+    s1 = min(1.0 / x1, b.focus_distance_max_m) if x1 > 0 else b.focus_distance_max_m
+    assert travel == pytest.approx((s1 - dref[0]) / b.focus_rate_mps)
+    j = min(int(RACK_LEAD_SHARE * travel * _fps(ins)), int(round(1.5 * _fps(ins))))
+    assert 1 < j < sw - 1
+    dof, dref = led._dof_targets(T0, rack, [0, sw - j - 1], 0, x0, subj)
     np.testing.assert_allclose(dof[:, 1], 1.0 / (dref - ins.mu_m), rtol=1e-9)
+    np.testing.assert_allclose(led._dof_targets(T0, rack, [sw - j], 0, x0, subj)[0],
+                               led._dof_targets(T0, rack, [sw], 0, x0, subj)[0], rtol=1e-12)
+    # and with the lead off, centred on him up to the switch
+    off = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=0.0), solver=planner.solver)
+    dof, dref = off._dof_targets(T0, rack, [sw - 1], 0, x0, subj)
+    assert dof[0, 1] == pytest.approx(1.0 / (dref[0] - ins.mu_m))
