@@ -21,18 +21,22 @@ Per-stage parameter layout (N_MOTION values), read by cost.StageBuilder:
     3-5   yaw, pitch, roll rate targets [rad/s], 6-8 their masks
     9     zoom rate target [1/s], 10 its mask
     11-13 direction of travel in the planner's camera frame (x forward, y left, z up), 14 its mask
-    15    distance-rate mask, 16 the rate d ln(subject distance)/dt asked then: a dolly-zoom's zoom rate,
-          or a dolly's, read from the source subject's size against its lens (subject_distance_rate)
+    15    distance-rate mask, 16 the rate d ln(subject distance)/dt asked then: a dolly's or a dolly-zoom's,
+          read from the source subject's size against its lens (subject_distance_rate); a handheld
+          dolly-zoom's (or one whose subject is unseen) its zoom rate
     17    1 = the camera stands still (the velocity term's reference is 0 instead of the subject's
           velocity, and no sideways velocity): a static row, or one whose class turns or zooms the
           camera without moving it (pan, tilt, roll, zoom_in, zoom_out), where following a walking
-          subject would undo the pan
+          subject would undo the pan; or it travels along its axis only (a dolly, a dolly-zoom), where
+          following him sideways read as a pan
     18    1 = it stands still along its optical axis too: a row whose class zooms in place (zoom_in,
           zoom_out without a translating class), where moving along the axis reads as a dolly-zoom
     19    bearing-rate mask, 20 the rate d(bearing of the camera round the subject)/dt asked then [rad/s,
           positive as the pan]: a truck's, read from the source's pan rate and the subject's
           drift across its image (subject_bearing_rate); an orbit's the same way
-    21-22 ln of the least and the greatest focal length [mm] the lens may stand at, 23 their mask:
+    21    the least speed of travel along the direction (11-13) asked, over the subject's distance [1/s]
+          (0 = any): a dolly's or a dolly-zoom's, TRAVEL_MIN_RATE (the direction term's one-sided part)
+    22-23 ln of the least and the greatest focal length [mm] the lens may stand at, 24 their mask:
           room for the zoom still to come in the take (a dolly-zoom in zooms out by e^-0.27 over its
           2 s, and started at the source's 32.6 mm the lens hit its 30 mm end half-way through)
 """
@@ -43,16 +47,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cinetransfer.shared.camera_motion import ASSUMED_HFOV_DEG
+from cinetransfer.shared.camera_motion import ASSUMED_HFOV_DEG, ZOOM_MIN_PER_S
 
-N_MOTION = 24
+N_MOTION = 25
 SIDE, SIDE_MASK = slice(0, 2), 2
 RATES, RATE_MASKS = slice(3, 6), slice(6, 9)
 ZOOM, ZOOM_MASK = 9, 10
 TRAVEL, TRAVEL_MASK = slice(11, 14), 14
 DOLLY_ZOOM_MASK, DISTANCE_RATE, STILL, STILL_ALONG = 15, 16, 17, 18
 BEARING_RATE_MASK, BEARING_RATE = 19, 20
-LOG_FOCAL_FLOOR, LOG_FOCAL_CEILING, HEADROOM_MASK = 21, 22, 23
+TRAVEL_MIN = 21
+LOG_FOCAL_FLOOR, LOG_FOCAL_CEILING, HEADROOM_MASK = 22, 23, 24
 #: the columns of the take's moves, which the pre-roll drops; the lens's headroom stays (it is set up there)
 TAKE_COLUMNS = slice(0, LOG_FOCAL_FLOOR)
 SIDE_PARAMS = slice(0, 3)  #: the side-of-subject parameters (bearing vector and mask), set by the planner core
@@ -80,6 +85,13 @@ SWING_CLASSES = ("truck", "orbit")
 #: lens serves the framing and the focus (held, parkour's soft runner read sharp: extraction 0.91 -> 0.86).
 #: A truck keeps its bearing rate there, as before
 HANDHELD_CLASSES = ("tilt", "roll")
+#: a dolly or a dolly-zoom (not a truck, orbit or pedestal with it, nor handheld): the camera travels along its
+#: axis and stands still sideways, with J_v's reference 0 (column 17), as a dolly on its rails
+ALONG_AXIS_CLASSES = ("dolly_in", "dolly_out", "dolly_zoom")
+#: ... and travels at least this fast over the subject's distance [1/s]: twice the rate from which the vocabulary
+#: counts a translation (shared.camera_motion.ZOOM_MIN_PER_S). Asked the walker's distance rate alone, a dolly out
+#: whose walker came towards it slowed to 0.4 m/s at 14 m, read static by the poses and zoom_out by the video
+TRAVEL_MIN_RATE = 2.0 * ZOOM_MIN_PER_S
 #: the lens's headroom is the zoom still to come times e^this (the style's rates are read, not exact)
 HEADROOM_MARGIN = 0.05
 #: ... and a side with no zoom to come is set this far (ln) outside the lens's range, where it never acts
@@ -261,7 +273,7 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool,
     if zoom_asked and math.isfinite(zoom):
         out[ZOOM], out[ZOOM_MASK] = zoom, 1.0
         if cls is not None and "dolly_zoom" in cls:
-            out[DOLLY_ZOOM_MASK], out[DISTANCE_RATE] = 1.0, zoom
+            out[DOLLY_ZOOM_MASK], out[DISTANCE_RATE] = 1.0, _dolly_zoom_distance_rate(style, row, cls, zoom)
     if cls is not None and any(n in cls for n in STILL_CLASSES) and not any(n in cls for n in TRAVEL_CLASSES):
         out[STILL] = 1.0
         if not zoom_asked:  # held in place, the framing would zoom after the subject's distance instead
@@ -273,7 +285,18 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool,
         out[TRAVEL], out[TRAVEL_MASK] = travel, 1.0
     if cls is not None:
         _speed_terms(out, style, row, cls)
+        _along_axis_terms(out, cls)
     return out
+
+
+def _along_axis_terms(out: np.ndarray, cls: frozenset[str]) -> None:
+    """A dolly's or dolly-zoom's camera rides its axis, as on rails: it stands still sideways (following the
+    walker sideways, the dolly-zoom in read as a pan) and travels at least at TRAVEL_MIN_RATE."""
+    if any(n in cls for n in ALONG_AXIS_CLASSES) and not any(n in cls for n in (*SWING_CLASSES, "pedestal",
+                                                                                  *HANDHELD_CLASSES)):
+        out[STILL] = 1.0
+        if out[TRAVEL_MASK]:
+            out[TRAVEL_MIN] = TRAVEL_MIN_RATE
 
 
 def _speed_terms(out: np.ndarray, style: MotionStyle, row: int, cls: frozenset[str]) -> None:
@@ -284,6 +307,18 @@ def _speed_terms(out: np.ndarray, style: MotionStyle, row: int, cls: frozenset[s
         _dolly_terms(out, style, row)
     if swing or "truck" in cls:
         _swing_terms(out, style, row)
+
+
+def _dolly_zoom_distance_rate(style: MotionStyle, row: int, cls: frozenset[str], zoom: float) -> float:
+    """The subject-distance rate a dolly-zoom row asks: the source subject's own (read from his size, as a
+    dolly's), which is the zoom rate only when the move holds his size. The rendered dolly-zoom holds a
+    point 9 m ahead while the walker crosses: asked the zoom rate, the distance term fought the framing
+    of his size and the camera, at its 2 m/s, panned after him (read pan+dolly_zoom). A handheld row
+    (with a tilt or a roll) keeps the zoom rate, as before."""
+    rate = math.nan if style.distance_rate is None else float(style.distance_rate[row])
+    if any(n in cls for n in HANDHELD_CLASSES) or not math.isfinite(rate):
+        return zoom
+    return rate
 
 
 def _headroom_terms(out: np.ndarray, style: MotionStyle, row: int,

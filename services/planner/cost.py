@@ -232,11 +232,12 @@ def headroom_shortfall(f_mm, log_floor, log_ceiling):  # noqa: ANN001, ANN201
     return ca.vertcat(ca.fmax(log_floor - log_f, 0), ca.fmax(log_f - log_ceiling, 0))
 
 
-def travel_residual(vel, direction, v_scale):  # noqa: ANN001, ANN201
-    """(velocity off the direction, velocity against it) / v_max for a unit world `direction`:
-    nothing for travel along it at any speed (the style gives a direction, not a speed)."""
+def travel_residual(vel, direction, v_scale, least=0):  # noqa: ANN001, ANN201
+    """(velocity off the direction, velocity short of `least` along it) / v_max for a unit world
+    `direction`: nothing for travel along it at any speed from `least` [m/s] on (the style gives a
+    direction, not a speed)."""
     along = vel[0] * direction[0] + vel[1] * direction[1] + vel[2] * direction[2]
-    return ca.vertcat(sideways_velocity(vel, direction, v_scale), ca.fmin(along, 0) * v_scale)
+    return ca.vertcat(sideways_velocity(vel, direction, v_scale), ca.fmin(along - least, 0) * v_scale)
 
 
 def along_velocity(vel, forward, v_scale):  # noqa: ANN001, ANN201
@@ -471,7 +472,9 @@ class StageBuilder:
         out.append((wts["dolly_zoom"] * m[CM.DOLLY_ZOOM_MASK], distance_log_rate(rel, rel_vel) - m[CM.DISTANCE_RATE]))
         out.append((wts["bearing_rate"] * m[CM.BEARING_RATE_MASK], bearing_rate(rel, rel_vel) - m[CM.BEARING_RATE]))
         direction = ca.mtimes(r, m[CM.TRAVEL])  # the source camera's direction of travel, in the world
-        out.append((wts["translation_dir"] * m[CM.TRAVEL_MASK], travel_residual(x[lay.V], direction, par.v_scale)))
+        least = m[CM.TRAVEL_MIN] * ca.norm_2(rel)  # a dolly travels at least at a rate the eye counts
+        out.append((wts["translation_dir"] * m[CM.TRAVEL_MASK], travel_residual(x[lay.V], direction, par.v_scale,
+                                                                                 least)))
         # a camera that only turns or zooms does not slide sideways: held by J_v alone (0.5), the framing
         # trucked and orbited it after the walker and the pan was read as orbit or truck; held in every
         # direction, it lost the framing (docs/planner.md, "Stand still")

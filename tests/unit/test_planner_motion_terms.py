@@ -119,6 +119,11 @@ def test_log_rates_and_travel_residual_by_hand():
     assert r == pytest.approx([0, 0.5, 0, 0])
     r = ca.DM(J.travel_residual(ca.DM([-1.0, 0.0, 0.0]), ca.DM([1.0, 0.0, 0.0]), 0.5)).full().ravel()
     assert r == pytest.approx([0, 0, 0, -0.5])
+    # a least speed of 0.8 m/s along it: 1 m/s is enough, 0.5 m/s falls 0.3 short (0.15 at v_max 2)
+    r = ca.DM(J.travel_residual(ca.DM([1.0, 0.0, 0.0]), ca.DM([1.0, 0.0, 0.0]), 0.5, 0.8)).full().ravel()
+    assert r == pytest.approx([0, 0, 0, 0])
+    r = ca.DM(J.travel_residual(ca.DM([0.5, 0.0, 0.0]), ca.DM([1.0, 0.0, 0.0]), 0.5, 0.8)).full().ravel()
+    assert r == pytest.approx([0, 0, 0, -0.15])
     # sideways speed off the optical axis: along it nothing; 1 m/s left and 2 m/s forward at v_max 2: 0.5 left
     r = ca.DM(J.sideways_velocity(ca.DM([2.0, 1.0, 0.0]), ca.DM([1.0, 0.0, 0.0]), 0.5)).full().ravel()
     assert r == pytest.approx([0, 0.5, 0])
@@ -171,7 +176,35 @@ def test_row_terms_follow_the_class():
     # static row only sideways (the framing keeps a walker's size by moving along it)
     held = {c: CM.row_terms(_style(c, pan=5.0, zoom=0.1), 0, control_roll=False)[[CM.STILL, CM.STILL_ALONG]].tolist()
             for c in ("zoom_in", "pan+zoom_out", "pan", "static", "dolly_zoom")}
-    assert held == {"zoom_in": [1, 1], "pan+zoom_out": [1, 1], "pan": [1, 0], "static": [1, 0], "dolly_zoom": [0, 0]}
+    assert held == {"zoom_in": [1, 1], "pan+zoom_out": [1, 1], "pan": [1, 0], "static": [1, 0], "dolly_zoom": [1, 0]}
+
+
+def test_a_dolly_rides_its_axis_unless_it_swings_or_is_handheld():
+    # a dolly or a dolly-zoom stands still sideways (J_v's reference 0); with a truck, an orbit, a pedestal or a
+    # handheld tilt or roll it does not (their travel is sideways, or the operator's sway serves the framing)
+    still = {c: CM.row_terms(_style(c, pan=5.0, tilt=3.0, zoom=0.1, travel=(0, 0, 1)), 0,
+                             control_roll=False)[CM.STILL]
+             for c in ("dolly_in", "dolly_out", "dolly_zoom", "pan+dolly_in", "dolly_in+truck", "dolly_in+orbit",
+                       "dolly_in+pedestal", "tilt+dolly_zoom", "truck")}
+    assert still == {"dolly_in": 1, "dolly_out": 1, "dolly_zoom": 1, "pan+dolly_in": 1, "dolly_in+truck": 0,
+                     "dolly_in+orbit": 0, "dolly_in+pedestal": 0, "tilt+dolly_zoom": 0, "truck": 0}
+    # ... and travels at least at twice the rate a translation counts from, where a direction is given
+    least = {c: CM.row_terms(_style(c, zoom=0.1, travel=t), 0, control_roll=False)[CM.TRAVEL_MIN]
+             for c, t in (("dolly_out", (0, 0, -1)), ("dolly_zoom", (0, 0, 1)), ("dolly_in", (0, 0, 0)),
+                          ("truck", (1, 0, 0)), ("tilt+dolly_zoom", (0, 0, 1)))}
+    assert least == {"dolly_out": pytest.approx(0.06), "dolly_zoom": pytest.approx(0.06), "dolly_in": 0,
+                     "truck": 0, "tilt+dolly_zoom": 0}
+
+
+def test_a_dolly_zoom_asks_the_subjects_own_distance_rate():
+    # the move holds a point ahead, not the walker: his distance changes as his size and the zoom say
+    style = dataclasses.replace(_style("dolly_zoom", zoom=-0.15, travel=(0, 0, 1)), distance_rate=np.array([-0.02]))
+    t = CM.row_terms(style, 0, control_roll=False)
+    assert t[CM.ZOOM] == -0.15 and t[CM.DOLLY_ZOOM_MASK] == 1 and t[CM.DISTANCE_RATE] == -0.02
+    # his size unread: the zoom rate (the move holds his size); handheld: the zoom rate, as before
+    assert CM.row_terms(_style("dolly_zoom", zoom=-0.15), 0, control_roll=False)[CM.DISTANCE_RATE] == -0.15
+    handheld = dataclasses.replace(_style("tilt+dolly_zoom", tilt=3.0, zoom=-0.15), distance_rate=np.array([-0.02]))
+    assert CM.row_terms(handheld, 0, control_roll=False)[CM.DISTANCE_RATE] == -0.15
 
 
 def test_row_terms_without_a_class_use_clear_rates():
@@ -225,7 +258,7 @@ def test_subject_distance_rate_stays_inside_its_shot_and_needs_what_it_reads():
 def test_a_dolly_holds_the_lens_and_asks_the_sources_distance_rate():
     style = _style("dolly_in", zoom=0.0, travel=(0, 0, 1))
     t = CM.row_terms(dataclasses.replace(style, distance_rate=np.array([-0.04])), 0, control_roll=False)
-    assert t[CM.ZOOM_MASK] == 1 and t[CM.ZOOM] == 0 and t[CM.TRAVEL_MASK] == 1 and t[CM.STILL] == 0
+    assert t[CM.ZOOM_MASK] == 1 and t[CM.ZOOM] == 0 and t[CM.TRAVEL_MASK] == 1 and t[CM.STILL] == 1
     assert t[CM.DOLLY_ZOOM_MASK] == 1 and t[CM.DISTANCE_RATE] == -0.04
     t = CM.row_terms(style, 0, control_roll=False)  # no size read: the lens still holds, no distance term
     assert t[CM.ZOOM_MASK] == 1 and t[CM.DOLLY_ZOOM_MASK] == 0
