@@ -72,6 +72,13 @@ ONE_SIDED, IN_FRONT = 0.7, 0.9
 #: inlier distances of it, this many times
 TRIM_FACTOR = 2.0
 TRIM_ROUNDS = 2
+#: an edge track slides along its edge (the aperture problem) when its residual off rotation + zoom
+#: over the baseline lies above the median of the corners nearest it by more than this many of their
+#: robust standard deviations (1.4826 x the median absolute deviation: the Hampel identifier's usual 3)
+#: and by more than the inlier distance (what the fit cannot tell apart anyway)
+SLIDE_SIGMAS = 3.0
+#: ... the corners nearest it: as many as the fewest points of a fit
+SLIDE_NEIGHBOURS = MIN_POINTS
 
 
 def focal_px(width: int, hfov_deg: float = ASSUMED_HFOV_DEG) -> float:
@@ -116,6 +123,44 @@ def project_normal(v: np.ndarray, normals: np.ndarray | None) -> np.ndarray:
         out[edge] = n * np.einsum("nk,nk->n", n, out[edge])[:, None]
     else:
         out[edge] = n[:, :, None] * np.einsum("nk,nkj->nj", n, out[edge])[:, None, :]
+    return out
+
+
+def sliding_edges(p0: np.ndarray, p1: np.ndarray, f: float, normals: np.ndarray, *, inlier_px: float) -> np.ndarray:
+    """(N,) True for the edge tracks (a unit normal in `normals`) that slide along their edge over the
+    baseline p0 -> p1 rather than follow the texture. Against the corners' rotation + zoom, such a
+    track both falls short of the motion along its edge (or goes against it) by more than
+    `inlier_px`, and has a 2-D residual that is an outlier among those of the SLIDE_NEIGHBOURS
+    corners nearest it (SLIDE_SIGMAS robust standard deviations above their median, and more than
+    `inlier_px`).
+
+    Whatever moves a track beyond rotation + zoom and is the scene's own (a dolly's or a truck's
+    parallax) moves the corners beside it alike, and a dolly's near paving moves further along its
+    receding lines than the corners' zoom, not less: the output of a dolly out, the edge tracks on
+    its nearest paving 2-5 px ahead of the zoom out, with no corner below them. Sliding tracks lose
+    their motion along the edge or run the other way along the tiles' repeating lines: on the
+    rendered zoom in, 6-8 px against the zoom where the corners beside them are off by 0.5-1 px.
+    The structure tensor cannot tell the two (the same lesser eigenvalue)."""
+    n = len(p0)
+    edge = edge_tracks(normals, n)
+    corner = np.flatnonzero(~edge)
+    out = np.zeros(n, dtype=bool)
+    if not edge.any() or len(corner) < SLIDE_NEIGHBOURS:
+        return out
+    q = fit_rotation_zoom(p0[corner], p1[corner], f, inlier_px=inlier_px)[0]
+    mid = 0.5 * (p0 + p1)
+    resid = np.linalg.norm(rotation_zoom_basis(mid, f) @ q - (p1 - p0), axis=1)
+    e = np.flatnonzero(edge)
+    dist = np.linalg.norm(mid[e][:, None, :] - mid[corner][None, :, :], axis=2)
+    near = np.argpartition(dist, SLIDE_NEIGHBOURS - 1, axis=1)[:, :SLIDE_NEIGHBOURS]
+    beside = resid[corner][near]  # (E, k)
+    med = np.median(beside, axis=1)
+    sigma = 1.4826 * np.median(np.abs(beside - med[:, None]), axis=1)
+    along = np.column_stack([-normals[e, 1], normals[e, 0]])
+    model = np.einsum("nk,nk->n", rotation_zoom_basis(mid[e], f) @ q, along)
+    short = (np.einsum("nk,nk->n", (p1 - p0)[e], along) - model) * np.sign(model)
+    lags = short < -inlier_px  # fell short of the model along the edge, or went against it
+    out[e] = lags & (resid[e] > med + np.maximum(SLIDE_SIGMAS * sigma, inlier_px))
     return out
 
 
@@ -345,10 +390,13 @@ def frame_motion(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float =
     when span >= MIN_SPAN; the per-frame rotation then comes from p0 -> p1 given it.
 
     `normals` (N, 2): the unit normal of each track that lies on an edge, zeros for a corner. An
-    edge track keeps only the motion across its edge (it slides along it), so rotation + zoom (its
-    fit and the share it explains), the checks on a dolly and the dolly-zoom's zoom use only that
-    of it (project_normal); the translation's direction and rotation are fitted in 2-D as before.
-    With fewer than MIN_POINTS corners they are all taken as corners."""
+    edge track that slides along its edge over the baseline (`sliding_edges`: it stands out of the
+    corners beside it) keeps only the motion across it, so rotation + zoom (its fit and the share it
+    explains), the checks on a dolly and the dolly-zoom's zoom use only that of it (project_normal),
+    and the translation's direction and rotation are fitted in 2-D without it (its slide would read
+    as parallax, and across its edge any depth fits it). Every other edge track
+    counts in 2-D, as a corner; without a baseline all do (no slide can be told). With fewer than
+    MIN_POINTS corners they are all taken as corners."""
     p0, p1 = np.asarray(p0, dtype=float).reshape(-1, 2), np.asarray(p1, dtype=float).reshape(-1, 2)
     fin = np.isfinite(p0).all(axis=1) & np.isfinite(p1).all(axis=1)
     if earlier is not None:
@@ -370,8 +418,6 @@ def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earli
                span: int, normals: np.ndarray | None) -> FrameMotion:
     """frame_motion on finite points."""
     n = len(p0)
-    q, inl = fit_rotation_zoom(p0, p1, f, inlier_px=inlier_px, normals=normals)
-    explained = float(inl.mean())
     sel = np.ones(n, dtype=bool)
     if earlier is not None and span >= MIN_SPAN:
         sel = np.isfinite(np.asarray(earlier, dtype=float).reshape(-1, 2)).all(axis=1)
@@ -379,15 +425,24 @@ def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earli
     k = span if long else 1
     a = np.asarray(earlier, dtype=float).reshape(-1, 2)[sel] if long else p0
     b, b0 = (p1[sel], p0[sel]) if long else (p1, p0)
-    nb = normals[sel] if long and normals is not None else normals
     tol = inlier_px * LONG_INLIER_FACTOR if long else inlier_px
+    normals = _sliding_normals(a, b, f, normals, sel, tol) if long and normals is not None else None
+    nb = normals[sel] if normals is not None else None
+    q, inl = fit_rotation_zoom(p0, p1, f, inlier_px=inlier_px, normals=normals)
+    explained = float(inl.mean())
     share = explained_share(a, b, f, q * k, inlier_px=tol, normals=nb) if long else explained
     if share < EXPLAINED_SHARE:
-        # the direction and rotation are fitted on every track in 2-D: given an edge track only
-        # across its edge, its depth takes up all of it and it tells nothing (docs/camera_motion.md)
-        rot, t, inl_t = fit_rotation_translation(a, b, f, q[:3] * k, inlier_px=tol,
+        # the direction and rotation are fitted on the tracks in 2-D, without those that slide: given
+        # an edge track only across its edge, its depth takes up all of it and it tells nothing, and
+        # in 2-D its slide reads as parallax (docs/camera_motion.md)
+        told = ~edge_tracks(nb, len(a))
+        told = told if told.sum() >= MIN_POINTS else np.ones(len(a), dtype=bool)
+        rot, t, inl_k = fit_rotation_translation(a[told], b[told], f, q[:3] * k, inlier_px=tol,
                                                  shown=max(EXPLAINED_SHARE, share + PARALLAX_GAIN))
-        if inl_t.mean() >= EXPLAINED_SHARE and inl_t.mean() >= share + PARALLAX_GAIN \
+        inl_t = np.zeros(len(a), dtype=bool)
+        inl_t[told] = inl_k
+        moved = float(inl_k.mean())
+        if moved >= EXPLAINED_SHARE and moved >= share + PARALLAX_GAIN \
                 and not ground_denies_dolly(a, b, f, rot, t, inl_t, nb) \
                 and not sliding_tracks(a, b, f, rot, t, inl_t, tol, nb):
             # the baseline's own rotation judges its points (a swaying camera's last frame times the
@@ -397,6 +452,17 @@ def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earli
             rot = rotation_given_direction(b0, b, f, t, inl_t, inlier_px=inlier_px) if long else rot
             return FrameMotion(rot, zoom, t, n, explained)
     return FrameMotion(q[:3].copy(), float(q[3]), np.zeros(3), n, explained)
+
+
+def _sliding_normals(a: np.ndarray, b: np.ndarray, f: float, normals: np.ndarray, sel: np.ndarray,
+                     tol: float) -> np.ndarray | None:
+    """The normals (N, 2) of the edge tracks that slide over the baseline a -> b (the points `sel`),
+    zeros for every other track (judged in 2-D as a corner); None when none slides. A track that
+    follows its texture keeps the motion along its edge, which a dolly's parallax over a paving
+    mostly is (judged across the edge only, dolly_out's output read zoom_out on every row)."""
+    slide = np.zeros(len(normals), dtype=bool)
+    slide[np.flatnonzero(sel)] = sliding_edges(a, b, f, normals[sel], inlier_px=tol)
+    return np.where(slide[:, None], normals, 0.0) if slide.any() else None
 
 
 def _radial_scales(p0: np.ndarray, p1: np.ndarray, f: float, rot: np.ndarray,

@@ -164,7 +164,7 @@ class CameraMotionTracker:
                  edge_tracks: bool = False) -> None:
         self.hfov_deg = float(hfov_deg)
         self.work_width = int(work_width)
-        # judge tracks on an edge across it only (edge_normals): off, see DetectorConfig.camera_motion_edge_tracks
+        # judge the tracks that slide along an edge across it only (edge_normals, cm.sliding_edges)
         self.edge_tracks = bool(edge_tracks)
         # source, index, grey, corners, their positions over the last frames (frames, N, 2)
         self._prev: tuple | None = None

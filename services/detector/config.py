@@ -112,11 +112,10 @@ class DetectorConfig:
     camera_hfov_deg: float = setting(ASSUMED_HFOV_DEG, flag="--camera-hfov", unit="deg", range="[5, 150]",
                                      metavar="DEG", help="horizontal field of view assumed for a frame whose "
                                                          "lens is unknown (rotation rates scale with it)")
-    # tracks on a straight edge judged by their motion across it only (camera_motion.edge_normals). Off: it
-    # reads a zoom over paving right (zoom_in's source rows 0.62 -> 0.77) but hides the parallax of a dolly
-    # over the same paving, so the translation is never tried (dolly_out's output 0.77 -> 0.00 by the video;
-    # docs/camera_motion.md, "Edge tracks, judged across their edge")
-    camera_motion_edge_tracks: bool = False
+    # tracks on a straight edge that slide along it over the parallax baseline (shared/camera_motion.py
+    # sliding_edges) judged by their motion across it only and left out of the translation fit; every
+    # other edge track counts as a corner (docs/camera_motion.md, "Edge tracks, judged across their edge")
+    camera_motion_edge_tracks: bool = True
     # --- execution
     threads: int = setting(2, flag="--threads", choices=(1, 2),
                            help="1 = sequential; 2 = focus and pose in parallel (uses both cores)")
