@@ -427,7 +427,8 @@ class Planner:
     def _planned_focus(self, ins: M.Instructions) -> np.ndarray:
         """The style's focus rows as the planner films them (planned_focus_rows), once per instructions message."""
         max_rows = int(round(RACK_THROUGH_MAX_S * _fps(ins)))
-        return self._per_message("focus", ins, lambda: planned_focus_rows(ins.focus_in, absent_regions(ins), max_rows))
+        return self._per_message("focus", ins, lambda: planned_focus_rows(ins.focus_in, absent_regions(ins), max_rows,
+                                                                        getattr(ins, "shot_start", None)))
 
     def _rack_ahead(self, ins: M.Instructions) -> np.ndarray:
         """(K,) the switch row of the rack away from the subject each row may plan ahead of (rack_switch_ahead),
@@ -805,30 +806,44 @@ RACK_LEAD_SHARE = 0.5
 RACK_THROUGH_MAX_S = 1.0
 
 
-def held_subject_labels(focus_in: np.ndarray, absent: np.ndarray) -> np.ndarray:
-    """The style's focus rows (K, 3) with the subject's label held from the nearest earlier row that
-    measured him (the first such row for the rows before it) where the source has no label for him but
-    has one for another region. His label is False there only because nothing was measured: read as
-    "the subject soft", a walker who left the rendered truck's and orbit's frames 10-14 rows before
-    the end turned the take's last 1.5 s into a rack (the zoom gave way) and planned the lens long to
-    blur him (the output zoomed in where the source held). Rows with no region labelled stay as they are."""
+def held_subject_labels(focus_in: np.ndarray, absent: np.ndarray,
+                        shot_start: np.ndarray | None = None) -> np.ndarray:
+    """The style's focus rows (K, 3) with the subject's label held from the nearest earlier row of the
+    same shot that measured him (the shot's first such row for the rows before it) where the source has
+    no label for him but has one for another region. His label is False there only because nothing was
+    measured: read as "the subject soft", a walker who left the rendered truck's and orbit's frames
+    10-14 rows before the end turned the take's last 1.5 s into a rack (the zoom gave way) and planned
+    the lens long to blur him (the output zoomed in where the source held). Never across a cut
+    (`shot_start`: the rows where each shot begins): another shot's label is another choice, and
+    tos_clip01's last shot, which asks nothing sharp, took "subject sharp" from the shot before, read
+    as a rack and left its background sharp. A shot that never measures him, and rows with no region
+    labelled, stay as they are."""
     focus = np.asarray(focus_in, dtype=bool)
     if focus.ndim != 2 or focus.shape[1] != 3 or absent.shape != focus.shape:
         return focus
     missing = absent[:, 1] & ~absent.all(axis=1)
-    seen = np.flatnonzero(~absent[:, 1])
-    if not missing.any() or not len(seen):
+    if not missing.any():
         return focus
+    starts = np.zeros(len(focus), dtype=bool)
+    if shot_start is not None and np.shape(shot_start) == (len(focus),):
+        starts = np.asarray(shot_start, dtype=bool).copy()
+    starts[:1] = True
+    shot = np.cumsum(starts)
     out = focus.copy()
-    rows = np.flatnonzero(missing)
-    before = np.searchsorted(seen, rows) - 1  # the last row measuring him before each, -1 = none
-    out[rows, 1] = focus[seen[np.maximum(before, 0)], 1]
+    for s in np.unique(shot[missing]):
+        seen = np.flatnonzero(~absent[:, 1] & (shot == s))
+        if not len(seen):
+            continue
+        rows = np.flatnonzero(missing & (shot == s))
+        before = np.searchsorted(seen, rows) - 1  # the last row of the shot measuring him before each, -1 = none
+        out[rows, 1] = focus[seen[np.maximum(before, 0)], 1]
     return out
 
 
-def planned_focus_rows(focus_in: np.ndarray, absent: np.ndarray, max_rows: int) -> np.ndarray:
+def planned_focus_rows(focus_in: np.ndarray, absent: np.ndarray, max_rows: int,
+                       shot_start: np.ndarray | None = None) -> np.ndarray:
     """The style's focus rows (K, 3) as the planner films them: the subject's label held over rows that
-    do not measure him (held_subject_labels), as one depth of field can give them
+    do not measure him within a shot (held_subject_labels), as one depth of field can give them
     (realisable_rows), and a run of at most `max_rows` rows with nothing in focus right before a row
     with only the background in focus as background-only. That run is how a rack focus from the
     subject to the background reads through the smoother's window (a few frames with nothing sharp
@@ -836,7 +851,7 @@ def planned_focus_rows(focus_in: np.ndarray, absent: np.ndarray, max_rows: int) 
     focus the other way just before the longest move of the rack (dance-twirl's rack focus: 7 rows,
     the subject still sharp 8 frames after the switch)."""
     if absent.shape == np.shape(focus_in):
-        focus_in = held_subject_labels(focus_in, absent)
+        focus_in = held_subject_labels(focus_in, absent, shot_start)
     focus = realisable_rows(focus_in)
     if focus.ndim != 2 or focus.shape[1] != 3 or absent.shape != focus.shape:
         return focus

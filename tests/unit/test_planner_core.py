@@ -546,6 +546,30 @@ def test_a_subject_the_source_does_not_measure_keeps_his_last_label():
     assert held_subject_labels(gone_soft, gone)[:, 1].tolist() == [True, True, True, True]
 
 
+def test_a_subject_label_is_never_held_across_a_cut():
+    # given a shot with the subject sharp (rows 0-2) cut to one asking nothing sharp (rows 3-7) whose
+    # first rows do not measure him (3-5) and whose last do, soft (6-7)
+    sub_bg, none = [0, 1, 1], [0, 0, 0]
+    focus = np.array([sub_bg] * 3 + [none] * 5, dtype=bool)
+    absent = np.zeros((8, 3), dtype=bool)
+    absent[3:6, 1] = True
+    cut = np.zeros(8, dtype=bool)
+    cut[[0, 3]] = True
+    # then the new shot's rows take his label from that shot (soft), so it asks nothing sharp throughout
+    assert held_subject_labels(focus, absent, cut)[:, 1].tolist() == [True] * 3 + [False] * 5
+    planned = planned_focus_rows(focus, absent, 2, cut)
+    assert not planned[3:].any()
+    # and no rack is read inside it (the zoom would give way and the background be left to itself)
+    assert not lens_for_focus_rows(planned, absent, 8, 0, cut)[3:].any()
+    # without the cut the earlier shot's sharp label was held over rows 3-5: a rack at row 6
+    assert held_subject_labels(focus, absent)[3:6, 1].all()
+    assert lens_for_focus_rows(planned_focus_rows(focus, absent, 2), absent, 8, 0, cut)[3:6].all()
+    # a shot that never measures him keeps its rows as they are
+    never = absent.copy()
+    never[6:, 1] = True
+    assert held_subject_labels(focus, never, cut)[3:, 1].tolist() == [False] * 5
+
+
 def test_a_zoom_gives_way_round_a_rack_focus(planner, instructions):
     # given a style zooming out throughout (a handheld source camera), racking from the subject to the
     # background at row 40 (24 rows a second)
