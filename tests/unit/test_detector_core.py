@@ -116,8 +116,7 @@ def test_sequential_and_parallel_give_the_same_result(juggle_frames):
             res.append(det.process(f.image, f.index, f.stamp_ns))
     a, b = res
     assert len(a.people) == len(b.people) == 1
-    assert np.allclose(a.people[0].box_xyxy, b.people[0].box_xyxy, atol=2)
-    assert np.abs(a.focus_map.astype(int) - b.focus_map.astype(int)).mean() < 2
+    assert codec.encode(a) == codec.encode(b)  # the worker threads change when, never what
 
 
 
@@ -129,8 +128,7 @@ def test_streamed_frames_give_what_one_frame_at_a_time_gives():
     # when the same frames are streamed (frame k's tail beside the next frames' poses)
     with Detector(DetectorConfig()) as det:
         streamed = list(det.process_frames(frames, source="clip"))
-    # then every measurement is the same, in the same order. (Not always to the byte: run twice one
-    # frame at a time, the first frame's mask and focus map can differ by a pixel or a level of 255.)
+    # then every measurement is the same, in the same order, to the byte
     assert [m.frame_index for m in streamed] == [f.index for f in frames]
     for a, b in zip(one, streamed):
         assert len(a.people) == len(b.people) == 1
@@ -143,7 +141,7 @@ def test_streamed_frames_give_what_one_frame_at_a_time_gives():
         if a.camera_motion is not None:
             assert np.allclose(a.camera_motion.rotation_rad, b.camera_motion.rotation_rad, atol=1e-4)
     identical = sum(codec.encode(a) == codec.encode(b) for a, b in zip(one, streamed))
-    assert identical >= len(frames) - 1
+    assert identical == len(frames)
     assert sum(m.camera_motion is not None for m in streamed) == len(frames) - 1
 
 
