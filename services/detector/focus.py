@@ -49,13 +49,13 @@ def _box(img: np.ndarray, r: int) -> np.ndarray:
     return cv2.boxFilter(img, -1, (2 * r + 1, 2 * r + 1), normalize=True, borderType=cv2.BORDER_REFLECT)
 
 
-def _magnitude(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """sqrt(x^2 + y^2), correctly rounded. Not `cv2.magnitude`: its vector path takes an approximate
-    square root (a third of the pixels off by up to 8e-6) and its exact scalar path a varying few
-    pixels, so the same frame gave a different focus map now and then."""
-    out = x * x
-    out += y * y
-    return np.sqrt(out, out=out)
+def _magnitude_at(gx: np.ndarray, gy: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """The gradient's length at the flat indices `idx`. Not cv2.magnitude: with Intel IPP (in
+    OpenCV's wheels) it rounds the last bit of ~a quarter of its results by where numpy put its
+    output in memory, which changes from run to run (heap, threads), and so did the focus maps.
+    Plain float32 products, sum and sqrt round the same way wherever the data lie."""
+    u, v = gx.ravel().take(idx), gy.ravel().take(idx)
+    return np.sqrt(u * u + v * v)
 
 
 def guided_filter(guide: np.ndarray, src: np.ndarray, radius: int, eps: float) -> np.ndarray:
@@ -103,8 +103,6 @@ class FocusEstimator:
         gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
         g1x = cv2.Sobel(g1, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)
         g1y = cv2.Sobel(g1, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
-        mag = _magnitude(gx, gy)
-        mag1 = _magnitude(g1x, g1y)
         t = cfg.focus_edge_threshold
         # Canny's 3x3 Sobel magnitude is ~8x the central-difference gradient per pixel.
         # flat indices: one index array instead of two (a third of the pixels are edges)
@@ -115,8 +113,8 @@ class FocusEstimator:
         den = np.zeros((wh, ww), np.float32)
         sigma = np.zeros(0, np.float32)
         if idx.size:
-            m = mag.ravel().take(idx)
-            r = m / np.maximum(mag1.ravel().take(idx), 1e-6)
+            m = _magnitude_at(gx, gy, idx)
+            r = m / np.maximum(_magnitude_at(g1x, g1y, idx), 1e-6)
             r = np.maximum(r, 1.0 + 1e-3)
             sigma = np.minimum(s0 / np.sqrt(r * r - 1.0), 50.0).astype(np.float32)
             wgt = np.minimum(m / (4.0 * t), 4.0)  # contrast weight, saturating

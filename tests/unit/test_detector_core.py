@@ -116,8 +116,7 @@ def test_sequential_and_parallel_give_the_same_result(juggle_frames):
             res.append(det.process(f.image, f.index, f.stamp_ns))
     a, b = res
     assert len(a.people) == len(b.people) == 1
-    assert np.allclose(a.people[0].box_xyxy, b.people[0].box_xyxy, atol=2)
-    assert np.abs(a.focus_map.astype(int) - b.focus_map.astype(int)).mean() < 2
+    assert codec.encode(a) == codec.encode(b)  # the worker threads change when, never what
 
 
 
@@ -129,8 +128,7 @@ def test_streamed_frames_give_what_one_frame_at_a_time_gives():
     # when the same frames are streamed (frame k's tail beside the next frames' poses)
     with Detector(DetectorConfig()) as det:
         streamed = list(det.process_frames(frames, source="clip"))
-    # then every measurement is the same, in the same order. (Not always to the byte: run twice one
-    # frame at a time, the first frame's mask and focus map can differ by a pixel or a level of 255.)
+    # then every measurement is the same, in the same order, to the byte
     assert [m.frame_index for m in streamed] == [f.index for f in frames]
     for a, b in zip(one, streamed):
         assert len(a.people) == len(b.people) == 1
@@ -143,7 +141,7 @@ def test_streamed_frames_give_what_one_frame_at_a_time_gives():
         if a.camera_motion is not None:
             assert np.allclose(a.camera_motion.rotation_rad, b.camera_motion.rotation_rad, atol=1e-4)
     identical = sum(codec.encode(a) == codec.encode(b) for a, b in zip(one, streamed))
-    assert identical >= len(frames) - 1
+    assert identical == len(frames)
     assert sum(m.camera_motion is not None for m in streamed) == len(frames) - 1
 
 
@@ -216,6 +214,21 @@ def test_all_sharp_and_all_blurred_frames(juggle_frames):
     assert (blurred > 0.5).mean() < 0.1
     flat = est.estimate(np.full((100, 200, 3), 90, np.uint8))
     assert flat.prob.shape == (80, 160) and np.allclose(flat.prob, DetectorConfig().focus_no_edge_prior, atol=0.01)
+
+
+def test_focus_edges_do_not_depend_on_where_their_arrays_lie(juggle_frames):
+    # given one frame, measured again and again with the heap in other states: numpy's arrays then
+    # start at other addresses, as they do from run to run and from thread to thread
+    est = FocusEstimator(DetectorConfig())
+    grey = cv2.cvtColor(juggle_frames[0].image, cv2.COLOR_BGR2GRAY)
+    results, spacers = set(), []
+    for k in range(16):
+        spacers.append(np.empty(4096 + 16 * k, np.uint8))  # kept: moves where the next arrays land
+        ev = est.measure_edges(grey.copy())
+        results.add((ev.num.tobytes(), ev.den.tobytes(), ev.sigma_edges.tobytes()))
+    # then the edge evidence is the same to the bit every time (cv2.magnitude with Intel IPP was
+    # not: its last bit went by where its output lay, and the focus maps changed from run to run)
+    assert len(results) == 1
 
 
 def test_focus_map_resolution_is_stated():
