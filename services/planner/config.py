@@ -301,10 +301,14 @@ class PlannerConfig:
     #: at most rack_lead_max_s [s] ahead, where he then stays soft at least rack_lead_min_hold_s [s]
     #: (core.rack_switch_ahead, Planner._subject_travel_s): started at the switch, that travel left the parkour
     #: runner sharp for 22 frames after it (docs/planner.md, "A rack away from the subject, planned ahead").
-    #: 0 = off, the default: at 1.5 the parkour rack's runner went soft on time (truth 0.88 -> 0.98) but the
-    #: dancer's distant background, asked soft before her switch, went sharp early (1.00 -> 0.80)
-    rack_lead_max_s: float = 0.0
+    #: 0 = off. Ungated, the dancer's distant background, asked soft before her switch, went sharp early (1.00 ->
+    #: 0.80); gated by the background (rack_lead_background_gate) the parkour runner's truth went 0.88 -> 0.95 and
+    #: the dancer's background stayed 1.00
+    rack_lead_max_s: float = 1.5
     rack_lead_min_hold_s: float = 1.0
+    #: the lead no longer than the focus may travel before the background enters the field of the one circle
+    #: (core.Planner._rack_lead_s, focus_field.rack_lead_cap_s): the background soft up to the switch, as asked
+    rack_lead_background_gate: bool = True
     #: how far behind the subject the background stands [m]; inf = unknown, and then a row wanting the
     #: subject sharp before a soft background asks for no standoff. Given, such a row raises the minimum
     #: subject distance until the depth of field ends before it (separation.py). Off by default: the

@@ -43,7 +43,7 @@ from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
 from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, GROUND_BEHIND_SHARE, Band, focus_ahead_inv_m,
                                                        foreground_limits, ground_behind_inv_m, settled_subject_blur,
-                                                       foreground_near_m, shifted_limits,
+                                                       foreground_near_m, shifted_limits, rack_lead_cap_s,
                                                        ground_band, narrowest_spread)
 from cinetransfer.services.planner.separation import (APERTURE_MARGIN, background_soft_distance_m, framing_k,
                                                       separation_distance_m)
@@ -448,6 +448,29 @@ class Planner:
         s1 = min(1.0 / x1, b.focus_distance_max_m) if x1 > 0 else b.focus_distance_max_m
         return max(s1 - depth_m, 0.0) / b.focus_rate_mps
 
+    def _rack_lead_s(self, xk: np.ndarray, subj: PredictedSubject, t: float, depth_m: float) -> float:
+        """How long before a rack away from the subject `depth_m` away a stage plans the switch's row [s]: half the
+        focus's travel to where he is one circle soft (_subject_travel_s, RACK_LEAD_SHARE), and with
+        rack_lead_background_gate no longer than the focus may travel before the background enters the field
+        (focus_field.rack_lead_cap_s): the background `background_behind_m` behind him where that is given, else
+        the ground behind him the planned camera sees (ground_behind_inv_m, GROUND_BEHIND_SHARE); no lead with
+        neither known. Ungated, the dancer's background 30 m behind her went sharp 5-10 frames before her switch."""
+        focal = float(xk[self.layout.F])
+        lead = RACK_LEAD_SHARE * self._subject_travel_s(depth_m, focal)
+        if not self.cfg.rack_lead_background_gate:
+            return lead
+        if math.isfinite(self.cfg.background_behind_m):
+            background = 1.0 / (depth_m + self.cfg.background_behind_m)
+        else:
+            view = self._ground_view(xk, subj, t)
+            if view is None:
+                return 0.0
+            background = ground_behind_inv_m(view[0], GROUND_BEHIND_SHARE, **view[1])
+        b = self.solver.bounds
+        spread = narrowest_spread(focal, APERTURE_MARGIN * b.f_number_min, self.cfg.structure.coc_mm)
+        cap = rack_lead_cap_s(depth_m, background, spread=spread, rate_mps=b.focus_rate_mps)
+        return min(lead, cap)
+
     def _mu_m(self, ins: M.Instructions) -> float:
         """The instructions' depth-of-field margin mu [m], or `mu_default_m` when they carry none."""
         return float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
@@ -548,7 +571,7 @@ class Planner:
             depth = max(depth, 0.5)
             dref[k] = depth
             ahead = int(rack_ahead[r]) if r < len(rack_ahead) else -1
-            if ahead >= 0 and (ahead - r) / fps <= RACK_LEAD_SHARE * self._subject_travel_s(depth, float(xk[lay.F])):
+            if ahead >= 0 and (ahead - r) / fps <= self._rack_lead_s(xk, subj, t, depth):
                 r = ahead  # the rack away from him starts so that his travel to soft straddles the switch
             # a row with no region labelled (a shot without a focus measurement) leaves the lens free
             if focus.shape[0] > r and focus.shape[1] == 3 and not absent[r].all():

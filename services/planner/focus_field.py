@@ -174,6 +174,22 @@ def ground_behind_inv_m(v_feet: float, share: float, *, height_m: float, pitch_r
                                     sensor_height_mm=sensor_height_mm), 0.0)
 
 
+def rack_lead_cap_s(depth_m: float, background_inv_m: float, *, spread: float, rate_mps: float) -> float:
+    """How long [s] before a rack away from the subject the focus may leave him, at the lens's rate `rate_mps`,
+    without bringing the background (inverse depth `background_inv_m`, ground_behind_inv_m) into the one
+    circle's field before the switch: the field's far limit 1/s - `spread` stays nearer than the background while
+    s < 1 / (background_inv_m + `spread`), so the focus may travel from him `depth_m` away to there. inf where the
+    background lies inside the field with the focus on him already: it is sharp before the switch whatever the
+    lead (parkour's lawn 6-10 m behind the runner), and a background at infinity (0) gives the hyperfocal
+    distance 1 / `spread`."""
+    if not (depth_m > 0 and spread > 0 and rate_mps > 0 and math.isfinite(background_inv_m)):
+        return 0.0
+    x_b = max(background_inv_m, 0.0)
+    if 1.0 / depth_m - spread <= x_b:
+        return math.inf
+    return (1.0 / (x_b + spread) - depth_m) / rate_mps
+
+
 def settled_subject_blur(back_m: float, ground_inv_m: float, *, spread: float, most: float,
                          least: float = LEAST_SOFT_SUBJECT_BLUR) -> float:
     """The blur [circles of the one circle] to ask of a soft subject whose back lies `back_m` away, with only the

@@ -608,6 +608,7 @@ def test_a_zoom_gives_way_round_a_rack_focus(planner, instructions):
 
 
 def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instructions):
+    from cinetransfer.services.planner import focus_field as FF
     from cinetransfer.services.planner.focus_field import focus_ahead_inv_m
 
     # given a style that wants only the subject sharp, a soft foreground and background shown,
@@ -637,7 +638,8 @@ def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instruc
     # lens's rate; the lens's far end where that lies beyond it) takes longer than the time left, at most
     # rack_lead_max_s, planned as the switch's row
     sw = 40
-    led = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=1.5), solver=planner.solver)
+    led = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=1.5, rack_lead_background_gate=False),
+                  solver=planner.solver)
     assert k - sw >= led.cfg.rack_lead_min_hold_s * _fps(ins)
     focus = np.tile([False, True, False], (k, 1))
     focus[sw:] = (False, False, True)
@@ -652,6 +654,38 @@ def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instruc
     np.testing.assert_allclose(dof[:, 1], 1.0 / (dref - ins.mu_m), rtol=1e-9)
     np.testing.assert_allclose(led._dof_targets(T0, rack, [sw - j], 0, x0, subj)[0],
                                led._dof_targets(T0, rack, [sw], 0, x0, subj)[0], rtol=1e-12)
+    # and gated by the background (rack_lead_background_gate), given 20 m behind him: inside the one circle's field
+    # with the focus on him (1/d - sigma < 1/(d + 20), the field's far limit beyond it), so sharp before the
+    # switch whatever the lead, and the lead is the travel's, as ungated
+    sigma = 1000.0 * 1.2 * b.f_number_min * st.coc_mm / x0[lay.F] ** 2
+    assert 1.0 / dref[0] - sigma < 1.0 / (dref[0] + 20.0)
+    near_bg = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=1.5, background_behind_m=20.0),
+                      solver=planner.solver)
+    np.testing.assert_allclose(near_bg._dof_targets(T0, rack, [sw - j], 0, x0, subj)[0],
+                               led._dof_targets(T0, rack, [sw], 0, x0, subj)[0], rtol=1e-12)
+    # and given 1000 m behind him, outside that field: planned as the switch's row only as long before it as the
+    # focus takes from him to where the field's far limit reaches the background, 1/s = 1/(d + 1000) + sigma
+    # (focus_field.rack_lead_cap_s), at the lens's rate
+    gated = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=1.5, background_behind_m=1000.0),
+                    solver=planner.solver)
+    cap = (1.0 / (1.0 / (dref[0] + 1000.0) + sigma) - dref[0]) / b.focus_rate_mps
+    j_cap = int(cap * _fps(ins))
+    assert 0 < j_cap < j
+    switch = gated._dof_targets(T0, rack, [sw], 0, x0, subj)[0]
+    np.testing.assert_allclose(gated._dof_targets(T0, rack, [sw - j_cap], 0, x0, subj)[0], switch, rtol=1e-12)
+    dof, dref = gated._dof_targets(T0, rack, [sw - j_cap - 1], 0, x0, subj)
+    assert dof[0, 1] == pytest.approx(1.0 / (dref[0] - ins.mu_m))
+    # and with the background's distance unknown, the ground behind him the planned camera sees
+    # (ground_behind_inv_m at GROUND_BEHIND_SHARE) stands for it; with no ankle seen, no ground and no lead
+    seen = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=1.5), solver=planner.solver)
+    d0 = float(dref[0])
+    view = seen._ground_view(x0, subj, st.dt_s)
+    ground = FF.ground_behind_inv_m(view[0], FF.GROUND_BEHIND_SHARE, **view[1])
+    lead = min(RACK_LEAD_SHARE * seen._subject_travel_s(d0, x0[lay.F]),
+               FF.rack_lead_cap_s(d0, ground, spread=sigma, rate_mps=b.focus_rate_mps))
+    assert seen._rack_lead_s(x0, subj, st.dt_s, d0) == pytest.approx(lead)
+    no_feet = dataclasses.replace(subj, finite=np.zeros_like(subj.finite))
+    assert seen._rack_lead_s(x0, no_feet, st.dt_s, d0) == 0.0
     # and with the lead off, centred on him up to the switch
     off = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=0.0), solver=planner.solver)
     dof, dref = off._dof_targets(T0, rack, [sw - 1], 0, x0, subj)

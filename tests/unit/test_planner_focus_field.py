@@ -126,6 +126,24 @@ def test_the_ground_behind_the_subject_by_hand():
     assert FF.ground_behind_inv_m(math.nan, 0.2, **kw) == 0.0
 
 
+def test_the_rack_lead_stops_where_the_background_would_enter_the_field_by_hand():
+    # given her 8 m away, the one circle's half-width 0.05 per metre, the background 40 m away, the lens at 15 m/s:
+    # the far limit 1/s - 0.05 stays nearer than 1/40 while s < 1 / (0.025 + 0.05) = 13.33 m
+    cap = FF.rack_lead_cap_s(8.0, 1 / 40.0, spread=0.05, rate_mps=15.0)
+    # then the focus may leave her 5.33 m, 0.356 s, before the switch
+    assert cap == pytest.approx((1 / 0.075 - 8.0) / 15.0) and cap == pytest.approx(0.3556, abs=1e-4)
+    # and a background at infinity stops it at the hyperfocal distance 1 / 0.05 = 20 m: 12 m, 0.8 s
+    assert FF.rack_lead_cap_s(8.0, 0.0, spread=0.05, rate_mps=15.0) == pytest.approx(0.8)
+    # and a background inside the field with the focus on him (18 m away, the far limit 1 / (1/18 - 0.02) =
+    # 28.1 m beyond the lawn 25 m away) is sharp before the switch whatever the lead: no cap
+    assert FF.rack_lead_cap_s(18.0, 1 / 25.0, spread=0.02, rate_mps=15.0) == math.inf
+    # and on the line (the far limit exactly at the background) no cap either
+    assert FF.rack_lead_cap_s(10.0, 0.05, spread=0.05, rate_mps=15.0) == math.inf
+    # and an unknown background or a lens that cannot move gives no lead
+    assert FF.rack_lead_cap_s(8.0, math.nan, spread=0.05, rate_mps=15.0) == 0.0
+    assert FF.rack_lead_cap_s(8.0, 0.025, spread=0.05, rate_mps=0.0) == 0.0
+
+
 def test_the_settled_soft_subject_blur_starts_the_sharp_zone_at_the_ground_by_hand():
     # given his back 20 m away, the one circle's half-width 0.025 per metre, the ground at 25 m: the zone at
     # 1/20 - (b - 1) 0.025 = 1/25 asks b = 1.4
