@@ -829,6 +829,16 @@ RACK_LEAD_SHARE = 0.5
 RACK_THROUGH_MAX_S = 1.0
 
 
+def shot_numbers(shot_start: np.ndarray | None, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) bool where each shot begins (row 0 always; `shot_start` of another length is ignored as
+    absent) and (n,) int the shot each row belongs to, counted from 1."""
+    starts = np.zeros(n, dtype=bool)
+    if shot_start is not None and np.shape(shot_start) == (n,):
+        starts = np.asarray(shot_start, dtype=bool).copy()
+    starts[:1] = True
+    return starts, np.cumsum(starts)
+
+
 def held_subject_labels(focus_in: np.ndarray, absent: np.ndarray,
                         shot_start: np.ndarray | None = None) -> np.ndarray:
     """The style's focus rows (K, 3) with the subject's label held from the nearest earlier row of the
@@ -847,11 +857,7 @@ def held_subject_labels(focus_in: np.ndarray, absent: np.ndarray,
     missing = absent[:, 1] & ~absent.all(axis=1)
     if not missing.any():
         return focus
-    starts = np.zeros(len(focus), dtype=bool)
-    if shot_start is not None and np.shape(shot_start) == (len(focus),):
-        starts = np.asarray(shot_start, dtype=bool).copy()
-    starts[:1] = True
-    shot = np.cumsum(starts)
+    shot = shot_numbers(shot_start, len(focus))[1]
     out = focus.copy()
     for s in np.unique(shot[missing]):
         seen = np.flatnonzero(~absent[:, 1] & (shot == s))
@@ -909,11 +915,7 @@ def rack_switch_ahead(focus: np.ndarray, absent: np.ndarray, lead_rows: int, min
     if lead_rows <= 0 or focus.ndim != 2 or focus.shape[1] != 3 or absent.shape != focus.shape:
         return out
     labelled = ~absent.all(axis=1)
-    starts = np.zeros(len(focus), dtype=bool)
-    if shot_start is not None and np.shape(shot_start) == (len(focus),):
-        starts = np.asarray(shot_start, dtype=bool).copy()
-    starts[:1] = True
-    shot = np.cumsum(starts)
+    starts, shot = shot_numbers(shot_start, len(focus))
     for k in np.flatnonzero(focus[:-1, 1] & ~focus[1:, 1] & labelled[:-1] & labelled[1:] & ~starts[1:]) + 1:
         end = k
         while end < len(focus) and not focus[end, 1] and labelled[end] and shot[end] == shot[k]:
@@ -960,11 +962,7 @@ def lens_for_focus_rows(focus: np.ndarray, absent: np.ndarray, lead_rows: int, s
     if lead_rows < 0 or focus.ndim != 2 or focus.shape[1] != 3:
         return out
     labelled = ~absent.all(axis=1) if absent.shape == focus.shape else np.ones(len(focus), dtype=bool)
-    starts = np.zeros(len(focus), dtype=bool)
-    if shot_start is not None and np.shape(shot_start) == (len(focus),):
-        starts = np.asarray(shot_start, dtype=bool).copy()
-    starts[:1] = True
-    shot = np.cumsum(starts)
+    starts, shot = shot_numbers(shot_start, len(focus))
     switched = (focus[1:, 1] != focus[:-1, 1]) & labelled[1:] & labelled[:-1] & ~starts[1:]
     for k in np.flatnonzero(switched) + 1:
         rows = np.arange(max(0, k - lead_rows), min(len(focus), k + settle_rows))
