@@ -57,10 +57,16 @@ def measure_video(video: str | os.PathLike, *, detector_config: Any = None, stop
 def extract_features(video: str | os.PathLike, cfg: SmootherConfig, *,
                      measurements_path: str | os.PathLike | None = None,
                      stop: int | None = None, progress: bool = False,
-                     detector_config: Any = None) -> tuple[list[FrameFeatures], SourceInfo]:
+                     detector_config: Any = None, measured_by: dict | None = None
+                     ) -> tuple[list[FrameFeatures], SourceInfo]:
     """Run the detector over a video and keep the smoother's features of every frame (optionally
-    also writing the measurements file)."""
+    also writing the measurements file; `measured_by` is filled with the detector's backend,
+    cinetransfer/detector_backend.facts)."""
     ms, source, det = measure_video(video, detector_config=detector_config, stop=stop, progress=progress)
+    if measured_by is not None:
+        from cinetransfer.detector_backend import of_detector
+
+        measured_by.update(of_detector(det))
     opts = feature_options(cfg)
     feats: list[FrameFeatures] = []
     writer = None
@@ -105,12 +111,27 @@ def main(argv: list[str]) -> int:
     except ValueError as e:  # --cuts is not a list of row numbers
         print(f"cinetransfer extract: --cuts: {e}", file=sys.stderr)
         return 2
+    det: dict = {}
     try:
         feats, source = extract_features(args.video, cfg, measurements_path=args.measurements, stop=args.stop,
-                                         progress=not args.quiet)
+                                         progress=not args.quiet, measured_by=det)
         result = smooth_sequence(feats, cfg, source=source, known_cuts=cuts)
     except (ExtractError, SmootherInputError) as e:
         print(f"cinetransfer extract: {e}", file=sys.stderr)
         return 1
+    result = _name_detector(result, det)
     write_result(result, args.output, args.plot, diagnostics=not args.no_diagnostics)
     return 0
+
+
+def _name_detector(result: Any, det: dict) -> Any:
+    """The style says which backend measured it (diagnostics "detector"), and a fallback one in
+    its warnings too, which --no-diagnostics keeps (cinetransfer/detector_backend.py)."""
+    import dataclasses
+
+    from cinetransfer.detector_backend import is_fallback, warning
+
+    result.diagnostics["detector"] = det
+    if is_fallback(det):
+        result = dataclasses.replace(result, warnings=(*result.warnings, warning("measured", det, "")))
+    return result

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from cinetransfer import style_cache
+from cinetransfer import detector_backend, style_cache
 from cinetransfer.job import EXTRACTION_ARGS, TransferError, await_subscriber
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
@@ -31,15 +31,34 @@ class StyleTap:
         self.q: queue.SimpleQueue = queue.SimpleQueue()
         self.measured = 0
         self.played: int | None = None  #: frames the detector measured, from its end-of-stream message
+        self.backend = ""  #: the detector's backend, as its first measurement names it
+        self.unavailable = ""  #: why the configured backend does not run, from the detector's health
         #: the extraction's nodes, watched: one that dies is named at once, not after the stall timeout
         self.nodes = {n: Presence(session, rig, n) for n in EXTRACTION_NODES}
         topics = (keys.INSTRUCTIONS, keys.SOURCE_END, keys.DETECTOR_END)
         self._subs = [session.declare_subscriber(t.key(rig), lambda s, t=t: self.q.put((t, s.payload.to_bytes())))
                       for t in topics]
         self._subs.append(session.declare_subscriber(keys.MEASUREMENT.key(rig), self._on_measurement))
+        self._subs.append(session.declare_subscriber(keys.health(rig, "detector"), self._on_health))
 
-    def _on_measurement(self, _sample) -> None:
+    def _on_measurement(self, sample) -> None:
         self.measured += 1
+        if not self.backend:  # one decode: every measurement of the node names the same backend
+            try:
+                self.backend = codec.decode(sample.payload.to_bytes(), M.Measurement).detector or "?"
+            except codec.DecodeError:
+                pass
+
+    def _on_health(self, sample) -> None:
+        try:
+            counters = codec.decode(sample.payload.to_bytes(), M.Health).counters
+        except codec.DecodeError:
+            return
+        self.unavailable = str(counters.get("backend_unavailable") or "")
+
+    def detector(self) -> dict:
+        """meta.json's record of the extraction's detector pass (detector_backend.facts)."""
+        return detector_backend.facts(self.backend or "?", self.unavailable)
 
     def next(self, timeout: float):
         try:
@@ -59,9 +78,11 @@ class StyleTap:
             p.undeclare()
 
 
-def extract_on_dataflow(session, rig: str, src: Path, stop: int | None, stall_s: float) -> M.Instructions:
+def extract_on_dataflow(session, rig: str, src: Path, stop: int | None, stall_s: float
+                        ) -> tuple[M.Instructions, dict]:
     """Play the source into the dataflow (source -> detector -> smoother) and return the smoother's
-    whole-sequence instructions for it. TransferError when a stage fails or stalls."""
+    whole-sequence instructions for it, and which backend the detector measured it with
+    (detector_backend.facts). TransferError when a stage fails or stalls."""
     path = str(src.resolve())
     tap = StyleTap(session, rig)
     cmd = session.declare_publisher(keys.SOURCE_COMMAND.key(rig))
@@ -77,10 +98,21 @@ def extract_on_dataflow(session, rig: str, src: Path, stop: int | None, stall_s:
         problem = shortfall(played, declared_frames(src), stop)
         if problem:
             raise TransferError(f"{src}: {problem}")
-        return style
+        _await_reason(tap, 3.0)
+        return style, tap.detector()
     finally:
         cmd.undeclare()
         tap.close()
+
+
+def _await_reason(tap: StyleTap, timeout_s: float) -> None:
+    """A fallback backend's reason comes in the detector's health (about every second), which a
+    short extraction may end before: wait that long for it (the warning is vaguer without)."""
+    from cinetransfer.services.detector.box_models import FALLBACK_SUFFIX
+
+    end = time.monotonic() + timeout_s
+    while tap.backend.endswith(FALLBACK_SUFFIX) and not tap.unavailable and time.monotonic() < end:
+        time.sleep(0.1)
 
 
 def _await_final(tap: StyleTap, path: str, stall_s: float) -> M.Instructions:
@@ -166,14 +198,15 @@ def cached_style(args, src: Path) -> CachedStyle:
 
 
 def source_style(args, src: Path, out: Path, session, cache: CachedStyle | None = None
-                 ) -> tuple[Path, M.Instructions, str]:
-    """The source's style, written to OUTDIR/style.json, and where it came from: 'file' (--style),
+                 ) -> tuple[Path, M.Instructions, str, dict | None]:
+    """The source's style, written to OUTDIR/style.json, where it came from: 'file' (--style),
     'cache' (the same clip extracted with the same settings and code before) or 'extracted' (by the
-    dataflow's own services; then kept in the cache)."""
+    dataflow's own services; then kept in the cache unless its detector ran a fallback backend),
+    and which backend measured it (detector_backend.facts; None: not known, a --style file)."""
     style_path = out / "style.json"
     if args.style:
         shutil.copyfile(args.style, style_path)
-        return style_path, load_style(style_path), "file"
+        return style_path, load_style(style_path), "file", None
     cache = cache or CachedStyle()
     if cache.key is None and not args.no_cache:  # a joined deployment: its nodes say how they are set
         configs = style_cache.node_configs_remote(session, args.rig)
@@ -185,11 +218,16 @@ def source_style(args, src: Path, out: Path, session, cache: CachedStyle | None 
         log.info("style: reusing the measurements of %s from the cache (same clip content sha256 %s..., same "
                  "node settings, code and models): %s; --no-cache extracts again", src.name,
                  cache.key.facts["clip_sha256"][:12], cache.path.parent)
-        return style_path, load_style(style_path), "cache"
-    style = extract_on_dataflow(session, args.rig, src, args.max_frames or None, args.stall_timeout)
-    save_style(style_path, style)
+        return style_path, load_style(style_path), "cache", style_cache.entry_detector(cache.path)
+    style, det = extract_on_dataflow(session, args.rig, src, args.max_frames or None, args.stall_timeout)
+    fallback = detector_backend.is_fallback(det)
+    # the style file says it too: it is read (and flown with --style) without this run's log
+    save_style(style_path, style, warnings=[detector_backend.warning("measured", det, "")] if fallback else ())
     print(f"wrote {style_path}: {style.image_targets.shape[0]} frames at {style.fps:g} fps (extracted by the "
           f"source, detector and smoother nodes)")
-    if cache.key is not None and style_cache.store(cache.key, style_path) is not None:
+    if fallback:  # the cache's key names the models' files, not the backend that ran: never reused
+        log.warning("%s", detector_backend.warning(
+            "source style", det, ", so this style differs from the box-first one; it is not kept in the style cache"))
+    elif cache.key is not None and style_cache.store(cache.key, style_path, det) is not None:
         log.info("style: kept in the cache for the next transfer of this clip: %s", cache.key.folder)
-    return style_path, load_style(style_path), "extracted"
+    return style_path, load_style(style_path), "extracted", det

@@ -48,6 +48,7 @@ class LiveOutputStyle:
         self.fps = float(Fraction(float(fps)).limit_denominator(1001))
         self.error: str | None = None  #: why the measuring stopped early (None: it did not)
         self.busy_s = 0.0  #: wall time the worker spent measuring
+        self.detector: dict | None = None  #: its detector's backend (cinetransfer/detector_backend.py)
         self._q: queue.SimpleQueue = queue.SimpleQueue()
         self._feats: list[Any] = []
         self._next_slot = 0
@@ -73,6 +74,9 @@ class LiveOutputStyle:
 
             # the settings `cinetransfer extract` measures output.mp4 with: the code defaults
             det = Detector(DetectorConfig())
+            from cinetransfer.detector_backend import of_detector
+
+            self.detector = of_detector(det)
             with FrameStream(det) as stream:
                 self._measure(stream, feature_options(SmootherConfig()))
         except Exception as e:  # noqa: BLE001 - the evaluation falls back to measuring output.mp4

@@ -9,7 +9,9 @@ measures and smooths (a hash of the source files of shared/ and of every service
 planner and the bridge), the
 detector's model files, the versions of the numeric libraries, and the message schemas. Any
 difference is another key, so stale data is never reused; an entry that cannot be read is
-ignored (and replaced).
+ignored (and replaced). A style whose detector ran a fallback backend (the box-first models
+missing where it ran, cinetransfer/detector_backend.py) is never stored: the key holds the digest
+of the model files found when the transfer started, not the backend that ran.
 
     CT_CACHE_DIR/styles/<key>/style.json    the style, as the extraction wrote it
     CT_CACHE_DIR/styles/<key>/key.json      what the key was made of (for a human reading it)
@@ -249,15 +251,27 @@ def lookup(key: StyleKey) -> Path | None:
     return style
 
 
-def store(key: StyleKey, style_path: Path) -> Path | None:
-    """Keep `style_path` under `key` (written whole or not at all); None when the cache folder
-    cannot be written (the transfer goes on: a cache is never a reason to fail)."""
+def entry_detector(style: Path) -> dict | None:
+    """Which detector backend measured a cached style (`store`'s `detector`; None: not recorded)."""
+    try:
+        det = json.loads((style.parent / "key.json").read_text()).get("detector")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return det if isinstance(det, dict) else None
+
+
+def store(key: StyleKey, style_path: Path, detector: dict | None = None) -> Path | None:
+    """Keep `style_path` under `key` (written whole or not at all), with which detector backend
+    measured it (`detector`, see cinetransfer/detector_backend.py; a style of a fallback backend
+    is never stored: the caller's rule); None when the cache folder cannot be written (the
+    transfer goes on: a cache is never a reason to fail)."""
     entry = key.folder
     try:
         entry.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{key.digest}.", dir=entry.parent))
         shutil.copyfile(style_path, tmp / "style.json")
-        (tmp / "key.json").write_text(json.dumps({"digest": key.digest, **key.facts}, indent=1) + "\n")
+        kept = {"digest": key.digest, **key.facts, **({"detector": detector} if detector else {})}
+        (tmp / "key.json").write_text(json.dumps(kept, indent=1) + "\n")
         if entry.exists():
             shutil.rmtree(entry, ignore_errors=True)
         os.replace(tmp, entry)

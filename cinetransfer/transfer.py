@@ -166,8 +166,9 @@ def _job(args, src: Path, out: Path, meta: dict, clock: StageClock, live: dict, 
         # the flight's nodes go on starting while the style is extracted
         wait_alive(session, args.rig, FLIGHT_NODES if known else set(EXTRACTION_NODES), 180)
         clock.end("start_nodes_s")
-        style_path, style, origin = source_style(args, src, out, session, cache)
+        style_path, style, origin, det = source_style(args, src, out, session, cache)
         meta["style_origin"] = origin
+        meta["detectors"] = {"source": det}  # the output's: once it is measured (_output_style)
         clock.end("extract_source_s")
         wait_alive(session, args.rig, FLIGHT_NODES, 180)
         measurer = live["output"] = None if args.no_eval else LiveOutputStyle(out / "output.mp4", style.fps)
@@ -196,17 +197,40 @@ def _output_style(out: Path, meta: dict, rec: Recorder, live: LiveOutputStyle | 
     if live is not None and live.finish(out_style, n_frames=int(meta.get("recorded_frames") or 0),
                                         cuts=cuts):
         meta["output_measured"] = "while filming (the camera's frames, before H.264)"
+        _output_detector(meta, live.detector)
         clock.end("extract_output_s")
         return out_style
     try:
         run_cli(["extract", str(out / "output.mp4"), "-o", str(out_style),
                  *(["--cuts", ",".join(map(str, cuts))] if cuts else [])], "extraction on the output")
         meta["output_measured"] = "after the flight, from output.mp4"
+        _output_detector(meta, style_detector(out_style))
     except TransferError as e:
         log.error("%s", e)
         out_style = None
     clock.end("extract_output_s")
     return out_style
+
+
+def style_detector(path: Path) -> dict | None:
+    """Which backend measured a style file `cinetransfer extract` wrote (its diagnostics' "detector")."""
+    from cinetransfer.shared.instructions import StyleFileError, load_style_file
+
+    try:
+        det = load_style_file(path).diagnostics.get("detector")
+    except (StyleFileError, OSError):
+        return None
+    return det if isinstance(det, dict) else None
+
+
+def _output_detector(meta: dict, det: dict | None) -> None:
+    """Record the output pass's detector backend in meta.json, and say it once when it is a fallback."""
+    from cinetransfer import detector_backend
+
+    meta.setdefault("detectors", {})["output"] = det
+    if detector_backend.is_fallback(det):
+        log.warning("%s", detector_backend.warning("output style", det, ", so the report's output measures "
+                                                   "are not the box-first detector's"))
 
 
 def _evaluate(out: Path, src: Path, style_path: Path, rec: Recorder, meta: dict, live: dict,

@@ -232,6 +232,15 @@ def _judge_by_faults(summary: dict[str, Any], faults: dict[str, Any] | None) -> 
             shot["goals_met"] = f"0/{shot['goals_met'].split('/')[-1]} (degraded)"
 
 
+def _state_detectors(summary: dict[str, Any], meta: dict[str, Any]) -> None:
+    """report.json's "detectors" (report/detectors.py); the headline names what it states."""
+    from cinetransfer.report.detectors import detector_facts
+
+    summary["detectors"] = facts = detector_facts(meta)
+    if facts["notes"]:
+        summary["headline"]["detectors"] = facts["notes"]
+
+
 def lens_rates(meta: dict[str, Any]) -> FR.LensRates | None:
     """The lens rates of the run's vehicle profile (meta's "vehicle", else the default one), or None
     when it cannot be read (the misses the rates force are then not excused)."""
@@ -367,6 +376,7 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
         "meta": meta,
     }
     summary["focus_reach"]["runs"] = RF.runs(s["reach"], s["t_s"], s["k"], shot_rows)
+    _state_detectors(summary, meta)
     _judge_by_faults(summary, meta.get("faults"))
     summary = jsonable(summary)
     write_html(outdir / "report.html", summary, figures, meta=summary["meta"], figure_errors=fig_errors,

@@ -375,6 +375,8 @@ def render_html(summary: dict[str, Any], figures: dict[str, Path], *, meta: dict
     if faults.get("degraded"):
         warn.append("<div class='card warn'><b>Degraded take: no goal counts as met.</b> "
                     f"{_e('; '.join(faults.get('reasons', [])))}</div>")
+    for note in (summary.get("detectors") or {}).get("notes", []):
+        warn.append(f"<div class='card warn'><b>Detector:</b> {_e(note)}</div>")
     rec = summary.get("recording") or {}
     for note in rec.get("notes", []):
         warn.append(f"<div class='card warn'><b>Recording:</b> {_e(note)}</div>")

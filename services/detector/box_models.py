@@ -70,6 +70,10 @@ MODELS: dict[str, ModelFile] = {m.name: m for m in (
 SSD_MODEL = "object_detection_ssd_mobilenetv2_oidv4_fp16.tflite"
 LABELMAP = "object_detection_oidv4_labelmap.txt"
 LANDMARK_MODELS = {"full": "pose_landmark_full.tflite", "heavy": "pose_landmark_heavy.tflite"}
+#: the end of the backend name the detector reports (Measurement.detector, its Health counter
+#: "backend") when these models are missing and MediaPipe's landmarker runs instead (core.make_backend):
+#: a reader of the measurements alone can tell the fallback by it
+FALLBACK_SUFFIX = " (box_first unavailable)"
 
 
 class ModelsError(RuntimeError):

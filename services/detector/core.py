@@ -49,6 +49,7 @@ def make_backend(cfg: DetectorConfig):
     that backend's `unavailable` attribute then holds the reason (Health counters, `detect` log)."""
     if cfg.backend == "box_first":
         from cinetransfer.services.detector.box_first import BoxFirstPose, BoxFirstUnavailable
+        from cinetransfer.services.detector.box_models import FALLBACK_SUFFIX
 
         try:
             return BoxFirstPose(cfg)
@@ -56,7 +57,7 @@ def make_backend(cfg: DetectorConfig):
             log.warning("box_first backend unavailable (%s); running the mediapipe backend instead", e)
             be = make_backend(dataclasses.replace(cfg, backend="mediapipe"))
             be.unavailable = f"box_first: {e}"
-            be.name = f"{be.name} (box_first unavailable)"
+            be.name = f"{be.name}{FALLBACK_SUFFIX}"
             return be
     if cfg.backend == "mediapipe":
         from cinetransfer.services.detector.pose_mediapipe import MediaPipePose
@@ -165,6 +166,11 @@ class Detector:
     @property
     def name(self) -> str:
         return getattr(self.backend, "name", "?")
+
+    @property
+    def unavailable(self) -> str:
+        """Why the configured backend is not the one running ('' when it is: no fallback)."""
+        return str(getattr(self.backend, "unavailable", "") or "")
 
     def close(self) -> None:
         if self._pool is not None:

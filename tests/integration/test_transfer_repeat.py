@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from cinetransfer.report.repeatable import report_figures as figures
+from cinetransfer.services.detector import box_models
 from cinetransfer.report.truthfile import read_truths
 
 FRAMES = 24  # one second of the 24 fps clip
@@ -36,6 +37,8 @@ def video_frames(path) -> list[np.ndarray]:
 
 
 @pytest.mark.slow
+# a style measured by the detector's fallback backend is never cached (tests/integration/test_detector_fallback.py)
+@pytest.mark.skipif(not box_models.available()[0], reason="box-first models not installed (npm missing at ./setup.sh)")
 @pytest.mark.timeout(2700)  # three 3-D transfers on a loaded machine, each bounded by its own timeout
 def test_the_same_take_twice_gives_the_same_frames_and_report_the_second_from_the_cache(data, tmp_path):
     # given the command run once (its style extracted by the nodes and kept in the cache) ...
@@ -50,6 +53,9 @@ def test_the_same_take_twice_gives_the_same_frames_and_report_the_second_from_th
     assert "reusing the measurements of sam2_juggle_1280x720.mp4 from the cache" in r.stderr
     assert not (tmp_path / "again" / "deploy" / "detector.log").exists()
     assert (tmp_path / "first" / "style.json").read_bytes() == (tmp_path / "again" / "style.json").read_bytes()
+    # and meta.json names the backend that measured it, kept with the cache entry
+    box_first = {"backend": "box_first", "fallback": None}
+    assert first["detectors"] == again["detectors"] == {"source": box_first, "output": box_first}
     # and the output was measured while it was filmed
     assert first["output_measured"].startswith("while filming") and again["output_measured"].startswith("while")
     # and the two takes are the same, frame for frame and bit for bit

@@ -153,6 +153,26 @@ def test_style_paths_unreadable_output_and_no_videos(tmp_path):
     assert s2["truth"]["available"] is False
 
 
+def test_a_fallback_detector_and_backends_that_differ_are_stated_goals_kept(tmp_path):
+    # given a run whose source was measured by the detector's fallback backend, its output by box_first
+    src, out, truths, _, _ = _run(tmp_path, with_video=False)
+    fallback = {"backend": "mediapipe (box_first unavailable)", "fallback": "box_first: m.tflite is missing"}
+    meta = {"detectors": {"source": fallback, "output": {"backend": "box_first", "fallback": None}}}
+    s = build_report(tmp_path / "rep", source_style=src, output_style=out, truths=truths, source_video=None,
+                     output_video=None, meta=meta)
+    plain = build_report(tmp_path / "plain", source_style=src, output_style=out, truths=truths, source_video=None,
+                         output_video=None, meta={})
+    # then report.json, its headline and the page say both
+    js = _strict_json(tmp_path / "rep" / "report.json")
+    assert js["detectors"]["same_backend"] is False and len(js["detectors"]["notes"]) == 2
+    assert js["headline"]["detectors"] == js["detectors"]["notes"]
+    html = (tmp_path / "rep" / "report.html").read_text(encoding="utf-8")
+    assert html.count("<b>Detector:</b>") == 2 and "not measured the same way" in html
+    # and it is not a degraded take: the goals are judged as without it
+    assert s["goals"] == plain["goals"] and s["headline"]["goals_met"] == plain["headline"]["goals_met"]
+    assert "detectors" not in plain["headline"] and plain["detectors"]["notes"] == []
+
+
 def test_unreadable_source_style_raises(tmp_path):
     (tmp_path / "style.json").write_text('{"format": "other"}', encoding="utf-8")
     with pytest.raises(ValueError, match="style"):

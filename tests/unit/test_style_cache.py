@@ -70,6 +70,9 @@ def test_store_then_lookup_and_damaged_entries_are_misses(clip, configs, tmp_pat
     assert C.lookup(key) is None
     C.store(key, style)  # ... and replaced by the next store
     assert C.lookup(key) == entry / "style.json"
+    assert C.entry_detector(C.lookup(key)) is None  # stored without its detector: not known
+    C.store(key, style, {"backend": "box_first", "fallback": None})
+    assert C.entry_detector(C.lookup(key)) == {"backend": "box_first", "fallback": None}
 
 
 def test_a_digest_is_computed_once_per_installed_version_of_its_files(tmp_path):
