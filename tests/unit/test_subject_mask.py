@@ -43,6 +43,13 @@ def _skeleton(points: np.ndarray) -> Skeleton:
                     person_index=0)
 
 
+def _corner_blob_person(truth: np.ndarray, swell_px: int) -> tuple[np.ndarray, PersonDetection]:
+    """The truth swollen by a square of swell_px, plus a blob in the frame's corner, as a person."""
+    mask = cv2.dilate(truth.astype(np.uint8), np.ones((swell_px, swell_px), np.uint8)).astype(bool)
+    mask[0:40, 0:40] = True
+    return mask, _person(mask)
+
+
 @pytest.mark.parametrize("op", [cv2.dilate, cv2.erode])
 def test_snap_to_edges_moves_a_mask_one_pixel_off_back_onto_the_silhouette(parkour, op):
     # given the runner's true mask swollen or shrunk by 1 px (a coarse segmentation's edge;
@@ -80,9 +87,7 @@ def test_own_pieces_leaves_a_mask_without_joints_on_it_alone():
 def test_refine_person_keeps_box_confidence_and_track_and_stays_in_the_frame(parkour):
     # given a person whose mask (the swollen truth plus a blob) touches the frame's corner
     image, truth = parkour
-    mask = cv2.dilate(truth.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-    mask[0:40, 0:40] = True
-    p = _person(mask)
+    mask, p = _corner_blob_person(truth, swell_px=3)
     ys, xs = np.nonzero(truth)
     sk = _skeleton(np.array([[xs.mean(), ys.mean()], [xs[0], ys[0]]]))
     # when it is refined
@@ -99,9 +104,7 @@ def test_refine_person_keeps_box_confidence_and_track_and_stays_in_the_frame(par
 def test_refine_person_with_the_frame_grey_gives_the_same_mask(parkour):
     # given a person whose mask touches the frame's corner (the crop is clipped there)
     image, truth = parkour
-    mask = cv2.dilate(truth.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
-    mask[0:40, 0:40] = True
-    p = _person(mask)
+    _, p = _corner_blob_person(truth, swell_px=5)
     ys, xs = np.nonzero(truth)
     sk = _skeleton(np.array([[xs.mean(), ys.mean()]]))
     # when it is refined with the whole frame's grey handed in, and without
