@@ -13,7 +13,9 @@ per source and region (foreground, subject, background):
 - extraction: the style extracted from the output against the source's, as the report computes it;
 - both again over the frames within the lens's reach (the report's `agreement_reachable`: the frames
   where no focus distance and f-number of the lens gives the source's label left out), and how many
-  frames were left out, with the report's reason for each run of them.
+  frames were left out, with the report's reason for each run of them, and how many frames each
+  reachable column counts: the extraction's counts frames where the truth sees no such region (and
+  so judges no reach) but both styles show one (docs/report.md).
 Goal: truth >= 0.90 and extraction >= 0.85 for every region present, over the reachable frames.
 Writes benchmarks/results/eval_focus_choices.json.
 """
@@ -63,7 +65,17 @@ def transfer(src: Path, scene: str, out: Path, max_frames: int) -> dict:
             "truth_reachable": h["truth"].get("focus_agreement_reachable"),
             "extraction_reachable": h["extraction"].get("focus_agreement_reachable"),
             "unreachable_frames": (rep.get("focus_reach") or {}).get("unreachable_frames"),
-            "unreachable_runs": (rep.get("focus_reach") or {}).get("runs")}
+            "unreachable_runs": (rep.get("focus_reach") or {}).get("runs"),
+            "truth_reachable_frames": _reachable_frames(rep, "truth"),
+            "extraction_reachable_frames": _reachable_frames(rep, "extraction")}
+
+
+def _reachable_frames(rep: dict, side: str) -> dict[str, int | None]:
+    """Per region, how many frames the `side`'s reachable agreement is taken over. The two columns count
+    different frames: the extraction's are those where both styles show the region, less the frames the
+    truth judges out of reach, so they include frames where the truth sees no such region and judges nothing."""
+    focus = (rep.get(side) or {}).get("focus") or {}
+    return {r: (focus.get(r) or {}).get("n_frames_reachable") for r in REGIONS}
 
 
 def _fmt(v: float | None) -> str:
@@ -80,7 +92,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--json", type=Path, default=HERE / "results" / "eval_focus_choices.json", help="results file")
     args = ap.parse_args(argv)
     results = {}
-    print(f"{'source':34s} {'region':10s} labels  truth  extraction  | reachable frames: truth  extraction  (out)")
+    print(f"{'source':34s} {'region':10s} labels  truth  extraction  | reachable frames: truth  extraction  (out)"
+          "  [frames: truth / extraction]")
     for choice in args.choices:
         src = focus_sources.make(args.clip, choice, args.work / "sources")
         out = args.work / src.stem
@@ -96,8 +109,11 @@ def main(argv: list[str]) -> int:
             tr, er = (res.get("truth_reachable") or {}).get(r), (res.get("extraction_reachable") or {}).get(r)
             met = (tr is None or tr >= TRUTH_MIN) and (er is None or er >= EXTRACTION_MIN)
             out_n = (res.get("unreachable_frames") or {}).get(r, 0)
+            nt = (res.get("truth_reachable_frames") or {}).get(r)
+            ne = (res.get("extraction_reachable_frames") or {}).get(r)
             print(f"{src.stem:34s} {r:10s} {_fmt(res['labels'][r])}  {_fmt(t)}  {_fmt(e)}       |"
-                  f"                  {_fmt(tr)}  {_fmt(er)}       ({out_n})  {'ok' if met else 'MISSED'}")
+                  f"                  {_fmt(tr)}  {_fmt(er)}       ({out_n})  [{nt} / {ne}]"
+                  f"  {'ok' if met else 'MISSED'}")
         for run in res.get("unreachable_runs") or []:
             print(f"    out of reach: {run['region']} frames {run['first_frame']}-{run['last_frame']}: {run['reason']}")
     write_result(args.json, {"clip": args.clip, "scene": args.scene,

@@ -309,6 +309,11 @@ class PlannerConfig:
     #: the lead no longer than the focus may travel before the background enters the field of the one circle
     #: (core.Planner._rack_lead_s, focus_field.rack_lead_cap_s): the background soft up to the switch, as asked
     rack_lead_background_gate: bool = True
+    #: a row whose source has no label for the subject (core.unmeasured_subject_rows) asks nothing of his depth:
+    #: the near limit is free unless the foreground is asked sharp, and a far limit at infinity aims at the ground
+    #: behind him the camera sees. With his held label asked of the lens, tos_clip01's take 3 stopped down to f/9
+    #: (docs/planner.md, "An unmeasured subject asks no limit")
+    unmeasured_subject_near_free: bool = True
     #: how far behind the subject the background stands [m]; inf = unknown, and then a row wanting the
     #: subject sharp before a soft background asks for no standoff. Given, such a row raises the minimum
     #: subject distance until the depth of field ends before it (separation.py). Off by default: the

@@ -462,10 +462,9 @@ class Planner:
         if math.isfinite(self.cfg.background_behind_m):
             background = 1.0 / (depth_m + self.cfg.background_behind_m)
         else:
-            view = self._ground_view(xk, subj, t)
-            if view is None:
+            background = self._ground_behind_inv_m(xk, subj, t)
+            if background is None:
                 return 0.0
-            background = ground_behind_inv_m(view[0], GROUND_BEHIND_SHARE, **view[1])
         b = self.solver.bounds
         spread = narrowest_spread(focal, APERTURE_MARGIN * b.f_number_min, self.cfg.structure.coc_mm)
         cap = rack_lead_cap_s(depth_m, background, spread=spread, rate_mps=b.focus_rate_mps)
@@ -557,6 +556,8 @@ class Planner:
         # rows centred on the subject whatever the background: marked as if it were absent
         centred = np.zeros_like(absent)
         centred[:, 2] = self._centred_before_rack(ins)
+        near_free = unmeasured_subject_rows(absent) if self.cfg.unmeasured_subject_near_free \
+            else np.zeros(len(absent), dtype=bool)
         dof = np.zeros((n, N_DOF))
         dof[:, 6:8] = 1.0  # the far and near limits' circle-of-confusion ratios (cost.defocus_ratio)
         dref = np.zeros(n)
@@ -581,15 +582,23 @@ class Planner:
                 near, far = self._row_limits(focus[r], depth, mu, band, float(xk[lay.F]), dof[k, 6],
                                              keep_out_m=float(keep_outs_m[r]),
                                              absent_row=absent[r] | centred[r])
+                free = bool(r < len(near_free) and near_free[r]) and near > 0
+                near = math.inf if free else near
+                kept_out = near_out[r] and not free
                 # with the subject kept out by the near limit the far limit of the sharpness circle (3/8 of
                 # the one circle) at infinity is margin enough: the extra margin would cap the focus at half
                 # its longest and the subject's blur with it (separation.py)
                 dof[k, :6] = reciprocal_targets(near, far, near_foreground_m=st.near_foreground_m,
-                                                far_margin_inv_m=0.0 if near_out[r] else st.far_margin_inv_m,
+                                                far_margin_inv_m=0.0 if kept_out else st.far_margin_inv_m,
                                                 # a near limit that keeps the subject out stays two-sided
                                                 fg_absent=bool(absent[r, 0]) and not near_out[r])
                 dof[k, 7] = defocus_ratio(near_out[r] and switched_out(near_out, now_row, r), ratio, soft)
-                if near_out[r] and keep[r]:
+                if free and math.isinf(far) and far > 0:
+                    # nothing pins the focus: a far limit at infinity is met by stopping down (f/9 in tos_clip01's
+                    # take 3), so it reaches the ground behind him the camera sees, where one is seen
+                    ground = self._ground_behind_inv_m(xk, subj, t)
+                    dof[k, 3] = ground if ground else dof[k, 3]
+                if kept_out and keep[r]:
                     # settled on the subject soft, the background needs only the one circle's far limit at
                     # infinity, not the sharpness circle's: the parkour rack's soft runner read soft in 10
                     # more of its last frames (the focus a little farther), nothing else measured moved
@@ -667,6 +676,13 @@ class Planner:
             return None
         return float(np.nanmax(v)), {"height_m": float(xk[lay.P][2]) - ground_z, "pitch_rad": float(ypr[1]),
                                      "focal_mm": float(xk[lay.F]), "sensor_height_mm": st.sensor_height_mm}
+
+    def _ground_behind_inv_m(self, xk: np.ndarray, subj: PredictedSubject, t: float) -> float | None:
+        """The inverse depth [1/m] of the ground behind the subject that the planned camera `xk` sees `t` s ahead
+        (focus_field.ground_behind_inv_m at GROUND_BEHIND_SHARE; 0: that row sees no ground); None without an
+        ankle."""
+        view = self._ground_view(xk, subj, t)
+        return None if view is None else ground_behind_inv_m(view[0], GROUND_BEHIND_SHARE, **view[1])
 
     def _settled_blur(self, xk: np.ndarray, subj: PredictedSubject, t: float, back_m: float) -> float:
         """The blur [circles] a settled soft subject is asked with only the background sharp: settled_subject_blur,
@@ -867,6 +883,20 @@ def held_subject_labels(focus_in: np.ndarray, absent: np.ndarray,
         before = np.searchsorted(seen, rows) - 1  # the last row of the shot measuring him before each, -1 = none
         out[rows, 1] = focus[seen[np.maximum(before, 0)], 1]
     return out
+
+
+def unmeasured_subject_rows(absent: np.ndarray) -> np.ndarray:
+    """(K,) bool: the rows where the source has no label for the subject but has one for another region.
+    The planner leaves his near limit free there (option unmeasured_subject_near_free) whatever label
+    held_subject_labels gives him, and a far limit at infinity aims at the ground behind him instead
+    (Planner._dof_targets): that label only keeps a shot's choice from reading as a rack, nothing in the
+    source asks it of his depth. Held sharp while only the background was asked sharp, tos_clip01's take 3
+    planned him and a background at infinity sharp together and stopped down to f/9 just before rows that
+    asked the lens wide open (docs/planner.md, "An unmeasured subject asks no limit")."""
+    absent = np.asarray(absent, dtype=bool)
+    if absent.ndim != 2 or absent.shape[1] != 3:
+        return np.zeros(len(absent), dtype=bool)
+    return absent[:, 1] & ~absent.all(axis=1)
 
 
 def planned_focus_rows(focus_in: np.ndarray, absent: np.ndarray, max_rows: int,

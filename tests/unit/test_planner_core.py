@@ -9,7 +9,8 @@ from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.camera_motion import MOTION_MASKS
 from cinetransfer.services.planner.core import (LENS_MOTION_COLUMNS, RACK_LEAD_SHARE, Planner, _fps, absent_regions,
                                                 held_subject_labels, instructions_from_arrays, lens_for_focus_rows,
-                                                planned_focus_rows, predict_subject, rack_switch_ahead)
+                                                planned_focus_rows, predict_subject, rack_switch_ahead,
+                                                unmeasured_subject_rows)
 from cinetransfer.services.planner.kinematic_sim import KinematicSim
 from cinetransfer.services.planner.scenarios import reference_instructions, standing_shot, wrong_start_scene
 from cinetransfer.shared import codec
@@ -544,6 +545,45 @@ def test_a_subject_the_source_does_not_measure_keeps_his_last_label():
     assert held_subject_labels(first, gone)[:, 1].tolist() == [False, False, False, False]
     gone_soft = np.array([bg, bg, sub_bg, sub_bg], dtype=bool)
     assert held_subject_labels(gone_soft, gone)[:, 1].tolist() == [True, True, True, True]
+
+
+def test_a_subject_the_source_does_not_measure_asks_no_near_limit(planner, instructions):
+    # given a style whose subject is sharp with the background (rows 0-9), then unmeasured while the background
+    # is still labelled sharp (rows 10-19: his label held sharp), then unmeasured with the foreground sharp too
+    # (rows 20-29), then nothing labelled at all (30 on)
+    k = instructions.image_targets.shape[0]
+    assert k > 31
+    sm = np.tile(np.array([np.nan, 1.0, 1.0], dtype=np.float32), (k, 1))
+    sm[10:, 1] = np.nan
+    sm[20:30, 0] = 1.0
+    sm[30:] = np.nan
+    focus = np.where(np.isfinite(sm), sm > 0.5, False)
+    ins = dataclasses.replace(instructions, focus_smoothed=sm, focus_raw=sm, focus_in=focus)
+    absent = absent_regions(ins)
+    assert unmeasured_subject_rows(absent).tolist() == [False] * 10 + [True] * 20 + [False] * (k - 30)
+    assert planned_focus_rows(focus, absent, 2)[10:20, 1].all()  # held: no rack read there
+    sim = KinematicSim(wrong_start_scene())
+    x0 = planner._measured_state(T0, sim.vehicle_state(T0))
+    subj = predict_subject(sim.subject_state(T0), T0)
+    dof, dref = planner._dof_targets(T0, ins, [5, 15, 25], 5, x0, subj)
+    st = planner.cfg.structure
+    # then the measured row keeps him sharp: the near limit mu in front of him, the far limit at infinity
+    assert dof[0, 0] == 1.0 and dof[0, 1] == pytest.approx(1.0 / (dref[0] - ins.mu_m))
+    # and the row that does not measure him leaves the near limit free, and its far limit (one-sided) reaches
+    # the ground behind him the planned camera sees rather than infinity: with nothing pinning the focus, a
+    # far limit at infinity was met by stopping down
+    ground = planner._ground_behind_inv_m(x0, subj, 2 * st.dt_s)  # the second stage's, from x0 (no plan yet)
+    assert ground is not None and ground > 0
+    assert dof[1, 0] == 0.0 and dof[1, 1] == 0.0
+    assert dof[1, 2] == 1.0 and dof[1, 4] == 1.0 and dof[1, 3] == pytest.approx(ground)
+    # and a sharp foreground still asks its near limit
+    assert dof[2, 0] == 1.0 and dof[2, 1] == pytest.approx(1.0 / st.near_foreground_m)
+    # and with the option off the held label is asked of his depth with the far limit at infinity (the f/9 of
+    # the docs)
+    off = Planner(dataclasses.replace(planner.cfg, unmeasured_subject_near_free=False), solver=planner.solver)
+    dof_off, dref_off = off._dof_targets(T0, ins, [15], 5, x0, subj)
+    assert dof_off[0, 0] == 1.0 and dof_off[0, 1] == pytest.approx(1.0 / (dref_off[0] - ins.mu_m))
+    assert dof_off[0, 3] == pytest.approx(-st.far_margin_inv_m)
 
 
 def test_a_subject_label_is_never_held_across_a_cut():
