@@ -88,6 +88,7 @@ class _Head(NamedTuple):
     signature: np.ndarray
     refined: bool  # the people's masks are refined already
     grey: np.ndarray | None = None  # the frame in grey at full size (the focus edges' and the camera motion's)
+    side: cf.Future | None = None  # (edges, signature, grey) still being made: the tail waits for them
 
 
 def people_mask(people: list[PersonDetection], width: int, height: int) -> np.ndarray | None:
@@ -208,8 +209,9 @@ class Detector:
 
         The focus map's edge stage and the colour signature start at once in the worker thread beside
         the pose backend (which uses both cores only on the frames its SSD runs). `refine`: the caller
-        refines the people's masks meanwhile too (else the tail does). The fallback detector, when there
-        is one, starts first (it is the longest job)."""
+        refines the people's masks meanwhile too and waits for that side work; else the tail does both
+        (`_settled`), so the next frame's pose need not wait for this one's edges. The fallback detector,
+        when there is one, starts first (it is the longest job)."""
         if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or image_bgr.dtype != np.uint8:
             raise ValueError(f"expected a BGR uint8 image (H, W, 3), got {image_bgr.dtype} {image_bgr.shape}")
 
@@ -232,10 +234,20 @@ class Detector:
                                                     radius=self.cfg.mask_refine_radius_px)
         finally:
             extra = extra_fut.result() if extra_fut is not None else fallback_work()
-            ev, sig, grey = side_fut.result() if side_fut is not None else side_work()
         if extra:
             people = self._merge_fallback(people, extra)
+        if side_fut is not None and not refine:
+            return _Head(image_bgr, people, skeletons, None, None, refine, None, side_fut)
+        ev, sig, grey = side_fut.result() if side_fut is not None else side_work()
         return _Head(image_bgr, people, skeletons, ev, sig, refine, grey)
+
+    @staticmethod
+    def _settled(head: "_Head") -> "_Head":
+        """The head with its side work (edges, signature, grey) done."""
+        if head.side is None:
+            return head
+        ev, sig, grey = head.side.result()
+        return head._replace(edges=ev, signature=sig, grey=grey, side=None)
 
     def _refined(self, head: "_Head") -> "_Head":
         """The head with its people's masks refined (snapped to the image's edges, cut to their own
@@ -261,7 +273,7 @@ class Detector:
         map, the camera motion (it masks the people out), the shot change, the Measurement. Camera
         motion and shot change depend on the previous frame's tail: tails run in frame order.
         `overlap`: the camera motion runs in the worker thread while this one spreads the focus map."""
-        head = self._refined(head)
+        head = self._refined(self._settled(head))
 
         def motion_of():
             if self.motion is None:
@@ -342,10 +354,12 @@ class FrameStream:
 
     With `threads` 2, frame k's tail (mask refinement, focus map, camera motion, shot change, the
     Measurement: nothing a later pose needs) runs in a thread of its own while the next frames'
-    poses run. Tails run one at a time, in frame order (they share the camera-motion and shot-change
-    state), so the measurements are those `Detector.process` gives. `push` returns the futures now
-    due (finished, or held back `Detector.TAILS_IN_FLIGHT` frames), oldest first; `flush` the rest.
-    A frame whose pose fails raises from `push`; a failed tail raises from its future's `result()`.
+    poses run; the frame's focus edges and colour signature, begun beside its pose, are waited for by
+    its tail, not by the next pose. Tails run one at a time, in frame order (they share the
+    camera-motion and shot-change state), so the measurements are those `Detector.process` gives.
+    `push` returns the futures now due (finished, or held back `Detector.TAILS_IN_FLIGHT` frames),
+    oldest first; `flush` the rest. A frame whose pose fails raises from `push`; a failed tail (or
+    focus edge stage) raises from its future's `result()`.
     With `threads` 1 each push measures its frame at once."""
 
     def __init__(self, det: Detector) -> None:
