@@ -103,6 +103,20 @@ def people_mask(people: list[PersonDetection], width: int, height: int) -> np.nd
     return out if out.any() else None
 
 
+def half_covered(canvas: np.ndarray, k: int) -> np.ndarray:
+    """Whether each k x k block of a boolean image (both sides whole multiples of k) has at least half
+    of its pixels True, from exact counts. A bool is one byte holding 0 or 1, so the set bits of eight
+    of them read as one 64-bit word are their count (`np.bitwise_count`, numpy >= 2): ~10x faster
+    than summing the booleans block by block, the same counts."""
+    h, w = canvas.shape
+    if k % 8 == 0 and canvas.flags.c_contiguous and hasattr(np, "bitwise_count"):
+        per8 = np.bitwise_count(canvas.view(np.uint64))  # (h, w / 8): the True pixels of each 8
+        counts = per8.reshape(h // k, k, w // k, k // 8).sum(axis=(1, 3), dtype=np.int64)
+    else:
+        counts = canvas.reshape(h // k, k, w // k, k).sum(axis=(1, 3))
+    return 2 * counts >= k * k
+
+
 def people_mask_at(people: list[PersonDetection], width: int, height: int,
                    size: tuple[int, int]) -> np.ndarray | None:
     """The people's mask as the focus propagation takes it (None when nobody has a mask pixel): the
@@ -130,7 +144,7 @@ def people_mask_at(people: list[PersonDetection], width: int, height: int,
         canvas[y0 - by0:y1 - by0, x0 - bx0:x1 - bx0] |= p.mask[y0 - oy:y1 - oy, x0 - ox:x1 - ox]
     if not canvas.any():
         return None
-    half = 2 * canvas.reshape(canvas.shape[0] // k, k, canvas.shape[1] // k, k).sum(axis=(1, 3)) >= k * k
+    half = half_covered(canvas, k)
     if not half.any():  # people too small to cover half a cell: the propagation sees the full mask
         return people_mask(people, width, height)
     out = np.zeros((mh, mw), dtype=bool)
