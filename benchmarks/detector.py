@@ -19,9 +19,9 @@ on an idle 2-core machine frames/s can reach at most 2000 / CPU-ms).
     python benchmarks/detector.py --stages [--set ...]                 # thread CPU per stage, streamed
 
 `--stages` times each stage in the thread that runs it (`time.thread_time` around the stage's
-function), so its ms a frame hold on a loaded machine too; the stages overlap in four threads
-(caller: the tracking crop; pose worker: the SSD and the second look; focus worker: the edges and
-the shot signature; tail: the mask refinement, the propagation, the camera motion).
+function), so its ms a frame hold on a loaded machine too; the stages overlap in three threads
+(caller: the tracking crop; pose worker: the SSD and the second look; tail: the focus edges and the
+shot signature, then the mask refinement, the propagation, the camera motion).
 
 Each streamed row also prints `where` a frame's CPU went: each thread's CPU, user / system time,
 context switches, minor page faults and the time the host stole (docs/detector.md: why a frame's

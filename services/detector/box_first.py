@@ -97,7 +97,12 @@ def nms(boxes: np.ndarray, scores: np.ndarray, iou: float) -> list[int]:
 
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:
-    return 1.0 / (1.0 + np.exp(-np.clip(x, -60, 60)))
+    """1 / (1 + exp(-clip(x, -60, 60))), in x's float type, into one fresh array (x is left as it is)."""
+    y = np.clip(x, -60, 60)
+    np.negative(y, out=y)
+    np.exp(y, out=y)
+    y += 1.0
+    return np.divide(1.0, y, out=y)
 
 
 def _interpreter(path, threads: int):
@@ -230,13 +235,15 @@ class BoxFirstPose:
         a, t = self._crop_matrix(roi)
         crop = cv2.warpAffine(image_bgr, np.hstack([a, t[:, None]]), (LANDMARK_INPUT, LANDMARK_INPUT),
                               flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0))
-        x = cv2.cvtColor(crop, cv2.COLOR_BGR2RGB).astype(np.float32) * (1.0 / 255.0)
         it = lmk if lmk is not None else self._lmk
-        it.set_tensor(self._lmk_in, x[None])
+        # RGB in [0, 1] written straight into the model's input (no float image, no copy of it); the
+        # view into the interpreter's buffer is let go before it runs
+        np.multiply(cv2.cvtColor(crop, cv2.COLOR_BGR2RGB), np.float32(1.0 / 255.0), dtype=np.float32,
+                    out=it.tensor(self._lmk_in)()[0])
         it.invoke()
         lm = it.get_tensor(self._lmk_out["landmarks"]).reshape(39, 5).astype(np.float64)
         flag = float(np.ravel(it.get_tensor(self._lmk_out["flag"]))[0])
-        seg = it.get_tensor(self._lmk_out["seg"])[0, :, :, 0].copy()
+        seg = it.get_tensor(self._lmk_out["seg"])[0, :, :, 0]  # get_tensor copies: nothing else holds it
         cx, cy, side, co, si = roi
         q = (lm[:, :2] - LANDMARK_INPUT / 2) * (side / LANDMARK_INPUT)  # crop offsets [frame px], crop axes
         lm[:, 0] = cx + co * q[:, 0] - si * q[:, 1]

@@ -59,14 +59,25 @@ def _magnitude_at(gx: np.ndarray, gy: np.ndarray, idx: np.ndarray) -> np.ndarray
 
 
 def guided_filter(guide: np.ndarray, src: np.ndarray, radius: int, eps: float) -> np.ndarray:
-    """He et al. (2010) guided filter, grey guide, float32 inputs in [0, 1]."""
+    """He et al. (2010) guided filter, grey guide, float32 inputs in [0, 1]. The same float32 operations
+    as a = (box(I p) - box(I) box(p)) / (box(I I) - box(I)^2 + eps), b = box(p) - a box(I),
+    box(a) I + box(b), done in place: one scratch image instead of a fresh one per operation."""
     mean_i = _box(guide, radius)
     mean_p = _box(src, radius)
-    corr_ip = _box(guide * src, radius)
-    var_i = _box(guide * guide, radius) - mean_i * mean_i
-    a = (corr_ip - mean_i * mean_p) / (var_i + eps)
-    b = mean_p - a * mean_i
-    return _box(a, radius) * guide + _box(b, radius)
+    t = guide * src
+    a = _box(t, radius)  # corr_ip
+    np.multiply(guide, guide, out=t)
+    var_i = _box(t, radius)
+    var_i -= np.multiply(mean_i, mean_i, out=t)
+    a -= np.multiply(mean_i, mean_p, out=t)
+    var_i += eps
+    a /= var_i
+    b = mean_p
+    b -= np.multiply(a, mean_i, out=t)
+    out = _box(a, radius)
+    out *= guide
+    out += _box(b, radius)
+    return out
 
 
 class FocusEstimator:
@@ -105,8 +116,9 @@ class FocusEstimator:
         g1y = cv2.Sobel(g1, cv2.CV_32F, 0, 1, ksize=1, scale=0.5)
         t = cfg.focus_edge_threshold
         # Canny's 3x3 Sobel magnitude is ~8x the central-difference gradient per pixel.
-        # flat indices: one index array instead of two (a third of the pixels are edges)
-        idx = np.flatnonzero(cv2.Canny(grey, 4.0 * t, 8.0 * t, L2gradient=True))
+        # flat indices: one index array instead of two (a third of the pixels are edges); found in a
+        # boolean image, whose nonzero numpy counts and finds ~5x faster than in Canny's uint8 0/255
+        idx = np.flatnonzero(cv2.Canny(grey, 4.0 * t, 8.0 * t, L2gradient=True) > 0)
         mw, mh = self.map_size(w, h)
         guide = cv2.resize(grey, (mw, mh), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
         num = np.zeros((wh, ww), np.float32)

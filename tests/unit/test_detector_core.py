@@ -12,7 +12,7 @@ from cinetransfer.data import data_dir as shared_data_dir
 
 from cinetransfer.services.detector import pose_bundle
 from cinetransfer.services.detector.config import ConfigError, DetectorConfig
-from cinetransfer.services.detector.core import Detector, FrameStream, people_mask, people_mask_at
+from cinetransfer.services.detector.core import Detector, FrameStream, half_covered, people_mask, people_mask_at
 from cinetransfer.services.detector.focus import EdgeEvidence, FocusEstimator
 from cinetransfer.services.detector.overlay import draw
 from cinetransfer.services.detector.pose_mediapipe import BLAZEPOSE_TO_COCO17
@@ -371,3 +371,20 @@ def test_shot_change_scores_find_the_cuts_of_a_film_clip(detector):
     # and a frame that does not follow the previous one (a gap) is not scored
     f = next(iter_frames(data_dir() / "tos_clip01_640x360.mp4", start=100, stop=101))
     assert math.isnan(detector.process(f.image, f.index, f.stamp_ns, source="tos").shot_change)
+
+
+@pytest.mark.parametrize("k", [2, 4, 8, 16])
+def test_half_covered_counts_each_block_exactly(k):
+    rng = np.random.default_rng(k)
+    canvas = rng.random((6 * k, 5 * k)) < 0.5
+    # hand-made blocks: exactly half covered (counts), one pixel short of half, all, none
+    canvas[:k, :k] = False
+    canvas[:k, :k].flat[: k * k // 2] = True
+    canvas[:k, k:2 * k] = False
+    canvas[:k, k:2 * k].flat[: k * k // 2 - 1] = True
+    canvas[k:2 * k, :k], canvas[k:2 * k, k:2 * k] = True, False
+    want = np.array([[2 * canvas[i * k:(i + 1) * k, j * k:(j + 1) * k].sum() >= k * k for j in range(5)]
+                     for i in range(6)])
+    got = half_covered(canvas, k)
+    assert got.shape == (6, 5) and np.array_equal(got, want)
+    assert got[0, 0] and not got[0, 1] and got[1, 0] and not got[1, 1]
