@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from cinetransfer.report import fidelity as F
-from cinetransfer.report.figures import _colour, _dark, _in_focus_text
+from cinetransfer.report.figures import _colour, _dark, _in_focus_text, hex_rgb
 
 HEIGHT = 360  #: pixel height of each half
 #: x264 on top of its veryfast preset: a diamond motion search and one sub-pixel refinement encode a
@@ -22,10 +22,9 @@ HEIGHT = 360  #: pixel height of each half
 X264_PARAMS = "me=dia:subme=1"
 
 
-def _bgr(colour: Any) -> tuple[int, int, int]:
-    from matplotlib.colors import to_rgb
-
-    r, g, b = to_rgb(colour)
+def _bgr(colour: str | tuple[float, float, float]) -> tuple[int, int, int]:
+    """OpenCV's BGR of a '#rrggbb' colour or an RGB triple in [0, 1]."""
+    r, g, b = hex_rgb(colour) if isinstance(colour, str) else colour
     return int(b * 255), int(g * 255), int(r * 255)
 
 
@@ -111,7 +110,7 @@ def side_by_side(path: Path, series: dict[str, Any], *, source_video: str | Path
     n, n_joints = len(t), len(series["joint_names"])
     if n == 0:
         raise ValueError("no frames to compare")
-    colours = [(_bgr(_colour(e)), _bgr(_dark(_colour(e)))) for e in range(n_joints)]  # matplotlib's, once
+    colours = [(_bgr(_colour(e)), _bgr(_dark(_colour(e)))) for e in range(n_joints)]  # the figures' colours, once
     srd, ord_ = _Reader(source_video), _Reader(output_video)
     widths: tuple[int, int] | None = None
     try:
