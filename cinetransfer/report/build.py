@@ -312,6 +312,13 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
     plots = figs.Drawing(outdir, fig_series, [n for n, _ in figs.FIGURES if n != figs.FRAMES_FIGURE],
                          pool=figure_worker)
     floor_summary, floor = floor_facts(source, truths, meta, fid, floor_ahead)
+    # camera motion before the video: its figure is drawn beside the video, not after it
+    segs = ([(int(t["first_row"]), int(t["end_row"])) for t in meta["takes"]] if meta.get("takes")
+            else shot_segments(source))
+    states = (list(vehicle_states) if vehicle_states is not None else read_vehicle_states(run)) \
+        if run and truths else []
+    motion, motion_fig = camera_motion_facts(outdir, source, output, states, truths, segs, figure_worker)
+
     _, src_idx, out_idx = figs.frame_picks(s)
     from cinetransfer.report.people import make_people, middle_frame_index
 
@@ -333,12 +340,6 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
     middle = keep[0].get(mid) if video and mid is not None else None  # RGB, as the figures keep them
     frames = figs.Drawing(outdir, fig_series, [figs.FRAMES_FIGURE], pool=figure_worker, source_video=source_video,
                           output_video=output_video, credit=credit, decoded=decoded)
-
-    segs = ([(int(t["first_row"]), int(t["end_row"])) for t in meta["takes"]] if meta.get("takes")
-            else shot_segments(source))
-    states = (list(vehicle_states) if vehicle_states is not None else read_vehicle_states(run)) \
-        if run and truths else []
-    motion, motion_fig = camera_motion_facts(outdir, source, output, states, truths, segs, figure_worker)
 
     try:
         people = make_people(outdir, meta, source_video,

@@ -48,10 +48,18 @@ def _colour(e: int) -> str:
     return JOINT_COLOURS[e % len(JOINT_COLOURS)]
 
 
-def _dark(colour: str, f: float = 0.65) -> tuple[float, float, float]:
-    from matplotlib.colors import to_rgb
+def hex_rgb(colour: str) -> tuple[float, float, float]:
+    """'#rrggbb' as RGB in [0, 1], the very floats matplotlib's `to_rgb` gives (each byte / 255):
+    the side-by-side video takes its colours from here, so the transfer's process never imports
+    matplotlib (the figures are drawn in their own process)."""
+    if not re.fullmatch(r"#[0-9a-fA-F]{6}", colour):
+        raise ValueError(f"not a #rrggbb colour: {colour!r}")
+    r, g, b = (int(colour[i:i + 2], 16) / 255 for i in (1, 3, 5))
+    return (r, g, b)
 
-    r, g, b = to_rgb(colour)
+
+def _dark(colour: str, f: float = 0.65) -> tuple[float, float, float]:
+    r, g, b = hex_rgb(colour)
     return (r * f, g * f, b * f)
 
 

@@ -8,13 +8,15 @@ the regions in focus (source: the instructions; output: truth, else extraction).
 """
 from __future__ import annotations
 
+import queue
+import threading
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
 from cinetransfer.report import fidelity as F
-from cinetransfer.report.figures import _colour, _dark, _in_focus_text
+from cinetransfer.report.figures import _colour, _dark, _in_focus_text, hex_rgb
 
 HEIGHT = 360  #: pixel height of each half
 #: x264 on top of its veryfast preset: a diamond motion search and one sub-pixel refinement encode a
@@ -22,10 +24,9 @@ HEIGHT = 360  #: pixel height of each half
 X264_PARAMS = "me=dia:subme=1"
 
 
-def _bgr(colour: Any) -> tuple[int, int, int]:
-    from matplotlib.colors import to_rgb
-
-    r, g, b = to_rgb(colour)
+def _bgr(colour: str | tuple[float, float, float]) -> tuple[int, int, int]:
+    """OpenCV's BGR of a '#rrggbb' colour or an RGB triple in [0, 1]."""
+    r, g, b = hex_rgb(colour) if isinstance(colour, str) else colour
     return int(b * 255), int(g * 255), int(r * 255)
 
 
@@ -93,6 +94,61 @@ def _label(img: np.ndarray, text: str, y: int) -> None:
     cv2.putText(img, text, (8, y - 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
 
 
+#: frames the reading thread may be ahead of the drawing and encoding (~5 MB a row)
+READ_AHEAD = 8
+
+
+def _width(img: np.ndarray | None) -> int:
+    """A half's width: the frame's aspect at HEIGHT, even (640 for a missing video)."""
+    return 640 if img is None else int(round(img.shape[1] * HEIGHT / img.shape[0] / 2) * 2)
+
+
+def _rows(source_video: str | Path | None, output_video: str | Path | None, source_rows: list[int]) -> Iterator[tuple]:
+    """(source frame, output frame, left half, right half) of each row i (source frame
+    source_rows[i], output frame i), decoded and shrunk by a thread of their own up to READ_AHEAD
+    rows ahead: OpenCV decodes and resizes without the GIL, so this runs beside the drawing and
+    x264 instead of before them (the same frames and halves, in the same order)."""
+    q: queue.Queue = queue.Queue(maxsize=READ_AHEAD)
+    stop = threading.Event()
+
+    def put(item: Any) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def read() -> None:
+        srd, ord_ = _Reader(source_video), _Reader(output_video)
+        widths: tuple[int, int] | None = None
+        try:
+            for i, row in enumerate(source_rows):
+                a, b = srd.get(row), ord_.get(i)
+                widths = widths or (_width(a), _width(b))
+                if not put((a, b, _half(a, widths[0], "source frame not readable"),
+                            _half(b, widths[1], "no output frame"))):
+                    return
+        except BaseException as e:  # noqa: BLE001 - handed over: the caller raises it
+            put(e)
+        finally:
+            srd.close()
+            ord_.close()
+
+    reader = threading.Thread(target=read, name="report-video-read", daemon=True)
+    reader.start()
+    try:
+        for _ in source_rows:
+            item = q.get()
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        reader.join()
+
+
 def side_by_side(path: Path, series: dict[str, Any], *, source_video: str | Path | None,
                  output_video: str | Path | None, fps: float,
                  keep: tuple[dict[int, Any], dict[int, Any]] | None = None) -> dict[str, Any]:
@@ -111,44 +167,33 @@ def side_by_side(path: Path, series: dict[str, Any], *, source_video: str | Path
     n, n_joints = len(t), len(series["joint_names"])
     if n == 0:
         raise ValueError("no frames to compare")
-    colours = [(_bgr(_colour(e)), _bgr(_dark(_colour(e)))) for e in range(n_joints)]  # matplotlib's, once
-    srd, ord_ = _Reader(source_video), _Reader(output_video)
+    colours = [(_bgr(_colour(e)), _bgr(_dark(_colour(e)))) for e in range(n_joints)]  # the figures' colours, once
     widths: tuple[int, int] | None = None
-    try:
-        with H264Writer(path, fps, crf=23, x264_params=X264_PARAMS) as w:
-            for i in range(n):
-                a, b = srd.get(first + int(k[i])), ord_.get(i)
-                if keep is not None:
-                    _keep(keep[0], first + int(k[i]), a)
-                    _keep(keep[1], i, b)
-                if widths is None:
-                    def wid(img: np.ndarray | None) -> int:
-                        return 640 if img is None else int(round(img.shape[1] * HEIGHT / img.shape[0] / 2) * 2)
-                    widths = (wid(a), wid(b))
-                left = _half(a, widths[0], "source frame not readable")
-                right = _half(b, widths[1], "no output frame")
-                for e in range(n_joints):
-                    col, dark = colours[e]
-                    if src.ok[i, e]:
-                        for half, wd in ((left, widths[0]), (right, widths[1])):
-                            x, y = src.xy[i, e]
-                            cv2.circle(half, (int(x * wd), int(y * HEIGHT)), 9, col, 2, cv2.LINE_AA)
-                    if ext.ok[i, e]:
-                        x, y = ext.xy[i, e]
-                        cv2.circle(right, (int(x * widths[1]), int(y * HEIGHT)), 4, dark, -1, cv2.LINE_AA)
-                    if tru.ok[i, e]:
-                        x, y = tru.xy[i, e]
-                        cv2.drawMarker(right, (int(x * widths[1]), int(y * HEIGHT)), (255, 255, 255),
-                                       cv2.MARKER_TILTED_CROSS, 10, 2, cv2.LINE_AA)
-                _label(left, f"source  k={int(k[i])}  t={t[i]:.2f}s", 20)
-                _label(right, f"output  frame {i}", 20)
-                _label(left, _in_focus_text(src, i), HEIGHT - 10)
-                which = tru if tru.available[i] else ext
-                _label(right, _in_focus_text(which, i) + (" (truth)" if tru.available[i] else " (extraction)"),
-                       HEIGHT - 10)
-                w.write(np.hstack([left, right]))
-    finally:
-        srd.close()
-        ord_.close()
+    with H264Writer(path, fps, crf=23, x264_params=X264_PARAMS) as w:
+        for i, (a, b, left, right) in enumerate(_rows(source_video, output_video, [first + int(x) for x in k[:n]])):
+            if keep is not None:
+                _keep(keep[0], first + int(k[i]), a)
+                _keep(keep[1], i, b)
+            widths = widths or (left.shape[1], right.shape[1])
+            for e in range(n_joints):
+                col, dark = colours[e]
+                if src.ok[i, e]:
+                    for half, wd in ((left, widths[0]), (right, widths[1])):
+                        x, y = src.xy[i, e]
+                        cv2.circle(half, (int(x * wd), int(y * HEIGHT)), 9, col, 2, cv2.LINE_AA)
+                if ext.ok[i, e]:
+                    x, y = ext.xy[i, e]
+                    cv2.circle(right, (int(x * widths[1]), int(y * HEIGHT)), 4, dark, -1, cv2.LINE_AA)
+                if tru.ok[i, e]:
+                    x, y = tru.xy[i, e]
+                    cv2.drawMarker(right, (int(x * widths[1]), int(y * HEIGHT)), (255, 255, 255),
+                                   cv2.MARKER_TILTED_CROSS, 10, 2, cv2.LINE_AA)
+            _label(left, f"source  k={int(k[i])}  t={t[i]:.2f}s", 20)
+            _label(right, f"output  frame {i}", 20)
+            _label(left, _in_focus_text(src, i), HEIGHT - 10)
+            which = tru if tru.available[i] else ext
+            _label(right, _in_focus_text(which, i) + (" (truth)" if tru.available[i] else " (extraction)"),
+                   HEIGHT - 10)
+            w.write(np.hstack([left, right]))
     return {"file": path.name, "frames": n, "fps": fps, "duration_s": round(n / fps, 6),
             "width": sum(widths), "height": HEIGHT, "bytes": path.stat().st_size}

@@ -3,6 +3,12 @@ figure process that cannot draw leaves the report whole."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
 
 from cinetransfer.report import build_report, synth
 from cinetransfer.report.workers import FigureWorker
@@ -44,3 +50,35 @@ def test_a_closed_figure_process_leaves_the_figures_to_this_one(tmp_path):
     assert set(FIGS) <= set(summary["figures"]) and not summary["figure_errors"]
     for name in FIGS:
         assert (tmp_path / "closed" / name).stat().st_size > 0
+
+
+def test_the_videos_colours_are_the_figures_own_without_matplotlib():
+    from cinetransfer.report.figures import hex_rgb
+
+    # '#1f77b4': bytes 31, 119, 180, each over 255 (what matplotlib's to_rgb gives)
+    assert hex_rgb("#1f77b4") == (31 / 255, 119 / 255, 180 / 255)
+    assert hex_rgb("#222222") == (34 / 255,) * 3
+    with pytest.raises(ValueError):
+        hex_rgb("tab:blue")
+
+
+def test_a_report_with_a_figure_process_never_imports_matplotlib_here(tmp_path):
+    # given a fresh interpreter that builds a report with its figures drawn in a figure process
+    code = textwrap.dedent(f"""
+        import sys
+        from pathlib import Path
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        from test_report_workers import _report
+        from cinetransfer.report.workers import FigureWorker
+        if __name__ == "__main__":
+            with FigureWorker() as worker:
+                summary = _report(Path({str(tmp_path)!r}), "fresh", figure_worker=worker)
+            assert summary["video"] and not summary["figure_errors"], summary["figure_errors"]
+            print("matplotlib" in sys.modules)
+    """)
+    script = tmp_path / "build.py"
+    script.write_text(code)
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
+    # then the figures and the side-by-side video are made, and matplotlib was only the figure process's
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip().splitlines()[-1] == "False"

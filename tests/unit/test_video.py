@@ -80,3 +80,29 @@ def test_the_reports_halves_average_areas_only_on_a_whole_factor():
 
     assert [_interpolation(h) for h in (720, 360, 1080, 540, 480)] == [
         cv2.INTER_AREA, cv2.INTER_AREA, cv2.INTER_AREA, cv2.INTER_LINEAR, cv2.INTER_LINEAR]
+
+
+def test_the_reports_rows_read_ahead_are_the_frames_read_in_turn(tmp_path, monkeypatch):
+    # given a 30-frame source whose rows repeat and skip (k = 0 0 1 3 4 ...), an output of 20, and
+    # a read-ahead of only 2 rows (the reading thread waits for the drawing most of the time)
+    from cinetransfer.report import video as V
+
+    src, out = tmp_path / "src.mp4", tmp_path / "out.mp4"
+    for path, n in ((src, 30), (out, 20)):
+        with H264Writer(path, 24.0) as w:
+            for img in _frames(n, 72, 128):
+                w.write(img)
+    rows = [0, 0, 1, 3, 4, 4, 4, 9, 12, 13, 17, 18, 20, 21, 25, 26, 27, 28, 29, 29]
+    monkeypatch.setattr(V, "READ_AHEAD", 2)
+    got = list(V._rows(src, out, rows))
+    # then each row holds the very frames (and halves) that reading both videos in turn gives
+    srd, ord_ = V._Reader(src), V._Reader(out)
+    for i, (a, b, left, right) in enumerate(got):
+        want_a, want_b = srd.get(rows[i]), ord_.get(i)
+        assert np.array_equal(a, want_a) and np.array_equal(b, want_b), i
+        assert left.shape == right.shape == (V.HEIGHT, 640, 3)
+        assert np.array_equal(left, V._half(want_a, 640, "")), i
+    assert len(got) == len(rows)
+    # and a row past the output's end is None (its half is the placeholder), not an error
+    tail = list(V._rows(src, out, [0] * 22))
+    assert tail[-1][1] is None and tail[-1][3].shape == (V.HEIGHT, 640, 3)
