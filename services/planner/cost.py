@@ -240,6 +240,16 @@ def travel_residual(vel, direction, v_scale, least=0):  # noqa: ANN001, ANN201
     return ca.vertcat(sideways_velocity(vel, direction, v_scale), ca.fmin(along - least, 0) * v_scale)
 
 
+def level_rail(axis, level):  # noqa: ANN001, ANN201
+    """The unit world direction a camera that stands still sideways may travel along: its optical
+    `axis`, or with `level` 1 (a dolly's or a dolly-zoom's row) the axis levelled, as a dolly's rails
+    are. The rendered dollies travel parallel to the ground; along the axis of a camera pitched down
+    3-4 deg the output's dolly-zoom in sank 2.5-3.4 deg (the dolly-zoom out climbed 3-4.6 deg), where
+    the extraction's ground, which takes the camera to move parallel to it, read the zoom short."""
+    flat = ca.vertcat(axis[0], axis[1], 0) / ca.sqrt(axis[0] ** 2 + axis[1] ** 2 + 1e-12)
+    return axis + level * (flat - axis)
+
+
 def along_velocity(vel, forward, v_scale):  # noqa: ANN001, ANN201
     """The velocity along the unit world direction `forward` / v_max (a zoom flown while moving
     along the optical axis reads as a dolly-zoom)."""
@@ -477,8 +487,9 @@ class StageBuilder:
                                                                                  least)))
         # a camera that only turns or zooms does not slide sideways: held by J_v alone (0.5), the framing
         # trucked and orbited it after the walker and the pan was read as orbit or truck; held in every
-        # direction, it lost the framing (docs/planner.md, "Stand still")
-        out.append((wts["motion_still"] * m[CM.STILL], sideways_velocity(x[lay.V], r[:, 0], par.v_scale)))
+        # direction, it lost the framing (docs/planner.md, "Stand still"); a dolly stands still off its level rails
+        rail = level_rail(r[:, 0], m[CM.TRAVEL_MASK])
+        out.append((wts["motion_still"] * m[CM.STILL], sideways_velocity(x[lay.V], rail, par.v_scale)))
         # a camera that only zooms holds its distance too: moved along the axis it reads as a dolly-zoom
         out.append((wts["zoom_still"] * m[CM.STILL_ALONG], along_velocity(x[lay.V], r[:, 0], par.v_scale)))
         # room on the lens for the zoom still to come: at the end of its range it cannot follow the style

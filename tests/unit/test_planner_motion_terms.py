@@ -130,6 +130,13 @@ def test_log_rates_and_travel_residual_by_hand():
     s2 = math.sqrt(0.5)  # axis at 45 deg in x-y: (1, 0, 0) splits into (0.5, 0.5, 0) along, (0.5, -0.5, 0) off
     r = ca.DM(J.sideways_velocity(ca.DM([1.0, 0.0, 0.0]), ca.DM([s2, s2, 0.0]), 1.0)).full().ravel()
     assert r == pytest.approx([0.5, -0.5, 0])
+    # a dolly's rails: the axis pitched down by 30 deg (cos, 0, -sin) levelled to (1, 0, 0); 0 keeps the axis
+    c, sn = math.cos(math.radians(30.0)), math.sin(math.radians(30.0))
+    assert ca.DM(J.level_rail(ca.DM([c, 0.0, -sn]), 1.0)).full().ravel() == pytest.approx([1.0, 0.0, 0.0])
+    assert ca.DM(J.level_rail(ca.DM([c, 0.0, -sn]), 0.0)).full().ravel() == pytest.approx([c, 0.0, -sn])
+    # along that axis at 1 m/s it sinks 0.5 m/s off the rails: 0.25 at v_max 2
+    r = ca.DM(J.sideways_velocity(ca.DM([c, 0.0, -sn]), J.level_rail(ca.DM([c, 0.0, -sn]), 1.0), 0.5)).full().ravel()
+    assert r == pytest.approx([0, 0, -0.25])
     # speed along the optical axis: 2 m/s forward at v_max 2 is 1; at 45 deg, (1, 0, 0) has sqrt(0.5) along
     assert _f(J.along_velocity(ca.DM([2.0, 1.0, 0.0]), ca.DM([1.0, 0.0, 0.0]), 0.5)) == pytest.approx(1.0)
     assert _f(J.along_velocity(ca.DM([1.0, 0.0, 0.0]), ca.DM([s2, s2, 0.0]), 1.0)) == pytest.approx(s2)
