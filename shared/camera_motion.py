@@ -400,7 +400,8 @@ def frame_motion(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float =
     MIN_POINTS corners they are all taken as corners.
 
     `lines` (N,): True for the tracks on a line (a looser edge test than `normals`'); they are left
-    out of the frame's rotation given a translation (`rotation_off_lines`)."""
+    out of the frame's rotation given a dolly (`rotation_off_lines`; beside a truck they hold its
+    weakly seen pan)."""
     p0, p1 = np.asarray(p0, dtype=float).reshape(-1, 2), np.asarray(p1, dtype=float).reshape(-1, 2)
     fin = np.isfinite(p0).all(axis=1) & np.isfinite(p1).all(axis=1)
     if earlier is not None:
@@ -454,15 +455,15 @@ def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earli
             # span mispredicts them by pixels); the frame's rotation comes from its two frames given t
             t = dolly_sign(a, b, f, rot, t, inl_t, nb)
             zoom = zoom_against_dolly(a, b, f, rot, t, inl_t, inlier_px=tol, normals=nb) / k
-            rot = rotation_given_direction(b0, b, f, t, rotation_off_lines(inl_t, on_line[sel]),
-                                           inlier_px=inlier_px) if long else rot
+            on = rotation_off_lines(inl_t, on_line[sel]) if abs(t[2]) >= DOLLY_AXIS else inl_t
+            rot = rotation_given_direction(b0, b, f, t, on, inlier_px=inlier_px) if long else rot
             return FrameMotion(rot, zoom, t, n, explained)
     return FrameMotion(q[:3].copy(), float(q[3]), np.zeros(3), n, explained)
 
 
 def rotation_off_lines(use: np.ndarray, on_line: np.ndarray) -> np.ndarray:
-    """The points `use` (N,) less those `on_line` (N,) that a frame's rotation given its translation
-    is fitted on; all of `use` when fewer than MIN_POINTS are left.
+    """The points `use` (N,) less those `on_line` (N,) that a frame's rotation given a dolly is
+    fitted on; all of `use` when fewer than MIN_POINTS are left.
 
     Given the direction, the rotation is set by each point's flow across its translation line. A
     track on a line of the paving slides along it by a fraction of a pixel a frame, below what the

@@ -39,7 +39,7 @@ EDGE_WINDOWS_PX = (11, 31)
 #: a track lies on a line when that share is under this in each window: the paving's tracks between
 #: 0.1 and 0.2 drift across their lines under a dolly as those under 0.1 do (rendered slow dolly, lower
 #: third: +0.6 px over the baseline against +0.02 for those above 0.5), so they are left out of the
-#: rotation given a translation (cm.frame_motion's `lines`)
+#: rotation given a dolly (cm.frame_motion's `lines`)
 LINE_RATIO = 0.2
 
 

@@ -686,3 +686,21 @@ def test_a_faint_crossing_line_makes_a_line_but_no_edge():
     normals, line = edges_and_lines(img, np.array([[20.0, 40.0], [60.0, 40.0], [95.0, 5.0], [30.0, 15.0]]))
     np.testing.assert_allclose(np.abs(normals), [[0.0, 1.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]], atol=1e-6)
     assert line.tolist() == [True, True, False, False]
+
+
+def test_a_trucks_rotation_keeps_its_tracks_on_lines():
+    """Beside a truck a pan is weakly seen and the tracks on lines help hold it: they are left out
+    of a dolly's rotation only, so a truck's motion is the same told or not."""
+    f = cm.focal_px(cm.WORK_WIDTH)
+    x = _ground_points(np.random.default_rng(5))
+    step = np.array([0.1, 0.0, 0.0])
+    proj = [f * (x - k * step)[:, :2] / (x - k * step)[:, 2:3] for k in range(9)]
+    keep = np.all([(np.abs(v[:, 0]) < 160) & (np.abs(v[:, 1]) < 90) for v in proj], axis=0)
+    earlier, p0, p1 = (proj[k][keep].copy() for k in (0, 7, 8))
+    line = (earlier[:, 0] < -30) & (earlier[:, 1] > 30)
+    p1[line, 0] += 0.3
+    plain = cm.frame_motion(p0, p1, f, earlier=earlier, span=8)
+    told = cm.frame_motion(p0, p1, f, earlier=earlier, span=8, lines=line)
+    assert abs(plain.translation_dir[0]) > 0.9
+    np.testing.assert_array_equal(told.rotation_rad, plain.rotation_rad)
+    np.testing.assert_array_equal(told.translation_dir, plain.translation_dir)
