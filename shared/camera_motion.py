@@ -382,7 +382,8 @@ def _alternate_on(mid: np.ndarray, flow: np.ndarray, basis: np.ndarray, f: float
 
 
 def frame_motion(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float = INLIER_PX,
-                 earlier: np.ndarray | None = None, span: int = 1, normals: np.ndarray | None = None) -> FrameMotion:
+                 earlier: np.ndarray | None = None, span: int = 1, normals: np.ndarray | None = None,
+                 lines: np.ndarray | None = None) -> FrameMotion:
     """The camera's motion between two frames from background points p0 -> p1 (N, 2, centred px,
     at the resolution whose focal length is `f` px). A translation is reported only when parallax
     shows it: rotation + zoom leaves much unexplained and rotation + translation explains it.
@@ -399,7 +400,11 @@ def frame_motion(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float =
     and the translation's direction and rotation are fitted in 2-D without it (its slide would read
     as parallax, and across its edge any depth fits it). Every other edge track
     counts in 2-D, as a corner; without a baseline all do (no slide can be told). With fewer than
-    MIN_POINTS corners they are all taken as corners."""
+    MIN_POINTS corners they are all taken as corners.
+
+    `lines` (N,): True for the tracks on a line (a looser edge test than `normals`'); they are left
+    out of the frame's rotation given a dolly (`rotation_off_lines`; beside a truck they hold its
+    weakly seen pan)."""
     p0, p1 = np.asarray(p0, dtype=float).reshape(-1, 2), np.asarray(p1, dtype=float).reshape(-1, 2)
     fin = np.isfinite(p0).all(axis=1) & np.isfinite(p1).all(axis=1)
     if earlier is not None:
@@ -411,15 +416,16 @@ def frame_motion(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: float =
     if normals is not None:
         normals = np.nan_to_num(np.asarray(normals, dtype=float).reshape(-1, 2)[fin])
         normals = None if (~edge_tracks(normals, n)).sum() < MIN_POINTS else normals
+    on_line = np.zeros(n, dtype=bool) if lines is None else np.asarray(lines, dtype=bool).reshape(-1)[fin]
     try:
-        return _fit_frame(p0, p1, f, inlier_px, earlier, span, normals)
+        return _fit_frame(p0, p1, f, inlier_px, earlier, span, normals, on_line)
     except np.linalg.LinAlgError:  # degenerate points (all on a line, ...): the frame's motion is unknown
         return FrameMotion.unknown(n)
 
 
 def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earlier: np.ndarray | None,
-               span: int, normals: np.ndarray | None) -> FrameMotion:
-    """frame_motion on finite points."""
+               span: int, normals: np.ndarray | None, on_line: np.ndarray) -> FrameMotion:
+    """frame_motion on finite points (`on_line` (N,): its `lines`)."""
     n = len(p0)
     sel = np.ones(n, dtype=bool)
     if earlier is not None and span >= MIN_SPAN:
@@ -455,9 +461,23 @@ def _fit_frame(p0: np.ndarray, p1: np.ndarray, f: float, inlier_px: float, earli
             # span mispredicts them by pixels); the frame's rotation comes from its two frames given t
             t = dolly_sign(a, b, f, rot, t, inl_t, nb)
             zoom = zoom_against_dolly(a, b, f, rot, t, inl_t, inlier_px=tol, normals=nb) / k
-            rot = rotation_given_direction(b0, b, f, t, inl_t, inlier_px=inlier_px) if long else rot
+            on = rotation_off_lines(inl_t, on_line[sel]) if abs(t[2]) >= DOLLY_AXIS else inl_t
+            rot = rotation_given_direction(b0, b, f, t, on, inlier_px=inlier_px) if long else rot
             return FrameMotion(rot, zoom, t, n, explained)
     return FrameMotion(q[:3].copy(), float(q[3]), np.zeros(3), n, explained)
+
+
+def rotation_off_lines(use: np.ndarray, on_line: np.ndarray) -> np.ndarray:
+    """The points `use` (N,) less those `on_line` (N,) that a frame's rotation given a dolly is
+    fitted on; all of `use` when fewer than MIN_POINTS are left.
+
+    Given the direction, the rotation is set by each point's flow across its translation line. A
+    track on a line of the paving slides along it by a fraction of a pixel a frame, below what the
+    sliding test sees (the tracks beside it slide too), and under a dolly that slide crosses the
+    translation's lines with the sign of the travel: on the rendered dollies it read as a pan of
+    0.3 deg/s the camera never made."""
+    kept = use & ~on_line
+    return kept if kept.sum() >= MIN_POINTS else use
 
 
 def _sliding_normals(a: np.ndarray, b: np.ndarray, f: float, normals: np.ndarray, sel: np.ndarray,

@@ -36,6 +36,11 @@ BASELINE_POINTS = 40
 #: (the paving's lines) it slides (the aperture problem)
 EDGE_RATIO = 0.1
 EDGE_WINDOWS_PX = (11, 31)
+#: a track lies on a line when that share is under this in each window: the paving's tracks between
+#: 0.1 and 0.2 drift across their lines under a dolly as those under 0.1 do (rendered slow dolly, lower
+#: third: +0.6 px over the baseline against +0.02 for those above 0.5), so they are left out of the
+#: rotation given a dolly (cm.frame_motion's `lines`)
+LINE_RATIO = 0.2
 
 
 def _baseline_start(history: np.ndarray | None) -> int | None:
@@ -108,21 +113,30 @@ def edge_normals(grey: np.ndarray, pts: np.ndarray, scratch: TensorScratch | Non
     tensor of the grey image (uint8) summed over the EDGE_WINDOWS_PX windows round it (the normal
     from the first); zeros where any window holds a corner (or nothing): its lesser eigenvalue at
     least EDGE_RATIO of the greater. `scratch`: images kept from the previous call (saves page faults)."""
+    return edges_and_lines(grey, pts, scratch)[0]
+
+
+def edges_and_lines(grey: np.ndarray, pts: np.ndarray,
+                    scratch: TensorScratch | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """`edge_normals` (N, 2), and (N,) True for the points on a line: the lesser eigenvalue under
+    LINE_RATIO of the greater in every window (one pass over the structure tensor for both)."""
     out = np.zeros((len(pts), 2))
     if not len(pts):
-        return out
+        return out, np.zeros(0, dtype=bool)
     h, w = grey.shape
     xi = np.clip(np.round(pts[:, 0]).astype(int), 0, w - 1)
     yi = np.clip(np.round(pts[:, 1]).astype(int), 0, h - 1)
     edge = np.ones(len(pts), dtype=bool)
+    line = np.ones(len(pts), dtype=bool)
     for size, sums in zip(EDGE_WINDOWS_PX, tensor_sums(grey, xi, yi, scratch)):
         a, b, c = (sums[:, j].astype(float) for j in range(3))
         half, root = 0.5 * (a + c), np.sqrt((0.5 * (a - c)) ** 2 + b * b)
         edge &= (half + root > 0.0) & (half - root < EDGE_RATIO * (half + root))
+        line &= (half + root > 0.0) & (half - root < LINE_RATIO * (half + root))
         if size == EDGE_WINDOWS_PX[0]:
             angle = 0.5 * np.arctan2(2.0 * b, a - c)  # the greater eigenvector: the gradient, across the edge
     out[edge] = np.column_stack([np.cos(angle), np.sin(angle)])[edge]
-    return out
+    return out, line
 
 
 def background_mask(people: list[PersonDetection], width: int, height: int, size: tuple[int, int]) -> np.ndarray:
@@ -195,10 +209,11 @@ class CameraMotionTracker:
             history = np.concatenate([prev[4][-SPAN_FRAMES:, ok], p1[None]]) if prev[4] is not None else None
             centre = np.array([(size[0] - 1) / 2.0, (size[1] - 1) / 2.0])
             start = _baseline_start(history)
+            normals, lines = edges_and_lines(grey, p1, self._scratch) if self.edge_tracks else (None, None)
             fm = cm.frame_motion(p0 - centre, p1 - centre, f_work, inlier_px=cm.INLIER_PX * ww / cm.WORK_WIDTH,
                                  earlier=None if start is None else history[start] - centre,
                                  span=0 if start is None else len(history) - 1 - start,
-                                 normals=edge_normals(grey, p1, self._scratch) if self.edge_tracks else None)
+                                 normals=normals, lines=lines)
             if start is None or len(history) - 1 - start < cm.MIN_SPAN:
                 fm = cm.parallax_untested(fm)
             out = CameraMotion(rotation_rad=fm.rotation_rad.astype(float), log_zoom=float(fm.log_zoom),

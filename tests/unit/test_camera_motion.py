@@ -660,3 +660,68 @@ def test_a_dolly_whose_edge_tracks_follow_their_texture_keeps_its_dolly():
     m = cm.frame_motion(p0, p1, F, earlier=earlier, span=8, normals=normals)
     np.testing.assert_allclose(m.translation_dir, (0, 0, 1), atol=0.02)
     assert m.log_zoom == 0.0
+
+
+def test_the_rotation_given_a_translation_leaves_the_tracks_on_lines_out_by_hand():
+    use = np.array([True] * 14 + [False] * 2)
+    on_line = np.zeros(16, dtype=bool)
+    on_line[[0, 1, 15]] = True
+    assert cm.rotation_off_lines(use, on_line).tolist() == [False] * 2 + [True] * 12 + [False] * 2
+    on_line[2] = True  # 11 left, under MIN_POINTS (12): all of `use`
+    assert cm.rotation_off_lines(use, on_line).tolist() == use.tolist()
+
+
+def test_tracks_sliding_along_the_pavings_lines_do_not_turn_a_dolly():
+    """A dolly in (2.4 m/s) over the ground of `_ground_points` at the work width's lens: the ground
+    tracks at the lower left lie on the paving's lines and slide 0.3 px to the right along them in
+    the last frame (within every inlier distance). In the frame's rotation given the dolly they read
+    as a pan to the left and a roll; told as on lines, they are left out and the rotation stays
+    near none."""
+    f = cm.focal_px(cm.WORK_WIDTH)
+    x = _ground_points(np.random.default_rng(5))
+    step = np.array([0.0, 0.0, 0.1])
+    proj = [f * (x - k * step)[:, :2] / (x - k * step)[:, 2:3] for k in range(9)]
+    keep = np.all([(np.abs(v[:, 0]) < 160) & (np.abs(v[:, 1]) < 90) for v in proj], axis=0)
+    earlier, p0, p1 = (proj[k][keep].copy() for k in (0, 7, 8))
+    line = (earlier[:, 0] < -30) & (earlier[:, 1] > 30)
+    p1[line, 0] += 0.3
+    fooled = cm.frame_motion(p0, p1, f, earlier=earlier, span=8)
+    told = cm.frame_motion(p0, p1, f, earlier=earlier, span=8, lines=line)
+    for m in (fooled, told):
+        assert m.translation_dir[2] > 0.99
+    assert fooled.rotation_rad[0] > 1.2e-4 and fooled.rotation_rad[2] > 1.2e-4  # 0.17 deg/s at 24 frames/s
+    np.testing.assert_allclose(told.rotation_rad[[0, 2]], 0.0, atol=5e-5)
+
+
+def test_a_faint_crossing_line_makes_a_line_but_no_edge():
+    """A level step of 150 grey levels crossed by an upright one of 58: where they cross the structure
+    tensor's lesser eigenvalue is (58 / 150)^2 = 0.15 of the greater in both windows, over the
+    edge's 0.1 and under the line's 0.2; along the level step away from the crossing, 0 (an edge and
+    a line); at a tile's corner about 1, and on flat grey nothing."""
+    from cinetransfer.services.detector.camera_motion import edges_and_lines
+
+    img = np.full((80, 120), 10, np.uint8)
+    img[40:, :] += 150
+    img[:, 60:] += 58
+    img[5:20, 95:110] = 250
+    normals, line = edges_and_lines(img, np.array([[20.0, 40.0], [60.0, 40.0], [95.0, 5.0], [30.0, 15.0]]))
+    np.testing.assert_allclose(np.abs(normals), [[0.0, 1.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]], atol=1e-6)
+    assert line.tolist() == [True, True, False, False]
+
+
+def test_a_trucks_rotation_keeps_its_tracks_on_lines():
+    """Beside a truck a pan is weakly seen and the tracks on lines help hold it: they are left out
+    of a dolly's rotation only, so a truck's motion is the same told or not."""
+    f = cm.focal_px(cm.WORK_WIDTH)
+    x = _ground_points(np.random.default_rng(5))
+    step = np.array([0.1, 0.0, 0.0])
+    proj = [f * (x - k * step)[:, :2] / (x - k * step)[:, 2:3] for k in range(9)]
+    keep = np.all([(np.abs(v[:, 0]) < 160) & (np.abs(v[:, 1]) < 90) for v in proj], axis=0)
+    earlier, p0, p1 = (proj[k][keep].copy() for k in (0, 7, 8))
+    line = (earlier[:, 0] < -30) & (earlier[:, 1] > 30)
+    p1[line, 0] += 0.3
+    plain = cm.frame_motion(p0, p1, f, earlier=earlier, span=8)
+    told = cm.frame_motion(p0, p1, f, earlier=earlier, span=8, lines=line)
+    assert abs(plain.translation_dir[0]) > 0.9
+    np.testing.assert_array_equal(told.rotation_rad, plain.rotation_rad)
+    np.testing.assert_array_equal(told.translation_dir, plain.translation_dir)
