@@ -301,10 +301,17 @@ def fit_rotation_translation(p0: np.ndarray, p1: np.ndarray, f: float, rot0: np.
     best = _count_in_front(flow, basis, rot, t, _lines(mid, t, f), inlier_px)
     scores = _search_scores(mid, flow, basis, f, inlier_px)
     k = int(np.argmax(scores))  # the first of the best, as the search over _DIRECTIONS in order
-    if scores[k] > SEARCH_MARGIN * best:  # only a clearly better start: near ties keep the first fit's rotation
+    searched = bool(scores[k] > SEARCH_MARGIN * best)  # only a clearly better start: near ties keep the first fit's
+    if searched:
         t = _DIRECTIONS[k]
     first = _alternate_on(mid, flow, basis, f, t, inlier_px, iters)
     if first[2].mean() < shown:
+        # the alternation can walk away from a start that showed the translation (past the rendered
+        # pedestal it went from the pedestal, 83 % of the points, to the optical axis, 65 %): the
+        # search's direction is kept then, signed and polished
+        if searched and scores[k] >= shown * len(mid):
+            return polish_direction(mid, flow, basis, f, *_signed_direction(mid, flow, basis, f, _DIRECTIONS[k],
+                                                                            inlier_px), inlier_px)
         return first
     # the alternation settles where it starts: past a dolly-zoom a start off to the side settled on
     # a truck with a pan that explains fewer points than the dolly; the one from the optical axis
@@ -334,6 +341,16 @@ def _in_front_of_lines(inliers: np.ndarray, along: np.ndarray, t_z: np.ndarray, 
     back = (inliers & (along < -inlier_px)).sum(axis=-1)
     count = inliers.sum(axis=-1)
     return np.where(np.abs(t_z) < DOLLY_AXIS, count - np.minimum(front, back), count)
+
+
+def _signed_direction(mid: np.ndarray, flow: np.ndarray, basis: np.ndarray, f: float, t: np.ndarray,
+                      inlier_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rotation (3,), the direction t signed as most of its points' depths ask, and its inliers (N,):
+    one of the search's _DIRECTIONS (all with t_z >= 0), with its own rotation (`_direction_fits`)."""
+    rot, perp, along = _direction_fits(mid, flow, basis, f, inlier_px, t[None])
+    inl = perp[0] < inlier_px
+    behind = (inl & (along[0] < -inlier_px)).sum() > (inl & (along[0] > inlier_px)).sum()
+    return rot[0], -t if behind else t, inl
 
 
 #: polish_direction's first step [rad] and how many times it is halved
