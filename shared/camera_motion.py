@@ -328,19 +328,26 @@ _DIRECTION_ARRAY = np.array(_DIRECTIONS)
 
 def _in_front_of_lines(inliers: np.ndarray, along: np.ndarray, t_z: np.ndarray, inlier_px: float) -> np.ndarray:
     """Of the points within inlier_px of their translation lines `inliers` (..., N), how many (...)
-    have a depth in front of the camera, the direction's sign chosen as most of them ask: those whose
-    residual along the line `along` (..., N) [px, positive: a positive depth for +t] is more than
-    inlier_px the minority's way are behind it (one within it could be far away either way).
+    have a depth in front of the camera (`_behind_camera`).
 
     Only off the optical axis (|t_z| < DOLLY_AXIS, (...)): past a truck and a pan the other way most
     points fit a truck the other way with a faster pan, but 38-49 % of them behind the camera
     (the rendered truck right: frame to frame it flipped between the two); a dolly-zoom's points fit
     the dolly's lines both ways (its zoom against the dolly, which this fit does not model, scales
     the far points the wrong way), so there every inlier counts."""
-    front = (inliers & (along > inlier_px)).sum(axis=-1)
-    back = (inliers & (along < -inlier_px)).sum(axis=-1)
-    count = inliers.sum(axis=-1)
-    return np.where(np.abs(t_z) < DOLLY_AXIS, count - np.minimum(front, back), count)
+    return (inliers & ~_behind_camera(inliers, along, t_z, inlier_px)).sum(axis=-1)
+
+
+def _behind_camera(inliers: np.ndarray, along: np.ndarray, t_z: np.ndarray, inlier_px: float) -> np.ndarray:
+    """(..., N) the inliers whose depth is behind the camera, the direction's sign chosen as most of
+    them ask: those whose residual along the line `along` (..., N) [px, positive: a positive depth for
+    +t] is more than inlier_px the minority's way (one within it could be far away either way); none
+    near the optical axis (|t_z| >= DOLLY_AXIS, (...), see `_in_front_of_lines`)."""
+    front = (inliers & (along > inlier_px)).sum(axis=-1, keepdims=True)
+    back = (inliers & (along < -inlier_px)).sum(axis=-1, keepdims=True)
+    minority = np.where(front >= back, -1.0, 1.0)  # the side whose points are behind
+    off_axis = (np.abs(np.asarray(t_z)) < DOLLY_AXIS)[..., None]
+    return inliers & (along * minority > inlier_px) & off_axis
 
 
 def _signed_direction(mid: np.ndarray, flow: np.ndarray, basis: np.ndarray, f: float, t: np.ndarray,
@@ -409,10 +416,7 @@ def _capped_cost(perp: np.ndarray, along: np.ndarray, t: np.ndarray, inlier_px: 
     """Each direction's (K,) sum of its points' squared distances to their lines `perp` (K, N),
     capped at inlier_px; a point behind the camera (`_in_front_of_lines`, by `along`) at the cap."""
     inl = perp < inlier_px
-    front = (inl & (along > inlier_px)).sum(axis=1)
-    back = (inl & (along < -inlier_px)).sum(axis=1)
-    minority = np.where(front >= back, -1.0, 1.0)[:, None]  # the side whose points are behind
-    behind = inl & (along * minority > inlier_px) & (np.abs(t[:, 2:3]) < DOLLY_AXIS)
+    behind = _behind_camera(inl, along, t[:, 2], inlier_px)
     return np.where(inl & ~behind, perp * perp, inlier_px * inlier_px).sum(axis=1)
 
 
