@@ -16,14 +16,15 @@ DATA = Path(__file__).parents[1] / "data" / "camera_motion"
 
 
 def _loop_scores(p0, p1, f, inlier_px):
-    """The direction search as a loop: each direction's rotation (trimmed), then its inliers."""
+    """The direction search as a loop: each direction's rotation (trimmed), then its inliers in
+    front of the camera."""
     mid, flow = 0.5 * (p0 + p1), p1 - p0
     basis = cm.rotation_zoom_basis(mid, f)[:, :, :3]
     use = np.ones(len(p0), dtype=bool)
     out = []
     for c in cm._DIRECTIONS:
         rot = cm.rotation_given_direction(p0, p1, f, c, use, inlier_px=inlier_px)
-        out.append(int((cm._perpendicular(mid, flow, basis, rot, c, f) < inlier_px).sum()))
+        out.append(cm._count_in_front(flow, basis, rot, c, cm._lines(mid, c, f), inlier_px))
     return np.array(out)
 
 
