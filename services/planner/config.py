@@ -293,8 +293,8 @@ class PlannerConfig:
     #: with only the subject sharp before a present background, the focus stands a quarter of the one circle in
     #: front of him where the ground below his feet lies inside the field anyway (focus_field.focus_ahead_inv_m):
     #: centred on him, parkour's backdrop stayed under the 1.5 circles the estimator reads as soft. Not in a shot
-    #: that racks away from him (core.Planner._centred_before_rack; docs/planner.md, "Only the subject sharp: the
-    #: focus in front of him")
+    #: that racks away from him, which rack_ahead_max_circles moves instead (core.Planner._centred_before_rack;
+    #: docs/planner.md, "Only the subject sharp: the focus in front of him")
     subject_only_focus_ahead: bool = True
     #: a rack away from the subject (his label sharp -> soft inside a shot) is planned ahead, each stage as the
     #: switch's row once half the focus's travel from him to one circle behind takes longer than the time left,
@@ -306,6 +306,12 @@ class PlannerConfig:
     #: the dancer's background stayed 1.00
     rack_lead_max_s: float = 1.5
     rack_lead_min_hold_s: float = 1.0
+    #: before a rack away from the subject (only him sharp, the shot switching him soft later) the focus stands in
+    #: front of him until the ground behind him is focus_field.SOFT_BAND_BLUR circles soft, but at most this many
+    #: circles of the one circle in front (focus_field.rack_ahead_inv_m, core.Planner._rack_ahead_inv_m; 0 = centred
+    #: on him, as before): centred, parkour's lawn 6-10 m behind the runner lay inside the field (truth background
+    #: 0.57); 0.4 at the aperture planned for (1.2 x the widest) is about 0.5 circles wide open: he reads sharp
+    rack_ahead_max_circles: float = 0.4
     #: the lead no longer than the focus may travel before the background enters the field of the one circle
     #: (core.Planner._rack_lead_s, focus_field.rack_lead_cap_s): the background soft up to the switch, as asked
     rack_lead_background_gate: bool = True
@@ -357,7 +363,7 @@ class PlannerConfig:
             raise _bad("", "background_behind_m", self.background_behind_m, "a value > 0 (inf: unknown)")
         for name in ("tail_max_s", "setpoint_lead_s", "clamp_tolerance", "feasibility_tol", "separation_lookahead_s",
                      "subject_keep_out_m", "keep_out_settle_s", "zoom_yield_lead_s", "rack_lead_max_s",
-                     "rack_lead_min_hold_s"):
+                     "rack_lead_min_hold_s", "rack_ahead_max_circles"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise _bad("", name, v, "a finite value >= 0")

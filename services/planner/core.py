@@ -41,10 +41,11 @@ from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject
                                                 reciprocal_targets,
                                                 subject_softness, switched_out)
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
-from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, GROUND_BEHIND_SHARE, Band, focus_ahead_inv_m,
-                                                       foreground_limits, ground_behind_inv_m, settled_subject_blur,
-                                                       foreground_near_m, shifted_limits, rack_lead_cap_s,
-                                                       ground_band, narrowest_spread)
+from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, GROUND_BEHIND_SHARE, SOFT_BAND_BLUR, Band,
+                                                       focus_ahead_inv_m, foreground_limits, ground_behind_inv_m,
+                                                       settled_subject_blur, foreground_near_m, shifted_limits,
+                                                       rack_lead_cap_s, rack_ahead_inv_m, ground_band,
+                                                       narrowest_spread)
 from cinetransfer.services.planner.separation import (APERTURE_MARGIN, background_soft_distance_m, framing_k,
                                                       separation_distance_m)
 from cinetransfer.services.planner.solver import N_DOF, MpcSolver, SolveResult, StageData
@@ -470,6 +471,20 @@ class Planner:
         cap = rack_lead_cap_s(depth_m, background, spread=spread, rate_mps=b.focus_rate_mps)
         return min(lead, cap)
 
+    def _rack_ahead_inv_m(self, xk: np.ndarray, subj: PredictedSubject, t: float, depth_m: float) -> float:
+        """How far in front of the subject `depth_m` away a row wanting only him sharp before a rack away from him puts
+        the focus [1/m]: until the ground behind him the planned camera sees (ground_behind_inv_m at
+        GROUND_BEHIND_SHARE) is SOFT_BAND_BLUR circles soft, at most `rack_ahead_max_circles`, the one circle's spread
+        taken at the aperture planned for (focus_field.rack_ahead_inv_m); 0 with no ankle seen."""
+        most = self.cfg.rack_ahead_max_circles
+        view = self._ground_view(xk, subj, t) if most > 0 else None
+        if view is None:
+            return 0.0
+        background = ground_behind_inv_m(view[0], GROUND_BEHIND_SHARE, **view[1])
+        spread = narrowest_spread(view[1]["focal_mm"], APERTURE_MARGIN * self.solver.bounds.f_number_min,
+                                  self.cfg.structure.coc_mm)
+        return rack_ahead_inv_m(depth_m, background, spread=spread, background_blur=SOFT_BAND_BLUR, most=most)
+
     def _mu_m(self, ins: M.Instructions) -> float:
         """The instructions' depth-of-field margin mu [m], or `mu_default_m` when they carry none."""
         return float(ins.mu_m) if math.isfinite(ins.mu_m) and ins.mu_m > 0 else self.cfg.mu_default_m
@@ -497,8 +512,10 @@ class Planner:
 
     def _centred_before_rack(self, ins: M.Instructions) -> np.ndarray:
         """(K,) bool: the rows of a shot before a switch of the subject's label in it (a rack focus;
-        lens_for_focus_rows with a lead of the whole style), where only the subject sharp keeps the focus on
-        him: in front of him it has farther to travel past him at the switch (docs/planner.md)."""
+        lens_for_focus_rows with a lead of the whole style), where only the subject sharp is not moved by the
+        foreground band (focus_ahead_inv_m) but by the ground behind him, at most rack_ahead_max_circles
+        (_rack_ahead_inv_m): the focus in front of him has farther to travel past him at the switch
+        (docs/planner.md)."""
         k = len(ins.focus_in) if ins.focus_in is not None else 0
         return self._per_message("centred", ins, lambda: lens_for_focus_rows(
             self._planned_focus(ins), absent_regions(ins), k, 0, getattr(ins, "shot_start", None)))
@@ -561,6 +578,7 @@ class Planner:
         dof = np.zeros((n, N_DOF))
         dof[:, 6:8] = 1.0  # the far and near limits' circle-of-confusion ratios (cost.defocus_ratio)
         dref = np.zeros(n)
+        made = -1  # the switch a stage of this horizon plans as made (the lead): the stages past it plan it so too
         for k, r in enumerate(rows):
             t = (k + 1) * dt
             if self._plan is not None:
@@ -572,8 +590,12 @@ class Planner:
             depth = max(depth, 0.5)
             dref[k] = depth
             ahead = int(rack_ahead[r]) if r < len(rack_ahead) else -1
+            now_k = max(now_row, made) if 0 <= made <= r else now_row
             if ahead >= 0 and (ahead - r) / fps <= self._rack_lead_s(xk, subj, t, depth):
-                r = ahead  # the rack away from him starts so that his travel to soft straddles the switch
+                # the rack away from him starts so that his travel to soft straddles the switch, planned as made:
+                # previewed by the sharpness circle alone the focus stopped half-way (him 0.5 circles soft, his
+                # foreground sharp) and left the rest of the travel for after the switch
+                r = now_k = made = ahead
             # a row with no region labelled (a shot without a focus measurement) leaves the lens free
             if focus.shape[0] > r and focus.shape[1] == 3 and not absent[r].all():
                 band = self._foreground_band(xk, subj, t)
@@ -582,6 +604,8 @@ class Planner:
                 near, far = self._row_limits(focus[r], depth, mu, band, float(xk[lay.F]), dof[k, 6],
                                              keep_out_m=float(keep_outs_m[r]),
                                              absent_row=absent[r] | centred[r])
+                if centred[r, 2] and not absent[r, 2] and tuple(focus[r]) == (False, True, False):
+                    near, far = shifted_limits(near, far, self._rack_ahead_inv_m(xk, subj, t, depth))
                 free = bool(r < len(near_free) and near_free[r]) and near > 0
                 near = math.inf if free else near
                 kept_out = near_out[r] and not free
@@ -592,7 +616,7 @@ class Planner:
                                                 far_margin_inv_m=0.0 if kept_out else st.far_margin_inv_m,
                                                 # a near limit that keeps the subject out stays two-sided
                                                 fg_absent=bool(absent[r, 0]) and not near_out[r])
-                dof[k, 7] = defocus_ratio(near_out[r] and switched_out(near_out, now_row, r), ratio, soft)
+                dof[k, 7] = defocus_ratio(near_out[r] and switched_out(near_out, now_k, r), ratio, soft)
                 if free and math.isinf(far) and far > 0:
                     # nothing pins the focus: a far limit at infinity is met by stopping down (f/9 in tos_clip01's
                     # take 3), so it reaches the ground behind him the camera sees, where one is seen
@@ -606,7 +630,7 @@ class Planner:
                     blur = self._settled_blur(xk, subj, t, depth + float(keep_outs_m[r]))
                     settled_ratio = blur / st.sharp_coc_ratio
                     dof[k, 7] = defocus_ratio(switched_out(near_out, now_row, r), settled_ratio, soft)
-                dof[k, 2] *= float(far_previewed(focus, near_out, now_row, r))
+                dof[k, 2] *= float(far_previewed(focus, near_out, now_k, r))
         return dof, dref
 
     def _row_limits(self, row: np.ndarray, depth: float, mu: float, band: Band | None,

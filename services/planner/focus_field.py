@@ -201,3 +201,15 @@ def settled_subject_blur(back_m: float, ground_inv_m: float, *, spread: float, m
         return most
     b = 1.0 + (1.0 / back_m - ground_inv_m) / spread
     return min(max(b, least), most)
+
+
+def rack_ahead_inv_m(depth_m: float, background_inv_m: float, *, spread: float, background_blur: float,
+                     most: float) -> float:
+    """How far in front of a sharp subject `depth_m` away the focus stands [1/m, inverse depth] before a rack away
+    from him, so that the background (inverse depth `background_inv_m`, ground_behind_inv_m) is `background_blur`
+    circles soft: with the focus on him it is (1/d - x_b) / `spread` circles soft, and a focus b circles in front adds
+    b; b within [0, `most`], so he stays sharp. 0 for a background unknown (0: none seen) or farther than the blur."""
+    if not (depth_m > 0 and spread > 0 and math.isfinite(background_inv_m)) or background_inv_m <= 0:
+        return 0.0
+    behind = (1.0 / depth_m - background_inv_m) / spread
+    return min(max(background_blur - behind, 0.0), most) * spread

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cinetransfer.services.planner import config as pc
-from cinetransfer.services.planner.core import Planner
+from cinetransfer.services.planner.core import RACK_LEAD_SHARE, Planner
 from cinetransfer.services.planner.kinematic_sim import KinematicSim, Walk
 from cinetransfer.services.planner.model import input_bounds, state_bounds
 from cinetransfer.services.planner.scenarios import (ReferenceShot, dolly_zoom_shot, planner_maker,
@@ -180,19 +180,20 @@ def _rack_to_background(scene, planner_cfg, planner_factory):
     ins = reference_instructions(scene, shot, duration_s=12.0)
     planner = Planner(planner_cfg, solver=planner_factory().solver)
     sim = KinematicSim(scene)
-    dist, blur = [], []
+    dist, blur, focal = [], [], []
 
     def truth(s, names):
         f_mm, focus_m, fnum = (float(v) for v in s.lens)
         st = CFG.structure
         blur.append(cam.blur_diameter_mm(s.subject_depth_m(), f_mm, fnum, focus_m) / st.coc_mm)
+        focal.append(f_mm)
         near, far = s.dof_limits_m()
         return s.image_points(names), s.subject_depth_m(), near, far
 
     def on_step(i, sp):
         dist.append(float(np.hypot(*(sim.p[:2] - sim.subject.centre()[:2]))))
     log = run_closed_loop(planner, sim, ins, duration_s=11.0, on_step=on_step, truth=truth)
-    return log, np.asarray(dist), np.asarray(blur)[-len(log.t_s):]
+    return log, np.asarray(dist), np.asarray(blur)[-len(log.t_s):], np.asarray(focal)[-len(log.t_s):]
 
 
 def test_subject_soft_before_a_sharp_background_from_further_back(planner_factory):
@@ -200,17 +201,20 @@ def test_subject_soft_before_a_sharp_background_from_further_back(planner_factor
     # where the subject is softest before a sharp background at 20.2 m (separation.best_separation_m)
     from cinetransfer.services.planner.kinematic_sim import KinematicScene
     scene = KinematicScene(vehicle_position_m=(-12.0, 0.5, 1.3), camera_ypr_rad=(0.0, 0.0, 0.0), lens=(42.0, 12.0, 4.0))
-    log, dist, blur = _rack_to_background(scene, CFG, planner_factory)
+    log, dist, blur, focal = _rack_to_background(scene, CFG, planner_factory)
     t, depth = np.asarray(log.t_s), np.asarray(log.depth_m)
     near, far = np.asarray(log.near_m), np.asarray(log.far_m)
     # then the planner backs off ahead of the rack (its horizon is 1.5 s: the look-ahead sees it),
     # keeping the framing with a longer lens
     assert np.max(np.asarray(log.image_error)[t >= 3.0]) < 0.03
     assert dist[int(4.9 * CFG.rate_hz)] > 17.5, dist[int(4.9 * CFG.rate_hz)]
-    # and the subject is sharp until the switch, then soft (beyond c, the one circle: measured 1.0 c
-    # from 5.5 s, 1.4 c from 7 s) with the background sharp: the far limit opens on the switch
-    # (core.far_previewed), past 100 m by 6 s (measured 145 m) and past 200 m from 6.25 s (206 m at 6.2 s)
-    mid = (t > 3.0) & (t < 4.9)
+    # and the subject is sharp until the rack's lead (core.rack_switch_ahead: from half his travel to one circle
+    # soft before the switch the stages plan it as made), then soft (beyond c, the one circle) with the background
+    # sharp: the far limit opens on the switch (core.far_previewed), past 100 m by 6 s and past 200 m from 6.25 s
+    i = int(np.searchsorted(t, 4.0))
+    lead = RACK_LEAD_SHARE * planner_factory()._subject_travel_s(float(depth[i]), float(focal[i]))
+    assert 0.0 < lead < 1.0, lead
+    mid = (t > 3.0) & (t < 5.0 - lead)
     assert np.all((near[mid] < depth[mid]) & (depth[mid] < far[mid]))
     late = t >= 6.0
     assert np.all(blur[late] > 1.1) and np.all(far[late] > 100.0), (blur[late].min(), far[late].min())

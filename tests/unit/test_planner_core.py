@@ -672,11 +672,13 @@ def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instruc
     dof, dref = off._dof_targets(T0, ins, [0], 0, x0, subj)
     assert dof[0, 1] == pytest.approx(1.0 / (dref[0] - ins.mu_m))
     assert dof[0, 3] == pytest.approx(1.0 / (dref[0] + ins.mu_m))
-    # and in a shot that racks to the background at row 40 (the subject then soft to the end): centred on him
-    # before the switch, and with the rack planned ahead (rack_lead_max_s), from where half the focus's travel
-    # from him to one circle behind (_subject_travel_s: 1/s = 1/d - sigma at the aperture planned for, at the
-    # lens's rate; the lens's far end where that lies beyond it) takes longer than the time left, at most
-    # rack_lead_max_s, planned as the switch's row
+    # and in a shot that racks to the background at row 40 (the subject then soft to the end): in front of him
+    # before the switch by what the ground behind him asks (_rack_ahead_inv_m, below), and with the rack planned
+    # ahead (rack_lead_max_s), from where half the focus's travel from him to one circle behind
+    # (_subject_travel_s: 1/s = 1/d - sigma at the aperture planned for, at the lens's rate; the lens's far end
+    # where that lies beyond it) takes longer than the time left, at most rack_lead_max_s, planned as the
+    # switch's row, made: as once the switch is followed (its near limit's circle the visible one, its far target
+    # kept), not previewed
     sw = 40
     led = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=1.5, rack_lead_background_gate=False),
                   solver=planner.solver)
@@ -691,9 +693,19 @@ def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instruc
     j = min(int(RACK_LEAD_SHARE * travel * _fps(ins)), int(round(1.5 * _fps(ins))))
     assert 1 < j < sw - 1
     dof, dref = led._dof_targets(T0, rack, [0, sw - j - 1], 0, x0, subj)
-    np.testing.assert_allclose(dof[:, 1], 1.0 / (dref - ins.mu_m), rtol=1e-9)
-    np.testing.assert_allclose(led._dof_targets(T0, rack, [sw - j], 0, x0, subj)[0],
-                               led._dof_targets(T0, rack, [sw], 0, x0, subj)[0], rtol=1e-12)
+    before = [led._rack_ahead_inv_m(x0, subj, (i + 1) * st.dt_s, float(dref[i])) for i in range(2)]
+    assert min(before) > 0.0
+    np.testing.assert_allclose(dof[:, 1], 1.0 / (dref - ins.mu_m) + before, rtol=1e-9)
+    np.testing.assert_allclose(dof[:, 3], 1.0 / (dref + ins.mu_m) + before, rtol=1e-9)
+    lead_row = led._dof_targets(T0, rack, [sw - j], 0, x0, subj)[0]
+    previewed = led._dof_targets(T0, rack, [sw], 0, x0, subj)[0]
+    made = led._dof_targets(T0, rack, [sw], sw, x0, subj)[0]
+    np.testing.assert_allclose(lead_row, made, rtol=1e-12)
+    assert made[0, 7] > previewed[0, 7] == 1.0 and made[0, 2] > previewed[0, 2] == 0.0
+    # and the stages past the switch in that horizon plan it as made too, not previewed
+    horizon = led._dof_targets(T0, rack, [sw - j, sw + 2], 0, x0, subj)[0]
+    np.testing.assert_allclose(horizon[1], led._dof_targets(T0, rack, [sw, sw + 2], sw, x0, subj)[0][1], rtol=1e-12)
+    assert horizon[1, 7] > led._dof_targets(T0, rack, [sw, sw + 2], 0, x0, subj)[0][1, 7]
     # and gated by the background (rack_lead_background_gate), given 20 m behind him: inside the one circle's field
     # with the focus on him (1/d - sigma < 1/(d + 20), the field's far limit beyond it), so sharp before the
     # switch whatever the lead, and the lead is the travel's, as ungated
@@ -701,8 +713,7 @@ def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instruc
     assert 1.0 / dref[0] - sigma < 1.0 / (dref[0] + 20.0)
     near_bg = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=1.5, background_behind_m=20.0),
                       solver=planner.solver)
-    np.testing.assert_allclose(near_bg._dof_targets(T0, rack, [sw - j], 0, x0, subj)[0],
-                               led._dof_targets(T0, rack, [sw], 0, x0, subj)[0], rtol=1e-12)
+    np.testing.assert_allclose(near_bg._dof_targets(T0, rack, [sw - j], 0, x0, subj)[0], lead_row, rtol=1e-12)
     # and given 1000 m behind him, outside that field: planned as the switch's row only as long before it as the
     # focus takes from him to where the field's far limit reaches the background, 1/s = 1/(d + 1000) + sigma
     # (focus_field.rack_lead_cap_s), at the lens's rate
@@ -711,10 +722,9 @@ def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instruc
     cap = (1.0 / (1.0 / (dref[0] + 1000.0) + sigma) - dref[0]) / b.focus_rate_mps
     j_cap = int(cap * _fps(ins))
     assert 0 < j_cap < j
-    switch = gated._dof_targets(T0, rack, [sw], 0, x0, subj)[0]
-    np.testing.assert_allclose(gated._dof_targets(T0, rack, [sw - j_cap], 0, x0, subj)[0], switch, rtol=1e-12)
+    np.testing.assert_allclose(gated._dof_targets(T0, rack, [sw - j_cap], 0, x0, subj)[0], lead_row, rtol=1e-12)
     dof, dref = gated._dof_targets(T0, rack, [sw - j_cap - 1], 0, x0, subj)
-    assert dof[0, 1] == pytest.approx(1.0 / (dref[0] - ins.mu_m))
+    assert dof[0, 1] == pytest.approx(1.0 / (dref[0] - ins.mu_m) + gated._rack_ahead_inv_m(x0, subj, st.dt_s, dref[0]))
     # and with the background's distance unknown, the ground behind him the planned camera sees
     # (ground_behind_inv_m at GROUND_BEHIND_SHARE) stands for it; with no ankle seen, no ground and no lead
     seen = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=1.5), solver=planner.solver)
@@ -726,7 +736,20 @@ def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instruc
     assert seen._rack_lead_s(x0, subj, st.dt_s, d0) == pytest.approx(lead)
     no_feet = dataclasses.replace(subj, finite=np.zeros_like(subj.finite))
     assert seen._rack_lead_s(x0, no_feet, st.dt_s, d0) == 0.0
-    # and with the lead off, centred on him up to the switch
+    # and with the lead off, in front of him up to the switch
     off = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=0.0), solver=planner.solver)
     dof, dref = off._dof_targets(T0, rack, [sw - 1], 0, x0, subj)
+    assert dof[0, 1] == pytest.approx(1.0 / (dref[0] - ins.mu_m) + off._rack_ahead_inv_m(x0, subj, st.dt_s, dref[0]))
+    # and there the focus stands in front of him until the ground behind him (ground_behind_inv_m at
+    # GROUND_BEHIND_SHARE) is SOFT_BAND_BLUR circles soft, at most rack_ahead_max_circles (focus_field.rack_ahead_inv_m)
+    d0 = float(dref[0])
+    view = off._ground_view(x0, subj, st.dt_s)
+    ground = FF.ground_behind_inv_m(view[0], FF.GROUND_BEHIND_SHARE, **view[1])
+    assert off._rack_ahead_inv_m(x0, subj, st.dt_s, d0) == pytest.approx(FF.rack_ahead_inv_m(
+        d0, ground, spread=sigma, background_blur=FF.SOFT_BAND_BLUR, most=off.cfg.rack_ahead_max_circles))
+    # and with rack_ahead_max_circles 0, centred on him as before, and with no ankle seen no move either
+    centred = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=0.0, rack_ahead_max_circles=0.0),
+                      solver=planner.solver)
+    dof, dref = centred._dof_targets(T0, rack, [sw - 1], 0, x0, subj)
     assert dof[0, 1] == pytest.approx(1.0 / (dref[0] - ins.mu_m))
+    assert off._rack_ahead_inv_m(x0, no_feet, st.dt_s, d0) == 0.0

@@ -158,3 +158,21 @@ def test_the_settled_soft_subject_blur_starts_the_sharp_zone_at_the_ground_by_ha
     assert FF.settled_subject_blur(20.0, 1 / 22.0, spread=0.025, most=1.5) == pytest.approx(1.3)
     # and no ground behind him (0): `most`
     assert FF.settled_subject_blur(20.0, 0.0, spread=0.025, most=1.5) == 1.5
+
+
+def test_the_focus_before_a_rack_stands_in_front_of_him_by_the_background_by_hand():
+    # given the runner 15 m away, the ground behind him 20 m away, the one circle's half-width 0.03 per metre: with
+    # the focus on him the ground is (1/15 - 1/20) / 0.03 = 0.556 circles soft
+    # then 1.5 circles ask the focus 0.944 circles in front, 0.0283 per metre, when nothing caps it
+    ahead = FF.rack_ahead_inv_m(15.0, 1 / 20.0, spread=0.03, background_blur=1.5, most=2.0)
+    assert ahead == pytest.approx((1.5 - (1 / 15 - 1 / 20) / 0.03) * 0.03) and ahead == pytest.approx(0.02833, abs=1e-5)
+    # and at most `most` circles (0.4): 0.012 per metre, he 0.4 circles soft, still sharp
+    assert FF.rack_ahead_inv_m(15.0, 1 / 20.0, spread=0.03, background_blur=1.5, most=0.4) == pytest.approx(0.012)
+    # and the dancer 8 m away, her ground 37.5 m away, 0.079 per metre: 1.245 circles soft on her, 0.255 asked
+    assert FF.rack_ahead_inv_m(8.0, 1 / 37.5, spread=0.079, background_blur=1.5, most=0.4) == pytest.approx(
+        1.5 * 0.079 - (1 / 8 - 1 / 37.5), abs=1e-9)
+    # and a background soft enough with the focus on him (1/8 - 1/40 = 0.1 = 2 circles of 0.05) asks nothing
+    assert FF.rack_ahead_inv_m(8.0, 1 / 40.0, spread=0.05, background_blur=1.5, most=0.4) == 0.0
+    # and no ground seen behind him (0) or an unknown one asks nothing
+    assert FF.rack_ahead_inv_m(15.0, 0.0, spread=0.03, background_blur=1.5, most=0.4) == 0.0
+    assert FF.rack_ahead_inv_m(15.0, math.nan, spread=0.03, background_blur=1.5, most=0.4) == 0.0
