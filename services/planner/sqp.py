@@ -228,8 +228,8 @@ class SqpMixin:
         A warm start need not keep the linear dynamics rows (states interpolated part of a stage
         along, a new measured state): the full step restores them exactly, a partial one only in
         part. So a partial step's states are rolled forward from its inputs (`_dynamics_exact`), and
-        once the full step is refused, each step is measured against the better of the start and its
-        feasible counterpart (the start's inputs flown from x_0): the start's merit is that of a
+        once the full step is refused, each step is measured against the higher merit of the start and
+        its feasible counterpart (the start's inputs flown from x_0): the start's merit is that of a
         point no plan can fly, and a step no worse than what its inputs would fly is taken."""
         def trial(alpha: float) -> tuple[np.ndarray, float, np.ndarray, float]:
             w_step = np.clip(w + alpha * dw, lbw, ubw)
