@@ -120,6 +120,33 @@ def step(layout: Layout, x: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
     return a @ np.asarray(x, dtype=float) + b @ np.asarray(u, dtype=float)
 
 
+def roll_out(a: np.ndarray, b: np.ndarray, x0: np.ndarray, u: np.ndarray, x_lo: np.ndarray, x_hi: np.ndarray,
+             u_lo: np.ndarray, u_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """States rolled forward from x0 through x+ = A x + B u, so that every dynamics row holds exactly:
+    (x (N+1, nx), u (N, nu)). Each bounded state that integrates one input of its own (velocity from
+    acceleration, the angles and the lens from their rates) has that input clipped, where needed, to
+    the value that lands it on its bound: a state inside its bounds stays inside (the interval always
+    holds 0), so inputs within their bounds give states within theirs. Bounds per stage: x_lo, x_hi
+    (N, nx) of x_1..x_N; u_lo, u_hi (N, nu)."""
+    n = u.shape[0]
+    x = np.empty((n + 1, a.shape[0]))
+    x[0] = x0
+    u = np.clip(u, u_lo, u_hi)
+    eye = np.eye(a.shape[0])
+    rows = [j for j in range(a.shape[0]) if np.array_equal(a[j], eye[j]) and np.count_nonzero(b[j]) == 1
+            and b[j].sum() > 0]
+    drive = np.array([int(np.flatnonzero(b[j])[0]) for j in rows], dtype=int)
+    gain = b[rows, drive]
+    for k in range(n):
+        xk = x[k, rows]
+        lo = np.maximum(u_lo[k, drive], (x_lo[k, rows] - xk) / gain)
+        hi = np.minimum(u_hi[k, drive], (x_hi[k, rows] - xk) / gain)
+        # a state already out of its bounds (an empty interval): the input's own bounds still hold
+        u[k, drive] = np.clip(np.minimum(np.maximum(u[k, drive], lo), hi), u_lo[k, drive], u_hi[k, drive])
+        x[k + 1] = a @ x[k] + b @ u[k]
+    return x, u
+
+
 def state_bounds(layout: Layout, bounds: Bounds) -> tuple[np.ndarray, np.ndarray]:
     """Hard lower/upper bounds of the state (inf where free: position, yaw)."""
     lo = np.full(layout.nx, -np.inf)

@@ -82,7 +82,8 @@ class MpcSolver(SqpMixin, IpoptMixin):
         w = sym.sym("w", self.nw)
         p = sym.sym("p", self.pl.size)
         par = J.NlpParams.of(p, self.pl.slices, self.e)
-        self._ab_dm = tuple(ca.DM(m) for m in discrete_matrices(lay, self.dt))
+        self._ab_np = discrete_matrices(lay, self.dt)
+        self._ab_dm = tuple(ca.DM(m) for m in self._ab_np)
         nx, nu = lay.nx, lay.nu
         blk = nu + nx + C.N_SOFT
         sqp = s.solver == "sqp_rti"

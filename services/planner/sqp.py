@@ -3,7 +3,8 @@
 From the warm start, `sqp_iter` (1: the real-time iteration of acados) SQP steps, each one convex
 QP — Gauss-Newton Hessian of the cost's residuals, exact gradient — in stage-wise form (x_0 a
 parameter) for a structure-exploiting QP solver (HPIPM; or any casadi conic plugin), then slacks
-made exact and an exact-penalty line search. Cold solves iterate to convergence.
+made exact and an exact-penalty line search whose shortened steps keep the dynamics exact (states
+rolled forward from the stepped inputs). Cold solves iterate to convergence.
 """
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ import numpy as np
 
 from cinetransfer.services.planner import constraints as C
 from cinetransfer.services.planner.ipopt import codegen_function
+from cinetransfer.services.planner.model import roll_out
 from cinetransfer.services.planner.solve_result import SolveResult
 
 
@@ -138,7 +140,9 @@ class SqpMixin:
         to convergence (up to sqp_iter_cold) when cold. Each QP is convex (Gauss-Newton Hessian) and
         keeps the linear dynamics and every hard bound exactly; the soft constraints' slacks are then
         set to their exact value, so every returned iterate is feasible. A step is shortened (halved,
-        at most 4 times) while it does not decrease the exact-penalty merit f + mu |violation|."""
+        at most 4 times) while it does not decrease the exact-penalty merit f + mu |violation|; a
+        shortened step's states are rolled forward from its inputs, so that it too keeps the dynamics
+        from a warm start that does not (`_line_search`)."""
         lay, s = self.layout, self.s
         warm = s.warm_start and self._last is not None
         max_it = s.sqp_iter if warm else s.sqp_iter_cold
@@ -219,17 +223,46 @@ class SqpMixin:
     def _line_search(self, w: np.ndarray, dw: np.ndarray, p: np.ndarray, lbw: np.ndarray, ubw: np.ndarray,
                      merit0: float, dd: float) -> tuple[float, np.ndarray, float, np.ndarray, float]:
         """The step along dw (halved at most 4 times) that decreases the exact-penalty merit, with
-        the slacks made exact there: (alpha, w, cost, constraints, merit). `dd`: gradient . step."""
-        alpha = 1.0
-        for _ in range(5):
-            w_try, f1, g1 = self._postfun(np.clip(w + alpha * dw, lbw, ubw), p)
+        the slacks made exact there: (alpha, w, cost, constraints, merit). `dd`: gradient . step.
+
+        A warm start need not keep the linear dynamics rows (states interpolated part of a stage
+        along, a new measured state): the full step restores them exactly, a partial one only in
+        part. So a partial step's states are rolled forward from its inputs (`_dynamics_exact`), and
+        once the full step is refused, each step is measured against the higher merit of the start and
+        its feasible counterpart (the start's inputs flown from x_0): the start's merit is that of a
+        point no plan can fly, and a step no worse than what its inputs would fly is taken."""
+        def trial(alpha: float) -> tuple[np.ndarray, float, np.ndarray, float]:
+            w_step = np.clip(w + alpha * dw, lbw, ubw)
+            if alpha < 1.0:
+                w_step = self._dynamics_exact(w_step, lbw, ubw)
+            w_try, f1, g1 = self._postfun(w_step, p)
             g1 = np.asarray(g1).reshape(-1)
             merit1 = float(f1) + self._penalty_mu * self._viol(g1)
+            return w_try, f1, g1, merit1
+
+        def decreases(merit1: float, ref: float, alpha: float) -> bool:
             # Armijo on the merit, up to rounding (at a converged point the step is ~0 and the merit flat)
-            if merit1 <= merit0 + 1e-4 * alpha * min(dd, 0.0) + 1e-10 * (1.0 + abs(merit0)) or alpha < 0.1:
-                break
+            return merit1 <= ref + 1e-4 * alpha * min(dd, 0.0) + 1e-10 * (1.0 + abs(ref))
+
+        alpha = 1.0
+        w_try, f1, g1, merit1 = trial(alpha)
+        if decreases(merit1, merit0, alpha):
+            return alpha, w_try, f1, g1, merit1
+        ref = max(merit0, trial(0.0)[3])
+        while not decreases(merit1, ref, alpha) and alpha >= 0.1:
             alpha *= 0.5
+            w_try, f1, g1, merit1 = trial(alpha)
         return alpha, w_try, f1, g1, merit1
+
+    def _dynamics_exact(self, w: np.ndarray, lbw: np.ndarray, ubw: np.ndarray) -> np.ndarray:
+        """w with its states rolled forward from x_0 through its inputs (model.roll_out): the linear
+        dynamics rows then hold exactly, with every hard bound kept."""
+        x, u, slack = self._split(w)
+        x_lo, u_lo, _ = self._split(lbw)
+        x_hi, u_hi, _ = self._split(ubw)
+        a, b = self._ab_np
+        x, u = roll_out(a, b, x[0], u, x_lo[1:], x_hi[1:], u_lo, u_hi)
+        return self._join(x, u, slack)
 
     def _viol(self, gv: np.ndarray) -> float:
         """Sum of the constraint violations of g (L1)."""

@@ -274,6 +274,35 @@ def test_model_step_is_exact_for_constant_inputs(roll):
     np.testing.assert_allclose(model.step(lay, model.step(lay, x, u, dt / 2), u, dt / 2), xn, atol=1e-12)
 
 
+def test_roll_out_keeps_the_dynamics_exact_and_lands_states_on_their_bounds():
+    # given a drone at 1.95 m/s (bound 2) accelerating at 1 m/s^2, the aperture at f/2.9 closing at
+    # 2 /s towards its f/2.8 bound, and the focus asked 5 m/s against a 1 m/s rate bound, dt = 0.1 s
+    lay = model.Layout(False)
+    a, b = model.discrete_matrices(lay, 0.1)
+    x0 = np.zeros(lay.nx)
+    x0[lay.V.start], x0[lay.F], x0[lay.S], x0[lay.A] = 1.95, 50.0, 5.0, 2.9
+    u = np.zeros((2, lay.nu))
+    u[:, lay.ACC.start], u[:, lay.S_RATE], u[:, lay.A_RATE] = 1.0, 5.0, -2.0
+    x_lo, x_hi = (np.tile(v, (2, 1)) for v in (np.full(lay.nx, -np.inf), np.full(lay.nx, np.inf)))
+    x_lo[:, lay.V], x_hi[:, lay.V] = -2.0, 2.0
+    x_lo[:, lay.A] = 2.8
+    u_lo, u_hi = np.full((2, lay.nu), -1.0), np.full((2, lay.nu), 1.0)
+    u_lo[:, lay.A_RATE], u_hi[:, lay.A_RATE] = -3.0, 3.0
+    x, uc = model.roll_out(a, b, x0, u, x_lo, x_hi, u_lo, u_hi)
+    # then stage 0 accelerates 0.5 (to the 2 m/s bound) and stage 1 not at all; p = v dt + a dt^2 / 2
+    assert uc[:, lay.ACC.start].tolist() == pytest.approx([0.5, 0.0])
+    assert x[:, lay.V.start].tolist() == pytest.approx([1.95, 2.0, 2.0])
+    assert x[:, 0].tolist() == pytest.approx([0.0, 0.195 + 0.0025, 0.1975 + 0.2])
+    # the aperture closes at 1 /s to f/2.8, then holds; the focus moves at its rate bound 1 m/s
+    assert uc[:, lay.A_RATE].tolist() == pytest.approx([-1.0, 0.0])
+    assert x[:, lay.A].tolist() == pytest.approx([2.9, 2.8, 2.8])
+    assert x[:, lay.S].tolist() == pytest.approx([5.0, 5.1, 5.2])
+    assert x[:, lay.F].tolist() == [50.0, 50.0, 50.0]
+    # and every step is the model's own
+    for k in range(2):
+        np.testing.assert_allclose(x[k + 1], model.step(lay, x[k], uc[k], 0.1), atol=1e-12)
+
+
 def test_bounds_vectors_follow_the_config():
     b = pc.Bounds()
     lay = model.Layout(False)

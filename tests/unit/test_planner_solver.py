@@ -5,6 +5,8 @@ import numpy as np
 import pytest
 
 from cinetransfer.services.planner import config as pc
+from cinetransfer.services.planner import constraints as C
+from cinetransfer.services.planner import model
 from cinetransfer.services.planner.core import Planner
 from cinetransfer.services.planner.kinematic_sim import KinematicSim
 from cinetransfer.services.planner.scenarios import reference_instructions, standing_shot, wrong_start_scene
@@ -185,3 +187,65 @@ def test_sqp_without_input_copies_keeps_the_optimum_on_warm_steps():
         warm = solver.solve(data)
         assert warm.ok and warm.iterations == 1 and warm.violation < 1e-6
     assert warm.cost == pytest.approx(cold.cost, rel=1e-4)
+
+
+def _off_its_dynamics(cfg):
+    """A solver with a solved plan, and the same problem half a stage later with the drone's measured velocity
+    (1, -1, 0.3) m/s off the plan: its shifted warm start keeps neither the new measured state nor, with
+    states interpolated mid-stage, its own dynamics rows (L1 violation > 1)."""
+    data = stage_data(cfg)
+    solver = unbudgeted(MpcSolver(cfg.structure, cfg.bounds, cfg.weights))
+    assert solver.solve(data).ok
+    moved = stage_data(cfg)
+    moved.x0 = data.x0.copy()
+    moved.x0[solver.layout.V] += np.array([1.0, -1.0, 0.3])
+    lbw, ubw = C.decision_bounds(solver.layout, solver.bounds, solver.n, moved.x0)
+    guess = np.clip(solver.shifted_guess(moved.x0, 0.05), lbw, ubw)
+    p = solver.pack(moved)
+    assert solver._viol(np.asarray(solver._gfun(guess, p)).reshape(-1)) > 1.0
+    return solver, moved, guess, p, lbw, ubw
+
+
+def _assert_flyable(solver, x, u, lo=None, hi=None):
+    """Every dynamics row exact, every value finite (and, given the bounds, inside them)."""
+    assert np.all(np.isfinite(x)) and np.all(np.isfinite(u))
+    for k in range(solver.n):
+        np.testing.assert_allclose(x[k + 1], model.step(solver.layout, x[k], u[k], solver.dt), atol=1e-9)
+    if lo is not None:
+        w = solver._join(x, u, np.zeros((solver.n, C.N_SOFT)))
+        keep = np.isfinite(lo)
+        assert np.all(w[keep] >= lo[keep] - 1e-12) and np.all(w[np.isfinite(hi)] <= hi[np.isfinite(hi)] + 1e-12)
+
+
+def test_a_warm_start_off_its_dynamics_gives_a_feasible_plan():
+    # given a warm start that violates its dynamics rows (the measured velocity off the plan, half a stage on)
+    cfg = pc.PlannerConfig()
+    solver, moved, _, _, lbw, ubw = _off_its_dynamics(cfg)
+    # when the real-time iteration solves from it (its full step costs more than the infeasible start's merit,
+    # which once cut the step and left the dynamics rows violated: a failed solve)
+    r = solver.solve(moved, shift_s=0.05)
+    # then the plan is returned, feasible: the dynamics exact, every bound kept, nothing NaN
+    assert r.ok and r.iterations == 1 and r.violation < 1e-6, (r.status, r.violation)
+    np.testing.assert_array_equal(r.x[0], moved.x0)
+    _assert_flyable(solver, r.x, r.u, lbw, ubw)
+
+
+def test_a_partial_step_from_a_start_off_its_dynamics_is_feasible():
+    # given that warm start and a step that overshoots a feasible plan twice over (the merit refuses it in full)
+    cfg = pc.PlannerConfig()
+    solver, moved, guess, p, lbw, ubw = _off_its_dynamics(cfg)
+    plan = solver.solve(moved, shift_s=0.05)
+    target = solver._join(plan.x, plan.u, plan.slack)
+    dw = 2.0 * (target - guess)
+    f0, g0 = float(solver._ffun(guess, p)), np.asarray(solver._gfun(guess, p)).reshape(-1)
+    merit0 = f0 + solver._penalty_mu * solver._viol(g0)
+    # when the line search shortens it
+    alpha, w, _, g, merit = solver._line_search(guess, dw, p, lbw, ubw, merit0, -1.0)
+    # then the partial step's iterate keeps the dynamics and the bounds exactly (its states rolled from its
+    # inputs), its constraints hold, and it is the plan itself (half of twice the way)
+    assert alpha == 0.5
+    assert solver._viol(g) < 1e-9 and np.isfinite(merit)
+    x, u, slack = solver._split(np.asarray(w).reshape(-1))
+    _assert_flyable(solver, x, u, lbw, ubw)
+    assert np.all(slack >= 0)
+    np.testing.assert_allclose(x, plan.x, atol=1e-6)
