@@ -125,8 +125,9 @@ class Weights:
     motion_still: float = 20.0  # (v off the optical axis / v_max)^2 per s in a row that turns or zooms the camera in
     #                              place (pan, tilt, roll, zoom): sideways it stands still, along the axis the framing
     #                              keeps the size (docs/planner.md, "Stand still sideways"); static rows take it too
-    zoom_still: float = 0.0  # (v along the optical axis / v_max)^2 per s in a row that zooms in place: moving
-    #                           there reads as a dolly-zoom (docs/planner.md, "Stand still sideways")
+    zoom_still: float = 20.0  # (v along the optical axis / v_max)^2 per s in a row that zooms in place: moving
+    #                            there reads as a dolly-zoom; times the share the framing error allows (zoom_hold.py),
+    #                            held in full it cost the framing from a start off the source's pose (docs/planner.md)
     zoom_headroom: float = 100.0  # (ln f beyond the focal length that leaves room for the zoom to come)^2 per s
 
     def validate(self) -> "Weights":

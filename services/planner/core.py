@@ -35,6 +35,7 @@ from cinetransfer.services.planner.camera_motion import (DOLLY_ZOOM_MASK, FLOWN_
                                                          STILL_ALONG, TAKE_COLUMNS, ZOOM_MASK, MotionStyle,
                                                          read_motion_style, stage_motion)
 from cinetransfer.services.planner.side_of_subject import camera_bearing, side_targets
+from cinetransfer.services.planner.zoom_hold import framing_error_now, settled_hold_share
 from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
 from cinetransfer.services.planner.lens_axes import pinned_bounds
 from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject_out, near_keeps_subject_out,
@@ -328,6 +329,15 @@ class Planner:
         seen[weights == 0] = np.nan  # no joint or not controlled: does not say which way it faces
         return seen
 
+    def _zoom_hold_share(self, x0: np.ndarray, joints_w: np.ndarray, targets: np.ndarray, weights: np.ndarray) -> float:
+        """The share of the zoom's hold along the axis that applies now: full once the framing has settled,
+        none while it still needs the travel along the axis (zoom_hold.py)."""
+        lay = self.layout
+        seen = cam.project_world(joints_w, x0[lay.P], np.array(lay.angles(x0)), float(x0[lay.F]))
+        share = settled_hold_share(framing_error_now(seen, targets, weights))
+        self.counters["zoom_hold_share"] = round(share, 2)
+        return share
+
     def _count_failure(self, **more: object) -> None:
         self.counters.update(failures=int(self.counters["failures"]) + 1,
                              consecutive_failures=int(self.counters["consecutive_failures"]) + 1, **more)
@@ -365,6 +375,7 @@ class Planner:
             # the pre-roll is not filmed: round a subject who waits on his mark it only settles the framing
             # (held to the take's moves, the camera could not get round him to the first frame's bearing)
             motion[self._settle_stages(now_ns, n, dt), TAKE_COLUMNS] = 0.0
+        motion[:, STILL_ALONG] *= self._zoom_hold_share(x0, jw, targets[0], mask[0])
         lens_yields = self._lens_for_focus(ins)[rows]
         motion[np.ix_(lens_yields, LENS_MOTION_COLUMNS)] = 0.0
         self.counters["zoom_yields_to_focus"] = bool(lens_yields.any())
