@@ -3,9 +3,10 @@
 and per shot how often the output's class matches the source's.
 
 Output row k is instruction row k (the take is filmed frame for frame); truth rows come from the
-vehicle states at the recorded frames' stamps (the camera's yaw, pitch, roll and the vehicle's
-velocity, which counts as a translation from |v| / subject distance >= 0.03 /s) and each frame's
-focal length.
+vehicle states interpolated to the recorded frames' stamps (the camera's yaw, pitch, roll and the
+vehicle's velocity, which counts as a translation from |v| / subject distance >= 0.03 /s) and each
+frame's focal length. The states come at the 20 Hz control steps, the frames at 24 fps: taking the
+last state before each frame repeated one state every sixth frame (a pan rate of 0 there).
 """
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ import numpy as np
 from cinetransfer.services.smoother.camera_motion import motion_style
 from cinetransfer.shared import camera_motion as cm
 from cinetransfer.shared import messages as M
+from cinetransfer.shared.angles import wrap_angle
 
 RATES = ("pan_rate_dps", "tilt_rate_dps", "roll_rate_dps", "zoom_rate")
 FIGURE = "fig_camera_motion.png"
@@ -33,16 +35,31 @@ def style_rates(instr: M.Instructions | None) -> dict[str, np.ndarray] | None:
     return out
 
 
+def interpolate_states(stamps_ns: np.ndarray, values: np.ndarray, t_ns: int, angles: bool = False) -> np.ndarray:
+    """`values` (N, D) stamped `stamps_ns` (N,, ascending) linearly interpolated at `t_ns`, held
+    beyond the ends; `angles`: radians, interpolated the short way round and wrapped to (-pi, pi]."""
+    v = np.asarray(values, dtype=float)
+    i = int(np.searchsorted(stamps_ns, t_ns, side="right"))
+    if i <= 0 or i >= len(stamps_ns):
+        return v[min(max(i - 1, 0), len(v) - 1)].copy()
+    a, b = v[i - 1], v[i]
+    d = wrap_angle(b - a) if angles else b - a
+    out = a + d * ((t_ns - int(stamps_ns[i - 1])) / (int(stamps_ns[i]) - int(stamps_ns[i - 1])))
+    return wrap_angle(out) if angles else out
+
+
 def truth_rates(states: Sequence[M.VehicleState], truths: Sequence[M.GroundTruth], rows: int,
                 fps: float, starts: Sequence[int] = ()) -> dict[str, Any] | None:
-    """Rates per instruction row from the camera's poses at the recorded frames (each frame: the
-    last vehicle state stamped at or before it) and the frames' focal lengths; None without truth.
+    """Rates per instruction row from the camera's poses at the recorded frames (the vehicle states
+    interpolated to each frame's stamp) and the frames' focal lengths; None without truth.
     Rows in `starts` begin a take: the camera settled between it and the row before, so no rate.
     Smoothed and classed as the smoother does the clip's motion."""
     if not truths or not states or rows <= 0:
         return None
     st = sorted(states, key=lambda s: int(s.stamp_ns))
     stamps = np.array([int(s.stamp_ns) for s in st], dtype=np.int64)
+    st_ypr = np.array([np.asarray(s.camera_ypr_rad, dtype=float) for s in st])
+    st_vel = np.array([np.asarray(s.velocity_mps, dtype=float) for s in st])
     ypr = np.full((rows, 3), np.nan)
     focal = np.full(rows, np.nan)
     trans = np.full((rows, 3), np.nan)
@@ -50,10 +67,11 @@ def truth_rates(states: Sequence[M.VehicleState], truths: Sequence[M.GroundTruth
         k = int(t.frame_index)
         i = int(np.searchsorted(stamps, int(t.stamp_ns), side="right")) - 1
         if 0 <= k < rows and i >= 0:
-            ypr[k] = np.asarray(st[i].camera_ypr_rad, dtype=float)
+            ypr[k] = interpolate_states(stamps, st_ypr, int(t.stamp_ns), angles=True)
             f = float(t.focal_length_mm)
             focal[k] = f if np.isfinite(f) and f > 0 else float(st[i].lens.focal_length_mm)
-            trans[k] = cm.translation_from_velocity(st[i].velocity_mps, ypr[k], float(t.subject_distance_m))
+            vel = interpolate_states(stamps, st_vel, int(t.stamp_ns))
+            trans[k] = cm.translation_from_velocity(vel, ypr[k], float(t.subject_distance_m))
     raw = cm.rates_from_poses(ypr, focal, fps)
     # per frame, as the detector measures it; then smoothed and classed as the smoother does the clip's
     motion = np.column_stack([np.radians([raw[n] for n in RATES[:3]]).T / fps, raw["zoom_rate"] / fps, trans])

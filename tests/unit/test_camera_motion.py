@@ -576,6 +576,34 @@ def test_report_section_per_shot_with_truth_from_poses():
     assert not old["available"] and "older style" in old["reason"]
 
 
+def test_states_are_interpolated_to_a_frame_stamp_angles_the_short_way():
+    from cinetransfer.report.camera_motion import interpolate_states
+
+    stamps = np.array([0, 50_000_000, 100_000_000], np.int64)
+    yaw = np.array([[3.1, 0.0, 0.0], [-3.1, 0.2, 0.0], [-3.0, 0.4, 0.0]])
+    # a quarter of the way from 3.1 to -3.1 through pi (a step of 2 pi - 6.2 = 0.0832)
+    np.testing.assert_allclose(interpolate_states(stamps, yaw, 12_500_000, angles=True),
+                               [3.1 + 0.25 * (2 * math.pi - 6.2), 0.05, 0.0], atol=1e-12)
+    np.testing.assert_allclose(interpolate_states(stamps, yaw, 75_000_000, angles=True), [-3.05, 0.3, 0.0])
+    vel = np.array([[0.0, 0.0, 0.0], [1.0, 2.0, 0.0], [1.0, 2.0, 0.0]])
+    np.testing.assert_allclose(interpolate_states(stamps, vel, 20_000_000), [0.4, 0.8, 0.0])
+    np.testing.assert_allclose(interpolate_states(stamps, vel, -5), vel[0])  # held beyond the ends
+    np.testing.assert_allclose(interpolate_states(stamps, vel, 200_000_000), vel[2])
+
+
+def test_truth_of_a_steady_pan_from_20_hz_states_at_24_fps_frames_is_steady():
+    from cinetransfer.report.camera_motion import truth_rates
+
+    # given states at the 20 Hz control steps of a 6 deg/s pan and frames at 24 fps
+    rate = math.radians(6.0)
+    states = [M.VehicleState(stamp_ns=i * 50_000_000, camera_ypr_rad=np.array([rate * i * 0.05, 0.0, 0.0]),
+                             lens=M.LensState(focal_length_mm=35.0)) for i in range(60)]
+    truths = [M.GroundTruth(stamp_ns=round(k * 1e9 / 24), frame_index=k, focal_length_mm=35.0) for k in range(60)]
+    pan = truth_rates(states, truths, 60, 24.0)["pan_rate_dps"]
+    # then every frame reads 6 deg/s (the last state before each frame read 7.2 five frames in six, 0 the sixth)
+    np.testing.assert_allclose(pan[np.isfinite(pan)], 6.0, rtol=1e-6)
+
+
 def test_report_json_and_page_carry_the_section(tmp_path):
     from cinetransfer.report import build_report, synth
 

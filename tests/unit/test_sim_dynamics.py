@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from cinetransfer.shared.dynamics import DynamicsLimits, VehicleDynamics
+from cinetransfer.shared.dynamics import DynamicsLimits, VehicleDynamics, ramp_angles
 
 LIM = DynamicsLimits()
 
@@ -121,3 +121,52 @@ def test_limits_validate_with_clear_errors():
         DynamicsLimits(focal_length_min_mm=100.0, focal_length_max_mm=50.0)
     with pytest.raises(ValueError, match="unknown field"):
         DynamicsLimits.from_dict({"max_sped": 3})
+
+
+def test_ramp_angles_moves_a_share_of_the_way_yaw_the_short_way():
+    out = ramp_angles(np.array([0.1, 0.2, 0.0]), np.array([0.3, -0.2, 0.1]), 0.25)
+    np.testing.assert_allclose(out, [0.15, 0.1, 0.025], atol=1e-12)
+    # 3.0 -> -3.0 the short way is +0.2832 (through pi); a quarter of it: 3.0708
+    out = ramp_angles(np.array([3.0, 0.0, 0.0]), np.array([-3.0, 0.0, 0.0]), 0.25)
+    assert out[0] == pytest.approx(3.0 + 0.25 * (2 * math.pi - 6.0), abs=1e-12)
+    np.testing.assert_allclose(ramp_angles(np.zeros(3), np.ones(3), 1.7), np.ones(3))  # share clamped to 1
+
+
+def test_a_pan_commanded_in_steps_turns_at_a_steady_rate_between_them():
+    # given a 1 deg/s pan commanded every 0.05 s (the planner's 20 Hz), each command 0.1 s ahead
+    rate = math.radians(1.0)
+    dyn = VehicleDynamics(limits=LIM)
+    yaws = []
+    for k in range(20):
+        dyn.set_target(position=dyn.position, camera_ypr=np.array([rate * (k * 0.05 + 0.1), 0.0, 0.0]))
+        for _ in range(10):
+            dyn.advance(0.005)
+            yaws.append(float(dyn.camera_ypr[0]))
+    # then after the first command every 5 ms sub-step turns 0.005 deg: no jump-and-hold staircase
+    steps = np.degrees(np.diff(yaws[10:]))
+    np.testing.assert_allclose(steps, 0.005, atol=1e-9)
+    # and at each command's end the gimbal is where it was commanded (as before the ramp)
+    assert yaws[-1] == pytest.approx(rate * (19 * 0.05 + 0.1), abs=1e-12)
+
+
+def test_hold_ends_a_gimbal_ramp_where_the_gimbal_is():
+    dyn = VehicleDynamics(limits=LIM)
+    dyn.set_target(position=dyn.position, camera_ypr=np.array([0.1, 0.0, 0.0]))
+    dyn.advance(0.02)
+    here = dyn.camera_ypr.copy()
+    dyn.hold()
+    dyn.advance(0.1)
+    np.testing.assert_allclose(dyn.camera_ypr, here)
+
+
+def test_pose_now_carries_the_last_sub_step_over_the_remainder():
+    # given a 0.05 rad yaw command (ramped over 0.05 s: 1 rad/s) and a 35 -> 36 mm zoom (20 mm/s)
+    dyn = VehicleDynamics(limits=LIM, focal_mm=35.0)
+    dyn.set_target(position=dyn.position, camera_ypr=np.array([0.05, 0.0, 0.0]), lens=(36.0, 10.0, 4.0))
+    # when asked for 7.5 ms: one 5 ms sub-step is integrated, 2.5 ms carried
+    dyn.advance(0.0075)
+    assert dyn.camera_ypr[0] == pytest.approx(0.005, abs=1e-12) and dyn.focal_mm == pytest.approx(35.1)
+    # then the pose at 7.5 ms: yaw 7.5 mrad, focal 35.15 mm, still where it stood
+    position, ypr, focal = dyn.pose_now()
+    assert ypr[0] == pytest.approx(0.0075, abs=1e-12) and focal == pytest.approx(35.15)
+    np.testing.assert_allclose(position, 0.0)

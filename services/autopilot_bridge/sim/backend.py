@@ -436,10 +436,11 @@ class SimBackend(VehiclePort):
                            coc_mm=s.coc_mm)
 
     def view(self) -> View:
+        """The camera now, at the exact time asked for (a frame falls between dynamics sub-steps)."""
         d = self.dyn
-        return View(position_m=d.position.copy(), ypr_rad=d.camera_ypr.copy(), focal_mm=d.focal_mm,
-                    focus_m=d.focus_m, f_number=d.f_number, width=self.renderer.width,
-                    height=self.renderer.height, sensor=self.renderer.sensor)
+        position, ypr, focal = d.pose_now()
+        return View(position_m=position, ypr_rad=ypr, focal_mm=focal, focus_m=d.focus_m, f_number=d.f_number,
+                    width=self.renderer.width, height=self.renderer.height, sensor=self.renderer.sensor)
 
     def render_at(self, t_s: float | None = None) -> tuple[np.ndarray, dict]:
         """Render the current state (at sim time `t_s`, default now) without queuing a frame."""
