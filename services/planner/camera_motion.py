@@ -35,7 +35,8 @@ Per-stage parameter layout (N_MOTION values), read by cost.StageBuilder:
           positive as the pan]: a truck's, read from the source's pan rate and the subject's
           drift across its image (subject_bearing_rate); an orbit's the same way
     21    the least speed of travel along the direction (11-13) asked, over the subject's distance [1/s]
-          (0 = any): a dolly's or a dolly-zoom's, TRAVEL_MIN_RATE (the direction term's one-sided part)
+          (0 = any): a dolly's or a dolly-zoom's, TRAVEL_MIN_RATE (the direction term's one-sided part); a
+          pedestal's, the source's rate of turn of its elevation round the subject (pedestal_least_rate)
     22-23 ln of the least and the greatest focal length [mm] the lens may stand at, 24 their mask:
           room for the zoom still to come in the take (a dolly-zoom in zooms out by e^-0.27 over its
           2 s, and started at the source's 32.6 mm the lens hit its 30 mm end half-way through)
@@ -92,6 +93,12 @@ ALONG_AXIS_CLASSES = ("dolly_in", "dolly_out", "dolly_zoom")
 #: counts a translation (shared.camera_motion.ZOOM_MIN_PER_S). Asked the walker's distance rate alone, a dolly out
 #: whose walker came towards it slowed to 0.4 m/s at 14 m, read static by the poses and zoom_out by the video
 TRAVEL_MIN_RATE = 2.0 * ZOOM_MIN_PER_S
+#: a pedestal (not handheld): the camera rises or sinks at the source's rate of turn of its elevation round the
+#: subject (subject_elevation_rate) with the tilt held as the source's; left free, the framing tilted after the
+#: walker sinking in the image and the pedestal was flown as a tilt
+PEDESTAL_CLASSES = ("pedestal",)
+#: the source's height over its width when the style does not say (the rendered sources' 16:9)
+ASSUMED_ASPECT = 9.0 / 16.0
 #: the lens's headroom is the zoom still to come times e^this (the style's rates are read, not exact)
 HEADROOM_MARGIN = 0.05
 #: ... and a side with no zoom to come is set this far (ln) outside the lens's range, where it never acts
@@ -112,6 +119,8 @@ class MotionStyle:
     bearing_rate: np.ndarray | None = None
     #: (K, 2) ln of how far the lens still zooms out and in from each row to the end of the take (>= 0)
     zoom_to_come: np.ndarray | None = None
+    #: (K,) d(elevation of the source camera round the subject)/dt [rad/s, positive rising], NaN = unknown
+    elevation_rate: np.ndarray | None = None
 
 
 def motion_classes(text: object) -> frozenset[str] | None:
@@ -162,9 +171,18 @@ def read_motion_style(ins: object) -> MotionStyle | None:
     distance = subject_distance_rate(box[:, 3] - box[:, 1], zoom, fps, starts) if fps > 0 else np.full(k, np.nan)
     bearing = subject_bearing_rate(0.5 * (box[:, 0] + box[:, 2]), rates[:, 0], fps, starts) if fps > 0 \
         else np.full(k, np.nan)
+    elevation = subject_elevation_rate(0.5 * (box[:, 1] + box[:, 3]), rates[:, 1], fps, starts,
+                                       aspect=_source_aspect(ins)) if fps > 0 else np.full(k, np.nan)
     asked = np.array([_zoom_asked(c, float(z)) for c, z in zip(classes, zoom)], dtype=bool)
     to_come = zoom_to_come(np.where(asked, zoom, 0.0), fps) if fps > 0 else np.zeros((k, 2))
-    return MotionStyle(classes, rates, zoom, travel, distance, bearing, to_come)
+    return MotionStyle(classes, rates, zoom, travel, distance, bearing, to_come, elevation)
+
+
+def _source_aspect(ins: object) -> float:
+    """The source's height over its width (ASSUMED_ASPECT when unknown)."""
+    src = getattr(ins, "source", None)
+    w, h = float(getattr(src, "width", 0) or 0), float(getattr(src, "height", 0) or 0)
+    return h / w if w > 0 and h > 0 else ASSUMED_ASPECT
 
 
 def _window_slopes(values: np.ndarray, fps: float, starts: np.ndarray, window_s: float) -> np.ndarray:
@@ -197,6 +215,20 @@ def subject_bearing_rate(centre_x: np.ndarray, pan_rate_radps: np.ndarray, fps: 
     x = np.asarray(centre_x, dtype=float)
     a = np.arctan((0.5 - x) * 2.0 * math.tan(math.radians(hfov_deg) / 2.0))
     return np.asarray(pan_rate_radps, dtype=float) + _window_slopes(a, fps, starts, window_s)
+
+
+def subject_elevation_rate(centre_y: np.ndarray, tilt_rate_radps: np.ndarray, fps: float, starts: np.ndarray,
+                           window_s: float = DISTANCE_WINDOW_S, hfov_deg: float = ASSUMED_HFOV_DEG,
+                           aspect: float = ASSUMED_ASPECT) -> np.ndarray:
+    """d(elevation of the source camera round the subject)/dt per row [rad/s, positive rising]: the
+    subject lies at pitch + b from the camera, b = atan((0.5 - y) 2 tan(hfov/2) aspect) his angle above
+    the optical axis (y his box's normalised centre, down; aspect the image's height over its width), so
+    the camera's elevation over him turns at -(tilt rate + db/dt). A pedestal up with the tilt held
+    sinks him in the image and turns it at v/d, as a truck turns the bearing; the slope of b is a line
+    over the window inside the row's shot; NaN where the window is short or the tilt rate unknown."""
+    y = np.asarray(centre_y, dtype=float)
+    b = np.arctan((0.5 - y) * 2.0 * math.tan(math.radians(hfov_deg) / 2.0) * aspect)
+    return -(np.asarray(tilt_rate_radps, dtype=float) + _window_slopes(b, fps, starts, window_s))
 
 
 def subject_distance_rate(heights: np.ndarray, zoom_rate: np.ndarray, fps: float, starts: np.ndarray,
@@ -286,7 +318,34 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool,
     if cls is not None:
         _speed_terms(out, style, row, cls)
         _along_axis_terms(out, cls)
+        _pedestal_terms(out, style, row, cls)
     return out
+
+
+def pedestal_least_rate(elevation_rate: float, travel_up: float) -> float:
+    """The least speed over the subject's distance [1/s] a pedestal row asks along its direction of travel:
+    the source's elevation rate round the subject when it turns the way the travel goes (up: rising), else
+    0 (a reading that disagrees with itself asks no speed)."""
+    if not math.isfinite(elevation_rate) or elevation_rate * travel_up <= 0:
+        return 0.0
+    return abs(elevation_rate)
+
+
+def _pedestal_terms(out: np.ndarray, style: MotionStyle, row: int, cls: frozenset[str]) -> None:
+    """A pedestal rises or sinks at the source's rate with the tilt and the lens held as the source's: the
+    style gives the travel a direction only, and the framing tilted after the walker sinking in the image
+    (the pedestal flown as a tilt). A handheld (tilting, rolling) or swinging row is left as before."""
+    if not any(n in cls for n in PEDESTAL_CLASSES) or any(n in cls for n in (*HANDHELD_CLASSES, *SWING_CLASSES)) \
+            or not out[TRAVEL_MASK] or style.elevation_rate is None:
+        return
+    least = pedestal_least_rate(float(style.elevation_rate[row]), float(out[TRAVEL.start + 2]))
+    if least > 0:
+        out[TRAVEL_MIN] = least
+    tilt = float(style.rates_radps[row, 1])
+    out[RATES.start + 1], out[RATE_MASKS.start + 1] = (tilt if math.isfinite(tilt) else 0.0), 1.0
+    if not any(n in cls for n in ZOOM_CLASSES):
+        zoom = float(style.zoom_rate[row])
+        out[ZOOM], out[ZOOM_MASK] = (zoom if math.isfinite(zoom) else 0.0), 1.0
 
 
 def _along_axis_terms(out: np.ndarray, cls: frozenset[str]) -> None:

@@ -327,6 +327,45 @@ def test_a_truck_or_an_orbit_asks_the_sources_bearing_rate_with_a_dollys_lens_an
     assert CM.BEARING_RATE_MASK in CM.MOTION_MASKS
 
 
+def test_subject_elevation_rate_subtracts_the_sinking_in_the_image_from_the_tilt():
+    fps, n = 24.0, 30
+    t = np.arange(n) / fps
+    k = 2.0 * math.tan(math.radians(CM.ASSUMED_HFOV_DEG) / 2.0) * 0.75  # a 4:3 image
+    y = 0.5 + np.tan(0.04 * t) / k  # the subject sinks below the axis at 0.04 rad/s
+    rate = CM.subject_elevation_rate(y, np.full(n, 0.01), fps, np.zeros(n, dtype=bool), aspect=0.75)
+    assert rate == pytest.approx(np.full(n, 0.03), abs=1e-9)  # -(0.01 - 0.04): the camera rises round him
+    tilt = np.full(n, 0.01)
+    tilt[3] = np.nan
+    rate = CM.subject_elevation_rate(np.full(n, 0.5), tilt, fps, np.zeros(n, dtype=bool))
+    assert math.isnan(rate[3]) and rate[10] == pytest.approx(-0.01, abs=1e-12)  # held in the image: the tilt alone
+
+
+def test_pedestal_least_rate_by_hand():
+    assert CM.pedestal_least_rate(0.03, 1.0) == 0.03 and CM.pedestal_least_rate(-0.03, -0.8) == 0.03
+    assert CM.pedestal_least_rate(0.03, -1.0) == 0 and CM.pedestal_least_rate(0.0, 1.0) == 0
+    assert CM.pedestal_least_rate(float("nan"), 1.0) == 0
+
+
+def test_a_pedestal_rises_at_the_sources_rate_with_the_tilt_and_lens_held():
+    style = dataclasses.replace(_style("pedestal", tilt=0.5, zoom=0.0, travel=(0, -1, 0)),
+                                elevation_rate=np.array([0.03]))
+    t = CM.row_terms(style, 0, control_roll=False)
+    assert t[CM.TRAVEL].tolist() == [0, 0, 1] and t[CM.TRAVEL_MASK] == 1 and t[CM.TRAVEL_MIN] == 0.03
+    assert t[CM.RATE_MASKS].tolist() == [0, 1, 0] and t[CM.RATES.start + 1] == pytest.approx(math.radians(0.5))
+    assert t[CM.ZOOM_MASK] == 1 and t[CM.ZOOM] == 0 and t[CM.STILL] == 0
+    # a pedestal down read rising asks no speed (the direction term alone, as before), the tilt still held
+    down = CM.row_terms(dataclasses.replace(style, travel=np.array([[0.0, 0.0, -1.0]])), 0, control_roll=False)
+    assert down[CM.TRAVEL_MIN] == 0 and down[CM.RATE_MASKS.start + 1] == 1
+    # handheld or swinging rows, and styles without the elevation rate, ask as before
+    for name in ("tilt+pedestal", "roll+pedestal", "pedestal+orbit"):
+        before = CM.row_terms(dataclasses.replace(style, elevation_rate=None, classes=[CM.motion_classes(name)]), 0,
+                              control_roll=False)
+        after = CM.row_terms(dataclasses.replace(style, classes=[CM.motion_classes(name)]), 0, control_roll=False)
+        assert after.tolist() == before.tolist() and after[CM.TRAVEL_MIN] == 0
+    old = CM.row_terms(dataclasses.replace(style, elevation_rate=None), 0, control_roll=False)
+    assert old[CM.TRAVEL_MIN] == 0 and not old[CM.RATE_MASKS].any() and old[CM.ZOOM_MASK] == 0
+
+
 def test_zoom_to_come_by_hand():
     # at 10 frames/s: out 0.1/s for 2 rows, in 0.3/s for 1, none for 1 -> ln f steps -0.01, -0.01, +0.03, 0
     got = CM.zoom_to_come(np.array([-0.1, -0.1, 0.3, np.nan]), 10.0)
