@@ -64,15 +64,3 @@ def test_a_transfers_own_bridge_renders_nothing_before_its_reset(tmp_path):
     real = yaml.safe_load(deploy_config(tmp_path, 7447, "r", "open_country", realtime=True).read_text())
     assert "--no-frames-before-reset" not in next(n["args"] for n in real["nodes"] if n["name"] == "autopilot_bridge")
 
-
-def test_a_transfers_own_router_shares_memory_with_its_nodes(tmp_path):
-    # given the transfer's own deployment, as the supervisor will start it
-    from cinetransfer.deploy.config import load_config
-    from cinetransfer.job import deploy_config
-
-    cfg = load_config(str(deploy_config(tmp_path, 7447, "r", "open_country")))
-    # then the router too takes part in shared memory: a link to a router without it is plain TCP,
-    # and every frame (source -> detector, bridge -> transfer) would cross it as a copy
-    assert cfg.routers and cfg.nodes
-    for proc in (*cfg.routers, *cfg.nodes):
-        assert "--shm" in proc.argv, proc.name
