@@ -699,20 +699,27 @@ def test_the_rotation_given_a_translation_leaves_the_tracks_on_lines_out_by_hand
     assert cm.rotation_off_lines(use, on_line).tolist() == use.tolist()
 
 
+def _tracks_on_the_pavings_lines(step: np.ndarray):
+    """The ground of `_ground_points` seen at the work width's lens over 9 frames of a camera moving
+    by `step` a frame: (f, earlier, p0, p1, line) with the tracks seen in every frame, those at the
+    lower left marked as on the paving's lines and slid 0.3 px to the right in the last frame."""
+    f = cm.focal_px(cm.WORK_WIDTH)
+    x = _ground_points(np.random.default_rng(5))
+    proj = [f * (x - k * step)[:, :2] / (x - k * step)[:, 2:3] for k in range(9)]
+    keep = np.all([(np.abs(v[:, 0]) < 160) & (np.abs(v[:, 1]) < 90) for v in proj], axis=0)
+    earlier, p0, p1 = (proj[k][keep].copy() for k in (0, 7, 8))
+    line = (earlier[:, 0] < -30) & (earlier[:, 1] > 30)
+    p1[line, 0] += 0.3
+    return f, earlier, p0, p1, line
+
+
 def test_tracks_sliding_along_the_pavings_lines_do_not_turn_a_dolly():
     """A dolly in (2.4 m/s) over the ground of `_ground_points` at the work width's lens: the ground
     tracks at the lower left lie on the paving's lines and slide 0.3 px to the right along them in
     the last frame (within every inlier distance). In the frame's rotation given the dolly they read
     as a pan to the left and a roll; told as on lines, they are left out and the rotation stays
     near none."""
-    f = cm.focal_px(cm.WORK_WIDTH)
-    x = _ground_points(np.random.default_rng(5))
-    step = np.array([0.0, 0.0, 0.1])
-    proj = [f * (x - k * step)[:, :2] / (x - k * step)[:, 2:3] for k in range(9)]
-    keep = np.all([(np.abs(v[:, 0]) < 160) & (np.abs(v[:, 1]) < 90) for v in proj], axis=0)
-    earlier, p0, p1 = (proj[k][keep].copy() for k in (0, 7, 8))
-    line = (earlier[:, 0] < -30) & (earlier[:, 1] > 30)
-    p1[line, 0] += 0.3
+    f, earlier, p0, p1, line = _tracks_on_the_pavings_lines(np.array([0.0, 0.0, 0.1]))
     fooled = cm.frame_motion(p0, p1, f, earlier=earlier, span=8)
     told = cm.frame_motion(p0, p1, f, earlier=earlier, span=8, lines=line)
     for m in (fooled, told):
@@ -740,14 +747,7 @@ def test_a_faint_crossing_line_makes_a_line_but_no_edge():
 def test_a_trucks_rotation_keeps_its_tracks_on_lines():
     """Beside a truck a pan is weakly seen and the tracks on lines help hold it: they are left out
     of a dolly's rotation only, so a truck's motion is the same told or not."""
-    f = cm.focal_px(cm.WORK_WIDTH)
-    x = _ground_points(np.random.default_rng(5))
-    step = np.array([0.1, 0.0, 0.0])
-    proj = [f * (x - k * step)[:, :2] / (x - k * step)[:, 2:3] for k in range(9)]
-    keep = np.all([(np.abs(v[:, 0]) < 160) & (np.abs(v[:, 1]) < 90) for v in proj], axis=0)
-    earlier, p0, p1 = (proj[k][keep].copy() for k in (0, 7, 8))
-    line = (earlier[:, 0] < -30) & (earlier[:, 1] > 30)
-    p1[line, 0] += 0.3
+    f, earlier, p0, p1, line = _tracks_on_the_pavings_lines(np.array([0.1, 0.0, 0.0]))
     plain = cm.frame_motion(p0, p1, f, earlier=earlier, span=8)
     told = cm.frame_motion(p0, p1, f, earlier=earlier, span=8, lines=line)
     assert abs(plain.translation_dir[0]) > 0.9
