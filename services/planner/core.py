@@ -455,7 +455,7 @@ class Planner:
         soft behind it (1/s = 1/d - sigma, the one circle's spread at the aperture planned for, as
         _subject_only_limits; the lens's far end where that lies beyond it)."""
         b = self.solver.bounds
-        spread = narrowest_spread(focal_mm, APERTURE_MARGIN * b.f_number_min, self.cfg.structure.coc_mm)
+        spread = self._planned_spread(focal_mm)
         x1 = 1.0 / depth_m - spread
         s1 = min(1.0 / x1, b.focus_distance_max_m) if x1 > 0 else b.focus_distance_max_m
         return max(s1 - depth_m, 0.0) / b.focus_rate_mps
@@ -477,9 +477,8 @@ class Planner:
             background = self._ground_behind_inv_m(xk, subj, t)
             if background is None:
                 return 0.0
-        b = self.solver.bounds
-        spread = narrowest_spread(focal, APERTURE_MARGIN * b.f_number_min, self.cfg.structure.coc_mm)
-        cap = rack_lead_cap_s(depth_m, background, spread=spread, rate_mps=b.focus_rate_mps)
+        cap = rack_lead_cap_s(depth_m, background, spread=self._planned_spread(focal),
+                              rate_mps=self.solver.bounds.focus_rate_mps)
         return min(lead, cap)
 
     def _rack_ahead_inv_m(self, xk: np.ndarray, subj: PredictedSubject, t: float, depth_m: float) -> float:
@@ -488,13 +487,16 @@ class Planner:
         GROUND_BEHIND_SHARE) is SOFT_BAND_BLUR circles soft, at most `rack_ahead_max_circles`, the one circle's spread
         taken at the aperture planned for (focus_field.rack_ahead_inv_m); 0 with no ankle seen."""
         most = self.cfg.rack_ahead_max_circles
-        view = self._ground_view(xk, subj, t) if most > 0 else None
-        if view is None:
+        background = self._ground_behind_inv_m(xk, subj, t) if most > 0 else None
+        if background is None:
             return 0.0
-        background = ground_behind_inv_m(view[0], GROUND_BEHIND_SHARE, **view[1])
-        spread = narrowest_spread(view[1]["focal_mm"], APERTURE_MARGIN * self.solver.bounds.f_number_min,
-                                  self.cfg.structure.coc_mm)
-        return rack_ahead_inv_m(depth_m, background, spread=spread, background_blur=SOFT_BAND_BLUR, most=most)
+        return rack_ahead_inv_m(depth_m, background, spread=self._planned_spread(float(xk[self.layout.F])),
+                                background_blur=SOFT_BAND_BLUR, most=most)
+
+    def _planned_spread(self, focal_mm: float) -> float:
+        """The one circle's spread [1/m] at `focal_mm` and the aperture planned for (APERTURE_MARGIN times the
+        widest; focus_field.narrowest_spread)."""
+        return narrowest_spread(focal_mm, APERTURE_MARGIN * self.solver.bounds.f_number_min, self.cfg.structure.coc_mm)
 
     def _mu_m(self, ins: M.Instructions) -> float:
         """The instructions' depth-of-field margin mu [m], or `mu_default_m` when they carry none."""
@@ -725,13 +727,10 @@ class Planner:
         under focus_field.LEAST_SOFT_SUBJECT_BLUR (focus_field.settled_subject_blur; option
         settled_blur_from_ground)."""
         most = self.cfg.settled_subject_blur
-        view = self._ground_view(xk, subj, t) if self.cfg.settled_blur_from_ground else None
-        if view is None:
+        ground = self._ground_behind_inv_m(xk, subj, t) if self.cfg.settled_blur_from_ground else None
+        if ground is None:
             return most
-        ground = ground_behind_inv_m(view[0], GROUND_BEHIND_SHARE, **view[1])
-        spread = narrowest_spread(view[1]["focal_mm"], APERTURE_MARGIN * self.solver.bounds.f_number_min,
-                                  self.cfg.structure.coc_mm)
-        return settled_subject_blur(back_m, ground, spread=spread, most=most)
+        return settled_subject_blur(back_m, ground, spread=self._planned_spread(float(xk[self.layout.F])), most=most)
 
     def _settle_stages(self, now_ns: int, n: int, dt: float) -> np.ndarray:
         """Which of stages 1..n still lie in the take's pre-roll (recording, before instruction time 0)."""
@@ -905,7 +904,7 @@ def held_subject_labels(focus_in: np.ndarray, absent: np.ndarray,
     focus = np.asarray(focus_in, dtype=bool)
     if focus.ndim != 2 or focus.shape[1] != 3 or absent.shape != focus.shape:
         return focus
-    missing = absent[:, 1] & ~absent.all(axis=1)
+    missing = unmeasured_subject_rows(absent)
     if not missing.any():
         return focus
     shot = shot_numbers(shot_start, len(focus))[1]
