@@ -212,9 +212,16 @@ def subject_bearing_rate(centre_x: np.ndarray, pan_rate_radps: np.ndarray, fps: 
     v/d, an orbit at its own rate; the subject's walk is inside it, as in the dolly's rate. The slope
     of a is a line over the window inside the row's shot (the lens taken as the extraction's assumed
     one: these rows zoom not); NaN where the window is short or the pan rate unknown."""
-    x = np.asarray(centre_x, dtype=float)
-    a = np.arctan((0.5 - x) * 2.0 * math.tan(math.radians(hfov_deg) / 2.0))
+    a = _angle_off_axis(centre_x, hfov_deg)
     return np.asarray(pan_rate_radps, dtype=float) + _window_slopes(a, fps, starts, window_s)
+
+
+def _angle_off_axis(centre: np.ndarray, hfov_deg: float, aspect: float = 1.0) -> np.ndarray:
+    """atan((0.5 - c) 2 tan(hfov/2) aspect) [rad]: the angle off the optical axis of a point at the
+    normalised image coordinate c (positive left of or above the centre); `aspect` the image's height
+    over its width for a vertical coordinate."""
+    c = np.asarray(centre, dtype=float)
+    return np.arctan((0.5 - c) * 2.0 * math.tan(math.radians(hfov_deg) / 2.0) * aspect)
 
 
 def subject_elevation_rate(centre_y: np.ndarray, tilt_rate_radps: np.ndarray, fps: float, starts: np.ndarray,
@@ -226,8 +233,7 @@ def subject_elevation_rate(centre_y: np.ndarray, tilt_rate_radps: np.ndarray, fp
     the camera's elevation over him turns at -(tilt rate + db/dt). A pedestal up with the tilt held
     sinks him in the image and turns it at v/d, as a truck turns the bearing; the slope of b is a line
     over the window inside the row's shot; NaN where the window is short or the tilt rate unknown."""
-    y = np.asarray(centre_y, dtype=float)
-    b = np.arctan((0.5 - y) * 2.0 * math.tan(math.radians(hfov_deg) / 2.0) * aspect)
+    b = _angle_off_axis(centre_y, hfov_deg, aspect)
     return -(np.asarray(tilt_rate_radps, dtype=float) + _window_slopes(b, fps, starts, window_s))
 
 
