@@ -346,11 +346,17 @@ def _behind_camera(inliers: np.ndarray, along: np.ndarray, t_z: np.ndarray, inli
     them ask: those whose residual along the line `along` (..., N) [px, positive: a positive depth for
     +t] is more than inlier_px the minority's way (one within it could be far away either way); none
     near the optical axis (|t_z| >= DOLLY_AXIS, (...), see `_in_front_of_lines`)."""
-    front = (inliers & (along > inlier_px)).sum(axis=-1, keepdims=True)
-    back = (inliers & (along < -inlier_px)).sum(axis=-1, keepdims=True)
-    minority = np.where(front >= back, -1.0, 1.0)  # the side whose points are behind
+    minority = -_depth_side(inliers, along, inlier_px)[..., None]  # the side whose points are behind
     off_axis = (np.abs(np.asarray(t_z)) < DOLLY_AXIS)[..., None]
     return inliers & (along * minority > inlier_px) & off_axis
+
+
+def _depth_side(inliers: np.ndarray, along: np.ndarray, inlier_px: float) -> np.ndarray:
+    """(...) +1 where at least as many of the inliers (..., N) lie more than inlier_px along their lines
+    `along` (..., N) the positive-depth way as the other (a tie counts as in front), else -1."""
+    front = (inliers & (along > inlier_px)).sum(axis=-1)
+    back = (inliers & (along < -inlier_px)).sum(axis=-1)
+    return np.where(front >= back, 1.0, -1.0)
 
 
 def _signed_direction(mid: np.ndarray, flow: np.ndarray, basis: np.ndarray, f: float, t: np.ndarray,
@@ -359,8 +365,7 @@ def _signed_direction(mid: np.ndarray, flow: np.ndarray, basis: np.ndarray, f: f
     one of the search's _DIRECTIONS (all with t_z >= 0), with its own rotation (`_direction_fits`)."""
     rot, perp, along = _direction_fits(mid, flow, basis, f, inlier_px, t[None])
     inl = perp[0] < inlier_px
-    behind = (inl & (along[0] < -inlier_px)).sum() > (inl & (along[0] > inlier_px)).sum()
-    return rot[0], -t if behind else t, inl
+    return rot[0], t * _depth_side(inl, along[0], inlier_px), inl
 
 
 #: polish_direction's first step [rad] and how many times it is halved
