@@ -277,7 +277,7 @@ def _unreachable_table(summary: dict[str, Any]) -> str:
 
 _KIND_WORDS = {"out_of_reach": "out of the lens's reach", "controller": "missed by the flight (within reach)",
                "extraction": "read otherwise by the extraction (the truth has the source's label)",
-               "absent": "no such region on this side", "unjudged": "reach not judged (no truth depths for the region)",
+               "absent": "no such region on this side", "unjudged": "the truth has no label of its own there",
                "no_data": "no data for the frame"}
 
 
@@ -497,7 +497,8 @@ then background, then foreground); the goals judge the agreement over the other 
 <p class="small">Each frame-region whose label is not the source's has one reason: out of the lens's reach
 (which limit), missed by the flight where a lens setting gives it (the truth's depth of field named), read
 otherwise by the extraction on the output where the truth has the source's label, no such region on that
-side (left out of the agreement), or reach not judged (the truth sees no such region there).</p></div>
+side (left out of the agreement), or no label of the truth's own to tell the flight from the extraction by
+(the truth sees no such region there).</p></div>
 {_camera_motion(summary, figures, embed)}
 <h2>Side by side</h2>
 <div class="card">{_video(video, summary.get("video"), video_error, embed)}</div>
