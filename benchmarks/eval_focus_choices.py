@@ -14,8 +14,9 @@ per source and region (foreground, subject, background):
 - both again over the frames within the lens's reach (the report's `agreement_reachable`: the frames
   where no focus distance and f-number of the lens gives the source's label left out), and how many
   frames were left out, with the report's reason for each run of them, and how many frames each
-  reachable column counts: the extraction's counts frames where the truth sees no such region (and
-  so judges no reach) but both styles show one (docs/report.md).
+  reachable column counts: the extraction's counts frames where the truth sees no such region but
+  both styles show one, judged for reach only where the truth kept that band's depths
+  (docs/report.md; each frame's reason is in report.json's focus_misses).
 Goal: truth >= 0.90 and extraction >= 0.85 for every region present, over the reachable frames.
 Writes benchmarks/results/eval_focus_choices.json.
 """
@@ -73,7 +74,8 @@ def transfer(src: Path, scene: str, out: Path, max_frames: int) -> dict:
 def _reachable_frames(rep: dict, side: str) -> dict[str, int | None]:
     """Per region, how many frames the `side`'s reachable agreement is taken over. The two columns count
     different frames: the extraction's are those where both styles show the region, less the frames the
-    truth judges out of reach, so they include frames where the truth sees no such region and judges nothing."""
+    truth judges out of reach, so they include frames where the truth sees no such region (judged only where
+    it kept the band's depths)."""
     focus = (rep.get(side) or {}).get("focus") or {}
     return {r: (focus.get(r) or {}).get("n_frames_reachable") for r in REGIONS}
 

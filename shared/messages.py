@@ -412,7 +412,8 @@ class GroundTruth:
     region_inverse_depth: np.ndarray = array(
         "float32", (3, None), allow_nan=True, since=2,
         doc="each region's depth as 1/m (0 = at infinity, the sky) at its 2.5, 7.5, ..., 97.5 % points: an "
-            "equal-weight sample of its pixels, (3, 20); NaN row = region absent; (3, 0) = not recorded")
+            "equal-weight sample of its pixels, (3, 20); NaN row = no such pixels (a band below the feet too "
+            "short to be a foreground keeps its depths); (3, 0) = not recorded")
 
 
 #: Every message type that can be sent on its own, by wire name.

@@ -17,6 +17,7 @@ import numpy as np
 
 from cinetransfer.report import fidelity as F
 from cinetransfer.report import figures as figs
+from cinetransfer.report import focus_misses as FM
 from cinetransfer.report import focus_reach as FR
 from cinetransfer.report import reach_frames as RF
 from cinetransfer.report.html import write_html
@@ -372,11 +373,16 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
         "per_frame": {"t_s": _round_list(s["t_s"], 4), "source_row": [int(x) for x in s["k"]],
                       "focus_unreachable": {r: [x or None for x in s["reach"].reasons[:, i]]
                                             for i, r in enumerate(F.REGIONS)},
+                      "focus_miss_kind": {side: {r: [x or None for x in m.kind[:, i]] for i, r in enumerate(F.REGIONS)}
+                                          for side, m in s["misses"].items()},
+                      "focus_miss_why": {side: {r: [x or None for x in m.why[:, i]] for i, r in enumerate(F.REGIONS)}
+                                         for side, m in s["misses"].items()},
                       "joint_error_extraction": _round_list(s["error_extraction"]),
                       "joint_error_truth": _round_list(s["error_truth"])},
         "meta": meta,
     }
     summary["focus_reach"]["runs"] = RF.runs(s["reach"], s["t_s"], s["k"], shot_rows)
+    summary["focus_misses"]["runs"] = [row for side, m in s["misses"].items() for row in FM.runs(m, s["t_s"], side)]
     _state_detectors(summary, meta)
     _judge_by_faults(summary, meta.get("faults"))
     summary = jsonable(summary)

@@ -42,6 +42,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from cinetransfer.report import focus_misses as FM
 from cinetransfer.report import focus_reach as FR
 from cinetransfer.report import reach_frames as RF
 from cinetransfer.shared import messages as M
@@ -389,8 +390,10 @@ def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
         else empty_track(n, E)
     tru_tr = truth_track(truths, joint_names, n_out).take(np.flatnonzero(keep)) if truths else empty_track(n, E)
     by_frame = RF.truths_by_frame(truths, n_out, truth_frame_offset(truths)) if truths else [None] * n_out
-    reach = RF.reach(src.focus_in, src.present & tru_tr.present, [by_frame[i] for i in np.flatnonzero(keep)],
-                     reach_memo, rates=lens_rates)
+    kept_truths = [by_frame[i] for i in np.flatnonzero(keep)]
+    # the extraction's regions are judged where the truth has none but kept the band's depths (focus_misses)
+    reach = RF.reach(src.focus_in, src.present & tru_tr.present, kept_truths, reach_memo, rates=lens_rates,
+                     also=src.present & out_tr.present & tru_tr.available[:, None])
 
     measures: dict[str, Any] = {}
     errs: dict[str, np.ndarray] = {}
@@ -409,6 +412,8 @@ def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
             measures[name] = {"available": False, "reason": why, "frames": 0, "joints": None, "focus": None}
         errs[name] = err
 
+    misses = {name: FM.explain(src, tr, tru_tr, reach, kept_truths, name)
+              for name, tr in (("truth", tru_tr), ("extraction", out_tr)) if measures[name]["available"]}
     goal_list = judge_goals(measures)
     n_met = sum(g["status"] == "met" for g in goal_list)
     n_judged = sum(g["status"] != "n/a" for g in goal_list)
@@ -437,6 +442,7 @@ def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
                                "unreachable_frames": {r: int(reach.unreachable[:, i].sum())
                                                       for i, r in enumerate(REGIONS)},
                                "rate_windows": RF.window_rows(reach, t)},
+               "focus_misses": {name: FM.counts(m) for name, m in misses.items()},
                "extraction": measures["extraction"], "truth": measures["truth"], "goals": goal_list,
                "headline": headline}
     series = {"t_s": t, "k": k, "joint_names": joint_names, "source_first_frame": int(source.first_frame),
@@ -445,5 +451,5 @@ def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
               else np.arange(src_full.n, dtype=float),
               "error_extraction": errs["extraction"], "error_truth": errs["truth"],
               "have_extraction": measures["extraction"]["available"], "have_truth": measures["truth"]["available"],
-              "reach": reach}
+              "reach": reach, "misses": misses}
     return Fidelity(summary, series)

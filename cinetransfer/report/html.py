@@ -249,6 +249,11 @@ def _focus_table(summary: dict[str, Any]) -> str:
                        "<th>presence agreement</th><th>|b| error mean</th></tr>", rows_of)
 
 
+def _run_reason(r: dict[str, Any]) -> str:
+    """A run's reason at its first frame, and at its last when that differs."""
+    return r["reason"] + (f" … {r['reason_last']}" if r.get("reason_last") else "")
+
+
 def _unreachable_table(summary: dict[str, Any]) -> str:
     """The frames where no focus distance and f-number of the lens gives the source's label, and why."""
     reach = summary.get("focus_reach") or {}
@@ -261,13 +266,52 @@ def _unreachable_table(summary: dict[str, Any]) -> str:
                 "every asked label was within the lens's range.</p>")
     rows = []
     for r in runs:
-        why = r["reason"] + (f" … {r['reason_last']}" if r.get("reason_last") else "")
+        why = _run_reason(r)
         rows.append(f"<tr><td class='l'>{_e(r['region'])}</td><td>{r['shot'] + 1}</td>"
                     f"<td>{r['first_frame']}–{r['last_frame']}</td><td>{r['frames']}</td>"
                     f"<td class='l'>{_e(why)}</td></tr>")
     return ("<h3>Frames out of the lens's reach</h3><table><tr><th class='l'>region</th><th>shot</th>"
             "<th>output frames</th><th>frames</th><th class='l'>why no lens setting gives the source's label</th></tr>"
             + "".join(rows) + "</table>")
+
+
+_KIND_WORDS = {"out_of_reach": "out of the lens's reach", "controller": "missed by the flight (within reach)",
+               "extraction": "read otherwise by the extraction (the truth has the source's label)",
+               "absent": "no such region on this side", "unjudged": "the truth has no label of its own there",
+               "no_data": "no data for the frame"}
+
+
+def _misses_table(summary: dict[str, Any], per_frame: dict[str, Any]) -> str:
+    """Every frame whose label is not the source's, per side and region: how many of each kind, the runs
+    of one kind, and (folded) each frame with its reason."""
+    misses = summary.get("focus_misses") or {}
+    sides = [s for s in ("truth", "extraction") if s in misses]
+    if not sides:
+        return ""
+    head = ("<h3>Why a label is not the source's, per frame</h3><table><tr><th class='l'>side</th>"
+            "<th class='l'>region</th>" + "".join(f"<th>{_e(_KIND_WORDS[k])}</th>" for k in _KIND_WORDS) + "</tr>")
+    rows = [f"<tr><td class='l'>{side}</td><td class='l'>{_e(reg)}</td>"
+            + "".join(f"<td>{misses[side].get(reg, {}).get(k, 0)}</td>" for k in _KIND_WORDS) + "</tr>"
+            for side in sides for reg in F.REGIONS]
+    runs = misses.get("runs") or []
+    run_rows = [f"<tr><td class='l'>{_e(r['side'])}</td><td class='l'>{_e(r['region'])}</td>"
+                f"<td class='l'>{_e(_KIND_WORDS.get(r['kind'], r['kind']))}</td>"
+                f"<td>{r['first_frame']}–{r['last_frame']}</td><td>{r['frames']}</td>"
+                f"<td class='l'>{_e(_run_reason(r))}</td></tr>"
+                for r in runs]
+    runs_html = ("<table><tr><th class='l'>side</th><th class='l'>region</th><th class='l'>why</th>"
+                 "<th>output frames</th><th>frames</th><th class='l'>reason (first … last frame)</th></tr>"
+                 + "".join(run_rows) + "</table>") if run_rows else "<p class='small'>Every label is the source's.</p>"
+    kinds, whys = per_frame.get("focus_miss_kind") or {}, per_frame.get("focus_miss_why") or {}
+    frame_rows = [f"<tr><td>{i}</td><td class='l'>{side}</td><td class='l'>{_e(reg)}</td><td class='l'>{_e(k)}</td>"
+                  f"<td class='l'>{_e(whys[side][reg][i] or '')}</td></tr>"
+                  for side in sides for reg in F.REGIONS
+                  for i, k in enumerate((kinds.get(side) or {}).get(reg) or []) if k]
+    frames_html = (f"<details><summary>each of the {len(frame_rows)} frame-regions with its reason</summary>"
+                   "<table><tr><th>output frame</th><th class='l'>side</th><th class='l'>region</th>"
+                   "<th class='l'>kind</th><th class='l'>reason</th></tr>" + "".join(frame_rows) + "</table></details>"
+                   ) if frame_rows else ""
+    return head + "".join(rows) + "</table>" + runs_html + frames_html
 
 
 def _kv_table(d: dict[str, Any]) -> str:
@@ -448,7 +492,13 @@ exists. |b| error = mean absolute difference of the fraction of focused pixels. 
 reach for a region when no focus distance and f-number in the vehicle's lens range, at the focal length and
 distances filmed, gives the region the source's label (together with the labels granted before it: subject,
 then background, then foreground); the goals judge the agreement over the other frames, and both are shown.</p>
-{_unreachable_table(summary)}</div>
+{_unreachable_table(summary)}
+{_misses_table(summary, summary.get("per_frame") or {})}
+<p class="small">Each frame-region whose label is not the source's has one reason: out of the lens's reach
+(which limit), missed by the flight where a lens setting gives it (the truth's depth of field named), read
+otherwise by the extraction on the output where the truth has the source's label, no such region on that
+side (left out of the agreement), or no label of the truth's own to tell the flight from the extraction by
+(the truth sees no such region there).</p></div>
 {_camera_motion(summary, figures, embed)}
 <h2>Side by side</h2>
 <div class="card">{_video(video, summary.get("video"), video_error, embed)}</div>

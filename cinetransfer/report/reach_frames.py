@@ -64,25 +64,27 @@ def frame_key(lens: FR.Lens, asked: np.ndarray, present: np.ndarray, inv_depth: 
 
 
 def reach(asked: np.ndarray, present: np.ndarray, truths: Sequence[M.GroundTruth | None],
-          memo: Memo | None = None, rates: FR.LensRates | None = None) -> Reach:
+          memo: Memo | None = None, rates: FR.LensRates | None = None, also: np.ndarray | None = None) -> Reach:
     """Reach of the asked labels `asked` (N, 3) where `present` (N, 3) (the region present on both
     sides), one truth (or None) per frame; with the lens's `rates`, the misses they force too.
     `memo`: verdicts of frames judged before (filled here), so that one report judges each frame
-    once (its shots compare the same frames again)."""
+    once (its shots compare the same frames again). `also` (N, 3): regions judged per frame besides
+    (the extraction's where the truth has none but kept its depths), never for the rates."""
     n = len(truths)
     out = Reach.none(n)
+    judge = present if also is None else np.asarray(present, bool) | np.asarray(also, bool)
     for i, t in enumerate(truths):
         lens = _lens_of(t) if t is not None else None
         if lens is None:
             continue
         out.judged[i] = True
-        if not present[i].any():
+        if not judge[i].any():
             continue
         inv = np.asarray(t.region_inverse_depth, float)
-        key = frame_key(lens, asked[i], present[i], inv) if memo is not None else None
+        key = frame_key(lens, asked[i], judge[i], inv) if memo is not None else None
         found = memo.get(key) if key is not None else None
         if found is None:
-            found = FR.unreachable_labels(lens, asked[i], present[i], inv)
+            found = FR.unreachable_labels(lens, asked[i], judge[i], inv)
             if key is not None:
                 memo[key] = found
         for u in found:

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from cinetransfer.services.smoother.anatomy import drop_implausible_bodies
-from cinetransfer.shared.focus_regions import FOREGROUND_MIN_ROWS, region_masks
+from cinetransfer.shared.focus_regions import FOREGROUND_MIN_ROWS, foreground_present, region_masks
 from cinetransfer.shared.messages import COCO17_NAMES, Measurement
 
 N_JOINTS = len(COCO17_NAMES)
@@ -106,13 +106,14 @@ def _core(region: np.ndarray, margin: int, keep: float = 0.25) -> np.ndarray:
 
 
 def _region_fractions(infocus: np.ndarray, subj: np.ndarray | None, feet_row: int | None,
-                      min_rows: int, margin: int = 0) -> np.ndarray:
-    """b (foreground, subject, background) on the focus-map grid (shared.focus_regions); NaN = region absent."""
+                      foreground: bool, margin: int = 0) -> np.ndarray:
+    """b (foreground, subject, background) on the focus-map grid (shared.focus_regions); NaN = region absent.
+    `foreground`: whether the band below the feet is one, judged at the frame's resolution."""
     out = np.full(3, np.nan)
     if subj is None:
         out[2] = float(infocus.mean()) if infocus.size else np.nan
         return out
-    for t, region in enumerate(region_masks(subj, feet_row, min_rows)):
+    for t, region in enumerate(region_masks(subj, feet_row, foreground)):
         region = _core(region, margin)
         n = int(region.sum())
         if n > 0:
@@ -240,9 +241,8 @@ def focus_fractions(infocus: np.ndarray, crops: list[tuple[np.ndarray, int, int]
     W, H = size
     h, w = infocus.shape
     sx, sy = w / W, h / H
-    min_rows = int(np.ceil(foreground_min_rows * h))
     focus = np.full((len(crops), 3), np.nan)
-    focus_none = _region_fractions(infocus, None, None, min_rows)
+    focus_none = _region_fractions(infocus, None, None, False)
     # Frame pixel sampled at the centre of each focus-map pixel.
     fx = np.minimum(((np.arange(w) + 0.5) / sx).astype(int), W - 1)
     fy = np.minimum(((np.arange(h) + 0.5) / sy).astype(int), H - 1)
@@ -250,8 +250,17 @@ def focus_fractions(infocus: np.ndarray, crops: list[tuple[np.ndarray, int, int]
         subj = _mask_on_focus_map(mask, fx - ox, fy - oy)
         rows = np.flatnonzero(subj.any(axis=1))
         feet_row = int(rows[-1]) + 1 if rows.size else int(np.ceil(boxes[k, 3] * sy))
-        focus[k] = _region_fractions(infocus, subj, feet_row, min_rows, int(round(margin * w)))
+        foreground = _foreground_band(mask, oy, boxes[k, 3], H, foreground_min_rows)
+        focus[k] = _region_fractions(infocus, subj, feet_row, foreground, int(round(margin * w)))
     return focus, focus_none
+
+
+def _foreground_band(mask: np.ndarray, oy: int, box_bottom: float, height: int, min_share: float) -> bool:
+    """Whether the band below the person's lowest mask pixel (the box's bottom without a mask) is a
+    foreground, judged in frame pixels (focus_regions.foreground_present) as the truth judges it."""
+    rows = np.flatnonzero(mask.any(axis=1)) if mask.size else np.zeros(0, int)
+    feet_px = oy + int(rows[-1]) + 1 if rows.size else float(box_bottom)
+    return foreground_present(feet_px, height, min_share)
 
 
 def _mask_on_focus_map(mask: np.ndarray, cx: np.ndarray, cy: np.ndarray) -> np.ndarray:

@@ -345,3 +345,38 @@ def test_frames_out_of_the_lens_reach_are_shown_per_region_and_shot_and_carried(
     assert "Frames out of the lens&#x27;s reach" in html or "Frames out of the lens's reach" in html
     assert "label agreement, all frames" in html and "label agreement, reachable frames (judged)" in html
     assert "foreground at the subject&#x27;s depth" in html or "foreground at the subject's depth" in html
+
+
+def test_every_frame_whose_label_is_not_the_sources_is_explained_per_frame(tmp_path):
+    # given the run above: the foreground at the subject's depth in frames 0-11 (asked soft, filmed soft), and
+    # the background filmed sharp in the last third where the source asks it soft and a lens could give it
+    # (background 30 m behind a subject at 7 m, 100 mm, f/1-22)
+    import dataclasses
+
+    src, out, truths, _, _ = _run(tmp_path, with_video=False)
+    src = dataclasses.replace(src, focus_in=np.tile([False, True, False], (K, 1)))
+    lim = np.float32([0.5, 100.0, 1.0, 22.0])
+    depth = [np.full(20, 1 / 4.0), np.full(20, 1 / 7.0), np.full(20, 1 / 30.0)]
+    truths = [dataclasses.replace(t, focal_length_mm=100.0, lens_limits=lim, dof_near_m=20.0, dof_far_m=40.0,
+                                  region_inverse_depth=np.float32([depth[1] if i < 12 else depth[0], *depth[1:]]))
+              for i, t in enumerate(truths)]
+    build_report(tmp_path / "rep", source_style=src, output_style=out, truths=truths, source_video=None,
+                 output_video=None, meta={})
+    js = _strict_json(tmp_path / "rep" / "report.json")
+    # then both sides count the last third's background as the flight's miss, and nothing else
+    late = K - 2 * K // 3
+    for side in ("truth", "extraction"):
+        counts = js["focus_misses"][side]
+        assert counts["background"]["controller"] == late and sum(counts["background"].values()) == late
+        assert sum(counts["foreground"].values()) == 0 and sum(counts["subject"].values()) == 0
+        kinds = js["per_frame"]["focus_miss_kind"][side]["background"]
+        assert kinds[: 2 * K // 3] == [None] * (2 * K // 3) and set(kinds[2 * K // 3:]) == {"controller"}
+        why = js["per_frame"]["focus_miss_why"][side]["background"][-1]
+        assert "within the lens's reach" in why and "depth of field 20 m to 40 m" in why
+    run_rows = [(r["side"], r["region"], r["kind"], r["first_frame"], r["last_frame"])
+                for r in js["focus_misses"]["runs"]]
+    assert run_rows == [(side, "background", "controller", 2 * K // 3, K - 1) for side in ("truth", "extraction")]
+    # and the page shows the counts, the runs and each frame with its reason
+    html = (tmp_path / "rep" / "report.html").read_text(encoding="utf-8")
+    assert "Why a label is not the source" in html and "missed by the flight (within reach)" in html
+    assert f"each of the {2 * late} frame-regions with its reason" in html

@@ -213,6 +213,35 @@ def test_the_report_excludes_unreachable_frames_from_the_judged_agreement_and_sh
     assert s["headline"]["truth"]["focus_agreement"]["foreground"] == pytest.approx(0.75)
 
 
+def test_a_band_the_truth_counts_no_foreground_is_judged_for_the_extraction_by_its_depths():
+    # given 12 frames asking the foreground soft with the subject sharp; the band below the feet lies at the
+    # subject's depth; in frames 8-11 the truth counts it no foreground (too short) but keeps its depths,
+    # and in frames 10-11 it records none (no band at all); the extraction reads a foreground, sharp, in all 12
+    k = 12
+    src = synth.instructions(k)
+    truths = _truths_with_depths(k, np.array([at(7.0), at(7.0), at(30.0)]))
+    present = np.tile([True, True, True], (k, 1))
+    present[8:, 0] = False
+    truths = [dataclasses.replace(t, region_present=present[i], region_in_focus=np.array([present[i, 0], True, False]),
+                                  region_inverse_depth=np.array([ABSENT if i >= 10 else at(7.0), at(7.0), at(30.0)],
+                                                                np.float32))
+              for i, t in enumerate(truths)]
+    out = synth.instructions(k, focus_in=np.tile([True, True, False], (k, 1)))
+    s = F.compute_fidelity(src, out, truths)
+    # then frames 0-9 are out of reach (the band at the subject's depth), 10-11 cannot be judged
+    reach = s.series["reach"]
+    assert reach.unreachable[:10, 0].all() and not reach.unreachable[10:, 0].any()
+    ext, tru = s.summary["extraction"]["focus"]["foreground"], s.summary["truth"]["focus"]["foreground"]
+    assert (ext["n_frames_reachable"], ext["agreement_reachable"]) == (2, 0.0)
+    # the truth's own frames are unchanged: its 8 foregrounds, all out of reach
+    assert (tru["n_frames"], tru["n_frames_reachable"]) == (8, 0)
+    # and each of the extraction's frames says why
+    m = s.series["misses"]["extraction"]
+    assert list(m.kind[:, 0]) == ["out_of_reach"] * 10 + ["unjudged"] * 2
+    assert "no depths to judge its reach by" in m.why[10, 0]
+    assert list(s.series["misses"]["truth"].kind[:, 0]) == ["out_of_reach"] * 8 + ["absent"] * 4
+
+
 def test_runs_group_frames_per_region_and_shot():
     # given frames 2-5 and 8-9 of the foreground unreachable, a shot starting at row 4
     rch = RF.Reach.none(10)

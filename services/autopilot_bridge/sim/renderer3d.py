@@ -23,6 +23,7 @@ from cinetransfer.services.autopilot_bridge.sim.truth import region_truth
 from cinetransfer.services.autopilot_bridge.sim.world_meshes import (ground_mesh, ground_texture, layer_mesh,
                                                                      object_meshes, object_position, read_texture)
 from cinetransfer.shared import camera as cam
+from cinetransfer.shared.focus_regions import feet_row, foreground_present
 
 #: the truth's region masks and depths are read from every TRUTH_STRIDE-th pixel (the 2.5-D label pass: 1/6)
 TRUTH_STRIDE = 4
@@ -134,8 +135,11 @@ class WorldRenderer:
         jn = cam.project_world(geo["joints_w"], view.position_m, view.ypr_rad, view.focal_mm, view.sensor)
         vis = joints_visible(jn, view.to_camera(geo["joints_w"])[:, 0], depth, surface)
         s = TRUTH_STRIDE
-        out = region_truth(depth[s // 2::s, s // 2::s], surface[s // 2::s, s // 2::s] == SURFACE_SUBJECT,
-                           view.focal_mm, view.f_number, view.focus_m, view.sensor.coc_mm)
+        # the band below the feet is judged a foreground at the frame's resolution, as the extraction judges it
+        subject = surface == SURFACE_SUBJECT
+        out = region_truth(depth[s // 2::s, s // 2::s], subject[s // 2::s, s // 2::s],
+                           view.focal_mm, view.f_number, view.focus_m, view.sensor.coc_mm,
+                           foreground=foreground_present(feet_row(subject), subject.shape[0]))
         lim = self.scene.limits
         out.update({"joints_norm": jn, "joints_visible": vis, "focal_length_mm": view.focal_mm,
                     "lens_limits": np.array([lim.focus_distance_min_m, lim.focus_distance_max_m, lim.f_number_min,

@@ -3,7 +3,8 @@
 The regions are the style's (shared.focus_regions: image-space, from the subject's mask); a region is
 present when it covers REGION_MIN_FRACTION of the image, and in focus when REGION_IN_FOCUS_FRACTION of
 its pixels lie inside the lens's depth of field (shared.camera.dof_limits_m with the sensor's circle of
-confusion). Its depths are kept as DEPTH_SAMPLES inverse depths for the report's reachability.
+confusion). Its depths are kept as DEPTH_SAMPLES inverse depths for the report's reachability, a band
+below the feet too short to be a foreground's too (an extraction may read it as one).
 """
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import math
 import numpy as np
 
 from cinetransfer.shared import camera as cam
-from cinetransfer.shared.focus_regions import FOREGROUND_MIN_ROWS, feet_row, region_masks
+from cinetransfer.shared.focus_regions import feet_row, foreground_present, region_masks
 
 #: a region counts as present when it covers at least this fraction of the image.
 REGION_MIN_FRACTION = 0.002
@@ -31,19 +32,27 @@ def depth_sample(depth_m: np.ndarray) -> np.ndarray:
 
 
 def region_truth(depth_m: np.ndarray, subject: np.ndarray, focal_mm: float, f_number: float, focus_m: float,
-                 coc_mm: float) -> dict:
-    """Focus truth of the three regions from per-pixel depths [m] (inf = sky) and the subject's mask."""
+                 coc_mm: float, foreground: bool | None = None) -> dict:
+    """Focus truth of the three regions from per-pixel depths [m] (inf = sky) and the subject's mask.
+    `foreground`: whether the band below the feet is one, judged on the full-resolution mask
+    (focus_regions.foreground_present) when these are a subsample of it; None = judged on `subject`."""
     near, far = cam.dof_limits_m(focal_mm, f_number, focus_m, coc_mm)
-    min_rows = int(math.ceil(FOREGROUND_MIN_ROWS * subject.shape[0]))
-    regions = region_masks(subject if subject.any() else None, feet_row(subject), min_rows, subject.shape)
+    feet = feet_row(subject)
+    if foreground is None:
+        foreground = foreground_present(feet, subject.shape[0])
+    subj = subject if subject.any() else None
+    regions = region_masks(subj, feet, foreground, subject.shape)
+    # a band too short to be a foreground keeps its depths: an extraction whose mask ends a pixel or two
+    # above the true feet reads it as one, and the report judges its reach from them (docs/report.md)
+    sampled = (region_masks(subj, feet, True, subject.shape)[0], *regions[1:])
     infocus = (depth_m >= near) & (depth_m <= far)
     present, frac, inv_depth = [], [], []
-    for region in regions:
+    for region, pixels in zip(regions, sampled):
         n = int(region.sum())
         ok = n >= REGION_MIN_FRACTION * region.size
         present.append(ok)
         frac.append(float((infocus & region).sum()) / n if ok else math.nan)
-        inv_depth.append(depth_sample(depth_m[region]) if ok else np.full(DEPTH_SAMPLES, np.nan))
+        inv_depth.append(depth_sample(depth_m[pixels]) if pixels.any() else np.full(DEPTH_SAMPLES, np.nan))
     in_focus = np.array([p and f >= REGION_IN_FOCUS_FRACTION for p, f in zip(present, frac)], bool)
     return {"dof_near_m": near, "dof_far_m": far if math.isfinite(far) else math.nan,
             "region_present": np.array(present, bool), "region_in_focus": in_focus,
