@@ -592,6 +592,7 @@ class Planner:
         dof[:, 6:8] = 1.0  # the far and near limits' circle-of-confusion ratios (cost.defocus_ratio)
         dref = np.zeros(n)
         made = -1  # the switch a stage of this horizon plans as made (the lead): the stages past it plan it so too
+        switch_now = int(rack_ahead[now_row]) if 0 <= now_row < len(rack_ahead) else -1  # the switch led to now
         for k, r in enumerate(rows):
             t = (k + 1) * dt
             if self._plan is not None:
@@ -603,6 +604,12 @@ class Planner:
             depth = max(depth, 0.5)
             dref[k] = depth
             ahead = int(rack_ahead[r]) if r < len(rack_ahead) else -1
+            if made < 0 and 0 <= switch_now <= r \
+                    and (switch_now - now_row) / fps <= self._rack_lead_s(xk, subj, t, depth):
+                # past the switch, with the row followed now inside its lead: made as well. With the horizon's
+                # first stage past it no stage was a lead stage, these previewed it, and the parkour rack's lens
+                # stopped down to f/1.36 on its last two rows before it (runner and band sharp three more frames)
+                made = switch_now
             now_k = max(now_row, made) if 0 <= made <= r else now_row
             if ahead >= 0 and (ahead - r) / fps <= self._rack_lead_s(xk, subj, t, depth):
                 # the rack away from him starts so that his travel to soft straddles the switch, planned as made:

@@ -706,6 +706,12 @@ def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instruc
     horizon = led._dof_targets(T0, rack, [sw - j, sw + 2], 0, x0, subj)[0]
     np.testing.assert_allclose(horizon[1], led._dof_targets(T0, rack, [sw, sw + 2], sw, x0, subj)[0][1], rtol=1e-12)
     assert horizon[1, 7] > led._dof_targets(T0, rack, [sw, sw + 2], 0, x0, subj)[0][1, 7]
+    # and so do a horizon's stages that all lie past the switch while the row followed now is still inside the
+    # lead (no stage left to be its lead stage); with the row followed now before the lead, they preview it
+    past = led._dof_targets(T0, rack, [sw, sw + 2], sw - j, x0, subj)[0]
+    np.testing.assert_allclose(past, led._dof_targets(T0, rack, [sw, sw + 2], sw, x0, subj)[0], rtol=1e-12)
+    early = led._dof_targets(T0, rack, [sw, sw + 2], sw - j - 1, x0, subj)[0]
+    assert (past[:, 7] > 1.0).all() and (early[:, 7] == 1.0).all() and (early[:, 2] == 0.0).all()
     # and gated by the background (rack_lead_background_gate), given 20 m behind him: inside the one circle's field
     # with the focus on him (1/d - sigma < 1/(d + 20), the field's far limit beyond it), so sharp before the
     # switch whatever the lead, and the lead is the travel's, as ungated
