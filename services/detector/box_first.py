@@ -19,7 +19,7 @@ spread over [0.3, 1] (`box_certainty`); the pose flag is the second opinion that
 objects the SSD takes for people (`bf_min_pose_flag`). The reported box is the mask's bounding box
 where it agrees with the SSD box (IoU >= `bf_mask_box_min_iou`), else the SSD box; the second look
 (`second_look`: one more upright crop around the previous frame's largest person, when its box was
-changing) widens the box it agrees with to its own mask's box.
+changing and the last look gained something) widens the box it agrees with to its own mask's box.
 
 Video mode (`running_mode`, the default) follows people as MediaPipe does: each person of the
 previous frame is looked for in the crop its auxiliary landmarks (33 mid-hip, 34 body scale) give,
@@ -129,6 +129,11 @@ class BoxFirstPose:
     # DAVIS dance-twirl box IoU 0.910 -> 0.92, parkour unchanged (benchmarks/eval_detector.py).
     second_look = True
     look_min_change = 0.05
+    # A look that barely moved the box (less than `look_min_gain` of its IoU) rests the looks for
+    # `look_rest_frames` frames, however much the box changes: a rendered dancer's box changes by ~10 %
+    # a frame, and its looks then widened it by a median 1 px, a landmark pass for nothing.
+    look_min_gain = 0.01
+    look_rest_frames = 4
     ghost_frames = 15  # frames a person not seen is remembered for (its id given back when it reappears)
     provenance_bonus = 0.2  # association score bonus for the track whose landmark crop found the box
 
@@ -170,6 +175,7 @@ class BoxFirstPose:
         self._next_id = 0
         self._last_stamp: int | None = None
         self._since_ssd = 0  # frames since the SSD last ran (bf_ssd_every)
+        self._look_gain, self._since_look = math.inf, 0  # the last second look's gain, frames since it
 
     def close(self) -> None:
         if self._pool is not None:
@@ -182,6 +188,7 @@ class BoxFirstPose:
         self._ghosts = []
         self._last_stamp = None
         self._since_ssd = 0
+        self._look_gain, self._since_look = math.inf, 0
 
     # ------------------------------------------------------------------ stage 1
     def boxes(self, image_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -342,11 +349,21 @@ class BoxFirstPose:
     def _look_roi(self) -> tuple | None:
         """The second look's crop: upright, around the previous frame's largest person's box, if that
         box was changing (1 - IoU with the one before >= `look_min_change`: moving, turning, limbs or
-        clothes flying); a steady person's box is already settled."""
-        if not self._prev:
+        clothes flying) and the looks are not resting (`_look_rests`); a steady person's box is
+        already settled."""
+        self._since_look += 1
+        if not self._prev or self._look_rests():
             return None
         t = max(self._prev, key=lambda t: _area(t["box"]))
-        return self.box_roi(t["box"]) if t["moved"] >= self.look_min_change else None
+        if t["moved"] < self.look_min_change:
+            return None
+        self._since_look = 0
+        return self.box_roi(t["box"])
+
+    def _look_rests(self) -> bool:
+        """Whether the last look widened its box by less than `look_min_gain` (1 - IoU of the box
+        before and after; 0 when it agreed with no box) within the last `look_rest_frames` frames."""
+        return self._look_gain < self.look_min_gain and self._since_look < self.look_rest_frames
 
     def _look_box(self, raw: tuple, width: int, height: int) -> np.ndarray | None:
         """The box of the second look's mask (None if empty). One crop's mask loses parts another
@@ -490,11 +507,8 @@ class BoxFirstPose:
         seen = [dedupe.Seen(c[0][1], c[0][5], c[0][6], c[0][4], c[0][3]) for c in cands]
         keep = [cands[i] for i in dedupe.keep_distinct(seen, cfg, cfg.bf_max_people)]
         finals = [self._final_box(c[0][1], c[0][2]) for c in keep]
-        if second is not None and finals:
-            k = max(range(len(finals)), key=lambda i: box_iou(finals[i], second))
-            if box_iou(finals[k], second) >= cfg.bf_mask_box_min_iou:  # it agrees: the same person
-                finals[k] = np.concatenate([np.minimum(finals[k][:2], second[:2]),
-                                            np.maximum(finals[k][2:], second[2:])]).astype(np.float32)
+        if second is not None:
+            self._widen(finals, second)
         tracks = self._prev + self._ghosts
         owner = self._assign(finals, [c[1] for c in keep], tracks)
         self._prev, people, skels = [], [], []
@@ -518,6 +532,19 @@ class BoxFirstPose:
         self._ghosts = [{**t, "box": t["box"] + t["vel"], "unseen": t["unseen"] + 1, "roi": None}
                         for k, t in enumerate(tracks) if k not in claimed and t["unseen"] < self.ghost_frames]
         return people, skels
+
+    def _widen(self, finals: list[np.ndarray], second: np.ndarray) -> None:
+        """Widen the box the second look's box agrees with (IoU >= bf_mask_box_min_iou: the same
+        person) to the union of the two, in place, and keep what the look gained (`_look_rests`)."""
+        self._look_gain = 0.0
+        if not finals:
+            return
+        k = max(range(len(finals)), key=lambda i: box_iou(finals[i], second))
+        if box_iou(finals[k], second) < self.cfg.bf_mask_box_min_iou:
+            return
+        wide = np.concatenate([np.minimum(finals[k][:2], second[:2]), np.maximum(finals[k][2:], second[2:])])
+        self._look_gain = 1.0 - box_iou(finals[k], wide)
+        finals[k] = wide.astype(np.float32)
 
     def _assign(self, boxes: list[np.ndarray], came_from: list[int], tracks: list[dict]) -> list[int]:
         """Track of each box (-1 = new person): greedy by IoU with where each track's motion puts it

@@ -300,3 +300,40 @@ def test_a_person_the_landmarks_lose_makes_the_ssd_look_on_that_frame():
         assert be.ssd_runs == 1  # followed: no SSD
         empty = det.process(np.zeros_like(frames[2].image), 2, frames[2].stamp_ns)
         assert be.ssd_runs == 2 and not empty.people  # lost: the SSD looked, and found no one
+
+
+def _looker() -> BoxFirstPose:
+    """The second look's bookkeeping alone (no model is run): a backend without its interpreters."""
+    bf = BoxFirstPose.__new__(BoxFirstPose)
+    bf.cfg = DetectorConfig()
+    bf._look_gain, bf._since_look = float("inf"), 0
+    bf._prev = [{"box": np.array([0, 0, 100, 200], np.float32), "moved": 0.10}]
+    return bf
+
+
+def test_a_look_that_widens_the_box_keeps_looking_and_records_its_gain():
+    bf = _looker()
+    assert bf._look_roi() == (50.0, 100.0, 250.0, 1.0, 0.0)  # 1.25 x the long side, upright
+    finals = [np.array([0, 0, 100, 200], np.float32)]
+    bf._widen(finals, np.array([0, 0, 100, 210], np.float32))  # IoU 200/210 >= 0.6: the same person
+    np.testing.assert_array_equal(finals[0], [0, 0, 100, 210])
+    assert bf._look_gain == pytest.approx(1 - 200 / 210, abs=1e-6)
+    assert bf._look_roi() is not None  # it gained 4.8 %: the next changing frame looks again
+
+
+def test_a_look_that_gains_under_one_percent_rests_the_looks_for_three_frames():
+    bf = _looker()
+    assert bf._look_roi() is not None
+    bf._widen([np.array([0, 0, 100, 200], np.float32)], np.array([0, 0, 100, 201], np.float32))
+    assert bf._look_gain == pytest.approx(1 - 200 / 201, abs=1e-6)  # 0.5 %: under look_min_gain
+    assert [bf._look_roi() is not None for _ in range(5)] == [False, False, False, True, False]
+
+
+def test_a_look_that_agrees_with_no_box_gains_nothing_and_a_steady_box_gets_no_look():
+    bf = _looker()
+    bf._look_roi()
+    bf._widen([np.array([0, 0, 100, 200], np.float32)], np.array([300, 0, 400, 200], np.float32))
+    assert bf._look_gain == 0.0
+    bf._since_look = BoxFirstPose.look_rest_frames
+    bf._prev[0]["moved"] = 0.04  # under look_min_change
+    assert bf._look_roi() is None
