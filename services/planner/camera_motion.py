@@ -45,6 +45,9 @@ Per-stage parameter layout (N_MOTION values), read by cost.StageBuilder:
     25    1 = the source's subject is out of its frame on this row (no image target) while the row names a
           move: the look term does not turn the camera after him (it whipped dolly_in's camera round after
           the walker leaving the frame, 33-48 deg/s, and turned orbit_left's after him)
+    26    1 = the least speed (21) is the source's own measured speed (a pedestal's), not a floor: its
+          shortfall weighs weights.travel_rate as well (at translation_dir's 5 alone the climb ran 10-25 %
+          short of it, giving way to the framing)
 """
 from __future__ import annotations
 
@@ -55,7 +58,7 @@ import numpy as np
 
 from cinetransfer.shared.camera_motion import ASSUMED_HFOV_DEG, ZOOM_MIN_PER_S
 
-N_MOTION = 26
+N_MOTION = 27
 SIDE, SIDE_MASK = slice(0, 2), 2
 RATES, RATE_MASKS = slice(3, 6), slice(6, 9)
 ZOOM, ZOOM_MASK = 9, 10
@@ -65,13 +68,14 @@ BEARING_RATE_MASK, BEARING_RATE = 19, 20
 TRAVEL_MIN = 21
 LOG_FOCAL_FLOOR, LOG_FOCAL_CEILING, HEADROOM_MASK = 22, 23, 24
 LOOK_OFF = 25
+TRAVEL_MEASURED = 26
 #: the columns of the take's moves, which the pre-roll drops; the lens's headroom stays (it is set up there)
 TAKE_COLUMNS = slice(0, LOG_FOCAL_FLOOR)
 SIDE_PARAMS = slice(0, 3)  #: the side-of-subject parameters (bearing vector and mask), set by the planner core
 FLOWN_RATE_COLUMNS = [ZOOM]  #: the lens's rate target, planned slower (core.flown_rate_factor)
 #: the camera-motion terms' masks
 MOTION_MASKS = [6, 7, 8, ZOOM_MASK, TRAVEL_MASK, DOLLY_ZOOM_MASK, STILL, STILL_ALONG, BEARING_RATE_MASK,
-                HEADROOM_MASK]
+                HEADROOM_MASK, TRAVEL_MEASURED]
 
 #: which classes ask for which term
 RATE_CLASSES = (("pan", "orbit"), ("tilt",), ("roll",))
@@ -386,7 +390,7 @@ def _pedestal_terms(out: np.ndarray, style: MotionStyle, row: int, cls: frozense
         return
     least = pedestal_least_rate(float(style.elevation_rate[row]), float(out[TRAVEL.start + 2]))
     if least > 0:
-        out[TRAVEL_MIN] = least
+        out[TRAVEL_MIN], out[TRAVEL_MEASURED] = least, 1.0
     tilt = float(style.rates_radps[row, 1])
     out[RATES.start + 1], out[RATE_MASKS.start + 1] = (tilt if math.isfinite(tilt) else 0.0), 1.0
     if not any(n in cls for n in ZOOM_CLASSES):

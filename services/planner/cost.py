@@ -485,8 +485,10 @@ class StageBuilder:
         out.append((wts["bearing_rate"] * m[CM.BEARING_RATE_MASK], bearing_rate(rel, rel_vel) - m[CM.BEARING_RATE]))
         direction = ca.mtimes(r, m[CM.TRAVEL])  # the source camera's direction of travel, in the world
         least = m[CM.TRAVEL_MIN] * ca.norm_2(rel)  # a dolly travels at least at a rate the eye counts
-        out.append((wts["translation_dir"] * m[CM.TRAVEL_MASK], travel_residual(x[lay.V], direction, par.v_scale,
-                                                                                 least)))
+        travel = travel_residual(x[lay.V], direction, par.v_scale, least)
+        out.append((wts["translation_dir"] * m[CM.TRAVEL_MASK], travel))
+        # a measured speed (a pedestal's) is the move itself, not a floor: its shortfall weighs more
+        out.append((wts["travel_rate"] * m[CM.TRAVEL_MEASURED], travel[travel.shape[0] - 1]))
         # a camera that only turns or zooms does not slide sideways: held by J_v alone (0.5), the framing
         # trucked and orbited it after the walker and the pan was read as orbit or truck; held in every
         # direction, it lost the framing (docs/planner.md, "Stand still"); a dolly stands still off its level rails

@@ -201,6 +201,7 @@ def test_a_dolly_rides_its_axis_unless_it_swings_or_is_handheld():
                           ("truck", (1, 0, 0)), ("tilt+dolly_zoom", (0, 0, 1)))}
     assert least == {"dolly_out": pytest.approx(0.06), "dolly_zoom": pytest.approx(0.06), "dolly_in": 0,
                      "truck": 0, "tilt+dolly_zoom": 0}
+    assert not CM.row_terms(_style("dolly_out", zoom=0.1, travel=(0, 0, -1)), 0, control_roll=False)[CM.TRAVEL_MEASURED]
 
 
 def test_a_dolly_zoom_asks_the_subjects_own_distance_rate():
@@ -407,11 +408,13 @@ def test_a_pedestal_rises_at_the_sources_rate_with_the_tilt_and_lens_held():
                                 elevation_rate=np.array([0.03]))
     t = CM.row_terms(style, 0, control_roll=False)
     assert t[CM.TRAVEL].tolist() == [0, 0, 1] and t[CM.TRAVEL_MASK] == 1 and t[CM.TRAVEL_MIN] == 0.03
+    assert t[CM.TRAVEL_MEASURED] == 1  # the source's own speed, weighed as the move (not a dolly's floor)
     assert t[CM.RATE_MASKS].tolist() == [0, 1, 0] and t[CM.RATES.start + 1] == pytest.approx(math.radians(0.5))
     assert t[CM.ZOOM_MASK] == 1 and t[CM.ZOOM] == 0 and t[CM.STILL] == 0
     # a pedestal down read rising asks no speed (the direction term alone, as before), the tilt still held
     down = CM.row_terms(dataclasses.replace(style, travel=np.array([[0.0, 0.0, -1.0]])), 0, control_roll=False)
     assert down[CM.TRAVEL_MIN] == 0 and down[CM.RATE_MASKS.start + 1] == 1
+    assert down[CM.TRAVEL_MEASURED] == 0
     # handheld or swinging rows, and styles without the elevation rate, ask as before
     for name in ("tilt+pedestal", "roll+pedestal", "pedestal+orbit"):
         before = CM.row_terms(dataclasses.replace(style, elevation_rate=None, classes=[CM.motion_classes(name)]), 0,
