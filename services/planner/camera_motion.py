@@ -44,7 +44,8 @@ Per-stage parameter layout (N_MOTION values), read by cost.StageBuilder:
           2 s, and started at the source's 32.6 mm the lens hit its 30 mm end half-way through)
     25    1 = the source's subject is out of its frame on this row (no image target) while the row names a
           move: the look term does not turn the camera after him (it whipped dolly_in's camera round after
-          the walker leaving the frame, 33-48 deg/s, and turned orbit_left's after him)
+          the walker leaving the frame, 33-48 deg/s, and turned orbit_left's after him); not on a static
+          row, whose rates and place are held already
     26    1 = the least speed (21) is the source's own measured speed (a pedestal's), not a floor: its
           shortfall weighs weights.travel_rate as well (at translation_dir's 5 alone the climb ran 10-25 %
           short of it, giving way to the framing)
@@ -323,6 +324,7 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool,
     out = np.zeros(N_MOTION)
     _headroom_terms(out, style, row, focal_range_mm)
     cls = style.classes[row]
+    # (a static row returns below before these: its rates and its place are held already)
     unframed = cls is not None and style.subject_seen is not None and not style.subject_seen[row]
     if cls == STATIC:
         n_rates = 3 if control_roll else 2
