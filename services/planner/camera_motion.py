@@ -36,10 +36,19 @@ Per-stage parameter layout (N_MOTION values), read by cost.StageBuilder:
           drift across its image (subject_bearing_rate); an orbit's the same way
     21    the least speed of travel along the direction (11-13) asked, over the subject's distance [1/s]
           (0 = any): a dolly's or a dolly-zoom's, TRAVEL_MIN_RATE (the direction term's one-sided part); a
-          pedestal's, the source's rate of turn of its elevation round the subject (pedestal_least_rate)
+          pedestal's, the source's rate of turn of its elevation round the subject (pedestal_least_rate); a
+          truck's or orbit's whose subject the source lost, the bearing rate it last read in the shot
+          (swing_held_rate)
     22-23 ln of the least and the greatest focal length [mm] the lens may stand at, 24 their mask:
           room for the zoom still to come in the take (a dolly-zoom in zooms out by e^-0.27 over its
           2 s, and started at the source's 32.6 mm the lens hit its 30 mm end half-way through)
+    25    1 = the source's subject is out of its frame on this row (no image target) while the row names a
+          move: the look term does not turn the camera after him (it whipped dolly_in's camera round after
+          the walker leaving the frame, 33-48 deg/s, and turned orbit_left's after him); not on a static
+          row, whose rates and place are held already
+    26    1 = the least speed (21) is the source's own measured speed (a pedestal's), not a floor: its
+          shortfall weighs weights.travel_rate as well (at translation_dir's 5 alone the climb ran 10-25 %
+          short of it, giving way to the framing)
 """
 from __future__ import annotations
 
@@ -50,7 +59,7 @@ import numpy as np
 
 from cinetransfer.shared.camera_motion import ASSUMED_HFOV_DEG, ZOOM_MIN_PER_S
 
-N_MOTION = 25
+N_MOTION = 27
 SIDE, SIDE_MASK = slice(0, 2), 2
 RATES, RATE_MASKS = slice(3, 6), slice(6, 9)
 ZOOM, ZOOM_MASK = 9, 10
@@ -59,13 +68,15 @@ DOLLY_ZOOM_MASK, DISTANCE_RATE, STILL, STILL_ALONG = 15, 16, 17, 18
 BEARING_RATE_MASK, BEARING_RATE = 19, 20
 TRAVEL_MIN = 21
 LOG_FOCAL_FLOOR, LOG_FOCAL_CEILING, HEADROOM_MASK = 22, 23, 24
+LOOK_OFF = 25
+TRAVEL_MEASURED = 26
 #: the columns of the take's moves, which the pre-roll drops; the lens's headroom stays (it is set up there)
 TAKE_COLUMNS = slice(0, LOG_FOCAL_FLOOR)
 SIDE_PARAMS = slice(0, 3)  #: the side-of-subject parameters (bearing vector and mask), set by the planner core
 FLOWN_RATE_COLUMNS = [ZOOM]  #: the lens's rate target, planned slower (core.flown_rate_factor)
 #: the camera-motion terms' masks
 MOTION_MASKS = [6, 7, 8, ZOOM_MASK, TRAVEL_MASK, DOLLY_ZOOM_MASK, STILL, STILL_ALONG, BEARING_RATE_MASK,
-                HEADROOM_MASK]
+                HEADROOM_MASK, TRAVEL_MEASURED]
 
 #: which classes ask for which term
 RATE_CLASSES = (("pan", "orbit"), ("tilt",), ("roll",))
@@ -121,6 +132,10 @@ class MotionStyle:
     zoom_to_come: np.ndarray | None = None
     #: (K,) d(elevation of the source camera round the subject)/dt [rad/s, positive rising], NaN = unknown
     elevation_rate: np.ndarray | None = None
+    #: (K,) whether the source frames its subject on the row (any image target); None = not known
+    subject_seen: np.ndarray | None = None
+    #: (K,) the bearing rate [rad/s] last read in the row's shot, on rows that cannot read it; NaN elsewhere
+    swing_held_rate: np.ndarray | None = None
 
 
 def motion_classes(text: object) -> frozenset[str] | None:
@@ -175,7 +190,22 @@ def read_motion_style(ins: object) -> MotionStyle | None:
                                        aspect=_source_aspect(ins)) if fps > 0 else np.full(k, np.nan)
     asked = np.array([_zoom_asked(c, float(z)) for c, z in zip(classes, zoom)], dtype=bool)
     to_come = zoom_to_come(np.where(asked, zoom, 0.0), fps) if fps > 0 else np.zeros((k, 2))
-    return MotionStyle(classes, rates, zoom, travel, distance, bearing, to_come, elevation)
+    seen = np.isfinite(np.asarray(ins.image_targets, dtype=float)).all(axis=-1).reshape(k, -1).any(axis=1)
+    held = np.where(np.isfinite(bearing), np.nan, last_read_in_shot(bearing, starts))
+    return MotionStyle(classes, rates, zoom, travel, distance, bearing, to_come, elevation, seen, held)
+
+
+def last_read_in_shot(values: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """Per row the last finite value of `values` at or before it in its shot (NaN before the shot's first)."""
+    out = np.full(len(values), np.nan)
+    last = math.nan
+    for k, v in enumerate(np.asarray(values, dtype=float)):
+        if k == 0 or starts[k]:
+            last = math.nan
+        if math.isfinite(v):
+            last = v
+        out[k] = last
+    return out
 
 
 def _source_aspect(ins: object) -> float:
@@ -294,6 +324,8 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool,
     out = np.zeros(N_MOTION)
     _headroom_terms(out, style, row, focal_range_mm)
     cls = style.classes[row]
+    # (a static row returns below before these: its rates and its place are held already)
+    unframed = cls is not None and style.subject_seen is not None and not style.subject_seen[row]
     if cls == STATIC:
         n_rates = 3 if control_roll else 2
         out[RATE_MASKS.start:RATE_MASKS.start + n_rates] = 1.0  # each rate's target 0
@@ -325,7 +357,21 @@ def row_terms(style: MotionStyle, row: int, *, control_roll: bool,
         _speed_terms(out, style, row, cls)
         _along_axis_terms(out, cls)
         _pedestal_terms(out, style, row, cls)
+    if unframed:
+        _unframed_terms(out, style, row, control_roll)
     return out
+
+
+def _unframed_terms(out: np.ndarray, style: MotionStyle, row: int, control_roll: bool) -> None:
+    """A row whose source lost its subject: its camera went on with its move, not after him. The look term
+    gives way (LOOK_OFF; it whipped dolly_in's camera round after the walker leaving its frame, 33-48 deg/s)
+    and every rate the class leaves free is asked as the source measured it (with no framing to serve,
+    nothing else holds it: orbit_left's camera tilted up after the walker the source lost)."""
+    out[LOOK_OFF] = 1.0
+    for i in range(3 if control_roll else 2):
+        rate = float(style.rates_radps[row, i])
+        if not out[RATE_MASKS.start + i] and math.isfinite(rate):
+            out[RATES.start + i], out[RATE_MASKS.start + i] = rate, 1.0
 
 
 def pedestal_least_rate(elevation_rate: float, travel_up: float) -> float:
@@ -346,7 +392,7 @@ def _pedestal_terms(out: np.ndarray, style: MotionStyle, row: int, cls: frozense
         return
     least = pedestal_least_rate(float(style.elevation_rate[row]), float(out[TRAVEL.start + 2]))
     if least > 0:
-        out[TRAVEL_MIN] = least
+        out[TRAVEL_MIN], out[TRAVEL_MEASURED] = least, 1.0
     tilt = float(style.rates_radps[row, 1])
     out[RATES.start + 1], out[RATE_MASKS.start + 1] = (tilt if math.isfinite(tilt) else 0.0), 1.0
     if not any(n in cls for n in ZOOM_CLASSES):
@@ -401,6 +447,12 @@ def _swing_terms(out: np.ndarray, style: MotionStyle, row: int) -> None:
     rate = math.nan if style.bearing_rate is None else float(style.bearing_rate[row])
     if math.isfinite(rate):
         out[BEARING_RATE_MASK], out[BEARING_RATE] = 1.0, rate
+        return
+    held = math.nan if style.swing_held_rate is None else float(style.swing_held_rate[row])
+    if math.isfinite(held) and out[TRAVEL_MASK]:
+        # the source lost its subject and its camera went on: the swing keeps the sideways speed it last
+        # read (left to the direction alone, orbit_left's camera stood and turned after the walker)
+        out[TRAVEL_MIN] = abs(held)
 
 
 def _dolly_terms(out: np.ndarray, style: MotionStyle, row: int) -> None:
@@ -413,6 +465,15 @@ def _dolly_terms(out: np.ndarray, style: MotionStyle, row: int) -> None:
     rate = math.nan if style.distance_rate is None else float(style.distance_rate[row])
     if math.isfinite(rate):
         out[DOLLY_ZOOM_MASK], out[DISTANCE_RATE] = 1.0, rate
+
+
+def plan_for_setpoint_lead(motion: np.ndarray, factor: float) -> None:
+    """Plan the rate targets of the stages' `motion` (N, N_MOTION) `factor` times slower where the setpoint's
+    lead flies them that much faster (core.flown_rate_factor): the lens's on every stage, the camera's angular
+    rates only where the source lost its subject (LOOK_OFF). Elsewhere the framing pins the angles; with
+    nothing framed orbit_left's camera panned at 16 deg/s for the source's 8."""
+    motion[:, FLOWN_RATE_COLUMNS] /= factor
+    motion[motion[:, LOOK_OFF] > 0, RATES] /= factor
 
 
 def stage_motion(style: MotionStyle | None, rows: list[int], *, control_roll: bool,

@@ -120,6 +120,8 @@ class Weights:
     motion_rate: float = 20.0  # (camera angular rate - source's [rad/s])^2 per s, per pan / tilt / roll
     zoom_rate: float = 100.0  # (d ln f/dt - source's [1/s])^2 per s
     translation_dir: float = 5.0  # (velocity off the source's direction of travel / v_max)^2 per s
+    travel_rate: float = 100.0  # (shortfall under the source's measured speed along its direction / v_max)^2 per
+    #                             s, a pedestal's (with translation_dir's own: 105); at 5 alone the climb ran slow
     dolly_zoom: float = 100.0  # (d ln(subject distance)/dt - source's zoom rate [1/s])^2 per s, in a dolly zoom
     bearing_rate: float = 100.0  # (d(camera's bearing round the subject)/dt - source's [rad/s])^2 per s, truck/orbit
     motion_still: float = 20.0  # (v off the optical axis / v_max)^2 per s in a row that turns or zooms the camera in

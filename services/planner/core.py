@@ -31,8 +31,8 @@ from typing import Any
 import numpy as np
 
 from cinetransfer.services.planner import constraints as C
-from cinetransfer.services.planner.camera_motion import (DOLLY_ZOOM_MASK, FLOWN_RATE_COLUMNS, MOTION_MASKS, SIDE_PARAMS,
-                                                         STILL_ALONG, TAKE_COLUMNS, ZOOM_MASK, MotionStyle,
+from cinetransfer.services.planner.camera_motion import (DOLLY_ZOOM_MASK, MOTION_MASKS, SIDE_PARAMS, STILL_ALONG,
+                                                         TAKE_COLUMNS, ZOOM_MASK, MotionStyle, plan_for_setpoint_lead,
                                                          read_motion_style, stage_motion)
 from cinetransfer.services.planner.side_of_subject import camera_bearing, side_targets
 from cinetransfer.services.planner.zoom_hold import framing_error_now, settled_hold_share
@@ -370,7 +370,7 @@ class Planner:
         lens_range = (self.solver.bounds.focal_length_min_mm, self.solver.bounds.focal_length_max_mm)
         motion = stage_motion(self._motion_style(ins), rows, control_roll=self.layout.control_roll,
                               focal_range_mm=lens_range)
-        motion[:, FLOWN_RATE_COLUMNS] /= flown_rate_factor(self.cfg.setpoint_lead_s, self.cfg.rate_hz)
+        plan_for_setpoint_lead(motion, flown_rate_factor(self.cfg.setpoint_lead_s, self.cfg.rate_hz))
         if float(np.linalg.norm(subj.vel[:2])) < SETTLE_MAX_SUBJECT_SPEED_MPS:
             # the pre-roll is not filmed: round a subject who waits on his mark it only settles the framing
             # (held to the take's moves, the camera could not get round him to the first frame's bearing)

@@ -442,7 +442,9 @@ class StageBuilder:
         still = par.motion[k * CM.N_MOTION + CM.STILL]
         vn = (x[lay.V] - (1 - still) * par.vel) * par.v_scale
         acc_idx, cam_idx, lens_idx = self._input_groups()
-        stage = (wts["image"] * im + wts["look"] * look_cost(cc) + jdof
+        # the look gives way where the source's subject is out of its frame (camera_motion.LOOK_OFF)
+        w_look = wts["look"] * (1 - par.motion[k * CM.N_MOTION + CM.LOOK_OFF])
+        stage = (wts["image"] * im + w_look * look_cost(cc) + jdof
                  + wts["accel"] * ca.sumsqr(un[acc_idx]) + wts["camera_rate"] * ca.sumsqr(un[cam_idx])
                  + wts["lens_rate"] * ca.sumsqr(un[lens_idx])
                  + wts["accel_change"] * ca.sumsqr(du_n[acc_idx])
@@ -456,7 +458,7 @@ class StageBuilder:
         if s.solver != "ipopt":
             e_n, e_f = dof_residuals(inv_n, inv_f, par.dref[k], g_near=d[1], g_far=d[3], far_one_sided=d[4],
                                       near_one_sided=d[5])
-            terms.resid += [ca.sqrt(0.5 * dt * wts["look"]) * look_residual(cc),
+            terms.resid += [ca.sqrt(0.5 * dt * w_look) * look_residual(cc),
                             ca.sqrt(dt * d[0] * wts["dof_near"]) * e_n, ca.sqrt(dt * d[2] * wts["dof_far"]) * e_f]
             if lay.control_roll:
                 terms.resid.append(ca.sqrt(dt * wts["level"]) * roll)
@@ -483,8 +485,10 @@ class StageBuilder:
         out.append((wts["bearing_rate"] * m[CM.BEARING_RATE_MASK], bearing_rate(rel, rel_vel) - m[CM.BEARING_RATE]))
         direction = ca.mtimes(r, m[CM.TRAVEL])  # the source camera's direction of travel, in the world
         least = m[CM.TRAVEL_MIN] * ca.norm_2(rel)  # a dolly travels at least at a rate the eye counts
-        out.append((wts["translation_dir"] * m[CM.TRAVEL_MASK], travel_residual(x[lay.V], direction, par.v_scale,
-                                                                                 least)))
+        travel = travel_residual(x[lay.V], direction, par.v_scale, least)
+        out.append((wts["translation_dir"] * m[CM.TRAVEL_MASK], travel))
+        # a measured speed (a pedestal's) is the move itself, not a floor: its shortfall weighs more
+        out.append((wts["travel_rate"] * m[CM.TRAVEL_MEASURED], travel[travel.shape[0] - 1]))
         # a camera that only turns or zooms does not slide sideways: held by J_v alone (0.5), the framing
         # trucked and orbited it after the walker and the pan was read as orbit or truck; held in every
         # direction, it lost the framing (docs/planner.md, "Stand still"); a dolly stands still off its level rails

@@ -201,6 +201,7 @@ def test_a_dolly_rides_its_axis_unless_it_swings_or_is_handheld():
                           ("truck", (1, 0, 0)), ("tilt+dolly_zoom", (0, 0, 1)))}
     assert least == {"dolly_out": pytest.approx(0.06), "dolly_zoom": pytest.approx(0.06), "dolly_in": 0,
                      "truck": 0, "tilt+dolly_zoom": 0}
+    assert not CM.row_terms(_style("dolly_out", zoom=0.1, travel=(0, 0, -1)), 0, control_roll=False)[CM.TRAVEL_MEASURED]
 
 
 def test_a_dolly_zoom_asks_the_subjects_own_distance_rate():
@@ -327,6 +328,62 @@ def test_a_truck_or_an_orbit_asks_the_sources_bearing_rate_with_a_dollys_lens_an
     assert CM.BEARING_RATE_MASK in CM.MOTION_MASKS
 
 
+def test_last_read_in_shot_by_hand():
+    v = np.array([0.1, np.nan, 0.2, np.nan, np.nan, np.nan, 0.3])
+    starts = np.array([True, False, False, False, True, False, False])
+    # carried forward inside a shot, never across a cut nor back before the shot's first value
+    out = CM.last_read_in_shot(v, starts)
+    assert out[:4].tolist() == [0.1, 0.1, 0.2, 0.2] and np.isnan(out[4:6]).all() and out[6] == 0.3
+
+
+def test_a_swing_whose_subject_the_source_lost_keeps_its_last_sideways_speed():
+    style = dataclasses.replace(_style("orbit", pan=8.0, zoom=0.0, travel=(1, 0, 0)), bearing_rate=np.array([np.nan]),
+                                swing_held_rate=np.array([-0.09]))
+    t = CM.row_terms(style, 0, control_roll=False)
+    assert t[CM.BEARING_RATE_MASK] == 0 and t[CM.TRAVEL_MASK] == 1 and t[CM.TRAVEL_MIN] == pytest.approx(0.09)
+    # read on the row: the bearing rate itself, no least speed; no direction of travel: nothing held
+    read = CM.row_terms(dataclasses.replace(style, bearing_rate=np.array([0.05])), 0, control_roll=False)
+    assert read[CM.BEARING_RATE] == 0.05 and read[CM.TRAVEL_MIN] == 0
+    still = CM.row_terms(dataclasses.replace(style, travel=np.zeros((1, 3))), 0, control_roll=False)
+    assert still[CM.TRAVEL_MIN] == 0
+    assert CM.row_terms(dataclasses.replace(style, classes=[CM.motion_classes("pan")]), 0,
+                        control_roll=False)[CM.TRAVEL_MIN] == 0
+
+
+def test_the_look_gives_way_where_the_source_lost_its_subject():
+    ins = M.Instructions(image_targets=np.full((3, 2, 2), 0.5, dtype=np.float32), camera_motion_class=["pan"] * 3,
+                         pan_rate_dps=[5.0] * 3)
+    ins.image_targets[1:] = np.nan
+    ins.image_targets[2, 1] = 0.5  # one joint still framed: the subject is seen
+    style = CM.read_motion_style(ins)
+    assert style.subject_seen.tolist() == [True, False, True]
+    looks = CM.stage_motion(style, [0, 1, 2], control_roll=False)[:, CM.LOOK_OFF]
+    assert looks.tolist() == [0, 1, 0]
+    # a row without a class asks nothing of the look
+    unclassed = dataclasses.replace(style, classes=[None] * 3)
+    assert not CM.stage_motion(unclassed, [0, 1, 2], control_roll=False)[:, CM.LOOK_OFF].any()
+
+
+def test_rates_are_planned_slower_for_the_setpoint_lead_only_where_nothing_is_framed():
+    motion = np.zeros((2, CM.N_MOTION))
+    motion[:, CM.RATES] = [0.2, 0.1, 0.0]
+    motion[:, CM.ZOOM] = 0.1
+    motion[1, CM.LOOK_OFF] = 1.0
+    CM.plan_for_setpoint_lead(motion, 2.0)
+    assert motion[:, CM.ZOOM].tolist() == [0.05, 0.05]  # the lens on every stage
+    assert motion[0, CM.RATES].tolist() == [0.2, 0.1, 0.0] and motion[1, CM.RATES].tolist() == [0.1, 0.05, 0.0]
+
+
+def test_a_row_whose_source_lost_its_subject_asks_the_rates_its_class_leaves_free():
+    style = dataclasses.replace(_style("orbit", pan=8.0, tilt=-0.1, roll=0.3, zoom=0.0, travel=(1, 0, 0)),
+                                subject_seen=np.array([False]))
+    t = CM.row_terms(style, 0, control_roll=False)
+    assert t[CM.LOOK_OFF] == 1 and t[CM.RATE_MASKS].tolist() == [1, 1, 0]
+    assert t[CM.RATES.start + 1] == pytest.approx(math.radians(-0.1))
+    framed = CM.row_terms(dataclasses.replace(style, subject_seen=np.array([True])), 0, control_roll=False)
+    assert framed[CM.LOOK_OFF] == 0 and framed[CM.RATE_MASKS].tolist() == [1, 0, 0]
+
+
 def test_subject_elevation_rate_subtracts_the_sinking_in_the_image_from_the_tilt():
     fps, n = 24.0, 30
     t = np.arange(n) / fps
@@ -351,11 +408,13 @@ def test_a_pedestal_rises_at_the_sources_rate_with_the_tilt_and_lens_held():
                                 elevation_rate=np.array([0.03]))
     t = CM.row_terms(style, 0, control_roll=False)
     assert t[CM.TRAVEL].tolist() == [0, 0, 1] and t[CM.TRAVEL_MASK] == 1 and t[CM.TRAVEL_MIN] == 0.03
+    assert t[CM.TRAVEL_MEASURED] == 1  # the source's own speed, weighed as the move (not a dolly's floor)
     assert t[CM.RATE_MASKS].tolist() == [0, 1, 0] and t[CM.RATES.start + 1] == pytest.approx(math.radians(0.5))
     assert t[CM.ZOOM_MASK] == 1 and t[CM.ZOOM] == 0 and t[CM.STILL] == 0
     # a pedestal down read rising asks no speed (the direction term alone, as before), the tilt still held
     down = CM.row_terms(dataclasses.replace(style, travel=np.array([[0.0, 0.0, -1.0]])), 0, control_roll=False)
     assert down[CM.TRAVEL_MIN] == 0 and down[CM.RATE_MASKS.start + 1] == 1
+    assert down[CM.TRAVEL_MEASURED] == 0
     # handheld or swinging rows, and styles without the elevation rate, ask as before
     for name in ("tilt+pedestal", "roll+pedestal", "pedestal+orbit"):
         before = CM.row_terms(dataclasses.replace(style, elevation_rate=None, classes=[CM.motion_classes(name)]), 0,
