@@ -42,7 +42,8 @@ from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject
                                                 near_keeps_subject_out, reciprocal_targets,
                                                 subject_softness, switched_out)
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
-from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, GROUND_BEHIND_SHARE, SOFT_BAND_BLUR, Band,
+from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, GROUND_BEHIND_SHARE, SHARP_SUBJECT_BLUR,
+                                                       SOFT_BAND_BLUR, Band,
                                                        focus_ahead_inv_m, foreground_limits, ground_behind_inv_m,
                                                        settled_subject_blur, foreground_near_m, shifted_limits,
                                                        rack_lead_cap_s, rack_ahead_inv_m, ground_band,
@@ -495,12 +496,12 @@ class Planner:
 
     def _soft_background_ahead_inv_m(self, focal_mm: float) -> float:
         """How far in front of the subject a row pinned round him before a soft background with no foreground
-        puts the focus [1/m] (pins_field_before_soft_background): the rack's cap, rack_ahead_max_circles of the one
-        circle's spread at the aperture planned for, whatever the ground behind him. The planner knows no depth of
-        the background but the ground's, and by it tos_clip01's background was soft already; centred on him, what
-        the truth saw 14-20 m behind him was about 1.0-1.4 circles soft and read sharp to the focus estimator (raw
+        puts the focus [1/m] (pins_field_before_soft_background): focus_field.SHARP_SUBJECT_BLUR of the one circle's
+        spread at the aperture planned for, whatever the ground behind him. The planner knows no depth of the
+        background but the ground's, and by it tos_clip01's background was soft already; centred on him, what the
+        truth saw 14-20 m behind him was about 1.0-1.4 circles soft and read sharp to the focus estimator (raw
         0.46-0.61 against 0.5)."""
-        return self.cfg.rack_ahead_max_circles * self._planned_spread(focal_mm)
+        return SHARP_SUBJECT_BLUR * self._planned_spread(focal_mm)
 
     def _planned_spread(self, focal_mm: float) -> float:
         """The one circle's spread [1/m] at `focal_mm` and the aperture planned for (APERTURE_MARGIN times the

@@ -11,6 +11,7 @@ from cinetransfer.services.planner.core import (LENS_MOTION_COLUMNS, RACK_LEAD_S
                                                 held_subject_labels, instructions_from_arrays, lens_for_focus_rows,
                                                 pins_field_before_soft_background, planned_focus_rows,
                                                 predict_subject, rack_switch_ahead, unmeasured_subject_rows)
+from cinetransfer.services.planner.focus_field import SHARP_SUBJECT_BLUR
 from cinetransfer.services.planner.kinematic_sim import KinematicSim
 from cinetransfer.services.planner.scenarios import reference_instructions, standing_shot, wrong_start_scene
 from cinetransfer.shared import codec
@@ -611,7 +612,7 @@ def test_a_soft_background_pins_the_near_limit_with_no_foreground(planner, instr
     # and the field d -+ mu stands in front of him by the margin, its width in inverse depth kept
     focal = float(x0[planner.layout.F])
     shift = planner._soft_background_ahead_inv_m(focal)
-    assert shift == pytest.approx(planner.cfg.rack_ahead_max_circles * planner._planned_spread(focal))
+    assert shift == pytest.approx(SHARP_SUBJECT_BLUR * planner._planned_spread(focal))
     assert shift > 0
     assert dof[0, 1] == pytest.approx(1.0 / (d - mu) + shift)
     assert dof[0, 3] == pytest.approx(1.0 / (d + mu) + shift)
