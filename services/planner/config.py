@@ -323,6 +323,11 @@ class PlannerConfig:
     #: behind him the camera sees. With his held label asked of the lens, tos_clip01's take 3 stopped down to f/9
     #: (docs/planner.md, "An unmeasured subject asks no limit")
     unmeasured_subject_near_free: bool = True
+    #: with only the subject sharp before a present, soft background, his near limit stays two-sided even where
+    #: the source shows no foreground (core.pins_field_before_soft_background): one-sided, the far limit alone
+    #: left the aperture free and tos_clip01's take 3 stopped down f/4.4 -> f/8.2 with the background sharp
+    #: (docs/planner.md, "A soft background pins the field")
+    soft_background_pins_near: bool = True
     #: how far behind the subject the background stands [m]; inf = unknown, and then a row wanting the
     #: subject sharp before a soft background asks for no standoff. Given, such a row raises the minimum
     #: subject distance until the depth of field ends before it (separation.py). Off by default: the

@@ -38,11 +38,12 @@ from cinetransfer.services.planner.side_of_subject import camera_bearing, side_t
 from cinetransfer.services.planner.zoom_hold import framing_error_now, settled_hold_share
 from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
 from cinetransfer.services.planner.lens_axes import pinned_bounds
-from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject_out, near_keeps_subject_out,
-                                                reciprocal_targets,
+from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject_out, label_sharpness,
+                                                near_keeps_subject_out, reciprocal_targets,
                                                 subject_softness, switched_out)
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
-from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, GROUND_BEHIND_SHARE, SOFT_BAND_BLUR, Band,
+from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, GROUND_BEHIND_SHARE, SHARP_SUBJECT_BLUR,
+                                                       SOFT_BAND_BLUR, Band,
                                                        focus_ahead_inv_m, foreground_limits, ground_behind_inv_m,
                                                        settled_subject_blur, foreground_near_m, shifted_limits,
                                                        rack_lead_cap_s, rack_ahead_inv_m, ground_band,
@@ -493,6 +494,15 @@ class Planner:
         return rack_ahead_inv_m(depth_m, background, spread=self._planned_spread(float(xk[self.layout.F])),
                                 background_blur=SOFT_BAND_BLUR, most=most)
 
+    def _soft_background_ahead_inv_m(self, focal_mm: float) -> float:
+        """How far in front of the subject a row pinned round him before a soft background with no foreground
+        puts the focus [1/m] (pins_field_before_soft_background): focus_field.SHARP_SUBJECT_BLUR of the one circle's
+        spread at the aperture planned for, whatever the ground behind him. The planner knows no depth of the
+        background but the ground's, and by it tos_clip01's background was soft already; centred on him, what the
+        truth saw 14-20 m behind him was about 1.0-1.4 circles soft and read sharp to the focus estimator (raw
+        0.46-0.61 against 0.5)."""
+        return SHARP_SUBJECT_BLUR * self._planned_spread(focal_mm)
+
     def _planned_spread(self, focal_mm: float) -> float:
         """The one circle's spread [1/m] at `focal_mm` and the aperture planned for (APERTURE_MARGIN times the
         widest; focus_field.narrowest_spread)."""
@@ -576,6 +586,7 @@ class Planner:
         mu = self._mu_m(ins)
         focus = self._planned_focus(ins)
         absent = absent_regions(ins)
+        b_all = smoothed_focus(ins)
         b_subject = smoothed_subject_focus(ins)
         rows3 = focus.tolist() if focus.shape[-1:] == (3,) else []
         keeps_out = [far_keeps_subject_out(*row) for row in rows3]
@@ -629,14 +640,22 @@ class Planner:
                 free = bool(r < len(near_free) and near_free[r]) and near > 0
                 near = math.inf if free else near
                 kept_out = near_out[r] and not free
+                # a near limit that keeps the subject out stays two-sided, and so does one that pins the field
+                # round him before a soft background (pins_field_before_soft_background)
+                pinned = self.cfg.soft_background_pins_near and not free and pins_field_before_soft_background(
+                    focus[r], absent[r] | centred[r])
+                if pinned and absent[r, 0]:
+                    near, far = shifted_limits(near, far, self._soft_background_ahead_inv_m(float(xk[lay.F])))
                 # with the subject kept out by the near limit the far limit of the sharpness circle (3/8 of
                 # the one circle) at infinity is margin enough: the extra margin would cap the focus at half
                 # its longest and the subject's blur with it (separation.py)
                 dof[k, :6] = reciprocal_targets(near, far, near_foreground_m=st.near_foreground_m,
                                                 far_margin_inv_m=0.0 if kept_out else st.far_margin_inv_m,
-                                                # a near limit that keeps the subject out stays two-sided
-                                                fg_absent=bool(absent[r, 0]) and not near_out[r])
+                                                fg_absent=bool(absent[r, 0]) and not (near_out[r] or pinned))
                 dof[k, 7] = defocus_ratio(near_out[r] and switched_out(near_out, now_k, r), ratio, soft)
+                if focus[r, 0] and not absent[r, 0] and len(b_all) > r:
+                    # a borderline foreground label asks its near limit as little as it is sharp
+                    dof[k, 0] *= label_sharpness(float(b_all[r, 0]), float(ins.theta))
                 if free and math.isinf(far) and far > 0:
                     # nothing pins the focus: a far limit at infinity is met by stopping down (f/9 in tos_clip01's
                     # take 3), so it reaches the ground behind him the camera sees, where one is seen
@@ -1112,6 +1131,15 @@ def separation_kind(row: np.ndarray, absent: np.ndarray) -> str | None:
     if b_subject and not b_bg and not absent[2]:
         return "background_soft"
     return None
+
+
+def pins_field_before_soft_background(row: np.ndarray, absent: np.ndarray) -> bool:
+    """Whether a realisable focus row's near limit stays two-sided with no foreground in the source: only the
+    subject sharp before a present, soft background (separation_kind "background_soft"). His far limit alone
+    leaves a valley (every f-number whose field ends at d + mu costs the same, the near limit one-sided), so the
+    aperture follows whatever else pulls: tos_clip01's take 3 stopped down f/4.4 -> f/8.2 over rows 147-184
+    and its background 14-20 m behind him read sharp. Both limits asked pin the field round him, wide open."""
+    return separation_kind(row, absent) == "background_soft"
 
 
 def smoothed_focus(ins: M.Instructions) -> np.ndarray:

@@ -142,6 +142,22 @@ def subject_softness(b_subject: float, theta: float) -> float:
     return min(max((theta - b_subject) / theta, 0.0), 1.0) if theta > 0 else 0.0
 
 
+#: how far above the threshold theta a smoothed B has to lie for its "sharp" label to be asked in full
+#: (label_sharpness): a label within it is borderline, a coin flip of the smoother's window
+BORDERLINE_LABEL_BAND = 0.1
+
+
+def label_sharpness(b: float, theta: float, band: float = BORDERLINE_LABEL_BAND) -> float:
+    """How plainly the source's smoothed B reads sharp: 0 at or below the threshold theta, rising linearly to 1
+    at theta + `band`; 1 with no B known (NaN) or no band. The weight of a limit asked for a sharp label: the
+    one-frame foreground label of tos_clip01's row 184 (B 0.505, its raw 0.09-0.11) asked the near limit at 1 m
+    with the subject 10 m away, the deepest field of its take, from the end of 35 rows asking him sharp before a
+    soft background."""
+    if not math.isfinite(b) or band <= 0:
+        return 1.0
+    return min(max((b - theta) / band, 0.0), 1.0)
+
+
 def far_keeps_subject_out(b_fg: bool, b_subject: bool, b_bg: bool) -> bool:
     """The far limit's target keeps the subject out of focus (D_f* = d - mu: only the foreground,
     or nothing, in focus; shared.camera.desired_dof_limits)."""

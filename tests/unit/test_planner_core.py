@@ -9,8 +9,9 @@ from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.camera_motion import MOTION_MASKS
 from cinetransfer.services.planner.core import (LENS_MOTION_COLUMNS, RACK_LEAD_SHARE, Planner, _fps, absent_regions,
                                                 held_subject_labels, instructions_from_arrays, lens_for_focus_rows,
-                                                planned_focus_rows, predict_subject, rack_switch_ahead,
-                                                unmeasured_subject_rows)
+                                                pins_field_before_soft_background, planned_focus_rows,
+                                                predict_subject, rack_switch_ahead, unmeasured_subject_rows)
+from cinetransfer.services.planner.focus_field import SHARP_SUBJECT_BLUR
 from cinetransfer.services.planner.kinematic_sim import KinematicSim
 from cinetransfer.services.planner.scenarios import reference_instructions, standing_shot, wrong_start_scene
 from cinetransfer.shared import codec
@@ -584,6 +585,58 @@ def test_a_subject_the_source_does_not_measure_asks_no_near_limit(planner, instr
     dof_off, dref_off = off._dof_targets(T0, ins, [15], 5, x0, subj)
     assert dof_off[0, 0] == 1.0 and dof_off[0, 1] == pytest.approx(1.0 / (dref_off[0] - ins.mu_m))
     assert dof_off[0, 3] == pytest.approx(-st.far_margin_inv_m)
+
+
+def test_a_soft_background_pins_the_near_limit_with_no_foreground(planner, instructions):
+    # given a style asking only the subject sharp before a soft background, with no foreground in the source
+    k = instructions.image_targets.shape[0]
+    sm = np.tile(np.array([np.nan, 1.0, 0.0], dtype=np.float32), (k, 1))
+    ins = dataclasses.replace(instructions, focus_smoothed=sm, focus_raw=sm,
+                              focus_in=np.where(np.isfinite(sm), sm > 0.5, False))
+    absent = absent_regions(ins)
+    subject_only = np.array([False, True, False])
+    assert pins_field_before_soft_background(subject_only, absent[0])
+    # (and not with the background sharp, absent, or with him soft)
+    assert not pins_field_before_soft_background(np.array([False, True, True]), absent[0])
+    assert not pins_field_before_soft_background(subject_only, np.array([True, False, True]))
+    assert not pins_field_before_soft_background(np.array([False, False, True]), absent[0])
+    sim = KinematicSim(wrong_start_scene())
+    x0 = planner._measured_state(T0, sim.vehicle_state(T0))
+    subj = predict_subject(sim.subject_state(T0), T0)
+    dof, dref = planner._dof_targets(T0, ins, [0], 0, x0, subj)
+    d, mu = dref[0], ins.mu_m
+    # then both limits are asked two-sided of the one sharpness circle: the field is pinned round him (one-sided,
+    # any f-number whose field ended at d + mu cost the same)
+    assert dof[0, 0] == 1.0 and dof[0, 5] == 0.0 and dof[0, 2] == 1.0 and dof[0, 4] == 0.0
+    assert dof[0, 6] == 1.0 and dof[0, 7] == 1.0
+    # and the field d -+ mu stands in front of him by the margin, its width in inverse depth kept
+    focal = float(x0[planner.layout.F])
+    shift = planner._soft_background_ahead_inv_m(focal)
+    assert shift == pytest.approx(SHARP_SUBJECT_BLUR * planner._planned_spread(focal))
+    assert shift > 0
+    assert dof[0, 1] == pytest.approx(1.0 / (d - mu) + shift)
+    assert dof[0, 3] == pytest.approx(1.0 / (d + mu) + shift)
+    # and with the option off the near limit is one-sided and centred on him, as for any row without a foreground
+    off = Planner(dataclasses.replace(planner.cfg, soft_background_pins_near=False), solver=planner.solver)
+    dof_off, _ = off._dof_targets(T0, ins, [0], 0, x0, subj)
+    assert dof_off[0, 5] == 1.0
+    assert dof_off[0, 1] == pytest.approx(1.0 / (d - mu)) and dof_off[0, 3] == pytest.approx(1.0 / (d + mu))
+
+
+def test_a_borderline_foreground_label_asks_its_near_limit_as_little(planner, instructions):
+    # given a style asking the foreground and the subject sharp, the foreground's B just above theta in row 0
+    k = instructions.image_targets.shape[0]
+    sm = np.tile(np.array([1.0, 1.0, 0.0], dtype=np.float32), (k, 1))
+    sm[0, 0] = instructions.theta + 0.005
+    ins = dataclasses.replace(instructions, focus_smoothed=sm, focus_raw=sm, focus_in=sm > instructions.theta)
+    sim = KinematicSim(wrong_start_scene())
+    x0 = planner._measured_state(T0, sim.vehicle_state(T0))
+    subj = predict_subject(sim.subject_state(T0), T0)
+    dof, _ = planner._dof_targets(T0, ins, [0, 1], 0, x0, subj)
+    # then both ask the near limit at 1 m, the borderline row at 0.005 / 0.1 of the weight, the plain one in full
+    st = planner.cfg.structure
+    assert dof[0, 1] == dof[1, 1] == pytest.approx(1.0 / st.near_foreground_m)
+    assert dof[0, 0] == pytest.approx(0.05) and dof[1, 0] == 1.0
 
 
 def test_a_subject_label_is_never_held_across_a_cut():

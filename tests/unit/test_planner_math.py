@@ -207,6 +207,17 @@ def test_defocus_ratio_follows_how_soft_the_source_subject_is():
     assert J.defocus_ratio(True, 4.0, 1.0) == 4.0 and J.defocus_ratio(False, 4.0, 1.0) == 1.0
 
 
+def test_a_borderline_sharp_label_weighs_as_little_as_it_is_sharp():
+    # given theta 0.5 and the band 0.1: B = 0.505 lies 0.005 / 0.1 = 0.05 of the way above it, 0.56 0.6 of it
+    assert J.label_sharpness(0.505, 0.5) == pytest.approx(0.05)
+    assert J.label_sharpness(0.56, 0.5) == pytest.approx(0.6)
+    # then a plainly sharp label weighs in full, one at or below theta nothing, and one not measured in full
+    assert J.label_sharpness(0.95, 0.5) == 1.0 and J.label_sharpness(0.5, 0.5) == 0.0
+    assert J.label_sharpness(0.3, 0.5) == 0.0 and J.label_sharpness(float("nan"), 0.5) == 1.0
+    # and with no band every label weighs in full
+    assert J.label_sharpness(0.505, 0.5, band=0.0) == 1.0
+
+
 @pytest.mark.parametrize("focus, expected", [
     # (fg, subject, bg): the far limit keeps the subject out where D_f* = d - mu
     ((False, False, False), True),  # nothing in focus (defocus_when_none)
