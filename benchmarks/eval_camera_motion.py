@@ -53,6 +53,21 @@ def _least_move(rate: str) -> float:
     return cm.ZOOM_MIN_PER_S if rate == "zoom_rate" else cm.ROTATION_MIN_DPS
 
 
+def truth_row_classes(tr: dict) -> list[str]:
+    """The class of each row of a source's truth (its per-frame rates and translation direction)."""
+    def rate(name: str, k: int) -> float:
+        v = tr[name][k]
+        return math.nan if v is None else float(v)
+
+    return [cm.classify(*(rate(n, k) for n in RATES), np.array(tr["translation_dir"][k], dtype=float))
+            for k in range(len(tr["zoom_rate"]))]
+
+
+def rows_agreeing(truth: list[str], got: list[str]) -> int:
+    """How many rows after the first (whose motion crosses from no frame) read the truth's class."""
+    return sum(a == b for a, b in zip(truth[1:], got[1:]))
+
+
 def evaluate_source(video: Path, cfg: SmootherConfig) -> dict:
     """Extraction vs truth for one source."""
     tr = json.loads(video.with_suffix(".truth.json").read_text(encoding="utf-8"))
@@ -69,7 +84,9 @@ def evaluate_source(video: Path, cfg: SmootherConfig) -> dict:
     return {"name": video.stem, "truth_class": tr["class"], "class": got["class"],
             "right": got["class"] == tr["class"], "rates": {n: got.get(n) for n in RATES},
             "truth_rates": {n: float(np.nanmedian(np.array(tr[n], dtype=float))) for n in RATES},
-            "rate_errors": errors, "seconds": round(time.monotonic() - t0, 1)}
+            "rate_errors": errors, "rows": len(instr.camera_motion_class) - 1,
+            "rows_agree": rows_agreeing(truth_row_classes(tr), list(instr.camera_motion_class)),
+            "seconds": round(time.monotonic() - t0, 1)}
 
 
 def clip_classes(clip: Path, cfg: SmootherConfig) -> dict:
@@ -103,13 +120,14 @@ def evaluate_sources(folder: Path, cfg: SmootherConfig) -> tuple[list[dict], dic
         results.append(r)
         errs = " ".join(f"{n.split('_')[0]} {e:.0%}" for n, e in r["rate_errors"].items())
         print(f"{r['name']:28s} truth {r['truth_class']:12s} got {r['class']:14s} "
-              f"{'ok ' if r['right'] else 'BAD'} {errs}", flush=True)
+              f"{'ok ' if r['right'] else 'BAD'} rows {r['rows_agree']}/{r['rows']} {errs}", flush=True)
     right = sum(r["right"] for r in results) / len(results) if results else math.nan
     errs = [e for r in results for e in r["rate_errors"].values()]
     within = sum(e <= RATE_TOLERANCE for e in errs) / len(errs) if errs else math.nan
     summary = {"sources": len(results), "class_accuracy": round(right, 4), "class_goal": CLASS_GOAL,
                "rates_within_tolerance": round(within, 4), "rate_tolerance": RATE_TOLERANCE,
-               "rate_relative_error": stats(errs, digits=4)}
+               "rate_relative_error": stats(errs, digits=4),
+               "rows_agree": sum(r["rows_agree"] for r in results), "rows": sum(r["rows"] for r in results)}
     return results, summary
 
 
@@ -143,9 +161,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\nclass right in {summary['class_accuracy']:.0%} of {summary['sources']} sources (goal >= "
           f"{CLASS_GOAL:.0%}); rates within {RATE_TOLERANCE:.0%}: {summary['rates_within_tolerance']:.0%} "
           f"(relative error median {summary['rate_relative_error']['median']:.1%}, max "
-          f"{summary['rate_relative_error']['max']:.1%})")
+          f"{summary['rate_relative_error']['max']:.1%}); rows reading the truth's class: "
+          f"{summary['rows_agree']} of {summary['rows']}")
     out = {"summary": summary, "stage_cpu_ms_1280x720": stage_cost_ms(DATA / "sam2_juggle_1280x720.mp4"),
-           "per_source": {r["name"]: {k: r[k] for k in ("truth_class", "class", "rates", "rate_errors")}
+           "per_source": {r["name"]: {k: r[k] for k in ("truth_class", "class", "rates", "rate_errors", "rows",
+                                                         "rows_agree")}
                           for r in results}}
     if args.clips is not None:
         out["clips"] = {}
