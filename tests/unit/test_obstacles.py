@@ -107,3 +107,22 @@ def test_bridge_counts_the_measured_vehicle_in_a_keep_out_as_a_breach():
     assert envelope_breach(np.array([11.55, 0.0, 1.6]), cfg, tol_m=-0.5)
     assert not envelope_breach(np.array([11.70, 0.0, 1.6]), cfg, tol_m=-0.5)
     assert SafetyConfig(obstacles_m=([1, 2, 0.5, 0, 3],)).obstacles_m == ((1.0, 2.0, 0.5, 0.0, 3.0),)
+
+
+def test_the_transfer_gives_planner_and_bridge_the_scene_obstacles(tmp_path):
+    """One derivation, handed to both nodes through the deploy config; the planner imports no simulator."""
+    import argparse
+
+    from cinetransfer.job import deploy_config
+    from cinetransfer.services.autopilot_bridge import service as bridge
+    from cinetransfer.services.planner import service as planner
+
+    cfg = deploy_config(tmp_path, 7447, "rig", "courtyard", extraction=False)
+    ap = argparse.ArgumentParser()
+    planner.add_config_arguments(ap)
+    p = planner.config_from_args(ap.parse_args(["--config", str(cfg)]))
+    b = bridge.config_from_args(bridge.build_parser().parse_args(["--config", str(cfg)])).safety
+    want = tuple(tuple(o.as_list()) for o in scene_obstacles(load_scene("courtyard")))
+    assert p.obstacles_m == b.obstacles_m == want and len(want) == 12
+    assert p.bounds.min_obstacle_distance_m == b.min_obstacle_distance_m == 1.0
+    assert "*id" not in cfg.read_text()  # written out in full for each node, no YAML alias
