@@ -8,8 +8,10 @@ envelope check add the same number. Settings files write one as the list
 `[x_m, y_m, radius_m, z_min_m, z_max_m]` (`obstacles_from`); a scene of the built-in simulator
 derives its own (services/autopilot_bridge/sim/obstacles.py).
 
-The height band counts for a vehicle at height z when z lies within the clearance of it: a camera
-flying under a crown (or over a pillar) by less than the clearance is as near as one beside it.
+The clearance is round: a vehicle a height h under or over the band keeps its horizontal distance
+from the axis at least r + sqrt(c^2 - h^2) (`keep_out_radius_m`), none once h >= c. A tree's crown
+is given as a stack of such cylinders, each as wide as the crown within its band, so the clearance
+follows the crown's rounded underside (sim/obstacles.py).
 """
 from __future__ import annotations
 
@@ -53,53 +55,64 @@ def obstacles_from(values: Iterable[Sequence[float]], where: str = "obstacles_m"
     return tuple(out)
 
 
-def surface_distance_m(k: Obstacle, xy: Sequence[float]) -> float:
-    """Horizontal distance [m] from `xy` to the cylinder's surface (negative inside)."""
-    return math.hypot(float(xy[0]) - k.x_m, float(xy[1]) - k.y_m) - k.radius_m
+def keep_out_radius_m(k: Obstacle, z_m: float, clearance_m: float) -> float | None:
+    """Horizontal radius [m] a vehicle at height `z_m` keeps from the cylinder's axis with a round
+    clearance: r + sqrt(c^2 - h^2), h the vertical gap from `z_m` to the height band (0 within it);
+    None when h > c (it passes over or under)."""
+    h = max(k.z_min_m - z_m, z_m - k.z_max_m, 0.0)
+    if h > clearance_m:
+        return None
+    return k.radius_m + math.sqrt(clearance_m * clearance_m - h * h)
 
 
-def covers_height(k: Obstacle, z_m: float, clearance_m: float) -> bool:
-    """Whether a vehicle at height `z_m` is within `clearance_m` of the cylinder's height band."""
-    return k.z_min_m - clearance_m <= z_m <= k.z_max_m + clearance_m
+def _axis_distance_m(k: Obstacle, xy: Sequence[float]) -> float:
+    return math.hypot(float(xy[0]) - k.x_m, float(xy[1]) - k.y_m)
 
 
 def intrusion_m(obstacles: Iterable[Obstacle], p: Sequence[float], clearance_m: float) -> float:
-    """How far [m] position `p` (x, y, z) lies inside the clearance of the nearest obstacle whose
-    height band it is beside (clearance minus surface distance): negative when it keeps every
-    clearance (by that much), -inf when it is beside none."""
-    beside = [k for k in obstacles if covers_height(k, float(p[2]), clearance_m)]
-    return max((clearance_m - surface_distance_m(k, p) for k in beside), default=-math.inf)
+    """How far [m] position `p` (x, y, z) lies inside the clearance of the obstacle it is deepest in
+    (keep_out_radius_m minus its distance from the axis): negative when it keeps every clearance (by
+    that much), -inf when it is beside none."""
+    worst = -math.inf
+    for k in obstacles:
+        r = keep_out_radius_m(k, float(p[2]), clearance_m)
+        if r is not None:
+            worst = max(worst, r - _axis_distance_m(k, p))
+    return worst
 
 
 def push_out(obstacles: Iterable[Obstacle], p: Sequence[float], distance_m: float) -> np.ndarray:
-    """`p` moved radially (horizontally) out of every keep-out it is beside until `distance_m`
-    from its surface, the nearest cylinder's axis first; a point on an axis moves along +x."""
+    """`p` moved radially (horizontally) out of every obstacle's clearance `distance_m`, the nearest
+    axis first; a point on an axis moves along +x."""
     out = np.array(p, dtype=float)
-    for k in sorted(obstacles, key=lambda k: surface_distance_m(k, out)):
-        if not covers_height(k, float(out[2]), distance_m) or surface_distance_m(k, out) >= distance_m:
+    for k in sorted(obstacles, key=lambda k: _axis_distance_m(k, out)):
+        r = keep_out_radius_m(k, float(out[2]), distance_m)
+        if r is None or _axis_distance_m(k, out) >= r:
             continue
         d = out[:2] - (k.x_m, k.y_m)
         n = float(np.linalg.norm(d))
         d = d / n if n > 1e-9 else np.array([1.0, 0.0])
-        out[:2] = np.array([k.x_m, k.y_m]) + d * (k.radius_m + distance_m)
+        out[:2] = np.array([k.x_m, k.y_m]) + d * r
     return out
 
 
-def nearest_obstacles(obstacles: Iterable[Obstacle], p: Sequence[float], *, clearance_m: float, reach_m: float,
-                      count: int) -> list[Obstacle]:
-    """At most `count` obstacles whose height band `p` is beside and whose surface lies within
-    `reach_m` of it horizontally, nearest first (ties by the order given); one whose circle lies
-    inside a nearer one's is left out (a trunk under its crown: the crown keeps it clear)."""
-    near = sorted(((surface_distance_m(k, p), i, k) for i, k in enumerate(obstacles)
-                   if covers_height(k, float(p[2]), clearance_m) and surface_distance_m(k, p) <= reach_m),
-                  key=lambda t: (t[0], t[1]))
-    out: list[Obstacle] = []
-    for _, _, k in near:
-        if len(out) < count and not any(circle_inside(k, o) for o in out):
-            out.append(k)
+def nearest_keep_outs(obstacles: Iterable[Obstacle], p: Sequence[float], *, clearance_m: float, reach_m: float,
+                      count: int) -> list[tuple[Obstacle, float]]:
+    """At most `count` (obstacle, keep-out radius at `p`'s height: keep_out_radius_m) whose keep-out
+    circle lies within `reach_m` of `p` horizontally, nearest first (ties by the order given); one whose
+    keep-out circle lies inside a nearer one's is left out (a trunk under its crown, a crown's slices)."""
+    near = []
+    for i, k in enumerate(obstacles):
+        r = keep_out_radius_m(k, float(p[2]), clearance_m)
+        if r is not None and _axis_distance_m(k, p) - r <= reach_m:
+            near.append((_axis_distance_m(k, p) - r, i, k, r))
+    out: list[tuple[Obstacle, float]] = []
+    for _, _, k, r in sorted(near, key=lambda t: (t[0], t[1])):
+        if len(out) < count and not any(_circle_inside(k, r, o, ro) for o, ro in out):
+            out.append((k, r))
     return out
 
 
-def circle_inside(a: Obstacle, b: Obstacle) -> bool:
-    """Whether `a`'s horizontal circle lies inside `b`'s."""
-    return math.hypot(a.x_m - b.x_m, a.y_m - b.y_m) + a.radius_m <= b.radius_m
+def _circle_inside(a: Obstacle, ra: float, b: Obstacle, rb: float) -> bool:
+    """Whether the circle of radius `ra` round `a`'s axis lies inside that of `rb` round `b`'s."""
+    return math.hypot(a.x_m - b.x_m, a.y_m - b.y_m) + ra <= rb

@@ -404,7 +404,7 @@ class Planner:
     def _obstacle_slots(self, x0: np.ndarray) -> np.ndarray:
         """The obstacle slots of a solve from `x0`: the nearest keep-outs the horizon can reach at the speed limit."""
         b, st = self.solver.bounds, self.cfg.structure
-        reach = b.min_obstacle_distance_m + b.speed_max_mps * st.horizon_steps * st.dt_s
+        reach = b.speed_max_mps * st.horizon_steps * st.dt_s
         return obstacle_params(self._obstacles, x0[self.layout.P], clearance_m=b.min_obstacle_distance_m,
                                reach_m=reach)
 

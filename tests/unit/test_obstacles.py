@@ -7,27 +7,26 @@ import pytest
 
 from cinetransfer.services.autopilot_bridge.config import SafetyConfig
 from cinetransfer.services.autopilot_bridge.safety import envelope_breach, return_point
-from cinetransfer.services.autopilot_bridge.sim.obstacles import scene_obstacles
+from cinetransfer.services.autopilot_bridge.sim.obstacles import CROWN_SLICES, scene_obstacles
 from cinetransfer.services.autopilot_bridge.sim.scene import load_scene
 from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.obstacles import N_OBSTACLE_SLOTS, obstacle_params, obstacle_rows
 from cinetransfer.shared.errors import ConfigError
-from cinetransfer.shared.obstacles import (Obstacle, covers_height, intrusion_m, nearest_obstacles, obstacles_from,
-                                           push_out, surface_distance_m)
+from cinetransfer.shared.obstacles import (Obstacle, intrusion_m, keep_out_radius_m, nearest_keep_outs, obstacles_from,
+                                           push_out)
 
 TRUNK = Obstacle(0.0, 0.0, 0.15, 0.0, 2.2)
 CROWN = Obstacle(0.0, 0.0, 1.3, 1.75, 4.75)
 
 
-def test_surface_distance_is_horizontal_and_negative_inside():
-    assert surface_distance_m(Obstacle(0, 0, 0.5, 0, 1), (3.0, 4.0, 99.0)) == pytest.approx(4.5)
-    assert surface_distance_m(Obstacle(1, 1, 0.5, 0, 1), (1.0, 1.2)) == pytest.approx(-0.3)
-
-
-def test_height_band_counts_within_the_clearance():
-    # a camera at 1.6 m flies 0.15 m under the crown: within a 1 m clearance it counts, at 0.7 m it does not
-    assert covers_height(CROWN, 1.6, 1.0) and covers_height(CROWN, 0.75, 1.0) and not covers_height(CROWN, 0.7, 1.0)
-    assert covers_height(CROWN, 5.75, 1.0) and not covers_height(CROWN, 5.8, 1.0)
+def test_keep_out_radius_grows_by_a_round_clearance():
+    # beside the trunk's band: radius + clearance; 0.8 m over its top: + sqrt(1 - 0.64); 1.1 m over: none
+    assert keep_out_radius_m(TRUNK, 1.6, 1.0) == pytest.approx(1.15)
+    assert keep_out_radius_m(TRUNK, 3.0, 1.0) == pytest.approx(0.15 + 0.6)
+    assert keep_out_radius_m(TRUNK, 3.3, 1.0) is None
+    # 0.15 m under the crown's band: nearly the whole clearance; 1 m under: the radius alone
+    assert keep_out_radius_m(CROWN, 1.6, 1.0) == pytest.approx(1.3 + math.sqrt(1 - 0.15 ** 2))
+    assert keep_out_radius_m(CROWN, 0.75, 1.0) == pytest.approx(1.3) and keep_out_radius_m(CROWN, 0.7, 1.0) is None
 
 
 def test_intrusion_is_the_clearance_left_unkept():
@@ -44,14 +43,16 @@ def test_push_out_moves_radially_to_the_distance():
     np.testing.assert_allclose(push_out([Obstacle(0, 0, 0.5, 0, 2)], (3.0, 0.0, 1.0), 1.0), (3.0, 0.0, 1.0))
 
 
-def test_nearest_obstacles_by_surface_within_reach_without_the_ones_inside():
+def test_nearest_keep_outs_within_reach_without_the_ones_inside():
     far = Obstacle(5.0, 0.0, 0.25, 0.0, 4.0)
     near = Obstacle(-2.0, 0.0, 0.25, 0.0, 4.0)
     high = Obstacle(1.0, 0.0, 0.25, 10.0, 12.0)
-    got = nearest_obstacles([far, TRUNK, CROWN, near, high], (0.5, 0.0, 1.6), clearance_m=1.0, reach_m=4.0, count=3)
-    # crown surface -0.8, trunk 0.2 (inside the crown's circle: left out), near 2.25, far 4.25 (beyond reach)
-    assert got == [CROWN, near]
-    assert nearest_obstacles([far, near], (0.5, 0.0, 1.6), clearance_m=1.0, reach_m=9.0, count=1) == [near]
+    got = nearest_keep_outs([far, TRUNK, CROWN, near, high], (0.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, count=3)
+    # crown keep-out 2.289 m (0.5 from its axis: 1.79 inside), trunk 1.15 (inside the crown's circle: left out),
+    # near 1.25 m round an axis 2.5 away (1.25 beyond), far 3.25 beyond (out of reach), high: 8.4 m over
+    assert [k for k, _ in got] == [CROWN, near]
+    assert [r for _, r in got] == pytest.approx([1.3 + math.sqrt(1 - 0.15 ** 2), 1.25])
+    assert nearest_keep_outs([far, near], (0.5, 0.0, 1.6), clearance_m=1.0, reach_m=9.0, count=1) == [(near, 1.25)]
 
 
 def test_settings_spelling_is_checked():
@@ -66,13 +67,17 @@ def test_settings_spelling_is_checked():
 
 def test_courtyard_obstacles_are_its_pillars_trunks_and_crowns():
     obs = scene_obstacles(load_scene("courtyard"))
-    # six pillars (0.5 m wide, 4 m tall) and three trees (trunk + crown); no box (walls, van) gives one
-    assert len(obs) == 12
+    # six pillars (0.5 m wide, 4 m tall) and three trees (a trunk and six crown slices); no box (walls, van)
+    assert len(obs) == 6 + 3 * (1 + CROWN_SLICES) and CROWN_SLICES == 6
     assert Obstacle(-2.0, 4.5, 0.25, 0.0, 4.0) in obs
     # tree_3: trunk 0.3 m wide, 2.2 m tall; crown 2.6 m wide, 3 m tall, centred 0.35 x 3 m above the trunk's top
     assert Obstacle(-6.0, -9.0, 0.15, 0.0, 2.2) in obs
-    crown = next(o for o in obs if (o.x_m, o.y_m, o.radius_m) == (-6.0, -9.0, 1.3))
-    assert (crown.z_min_m, crown.z_max_m) == pytest.approx((2.2 + 1.05 - 1.5, 2.2 + 1.05 + 1.5))
+    crown = [o for o in obs if (o.x_m, o.y_m) == (-6.0, -9.0) and o.z_min_m >= 1.7]
+    assert [o.z_min_m for o in crown] == pytest.approx([1.75, 2.25, 2.75, 3.25, 3.75, 4.25])
+    assert crown[-1].z_max_m == pytest.approx(4.75)
+    # each slice as wide as the ellipsoid at its band's edge nearest the centre (3.25 m): 1.0, 0.5, 0, 0, 0.5, 1.0 m
+    widths = [1.3 * math.sqrt(1 - (g / 1.5) ** 2) for g in (1.0, 0.5, 0.0, 0.0, 0.5, 1.0)]
+    assert [o.radius_m for o in crown] == pytest.approx(widths)
     assert scene_obstacles(load_scene("open_country")) == ()
 
 
@@ -89,9 +94,11 @@ def test_planner_rows_are_the_distance_past_radius_and_clearance():
 
 def test_planner_slots_hold_the_nearest_with_the_clearance():
     obs = scene_obstacles(load_scene("courtyard"))
-    p = obstacle_params(obs, (-6.5, -9.2, 1.6), clearance_m=1.0, reach_m=4.0)
-    # tree_3's crown (its trunk is inside it); no pillar within 4 m of the camera's surface distance
-    np.testing.assert_allclose(p[:3], (-6.0, -9.0, 2.3))
+    p = obstacle_params(obs, (-6.5, -9.2, 1.6), clearance_m=1.0, reach_m=3.0)
+    # tree_3's crown slice 2.25-2.75 m (0.65 m over the camera): the widest keep-out there; the slice under it
+    # (1.3 sqrt(1 - (1 / 1.5)^2) + sqrt(1 - 0.15^2) = 1.958), the slices over it (beyond 1 m) and the trunk
+    # (1.15) lie inside it; no pillar's keep-out within 3 m
+    np.testing.assert_allclose(p[:3], (-6.0, -9.0, 1.3 * math.sqrt(1 - (0.5 / 1.5) ** 2) + math.sqrt(1 - 0.65 ** 2)))
     np.testing.assert_array_equal(p[3:], 0.0)
 
 
@@ -101,8 +108,9 @@ def test_bridge_counts_the_measured_vehicle_in_a_keep_out_as_a_breach():
     # bark 0.30 m away: 0.70 inside the clearance, beyond the 0.25 tolerance; 0.9 m away: 0.10 inside, tolerated
     assert envelope_breach(np.array([10.45, 0.0, 1.6]), cfg)
     assert not envelope_breach(np.array([11.05, 0.0, 1.6]), cfg)
-    # flown back to the clearance plus the return margin, radially: 0.15 + 1 + 1 = 2.15 m from the axis
-    np.testing.assert_allclose(return_point(np.array([10.45, 0.0, 2.5]), cfg), (12.15, 0.0, 2.5))
+    # flown back to the clearance plus the return margin (2 m, round: 0.3 m over the trunk's top), radially
+    np.testing.assert_allclose(return_point(np.array([10.45, 0.0, 2.5]), cfg),
+                               (10.0 + 0.15 + math.sqrt(4 - 0.3 ** 2), 0.0, 2.5))
     # out of the breach only once half the margin beyond the clearance (as at the geofence)
     assert envelope_breach(np.array([11.55, 0.0, 1.6]), cfg, tol_m=-0.5)
     assert not envelope_breach(np.array([11.70, 0.0, 1.6]), cfg, tol_m=-0.5)
@@ -123,6 +131,6 @@ def test_the_transfer_gives_planner_and_bridge_the_scene_obstacles(tmp_path):
     p = planner.config_from_args(ap.parse_args(["--config", str(cfg)]))
     b = bridge.config_from_args(bridge.build_parser().parse_args(["--config", str(cfg)])).safety
     want = tuple(tuple(o.as_list()) for o in scene_obstacles(load_scene("courtyard")))
-    assert p.obstacles_m == b.obstacles_m == want and len(want) == 12
+    assert p.obstacles_m == b.obstacles_m == want and len(want) == 27
     assert p.bounds.min_obstacle_distance_m == b.min_obstacle_distance_m == 1.0
     assert "*id" not in cfg.read_text()  # written out in full for each node, no YAML alias
