@@ -7,7 +7,7 @@ import pytest
 
 from cinetransfer.services.autopilot_bridge.config import SafetyConfig
 from cinetransfer.services.autopilot_bridge.safety import envelope_breach, return_point
-from cinetransfer.services.autopilot_bridge.sim.obstacles import CROWN_SLICES, scene_obstacles
+from cinetransfer.services.autopilot_bridge.sim.obstacles import CROWN_SLICES, crown_slices, scene_obstacles
 from cinetransfer.services.autopilot_bridge.sim.scene import load_scene
 from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.obstacles import N_OBSTACLE_SLOTS, obstacle_params, obstacle_rows
@@ -67,12 +67,13 @@ def test_settings_spelling_is_checked():
 
 def test_courtyard_obstacles_are_its_pillars_trunks_and_crowns():
     obs = scene_obstacles(load_scene("courtyard"))
-    # six pillars (0.5 m wide, 4 m tall) and three trees (a trunk and six crown slices); no box (walls, van)
-    assert len(obs) == 6 + 3 * (1 + CROWN_SLICES) and CROWN_SLICES == 6
+    # six pillars (0.5 m wide, 4 m tall) and three trees (a trunk and the crown's slices); no box (walls, van)
+    assert len(obs) == 6 + 3 * (1 + CROWN_SLICES) and CROWN_SLICES == 24
     assert Obstacle(-2.0, 4.5, 0.25, 0.0, 4.0) in obs
     # tree_3: trunk 0.3 m wide, 2.2 m tall; crown 2.6 m wide, 3 m tall, centred 0.35 x 3 m above the trunk's top
     assert Obstacle(-6.0, -9.0, 0.15, 0.0, 2.2) in obs
-    crown = [o for o in obs if (o.x_m, o.y_m) == (-6.0, -9.0) and o.z_min_m >= 1.7]
+    assert len([o for o in obs if (o.x_m, o.y_m) == (-6.0, -9.0)]) == 1 + CROWN_SLICES
+    crown = crown_slices((-6.0, -9.0, 2.2 + 1.05), (1.3, 1.3, 1.5), 6)
     assert [o.z_min_m for o in crown] == pytest.approx([1.75, 2.25, 2.75, 3.25, 3.75, 4.25])
     assert crown[-1].z_max_m == pytest.approx(4.75)
     # each slice as wide as the ellipsoid at its band's edge nearest the centre (3.25 m): 1.0, 0.5, 0, 0, 0.5, 1.0 m
@@ -95,10 +96,9 @@ def test_planner_rows_are_the_distance_past_radius_and_clearance():
 def test_planner_slots_hold_the_nearest_with_the_clearance():
     obs = scene_obstacles(load_scene("courtyard"))
     p = obstacle_params(obs, (-6.5, -9.2, 1.6), clearance_m=1.0, reach_m=3.0)
-    # tree_3's crown slice 2.25-2.75 m (0.65 m over the camera): the widest keep-out there; the slice under it
-    # (1.3 sqrt(1 - (1 / 1.5)^2) + sqrt(1 - 0.15^2) = 1.958), the slices over it (beyond 1 m) and the trunk
-    # (1.15) lie inside it; no pillar's keep-out within 3 m
-    np.testing.assert_allclose(p[:3], (-6.0, -9.0, 1.3 * math.sqrt(1 - (0.5 / 1.5) ** 2) + math.sqrt(1 - 0.65 ** 2)))
+    # tree_3's crown slice 2.125-2.25 m (0.525 m over the camera, 1 m under the crown's centre): the widest
+    # keep-out there, 1.82 m; the other slices and the trunk (1.15) lie inside it; no pillar's keep-out within 3 m
+    np.testing.assert_allclose(p[:3], (-6.0, -9.0, 1.3 * math.sqrt(1 - (1.0 / 1.5) ** 2) + math.sqrt(1 - 0.525 ** 2)))
     np.testing.assert_array_equal(p[3:], 0.0)
 
 
@@ -131,6 +131,6 @@ def test_the_transfer_gives_planner_and_bridge_the_scene_obstacles(tmp_path):
     p = planner.config_from_args(ap.parse_args(["--config", str(cfg)]))
     b = bridge.config_from_args(bridge.build_parser().parse_args(["--config", str(cfg)])).safety
     want = tuple(tuple(o.as_list()) for o in scene_obstacles(load_scene("courtyard")))
-    assert p.obstacles_m == b.obstacles_m == want and len(want) == 27
+    assert p.obstacles_m == b.obstacles_m == want and len(want) == 81
     assert p.bounds.min_obstacle_distance_m == b.min_obstacle_distance_m == 1.0
     assert "*id" not in cfg.read_text()  # written out in full for each node, no YAML alias
