@@ -71,6 +71,9 @@ def deploy_config(outdir: Path, port: int, rig: str, scene: str, *, realtime: bo
     # until the take resets it, the simulation has no audience: it renders no frame and goes at a slow
     # pace beside the extraction (it rendered 9 CPU s of frames nobody recorded while a 72-frame style
     # was extracted); the take itself runs at the transfer's pace
+    # the scene's keep-out obstacles, derived once here: the planner keeps clear of them and the bridge's
+    # safety layer counts the measured vehicle among them as outside its envelope
+    obstacles = scene_obstacle_settings(scene, subject)
     bridge = ["--backend", "sim", "--scene", scene, *(["--subject", subject] if subject else []),
               *([] if realtime else ["--pace", str(IDLE_PACE), "--no-frames-before-reset"]),
               *(["--realtime"] if realtime else []), *(["--vehicle", vehicle] if vehicle else [])]
@@ -85,8 +88,10 @@ def deploy_config(outdir: Path, port: int, rig: str, scene: str, *, realtime: bo
         "defaults": {"zenoh": {"mode": "client", "connect": [f"tcp/127.0.0.1:{port}"], "shm": True}},
         "nodes": [
             *([{"name": n, "command": n, "args": list(a)} for n, a in EXTRACTION_ARGS.items()] if extraction else []),
-            {"name": "autopilot_bridge", "command": "autopilot_bridge", "args": bridge},
-            {"name": "planner", "command": "planner", "args": ["--vehicle", vehicle] if vehicle else []},
+            {"name": "autopilot_bridge", "command": "autopilot_bridge", "args": bridge,
+             "settings": {"safety": {"obstacles_m": obstacles}}},
+            {"name": "planner", "command": "planner", "args": ["--vehicle", vehicle] if vehicle else [],
+             "settings": {"obstacles_m": [list(o) for o in obstacles]}},  # a copy: no YAML alias
         ],
         "restart": {"backoff_initial_s": 0.5, "stop_grace_s": 10, "startup_timeout_s": 180},
     }
@@ -94,6 +99,15 @@ def deploy_config(outdir: Path, port: int, rig: str, scene: str, *, realtime: bo
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(yaml.safe_dump(cfg, sort_keys=False))
     return path
+
+
+def scene_obstacle_settings(scene: str, subject: str | None = None) -> list[list[float]]:
+    """The keep-out obstacles of simulator scene `scene` (a name or a YAML file) as settings files write
+    them (shared/obstacles.py)."""
+    from cinetransfer.services.autopilot_bridge.sim.obstacles import scene_obstacles
+    from cinetransfer.services.autopilot_bridge.sim.scene import load_scene
+
+    return [o.as_list() for o in scene_obstacles(load_scene(scene, subject=subject))]
 
 
 @contextmanager

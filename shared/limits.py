@@ -19,7 +19,7 @@ from cinetransfer.shared.vehicle import VehicleProfile, load_vehicle
 
 LIMIT_NAMES: tuple[str, ...] = (
     "speed_max_mps", "climb_max_mps", "accel_max_mps2", "geofence_shape", "geofence_radius_m",
-    "geofence_half_extent_m", "altitude_min_m", "altitude_max_m", "min_subject_distance_m",
+    "geofence_half_extent_m", "altitude_min_m", "altitude_max_m", "min_subject_distance_m", "min_obstacle_distance_m",
     "pitch_min_rad", "pitch_max_rad", "roll_max_rad", "yaw_rate_radps", "pitch_rate_radps", "roll_rate_radps",
     "focal_length_min_mm", "focal_length_max_mm", "focal_rate_mmps", "focus_distance_min_m",
     "focus_distance_max_m", "focus_rate_mps", "f_number_min", "f_number_max", "f_number_rate_ps")
@@ -64,6 +64,8 @@ class EnvelopeLimits:
     altitude_min_m: float = profile_field("altitude_min_m")  # camera height band above home [m]
     altitude_max_m: float = profile_field("altitude_max_m")
     min_subject_distance_m: float = profile_field("min_subject_distance_m")  # horizontal, camera to subject [m]
+    #: horizontal, camera to the surface of a keep-out obstacle [m] (shared/obstacles.py)
+    min_obstacle_distance_m: float = profile_field("min_obstacle_distance_m")
 
 
 @dataclass(frozen=True)

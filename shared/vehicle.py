@@ -2,8 +2,8 @@
 
 A profile (deploy/vehicles/NAME.yaml) says what the machine can do: camera sensor and image
 size, lens ranges and rates, gimbal range and rates, speed and acceleration, and the envelope it
-may fly in (geofence, altitude band, distance to the subject). The planner's bounds
-(services/planner/config.Bounds.from_vehicle), the bridge's safety layer
+may fly in (geofence, altitude band, distance to the subject and to keep-out obstacles). The
+planner's bounds (services/planner/config.Bounds.from_vehicle), the bridge's safety layer
 (SafetyConfig.from_vehicle), the built-in simulator (DynamicsLimits.from_vehicle) and the MAVLink
 sim-vehicle all take their limits from it, so that what the planner plans, the safety layer
 accepts and the simulator flies are the same machine. `--vehicle NAME|PATH` selects one;
@@ -165,6 +165,7 @@ class EnvelopeSpec:
     geofence_half_extent_m: tuple[float, float]
     altitude_m: tuple[float, float]  # band above home
     min_subject_distance_m: float  # horizontal, camera to subject
+    min_obstacle_distance_m: float  # horizontal, camera to a keep-out obstacle's surface (shared/obstacles.py)
 
     @classmethod
     def parse(cls, d: Any, where: str = "envelope") -> "EnvelopeSpec":
@@ -179,7 +180,9 @@ class EnvelopeSpec:
                    geofence_half_extent_m=(_num(f"{where}.geofence_half_extent_m[0]", half[0], positive=True),
                                            _num(f"{where}.geofence_half_extent_m[1]", half[1], positive=True)),
                    altitude_m=_pair(f"{where}.altitude_m", d["altitude_m"]),
-                   min_subject_distance_m=_num(f"{where}.min_subject_distance_m", d["min_subject_distance_m"], lo=0.0))
+                   min_subject_distance_m=_num(f"{where}.min_subject_distance_m", d["min_subject_distance_m"], lo=0.0),
+                   min_obstacle_distance_m=_num(f"{where}.min_obstacle_distance_m", d["min_obstacle_distance_m"],
+                                                lo=0.0))
 
 
 @dataclass(frozen=True)
@@ -204,6 +207,7 @@ class VehicleProfile:
                 "geofence_half_extent_m": env.geofence_half_extent_m,
                 "altitude_min_m": env.altitude_m[0], "altitude_max_m": env.altitude_m[1],
                 "min_subject_distance_m": env.min_subject_distance_m,
+                "min_obstacle_distance_m": env.min_obstacle_distance_m,
                 "pitch_min_rad": gim.pitch_rad[0], "pitch_max_rad": gim.pitch_rad[1], "roll_max_rad": gim.roll_max_rad,
                 "yaw_rate_radps": gim.yaw_rate_radps, "pitch_rate_radps": gim.pitch_rate_radps,
                 "roll_rate_radps": gim.roll_rate_radps,

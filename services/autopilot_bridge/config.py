@@ -18,6 +18,7 @@ from typing import Any, ClassVar
 
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.nodeconfig import setting
+from cinetransfer.shared.obstacles import obstacles_from
 from cinetransfer.shared.signing_key import read_signing_key
 from cinetransfer.shared.limits import (EnvelopeLimits, GimbalLimits, LensLimits, MotionLimits, profile_default,
                                         vehicle_fields)
@@ -102,6 +103,10 @@ class SafetyConfig(LensLimits, GimbalLimits, EnvelopeLimits, MotionLimits):
     min_subject_distance_m: float = setting(default_factory=profile_default("min_subject_distance_m"),
                                             flag="--min-subject-distance", unit="m", metavar="M",
                                             help="minimum horizontal distance to the subject; 0 disables")
+    #: keep-out obstacles, each [x_m, y_m, radius_m, z_min_m, z_max_m] in the world frame (shared/obstacles.py): the
+    #: measured vehicle nearer than `min_obstacle_distance_m` to one's surface (by more than the breach tolerance) is
+    #: an envelope breach. The transfer gives the scene's own (sim/obstacles.py).
+    obstacles_m: tuple[tuple[float, ...], ...] = ()
     #: subject state older than this [s] is ignored by the distance rule.
     subject_timeout_s: float = 1.0
     #: watchdog [s]: no fresh accepted setpoint for this long -> hold position.
@@ -155,6 +160,12 @@ class SafetyConfig(LensLimits, GimbalLimits, EnvelopeLimits, MotionLimits):
         _finite("min_subject_distance_m", self.min_subject_distance_m)
         if self.min_subject_distance_m < 0:
             raise ConfigError("min_subject_distance_m must be >= 0 (0 disables)")
+        _finite("min_obstacle_distance_m", self.min_obstacle_distance_m)
+        if self.min_obstacle_distance_m < 0:
+            raise ConfigError("min_obstacle_distance_m must be >= 0")
+        obstacles_from(self.obstacles_m, "obstacles_m")
+        # a settings file gives lists: held as tuples, so the config stays hashable
+        object.__setattr__(self, "obstacles_m", tuple(tuple(float(x) for x in o) for o in self.obstacles_m))
         _positive("subject_timeout_s", self.subject_timeout_s)
 
     def _validate_gimbal_and_lens(self) -> None:

@@ -20,7 +20,9 @@ What it enforces (limits in `SafetyConfig`):
 - clamp gimbal pitch/roll to their band and wrap yaw to (-pi, pi];
 - clamp focal length, focus distance and f-number to the lens ranges;
 - `envelope_breach` / `return_point`: the measured vehicle position against the same envelope,
-  and where to fly back to when it is outside (the bridge does that every tick);
+  and where to fly back to when it is outside (the bridge does that every tick); the envelope
+  includes the keep-out obstacles (`obstacles_m`, shared/obstacles.py): a vehicle nearer than
+  `min_obstacle_distance_m` to one's surface is outside it;
 - `check_command_args`: every argument of a bridge command (take-off altitude) validated and
   bounded by the same numbers; a bad one is a rejection, never an exception.
 
@@ -39,6 +41,7 @@ import numpy as np
 from cinetransfer.services.autopilot_bridge.config import SafetyConfig
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.angles import wrap_angle
+from cinetransfer.shared.obstacles import Obstacle, intrusion_m, obstacles_from, push_out
 
 MODES = ("track", "hold")
 
@@ -215,7 +218,11 @@ def envelope_breach(p: np.ndarray, cfg: SafetyConfig, tol_m: float | None = None
     tol = cfg.breach_tolerance_m if tol_m is None else tol_m
     q = p.copy()
     q[2] = max(q[2], cfg.home_m[2] + cfg.altitude_min_m + max(0.0, -tol))  # the floor is not checked
-    return not inside_geofence(q, cfg, tol)
+    return not inside_geofence(q, cfg, tol) or intrusion_m(_obstacles(cfg), p, cfg.min_obstacle_distance_m) > tol
+
+
+def _obstacles(cfg: SafetyConfig) -> tuple[Obstacle, ...]:
+    return obstacles_from(cfg.obstacles_m)
 
 
 def return_point(p: np.ndarray, cfg: SafetyConfig, margin_m: float | None = None) -> np.ndarray:
@@ -235,7 +242,9 @@ def return_point(p: np.ndarray, cfg: SafetyConfig, margin_m: float | None = None
     if lo > hi:
         lo = hi = 0.5 * (cfg.altitude_min_m + cfg.altitude_max_m)
     out[2] = home[2] + min(max(out[2] - home[2], lo), hi)
-    return out
+    # then out of the keep-outs (a return point the fence clamps into one is left there: the fence wins)
+    inside = push_out(_obstacles(cfg), out, cfg.min_obstacle_distance_m + m)
+    return inside if inside_geofence(inside, cfg) else out
 
 
 def _number(args: dict, name: str) -> float | None:

@@ -26,6 +26,7 @@ from cinetransfer.shared.nodeconfig import renamed_aliases, setting
 from cinetransfer.shared.paths import cache_dir
 from cinetransfer.shared.limits import (EnvelopeLimits, GimbalLimits, GimbalRateLimits, LensLimits, LensRateLimits,
                                         MotionLimits, vehicle_fields)
+from cinetransfer.shared.obstacles import obstacles_from
 from cinetransfer.shared.vehicle import VehicleProfile
 
 
@@ -71,8 +72,9 @@ class Bounds(LensRateLimits, LensLimits, GimbalRateLimits, GimbalLimits, Envelop
         if not (math.isfinite(self.altitude_min_m) and math.isfinite(self.altitude_max_m)
                 and self.altitude_max_m > self.altitude_min_m):
             raise _bad(s, "altitude_max_m", self.altitude_max_m, "finite and > altitude_min_m")
-        if not (math.isfinite(self.min_subject_distance_m) and self.min_subject_distance_m >= 0):
-            raise _bad(s, "min_subject_distance_m", self.min_subject_distance_m, ">= 0")
+        for name in ("min_subject_distance_m", "min_obstacle_distance_m"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise _bad(s, name, getattr(self, name), ">= 0")
         if not (-math.pi / 2 <= self.pitch_min_rad < self.pitch_max_rad <= math.pi / 2):
             raise _bad(s, "pitch_min_rad/pitch_max_rad", (self.pitch_min_rad, self.pitch_max_rad),
                        "-pi/2 <= min < max <= pi/2")
@@ -347,6 +349,10 @@ class PlannerConfig:
     #: subject's heading, SubjectState.heading_rad: without one, by image side). docs/planner.md,
     #: "Side of the subject".
     left_right: str = "name"
+    #: keep-out obstacles, each [x_m, y_m, radius_m, z_min_m, z_max_m] in the world frame (shared/obstacles.py): the
+    #: plan keeps the camera bounds.min_obstacle_distance_m from the surfaces of the nearest ones (obstacles.py). A
+    #: runtime parameter; the transfer gives the scene's own (services/autopilot_bridge/sim/obstacles.py)
+    obstacles_m: tuple[tuple[float, ...], ...] = ()
 
     def joint_weight(self, name: str) -> float:
         return dict(self.joint_weights).get(name, 1.0)
@@ -379,6 +385,9 @@ class PlannerConfig:
             raise _bad("", "settled_subject_blur", self.settled_subject_blur, "a finite value > 1 (soft)")
         if self.left_right not in LEFT_RIGHT:
             raise _bad("", "left_right", self.left_right, " | ".join(LEFT_RIGHT))
+        obstacles_from(self.obstacles_m, "planner config: obstacles_m")
+        # a settings file gives lists: held as tuples, so the config stays hashable
+        object.__setattr__(self, "obstacles_m", tuple(tuple(float(x) for x in o) for o in self.obstacles_m))
         return self
 
 

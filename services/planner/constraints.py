@@ -9,6 +9,8 @@ Soft, with one non-negative slack each per stage and an exact penalty (L1 + L2) 
 - ceiling:  z - s_ceil  <= altitude_max
 - distance: horizontal distance to the predicted subject centre + s_dist >= min_distance
 - speed:    |v| - s_speed <= speed_max   (the norm, as the safety layer bounds it)
+- obstacles: horizontal distance to each nearby keep-out cylinder's axis + s_obst >= its radius +
+            the clearance (obstacles.py: N_OBSTACLE_SLOTS rows, an empty slot asks nothing)
 The acceleration stays a box per axis: as a norm constraint it is active in every fast move, and
 the SQP's Gauss-Newton Hessian, which has no constraint curvature, then converges only linearly
 (a cold solve took > 300 iterations instead of < 30).
@@ -22,22 +24,24 @@ import numpy as np
 
 from cinetransfer.services.planner.config import Bounds
 from cinetransfer.services.planner.model import Layout, input_bounds, state_bounds
+from cinetransfer.services.planner.obstacles import N_OBSTACLE_SLOTS, obstacle_rows
 
-N_SOFT = 4  # floor, ceiling, distance, speed
+N_LIMITS = 4  # floor, ceiling, distance, speed: the limits of soft_limits
+N_SOFT = N_LIMITS + N_OBSTACLE_SLOTS  # ... and one row per obstacle slot
 _EPS2 = 1e-4  # keeps the norms smooth at 0 (their gradient); adds < 3e-5 at 2 m/s
 
 
-def soft_constraints(x_next, slack, centre_w, lim):  # noqa: ANN001, ANN201
+def soft_constraints(x_next, slack, centre_w, lim, obstacles):  # noqa: ANN001, ANN201
     """The soft-constraint expressions of one stage, each required to be >= 0; `lim` =
-    (z_min, z_max, d_min, v_max)."""
-    z_min, z_max, d_min, v_max = (lim[i] for i in range(N_SOFT))
+    (z_min, z_max, d_min, v_max); `obstacles` the obstacle slots (obstacles.obstacle_params)."""
+    z_min, z_max, d_min, v_max = (lim[i] for i in range(N_LIMITS))
     z = x_next[2]
     dx = x_next[0] - centre_w[0]
     dy = x_next[1] - centre_w[1]
     dist = ca.sqrt(dx * dx + dy * dy + _EPS2)
     speed = ca.sqrt(ca.sumsqr(x_next[Layout.V]) + _EPS2)
     return ca.vertcat(z + slack[0] - z_min, z_max - z + slack[1], dist + slack[2] - d_min,
-                      v_max - speed + slack[3])
+                      v_max - speed + slack[3], obstacle_rows(x_next[0:2], slack[N_LIMITS:], obstacles))
 
 
 def soft_limits(bounds: Bounds, min_distance_m: float = 0.0) -> list[float]:

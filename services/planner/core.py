@@ -36,6 +36,7 @@ from cinetransfer.services.planner.camera_motion import (DOLLY_ZOOM_MASK, MOTION
                                                          read_motion_style, stage_motion)
 from cinetransfer.services.planner.side_of_subject import camera_bearing, side_targets
 from cinetransfer.services.planner.zoom_hold import framing_error_now, settled_hold_share
+from cinetransfer.services.planner.obstacles import obstacle_params
 from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
 from cinetransfer.services.planner.lens_axes import pinned_bounds
 from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject_out, label_sharpness,
@@ -54,6 +55,7 @@ from cinetransfer.services.planner.solver import N_DOF, MpcSolver, SolveResult, 
 from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.facing import by_image_side
+from cinetransfer.shared.obstacles import obstacles_from
 from cinetransfer.shared.focus_regions import FOREGROUND_MIN_ROWS
 from cinetransfer.shared.plausible import unusable_targets
 
@@ -114,6 +116,7 @@ class Planner:
                                           max_cold_solve_time_s=self.cfg.max_cold_solve_time_s,
                                           feasibility_tol=self.cfg.feasibility_tol,
                                           accept_suboptimal=self.cfg.accept_suboptimal)
+        self._obstacles = obstacles_from(self.cfg.obstacles_m)
         self.state = "idle"
         self._elapsed_s = 0.0  # recording time accumulated before the current run
         self._run_from_ns: int | None = None  # when the current (unpaused) run began
@@ -396,8 +399,15 @@ class Planner:
             _, u_prev = self._plan.at((now_ns - self._plan.t0_ns) * 1e-9)
         data = StageData(x0=x0, u_prev=u_prev, joints_w=jw, subject_centre_w=subj.centre, subject_velocity=subj.vel,
                          targets=targets, mask=mask, dof=dof, distance_ref=dref, motion=motion,
-                         min_distance_m=standoff)
+                         min_distance_m=standoff, obstacles=self._obstacle_slots(x0))
         return data, frame
+
+    def _obstacle_slots(self, x0: np.ndarray) -> np.ndarray:
+        """The obstacle slots of a solve from `x0`: the nearest keep-outs the horizon can reach at the speed limit."""
+        b, st = self.solver.bounds, self.cfg.structure
+        reach = b.speed_max_mps * st.horizon_steps * st.dt_s
+        return obstacle_params(self._obstacles, x0[self.layout.P], clearance_m=b.min_obstacle_distance_m,
+                               reach_m=reach)
 
     def _separation_m(self, ins: M.Instructions, now_row: int, jw: np.ndarray, jmask: np.ndarray) -> float:
         """The subject distance the rows of the next `separation_lookahead_s` (within the take) need for

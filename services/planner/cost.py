@@ -23,6 +23,7 @@ import casadi as ca
 
 from cinetransfer.services.planner import camera_motion as CM
 from cinetransfer.services.planner import constraints as C
+from cinetransfer.services.planner import obstacles as OB
 from cinetransfer.services.planner.config import WEIGHT_NAMES, Structure
 from cinetransfer.services.planner.model import Layout
 from cinetransfer.services.planner.side_of_subject import FREE_ANGLE_RAD as SIDE_FREE_RAD
@@ -348,7 +349,8 @@ class ParamLayout:
         e, n = s.max_joints, s.horizon_steps
         sizes = [("u_prev", lay.nu), ("joints", 3 * e), ("centre", 3), ("subj_vel", 3),
                  ("targets", n * e * 2), ("mask", n * e), ("dof", n * N_DOF), ("dref", n), ("motion", n * CM.N_MOTION),
-                 ("weights", len(WEIGHT_NAMES)), ("u_scale", lay.nu), ("v_scale", 1), ("soft", C.N_SOFT)]
+                 ("weights", len(WEIGHT_NAMES)), ("u_scale", lay.nu), ("v_scale", 1), ("soft", C.N_LIMITS),
+                 ("obstacles", OB.N_OBSTACLE_SLOTS * OB.SLOT_SIZE)]
         self.slices: dict[str, slice] = {}
         off = 0
         for name, size in sizes:
@@ -387,6 +389,7 @@ class NlpParams:
     v_scale: object
     soft: object  #: the soft constraints' limits (constraints.soft_limits)
     motion: object = 0  #: (N * N_MOTION) side of the subject and camera-motion style (camera_motion.py)
+    obstacles: object = 0  #: the obstacle slots (obstacles.obstacle_params)
 
     @classmethod
     def of(cls, p, sl: dict[str, slice], e: int) -> NlpParams:
@@ -394,7 +397,7 @@ class NlpParams:
                    vel=p[sl["subj_vel"]], targets=p[sl["targets"]], mask=p[sl["mask"]], dof=p[sl["dof"]],
                    dref=p[sl["dref"]], wts={name: p[sl["weights"]][i] for i, name in enumerate(WEIGHT_NAMES)},
                    u_scale=p[sl["u_scale"]], v_scale=p[sl["v_scale"]][0], soft=p[sl["soft"]],
-                   motion=p[sl["motion"]])
+                   motion=p[sl["motion"]], obstacles=p[sl["obstacles"]])
 
 
 class StageBuilder:
@@ -433,11 +436,11 @@ class StageBuilder:
         tk = (k + 1) * dt
         terms.g.append(x - (ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)))
         centre = par.centre0 + par.vel * tk
-        terms.g.append(C.soft_constraints(x, slack, centre, par.soft))
+        terms.g.append(C.soft_constraints(x, slack, centre, par.soft, par.obstacles))
         # the same rows in the stage-wise form of the QP (x_{k+1} through the dynamics; equal wherever
         # the dynamics hold, which every SQP iterate after the first satisfies exactly)
         x_pred = ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)
-        terms.g_ocp += [x_pred - x, C.soft_constraints(x_pred, slack, centre, par.soft)]
+        terms.g_ocp += [x_pred - x, C.soft_constraints(x_pred, slack, centre, par.soft, par.obstacles)]
 
         yaw, pitch, roll = lay.angles(x)
         cam = x[lay.P]

@@ -24,6 +24,7 @@ class StageData:
     distance_ref: np.ndarray  # (N,) subject distance used to scale the DoF errors [m]
     motion: np.ndarray | None = None  # (N, camera_motion.N_MOTION) side of the subject, camera motion; None = none
     min_distance_m: float = 0.0  # a minimum subject distance above the bounds' (separation.py) [m]; 0 = the bounds'
+    obstacles: np.ndarray | None = None  # the obstacle slots (obstacles.obstacle_params); None = none
 
 
 @dataclass
@@ -32,7 +33,7 @@ class SolveResult:
     status: str
     x: np.ndarray  # (N+1, nx) planned states, x[0] = measured (possibly clamped) state
     u: np.ndarray  # (N, nu) planned inputs
-    slack: np.ndarray  # (N, C.N_SOFT) soft-constraint violations (floor, ceiling, distance, speed)
+    slack: np.ndarray  # (N, C.N_SOFT) soft-constraint violations (floor, ceiling, distance, speed, obstacles)
     cost: float
     iterations: int
     wall_s: float

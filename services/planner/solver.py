@@ -176,6 +176,8 @@ class MpcSolver(SqpMixin, IpoptMixin):
         p[sl["u_scale"]] = 1.0 / uhi
         p[sl["v_scale"]] = 1.0 / self.bounds.speed_max_mps
         p[sl["soft"]] = C.soft_limits(self.bounds, data.min_distance_m)
+        if data.obstacles is not None:
+            p[sl["obstacles"]] = data.obstacles
         if not np.all(np.isfinite(p)):
             raise ValueError("non-finite solver parameter")
         return p

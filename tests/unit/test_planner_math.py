@@ -382,12 +382,18 @@ def test_soft_constraint_rows_by_hand():
     x[lay.V] = [1.2, 1.6, 0.0]  # 2 m/s
     lim = C.soft_limits(pc.Bounds())  # floor 1, ceiling 40, distance 2, speed 2
     assert lim == [1.0, 40.0, 2.0, 2.0]
-    rows = np.asarray(C.soft_constraints(x, np.zeros(C.N_SOFT), np.zeros(3), lim)).ravel()
-    # floor violated by 0.5, ceiling 39.5 away, distance 3 beyond 2, speed exactly at its limit
-    np.testing.assert_allclose(rows, [-0.5, 39.5, 3.0, 0.0], atol=1e-4)
+    # one obstacle slot: a cylinder at (3, 0) of radius 0.5 + 1 m clearance; the others empty
+    obstacles = np.zeros(3 * C.N_OBSTACLE_SLOTS)
+    obstacles[0:3] = [3.0, 0.0, 1.5]
+    rows = np.asarray(C.soft_constraints(x, np.zeros(C.N_SOFT), np.zeros(3), lim, obstacles)).ravel()
+    # floor violated by 0.5, ceiling 39.5 away, distance 3 beyond 2, speed exactly at its limit, 4 m from the
+    # obstacle's axis: 2.5 beyond its radius and clearance; an empty slot: the distance to (0, 0), 5
+    empty = [5.0] * (C.N_OBSTACLE_SLOTS - 1)
+    np.testing.assert_allclose(rows, [-0.5, 39.5, 3.0, 0.0, 2.5, *empty], atol=1e-4)
     x[lay.V] = [3.0, 0.0, 4.0]  # 5 m/s: 3 over
-    rows = np.asarray(C.soft_constraints(x, np.array([0.5, 0, 0, 3.0]), np.zeros(3), lim)).ravel()
-    np.testing.assert_allclose(rows, [0.0, 39.5, 3.0, 0.0], atol=1e-4)  # the slacks make up for it
+    rows = np.asarray(C.soft_constraints(x, np.array([0.5, 0, 0, 3.0] + [0.0] * C.N_OBSTACLE_SLOTS), np.zeros(3),
+                                         lim, obstacles)).ravel()
+    np.testing.assert_allclose(rows, [0.0, 39.5, 3.0, 0.0, 2.5, *empty], atol=1e-4)  # the slacks make up for it
 
 
 def test_loop_dof_error_treats_absent_regions_like_the_planner():

@@ -249,3 +249,25 @@ def test_a_partial_step_from_a_start_off_its_dynamics_is_feasible():
     _assert_flyable(solver, x, u, lbw, ubw)
     assert np.all(slack >= 0)
     np.testing.assert_allclose(x, plan.x, atol=1e-6)
+
+
+def test_a_plan_keeps_the_clearance_from_an_obstacle_on_its_way():
+    """An obstacle where the unhindered plan passes: the plan goes round it, its surface at least the clearance
+    from every planned position (the soft constraint's exact penalty holds it exactly)."""
+    from cinetransfer.services.planner.obstacles import obstacle_params
+    from cinetransfer.shared.obstacles import Obstacle
+
+    cfg = pc.replace(pc.PlannerConfig(max_solve_time_s=1.0), **{"bounds.min_obstacle_distance_m": 0.5})
+    data = stage_data(cfg)
+    free = unbudgeted(MpcSolver(cfg.structure, cfg.bounds, cfg.weights, max_solve_time_s=1.0)).solve(data)
+    assert free.ok
+    path = free.x[:, 0:3]
+    k = int(np.argmax(np.linalg.norm(path[:, :2] - path[0, :2], axis=1) > 0.9))  # 0.9 m along the way
+    assert k > 0
+    tree = Obstacle(float(path[k, 0]), float(path[k, 1]), 0.2, 0.0, 5.0)
+    data.obstacles = obstacle_params([tree], path[0], clearance_m=0.5, reach_m=10.0)
+    kept = unbudgeted(MpcSolver(cfg.structure, cfg.bounds, cfg.weights, max_solve_time_s=1.0)).solve(data)
+    assert kept.ok
+    axis = np.linalg.norm(kept.x[1:, :2] - (tree.x_m, tree.y_m), axis=1)
+    assert axis.min() >= 0.7 - 1e-3, axis.min()
+    assert np.linalg.norm(free.x[1:, :2] - (tree.x_m, tree.y_m), axis=1).min() < 0.1  # it was in the way

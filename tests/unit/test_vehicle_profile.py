@@ -40,7 +40,7 @@ def test_each_limit_has_one_spelling_the_profiles():
     assert set(limit_fields(SafetyConfig)) == set(LIMIT_NAMES) - {n for n in LIMIT_NAMES if "rate" in n}
     assert set(limit_fields(DynamicsLimits)) == set(LIMIT_NAMES) - {
         "geofence_shape", "geofence_radius_m", "geofence_half_extent_m", "altitude_min_m", "altitude_max_m",
-        "min_subject_distance_m"}
+        "min_subject_distance_m", "min_obstacle_distance_m"}
 
 
 def odd_profile(tmp_path) -> VehicleProfile:
@@ -55,7 +55,8 @@ def odd_profile(tmp_path) -> VehicleProfile:
                      "roll_rate_dps": 29}
     doc["motion"] = {"speed_max_mps": 3.3, "climb_max_mps": 1.7, "accel_max_mps2": 0.9}
     doc["envelope"] = {"geofence_shape": "box", "geofence_radius_m": 33, "geofence_half_extent_m": [44, 55],
-                       "altitude_m": [2.5, 31], "min_subject_distance_m": 4.25}
+                       "altitude_m": [2.5, 31], "min_subject_distance_m": 4.25,
+                       "min_obstacle_distance_m": 0.75}
     p = tmp_path / "odd.yaml"
     p.write_text(yaml.safe_dump(doc))
     return load_vehicle(str(p))

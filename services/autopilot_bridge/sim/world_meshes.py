@@ -181,10 +181,17 @@ def object_meshes(i: int, spec: ObjectSpec, xy: tuple[float, float], z0: float) 
     height = spec.size_m[2]
     out = [solid_mesh(name, *cylinder(xy, spec.size_m[0] / 2, z0, z0 + height), spec.texture, spec.period_m)]
     if spec.kind == "tree":
-        cd, ch = spec.crown_m
-        crown = ellipsoid((xy[0], xy[1], z0 + height + 0.35 * ch), (cd / 2, cd / 2, ch / 2))
+        crown = ellipsoid(*tree_crown(spec, xy, z0))
         out.append(solid_mesh(name + ":crown", *crown, "leaves", 1.5))
     return out
+
+
+def tree_crown(spec: ObjectSpec, xy: tuple[float, float], z0: float) -> tuple[tuple[float, float, float],
+                                                                               tuple[float, float, float]]:
+    """(centre, radii) of a tree's crown ellipsoid: it sits on the trunk, a third of it below the
+    trunk's top (the keep-outs of sim/obstacles.py take the same shape)."""
+    cd, ch = spec.crown_m
+    return (xy[0], xy[1], z0 + spec.size_m[2] + 0.35 * ch), (cd / 2, cd / 2, ch / 2)
 
 
 def object_position(spec: ObjectSpec, t_s: float) -> tuple[float, float]:

@@ -1,0 +1,136 @@
+"""Keep-out obstacles: the cylinders' geometry (shared/obstacles.py), a scene's own (sim/obstacles.py), the
+planner's soft constraint (planner/obstacles.py) and the bridge's envelope check, against hand-computed values."""
+import math
+
+import numpy as np
+import pytest
+
+from cinetransfer.services.autopilot_bridge.config import SafetyConfig
+from cinetransfer.services.autopilot_bridge.safety import envelope_breach, return_point
+from cinetransfer.services.autopilot_bridge.sim.obstacles import CROWN_SLICES, crown_slices, scene_obstacles
+from cinetransfer.services.autopilot_bridge.sim.scene import load_scene
+from cinetransfer.services.planner import config as pc
+from cinetransfer.services.planner.obstacles import N_OBSTACLE_SLOTS, obstacle_params, obstacle_rows
+from cinetransfer.shared.errors import ConfigError
+from cinetransfer.shared.obstacles import (Obstacle, intrusion_m, keep_out_radius_m, nearest_keep_outs, obstacles_from,
+                                           push_out)
+
+TRUNK = Obstacle(0.0, 0.0, 0.15, 0.0, 2.2)
+CROWN = Obstacle(0.0, 0.0, 1.3, 1.75, 4.75)
+
+
+def test_keep_out_radius_grows_by_a_round_clearance():
+    # beside the trunk's band: radius + clearance; 0.8 m over its top: + sqrt(1 - 0.64); 1.1 m over: none
+    assert keep_out_radius_m(TRUNK, 1.6, 1.0) == pytest.approx(1.15)
+    assert keep_out_radius_m(TRUNK, 3.0, 1.0) == pytest.approx(0.15 + 0.6)
+    assert keep_out_radius_m(TRUNK, 3.3, 1.0) is None
+    # 0.15 m under the crown's band: nearly the whole clearance; 1 m under: the radius alone
+    assert keep_out_radius_m(CROWN, 1.6, 1.0) == pytest.approx(1.3 + math.sqrt(1 - 0.15 ** 2))
+    assert keep_out_radius_m(CROWN, 0.75, 1.0) == pytest.approx(1.3) and keep_out_radius_m(CROWN, 0.7, 1.0) is None
+
+
+def test_intrusion_is_the_clearance_left_unkept():
+    # bark 0.45 - 0.15 = 0.30 m from the lens with a 1 m clearance: 0.70 m inside
+    assert intrusion_m([TRUNK], (0.45, 0.0, 1.6), 1.0) == pytest.approx(0.70)
+    assert intrusion_m([TRUNK], (2.0, 0.0, 1.6), 1.0) == pytest.approx(-0.85)  # kept, by 0.85 m
+    assert intrusion_m([TRUNK], (0.45, 0.0, 3.3), 1.0) == -math.inf  # over the trunk's top by more than 1 m
+
+
+def test_push_out_moves_radially_to_the_distance():
+    out = push_out([Obstacle(0, 0, 0.5, 0, 2)], (0.3, 0.4, 1.0), 1.0)
+    np.testing.assert_allclose(out, (0.9, 1.2, 1.0))  # radius 1.5 along (0.6, 0.8)
+    np.testing.assert_allclose(push_out([Obstacle(0, 0, 0.5, 0, 2)], (0.0, 0.0, 1.0), 1.0), (1.5, 0.0, 1.0))
+    np.testing.assert_allclose(push_out([Obstacle(0, 0, 0.5, 0, 2)], (3.0, 0.0, 1.0), 1.0), (3.0, 0.0, 1.0))
+
+
+def test_nearest_keep_outs_within_reach_without_the_ones_inside():
+    far = Obstacle(5.0, 0.0, 0.25, 0.0, 4.0)
+    near = Obstacle(-2.0, 0.0, 0.25, 0.0, 4.0)
+    high = Obstacle(1.0, 0.0, 0.25, 10.0, 12.0)
+    got = nearest_keep_outs([far, TRUNK, CROWN, near, high], (0.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, count=3)
+    # crown keep-out 2.289 m (0.5 from its axis: 1.79 inside), trunk 1.15 (inside the crown's circle: left out),
+    # near 1.25 m round an axis 2.5 away (1.25 beyond), far 3.25 beyond (out of reach), high: 8.4 m over
+    assert [k for k, _ in got] == [CROWN, near]
+    assert [r for _, r in got] == pytest.approx([1.3 + math.sqrt(1 - 0.15 ** 2), 1.25])
+    assert nearest_keep_outs([far, near], (0.5, 0.0, 1.6), clearance_m=1.0, reach_m=9.0, count=1) == [(near, 1.25)]
+
+
+def test_settings_spelling_is_checked():
+    assert obstacles_from([[1, 2, 0.5, 0, 3]]) == (Obstacle(1.0, 2.0, 0.5, 0.0, 3.0),)
+    assert Obstacle(1.0, 2.0, 0.5, 0.0, 3.0).as_list() == [1.0, 2.0, 0.5, 0.0, 3.0]
+    for bad in ([1, 2, 0.5, 0], [1, 2, 0, 0, 3], [1, 2, 0.5, 3, 3], [1, 2, math.nan, 0, 3], "1,2,3,4,5"):
+        with pytest.raises(ConfigError, match=r"obstacles_m\[0\]"):
+            obstacles_from([bad])
+    with pytest.raises(ConfigError, match="obstacles_m"):
+        pc.replace(pc.PlannerConfig(), obstacles_m=((1.0, 2.0, -1.0, 0.0, 3.0),)).validate()
+
+
+def test_courtyard_obstacles_are_its_pillars_trunks_and_crowns():
+    obs = scene_obstacles(load_scene("courtyard"))
+    # six pillars (0.5 m wide, 4 m tall) and three trees (a trunk and the crown's slices); no box (walls, van)
+    assert len(obs) == 6 + 3 * (1 + CROWN_SLICES) and CROWN_SLICES == 24
+    assert Obstacle(-2.0, 4.5, 0.25, 0.0, 4.0) in obs
+    # tree_3: trunk 0.3 m wide, 2.2 m tall; crown 2.6 m wide, 3 m tall, centred 0.35 x 3 m above the trunk's top
+    assert Obstacle(-6.0, -9.0, 0.15, 0.0, 2.2) in obs
+    assert len([o for o in obs if (o.x_m, o.y_m) == (-6.0, -9.0)]) == 1 + CROWN_SLICES
+    crown = crown_slices((-6.0, -9.0, 2.2 + 1.05), (1.3, 1.3, 1.5), 6)
+    assert [o.z_min_m for o in crown] == pytest.approx([1.75, 2.25, 2.75, 3.25, 3.75, 4.25])
+    assert crown[-1].z_max_m == pytest.approx(4.75)
+    # each slice as wide as the ellipsoid at its band's edge nearest the centre (3.25 m): 1.0, 0.5, 0, 0, 0.5, 1.0 m
+    widths = [1.3 * math.sqrt(1 - (g / 1.5) ** 2) for g in (1.0, 0.5, 0.0, 0.0, 0.5, 1.0)]
+    assert [o.radius_m for o in crown] == pytest.approx(widths)
+    assert scene_obstacles(load_scene("open_country")) == ()
+
+
+def test_planner_rows_are_the_distance_past_radius_and_clearance():
+    params = np.zeros(3 * N_OBSTACLE_SLOTS)
+    params[0:3] = (0.0, 0.0, 1.5)  # a 0.5 m cylinder with a 1 m clearance; the other slots empty
+    rows = np.asarray(obstacle_rows(np.array([3.0, 4.0]), np.zeros(N_OBSTACLE_SLOTS), params)).ravel()
+    assert rows[0] == pytest.approx(math.sqrt(25 + 1e-4) - 1.5)
+    assert np.all(rows[1:] > 0)  # an empty slot holds everywhere
+    rows = np.asarray(obstacle_rows(np.array([0.6, 0.8]), np.array([0.5] + [0.0] * (N_OBSTACLE_SLOTS - 1)),
+                                    params)).ravel()
+    assert rows[0] == pytest.approx(math.sqrt(1 + 1e-4) + 0.5 - 1.5)  # short by 0.5, the slack makes it up
+
+
+def test_planner_slots_hold_the_nearest_with_the_clearance():
+    obs = scene_obstacles(load_scene("courtyard"))
+    p = obstacle_params(obs, (-6.5, -9.2, 1.6), clearance_m=1.0, reach_m=3.0)
+    # tree_3's crown slice 2.125-2.25 m (0.525 m over the camera, 1 m under the crown's centre): the widest
+    # keep-out there, 1.82 m; the other slices and the trunk (1.15) lie inside it; no pillar's keep-out within 3 m
+    np.testing.assert_allclose(p[:3], (-6.0, -9.0, 1.3 * math.sqrt(1 - (1.0 / 1.5) ** 2) + math.sqrt(1 - 0.525 ** 2)))
+    np.testing.assert_array_equal(p[3:], 0.0)
+
+
+def test_bridge_counts_the_measured_vehicle_in_a_keep_out_as_a_breach():
+    cfg = SafetyConfig(obstacles_m=((10.0, 0.0, 0.15, 0.0, 2.2),), min_obstacle_distance_m=1.0,
+                       breach_tolerance_m=0.25, breach_return_margin_m=1.0)
+    # bark 0.30 m away: 0.70 inside the clearance, beyond the 0.25 tolerance; 0.9 m away: 0.10 inside, tolerated
+    assert envelope_breach(np.array([10.45, 0.0, 1.6]), cfg)
+    assert not envelope_breach(np.array([11.05, 0.0, 1.6]), cfg)
+    # flown back to the clearance plus the return margin (2 m, round: 0.3 m over the trunk's top), radially
+    np.testing.assert_allclose(return_point(np.array([10.45, 0.0, 2.5]), cfg),
+                               (10.0 + 0.15 + math.sqrt(4 - 0.3 ** 2), 0.0, 2.5))
+    # out of the breach only once half the margin beyond the clearance (as at the geofence)
+    assert envelope_breach(np.array([11.55, 0.0, 1.6]), cfg, tol_m=-0.5)
+    assert not envelope_breach(np.array([11.70, 0.0, 1.6]), cfg, tol_m=-0.5)
+    assert SafetyConfig(obstacles_m=([1, 2, 0.5, 0, 3],)).obstacles_m == ((1.0, 2.0, 0.5, 0.0, 3.0),)
+
+
+def test_the_transfer_gives_planner_and_bridge_the_scene_obstacles(tmp_path):
+    """One derivation, handed to both nodes through the deploy config; the planner imports no simulator."""
+    import argparse
+
+    from cinetransfer.job import deploy_config
+    from cinetransfer.services.autopilot_bridge import service as bridge
+    from cinetransfer.services.planner import service as planner
+
+    cfg = deploy_config(tmp_path, 7447, "rig", "courtyard", extraction=False)
+    ap = argparse.ArgumentParser()
+    planner.add_config_arguments(ap)
+    p = planner.config_from_args(ap.parse_args(["--config", str(cfg)]))
+    b = bridge.config_from_args(bridge.build_parser().parse_args(["--config", str(cfg)])).safety
+    want = tuple(tuple(o.as_list()) for o in scene_obstacles(load_scene("courtyard")))
+    assert p.obstacles_m == b.obstacles_m == want and len(want) == 81
+    assert p.bounds.min_obstacle_distance_m == b.min_obstacle_distance_m == 1.0
+    assert "*id" not in cfg.read_text()  # written out in full for each node, no YAML alias
