@@ -189,3 +189,31 @@ def test_a_disk_filling_mid_take_keeps_an_output_video_larger_than_the_reserve(d
     assert meta["files"]["run.mcap"] == "complete" and RunReader(out / "run.mcap").info.complete
     assert "No space left on device" in meta["error"] and meta["truth_frames"] > 0
     assert not (out / ".reserve").exists()
+
+
+def test_a_recording_holding_room_closes_complete_when_another_writer_takes_the_whole_disk(small_disk):
+    import errno
+
+    from cinetransfer import diskroom
+    from cinetransfer.runlog import RunReader, RunWriter
+
+    path = small_disk / "run.mcap"
+    # given a recording that holds 2 MB past its end, a chunk a write (payloads nobody can compress) ...
+    w = RunWriter(path, {}, flush_s=0.0, hold_bytes=2 << 20)
+    if not w.holding:
+        pytest.skip("this file system cannot hold room past a file's end")
+    for _ in range(5):
+        w.write("ct/r/blob/x", os.urandom(100_000))
+    fill(small_disk)  # ... when another writer takes every byte the disk has left
+    st = os.statvfs(small_disk)
+    assert st.f_bavail * st.f_frsize < 2**16
+    # then the next chunk goes into the recording's own room, and the room it cannot hold ahead of that
+    # is the full disk: said at once, nothing cut
+    with pytest.raises(OSError) as e:
+        w.write("ct/r/blob/x", os.urandom(100_000))
+    assert e.value.errno == errno.ENOSPC and e.value.filename == str(path)
+    # and it closes complete, every message in, its room given back to the disk
+    w.close()
+    info = RunReader(path).info
+    assert info.complete and info.messages == 6
+    assert diskroom.allocated(path) < path.stat().st_size + 2**16
