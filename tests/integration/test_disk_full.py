@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from conftest import REPO, cli, mount_tmpfs, wait_for
+from conftest import REPO, cli, cpu_seconds, mount_tmpfs, wait_for
 
 
 @pytest.fixture
@@ -165,8 +165,10 @@ def test_a_disk_filling_mid_take_keeps_an_output_video_larger_than_the_reserve(d
                             stderr=subprocess.PIPE, text=True)
     try:
         # given a take whose video has grown past the reserve the recorder keeps to close it ...
+        # (a loaded machine takes its time: fail when neither the transfer's CPU nor the disk moves for 5 min)
         wait_for(lambda: proc.poll() is not None or (video.is_file() and video.stat().st_size > RESERVE_BYTES + 2**20),
-                 timeout=900, interval=0.2, what="output.mp4 larger than the reserve")
+                 timeout=300, interval=0.2, what="output.mp4 larger than the reserve",
+                 progress=lambda: (cpu_seconds(proc), os.statvfs(mid_disk).f_bfree))
         assert proc.poll() is None, proc.communicate()[1][-3000:]
         fill(mid_disk, leave=LOW_SPACE_BYTES // 4)  # ... another writer fills the disk
         _, err = proc.communicate(timeout=600)
