@@ -6,7 +6,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
 
@@ -90,16 +89,13 @@ def test_a_full_disk_stops_the_recording_at_once_and_keeps_it_readable(data, tmp
     assert r.returncode == 0, r.stderr[-2000:]
     k = long_style(short, tmp_path / "style.json", 10)  # 10 s at 24 fps: far more than the 8 MB beside the reserve
     out = small_disk / "run"
-    t0 = time.monotonic()
     # the pre-roll records states and truth, the take its frames: the disk fills in one or the other
     r = cli("transfer", clip, "--style", str(tmp_path / "style.json"), "--scene", "lawn_juggler_25d", "-o", str(out),
             "--preroll", "60", "--rig", "full", "--no-eval", timeout=900)
-    took = time.monotonic() - t0
     assert r.returncode == 1, r.stdout[-2000:] + r.stderr[-3000:]
     last = r.stderr.strip().splitlines()[-1]
     assert last.startswith("cinetransfer transfer: cannot write the recording: No space left on device"), last
-    assert "closed readable" in last and "Traceback" not in r.stderr
-    assert took < 300, took  # not the stall timeout
+    assert "closed readable" in last and "Traceback" not in r.stderr  # (the stall timeout says "no frame ...")
     info = RunReader(out / "run.mcap").info  # no --salvage needed
     assert info.complete and info.messages > 100 and info.frames > 0
     meta = json.loads((out / "meta.json").read_text())
