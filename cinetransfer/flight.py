@@ -63,23 +63,30 @@ class Conductor:
             p.undeclare()
 
 
-def _progress(rec: Recorder, k: int, stall_s: float, *, what: str, bridge: Presence | None = None) -> None:
+def _progress(rec: Recorder, k: int, stall_s: float, *, what: str, bridge: Presence | None = None,
+              steps_count: bool = False) -> None:
     """Wait until the take's k frames are recorded, with a progress bar; TransferError at once
-    when the bridge's liveliness token goes away (it died: its simulation is lost), or when no
-    frame arrives for `stall_s` wall seconds (a node hangs)."""
+    when the bridge's liveliness token goes away (it died: its simulation is lost), or when
+    nothing moves on for `stall_s` wall seconds (a node hangs): no frame arrives, nor, with
+    `steps_count` (simulation time), a simulation step. The pre-roll and settle phases step
+    without frames: a 60 s pre-roll took more than 300 s on a loaded machine."""
     losses = bridge.losses if bridge is not None else 0
+
+    def moved() -> tuple:
+        return rec.frames_written, (rec.last_clock.stamp_ns if steps_count and rec.last_clock else None)
     with tqdm(total=k, desc="recording", unit="frame", disable=None) as bar:
         while rec.frames_written < k:
-            n = rec.frames_written
+            n, seen = rec.frames_written, moved()
             stall_at = time.monotonic() + stall_s
-            while not rec.wait(lambda: rec.frames_written != n or rec.failure is not None,
+            while not rec.wait(lambda: moved() != seen or rec.failure is not None,
                                min(LIVELINESS_LOOK_S, stall_s)):
                 if bridge is not None and bridge.losses != losses:
                     raise TransferError(f"{what}: the autopilot_bridge node died after {n} of {k} frames (its "
                                         "liveliness token went away); what was recorded is kept in OUTDIR "
                                         "(see OUTDIR/deploy/autopilot_bridge.log)")
                 if time.monotonic() >= stall_at:
-                    raise TransferError(f"{what}: no frame for {stall_s:.0f} s after {n} of {k} "
+                    raise TransferError(f"{what}: no frame{' nor step' if steps_count else ''} for {stall_s:.0f} s "
+                                        f"after {n} of {k} "
                                         "(see OUTDIR/deploy/*.log)")
             if rec.failure is not None:
                 raise TransferError(_write_failure(rec, n, k))
@@ -147,7 +154,7 @@ def fly_sim_time(style: M.Instructions, rec: Recorder, cond: Conductor, *, prero
     # only the takes' frames are recorded: the settle phases' frames are not rendered (their truth is kept)
     pictures = [[t["first_index"], t["first_index"] + t["end_row"] - t["first_row"]] for t in takes]
     cond.to_bridge("reset", epoch_ns=epoch, fps=fps, pace=float(pace), pictures=pictures)
-    _progress(rec, k, stall_s, what="simulation", bridge=bridge)
+    _progress(rec, k, stall_s, what="simulation", bridge=bridge, steps_count=True)
     return {"clock": "simulation (lockstep)", "epoch_ns": epoch, "preroll_frames": takes[0]["settle_frames"],
             "takes": takes, "one_take": one_take}
 

@@ -8,10 +8,15 @@ slot; the truth of a slot is the truth of the frame it shows (joined at close, w
 they came in). Which recorded frame is slot k is set by `arm(Window)`: in simulation time by
 the camera frame index within the takes, on the wall clock by the frame stamp.
 
-A full disk (any write error, or less than LOW_SPACE_BYTES left: a chunk cut in half by a real
-ENOSPC would damage the file) stops the recording at once: `failure` says why, the worker frees
-a reserve it set aside at the start (`RESERVE_BYTES`, so that closing has room) and closes
-run.mcap and output.mp4 so that they stay readable; the flight sees `failure` and ends.
+A full disk (any write error, or less than LOW_SPACE_BYTES left) stops the recording at once:
+`failure` says why, the worker closes run.mcap and output.mp4 so that they stay readable and
+frees what is left of the reserve; the flight sees `failure` and ends. The reserve
+(`RESERVE_BYTES`, set aside before any node starts) moves into the two files as they open: each
+keeps room allocated past its end (RECORDING_ROOM, VIDEO_ROOM; cinetransfer/diskroom.py),
+renewed as it grows, so that no write of theirs meets a full disk (a record cut in half would
+damage the file) and closing has room however fast another writer fills the disk; a renewal
+the disk cannot give is the full disk. Where the file system cannot hold room past a file's
+end, the reserve stays a file of its own, freed on the failure.
 """
 from __future__ import annotations
 
@@ -28,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from cinetransfer import diskroom
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
 from cinetransfer.runlog import KEYFRAME_S, VIDEO_X264_PARAMS, RunWriter
@@ -35,7 +41,11 @@ from cinetransfer.shared.video import H264Writer
 from cinetransfer.take import Placed, TakeAssembler, TakeSummary
 
 log = logging.getLogger("cinetransfer.recorder")
-RESERVE_BYTES = 8 * 2**20  #: set aside at the start, freed on a write error: room to close the files
+RESERVE_BYTES = 8 * 2**20  #: set aside at the start: room to close the files (see the module doc)
+#: of the reserve, held past run.mcap's end: its next chunk (4 MB of messages at most) and its summary
+RECORDING_ROOM = 6 * 2**20
+#: of the reserve, held past output.mp4's end: its index (moov) and the shift that puts it first
+VIDEO_ROOM = 1 * 2**20
 #: less free space than this (beside the reserve) is a full disk: stop before a write is cut in half
 LOW_SPACE_BYTES = 4 * 2**20
 SPACE_LOOK_S = 0.2  #: how often the free space is looked at
@@ -86,7 +96,8 @@ class Recorder:
         #: output measured while filming, cinetransfer/live_output.py); None: nobody
         self.on_frame = on_frame
         make_reserve(outdir)  # (made by the transfer before its nodes start; OSError: no room even for that)
-        self.log = RunWriter(outdir / "run.mcap", meta)
+        self.log = _held(outdir, RECORDING_ROOM, lambda: RunWriter(outdir / "run.mcap", meta,
+                                                                   hold_bytes=RECORDING_ROOM))
         #: the write error that stopped the recording (None: none)
         self.failure: OSError | None = None
         self.closed_cleanly = True  #: False: a file could not be closed after `failure`
@@ -106,6 +117,8 @@ class Recorder:
         self._window: Window | None = None
         self._frames: TakeAssembler | None = None
         self._video = None
+        self._video_fd: int | None = None  #: output.mp4 opened to hold its room (None: not held)
+        self._video_held: bool | None = None  #: whether output.mp4 holds room (None: not tried yet)
         #: output.mp4's encoder makes run.mcap's camera stream too (one encode a frame) for as long as
         #: both streams hold the same frames in the same order; `_packet`: the frame in hand's H.264
         self._shared = True
@@ -168,16 +181,14 @@ class Recorder:
         """Stop recording at the first write error: free the reserve, close the files readable."""
         log.error("recording stopped: %s", e)
         self.failure = e
-        with contextlib.suppress(OSError):
+        with contextlib.suppress(OSError):  # what is left of it (all of it where the files hold no room)
             os.unlink(self.outdir / RESERVE)
-        for f in (self._video, self.log):
-            if f is not None:
-                try:
-                    f.close()
-                except Exception as ce:  # noqa: BLE001 - closing is best effort once the disk is full
-                    self.closed_cleanly = False
-                    log.error("could not close %s after the write error: %s", type(f).__name__, ce)
-        self._video = None
+        for name, close in (("output.mp4", self._close_video), ("run.mcap", self.log.close)):
+            try:
+                close()
+            except Exception as ce:  # noqa: BLE001 - closing is best effort once the disk is full
+                self.closed_cleanly = False
+                log.error("could not close %s after the write error: %s", name, ce)
         with self._progress:
             self._progress.notify_all()
 
@@ -236,7 +247,41 @@ class Recorder:
         self._shown.append(int(p.item.index))
         if self.on_frame is not None:
             self.on_frame(p.slot, p.item.image)
+        self._hold_video_room()  # (OSError: the disk is full; the frame is in, and counted)
         return packet
+
+    def _hold_video_room(self) -> None:
+        """Room ahead of output.mp4's end again, taken from the reserve the first time the file is
+        there (the encoder makes it with its header, at its first packet)."""
+        path = self.outdir / "output.mp4"
+        if self._video_fd is not None:
+            diskroom.hold(self._video_fd, VIDEO_ROOM, name=str(path))
+            return
+        if self._video_held is not None or not path.is_file():
+            return
+        fd = os.open(path, os.O_WRONLY)  # the encoder's own descriptor is out of reach; the room is the file's
+        try:
+            self._video_held = _held(self.outdir, VIDEO_ROOM, lambda: diskroom.hold(fd, VIDEO_ROOM, name=str(path)))
+        except OSError:
+            self._video_held = False
+            os.close(fd)
+            raise
+        if self._video_held:
+            self._video_fd = fd
+        else:
+            os.close(fd)
+
+    def _close_video(self) -> None:
+        """Close output.mp4 (its index written, put first) and give back the room it held."""
+        video, fd, self._video, self._video_fd = self._video, self._video_fd, None, None
+        try:
+            if video is not None:
+                video.close()
+        finally:
+            if fd is not None:
+                with contextlib.suppress(OSError):
+                    diskroom.release(fd)
+                os.close(fd)
 
     # ------------------------------------------------------------------ control (main thread)
     def arm(self, window: Window) -> None:
@@ -260,8 +305,7 @@ class Recorder:
         self._q.put(None)
         self._worker.join()
         if self.failure is None:
-            if self._video is not None:
-                self._video.close()
+            self._close_video()
             self.log.close()
         with contextlib.suppress(OSError):
             os.unlink(self.outdir / RESERVE)
@@ -300,6 +344,24 @@ def make_reserve(outdir: Path) -> None:
         os.unlink(path)
         raise
     os.close(fd)
+
+
+def _held(outdir: Path, nbytes: int, make: Any) -> Any:
+    """`make()` a file that holds `nbytes` of room past its end, the room taken from the reserve
+    (shrunk first: a disk with no room besides has it all the same); where the file system cannot
+    hold room (`make()` false, or a writer whose `holding` is false) the reserve is made whole again."""
+    path = outdir / RESERVE
+    with contextlib.suppress(OSError):
+        os.truncate(path, max(0, path.stat().st_size - nbytes))
+    try:
+        made = make()
+    except OSError:
+        with contextlib.suppress(OSError):
+            make_reserve(outdir)
+        raise
+    if not getattr(made, "holding", made):
+        make_reserve(outdir)
+    return made
 
 
 def drop_reserve(outdir: Path) -> None:

@@ -27,6 +27,7 @@ ends normally has the full summary and index.
 """
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import logging
@@ -39,6 +40,7 @@ from typing import Any, Collection, Iterator
 
 import numpy as np
 
+from cinetransfer import diskroom
 from cinetransfer.shared import codec, jsonmsg, keys
 from cinetransfer.shared import messages as M
 
@@ -248,7 +250,10 @@ class RunWriter:
     the recorder's worker thread is its only user."""
 
     def __init__(self, path: str | Path, meta: dict[str, Any] | None = None, *, jpeg_quality: int = JPEG_QUALITY,
-                 flush_s: float = 1.0, chunk_size: int = 4 << 20, video: bool = True) -> None:
+                 flush_s: float = 1.0, chunk_size: int = 4 << 20, video: bool = True, hold_bytes: int = 0) -> None:
+        """`hold_bytes`: disk room kept allocated past the file's end (cinetransfer/diskroom.py), renewed
+        after every chunk, for the next chunk and the summary: writing never runs into a full disk,
+        a renewal that cannot be had raises OSError (ENOSPC) with the file intact and closable."""
         from mcap.writer import CompressionType, Writer
 
         self.path = Path(path)
@@ -269,6 +274,15 @@ class RunWriter:
         self.count = 0  #: messages of the rig written (each may have several views)
         self.errors = 0  #: messages kept as raw bytes because they could not be translated
         self.closed = False
+        self.hold_bytes = hold_bytes
+        try:
+            #: room is held past the end (False: none asked, or this file system cannot)
+            self.holding = bool(hold_bytes) and diskroom.hold(self._f.fileno(), hold_bytes, at=self._f.tell(),
+                                                              name=str(self.path))
+        except OSError:
+            self._f.close()
+            raise
+        self._held_at = self._f.tell()
 
     def _channel(self, v: View) -> int:
         ck = (v.topic, v.schema_name, v.message_encoding)
@@ -306,6 +320,14 @@ class RunWriter:
         now = time.monotonic()
         if now - self._last_flush >= self.flush_s:
             self.flush()
+        self._renew_hold()
+
+    def _renew_hold(self) -> None:
+        """Room ahead of the file again once a chunk has gone out (the file only grows by chunks)."""
+        end = self._f.tell()
+        if self.holding and end != self._held_at:
+            diskroom.hold(self._f.fileno(), self.hold_bytes, at=end, name=str(self.path))
+            self._held_at = end
 
     def flush(self) -> None:
         """Close the chunk in progress and push it to the file (an interruption keeps it)."""
@@ -316,8 +338,14 @@ class RunWriter:
         if self.closed:
             return
         self.closed = True
-        self._w.finish()
-        self._f.close()
+        try:
+            self._w.finish()
+            self._f.flush()
+        finally:
+            if self.holding:
+                with contextlib.suppress(OSError):
+                    diskroom.release(self._f.fileno())
+            self._f.close()
 
     def __enter__(self) -> "RunWriter":
         return self

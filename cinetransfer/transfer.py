@@ -104,7 +104,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fly on the wall clock (simulator skips late frames; repeats are counted and reported) "
                         "instead of simulation time in lockstep")
     p.add_argument("--stall-timeout", type=float, default=300.0, metavar="S",
-                   help="fail when no frame arrives for this many wall seconds (default %(default)s)")
+                   help="fail when no frame arrives (in simulation time: nor a simulation step, as in the "
+                        "pre-roll) for this many wall seconds (default %(default)s)")
     p.add_argument("--deployment", metavar="CONFIG", default=None,
                    help="join this running deployment (config name or file, e.g. local, or ground for a split "
                         "one) as the operator, with its credentials, instead of starting one")

@@ -105,15 +105,18 @@ def spawn(*args: str, log: Path | None = None, env: dict | None = None) -> subpr
             out.close()  # the child keeps its own descriptor
 
 
-def stop(proc: subprocess.Popen, timeout: float = 15.0) -> int:
-    """SIGINT, then wait; a process that does not exit gets SIGABRT, which makes a spawned one write
-    every thread's stack into its log (the evidence of a hang), then SIGKILL; the caller fails on
-    the return code (-6 or -9)."""
+def stop(proc: subprocess.Popen, timeout: float = 15.0, limit: float = 120.0) -> int:
+    """SIGINT, then wait; a process that does not exit (its CPU time standing still for `timeout`
+    seconds: a hang, not a loaded machine's slow shutdown; or `limit` seconds in all) gets SIGABRT,
+    which makes a spawned one write every thread's stack into its log (the evidence of a hang), then
+    SIGKILL; the caller fails on the return code (-6 or -9)."""
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
         try:
-            return proc.wait(timeout)
-        except subprocess.TimeoutExpired:
+            wait_for(lambda: proc.poll() is not None, timeout, interval=0.05, what="exit",
+                     progress=lambda: cpu_seconds(proc), limit=limit)
+            return proc.wait()
+        except AssertionError:
             proc.send_signal(signal.SIGABRT)
             try:
                 return proc.wait(10)
@@ -123,11 +126,35 @@ def stop(proc: subprocess.Popen, timeout: float = 15.0) -> int:
     return proc.returncode
 
 
-def wait_for(pred, timeout: float = 20.0, interval: float = 0.02, what: str = "condition"):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
+def wait_for(pred, timeout: float = 20.0, interval: float = 0.02, what: str = "condition", *, progress=None,
+             limit: float = 1200.0):
+    """Poll until `pred()` is true; return its value. Without `progress`: fail after `timeout` seconds.
+    With `progress` (a function whose value changes while the awaited thing moves on: frames
+    received, a file's size, a starting process's CPU seconds): fail when it has stood still for
+    `timeout` seconds, or after `limit` seconds in all (a process spinning in a loop moves on
+    forever). A loaded machine gets the time its work takes; a hang is still caught."""
+    start = last_move = time.monotonic()
+    seen = progress() if progress is not None else None
+    while True:
         v = pred()
         if v:
             return v
+        now = time.monotonic()
+        if progress is not None and (p := progress()) != seen:
+            seen, last_move = p, now
+        if now - last_move >= timeout:
+            still = " with no progress" if progress is not None else ""
+            raise AssertionError(f"timed out after {timeout}s{still} waiting for {what}")
+        if now - start >= limit:
+            raise AssertionError(f"{what} still not there after {limit}s, though it kept moving")
         time.sleep(interval)
-    raise AssertionError(f"timed out after {timeout}s waiting for {what}")
+
+
+def cpu_seconds(proc: subprocess.Popen) -> float:
+    """CPU seconds the process has used so far (0.0 once it is gone): the progress of a process that
+    is starting up, however slowly a loaded machine lets it."""
+    try:
+        fields = Path(f"/proc/{proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime (proc(5))

@@ -12,7 +12,7 @@ import pytest
 from attacks import deep_args_command
 from cinetransfer.shared import codec
 from cinetransfer.shared import messages as M
-from conftest import wait_for
+from conftest import cpu_seconds, wait_for
 from test_bridge_service import Bus, Streamer, logs, start_pair, stop_pair
 
 pytestmark = pytest.mark.timeout(150)
@@ -26,7 +26,8 @@ def bus(listener_opts):
 
 
 def engaged(bus, br, tmp_path):
-    wait_for(lambda: "autopilot_bridge" in bus.alive or br.poll() is not None, what="bridge liveliness")
+    wait_for(lambda: "autopilot_bridge" in bus.alive or br.poll() is not None, what="bridge liveliness",
+             progress=lambda: cpu_seconds(br))
     assert br.poll() is None, logs(tmp_path)
     wait_for(lambda: (s := bus.state()) is not None and s.armed and s.mode == "OFFBOARD", 20, what="engaged")
 
@@ -101,7 +102,8 @@ def test_a_vehicle_outside_the_envelope_is_flagged_and_flown_back_inside(bus, po
     veh, br = start_pair(tmp_path, port, "--geofence-radius", "5", "--alt-max", "6", start="8,0,7")
     streamer = Streamer(bus)
     try:
-        wait_for(lambda: "autopilot_bridge" in bus.alive or br.poll() is not None, what="bridge liveliness")
+        wait_for(lambda: "autopilot_bridge" in bus.alive or br.poll() is not None, what="bridge liveliness",
+                 progress=lambda: cpu_seconds(br))
         wait_for(lambda: (s := bus.state()) is not None and s.envelope_breach, 20, what="breach flag in VehicleState")
         wait_for(lambda: bus.counters().get("envelope_breach") is True and not bus.health.valid, 5,
                  what="breach flag in Health, Health invalid")

@@ -18,7 +18,7 @@ import zenoh
 
 from cinetransfer.shared import codec, keys, zenoh_config
 from cinetransfer.shared import messages as M
-from conftest import connect_flags, spawn, stop, wait_for
+from conftest import connect_flags, cpu_seconds, spawn, stop, wait_for
 
 pytestmark = pytest.mark.timeout(150)
 RIG = "bt"
@@ -136,7 +136,8 @@ def test_tracks_setpoints_within_speed_limit_then_watchdog_holds(bus, port, tmp_
     veh, br = start_pair(tmp_path, port, "--max-speed", "2.0")
     streamer = Streamer(bus)
     try:
-        wait_for(lambda: "autopilot_bridge" in bus.alive or br.poll() is not None, what="bridge liveliness")
+        wait_for(lambda: "autopilot_bridge" in bus.alive or br.poll() is not None, what="bridge liveliness",
+                 progress=lambda: cpu_seconds(br))
         assert br.poll() is None, logs(tmp_path)
         wait_for(lambda: (s := bus.state()) is not None and s.armed and s.mode == "OFFBOARD", 20, what="engaged")
         t0 = time.monotonic()
@@ -181,7 +182,8 @@ def test_rejects_nan_clamps_fence_keeps_subject_distance_and_marks_link_loss(bus
                          "--min-subject-distance", "2", "--link-timeout", "0.5")
     streamer = Streamer(bus)
     try:
-        wait_for(lambda: "autopilot_bridge" in bus.alive or br.poll() is not None, what="bridge liveliness")
+        wait_for(lambda: "autopilot_bridge" in bus.alive or br.poll() is not None, what="bridge liveliness",
+                 progress=lambda: cpu_seconds(br))
         wait_for(lambda: (s := bus.state()) is not None and s.armed and s.mode == "OFFBOARD", 20, what="engaged")
         # NaN payloads: rejected, counted, the service carries on
         rejected0 = bus.health.rejected if bus.health else 0

@@ -14,7 +14,7 @@ import zenoh
 
 from cinetransfer.shared import codec, zenoh_config
 from cinetransfer.shared import messages as M
-from conftest import connect_flags, spawn, stop, wait_for
+from conftest import connect_flags, cpu_seconds, spawn, stop, wait_for
 from contract.test_codec import assert_same, sample_messages
 
 
@@ -77,7 +77,8 @@ def _is_probe(msg) -> bool:
 def relay(port, listener, tmp_path):
     proc = spawn("relay", "--rig", "t", "--from", "ct/t/in", "--to", "ct/t/out", "--health-period", "0.2",
                  "--no-drop", *connect_flags(port), log=tmp_path / "relay.log")
-    wait_for(lambda: "relay" in listener.alive or proc.poll() is not None, what="relay liveliness")
+    wait_for(lambda: "relay" in listener.alive or proc.poll() is not None, what="relay liveliness",
+             progress=lambda: cpu_seconds(proc))
     assert proc.poll() is None, (tmp_path / "relay.log").read_text()
     # Liveliness does not mean the relay's subscription has reached this publisher yet: on a loaded
     # machine the first messages were lost. Probe until one comes through (tests leave probes out).
@@ -128,7 +129,7 @@ def test_malformed_and_wrong_version_are_rejected_and_counted(listener, relay):
 def test_sigterm_exits_cleanly_and_liveliness_goes(port, listener, tmp_path):
     proc = spawn("relay", "--rig", "t", "--name", "r2", "--from", "ct/t/x", "--to", "ct/t/y", *connect_flags(port),
                  log=tmp_path / "r2.log")
-    wait_for(lambda: "r2" in listener.alive, what="r2 alive")
+    wait_for(lambda: "r2" in listener.alive, what="r2 alive", progress=lambda: cpu_seconds(proc))
     proc.terminate()
     assert proc.wait(15) == 0, (tmp_path / "r2.log").read_text()
     wait_for(lambda: "r2" not in listener.alive, what="liveliness token dropped")
@@ -177,7 +178,7 @@ def test_monitor_joins_the_local_router_by_default(tmp_path):
     router = spawn("router", log=tmp_path / "router.log")  # default: tcp/127.0.0.1:7447
     try:
         opts = zenoh_config.ZenohOptions(mode="client", connect=("tcp/127.0.0.1:7447",))
-        session = wait_for(lambda: _try_open(opts), what="router up")
+        session = wait_for(lambda: _try_open(opts), what="router up", progress=lambda: cpu_seconds(router))
         pub = session.declare_publisher("ct/dflt/vehicle/state")
         done = threading.Event()
 

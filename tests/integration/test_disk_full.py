@@ -6,11 +6,10 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
 
-from conftest import REPO, cli, mount_tmpfs, wait_for
+from conftest import REPO, cli, cpu_seconds, mount_tmpfs, wait_for
 
 
 @pytest.fixture
@@ -90,16 +89,13 @@ def test_a_full_disk_stops_the_recording_at_once_and_keeps_it_readable(data, tmp
     assert r.returncode == 0, r.stderr[-2000:]
     k = long_style(short, tmp_path / "style.json", 10)  # 10 s at 24 fps: far more than the 8 MB beside the reserve
     out = small_disk / "run"
-    t0 = time.monotonic()
     # the pre-roll records states and truth, the take its frames: the disk fills in one or the other
     r = cli("transfer", clip, "--style", str(tmp_path / "style.json"), "--scene", "lawn_juggler_25d", "-o", str(out),
             "--preroll", "60", "--rig", "full", "--no-eval", timeout=900)
-    took = time.monotonic() - t0
     assert r.returncode == 1, r.stdout[-2000:] + r.stderr[-3000:]
     last = r.stderr.strip().splitlines()[-1]
     assert last.startswith("cinetransfer transfer: cannot write the recording: No space left on device"), last
-    assert "closed readable" in last and "Traceback" not in r.stderr
-    assert took < 300, took  # not the stall timeout
+    assert "closed readable" in last and "Traceback" not in r.stderr  # (the stall timeout says "no frame ...")
     info = RunReader(out / "run.mcap").info  # no --salvage needed
     assert info.complete and info.messages > 100 and info.frames > 0
     meta = json.loads((out / "meta.json").read_text())
@@ -165,8 +161,10 @@ def test_a_disk_filling_mid_take_keeps_an_output_video_larger_than_the_reserve(d
                             stderr=subprocess.PIPE, text=True)
     try:
         # given a take whose video has grown past the reserve the recorder keeps to close it ...
+        # (a loaded machine takes its time: fail when neither the transfer's CPU nor the disk moves for 5 min)
         wait_for(lambda: proc.poll() is not None or (video.is_file() and video.stat().st_size > RESERVE_BYTES + 2**20),
-                 timeout=900, interval=0.2, what="output.mp4 larger than the reserve")
+                 timeout=300, interval=0.2, what="output.mp4 larger than the reserve",
+                 progress=lambda: (cpu_seconds(proc), os.statvfs(mid_disk).f_bfree))
         assert proc.poll() is None, proc.communicate()[1][-3000:]
         fill(mid_disk, leave=LOW_SPACE_BYTES // 4)  # ... another writer fills the disk
         _, err = proc.communicate(timeout=600)
@@ -189,3 +187,31 @@ def test_a_disk_filling_mid_take_keeps_an_output_video_larger_than_the_reserve(d
     assert meta["files"]["run.mcap"] == "complete" and RunReader(out / "run.mcap").info.complete
     assert "No space left on device" in meta["error"] and meta["truth_frames"] > 0
     assert not (out / ".reserve").exists()
+
+
+def test_a_recording_holding_room_closes_complete_when_another_writer_takes_the_whole_disk(small_disk):
+    import errno
+
+    from cinetransfer import diskroom
+    from cinetransfer.runlog import RunReader, RunWriter
+
+    path = small_disk / "run.mcap"
+    # given a recording that holds 2 MB past its end, a chunk a write (payloads nobody can compress) ...
+    w = RunWriter(path, {}, flush_s=0.0, hold_bytes=2 << 20)
+    if not w.holding:
+        pytest.skip("this file system cannot hold room past a file's end")
+    for _ in range(5):
+        w.write("ct/r/blob/x", os.urandom(100_000))
+    fill(small_disk)  # ... when another writer takes every byte the disk has left
+    st = os.statvfs(small_disk)
+    assert st.f_bavail * st.f_frsize < 2**16
+    # then the next chunk goes into the recording's own room, and the room it cannot hold ahead of that
+    # is the full disk: said at once, nothing cut
+    with pytest.raises(OSError) as e:
+        w.write("ct/r/blob/x", os.urandom(100_000))
+    assert e.value.errno == errno.ENOSPC and e.value.filename == str(path)
+    # and it closes complete, every message in, its room given back to the disk
+    w.close()
+    info = RunReader(path).info
+    assert info.complete and info.messages == 6
+    assert diskroom.allocated(path) < path.stat().st_size + 2**16

@@ -17,7 +17,7 @@ from cinetransfer.deploy.config import load_config
 from cinetransfer.deploy.security import prepare_security, security_flags
 from cinetransfer.shared import access, keys
 from cinetransfer.shared.zenoh_config import ZenohOptions, free_tcp_port, open_session
-from conftest import spawn, stop, wait_for
+from conftest import cpu_seconds, spawn, stop, wait_for
 
 RIG = "rig0"
 
@@ -72,7 +72,8 @@ def local_router(tmp_path, port, monkeypatch):
     proc = start_router(cfg, run_dir, tmp_path, "router")
     ep = f"tcp/127.0.0.1:{port}"
     sec = run_dir / "secrets"
-    wait_for(lambda: _try_open(client(ep, "observer", sec)), what="router up").close()
+    wait_for(lambda: _try_open(client(ep, "observer", sec)), what="router up",
+             progress=lambda: cpu_seconds(proc)).close()
     yield ep, sec
     assert stop(proc) == 0
 

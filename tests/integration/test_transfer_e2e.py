@@ -32,44 +32,64 @@ def video_frames(path) -> list[np.ndarray]:
         out.append(img)
 
 
-def observer_session(out, proc, deadline: float):
+def observer_session(out, proc, going):
     """A Zenoh session on the transfer's own deployment as its read-only observer, opened as soon as
-    its router listens (the credentials exist a moment before it does)."""
+    its router listens (the credentials exist a moment before it does); `going()`: keep waiting."""
     import time
 
     from cinetransfer.deploy import join
     from cinetransfer.shared import zenoh_config
 
     while not (out / "deploy" / "secrets" / "users.txt").is_file():
-        assert proc.poll() is None and time.monotonic() < deadline, "the transfer ended before its deployment came up"
+        assert going(), "the transfer ended (or stood still) before its deployment came up"
         time.sleep(0.1)
     opts = join.deployment_options(out / "deploy" / "transfer.yaml", "observer", run_dir=out / "deploy")
     while True:
-        assert proc.poll() is None and time.monotonic() < deadline, "the transfer ended before its router came up"
+        assert going(), "the transfer ended (or stood still) before its router came up"
         try:
             return zenoh_config.open_session(opts)
         except Exception:  # noqa: BLE001 - zenoh.ZError: not listening yet
             time.sleep(0.2)
 
 
-def wait_for_take(out, rig: str, proc, seconds_in: float, timeout: float = 300.0) -> float:
+def still_going(proc, moving, idle: float = 120.0, limit: float = 900.0):
+    """A check for a wait on a running transfer: true while it runs and `moving()` or the transfer's
+    CPU time has changed within `idle` seconds, for at most `limit` seconds in all. A loaded machine
+    gets the time its work takes; a transfer that stands still is caught (one whose node hangs
+    mid-take ends by itself: no frame for its stall time)."""
+    import time
+
+    from conftest import cpu_seconds
+
+    start = time.monotonic()
+    moved = {"at": start, "what": None}
+
+    def going() -> bool:
+        now, what = time.monotonic(), (moving(), cpu_seconds(proc))
+        if what != moved["what"]:
+            moved.update(at=now, what=what)
+        return proc.poll() is None and now - moved["at"] < idle and now - start < limit
+    return going
+
+
+def wait_for_take(out, rig: str, proc, seconds_in: float) -> float:
     """Block until the transfer's simulation has run `seconds_in` simulated seconds past its reset
     (seen on the bus as the deployment's observer); returns how far it was."""
     import time
 
-    deadline = time.monotonic() + timeout
     seen = {"t": -1.0}
+    going = still_going(proc, lambda: seen["t"])
 
     def on_clock(sample):
         clk = codec.decode(sample.payload.to_bytes(), M.SimClock)
         if clk.epoch_ns > M.now_ns() + 300 * 10**9:  # the transfer's time zero lies far ahead of the wall clock
             seen["t"] = max(seen["t"], (clk.stamp_ns - clk.epoch_ns) * 1e-9)
 
-    with observer_session(out, proc, deadline) as session:
+    with observer_session(out, proc, going) as session:
         sub = session.declare_subscriber(keys.SIM_CLOCK.key(rig), on_clock)
         try:
             while seen["t"] < seconds_in:
-                assert proc.poll() is None and time.monotonic() < deadline, "the take ended before the interrupt"
+                assert going(), "the take ended (or stood still) before the interrupt"
                 time.sleep(0.05)
         finally:
             sub.undeclare()
@@ -85,7 +105,7 @@ def replayed_frames(path, port, listener_opts, last_index: int) -> None:
     import threading
 
     from cinetransfer.shared import zenoh_config
-    from conftest import connect_flags, spawn, wait_for
+    from conftest import connect_flags, cpu_seconds, spawn, wait_for
 
     got: list[M.Frame] = []
     lock = threading.Lock()
@@ -97,7 +117,10 @@ def replayed_frames(path, port, listener_opts, last_index: int) -> None:
         proc = spawn("replay", str(path), "--rig", "again", "--speed", "4", "--only", "camera/frame",
                      *connect_flags(port))
         try:
-            wait_for(lambda: any(f.index == last_index for f in got), timeout=120, what="replayed frames")
+            # a loaded machine starts the replay and passes its frames slowly: what must not happen is
+            # two minutes of neither a frame nor the replay's CPU moving on
+            wait_for(lambda: any(f.index == last_index for f in got), timeout=120, what="replayed frames",
+                     progress=lambda: (len(got), cpu_seconds(proc), proc.poll()), limit=600)
         finally:
             assert proc.wait(60) == 0
         sub.undeclare()
