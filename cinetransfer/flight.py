@@ -18,7 +18,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from cinetransfer.job import TransferError, await_subscriber
-from cinetransfer.recorder import Recorder, Take, Window
+from cinetransfer.recorder import Recorder, RecorderHang, Take, Window
 from cinetransfer.shared import codec, keys
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.node import Presence
@@ -78,7 +78,7 @@ def _progress(rec: Recorder, k: int, stall_s: float, *, what: str, bridge: Prese
         while rec.frames_written < k:
             n, seen = rec.frames_written, moved()
             stall_at = time.monotonic() + stall_s
-            while not rec.wait(lambda: moved() != seen or rec.failure is not None,
+            while not rec.wait(lambda: moved() != seen or rec.failure is not None or rec.lost is not None,
                                min(LIVELINESS_LOOK_S, stall_s)):
                 if bridge is not None and bridge.losses != losses:
                     raise TransferError(f"{what}: the autopilot_bridge node died after {n} of {k} frames (its "
@@ -90,6 +90,11 @@ def _progress(rec: Recorder, k: int, stall_s: float, *, what: str, bridge: Prese
                                         "(see OUTDIR/deploy/*.log)")
             if rec.failure is not None:
                 raise TransferError(_write_failure(rec, n, k))
+            if rec.lost is not None:
+                slot, index = rec.lost
+                raise TransferError(f"{what}: camera frame {index} (slot {slot} of {k}) was lost between the "
+                                    "autopilot_bridge and this transfer (a later frame or its truth came); the take "
+                                    f"stops after {rec.frames_written} of {k} frames; what was recorded is kept")
             bar.n = min(rec.frames_written, k)
             bar.refresh()
 
@@ -263,7 +268,10 @@ def fly(style: M.Instructions, *, outdir: Path, session, rig: str, preroll_s: fl
         try:
             cond.stop(sim_time=not realtime)
             time.sleep(0.3)
-            rec.summaries = rec.close()
+            try:
+                rec.summaries = rec.close()
+            except RecorderHang as e:
+                raise TransferError(str(e)) from None
             cond.undeclare()
             bridge.undeclare()
         finally:

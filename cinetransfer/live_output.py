@@ -126,9 +126,14 @@ class LiveOutputStyle:
         """Wait for the queued frames, then smooth them into `out_style`. False (nothing written)
         when the measuring failed or holds another number of frames than the video."""
         self._q.put(None)
-        self._worker.join(timeout_s)
+        # as long as it takes while frames get measured (a loaded machine is slow), not past
+        # `timeout_s` without one: the detector hangs
+        seen = -1
+        while self._worker.is_alive() and len(self._feats) != seen:
+            seen = len(self._feats)
+            self._worker.join(timeout_s)
         if self._worker.is_alive():
-            self.error = f"still measuring after {timeout_s:.0f} s"
+            self.error = f"no frame measured for {timeout_s:.0f} s ({len(self._feats)} measured)"
         elif self.error is None and len(self._feats) != n_frames:
             self.error = f"{len(self._feats)} frames measured, the video has {n_frames}"
         if self.error is not None:

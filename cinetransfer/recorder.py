@@ -50,6 +50,13 @@ VIDEO_ROOM = 1 * 2**20
 LOW_SPACE_BYTES = 4 * 2**20
 SPACE_LOOK_S = 0.2  #: how often the free space is looked at
 RESERVE = ".reserve"
+#: closing: the worker may take as long as it needs to drain its queue (a loaded machine encodes
+#: slowly), but it must handle a message at least this often; longer, it hangs: RecorderHang
+CLOSE_STALL_S = 120.0
+
+
+class RecorderHang(RuntimeError):
+    """The recorder's worker handled no message for CLOSE_STALL_S while the recording was closing."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,6 +93,13 @@ class Window:
             return None
         return int(round((stamp_ns - self.t0_ns) * 1e-9 * self.fps))
 
+    def index_of(self, slot: int) -> int | None:
+        """The camera frame index that fills `slot` (exact mode; None: no such slot)."""
+        for t in self.takes:
+            if t.slot0 <= slot < t.slot0 + t.n:
+                return t.first_index + slot - t.slot0
+        return None
+
 
 class Recorder:
     """Subscribes to everything of the rig (see the module doc)."""
@@ -114,6 +128,10 @@ class Recorder:
         self._shown: list[int] = []  # frame index shown in each written slot
         self.undecodable = 0
         self.interrupted = False
+        #: exact mode: (slot, frame index) of a camera frame that never came although a later frame
+        #: or its own truth did (see `_look_for_gap`); None: no frame lost
+        self.lost: tuple[int, int] | None = None
+        self._seen_index = -1  # the highest frame index of a frame or truth received in the take
         self._window: Window | None = None
         self._frames: TakeAssembler | None = None
         self._video = None
@@ -125,6 +143,7 @@ class Recorder:
         self._packet: bytes | None = None
         self._msg: Any = None  #: the message in hand, when decoded already (run.mcap's views need it too)
         self._q: queue.SimpleQueue = queue.SimpleQueue()
+        self._handled = 0  # messages the worker took: its progress while the recording closes
         self._progress = threading.Condition()
         self._worker = threading.Thread(target=self._work, name="recorder", daemon=True)
         self._worker.start()
@@ -141,6 +160,7 @@ class Recorder:
             if item is None:
                 return
             key, payload = item
+            self._handled += 1
             keep = True
             self._packet = self._msg = None
             try:
@@ -221,7 +241,25 @@ class Recorder:
             self._place_frame(msg)
         else:
             self.timeline_truths[int(msg.frame_index)] = msg
+        self._look_for_gap(int(msg.index if isinstance(msg, M.Frame) else msg.frame_index))
         return True
+
+    def _look_for_gap(self, index: int) -> None:
+        """Simulation time: the bridge publishes its frames in index order, each frame before its
+        truth, on one session whose messages arrive in order; so once a later frame, or the truth
+        of the very frame the take waits for, has arrived, that frame was lost on the way and the
+        take would wait for it forever (the bridge does not wait for the recorder)."""
+        self._seen_index = max(self._seen_index, index)
+        w, frames = self._window, self._frames
+        if self.lost is not None or not w.exact or frames is None or frames.done:
+            return
+        want = w.index_of(frames.next_slot)
+        if want is not None and want <= self._seen_index:
+            self.lost = (frames.next_slot, want)
+            log.error("camera frame %d (slot %d) never arrived, frame or truth %d did", want, frames.next_slot,
+                      self._seen_index)
+            with self._progress:
+                self._progress.notify_all()
 
     def _place_frame(self, frame: M.Frame) -> None:
         slot = self._window.slot(frame.stamp_ns, frame.index) if self._window else None
@@ -303,7 +341,7 @@ class Recorder:
         without judging them (the caller decides whether a gap is an error)."""
         self._sub.undeclare()
         self._q.put(None)
-        self._worker.join()
+        self._join_worker()
         if self.failure is None:
             self._close_video()
             self.log.close()
@@ -316,6 +354,18 @@ class Recorder:
             frames.written = len(self._shown)
             frames.missing_slots = list(range(len(self._shown), frames.n_slots))
         return frames, self._truth_summary()
+
+    def _join_worker(self) -> None:
+        """Wait for the worker to drain its queue, however long that takes while it makes progress;
+        RecorderHang when it handled no message for `stall_s` (the files are left as they are: the
+        worker may be inside a write)."""
+        stall_s, seen = CLOSE_STALL_S, -1
+        while self._worker.is_alive():
+            if self._handled == seen:
+                raise RecorderHang(f"the recorder handled no message for {stall_s:.0f} s while closing, with "
+                                   f"{self._q.qsize()} still queued; run.mcap and output.mp4 may be incomplete")
+            seen = self._handled
+            self._worker.join(stall_s)
 
     def _truth_summary(self) -> TakeSummary:
         """Give each written slot the truth of the frame it shows; slots without one are missing."""

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from cinetransfer.report import fidelity as F
+from cinetransfer.report.workers import FIGURE_WAIT_S
 from cinetransfer.report import figures as figs
 from cinetransfer.report import focus_misses as FM
 from cinetransfer.report import focus_reach as FR
@@ -112,8 +113,8 @@ def camera_motion_facts(outdir: Path, source: M.Instructions, output: M.Instruct
         try:
             if job is not None:
                 try:
-                    return {CM.FIGURE: job.result()}
-                except BrokenExecutor as e:  # the figure process died, not the figure: drawn here
+                    return {CM.FIGURE: job.result(timeout=FIGURE_WAIT_S)}
+                except (BrokenExecutor, TimeoutError) as e:  # the figure process died or hangs: drawn here
                     log.warning("figure %s: the figure process failed (%s); drawn here instead", CM.FIGURE, e)
             return {CM.FIGURE: CM.fig_camera_motion(path, series)}
         except Exception as e:  # noqa: BLE001 - a plotting bug must not lose the numbers

@@ -21,6 +21,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from cinetransfer.report import fidelity as F
+from cinetransfer.report.workers import FIGURE_WAIT_S
 
 log = logging.getLogger("cinetransfer.report")
 
@@ -444,9 +445,10 @@ class Drawing:
         for name, job in self.jobs.items():
             if not isinstance(job, tuple):
                 try:
-                    job = job.result()
+                    job = job.result(timeout=FIGURE_WAIT_S)
                 except Exception as e:  # noqa: BLE001 - the worker process failed, not the figure: draw it here
-                    log.warning("figure %s: the figure process failed (%s); drawn here instead", name, e)
+                    why = f"no result in {FIGURE_WAIT_S:.0f} s" if isinstance(e, TimeoutError) else str(e)
+                    log.warning("figure %s: the figure process failed (%s); drawn here instead", name, why)
                     job = draw_figure(name, self.outdir, self.series, **self._kw(name))
             path, error = job
             if path is not None:

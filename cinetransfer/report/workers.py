@@ -15,6 +15,11 @@ from typing import Any, Callable
 
 log = logging.getLogger("cinetransfer.report")
 
+#: the longest wait for one figure's result; the figures are awaited one after the other, so each
+#: wait starts when the figure before it is in: a loaded machine has this long per figure. Past it
+#: the process hangs, and the figure is drawn in this process instead
+FIGURE_WAIT_S = 600.0
+
 #: imported by the worker as it starts (what drawing a figure needs)
 WARM = ("matplotlib.figure", "matplotlib.backends.backend_agg", "cinetransfer.report.figures",
         "cinetransfer.report.camera_motion")
