@@ -214,8 +214,10 @@ def fit_rotation_zoom(p0: np.ndarray, p1: np.ndarray, f: float, *, inlier_px: fl
     ok = np.abs(np.linalg.det(a)) > 1e-9
     hyps = np.linalg.solve(a[ok], b[ok][..., None])[..., 0] if ok.any() else np.zeros((0, 4))
     hyps = np.vstack([hyps, np.zeros((1, 4))])  # "nothing moved" is always a candidate
-    pred = np.einsum("nkj,hj->hnk", basis, hyps)
-    inl = np.linalg.norm(pred - flow[None], axis=2) < inlier_px
+    # each hypothesis's miss |pred - flow| as norm(axis=2) computes it (the same sums and roots, bit
+    # for bit) without its general-axis machinery: a fifth of this fit's CPU, run ~3 times a frame
+    off = np.einsum("nkj,hj->hnk", basis, hyps) - flow[None]
+    inl = np.sqrt(off[..., 0] * off[..., 0] + off[..., 1] * off[..., 1]) < inlier_px
     best = inl[int(np.argmax(inl.sum(axis=1)))]
     q = _solve(basis[best], flow[best]) if best.sum() >= 2 else np.zeros(4)
     inl = np.linalg.norm(basis @ q - flow, axis=1) < inlier_px
@@ -499,8 +501,8 @@ def _direction_fits(mid: np.ndarray, flow: np.ndarray, basis: np.ndarray, f: flo
     def residual(rot: np.ndarray) -> np.ndarray:  # the flow off each direction's rotation (K, N, 2)
         return flow[None] - np.einsum("nkj,hj->hnk", basis, rot)
 
-    def perpendicular(rot: np.ndarray) -> np.ndarray:  # _perpendicular for every direction (K, N)
-        r = residual(rot)
+    def perpendicular(rot: np.ndarray, r: np.ndarray | None = None) -> np.ndarray:  # _perpendicular, (K, N)
+        r = residual(rot) if r is None else r
         return np.abs(r[..., 0] * d[..., 1] - r[..., 1] * d[..., 0]) / norm_d
 
     use = np.ones(b.shape, dtype=bool)
@@ -512,7 +514,8 @@ def _direction_fits(mid: np.ndarray, flow: np.ndarray, basis: np.ndarray, f: flo
         if not live.any():
             break
         rot[live] = _masked_lstsq(a[live], b[live], keep[live])
-    return rot, perpendicular(rot), np.einsum("hnk,hnk->hn", residual(rot), d) / norm_d
+    r = residual(rot)  # once for both distances (the einsum over every direction and point is the cost)
+    return rot, perpendicular(rot, r), np.einsum("hnk,hnk->hn", r, d) / norm_d
 
 
 def _masked_lstsq(a: np.ndarray, b: np.ndarray, use: np.ndarray) -> np.ndarray:
