@@ -35,6 +35,7 @@ from cinetransfer.services.planner.camera_motion import (DOLLY_ZOOM_MASK, MOTION
                                                          TAKE_COLUMNS, ZOOM_MASK, MotionStyle, plan_for_setpoint_lead,
                                                          read_motion_style, stage_motion)
 from cinetransfer.services.planner.side_of_subject import camera_bearing, side_targets
+from cinetransfer.services.planner.clear_side import clear_bearing, side_wanted_for, truck_travel
 from cinetransfer.services.planner.zoom_hold import framing_error_now, settled_hold_share
 from cinetransfer.services.planner.obstacles import obstacle_params
 from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
@@ -375,10 +376,12 @@ class Planner:
         motion = stage_motion(self._motion_style(ins), rows, control_roll=self.layout.control_roll,
                               focal_range_mm=lens_range)
         plan_for_setpoint_lead(motion, flown_rate_factor(self.cfg.setpoint_lead_s, self.cfg.rate_hz))
-        if float(np.linalg.norm(subj.vel[:2])) < SETTLE_MAX_SUBJECT_SPEED_MPS:
+        waits = float(np.linalg.norm(subj.vel[:2])) < SETTLE_MAX_SUBJECT_SPEED_MPS
+        settle = self._settle_stages(now_ns, n, dt)
+        if waits:
             # the pre-roll is not filmed: round a subject who waits on his mark it only settles the framing
             # (held to the take's moves, the camera could not get round him to the first frame's bearing)
-            motion[self._settle_stages(now_ns, n, dt), TAKE_COLUMNS] = 0.0
+            motion[settle, TAKE_COLUMNS] = 0.0
         motion[:, STILL_ALONG] *= self._zoom_hold_share(x0, jw, targets[0], mask[0])
         lens_yields = self._lens_for_focus(ins)[rows]
         motion[np.ix_(lens_yields, LENS_MOTION_COLUMNS)] = 0.0
@@ -387,6 +390,8 @@ class Planner:
             bearing = camera_bearing(x0[self.layout.P], subj.centre)
             ne = min(len(ctrl), image_targets.shape[1])
             motion[:, SIDE_PARAMS] = side_targets(image_targets[:, :ne], rows, ctrl[:ne], heading, bearing)
+        if waits and settle.any():
+            self._truck_clear_side(motion, settle, ins, x0, subj.centre)
         self.counters.update(left_right="name" if by_name else "image_side",
                              side_of_subject=bool(motion[:, SIDE_PARAMS.stop - 1].any()),
                              camera_motion=bool(motion[:, MOTION_MASKS].any()))
@@ -401,6 +406,37 @@ class Planner:
                          targets=targets, mask=mask, dof=dof, distance_ref=dref, motion=motion,
                          min_distance_m=standoff, obstacles=self._obstacle_slots(x0))
         return data, frame
+
+    def _truck_clear_side(self, motion: np.ndarray, settle: np.ndarray, ins: M.Instructions, x0: np.ndarray,
+                          centre: np.ndarray) -> None:
+        """On the pre-roll's stages, the side-of-subject term asks the bearing round the waiting subject from
+        which the take's truck misses the keep-outs (clear_side.py), where the camera's own bearing does not;
+        the stages are left as they are otherwise."""
+        style = self._motion_style(ins)
+        self.counters["truck_clear_side_deg"] = 0.0
+        if style is None or not self._obstacles:
+            return
+        p = x0[self.layout.P]
+        travel = self._take_truck_travel(ins, style, float(np.linalg.norm(np.asarray(p[:2]) - centre[:2])))
+        if not travel.any():
+            return
+        now = camera_bearing(p, centre)
+        clear = clear_bearing(centre, p, float(p[2]), travel, self._obstacles,
+                              self.solver.bounds.min_obstacle_distance_m)
+        want = side_wanted_for(now, clear)
+        if math.isfinite(want):
+            motion[settle, SIDE_PARAMS] = (math.cos(want), math.sin(want), 1.0)
+            self.counters["truck_clear_side_deg"] = round(math.degrees(math.remainder(clear - now, 2 * math.pi)), 1)
+
+    def _take_truck_travel(self, ins: M.Instructions, style: MotionStyle, distance_m: float) -> np.ndarray:
+        """The take's truck travel in the camera's frame (clear_side.truck_travel) at `distance_m` from the subject:
+        each row's swing round him as read, or as last read where the source lost him (swing_held_rate)."""
+        lo = max(self.start_frame - int(ins.first_frame), 0)
+        hi = len(style.classes) if self.end_frame is None else max(self.end_frame - int(ins.first_frame), lo)
+        swing = style.bearing_rate if style.bearing_rate is not None else np.full(len(style.classes), np.nan)
+        if style.swing_held_rate is not None:
+            swing = np.where(np.isfinite(swing), swing, style.swing_held_rate)
+        return truck_travel(style.classes[lo:hi], style.travel[lo:hi], swing[lo:hi], _fps(ins), distance_m)
 
     def _obstacle_slots(self, x0: np.ndarray) -> np.ndarray:
         """The obstacle slots of a solve from `x0`: the nearest keep-outs the horizon can reach at the speed limit."""

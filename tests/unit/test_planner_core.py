@@ -812,3 +812,34 @@ def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instruc
     dof, dref = centred._dof_targets(T0, rack, [sw - 1], 0, x0, subj)
     assert dof[0, 1] == pytest.approx(1.0 / (dref[0] - ins.mu_m))
     assert off._rack_ahead_inv_m(x0, no_feet, st.dt_s, d0) == 0.0
+
+
+def test_the_pre_roll_of_a_truck_asks_a_side_its_travel_keeps_clear(planner, instructions):
+    # given a truck to the right (5 deg/s round the subject, 4 s: 2.5 m at his 7.3 m) and a post 2 m along
+    # it from where the camera starts, bearing 164 deg round the subject
+    k = instructions.image_targets.shape[0]
+    ins = dataclasses.replace(instructions, camera_motion_class=["truck"] * k, pan_rate_dps=np.full(k, 5.0),
+                              tilt_rate_dps=np.zeros(k), roll_rate_dps=np.zeros(k), zoom_rate=np.zeros(k),
+                              translation_dir=np.tile([1.0, 0.0, 0.0], (k, 1)),
+                              subject_box=np.tile([0.45, 0.3, 0.55, 0.7], (k, 1)))
+    sim = KinematicSim(wrong_start_scene())
+    start = M.Command(action="start", args={"start_frame": 0, "end_frame": 96, "preroll_s": 1.0})
+    now = T0 + S // 4
+    sides = {}
+    for name, posts in (("none", []), ("post", [[-7.55, 0.08, 0.1, 0.0, 4.0]])):
+        p = Planner(dataclasses.replace(planner.cfg, obstacles_m=posts), solver=planner.solver)
+        assert p.command(start, T0)
+        data, _ = p._stage_data(now, ins, sim.vehicle_state(now), sim.subject_state(now))
+        sides[name] = (data.motion[:, :3], p._settle_stages(now, 15, 0.1), p.counters.get("truck_clear_side_deg"))
+    side, settle, turn = sides["post"]
+    # then with the post the pre-roll's stages ask a bearing turned away from it (the way past the post is
+    # closed), asked 45 deg beyond the clear one, as the side term is free within 45 deg; the take's
+    # stages are left to the style
+    assert settle[:7].all() and not settle[8:].any()
+    assert (side[settle, 2] == 1.0).all() and -90.0 <= turn < 0.0
+    asked = math.degrees(math.atan2(side[0, 1], side[0, 0]))
+    assert asked == pytest.approx(164.0 + turn - 45.0, abs=1.0)
+    np.testing.assert_array_equal(side[~settle], sides["none"][0][~settle])
+    # and without it the pre-roll keeps the side the style asks (this style's rows show the subject's
+    # front or back), turned by nothing
+    assert sides["none"][2] == 0.0 and not np.allclose(side[settle], sides["none"][0][settle])
