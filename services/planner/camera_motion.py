@@ -467,6 +467,33 @@ def _dolly_terms(out: np.ndarray, style: MotionStyle, row: int) -> None:
         out[DOLLY_ZOOM_MASK], out[DISTANCE_RATE] = 1.0, rate
 
 
+def zoom_out_held_by_dolly(zoom: float, along_mps: float, distance_m: float) -> float:
+    """A dolly-zoom in's zoom out [1/s], at most the rate at which the camera's travel along its axis
+    (`along_mps`, forward positive) closes on its subject `distance_m` ahead: the depth the move holds (whose
+    image neither grows nor shrinks) is never nearer than him, as the source's is not (its subject's distance
+    rate -0.15 /s against its zoom -0.17 /s). The lens zooms at the asked rate at once while the airframe
+    gathers speed at its acceleration (1.2 m/s^2): from the take's first row the zoom out outran the dolly
+    (0.77 m/s against -0.20 /s, the depth held 3.9 m, nearer than any ground in view), every point shrank and
+    the output read zoom_out on rows 0-10. A travel not under way yet holds nothing: 0. A zoom in (the
+    dolly-zoom out, which backs off already in its settle) is left as asked: held so, it read dolly_out."""
+    if not (math.isfinite(zoom) and zoom < 0 and math.isfinite(along_mps) and math.isfinite(distance_m)
+            and distance_m > 0):
+        return zoom
+    return -min(-zoom, max(0.0, along_mps) / distance_m)
+
+
+def hold_dolly_zooms(motion: np.ndarray, style: MotionStyle | None, rows: list[int], along_mps: float,
+                     distance_m: float) -> None:
+    """In place: the zoom asked (ZOOM) of each stage of `motion` (N, N_MOTION) whose row (`rows`) is a
+    dolly-zoom, held by the camera's travel now (zoom_out_held_by_dolly)."""
+    if style is None:
+        return
+    for k, r in enumerate(rows):
+        cls = style.classes[r] if 0 <= r < len(style.classes) else None
+        if cls is not None and "dolly_zoom" in cls and motion[k, ZOOM_MASK]:
+            motion[k, ZOOM] = zoom_out_held_by_dolly(float(motion[k, ZOOM]), along_mps, distance_m)
+
+
 def plan_for_setpoint_lead(motion: np.ndarray, factor: float) -> None:
     """Plan the rate targets of the stages' `motion` (N, N_MOTION) `factor` times slower where the setpoint's
     lead flies them that much faster (core.flown_rate_factor): the lens's on every stage, the camera's angular

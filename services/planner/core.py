@@ -32,8 +32,8 @@ import numpy as np
 
 from cinetransfer.services.planner import constraints as C
 from cinetransfer.services.planner.camera_motion import (DOLLY_ZOOM_MASK, MOTION_MASKS, SIDE_PARAMS, STILL_ALONG,
-                                                         TAKE_COLUMNS, ZOOM_MASK, MotionStyle, plan_for_setpoint_lead,
-                                                         read_motion_style, stage_motion)
+                                                         TAKE_COLUMNS, ZOOM_MASK, MotionStyle, hold_dolly_zooms,
+                                                         plan_for_setpoint_lead, read_motion_style, stage_motion)
 from cinetransfer.services.planner.side_of_subject import camera_bearing, side_targets
 from cinetransfer.services.planner.clear_side import clear_bearing, side_wanted_for, truck_travel
 from cinetransfer.services.planner.zoom_hold import framing_error_now, settled_hold_share
@@ -343,6 +343,15 @@ class Planner:
         self.counters["zoom_hold_share"] = round(share, 2)
         return share
 
+    def _hold_dolly_zooms(self, motion: np.ndarray, ins: M.Instructions, rows: list[int], x0: np.ndarray,
+                          centre: np.ndarray) -> None:
+        """A dolly-zoom's zoom held by the camera's travel along its axis now (camera_motion.hold_dolly_zooms)."""
+        lay = self.layout
+        forward = cam.rotation_ypr(*lay.angles(x0))[:, 0]
+        along = float(np.dot(np.asarray(x0[lay.V], dtype=float), forward))
+        distance = float(np.linalg.norm(np.asarray(x0[lay.P], dtype=float) - np.asarray(centre, dtype=float)))
+        hold_dolly_zooms(motion, self._motion_style(ins), rows, along, distance)
+
     def _count_failure(self, **more: object) -> None:
         self.counters.update(failures=int(self.counters["failures"]) + 1,
                              consecutive_failures=int(self.counters["consecutive_failures"]) + 1, **more)
@@ -375,6 +384,7 @@ class Planner:
         lens_range = (self.solver.bounds.focal_length_min_mm, self.solver.bounds.focal_length_max_mm)
         motion = stage_motion(self._motion_style(ins), rows, control_roll=self.layout.control_roll,
                               focal_range_mm=lens_range)
+        self._hold_dolly_zooms(motion, ins, rows, x0, subj.centre)
         plan_for_setpoint_lead(motion, flown_rate_factor(self.cfg.setpoint_lead_s, self.cfg.rate_hz))
         waits = float(np.linalg.norm(subj.vel[:2])) < SETTLE_MAX_SUBJECT_SPEED_MPS
         settle = self._settle_stages(now_ns, n, dt)

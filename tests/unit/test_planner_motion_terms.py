@@ -464,3 +464,26 @@ def test_headroom_shortfall_by_hand():
     assert np.array(h(32.0)).ravel() == pytest.approx([math.log(40 / 32), 0.0])
     assert np.array(h(50.0)).ravel() == pytest.approx([0.0, 0.0])
     assert np.array(h(200.0)).ravel() == pytest.approx([0.0, math.log(2.0)])
+
+
+def test_zoom_out_held_by_dolly_by_hand():
+    # a dolly in at 0.78 m/s with the subject 13 m ahead closes on him at 0.06 /s: a zoom out of at most that
+    assert CM.zoom_out_held_by_dolly(-0.17, 0.78, 13.0) == pytest.approx(-0.06)
+    assert CM.zoom_out_held_by_dolly(-0.05, 0.78, 13.0) == -0.05  # slower than the dolly holds: as asked
+    # a dolly not under way yet (or backing off) holds no zoom out
+    assert CM.zoom_out_held_by_dolly(-0.17, 0.0, 13.0) == 0.0
+    assert CM.zoom_out_held_by_dolly(-0.17, -0.5, 13.0) == 0.0
+    # a zoom in (the dolly-zoom out) is left as asked
+    assert CM.zoom_out_held_by_dolly(0.2, -0.9, 10.0) == 0.2
+    assert math.isnan(CM.zoom_out_held_by_dolly(math.nan, 0.5, 13.0))
+
+
+def test_only_dolly_zoom_stages_have_their_zoom_held_by_travel():
+    ins = M.Instructions(image_targets=np.zeros((2, 4, 2), dtype=np.float32), fps=24.0,
+                         camera_motion_class=["dolly_zoom", "zoom_out"],
+                         zoom_rate=np.array([-0.17, -0.17], dtype=np.float32))
+    style = CM.read_motion_style(ins)
+    motion = CM.stage_motion(style, [0, 1], control_roll=False)
+    CM.hold_dolly_zooms(motion, style, [0, 1], 0.65, 13.0)  # 0.65 / 13 = 0.05
+    assert motion[0, CM.ZOOM] == pytest.approx(-0.05) and motion[0, CM.ZOOM_MASK] == 1
+    assert motion[1, CM.ZOOM] == pytest.approx(-0.17)  # a zoom in place is no dolly-zoom: as the source's
