@@ -478,6 +478,28 @@ def test_zoom_out_held_by_dolly_by_hand():
     assert math.isnan(CM.zoom_out_held_by_dolly(math.nan, 0.5, 13.0))
 
 
+def test_zoom_in_kept_to_backing_off_by_hand():
+    # backing off at 1.3 m/s from a subject 13 m ahead opens the distance at 0.1 /s: a zoom in of at least that
+    assert CM.zoom_in_kept_to_backing_off(0.04, -1.3, 13.0) == pytest.approx(0.1)
+    assert CM.zoom_in_kept_to_backing_off(0.15, -1.3, 13.0) == 0.15  # faster than the backing off holds: as asked
+    # a camera not backing off keeps the zoom in asked; a zoom out (the dolly-zoom in) is left as asked
+    assert CM.zoom_in_kept_to_backing_off(0.04, 0.5, 13.0) == 0.04
+    assert CM.zoom_in_kept_to_backing_off(-0.17, -1.3, 13.0) == -0.17
+    assert CM.zoom_in_kept_to_backing_off(0.0, -1.3, 13.0) == 0.0
+    assert math.isnan(CM.zoom_in_kept_to_backing_off(math.nan, -1.3, 13.0))
+
+
+def test_a_dolly_zoom_outs_zoom_in_is_kept_to_the_backing_off():
+    ins = M.Instructions(image_targets=np.zeros((2, 4, 2), dtype=np.float32), fps=24.0,
+                         camera_motion_class=["dolly_zoom", "zoom_in"],
+                         zoom_rate=np.array([0.04, 0.04], dtype=np.float32))
+    style = CM.read_motion_style(ins)
+    motion = CM.stage_motion(style, [0, 1], control_roll=False)
+    CM.hold_dolly_zooms(motion, style, [0, 1], -1.3, 13.0)  # 1.3 / 13 = 0.1
+    assert motion[0, CM.ZOOM] == pytest.approx(0.1) and motion[0, CM.ZOOM_MASK] == 1
+    assert motion[1, CM.ZOOM] == pytest.approx(0.04)  # a zoom in place is no dolly-zoom: as the source's
+
+
 def test_only_dolly_zoom_stages_have_their_zoom_held_by_travel():
     ins = M.Instructions(image_targets=np.zeros((2, 4, 2), dtype=np.float32), fps=24.0,
                          camera_motion_class=["dolly_zoom", "zoom_out"],
