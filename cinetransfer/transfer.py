@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
-import importlib
 import json
 import logging
 import shutil
@@ -55,6 +54,7 @@ from cinetransfer.shared.atomic import atomic_write
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.node import setup_logging
 from cinetransfer.shared.vehicle import add_vehicle_argument
+from cinetransfer.whole_import import import_whole
 from cinetransfer.stage_cpu import StageClock
 from cinetransfer.take import MissingFramesError
 
@@ -127,7 +127,7 @@ def warm_imports(names: tuple[str, ...]) -> None:
     one that fails is left to fail where it is used, with its own message."""
     for name in names:
         try:
-            importlib.import_module(name)
+            import_whole(name)  # a part-way failure must not leave half a package behind for the report
         except Exception as e:  # noqa: BLE001 - only a head start: the report imports it again
             log.debug("warm import of %s failed: %s", name, e)
 

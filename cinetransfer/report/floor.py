@@ -58,7 +58,9 @@ def _least_errors(q: np.ndarray, p: np.ndarray, w: np.ndarray, aspect: float, sq
     joints (X, Y) [m], p (N, E, 2) normalised targets, w (N, E) 1 = compared, 0 = not (that joint's
     residual row is multiplied out: w x, w y, w t). `square`: b = aspect a (a 3-D body: its
     foreshortening is already in Y)."""
-    import cvxpy as cp
+    from cinetransfer.whole_import import import_whole
+
+    cp = import_whole("cvxpy")  # imported beside other threads' imports (transfer.warm_imports)
 
     n, e = w.shape
     q = np.nan_to_num(q) * w[..., None]
