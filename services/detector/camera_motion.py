@@ -182,10 +182,13 @@ class CameraMotionTracker:
         self.edge_tracks = bool(edge_tracks)
         # source, index, grey, corners, their positions over the last frames (frames, N, 2)
         self._prev: tuple | None = None
+        # the last frame's motion, whose dolly a frame showing no parallax carries on (cm.dolly_carried)
+        self._motion: cm.FrameMotion | None = None
         self._scratch = TensorScratch()
 
     def reset(self) -> None:
         self._prev = None
+        self._motion = None
 
     def update(self, image_bgr: np.ndarray, people: list[PersonDetection], *, source: str, frame_index: int,
                lens: LensState | None = None, grey: np.ndarray | None = None) -> CameraMotion | None:
@@ -216,6 +219,8 @@ class CameraMotionTracker:
                                  normals=normals, lines=lines)
             if start is None or len(history) - 1 - start < cm.MIN_SPAN:
                 fm = cm.parallax_untested(fm)
+            fm = cm.dolly_carried(fm, self._motion)
+            self._motion = fm
             out = CameraMotion(rotation_rad=fm.rotation_rad.astype(float), log_zoom=float(fm.log_zoom),
                                translation_dir=fm.translation_dir.astype(float), focal_px=float(f_work * w / ww),
                                points=int(fm.points), explained=float(fm.explained))
@@ -224,6 +229,8 @@ class CameraMotionTracker:
         if history is None or history.shape[1] < MIN_KEPT:
             history = self._top_up(grey, mask, history)
         corners = None if history is None else history[-1].reshape(-1, 1, 2).astype(np.float32)
+        if out is None:
+            self._motion = None
         self._prev = (source, int(frame_index), grey, corners, history)
         return out
 

@@ -862,3 +862,23 @@ def test_a_zoom_whose_paving_tracks_slide_is_no_dolly_with_a_pan():
     rot, t, inl = cm.fit_rotation_translation(a, b, f, rot0, inlier_px=tol, shown=shown)
     assert t[2] > 0.99 and inl.sum() >= side[2].sum() - cm.ROTATION_TIE * len(a)
     assert np.abs(np.degrees(rot) * 24 / 7).max() < 0.5
+
+
+def test_a_frame_showing_no_parallax_carries_on_the_dolly_before_it():
+    dolly = cm.FrameMotion(np.zeros(3), 0.0, np.array([0.0, 0.0, 1.0]), 150, 0.6)
+    zoom_in = cm.FrameMotion(np.array([0.001, 0.0, 0.0]), 0.016, np.zeros(3), 120, 0.95)
+    m = cm.dolly_carried(zoom_in, dolly)
+    assert m.log_zoom == 0.0
+    np.testing.assert_array_equal(m.translation_dir, [0.0, 0.0, 1.0])
+    np.testing.assert_array_equal(m.rotation_rad, zoom_in.rotation_rad)
+    assert (m.points, m.explained) == (120, 0.95)
+    # a zoom against the dolly (the dolly-zoom's), no dolly before, a truck before: as they are
+    zoom_out = cm.FrameMotion(np.zeros(3), -0.016, np.zeros(3), 120, 0.95)
+    assert cm.dolly_carried(zoom_out, dolly) is zoom_out
+    assert cm.dolly_carried(zoom_in, None) is zoom_in
+    assert cm.dolly_carried(zoom_in, cm.parallax_untested(zoom_in)) is zoom_in
+    truck = cm.FrameMotion(np.zeros(3), 0.0, np.array([1.0, 0.0, 0.0]), 150, 0.5)
+    assert cm.dolly_carried(zoom_in, truck) is zoom_in
+    # a frame that saw a translation itself keeps it
+    out = cm.FrameMotion(np.zeros(3), 0.0, np.array([0.0, 0.0, -1.0]), 150, 0.6)
+    assert cm.dolly_carried(out, dolly) is out
