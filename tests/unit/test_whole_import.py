@@ -52,7 +52,8 @@ def test_import_whole_forgets_the_failed_package_and_imports_it_again(tmp_path):
 def test_import_whole_raises_the_last_failure_with_the_package_forgotten(tmp_path):
     code = ("import sys\n"
             "from cinetransfer.whole_import import import_whole\n"
-            "try:\n    import_whole('no_such_package_here.sub')\nexcept ImportError as e:\n    print('raised', e.name)\n"
+            "try:\n    import_whole('no_such_package_here.sub')\n"
+            "except ImportError as e:\n    print('raised', e.name)\n"
             "assert not any(m.startswith('no_such_package_here') for m in sys.modules)\n")
     rc, out = _run(code, tmp_path)
     assert rc == 0 and "raised no_such_package_here" in out, out
