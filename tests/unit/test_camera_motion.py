@@ -882,3 +882,16 @@ def test_a_frame_showing_no_parallax_carries_on_the_dolly_before_it():
     # a frame that saw a translation itself keeps it
     out = cm.FrameMotion(np.zeros(3), 0.0, np.array([0.0, 0.0, -1.0]), 150, 0.6)
     assert cm.dolly_carried(out, dolly) is out
+
+
+def test_a_trucks_mirror_by_hand():
+    """Both off the axis (|t_z| < DOLLY_AXIS) and a negative dot: a mirror, (0.91, -0.04, 0.41) .
+    (-0.99, -0.01, 0.12) = -0.85; one beside it (dot +0.98), a dolly's opposite (t_z 0.95: the
+    ground signs a dolly) and a dolly against a truck (dot -0.41, t_z -0.95) are not."""
+    truck = np.array([-0.99, -0.01, 0.12])
+    assert cm.mirrors_truck(np.array([0.91, -0.04, 0.41]), truck)
+    assert not cm.mirrors_truck(np.array([-0.97, 0.11, 0.22]), truck)
+    dolly = np.array([0.1, 0.0, 0.95])
+    assert not cm.mirrors_truck(-dolly, dolly)
+    assert not cm.mirrors_truck(np.array([0.3, 0.0, -0.95]), truck)
+    assert not cm.mirrors_truck(truck, np.array([0.3, 0.0, -0.95]))
