@@ -10,21 +10,25 @@ from __future__ import annotations
 
 import importlib
 import sys
+import threading
 import types
 
 ATTEMPTS = 3
+#: one import_whole at a time: forgetting a package under another thread's import of it would split it in two
+_LOCK = threading.RLock()
 
 
 def import_whole(name: str, attempts: int = ATTEMPTS) -> types.ModuleType:
     """`name` imported; on a failure its package and every submodule are forgotten and the import is
     tried again, up to `attempts` times in all (the last failure is raised, with the package forgotten)."""
-    for attempt in range(attempts):
-        try:
-            return importlib.import_module(name)
-        except Exception:
-            forget(name)
-            if attempt == attempts - 1:
-                raise
+    with _LOCK:
+        for attempt in range(attempts):
+            try:
+                return importlib.import_module(name)
+            except Exception:
+                forget(name)
+                if attempt == attempts - 1:
+                    raise
     raise ValueError(f"import_whole: attempts must be at least 1, got {attempts}")
 
 

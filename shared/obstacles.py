@@ -96,6 +96,24 @@ def push_out(obstacles: Iterable[Obstacle], p: Sequence[float], distance_m: floa
     return out
 
 
+#: passes of push_out before a point is judged unclearable (keep-outs that overlap bounce it between them)
+CLEAR_PASSES = 8
+
+
+def push_clear(obstacles: Iterable[Obstacle], p: Sequence[float], distance_m: float,
+               passes: int = CLEAR_PASSES) -> tuple[np.ndarray, bool]:
+    """`p` pushed out (push_out) again and again until it keeps every clearance `distance_m`, and whether it
+    does after `passes`: one pass out of one keep-out can land in a neighbour's (two pillars, a trunk beside a
+    crown's slice); a point on the line between two overlapping ones bounces between them and stays inside."""
+    obstacles = tuple(obstacles)
+    out = np.array(p, dtype=float)
+    for _ in range(passes):
+        if intrusion_m(obstacles, out, distance_m) <= 1e-9:
+            return out, True
+        out = push_out(obstacles, out, distance_m)
+    return out, intrusion_m(obstacles, out, distance_m) <= 1e-9
+
+
 def nearest_keep_outs(obstacles: Iterable[Obstacle], p: Sequence[float], *, clearance_m: float, reach_m: float,
                       count: int) -> list[tuple[Obstacle, float]]:
     """At most `count` (obstacle, keep-out radius at `p`'s height: keep_out_radius_m) whose keep-out

@@ -41,14 +41,14 @@ import numpy as np
 from cinetransfer.services.autopilot_bridge.config import SafetyConfig
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.angles import wrap_angle
-from cinetransfer.shared.obstacles import Obstacle, intrusion_m, obstacles_from, push_out
+from cinetransfer.shared.obstacles import Obstacle, intrusion_m, obstacles_from, push_clear
 
 MODES = ("track", "hold")
 
 #: counter names, in the order Health shows them
 COUNTER_NAMES = (
     "sp_checked", "sp_accepted", "sp_rejected_nonfinite", "sp_rejected_mode",
-    "sp_rejected_subject_conflict", "clamp_geofence", "clamp_altitude", "clamp_subject_distance",
+    "sp_rejected_subject_conflict", "clamp_geofence", "clamp_altitude", "clamp_subject_distance", "clamp_obstacle",
     "clamp_speed", "clamp_accel", "clamp_position_rate", "clamp_velocity_rate", "clamp_gimbal",
     "clamp_lens", "clamp_velocity_outward", "clamp_accel_outward",
 )
@@ -242,9 +242,13 @@ def return_point(p: np.ndarray, cfg: SafetyConfig, margin_m: float | None = None
     if lo > hi:
         lo = hi = 0.5 * (cfg.altitude_min_m + cfg.altitude_max_m)
     out[2] = home[2] + min(max(out[2] - home[2], lo), hi)
-    # then out of the keep-outs (a return point the fence clamps into one is left there: the fence wins)
-    inside = push_out(_obstacles(cfg), out, cfg.min_obstacle_distance_m + m)
-    return inside if inside_geofence(inside, cfg) else out
+    # then out of every keep-out, with the margin if it fits, else with the clearance alone; a return point
+    # that no push clears inside the fence is left where the fence puts it (the fence wins)
+    for clearance in (cfg.min_obstacle_distance_m + m, cfg.min_obstacle_distance_m):
+        clear, ok = push_clear(_obstacles(cfg), out, clearance)
+        if ok and inside_geofence(clear, cfg):
+            return clear
+    return out
 
 
 def _number(args: dict, name: str) -> float | None:
@@ -349,8 +353,8 @@ class SafetyLayer:
         clamps: list[str] = []
         p = self._position(sp, subject_xy, vehicle_xy, clamps)
         if p is None:
-            return self._reject("no point inside the geofence keeps the minimum subject distance",
-                                "sp_rejected_subject_conflict")
+            return self._reject("no point inside the geofence keeps the minimum subject distance and every "
+                                "keep-out's clearance", "sp_rejected_subject_conflict")
         v, a = self._feed_forward(sp, p, clamps)
         ypr = self._gimbal(sp, clamps)
         # -- lens (NaN = keep the current value)
@@ -380,18 +384,26 @@ class SafetyLayer:
 
     def _position(self, sp: M.Setpoint, subject_xy: np.ndarray | None, vehicle_xy: np.ndarray | None,
                   clamps: list[str]) -> np.ndarray | None:
-        """Subject distance, then geofence and altitude (the fence wins); None when they conflict."""
+        """Subject distance, keep-outs, then geofence and altitude (the fence wins); None when the fence
+        puts it back too near the subject or into a keep-out (a setpoint is never forwarded into one)."""
         cfg = self.cfg
         p = np.array(sp.position_m, dtype=float)
         keep_away = subject_xy is not None and cfg.min_subject_distance_m > 0
         if keep_away:
             p, hit = push_from_subject(p, np.asarray(subject_xy, float), cfg.min_subject_distance_m, vehicle_xy)
             _note(clamps, hit, "clamp_subject_distance")
+        obstacles = _obstacles(cfg)
+        if obstacles:
+            q, _ = push_clear(obstacles, p, cfg.min_obstacle_distance_m)
+            _note(clamps, bool(np.any(q != p)), "clamp_obstacle")
+            p = q
         p, hit = clamp_geofence(p, cfg)
         _note(clamps, hit, "clamp_geofence")
         p, hit = clamp_altitude(p, cfg)
         _note(clamps, hit, "clamp_altitude")
         if keep_away and float(np.linalg.norm(p[:2] - subject_xy)) < cfg.min_subject_distance_m - 1e-6:
+            return None
+        if obstacles and intrusion_m(obstacles, p, cfg.min_obstacle_distance_m) > 1e-6:
             return None
         return p
 

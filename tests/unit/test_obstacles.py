@@ -13,7 +13,7 @@ from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.obstacles import N_OBSTACLE_SLOTS, obstacle_params, obstacle_rows
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.obstacles import (Obstacle, intrusion_m, keep_out_radius_m, nearest_keep_outs, obstacles_from,
-                                           push_out)
+                                           push_clear, push_out)
 
 TRUNK = Obstacle(0.0, 0.0, 0.15, 0.0, 2.2)
 CROWN = Obstacle(0.0, 0.0, 1.3, 1.75, 4.75)
@@ -134,3 +134,50 @@ def test_the_transfer_gives_planner_and_bridge_the_scene_obstacles(tmp_path):
     assert p.obstacles_m == b.obstacles_m == want and len(want) == 81
     assert p.bounds.min_obstacle_distance_m == b.min_obstacle_distance_m == 1.0
     assert "*id" not in cfg.read_text()  # written out in full for each node, no YAML alias
+
+
+def test_push_clear_pushes_again_out_of_a_neighbour_or_says_it_cannot():
+    a, b = Obstacle(0.0, 0.0, 0.5, 0.0, 3.0), Obstacle(1.8, 0.0, 0.5, 0.0, 3.0)
+    # one keep-out (0.5 + 0.5 = 1.0): straight out to its ring, clear at once
+    p, ok = push_clear([a], (0.5, 0.0, 1.0), 0.5)
+    assert ok
+    np.testing.assert_allclose(p, (1.0, 0.0, 1.0))
+    # on the line between two keep-outs 1.8 m apart: out of a to x 1.0 is 0.8 inside b, out of b back to 0.8,
+    # 0.2 inside a, and so on: no pass clears it
+    p, ok = push_clear([a, b], (0.5, 0.0, 1.0), 0.5)
+    assert not ok and intrusion_m([a, b], p, 0.5) > 0.1
+    # off the line the pushes climb out of the overlap: clear of both
+    p, ok = push_clear([a, b], (0.5, 0.3, 1.0), 0.5)
+    assert ok and intrusion_m([a, b], p, 0.5) <= 1e-9 and p[1] > 0.3
+
+
+def test_bridge_pushes_a_setpoint_out_of_every_keep_out_or_refuses_it():
+    from cinetransfer.services.autopilot_bridge.safety import SafetyLayer
+    from cinetransfer.shared import messages as M
+
+    def sp(pos):
+        return M.Setpoint(stamp_ns=1, position_m=np.array(pos), velocity_mps=np.zeros(3),
+                          acceleration_mps2=np.zeros(3), camera_ypr_rad=np.zeros(3), lens=M.LensState())
+
+    trunk = (5.0, 0.0, 0.15, 0.0, 2.2)
+    cfg = SafetyConfig(obstacles_m=(trunk,), min_obstacle_distance_m=1.0, geofence_radius_m=50.0,
+                       altitude_min_m=1.0, altitude_max_m=20.0)
+    s = SafetyLayer(cfg)
+    # a setpoint 0.35 m from the trunk's axis goes out radially to 0.15 + 1.0
+    r = s.check(sp((5.35, 0.0, 1.5)))
+    assert r.accepted and s.counters["clamp_obstacle"] == 1
+    np.testing.assert_allclose(r.setpoint.position_m, (6.15, 0.0, 1.5))
+    # between two trunks whose keep-outs overlap on the line: no clear point there, refused
+    s2 = SafetyLayer(SafetyConfig(obstacles_m=(trunk, (6.5, 0.0, 0.15, 0.0, 2.2)), min_obstacle_distance_m=1.0,
+                                  geofence_radius_m=50.0, altitude_min_m=1.0, altitude_max_m=20.0))
+    r2 = s2.check(sp((5.8, 0.0, 1.5)))
+    assert not r2.accepted and s2.counters["sp_rejected_subject_conflict"] == 1
+
+
+def test_a_return_point_between_two_keep_outs_clears_both():
+    cfg = SafetyConfig(obstacles_m=((0.0, 0.0, 0.5, 0.0, 3.0), (1.8, 0.0, 0.5, 0.0, 3.0)),
+                       min_obstacle_distance_m=0.5, breach_return_margin_m=0.0, geofence_radius_m=50.0,
+                       home_m=(0.0, 0.0, 0.0), altitude_min_m=1.0, altitude_max_m=20.0)
+    q = return_point(np.array([0.5, 0.3, 1.5]), cfg)
+    obstacles = obstacles_from(cfg.obstacles_m)
+    assert intrusion_m(obstacles, q, 0.5) <= 1e-9
