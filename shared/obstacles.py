@@ -55,6 +55,12 @@ def obstacles_from(values: Iterable[Sequence[float]], where: str = "obstacles_m"
     return tuple(out)
 
 
+def obstacles_setting(values: Iterable[Sequence[float]], where: str = "obstacles_m") -> tuple[tuple[float, ...], ...]:
+    """A config's `obstacles_m` checked (obstacles_from, ConfigError naming `where`) and held as tuples of floats:
+    a settings file gives lists, and the config stays hashable."""
+    return tuple(tuple(k.as_list()) for k in obstacles_from(values, where))
+
+
 def keep_out_radius_m(k: Obstacle, z_m: float, clearance_m: float) -> float | None:
     """Horizontal radius [m] a vehicle at height `z_m` keeps from the cylinder's axis with a round
     clearance: r + sqrt(c^2 - h^2), h the vertical gap from `z_m` to the height band (0 within it);

@@ -18,7 +18,7 @@ from typing import Any, ClassVar
 
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.nodeconfig import setting
-from cinetransfer.shared.obstacles import obstacles_from
+from cinetransfer.shared.obstacles import obstacles_setting
 from cinetransfer.shared.signing_key import read_signing_key
 from cinetransfer.shared.limits import (EnvelopeLimits, GimbalLimits, LensLimits, MotionLimits, profile_default,
                                         vehicle_fields)
@@ -163,9 +163,7 @@ class SafetyConfig(LensLimits, GimbalLimits, EnvelopeLimits, MotionLimits):
         _finite("min_obstacle_distance_m", self.min_obstacle_distance_m)
         if self.min_obstacle_distance_m < 0:
             raise ConfigError("min_obstacle_distance_m must be >= 0")
-        obstacles_from(self.obstacles_m, "obstacles_m")
-        # a settings file gives lists: held as tuples, so the config stays hashable
-        object.__setattr__(self, "obstacles_m", tuple(tuple(float(x) for x in o) for o in self.obstacles_m))
+        object.__setattr__(self, "obstacles_m", obstacles_setting(self.obstacles_m))
         _positive("subject_timeout_s", self.subject_timeout_s)
 
     def _validate_gimbal_and_lens(self) -> None:

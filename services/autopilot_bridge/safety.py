@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 
@@ -222,7 +223,13 @@ def envelope_breach(p: np.ndarray, cfg: SafetyConfig, tol_m: float | None = None
 
 
 def _obstacles(cfg: SafetyConfig) -> tuple[Obstacle, ...]:
-    return obstacles_from(cfg.obstacles_m)
+    return _parsed_obstacles(cfg.obstacles_m)
+
+
+@functools.lru_cache(maxsize=8)
+def _parsed_obstacles(values: tuple[tuple[float, ...], ...]) -> tuple[Obstacle, ...]:
+    """The keep-outs of a (checked, hashable) settings value, parsed once: every tick and every setpoint ask."""
+    return obstacles_from(values)
 
 
 def return_point(p: np.ndarray, cfg: SafetyConfig, margin_m: float | None = None) -> np.ndarray:

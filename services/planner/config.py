@@ -26,7 +26,7 @@ from cinetransfer.shared.nodeconfig import renamed_aliases, setting
 from cinetransfer.shared.paths import cache_dir
 from cinetransfer.shared.limits import (EnvelopeLimits, GimbalLimits, GimbalRateLimits, LensLimits, LensRateLimits,
                                         MotionLimits, vehicle_fields)
-from cinetransfer.shared.obstacles import obstacles_from
+from cinetransfer.shared.obstacles import obstacles_setting
 from cinetransfer.shared.vehicle import VehicleProfile
 
 
@@ -385,9 +385,7 @@ class PlannerConfig:
             raise _bad("", "settled_subject_blur", self.settled_subject_blur, "a finite value > 1 (soft)")
         if self.left_right not in LEFT_RIGHT:
             raise _bad("", "left_right", self.left_right, " | ".join(LEFT_RIGHT))
-        obstacles_from(self.obstacles_m, "planner config: obstacles_m")
-        # a settings file gives lists: held as tuples, so the config stays hashable
-        object.__setattr__(self, "obstacles_m", tuple(tuple(float(x) for x in o) for o in self.obstacles_m))
+        object.__setattr__(self, "obstacles_m", obstacles_setting(self.obstacles_m, "planner config: obstacles_m"))
         return self
 
 

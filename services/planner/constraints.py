@@ -23,12 +23,11 @@ import casadi as ca
 import numpy as np
 
 from cinetransfer.services.planner.config import Bounds
-from cinetransfer.services.planner.model import Layout, input_bounds, state_bounds
+from cinetransfer.services.planner.model import NORM_EPS2, Layout, input_bounds, state_bounds
 from cinetransfer.services.planner.obstacles import N_OBSTACLE_SLOTS, obstacle_rows
 
 N_LIMITS = 4  # floor, ceiling, distance, speed: the limits of soft_limits
 N_SOFT = N_LIMITS + N_OBSTACLE_SLOTS  # ... and one row per obstacle slot
-_EPS2 = 1e-4  # keeps the norms smooth at 0 (their gradient); adds < 3e-5 at 2 m/s
 
 
 def soft_constraints(x_next, slack, centre_w, lim, obstacles):  # noqa: ANN001, ANN201
@@ -38,8 +37,8 @@ def soft_constraints(x_next, slack, centre_w, lim, obstacles):  # noqa: ANN001, 
     z = x_next[2]
     dx = x_next[0] - centre_w[0]
     dy = x_next[1] - centre_w[1]
-    dist = ca.sqrt(dx * dx + dy * dy + _EPS2)
-    speed = ca.sqrt(ca.sumsqr(x_next[Layout.V]) + _EPS2)
+    dist = ca.sqrt(dx * dx + dy * dy + NORM_EPS2)
+    speed = ca.sqrt(ca.sumsqr(x_next[Layout.V]) + NORM_EPS2)
     return ca.vertcat(z + slack[0] - z_min, z_max - z + slack[1], dist + slack[2] - d_min,
                       v_max - speed + slack[3], obstacle_rows(x_next[0:2], slack[N_LIMITS:], obstacles))
 

@@ -25,6 +25,10 @@ from cinetransfer.shared.angles import wrap_angle  # noqa: F401 (the planner's c
 
 from cinetransfer.services.planner.config import Bounds
 
+#: added under the square root of the planner's norms (distances, speed) so their gradient stays smooth at 0;
+#: adds < 3e-5 at 2 m/s
+NORM_EPS2 = 1e-4
+
 
 @dataclass(frozen=True)
 class Layout:

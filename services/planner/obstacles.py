@@ -22,13 +22,13 @@ from collections.abc import Sequence
 import casadi as ca
 import numpy as np
 
+from cinetransfer.services.planner.model import NORM_EPS2
 from cinetransfer.shared.obstacles import Obstacle, nearest_keep_outs
 
 #: obstacles the NLP can hold at once: the nearest ones are enough within a 1.5 s horizon at 2 m/s
 N_OBSTACLE_SLOTS = 2
 #: numbers per slot in the parameter vector: x, y, radius incl. the clearance
 SLOT_SIZE = 3
-_EPS2 = 1e-4  # as constraints._EPS2: the distance stays smooth on the axis
 
 
 def obstacle_rows(cam_xy, slack, params):  # noqa: ANN001, ANN201 - casadi or float
@@ -38,7 +38,7 @@ def obstacle_rows(cam_xy, slack, params):  # noqa: ANN001, ANN201 - casadi or fl
     for i in range(N_OBSTACLE_SLOTS):
         x, y, r = params[SLOT_SIZE * i], params[SLOT_SIZE * i + 1], params[SLOT_SIZE * i + 2]
         dx, dy = cam_xy[0] - x, cam_xy[1] - y
-        rows.append(ca.sqrt(dx * dx + dy * dy + _EPS2) + slack[i] - r)
+        rows.append(ca.sqrt(dx * dx + dy * dy + NORM_EPS2) + slack[i] - r)
     return ca.vertcat(*rows)
 
 
