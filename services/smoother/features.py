@@ -22,6 +22,7 @@ import numpy as np
 
 from cinetransfer.services.smoother.anatomy import drop_implausible_bodies
 from cinetransfer.shared.focus_regions import FOREGROUND_MIN_ROWS, foreground_present, region_masks
+from cinetransfer.shared.focus_regions import feet_row as mask_feet_row
 from cinetransfer.shared.messages import COCO17_NAMES, Measurement
 
 N_JOINTS = len(COCO17_NAMES)
@@ -248,8 +249,8 @@ def focus_fractions(infocus: np.ndarray, crops: list[tuple[np.ndarray, int, int]
     fy = np.minimum(((np.arange(h) + 0.5) / sy).astype(int), H - 1)
     for k, (mask, ox, oy) in enumerate(crops):
         subj = _mask_on_focus_map(mask, fx - ox, fy - oy)
-        rows = np.flatnonzero(subj.any(axis=1))
-        feet_row = int(rows[-1]) + 1 if rows.size else int(np.ceil(boxes[k, 3] * sy))
+        feet_row = mask_feet_row(subj)
+        feet_row = int(np.ceil(boxes[k, 3] * sy)) if feet_row is None else feet_row
         foreground = _foreground_band(mask, oy, boxes[k, 3], H, foreground_min_rows)
         focus[k] = _region_fractions(infocus, subj, feet_row, foreground, int(round(margin * w)))
     return focus, focus_none
@@ -258,8 +259,8 @@ def focus_fractions(infocus: np.ndarray, crops: list[tuple[np.ndarray, int, int]
 def _foreground_band(mask: np.ndarray, oy: int, box_bottom: float, height: int, min_share: float) -> bool:
     """Whether the band below the person's lowest mask pixel (the box's bottom without a mask) is a
     foreground, judged in frame pixels (focus_regions.foreground_present) as the truth judges it."""
-    rows = np.flatnonzero(mask.any(axis=1)) if mask.size else np.zeros(0, int)
-    feet_px = oy + int(rows[-1]) + 1 if rows.size else float(box_bottom)
+    row = mask_feet_row(mask) if mask.size else None
+    feet_px = oy + row if row is not None else float(box_bottom)
     return foreground_present(feet_px, height, min_share)
 
 
