@@ -56,6 +56,7 @@ def test_the_settle_move_to_the_far_side_keeps_every_limit_and_goes_around_the_s
                            lens=(60.0, 5.0, 4.0))
     ins, k_a = _two_shots(scene)
     planner, sim = Planner(CFG), KinematicSim(scene)
+    planner.use_time_budget(None)  # the loop's clock waits for every solve: load must not cut one short
     safety, b = SafetyConfig(), CFG.bounds
     layer = SafetyLayer(safety)
     home = np.asarray(safety.home_m, dtype=float)

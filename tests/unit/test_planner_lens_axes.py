@@ -27,6 +27,7 @@ def test_pinned_bounds_narrow_only_the_named_axes():
 def test_the_planner_holds_an_unsupported_focal_length_and_frees_it_again():
     cfg = pc.PlannerConfig(max_solve_time_s=0.5)
     planner = Planner(cfg)
+    planner.use_time_budget(None)  # no wall-clock limit: a loaded machine must not cut the solve short
     ins = reference_instructions(wrong_start_scene(), standing_shot(), duration_s=20.0)
     sim = KinematicSim(wrong_start_scene())
     planner.command(M.Command(action="start"), T0)
