@@ -325,6 +325,13 @@ class PlannerConfig:
     #: behind him the camera sees. With his held label asked of the lens, tos_clip01's take 3 stopped down to f/9
     #: (docs/planner.md, "An unmeasured subject asks no limit")
     unmeasured_subject_near_free: bool = True
+    #: a later shot flown inside a take (shorter than --min-take) asks its focus choice of the lens only from the
+    #: last labelled row of the shot followed now (core.later_shot_previewed): previewed over the horizon, tos_clip01's
+    #: one- and two-row shots 192-203 stopped the rows before them down where their shot asks the background soft
+    #: (docs/planner.md, "A later shot in the take waits for the cut")
+    later_shot_after_choice: bool = True
+    #: a shot shorter than this [s] (a flash cut, --min-take's default) holds no choice back from the shots after it
+    later_shot_hold_min_s: float = 0.5
     #: with only the subject sharp before a present, soft background, his near limit stays two-sided even where
     #: the source shows no foreground (core.pins_field_before_soft_background): one-sided, the far limit alone
     #: left the aperture free and tos_clip01's take 3 stopped down f/4.4 -> f/8.2 with the background sharp

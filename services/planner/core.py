@@ -599,6 +599,17 @@ class Planner:
         return self._per_message("centred", ins, lambda: lens_for_focus_rows(
             self._planned_focus(ins), absent_regions(ins), k, 0, getattr(ins, "shot_start", None)))
 
+    def _shot_held(self, ins: M.Instructions) -> tuple[np.ndarray, np.ndarray]:
+        """(shot numbers, last labelled row of each row's shot) of shot_choice_held, once per instructions message;
+        every row in one shot with the option later_shot_after_choice off."""
+        def read() -> tuple[np.ndarray, np.ndarray]:
+            absent = absent_regions(ins)
+            if not self.cfg.later_shot_after_choice:
+                return np.ones(len(absent), dtype=int), np.full(len(absent), -1, dtype=int)
+            return shot_choice_held(absent, getattr(ins, "shot_start", None),
+                                    int(round(self.cfg.later_shot_hold_min_s * _fps(ins))))
+        return self._per_message("shot_held", ins, read)
+
     def _motion_style(self, ins: M.Instructions) -> MotionStyle | None:
         """The instructions' camera-motion style, read once per instructions message."""
         return self._per_message("motion", ins, lambda: read_motion_style(ins))
@@ -655,6 +666,7 @@ class Planner:
         centred[:, 2] = self._centred_before_rack(ins)
         near_free = unmeasured_subject_rows(absent) if self.cfg.unmeasured_subject_near_free \
             else np.zeros(len(absent), dtype=bool)
+        shot_held = self._shot_held(ins)
         dof = np.zeros((n, N_DOF))
         dof[:, 6:8] = 1.0  # the far and near limits' circle-of-confusion ratios (cost.defocus_ratio)
         dref = np.zeros(n)
@@ -670,6 +682,8 @@ class Planner:
             depth = float(cam.world_to_camera(subj.centre + subj.vel * t, xk[lay.P], np.array([yaw, pitch, roll]))[0])
             depth = max(depth, 0.5)
             dref[k] = depth
+            if not later_shot_previewed(shot_held, now_row, r):
+                continue  # a later shot flown in this take asks nothing yet: the lens keeps this shot's choice
             ahead = int(rack_ahead[r]) if r < len(rack_ahead) else -1
             if made < 0 and 0 <= switch_now <= r \
                     and (switch_now - now_row) / fps <= self._rack_lead_s(xk, subj, t, depth):
@@ -969,6 +983,41 @@ def shot_numbers(shot_start: np.ndarray | None, n: int) -> tuple[np.ndarray, np.
         starts = np.asarray(shot_start, dtype=bool).copy()
     starts[:1] = True
     return starts, np.cumsum(starts)
+
+
+def shot_choice_held(absent: np.ndarray, shot_start: np.ndarray | None,
+                     min_rows: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(K,) int the shot each row belongs to (shot_numbers) and (K,) int the last row of that shot with a region
+    labelled, for later_shot_previewed; -1 where the shot labels none or is shorter than `min_rows` (a flash cut
+    holds no choice back from the ones after it)."""
+    absent = np.asarray(absent, dtype=bool)
+    n = len(absent)
+    shot = shot_numbers(shot_start, n)[1]
+    labelled = ~absent.all(axis=1) if absent.ndim == 2 else np.zeros(n, dtype=bool)
+    last = np.full(n, -1, dtype=int)
+    for s in np.unique(shot):
+        rows = np.flatnonzero(shot == s)
+        marked = rows[labelled[rows]]
+        if len(marked) and len(rows) >= min_rows:
+            last[rows] = marked[-1]
+    return shot, last
+
+
+def later_shot_previewed(held: tuple[np.ndarray, np.ndarray], now_row: int, row: int) -> bool:
+    """Whether a stage's `row` asks its focus choice of the lens when the row followed now is `now_row`
+    (`held`: shot_choice_held): yes in the shot followed now, and in a later shot only once the shot followed now
+    has no labelled row left ahead (from its last labelled row on, or at once when it labels none). A shot
+    shorter than a take is flown inside the take before it (--min-take), and the lens cannot change its choice
+    at the cut: tos_clip01's one- and two-row shots 192-203 ask the subject and a background at infinity sharp,
+    and previewed over the horizon their deep field stopped rows 158-184 down where the shot asks the background
+    soft (truth and extraction read it sharp in 167-184): 18 frames of that shot for 2-3 of theirs. Their own
+    choice is planned from the shot's end on, as far as the lens's rates reach; a shot itself that short holds
+    nothing back (shot_choice_held's `min_rows`): previewed only at each 2-row shot's end, the background-only
+    rows 196-203 came sharp a frame later."""
+    shot, last = held
+    if not (0 <= now_row < len(shot) and 0 <= row < len(shot)) or shot[row] == shot[now_row]:
+        return True
+    return now_row >= last[now_row]
 
 
 def held_subject_labels(focus_in: np.ndarray, absent: np.ndarray,

@@ -10,7 +10,8 @@ from cinetransfer.services.planner.camera_motion import MOTION_MASKS
 from cinetransfer.services.planner.core import (LENS_MOTION_COLUMNS, RACK_LEAD_SHARE, Planner, _fps, absent_regions,
                                                 held_subject_labels, instructions_from_arrays, lens_for_focus_rows,
                                                 pins_field_before_soft_background, planned_focus_rows,
-                                                predict_subject, rack_switch_ahead, unmeasured_subject_rows)
+                                                later_shot_previewed, predict_subject, rack_switch_ahead,
+                                                shot_choice_held, unmeasured_subject_rows)
 from cinetransfer.services.planner.focus_field import SHARP_SUBJECT_BLUR
 from cinetransfer.services.planner.kinematic_sim import KinematicSim
 from cinetransfer.services.planner.scenarios import reference_instructions, standing_shot, wrong_start_scene
@@ -843,3 +844,52 @@ def test_the_pre_roll_of_a_truck_asks_a_side_its_travel_keeps_clear(planner, ins
     # and without it the pre-roll keeps the side the style asks (this style's rows show the subject's
     # front or back), turned by nothing
     assert sides["none"][2] == 0.0 and not np.allclose(side[settle], sides["none"][0][settle])
+
+
+def test_a_later_shot_in_the_take_is_previewed_only_from_the_last_labelled_row():
+    # given a take of three shots: rows 0-4 (labelled to row 3), 5-6 (no label: a morph), 7-8 (labelled)
+    absent = np.zeros((9, 3), dtype=bool)
+    absent[4] = absent[5] = absent[6] = True
+    starts = np.zeros(9, dtype=bool)
+    starts[[5, 7]] = True
+    held = shot_choice_held(absent, starts)
+    assert held[0].tolist() == [1, 1, 1, 1, 1, 2, 2, 3, 3]
+    assert held[1].tolist() == [3, 3, 3, 3, 3, -1, -1, 8, 8]
+    # then the shot followed now is always previewed, a later one only from its last labelled row on
+    assert later_shot_previewed(held, 0, 4)
+    assert not later_shot_previewed(held, 0, 7) and not later_shot_previewed(held, 2, 5)
+    assert later_shot_previewed(held, 3, 7) and later_shot_previewed(held, 4, 8)
+    # and from a shot that labels nothing at once
+    assert later_shot_previewed(held, 5, 7)
+    # and a shot shorter than min_rows holds nothing back: the 2-row shot 7-8 previews what follows at once
+    assert shot_choice_held(absent, starts, min_rows=3)[1].tolist() == [3, 3, 3, 3, 3, -1, -1, -1, -1]
+    # and with no cuts every row is one shot
+    one = shot_choice_held(absent, None)
+    assert not later_shot_previewed(held, 1, 8) and later_shot_previewed(one, 1, 8)
+
+
+def test_a_later_shot_asks_nothing_of_the_lens_before_the_cut(planner, instructions):
+    # given a style asking only the subject sharp, then a cut to a shot asking everything sharp
+    k = instructions.image_targets.shape[0]
+    sm = np.tile(np.array([np.nan, 1.0, 0.0], dtype=np.float32), (k, 1))
+    sm[20:] = (1.0, 1.0, 1.0)
+    starts = np.zeros(k, dtype=bool)
+    starts[20] = True
+    ins = dataclasses.replace(instructions, focus_smoothed=sm, focus_raw=sm, shot_start=starts,
+                              focus_in=np.where(np.isfinite(sm), sm > 0.5, False))
+    sim = KinematicSim(wrong_start_scene())
+    x0 = planner._measured_state(T0, sim.vehicle_state(T0))
+    subj = predict_subject(sim.subject_state(T0), T0)
+    # then from row 10 the stage past the cut asks nothing (weights 0, the circles' ratios 1), the one before it
+    # asks the subject's field
+    dof, _ = planner._dof_targets(T0, ins, [15, 22], 10, x0, subj)
+    assert dof[0, 0] == 1.0 and dof[0, 2] == 1.0
+    assert dof[1].tolist() == [0.0] * 6 + [1.0, 1.0]
+    # and from the shot's last row on it asks its own: the near limit at the near foreground, far at infinity
+    dof, _ = planner._dof_targets(T0, ins, [22], 19, x0, subj)
+    st = planner.cfg.structure
+    assert dof[0, 0] == 1.0 and dof[0, 1] == pytest.approx(1.0 / st.near_foreground_m)
+    # and with the option off as before
+    off = Planner(dataclasses.replace(planner.cfg, later_shot_after_choice=False), solver=planner.solver)
+    dof_off, _ = off._dof_targets(T0, ins, [22], 10, x0, subj)
+    assert dof_off[0].tolist() == dof[0].tolist()
