@@ -129,7 +129,8 @@ def _one(i: int, r: int, src: Any, side: Any, truth: Any, reach: Any, t: M.Groun
     if not reach.judged[i]:
         return "unjudged", (f"{who} reads {REGIONS[r]} {_label(not asked)} where the source has it {_label(asked)}; "
                             "the truth records no region depths or lens range to judge its reach by")
-    judged = np.asarray(src.present[i], bool) & np.asarray(truth.present[i], bool)
+    # the labels the verdict grants together: a region out of reach is left out of the combination (focus_reach)
+    judged = np.asarray(src.present[i], bool) & np.asarray(truth.present[i], bool) & ~np.asarray(reach.unreachable[i])
     return "controller", _controller_why(r, asked, float(truth.frac[i, r]), t,
                                          window_words(np.asarray(src.focus_in[i], bool), judged, t))
 

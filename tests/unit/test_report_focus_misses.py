@@ -101,6 +101,15 @@ def test_a_miss_within_reach_names_where_the_lens_gives_the_labels_together_by_h
     why = tm.why[0, 0]
     assert "subject sharp, background soft, foreground soft together at f/2-2 with the focus 7.91-13.6 m" in why
     assert "the soft regions' medians at most 3.40 circles soft, at f/2 and 9.09 m" in why
+    # and with the foreground out of reach (say, its soft label needing a wider aperture), a background miss names
+    # the labels the verdict grants together, the subject's and the background's: the subject bounds the focus
+    # (the background is soft up to 21.4 m), and the background is softest with the focus nearest, at 7.91 m
+    truth_bg = _track(np.array([[False, True, True]]), np.ones((1, 3), bool))
+    reach.unreachable[0, 0] = True
+    why = FM.explain(src, truth_bg, truth_bg, reach, [t], "truth").why[0, 2]
+    assert "(subject sharp, background soft together at f/2-2 with the focus 7.91-13.6 m" in why
+    assert "at f/2 and 7.91 m)" in why and "foreground" not in why
     # and without the truth's depths and lens range, the reason as before
+    reach.unreachable[0, 0] = False
     bare = FM.explain(src, truth, truth, reach, [M.GroundTruth(dof_near_m=4.0, dof_far_m=20.0)], "truth")
     assert "within the lens's reach; the flight filmed it sharp" in bare.why[0, 0]
