@@ -13,7 +13,9 @@ per source and region (foreground, subject, background):
 - extraction: the style extracted from the output against the source's, as the report computes it;
 - both again over the frames within the lens's reach (the report's `agreement_reachable`: the frames
   where no focus distance and f-number of the lens gives the source's label left out), and how many
-  frames were left out, with the report's reason for each run of them, and how many frames each
+  frames were left out, with the report's reason for each run of them (and for each run of frames
+  within reach that the flight filmed otherwise by the truth, the settings that give the frame's labels
+  together and how soft they leave the soft regions at best), and how many frames each
   reachable column counts: the extraction's counts frames where the truth sees no such region but
   both styles show one, judged for reach only where the truth kept that band's depths
   (docs/report.md; each frame's reason is in report.json's focus_misses).
@@ -67,6 +69,8 @@ def transfer(src: Path, scene: str, out: Path, max_frames: int) -> dict:
             "extraction_reachable": h["extraction"].get("focus_agreement_reachable"),
             "unreachable_frames": (rep.get("focus_reach") or {}).get("unreachable_frames"),
             "unreachable_runs": (rep.get("focus_reach") or {}).get("runs"),
+            "controller_runs": [r for r in (rep.get("focus_misses") or {}).get("runs") or []
+                                if r["side"] == "truth" and r["kind"] == "controller"],
             "truth_reachable_frames": _reachable_frames(rep, "truth"),
             "extraction_reachable_frames": _reachable_frames(rep, "extraction")}
 
@@ -117,7 +121,12 @@ def main(argv: list[str]) -> int:
                   f"                  {_fmt(tr)}  {_fmt(er)}       ({out_n})  [{nt} / {ne}]"
                   f"  {'ok' if met else 'MISSED'}")
         for run in res.get("unreachable_runs") or []:
-            print(f"    out of reach: {run['region']} frames {run['first_frame']}-{run['last_frame']}: {run['reason']}")
+            last = f" ... {run['reason_last']}" if run.get("reason_last") else ""
+            print(f"    out of reach: {run['region']} frames {run['first_frame']}-{run['last_frame']}: "
+                  f"{run['reason']}{last}")
+        for run in res.get("controller_runs") or []:
+            print(f"    within reach, filmed otherwise: {run['region']} frames {run['first_frame']}-"
+                  f"{run['last_frame']}: {run['reason']}")
     write_result(args.json, {"clip": args.clip, "scene": args.scene,
                              "goal": {"truth_min": TRUTH_MIN, "extraction_min": EXTRACTION_MIN}, "results": results})
     return 0

@@ -70,7 +70,7 @@ def judge(run: Path, rates: FR.LensRates, grid: bool) -> dict:
         least[name] = FR.rate_least_misses(*RF.rate_frames(asked, only, by_frame, rates))
     out["least_misses_lower_bound"] = least
     if grid and out["rate_windows"]:  # only where the rates bind: ~20 CPU s a run
-        lenses = [RF._lens_of(t) if t is not None else None for t in by_frame]
+        lenses = [RF.lens_of(t) if t is not None else None for t in by_frame]
         inv = np.array([np.asarray(t.region_inverse_depth, float) for t in by_frame])
         dt = float(np.median(np.diff(t_s)))
         out["least_misses_grid_upper_bound"] = {"subject_and_background": FR.rate_min_misses(

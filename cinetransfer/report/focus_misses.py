@@ -6,7 +6,8 @@ the output video) gets one kind ('' where it gives the source's label):
 - 'out_of_reach': no lens setting gives the label (reach_frames: the reason names the limit: the
   f-number, the focus range, the region's depth, the lens's hold or its rates); left out of the goals;
 - 'controller': within reach, and the flight filmed the other label (the truth's depth of field and
-  the region's share inside it are named);
+  the region's share inside it are named, and where the lens gives the frame's labels together with how
+  soft that leaves the soft regions at best: focus_reach.label_window);
 - 'extraction': the truth has the source's label and the extraction on the output reads the other;
 - 'absent': the side sees no such region in the frame (left out of the agreement, counted as
   "source only");
@@ -25,6 +26,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from cinetransfer.report import focus_reach as FR
+from cinetransfer.report import reach_frames as RF
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.camera import REGION_IN_FOCUS_SHARE
 
@@ -58,9 +61,27 @@ def _dof_words(t: M.GroundTruth | None) -> str:
     return f" inside the depth of field {t.dof_near_m:.3g} m to {far}"
 
 
-def _controller_why(r: int, asked: bool, frac: float, t: M.GroundTruth | None) -> str:
-    return (f"{REGIONS[r]} {_label(asked)} was within the lens's reach; the flight filmed it {_label(not asked)} "
-            f"({_share(frac)} of its pixels{_dof_words(t)}; in focus from {REGION_IN_FOCUS_SHARE:.0%})")
+def _controller_why(r: int, asked: bool, frac: float, t: M.GroundTruth | None, window: str = "") -> str:
+    return (f"{REGIONS[r]} {_label(asked)} was within the lens's reach{window}; the flight filmed it "
+            f"{_label(not asked)} ({_share(frac)} of its pixels{_dof_words(t)}; in focus from "
+            f"{REGION_IN_FOCUS_SHARE:.0%})")
+
+
+def window_words(asked: np.ndarray, present: np.ndarray, t: M.GroundTruth | None) -> str:
+    """Where the lens gives the frame's present labels together, from the truth's depths and lens
+    (focus_reach.label_window): the settings' span and how soft the soft regions can be at best ('' when the
+    truth has no depths or lens range, or nothing gives them)."""
+    lens = RF.lens_of(t) if t is not None else None
+    if lens is None:
+        return ""
+    w = FR.label_window(lens, asked, present, np.asarray(t.region_inverse_depth, float))
+    if w is None:
+        return ""
+    labels = ", ".join(f"{REGIONS[k]} {_label(bool(asked[k]))}" for k in FR.PRIORITY if present[k])
+    soft = "" if w.soft_circles is None else (f", the soft regions' medians at most {w.soft_circles:.2f} circles "
+                                              f"soft, at f/{w.best[0]:.3g} and {w.best[1]:.3g} m")
+    return (f" ({labels} together at f/{w.f_number[0]:.3g}-{w.f_number[1]:.3g} with the focus "
+            f"{w.focus_m[0]:.3g}-{w.focus_m[1]:.3g} m{soft})")
 
 
 def explain(src: Any, side: Any, truth: Any, reach: Any, truths: Sequence[M.GroundTruth | None],
@@ -108,7 +129,10 @@ def _one(i: int, r: int, src: Any, side: Any, truth: Any, reach: Any, t: M.Groun
     if not reach.judged[i]:
         return "unjudged", (f"{who} reads {REGIONS[r]} {_label(not asked)} where the source has it {_label(asked)}; "
                             "the truth records no region depths or lens range to judge its reach by")
-    return "controller", _controller_why(r, asked, float(truth.frac[i, r]), t)
+    # the labels the verdict grants together: a region out of reach is left out of the combination (focus_reach)
+    judged = np.asarray(src.present[i], bool) & np.asarray(truth.present[i], bool) & ~np.asarray(reach.unreachable[i])
+    return "controller", _controller_why(r, asked, float(truth.frac[i, r]), t,
+                                         window_words(np.asarray(src.focus_in[i], bool), judged, t))
 
 
 def _has_depths(t: M.GroundTruth | None, r: int) -> bool:

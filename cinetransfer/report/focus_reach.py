@@ -31,6 +31,10 @@ granted before it, wherever inside that hold the lens settles. A combination tha
 narrower than the hold gives is out of reach "on a knife edge" (kind 'hold'), the hold named in the
 reason of every such frame.
 
+Where the labels are reachable together, label_window says where (the settings' span) and how near the line: the
+most blur the soft regions' medians keep at one setting that gives them all (blur_circles), in circles of the one
+circle; the report names it for each frame the flight missed within reach.
+
 Over time the lens moves its focus and f-number at most at the vehicle's rates. rate_min_misses counts
 the fewest frames a grid lens so limited misses the asked labels (a dynamic programme over a grid of
 settings: an upper bound on the fewest, for benchmarks). rate_least_misses is a proven lower bound (cells
@@ -60,6 +64,8 @@ RELAXED_FOCUS_MAX_M = 1.0e5
 BISECT_STEPS = 40
 #: the finer grid of the other setting while bisecting one (the needed value to ~0.3 %)
 N_FINE = 1000
+#: the focus distances label_window refines its most blurring setting on, across the span that gives the labels
+N_FINE_WINDOW = 400
 
 
 @dataclass(frozen=True)
@@ -344,6 +350,63 @@ def unreachable_labels(lens: Lens, asked: np.ndarray, present: np.ndarray,
             kept.append(r)
             granted = with_r
     return out
+
+
+@dataclass(frozen=True)
+class Window:
+    """The settings in the lens's range that give a frame's labels together, and how far from the line they are."""
+
+    f_number: tuple[float, float]  # the span of f-numbers that give them
+    focus_m: tuple[float, float]  # the span of focus distances [m] that give them
+    best: tuple[float, float]  # (f-number, focus [m]) of the setting that blurs the soft regions most
+    #: the blur [circles of the one circle] of the least blurred soft region's median at `best`; None: none soft
+    soft_circles: float | None
+
+
+def blur_circles(focal_mm: float, f_number: np.ndarray, focus_m: np.ndarray, inv_depth: np.ndarray,
+                 coc_mm: float = COC_MM) -> np.ndarray:
+    """The blur [circles of `coc_mm`] of a point at inverse depth `inv_depth` [1/m] with the lens at each
+    setting: |1/s - x| over the field's half-width in inverse depth, (s - f) / (s (H - f)) (dof_inverse), which is
+    the thin lens's blur diameter f^2 s |1/s - x| / (N (s - f)) over the circle."""
+    f = focal_mm / 1000.0
+    n, s = np.broadcast_arrays(np.asarray(f_number, float), np.asarray(focus_m, float))
+    h = (focal_mm * focal_mm / (n * coc_mm) + focal_mm) / 1000.0
+    return np.abs(1.0 / s - inv_depth) * s * (h - f) / (s - f)
+
+
+def label_window(lens: Lens, asked: np.ndarray, present: np.ndarray, inv_depth: np.ndarray) -> Window | None:
+    """Where the lens gives every present label of one frame together (the may_reach rule, exact, no hold), None
+    where nothing does or no region has depths. Per combination the one number that says how far from the line it
+    is: the most blur the soft regions' medians keep at one setting that gives them all (the least of them), so a
+    frame within reach only at about 1 circle is seen as the knife edge it is, whatever the flight did."""
+    asked, present, inv_depth = np.asarray(asked, bool), np.asarray(present, bool), np.asarray(inv_depth, float)
+    regions = [r for r in PRIORITY if present[r] and inv_depth.shape[1] and np.isfinite(inv_depth[r]).all()]
+    if not regions:
+        return None
+    n, s = _settings(lens, lens.f_number, lens.focus_m, inv_depth[regions])
+    ok = _feasible(lens, n, s, regions, asked, inv_depth)
+    if not ok.any():
+        return None
+    n, s = n[ok], s[ok]
+    span = (float(n.min()), float(n.max())), (float(s.min()), float(s.max()))
+    soft = [r for r in regions if not asked[r]]
+    if not soft:
+        return Window(*span, (float(n[0]), float(s[0])), None)
+
+    def least_blur(n_: np.ndarray, s_: np.ndarray) -> np.ndarray:
+        return np.min([blur_circles(lens.focal_mm, n_, s_, float(np.median(inv_depth[r])), lens.coc_mm)
+                       for r in soft], axis=0)
+
+    # the candidates' best, then a fine focus grid over the span at its f-number and at the widest that gives
+    # the labels (the narrowest field), so the most blur is found to ~N_FINE_WINDOW steps of the span
+    i = int(np.argmax(least_blur(n, s)))
+    fine_s = np.tile(_grid(*span[1], N_FINE_WINDOW), 2)
+    fine_n = np.repeat([n[i], span[0][0]], N_FINE_WINDOW)
+    ok = _feasible(lens, fine_n, fine_s, regions, asked, inv_depth)
+    n, s = np.append(n[i], fine_n[ok]), np.append(s[i], fine_s[ok])
+    blur = least_blur(n, s)
+    j = int(np.argmax(blur))
+    return Window(*span, (float(n[j]), float(s[j])), float(blur[j]))
 
 
 #: the rate grid's cells per frame of travel (focus, f-number): a move of the lens's rate over one frame

@@ -28,13 +28,16 @@ class Reach:
     reasons: np.ndarray  # (N, 3) object (str)
     judged: np.ndarray  # (N,) the frame had what the judgement needs (truth with depths and lens)
     rate_windows: list[FR.RateWindow] = field(default_factory=list)
+    #: (N, 3) object (str): the kind of each verdict (focus_reach.Unreachable.kind; '' when reachable), None: not kept
+    kinds: np.ndarray | None = None
 
     @classmethod
     def none(cls, n: int) -> "Reach":
-        return cls(np.zeros((n, 3), bool), np.full((n, 3), "", dtype=object), np.zeros(n, bool))
+        return cls(np.zeros((n, 3), bool), np.full((n, 3), "", dtype=object), np.zeros(n, bool),
+                   kinds=np.full((n, 3), "", dtype=object))
 
 
-def _lens_of(t: M.GroundTruth) -> FR.Lens | None:
+def lens_of(t: M.GroundTruth) -> FR.Lens | None:
     lim = np.asarray(t.lens_limits, dtype=float)
     inv = np.asarray(t.region_inverse_depth)
     if lim.shape != (4,) or not np.isfinite(lim).all() or not np.isfinite(t.focal_length_mm) \
@@ -74,7 +77,7 @@ def reach(asked: np.ndarray, present: np.ndarray, truths: Sequence[M.GroundTruth
     out = Reach.none(n)
     judge = present if also is None else np.asarray(present, bool) | np.asarray(also, bool)
     for i, t in enumerate(truths):
-        lens = _lens_of(t) if t is not None else None
+        lens = lens_of(t) if t is not None else None
         if lens is None:
             continue
         out.judged[i] = True
@@ -90,6 +93,7 @@ def reach(asked: np.ndarray, present: np.ndarray, truths: Sequence[M.GroundTruth
         for u in found:
             out.unreachable[i, u.region] = True
             out.reasons[i, u.region] = u.reason
+            out.kinds[i, u.region] = u.kind
     if rates is not None and out.judged.any():
         _excuse_rate_misses(out, np.asarray(asked, bool), np.asarray(present, bool), truths, rates)
     return out
@@ -102,7 +106,7 @@ def rate_frames(asked: np.ndarray, judged: np.ndarray, truths: Sequence[M.Ground
     judged labels (only for the frames `only`, if given), and the grid (over every lens range filmed, a
     frame's travel at the frames' usual step); a frame without a judged truth keeps the last one's time (no
     time is assumed to pass), one after a gap (GAP_STEPS) starts afresh."""
-    lenses = [_lens_of(t) if t is not None else None for t in truths]
+    lenses = [lens_of(t) if t is not None else None for t in truths]
     have = [(t, lens) for t, lens in zip(truths, lenses) if lens is not None]
     steps = np.diff([t.stamp_ns for t, _ in have]) * 1e-9
     dt = float(np.median(steps)) if len(have) > 1 else 1.0
@@ -163,7 +167,7 @@ def _excuse_rate_misses(out: Reach, asked: np.ndarray, present: np.ndarray, trut
     """Mark the misses rate_windows excuses: per excused frame one region the flight missed, of those whose
     label the switch changed if any, the last in the order labels are granted (as a combination out of reach
     is reported), with the rates and the bound."""
-    stamps = [t.stamp_ns for t in truths if t is not None and _lens_of(t) is not None]
+    stamps = [t.stamp_ns for t in truths if t is not None and lens_of(t) is not None]
     if np.any(np.diff(stamps) <= 0):  # no time between frames would stop the lens: no bound without a clock
         return
     depths = np.array([np.isfinite(np.asarray(t.region_inverse_depth, float)).all(axis=1)
@@ -180,6 +184,7 @@ def _excuse_rate_misses(out: Reach, asked: np.ndarray, present: np.ndarray, trut
         for i in w.excused:
             r = _excused_region(i, w.switches, asked, wrong[i])
             out.unreachable[i, r] = True
+            out.kinds[i, r] = "rate"
             out.reasons[i, r] = (f"{FR.REGIONS[r]} {'sharp' if asked[i, r] else 'soft'}: the focus moves at most "
                                  f"{rates.focus_mps:g} m/s and the f-number {rates.f_number_ps:g}/s, so any lens "
                                  f"misses at least {w.least} of frames {w.first}-{w.last} round the "
@@ -200,9 +205,11 @@ def _switch_words(switches: tuple[int, ...]) -> str:
 
 
 def runs(rch: Reach, t_s: np.ndarray, rows: np.ndarray, shot_rows: Sequence[int] = ()) -> list[dict[str, Any]]:
-    """Consecutive unreachable frames per region (and shot) as report rows: region, shot (by the
-    source row `rows` each frame follows; `shot_rows`: the first row of every shot after the first),
-    first and last output frame, frames, time span, and the reason at its first and last frame."""
+    """Consecutive unreachable frames per region (and shot) of one kind of verdict as report rows: region, shot
+    (by the source row `rows` each frame follows; `shot_rows`: the first row of every shot after the first),
+    kind (focus_reach.Unreachable.kind, '' when not kept), first and last output frame, frames, time span, and the
+    reason at its first and last frame. Cut where the kind changes: a run of frames needing a wider aperture with a
+    knife edge at each end read as knife edges throughout when only its ends' reasons were shown."""
     bounds = [0, *sorted(int(r) for r in shot_rows)]
     out = []
     for r, name in enumerate(FR.REGIONS):
@@ -210,11 +217,13 @@ def runs(rch: Reach, t_s: np.ndarray, rows: np.ndarray, shot_rows: Sequence[int]
         if idx.size == 0:
             continue
         shot = np.searchsorted(bounds, np.asarray(rows)[idx], side="right") - 1
-        cut = np.flatnonzero((np.diff(idx) > 1) | (np.diff(shot) != 0)) + 1
+        kind = rch.kinds[idx, r] if rch.kinds is not None else np.full(idx.size, "", dtype=object)
+        cut = np.flatnonzero((np.diff(idx) > 1) | (np.diff(shot) != 0) | (kind[1:] != kind[:-1])) + 1
         for seg in np.split(np.arange(idx.size), cut):
             a, b = int(idx[seg[0]]), int(idx[seg[-1]])
             first, last = str(rch.reasons[a, r]), str(rch.reasons[b, r])
-            out.append({"region": name, "shot": int(shot[seg[0]]), "first_frame": a, "last_frame": b,
+            out.append({"region": name, "shot": int(shot[seg[0]]), "kind": str(kind[seg[0]]),
+                        "first_frame": a, "last_frame": b,
                         "frames": int(seg.size), "t_s": [float(t_s[a]), float(t_s[b])],
                         "reason": first, "reason_last": last if last != first else None})
     return out

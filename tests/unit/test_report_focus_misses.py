@@ -77,3 +77,39 @@ def test_runs_group_consecutive_frames_of_one_kind():
     assert [(r["kind"], r["first_frame"], r["last_frame"], r["frames"], r["reason"], r["reason_last"])
             for r in rows] == [("controller", 0, 2, 3, "a", "c"), ("out_of_reach", 3, 3, 1, "d", None)]
     assert {r["side"] for r in rows} == {"truth"} and {r["region"] for r in rows} == {"background"}
+
+
+def test_a_miss_within_reach_names_where_the_lens_gives_the_labels_together_by_hand():
+    # given one frame asking the foreground soft, the subject sharp and the background soft, filmed at 100 mm by a
+    # lens held at f/2 (the one circle c = 0.134 mm: H - f = 100^2 / (2 x 0.134) mm = 37.313 m), the foreground at
+    # 5 m, the subject at 10 m, the background at 50 m; the flight filmed the foreground sharp
+    asked = np.array([[False, True, False]])
+    src = _track(asked, np.ones((1, 3), bool))
+    got = np.array([[True, True, False]])
+    truth = _track(got, np.ones((1, 3), bool))
+    inv = np.array([np.full(20, 1 / 5.0), np.full(20, 1 / 10.0), np.full(20, 1 / 50.0)], np.float32)
+    t = M.GroundTruth(dof_near_m=4.0, dof_far_m=20.0, focal_length_mm=100.0,
+                      lens_limits=np.array([0.5, 100.0, 2.0, 2.0], np.float32), region_inverse_depth=inv)
+    reach = RF.Reach.none(1)
+    reach.judged[:] = True
+    tm = FM.explain(src, truth, truth, reach, [t], "truth")
+    # then a controller's miss whose reason names the three labels together: the subject sharp bounds the focus,
+    # |1/10 - 1/s| <= (1 - 0.1/s) / 37.313 for s in 7.908-13.625 m (the foreground is soft beyond 5.76 m, the
+    # background up to 21.4 m), and the soft regions' medians are softest together where their blurs meet,
+    # 1/s = (1/5 + 1/50) / 2 = 0.11, each 0.09 / ((1 - 0.1 x 0.11) / 37.313) = 3.40 circles
+    assert tm.kind[0, 0] == "controller"
+    why = tm.why[0, 0]
+    assert "subject sharp, background soft, foreground soft together at f/2-2 with the focus 7.91-13.6 m" in why
+    assert "the soft regions' medians at most 3.40 circles soft, at f/2 and 9.09 m" in why
+    # and with the foreground out of reach (say, its soft label needing a wider aperture), a background miss names
+    # the labels the verdict grants together, the subject's and the background's: the subject bounds the focus
+    # (the background is soft up to 21.4 m), and the background is softest with the focus nearest, at 7.91 m
+    truth_bg = _track(np.array([[False, True, True]]), np.ones((1, 3), bool))
+    reach.unreachable[0, 0] = True
+    why = FM.explain(src, truth_bg, truth_bg, reach, [t], "truth").why[0, 2]
+    assert "(subject sharp, background soft together at f/2-2 with the focus 7.91-13.6 m" in why
+    assert "at f/2 and 7.91 m)" in why and "foreground" not in why
+    # and without the truth's depths and lens range, the reason as before
+    reach.unreachable[0, 0] = False
+    bare = FM.explain(src, truth, truth, reach, [M.GroundTruth(dof_near_m=4.0, dof_far_m=20.0)], "truth")
+    assert "within the lens's reach; the flight filmed it sharp" in bare.why[0, 0]

@@ -252,6 +252,12 @@ def test_runs_group_frames_per_region_and_shot():
     assert [(r["shot"], r["first_frame"], r["last_frame"], r["frames"]) for r in out] == \
         [(0, 2, 3, 2), (1, 4, 5, 2), (1, 8, 9, 2)]
     assert out[0]["reason"] == "why 2" and out[0]["reason_last"] == "why 3"
+    # and a run whose verdicts change kind (a knife edge at each end of frames needing a wider aperture) is cut there
+    rch.kinds[[2, 5], 0] = "hold"
+    rch.kinds[[3, 4, 8, 9], 0] = "f_number"
+    out = RF.runs(rch, np.arange(10) / 24.0, np.arange(10))
+    assert [(r["kind"], r["first_frame"], r["last_frame"]) for r in out] == \
+        [("hold", 2, 2), ("f_number", 3, 4), ("hold", 5, 5), ("f_number", 8, 9)]
 
 
 def test_a_recording_without_depths_is_never_judged():
@@ -566,3 +572,38 @@ def test_the_report_excuses_rate_misses_per_frame_with_the_rates_and_the_bound()
     still = [dataclasses.replace(t, stamp_ns=0) for t in truths]
     assert F.compute_fidelity(src, None, still, lens_rates=FR.LensRates(24.0, 3.0)).summary["focus_reach"][
         "rate_windows"] == []
+
+
+def test_blur_in_circles_is_the_thin_lens_blur_diameter_by_hand():
+    # given 50 mm at f/2 focused at 10 m, c = 0.05 mm: H - f = 2500 / (2 x 0.05) mm = 25.0 m
+    # then a point at 5 m blurs by f^2 |x - s| / (N x (s - f)) = 2500 x 5000 / (2 x 5000 x 9950) = 0.1256 mm,
+    # 2.513 circles; the subject at 10 m by none, and one at the near limit of the field by exactly one
+    b = FR.blur_circles(50.0, np.array([2.0, 2.0]), np.array([10.0, 10.0]), np.array([0.2, 0.1]), coc_mm=0.05)
+    assert b[0] == pytest.approx(2500 * 5000 / (2 * 5000 * 9950) / 0.05, rel=1e-9)
+    assert b[0] == pytest.approx(2.513, abs=1e-3) and b[1] == 0.0
+    _, inv_near = FR.dof_inverse(50.0, np.array([2.0]), np.array([10.0]), 0.05)
+    assert FR.blur_circles(50.0, 2.0, 10.0, inv_near[0], coc_mm=0.05) == pytest.approx(1.0, rel=1e-9)
+
+
+def test_the_window_of_a_combination_and_how_soft_it_leaves_the_soft_regions_by_hand():
+    # given 50 mm at f/2 only, c = 0.05 mm, no hold: foreground at 5 m, subject at 10 m, background at 50 m, the
+    # subject asked sharp and the others soft
+    lens = FR.Lens(50.0, (0.5, 100.0), (2.0, 2.0), coc_mm=0.05, hold_focus=0.0, hold_f_number=0.0)
+    inv = np.array([at(5.0), at(10.0), at(50.0)])
+    asked, present = np.array([False, True, False]), np.ones(3, bool)
+    w = FR.label_window(lens, asked, present, inv)
+    # then the subject bounds the focus (sharp with the focus 7.157-16.633 m), since the background is soft up to
+    # 1/s - (s - f) / (s (H - f)) = 1/50: s = 25.05 / 1.5 = 16.7 m and the foreground from 24.95 / 4 = 6.24 m
+    assert w.f_number == (2.0, 2.0)
+    assert w.focus_m[0] == pytest.approx(7.157, rel=0.006) and w.focus_m[1] == pytest.approx(16.633, rel=0.006)
+    # and the soft regions are softest together where their blurs meet: 25 (1 - s/50) = 25 (s/5 - 1), s = 9.09 m,
+    # each 25 (1 - 0.1818) / 9.0409 = 2.262 circles
+    assert w.best[1] == pytest.approx(9.0909, rel=0.006) and w.soft_circles == pytest.approx(2.2625, abs=0.01)
+    # and with the background at 30 m (soft only with the focus under 13.66 m) and the foreground at 9.5 m (soft
+    # only beyond 15.29 m) nothing gives the three together, as unreachable_labels says
+    inv2 = np.array([at(9.5), at(10.0), at(30.0)])
+    assert FR.label_window(lens, asked, present, inv2) is None
+    assert [u.region for u in FR.unreachable_labels(lens, asked, present, inv2)] == [0]
+    # and with nothing asked soft: the span, and no blur to report
+    w = FR.label_window(lens, np.array([True, True, True]), present, np.array([at(9.5), at(10.0), at(11.0)]))
+    assert w is not None and w.soft_circles is None
