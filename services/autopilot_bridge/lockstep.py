@@ -23,8 +23,9 @@ and planner give the same flight and the same frames. Bridge commands handled he
 - 'reset' (args: epoch_ns=int, optional fps=float, pace=float, pictures=[[lo, hi], ...]): start
   the simulation over at time `epoch_ns` (scene's initial state, frame 0 next), forgetting
   setpoints and holds; with `pictures`, only frames with an index in one of the ranges [lo, hi)
-  are rendered and published, the others get their ground truth only (a take's recording keeps
-  no pre-roll frame: rendering them was a third of the README flight's renders);
+  are rendered and published, the others before the last range's end get their ground truth only
+  (a take's recording keeps no pre-roll frame: rendering them was a third of the README flight's
+  renders), and those after it nothing (nobody records them: the simulation after the takes);
 - 'clock' (args: pace=float, optional): change the pace; without a pace it changes nothing, but
   like every command it ends the pacing sleep, so the next step (and its clock tick) comes at
   once: a take about to begin asks for a tick so, whatever the idle pace.

@@ -1,6 +1,7 @@
 """A simulation reset with `pictures` renders only the frames in those index ranges (the takes')
-and gives every other frame its ground truth alone: the truth is the same as when every frame is
-rendered, in both scene kinds, with the renderer on its own thread or not."""
+and gives every other frame up to the last range's end its ground truth alone: the truth is the same
+as when every frame is rendered, in both scene kinds, with the renderer on its own thread or not.
+Frames past the last range get nothing: nobody records them."""
 import numpy as np
 import pytest
 
@@ -34,13 +35,24 @@ def test_only_the_pictured_frames_are_rendered_and_every_truth_is_the_same(scene
     assert [f.index for f in frames] == [3, 4, 5, 6, 9]
     for f in frames:  # the pictured frames are the very same pictures
         assert np.array_equal(f.image, all_frames[f.index].image) and f.image.shape == (90, 160, 3)
-    assert [t.frame_index for t in truths] == list(range(13))
+    assert [t.frame_index for t in truths] == list(range(10))  # 10-12 lie past the last range: no truth
     for a, b in zip(all_truths, truths):
         assert a.stamp_ns == b.stamp_ns
         assert np.array_equal(a.joints_norm, b.joints_norm, equal_nan=True)
         assert np.array_equal(a.joints_visible, b.joints_visible)
         assert np.array_equal(a.region_in_focus, b.region_in_focus)
         assert np.array_equal(a.region_focus_fraction, b.region_focus_fraction, equal_nan=True)
+
+
+def test_a_reset_that_pictures_nothing_judges_nothing_and_still_flies():
+    b = SimBackend("open_country", width=160, height=90)
+    b.start()
+    b.reset(EPOCH, 24.0, pictures=[])
+    b.step(0.0)
+    b.step(0.5)
+    assert b.frames() == [] and b.truths() == []
+    assert b.sim_time_s == 0.5 and b.vehicle_state().stamp_ns == EPOCH + 500_000_000
+    b.close()
 
 
 def test_pictures_of_a_reset_are_checked():

@@ -311,9 +311,10 @@ class SimBackend(VehiclePort):
               pictures: Sequence[tuple[int, int]] | None = None) -> None:
         """Start the simulation over: scene initial state, time 0 stamped `epoch_ns`, frame 0
         next (at `fps` if given). Renders still in flight are discarded. `pictures`: the frame
-        index ranges [lo, hi) that get an image (None: every frame); the others get only their
-        ground truth (no Frame message): a recording that keeps only its takes' frames does not
-        pay for rendering the pre-roll's."""
+        index ranges [lo, hi) that get an image (None: every frame); the others before the last
+        range's end get only their ground truth (no Frame message), those after it nothing at all:
+        a recording that keeps only its takes' frames does not pay for rendering the pre-roll's,
+        nor for judging the frames of a simulation left running after its last take."""
         self.flush()
         self._pending.clear()
         if fps is not None:
@@ -325,6 +326,10 @@ class SimBackend(VehiclePort):
 
     def _pictured(self, index: int) -> bool:
         return self.render_enabled and (self.pictures is None or any(a <= index < b for a, b in self.pictures))
+
+    def _past_pictures(self, index: int) -> bool:
+        """Whether frame `index` lies past the last pictured range (nobody records it)."""
+        return self.pictures is not None and index >= max((b for _, b in self.pictures), default=0)
 
     def flush(self) -> None:
         """Wait for every frame still being rendered (lockstep: a step ends with its frames)."""
@@ -463,6 +468,9 @@ class SimBackend(VehiclePort):
         return None, (self.renderer.truth_only(view, t_s) if self.truth_enabled else {})
 
     def _emit_frame(self, index: int, t_s: float) -> None:
+        if self._past_pictures(index):  # after the takes (or before the first reset): neither drawn nor judged
+            self._seq += 1
+            return
         lens = self.lens_state()
         if not self._pictured(index) and self.render_enabled:  # truth only, in order with the renders
             if self._pool is None:

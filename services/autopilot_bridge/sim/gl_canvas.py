@@ -70,7 +70,8 @@ in float v_depth;
 in vec2 v_uv;
 in vec3 v_col;
 layout(location = 0) out vec4 f_color;
-layout(location = 1) out vec2 f_depth_id;
+layout(location = 1) out float f_depth;
+layout(location = 2) out float f_id;
 """
 
 #: the body of each colouring (`mode`), with and without the detail texture and the sun: one small
@@ -108,7 +109,8 @@ _FRAGMENT_TAIL = """
     c *= ambient + (1.0 - ambient) * abs(dot(n, normalize(sun)));
 #endif
     f_color = vec4(clamp(c, 0.0, 1.0), 1.0);
-    f_depth_id = vec2(fixed_depth > 0.0 ? fixed_depth : v_depth, surface);
+    f_depth = fixed_depth > 0.0 ? fixed_depth : v_depth;
+    f_id = surface / 255.0;
 }
 """
 
@@ -131,7 +133,7 @@ def fragment_source(mode: str, detail: bool, lit: bool, alpha: bool = False, dep
     head = _FRAGMENT_HEAD.replace("#version 330\n", "#version 330\n" + defines, 1)
     if depth_only:
         return head + (_AREA_LOD if alpha else "") + _FRAGMENT_DEPTH_ONLY + _FRAGMENT_TAIL[_FRAGMENT_TAIL.index(
-            "    f_depth_id"):]
+            "    f_depth"):]
     return head + _FRAGMENT_BODY[mode] + _FRAGMENT_TAIL
 
 
@@ -212,9 +214,13 @@ class GLCanvas:
         self._cull_face = moderngl.CULL_FACE
         self._programs: dict[tuple[str, bool, bool, bool, bool], object] = {}
         self._color = ctx.renderbuffer((self.width, self.height), 4)
-        self._depth_id = ctx.renderbuffer((self.width, self.height), 2, dtype="f4")
+        # the depth and the surface id each in a buffer of its own, read back straight into the arrays handed
+        # on: one interleaved float pair a pixel cost a 4 MB read-back and two strided copies out of it
+        self._depth = ctx.renderbuffer((self.width, self.height), 1, dtype="f4")
+        self._surface = ctx.renderbuffer((self.width, self.height), 1, dtype="f1")  # id / 255: exact in 8 bits
         self._zbuf = ctx.depth_renderbuffer((self.width, self.height))
-        self._fbo = ctx.framebuffer(color_attachments=[self._color, self._depth_id], depth_attachment=self._zbuf)
+        self._fbo = ctx.framebuffer(color_attachments=[self._color, self._depth, self._surface],
+                                    depth_attachment=self._zbuf)
         for key, (img, repeat) in self._textures.items():
             t = ctx.texture((img.shape[1], img.shape[0]), 4, img[::-1].tobytes())
             t.repeat_x = t.repeat_y = repeat
@@ -303,10 +309,10 @@ class GLCanvas:
         if colour:
             bgr = np.empty((self.height, self.width, 3), np.uint8)  # a new array each frame: frames are handed on
             self._fbo.read_into(bgr, components=3, attachment=0, alignment=1)
-        di = np.empty((self.height, self.width, 2), np.float32)
-        self._fbo.read_into(di, components=2, attachment=1, dtype="f4", alignment=1)
-        surface = di[..., 1].astype(np.uint8)
-        depth = np.ascontiguousarray(di[..., 0])  # the sky's draw wrote SKY_DEPTH itself
+        depth = np.empty((self.height, self.width), np.float32)  # the sky's draw wrote SKY_DEPTH itself
+        self._fbo.read_into(depth, components=1, attachment=1, dtype="f4", alignment=1)
+        surface = np.empty((self.height, self.width), np.uint8)
+        self._fbo.read_into(surface, components=1, attachment=2, dtype="f1", alignment=1)
         nothing = surface == SURFACE_NONE  # (none where the sky fills the frame: one look, no write)
         if nothing.any():
             depth[nothing] = np.float32(np.inf)
