@@ -49,6 +49,10 @@ Per-stage parameter layout (N_MOTION values), read by cost.StageBuilder:
     26    1 = the least speed (21) is the source's own measured speed (a pedestal's), not a floor: its
           shortfall weighs weights.travel_rate as well (at translation_dir's 5 alone the climb ran 10-25 %
           short of it, giving way to the framing)
+    27    1 = the angular rates asked (3-8) also weigh weights.held_rate: a truck's or orbit's row whose source
+          lost its subject (SWING_HELD_CLASSES), where its travel is asked in the camera's own frame and
+          nothing framed holds the camera's heading: at motion_rate's 20 alone the camera kept turning to meet
+          its velocity (truck_right's flight panned at -1.8 deg/s for its last ten rows, read pan+truck)
 """
 from __future__ import annotations
 
@@ -59,7 +63,7 @@ import numpy as np
 
 from cinetransfer.shared.camera_motion import ASSUMED_HFOV_DEG, ZOOM_MIN_PER_S
 
-N_MOTION = 27
+N_MOTION = 28
 SIDE, SIDE_MASK = slice(0, 2), 2
 RATES, RATE_MASKS = slice(3, 6), slice(6, 9)
 ZOOM, ZOOM_MASK = 9, 10
@@ -70,13 +74,14 @@ TRAVEL_MIN = 21
 LOG_FOCAL_FLOOR, LOG_FOCAL_CEILING, HEADROOM_MASK = 22, 23, 24
 LOOK_OFF = 25
 TRAVEL_MEASURED = 26
+RATES_HELD = 27
 #: the columns of the take's moves, which the pre-roll drops; the lens's headroom stays (it is set up there)
 TAKE_COLUMNS = slice(0, LOG_FOCAL_FLOOR)
 SIDE_PARAMS = slice(0, 3)  #: the side-of-subject parameters (bearing vector and mask), set by the planner core
 FLOWN_RATE_COLUMNS = [ZOOM]  #: the lens's rate target, planned slower (core.flown_rate_factor)
 #: the camera-motion terms' masks
 MOTION_MASKS = [6, 7, 8, ZOOM_MASK, TRAVEL_MASK, DOLLY_ZOOM_MASK, STILL, STILL_ALONG, BEARING_RATE_MASK,
-                HEADROOM_MASK, TRAVEL_MEASURED]
+                HEADROOM_MASK, TRAVEL_MEASURED, RATES_HELD]
 
 #: which classes ask for which term
 RATE_CLASSES = (("pan", "orbit"), ("tilt",), ("roll",))
@@ -368,6 +373,9 @@ def _unframed_terms(out: np.ndarray, style: MotionStyle, row: int, control_roll:
     and every rate the class leaves free is asked as the source measured it (with no framing to serve,
     nothing else holds it: orbit_left's camera tilted up after the walker the source lost)."""
     out[LOOK_OFF] = 1.0
+    cls = style.classes[row]
+    if cls is not None and any(n in cls for n in SWING_CLASSES):
+        out[RATES_HELD] = 1.0
     for i in range(3 if control_roll else 2):
         rate = float(style.rates_radps[row, i])
         if not out[RATE_MASKS.start + i] and math.isfinite(rate):

@@ -120,6 +120,8 @@ class Weights:
     # each is 0 in a stage the style asks nothing of, so a static style flies as without them
     side_of_subject: float = 10.0  # (1 - cos(bearing of the camera round the subject - wanted bearing)) per s
     motion_rate: float = 20.0  # (camera angular rate - source's [rad/s])^2 per s, per pan / tilt / roll
+    held_rate: float = 200.0  # added to motion_rate on a truck's or orbit's row whose source lost its subject: there
+    #                          nothing framed holds the heading, and at 20 the camera turned to meet its velocity
     zoom_rate: float = 100.0  # (d ln f/dt - source's [1/s])^2 per s
     translation_dir: float = 5.0  # (velocity off the source's direction of travel / v_max)^2 per s
     travel_rate: float = 100.0  # (shortfall under the source's measured speed along its direction / v_max)^2 per

@@ -495,8 +495,10 @@ class StageBuilder:
         rel = cam - centre
         out = [(wts["side_of_subject"] * m[CM.SIDE_MASK], bearing_shortfall(rel, m[0:2], SIDE_FREE_RAD))]
         rate_idx = [lay.YAW_RATE, lay.PITCH_RATE] + ([lay.ROLL_RATE] if lay.control_roll else [])
+        # where a truck or orbit has lost its subject the rates alone hold the heading (camera_motion.RATES_HELD)
+        w_rate = wts["motion_rate"] + wts["held_rate"] * m[CM.RATES_HELD]
         for i, ui in enumerate(rate_idx):
-            out.append((wts["motion_rate"] * m[CM.RATE_MASKS.start + i], u[ui] - m[CM.RATES.start + i]))
+            out.append((w_rate * m[CM.RATE_MASKS.start + i], u[ui] - m[CM.RATES.start + i]))
         f_mm = x_prev[lay.F]
         out.append((wts["zoom_rate"] * m[CM.ZOOM_MASK], log_rate(u[lay.F_RATE], f_mm) - m[CM.ZOOM]))
         rel_vel = x[lay.V] - par.vel

@@ -384,6 +384,23 @@ def test_a_row_whose_source_lost_its_subject_asks_the_rates_its_class_leaves_fre
     assert framed[CM.LOOK_OFF] == 0 and framed[CM.RATE_MASKS].tolist() == [1, 0, 0]
 
 
+def test_a_truck_or_orbit_that_lost_its_subject_holds_its_rates_harder():
+    truck = dataclasses.replace(_style("truck", pan=0.07, tilt=-0.04, zoom=0.0, travel=(1, 0, 0)),
+                                subject_seen=np.array([False]))
+    t = CM.row_terms(truck, 0, control_roll=False)
+    # the truck's free pan and tilt asked as the source's, and weighed by held_rate as well
+    assert t[CM.RATES_HELD] == 1 and t[CM.RATE_MASKS].tolist() == [1, 1, 0]
+    assert t[CM.RATES.start] == pytest.approx(math.radians(0.07))
+    orbit = dataclasses.replace(truck, classes=[CM.motion_classes("orbit")])
+    assert CM.row_terms(orbit, 0, control_roll=False)[CM.RATES_HELD] == 1
+    # framed, or a move that does not travel sideways (a pan, a dolly): as before
+    assert CM.row_terms(dataclasses.replace(truck, subject_seen=np.array([True])), 0,
+                        control_roll=False)[CM.RATES_HELD] == 0
+    for name in ("pan", "dolly_in"):
+        other = dataclasses.replace(truck, classes=[CM.motion_classes(name)])
+        assert CM.row_terms(other, 0, control_roll=False)[CM.RATES_HELD] == 0
+
+
 def test_subject_elevation_rate_subtracts_the_sinking_in_the_image_from_the_tilt():
     fps, n = 24.0, 30
     t = np.arange(n) / fps
