@@ -45,7 +45,7 @@ from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject
                                                 subject_softness, switched_out)
 from cinetransfer.services.planner.model import Layout, unwrap_near, wrap_angle
 from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, GROUND_BEHIND_SHARE, SHARP_SUBJECT_BLUR,
-                                                       SOFT_BAND_BLUR, Band,
+                                                       SOFT_BAND_BLUR, Band, band_subject_blur,
                                                        focus_ahead_inv_m, foreground_limits, ground_behind_inv_m,
                                                        settled_subject_blur, foreground_near_m, shifted_limits,
                                                        rack_lead_cap_s, rack_ahead_inv_m, ground_band,
@@ -764,7 +764,9 @@ class Planner:
             # with the subject sharp too the field is deep and 1 m holds whatever the band shows: focus_hedge's
             # hedge 1.7 m away in tos_clip01 went soft when aimed at the ground (foreground 1.00 -> 0.00)
             spread = narrowest_spread(focal_mm, APERTURE_MARGIN * self.solver.bounds.f_number_min, st.plan_coc_mm)
-            limits = foreground_limits(depth, spread=spread, sharp_ratio=st.sharp_coc_ratio, far_ratio=far_ratio)
+            blur = band_subject_blur(depth, band, spread=spread / st.sharp_coc_ratio)
+            limits = foreground_limits(depth, spread=spread, sharp_ratio=st.sharp_coc_ratio, far_ratio=far_ratio,
+                                       subject_blur=blur)
             near, far = limits or (foreground_near_m(band, far, spread_min=spread,
                                                      soft_ratio=st.defocus_coc_ratio / st.sharp_coc_ratio), far)
         return near, far

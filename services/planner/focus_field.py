@@ -17,7 +17,9 @@ The band starts at the subject's own depth, so whatever keeps the subject soft a
 far rows; the ground's median row is often only 3-5 m nearer than a subject 14 m away.
 foreground_limits therefore puts the focus where the subject is blurred by SUBJECT_BLUR_CIRCLES of the
 one circle c (1/s = 1/d + b sigma_c) and no more, with the narrowest field the planner uses: the band
-from just in front of him is then inside the field of c.
+from just in front of him is then inside the field of c. Where the band is shallow (a short lens close to
+him) that field's edge, b - 1 circles in front of him, would cut off most of it: band_subject_blur then
+asks less blur, down to LEAST_BAND_SUBJECT_BLUR, so that the edge lies a quarter of the way into the band.
 
 With only the subject sharp and the field wider than he is deep (parkour at 50-60 mm and f/1), a field
 centred on him leaves the background behind him only 1.0-1.35 circles soft: sharp to the focus
@@ -35,6 +37,15 @@ ANKLE_HEIGHT_M = 0.08
 #: every texture's flip of the focus estimator (0.88-1.22 circles, docs/report.md), below the 1.5 of the
 #: visible circle, which left the band's median outside the field (parkour: truth foreground 0.13-0.24)
 SUBJECT_BLUR_CIRCLES = 1.3
+#: the least blur [circles] of the subject with only the foreground sharp where the band is shallow
+#: (band_subject_blur): the one circle's field then ends 0.1 circles in front of him, so the truth, which
+#: calls him soft once half his pixels lie outside it, still does. Below the 1.22 flip of the coarsest
+#: texture measured (docs/report.md): a subject that coarse would read sharp to the focus estimator there;
+#: the parkour runner flown at 1.09-1.10 circles read soft in every frame
+LEAST_BAND_SUBJECT_BLUR = 1.1
+#: where in the foreground band, as a share of its width in inverse depth from his feet, the one circle's
+#: field may end with only the foreground sharp (band_subject_blur): three quarters of the band inside it
+BAND_EDGE_SHARE = 0.25
 #: the blur [circles of the one circle] a sharp subject may carry with only him sharp, so that the focus can stand in
 #: front of him and blur the background more: at half the circle (0.6 wide open) the dancer read soft (extraction
 #: 1.00 -> 0.93) and focus_hedge's hedge in front of her sharp (1.00 -> 0.60; docs/planner.md)
@@ -130,6 +141,22 @@ def foreground_limits(depth_m: float, *, spread: float, sharp_ratio: float, far_
     if x_far <= 0:
         return None
     return 1.0 / (x_s + spread), 1.0 / x_far
+
+
+def band_subject_blur(depth_m: float, band: Band | None, *, spread: float, most: float = SUBJECT_BLUR_CIRCLES,
+                      least: float = LEAST_BAND_SUBJECT_BLUR, share: float = BAND_EDGE_SHARE) -> float:
+    """The subject's blur [circles of the one circle] to ask with only the foreground sharp, from how deep the
+    band below his feet is: with the focus where he is b circles soft, the one circle's field (half-width
+    `spread` in inverse depth) ends (b - 1) circles in front of him, and the band runs from his depth to its
+    bottom row, so b = 1 + `share` w puts the edge `share` of the way into a band w circles deep. Within
+    [`least`, `most`]; `most` with no band known. A short lens near the subject makes the band shallow: the
+    parkour runner at 30-35 mm and 10.5-11 m showed ground 0.4-0.5 circles deep in front of him at f/1.2, its
+    median 0.14-0.37 circles (0.32-0.44 at 37-46 mm and 11-12 m), and at 1.3 circles the field's edge 0.3
+    circles in front of him left 17-49 % of it sharp (truth foreground 0.78)."""
+    if band is None or not (depth_m > 0 and spread > 0):
+        return most
+    width = (band.inv_bottom - 1.0 / depth_m) / spread
+    return min(max(1.0 + share * width, least), most)
 
 
 def focus_ahead_inv_m(depth_m: float, band: Band | None, *, fg_absent: bool, spread: float,

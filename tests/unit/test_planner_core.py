@@ -448,11 +448,17 @@ def test_only_the_foreground_sharp_aims_at_the_ground_the_band_shows(planner, in
     ray = cam.rotation_ypr(*lay.angles(x0)) @ np.array([1.0, 0.0, -0.5 * st.sensor_height_mm / x0[lay.F]])
     t = (ground - x0[lay.P][2]) / ray[2]
     assert planner._foreground_band(x0, subj, 0.0).bottom_m == pytest.approx(t, rel=1e-9)
-    # and the focus is where the subject is blurred by 1.3 of the one circle c = c_s / sharp_coc_ratio at the
-    # aperture planned for (1.2 A_min, sigma = 1000 A c_s / f^2 per metre): 1/s = 1/d + 1.3 sigma / ratio,
-    # with the near limit of c_s at 1/s + sigma and the far limit of the visible circle (4 c_s) at 1/s - 4 sigma
+    # and the focus is where the subject is blurred by b of the one circle c = c_s / sharp_coc_ratio at the
+    # aperture planned for (1.2 A_min, sigma = 1000 A c_s / f^2 per metre): 1/s = 1/d + b sigma / ratio,
+    # with the near limit of c_s at 1/s + sigma and the far limit of the visible circle (4 c_s) at 1/s - 4 sigma;
+    # b puts the one circle's far edge (b - 1 circles in front of him) a quarter of the way into the band from
+    # his depth to the bottom row's ground, within 1.1-1.3 circles
     sigma = 1000.0 * 1.2 * b.f_number_min * st.plan_coc_mm / x0[lay.F] ** 2
-    x_s = 1.0 / dref[0] + 1.3 * sigma / st.sharp_coc_ratio
+    band_circles = (1.0 / t - 1.0 / dref[0]) / (sigma / st.sharp_coc_ratio)
+    blur = min(max(1.0 + 0.25 * band_circles, 1.1), 1.3)
+    # (at 40 mm 7 m away the band is shallow, under 0.4 circles deep: the least, 1.1 circles)
+    assert band_circles < 0.4 and blur == 1.1
+    x_s = 1.0 / dref[0] + blur * sigma / st.sharp_coc_ratio
     assert t > 0 and dof[0, 0] == 1.0 and dof[0, 6] == pytest.approx(4.0)
     assert dof[0, 1] == pytest.approx(x_s + sigma, rel=1e-6)
     assert dof[0, 3] == pytest.approx(x_s - 4.0 * sigma, rel=1e-6)

@@ -77,6 +77,25 @@ def test_only_the_foreground_sharp_blurs_the_subject_by_the_asked_circles_by_han
     assert FF.foreground_limits(14.0, spread=1 / 60.0, sharp_ratio=0.375, far_ratio=1.0) is None
 
 
+def test_a_shallow_band_asks_the_subject_less_blur_by_hand():
+    sigma = 0.15  # the one circle's half-width per metre (parkour at 32 mm, f/1.2)
+    # given a subject 10 m away and ground below his feet down to 0.4 circles in front of him (0.16 per metre)
+    band = FF.Band(inv_top=0.1, inv_bottom=0.1 + 0.4 * sigma)
+    # then the field's edge a quarter of the way in: 1 + 0.25 x 0.4 = 1.1 circles, the least
+    assert FF.band_subject_blur(10.0, band, spread=sigma) == pytest.approx(1.1)
+    # and a band 0.6 circles deep asks 1 + 0.25 x 0.6 = 1.15: three quarters of it inside the field
+    deeper = FF.Band(inv_top=0.1, inv_bottom=0.1 + 0.6 * sigma)
+    blur = FF.band_subject_blur(10.0, deeper, spread=sigma)
+    assert blur == pytest.approx(1.15)
+    assert (0.6 - (blur - 1.0)) / 0.6 == pytest.approx(0.75)
+    # and a band 2 circles deep (45 mm and 12 m) keeps the 1.3 circles every texture reads soft
+    assert FF.band_subject_blur(10.0, FF.Band(0.1, 0.1 + 2 * sigma), spread=sigma) == pytest.approx(1.3)
+    # and a band only 0.2 circles deep keeps the least: the subject read soft comes first
+    assert FF.band_subject_blur(10.0, FF.Band(0.1, 0.1 + 0.2 * sigma), spread=sigma) == pytest.approx(1.1)
+    # and no band known keeps 1.3
+    assert FF.band_subject_blur(10.0, None, spread=sigma) == FF.SUBJECT_BLUR_CIRCLES
+
+
 def test_with_only_the_subject_sharp_the_focus_stands_in_front_of_him_where_the_field_is_wide():
     sigma = 0.04  # the one circle's half-width per metre (58 mm, f/1: parkour)
 
