@@ -8,7 +8,7 @@ import logging
 import math
 import os
 import time
-from concurrent.futures import BrokenExecutor
+from concurrent.futures import BrokenExecutor, Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -254,6 +254,25 @@ def lens_rates(meta: dict[str, Any]) -> FR.LensRates | None:
     return FR.LensRates(lens.focus_rate_mps, lens.f_number_rate_ps)
 
 
+def _video_beside(path: Path, series: dict[str, Any], **kwargs: Any) -> Future:
+    """video.side_by_side(path, series, **kwargs) on a thread of its own: a Future of (its summary,
+    '') or (None, why it was not made); never raises (the numbers are still worth a report)."""
+    def make() -> tuple[dict[str, Any] | None, str]:
+        try:
+            from cinetransfer.report.video import side_by_side
+
+            return side_by_side(path, series, **kwargs), ""
+        except Exception as e:  # noqa: BLE001 - the numbers are still worth a report
+            log.warning("side-by-side video not made: %s: %s", type(e).__name__, e)
+            return None, f"{type(e).__name__}: {e}"
+
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="report-video")
+    try:
+        return pool.submit(make)
+    finally:
+        pool.shutdown(wait=False)
+
+
 def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLike | None,
                  truths: Sequence[M.GroundTruth], source_video: Path | str | None,
                  output_video: Path | str | None, meta: dict[str, Any] | None = None,
@@ -301,9 +320,21 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
     output_frames = vinfo.get("frames") if vinfo.get("frames", 0) > 0 else None
 
     rates = lens_rates(meta)
+    # the side-by-side video needs the tracks only, not the goals: it is made on a thread from here,
+    # beside the focus reach and the rest of the numbers (OpenCV and x264 release the GIL), keeping
+    # the frames the frames figure and the people picture show (a seek would decode again)
+    aligned = F.align(source, output, truths, output_fps=output_fps, output_frames=output_frames)
+    _, src_idx, out_idx = figs.frame_picks(aligned.series())
+    from cinetransfer.report.people import make_people, middle_frame_index
+
+    mid = middle_frame_index(source_video) if meta.get("subject") and source_video else None
+    keep: tuple[dict, dict] = ({i: None for i in [*src_idx, *([mid] if mid is not None else [])]},
+                               {i: None for i in out_idx})
+    video_job = _video_beside(outdir / VIDEO, aligned.series(), source_video=source_video, output_video=output_video,
+                              fps=float(output_fps or source.fps or 24.0), keep=keep)
     reach_memo: RF.Memo = {}  # each frame's focus reach judged once: the shots compare the same frames
     fid = F.compute_fidelity(source, output, truths, output_fps=output_fps, output_frames=output_frames,
-                             output_missing_reason=reason, reach_memo=reach_memo, lens_rates=rates)
+                             output_missing_reason=reason, reach_memo=reach_memo, lens_rates=rates, aligned=aligned)
     credit = str(meta.get("credit") or figs.credit_for(source_video))
     shot_rows = ([int(t["first_row"]) for t in meta["takes"]] if meta.get("takes") else
                  [a for a, _ in shot_segments(source)])[1:]
@@ -321,22 +352,7 @@ def build_report(outdir: Path, *, source_style: StyleLike, output_style: StyleLi
         if run and truths else []
     motion, motion_fig = camera_motion_facts(outdir, source, output, states, truths, segs, figure_worker)
 
-    _, src_idx, out_idx = figs.frame_picks(s)
-    from cinetransfer.report.people import make_people, middle_frame_index
-
-    # the people picture's source frame is kept from the video's decode too (a seek decodes again)
-    mid = middle_frame_index(source_video) if meta.get("subject") and source_video else None
-    keep: tuple[dict, dict] = ({i: None for i in [*src_idx, *([mid] if mid is not None else [])]},
-                               {i: None for i in out_idx})
-    video, video_error = None, ""
-    try:
-        from cinetransfer.report.video import side_by_side
-
-        video = side_by_side(outdir / VIDEO, s, source_video=source_video, output_video=output_video,
-                             fps=float(output_fps or source.fps or 24.0), keep=keep)
-    except Exception as e:  # noqa: BLE001 - the numbers are still worth a report
-        video_error = f"{type(e).__name__}: {e}"
-        log.warning("side-by-side video not made: %s", video_error)
+    video, video_error = video_job.result()
     decoded = tuple({i: im for i, im in d.items() if im is not None and i in picks}
                     for d, picks in zip(keep, (set(src_idx), set(out_idx)))) if video else None
     middle = keep[0].get(mid) if video and mid is not None else None  # RGB, as the figures keep them

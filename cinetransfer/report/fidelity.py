@@ -352,19 +352,37 @@ class Fidelity:
     series: dict[str, Any] = field(default_factory=dict)
 
 
-def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
-                     truths: Sequence[M.GroundTruth] = (), *, output_fps: float | None = None,
-                     output_frames: int | None = None, output_missing_reason: str = "",
-                     reach_memo: RF.Memo | None = None,
-                     lens_rates: FR.LensRates | None = None) -> Fidelity:
-    """Compare the output (extraction and/or truth) with the source instructions.
+@dataclass(frozen=True, eq=False)
+class Aligned:
+    """The output timeline against the source's rows and the three sides' tracks on it: what the
+    side-by-side video draws, known before any goal is judged (`align`)."""
 
-    `output_fps` defaults to the output extraction's fps, else the source's. The output timeline
-    is as long as the longest of `output_frames` (e.g. the recorded video's frame count), the
-    output extraction and the truths. `reach_memo`: the focus-reach verdicts of frames judged
-    before (reach_frames.reach), shared by the calls of one report. `lens_rates`: the vehicle's lens
-    rates, to excuse the misses they force round a switch of the focus labels (reach_frames).
-    """
+    t: np.ndarray  # (n,) output time [s] of each compared frame
+    k: np.ndarray  # (n,) source row of each compared frame
+    mode: str  # how the rows were aligned (align_rows)
+    n_out: int  # frames on the output timeline (compared or not)
+    keep: np.ndarray  # (n_out,) the output frames compared (those with a source row)
+    src_full: Track  # the source's every row
+    src: Track
+    out: Track
+    truth: Track
+    kept_truths: list  # the GroundTruth (or None) of each compared frame
+    src_fps: float
+    output_fps: float
+    joint_names: list[str]
+    first_frame: int  # the source's first frame
+
+    def series(self) -> dict[str, Any]:
+        """The series the side-by-side video and the frame picks read (`compute_fidelity`'s series
+        begins with the same objects)."""
+        return {"t_s": self.t, "k": self.k, "joint_names": self.joint_names, "source_first_frame": self.first_frame,
+                "source": self.src, "extraction": self.out, "truth": self.truth}
+
+
+def align(source: M.Instructions, output: M.Instructions | None, truths: Sequence[M.GroundTruth] = (), *,
+          output_fps: float | None = None, output_frames: int | None = None) -> Aligned:
+    """The output timeline and the source, extraction and truth tracks on it (`compute_fidelity`'s
+    first half: no goal, no focus reach)."""
     joint_names = list(source.joint_names)
     E = len(joint_names)
     src_full = instructions_track(source, joint_names)
@@ -391,6 +409,32 @@ def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
     tru_tr = truth_track(truths, joint_names, n_out).take(np.flatnonzero(keep)) if truths else empty_track(n, E)
     by_frame = RF.truths_by_frame(truths, n_out, truth_frame_offset(truths)) if truths else [None] * n_out
     kept_truths = [by_frame[i] for i in np.flatnonzero(keep)]
+    return Aligned(t=t, k=k, mode=mode, n_out=n_out, keep=keep, src_full=src_full, src=src, out=out_tr,
+                   truth=tru_tr, kept_truths=kept_truths, src_fps=src_fps, output_fps=output_fps,
+                   joint_names=joint_names, first_frame=int(source.first_frame))
+
+
+def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
+                     truths: Sequence[M.GroundTruth] = (), *, output_fps: float | None = None,
+                     output_frames: int | None = None, output_missing_reason: str = "",
+                     reach_memo: RF.Memo | None = None,
+                     lens_rates: FR.LensRates | None = None, aligned: Aligned | None = None) -> Fidelity:
+    """Compare the output (extraction and/or truth) with the source instructions.
+
+    `output_fps` defaults to the output extraction's fps, else the source's. The output timeline
+    is as long as the longest of `output_frames` (e.g. the recorded video's frame count), the
+    output extraction and the truths. `reach_memo`: the focus-reach verdicts of frames judged
+    before (reach_frames.reach), shared by the calls of one report. `lens_rates`: the vehicle's lens
+    rates, to excuse the misses they force round a switch of the focus labels (reach_frames).
+    `aligned`: `align` of the same arguments, when the caller has it already.
+    """
+    joint_names = list(source.joint_names)
+    truths = list(truths)
+    a = aligned if aligned is not None else align(source, output, truths, output_fps=output_fps,
+                                                  output_frames=output_frames)
+    t, mode, n_out, n = a.t, a.mode, a.n_out, int(a.keep.sum())
+    src_full, src, out_tr, tru_tr, kept_truths = a.src_full, a.src, a.out, a.truth, a.kept_truths
+    src_fps, output_fps = a.src_fps, a.output_fps
     # the extraction's regions are judged where the truth has none but kept the band's depths (focus_misses)
     reach = RF.reach(src.focus_in, src.present & tru_tr.present, kept_truths, reach_memo, rates=lens_rates,
                      also=src.present & out_tr.present & tru_tr.available[:, None])
@@ -445,8 +489,7 @@ def compute_fidelity(source: M.Instructions, output: M.Instructions | None,
                "focus_misses": {name: FM.counts(m) for name, m in misses.items()},
                "extraction": measures["extraction"], "truth": measures["truth"], "goals": goal_list,
                "headline": headline}
-    series = {"t_s": t, "k": k, "joint_names": joint_names, "source_first_frame": int(source.first_frame),
-              "source": src, "extraction": out_tr, "truth": tru_tr,
+    series = {**a.series(),
               "source_full": src_full, "source_t_full": np.arange(src_full.n) / src_fps if src_fps > 0
               else np.arange(src_full.n, dtype=float),
               "error_extraction": errs["extraction"], "error_truth": errs["truth"],

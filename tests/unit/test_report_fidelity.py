@@ -241,3 +241,24 @@ def test_per_frame_error_series():
 def test_stats_of_empty_and_nan():
     assert F.stats(np.array([])) == {"mean": None, "std": None, "max": None, "n": 0}
     assert F.stats(np.array([np.nan, 1.0, 3.0])) == {"mean": 2.0, "std": 1.0, "max": 3.0, "n": 2}
+
+
+def test_align_gives_the_video_its_tracks_before_the_goals():
+    # given a 48-frame source and a 30-frame output extraction plus 60 truths (as above)
+    src = synth.instructions(K)
+    out = synth.instructions(30, image_targets=synth.targets(K)[:30] + np.float32([0.02, 0.0]))
+    truths = synth.truths(np.concatenate([synth.targets(K), synth.targets(12)]))
+    # when aligned alone
+    a = F.align(src, out, truths)
+    # then: 60 output frames, the 48 with a source row compared, row k = frame k, t = k / 24
+    assert a.n_out == 60 and int(a.keep.sum()) == K and a.mode == "index"
+    assert list(a.k) == list(range(K)) and a.t[1] == pytest.approx(1 / 24)
+    # the extraction covers its 30 frames only, the truth all 48
+    assert int(a.out.available.sum()) == 30 and int(a.truth.available.sum()) == K
+    v = a.series()
+    assert v["source_first_frame"] == 0 and v["joint_names"] == list(src.joint_names)
+    # and the fidelity from it holds the very same tracks and the same numbers as without it
+    f = F.compute_fidelity(src, out, truths, aligned=a)
+    assert f.series["source"] is a.src and f.series["extraction"] is a.out and f.series["truth"] is a.truth
+    assert f.summary["extraction"]["joints"]["overall"]["euclidean"]["mean"] == pytest.approx(0.02, abs=1e-6)
+    assert f.summary == F.compute_fidelity(src, out, truths).summary
