@@ -289,6 +289,12 @@ class PlannerConfig:
     #: "Which gives way")
     zoom_yields_to_focus: bool = True
     zoom_yield_lead_s: float = 1.5
+    #: the weight of the soft subject's near limit, as a factor of dof_near, on the rows of keep_out_settle_s after
+    #: a rack away from him inside a shot (core.rack_settle_rows): there the focus travels at its rate while the
+    #: framing pulls the focal length shorter, which widens the field and gives his blur back. 1 = off (as any
+    #: other row), the default: 2 met parkour's runner by both measures but the report's rates bound then
+    #: excused fewer background frames (docs/planner.md, "The rack's focal length held while its focus travels")
+    rack_settle_near_weight: float = 1.0
     #: the subject's blur [circles of the one circle] asked where a shot has settled on only the background sharp
     #: (after keep_out_settle_s): the visible circle's 1.5 (defocus_coc_ratio). Less starts the sharp zone nearer
     #: behind him, but the estimator then read the far runner sharp (docs/planner.md, "Which gives way")
@@ -390,6 +396,8 @@ class PlannerConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise _bad("", name, v, "a finite value >= 0")
+        if not (math.isfinite(self.rack_settle_near_weight) and self.rack_settle_near_weight >= 1.0):
+            raise _bad("", "rack_settle_near_weight", self.rack_settle_near_weight, "a finite factor >= 1")
         if not (math.isfinite(self.settled_subject_blur) and self.settled_subject_blur > 1.0):
             raise _bad("", "settled_subject_blur", self.settled_subject_blur, "a finite value > 1 (soft)")
         if self.left_right not in LEFT_RIGHT:

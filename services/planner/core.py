@@ -507,6 +507,14 @@ class Planner:
         return self._per_message("rack_ahead", ins, lambda: rack_switch_ahead(
             self._planned_focus(ins), absent_regions(ins), lead, hold, getattr(ins, "shot_start", None)))
 
+    def _rack_settle_rows(self, ins: M.Instructions) -> np.ndarray:
+        """(K,) bool: the rows of keep_out_settle_s from each rack away from the subject inside a shot
+        (rack_settle_rows), once per instructions message."""
+        fps = _fps(ins)
+        settle, hold = int(round(self.cfg.keep_out_settle_s * fps)), int(round(self.cfg.rack_lead_min_hold_s * fps))
+        return self._per_message("rack_settle", ins, lambda: rack_settle_rows(
+            self._planned_focus(ins), absent_regions(ins), settle, hold, getattr(ins, "shot_start", None)))
+
     def _subject_travel_s(self, depth_m: float, focal_mm: float) -> float:
         """How long the focus takes at the lens's rate from the subject `depth_m` away to where he is one circle
         soft behind it (1/s = 1/d - sigma, the one circle's spread at the aperture planned for, as
@@ -643,6 +651,14 @@ class Planner:
             raise ValueError("non-finite vehicle state")
         return x0
 
+    def _stage_view(self, now_ns: int, t: float, x0: np.ndarray, subj: PredictedSubject) -> tuple[np.ndarray, float]:
+        """(the planned state `t` s ahead, or x0 with no plan; the predicted subject's depth from it, >= 0.5 m)."""
+        lay = self.layout
+        xk = x0 if self._plan is None else self._plan.at((now_ns - self._plan.t0_ns) * 1e-9 + t)[0]
+        yaw, pitch, roll = lay.angles(xk)
+        depth = float(cam.world_to_camera(subj.centre + subj.vel * t, xk[lay.P], np.array([yaw, pitch, roll]))[0])
+        return xk, max(depth, 0.5)
+
     def _dof_targets(self, now_ns: int, ins: M.Instructions, rows: list[int], now_row: int, x0: np.ndarray,
                      subj: PredictedSubject) -> tuple[np.ndarray, np.ndarray]:
         """Depth-of-field targets (n, N_DOF) of the stages and the subject distance along the planned
@@ -660,6 +676,7 @@ class Planner:
         near_out = [near_keeps_subject_out(*row) for row in rows3]
         ratio = st.defocus_coc_ratio / st.sharp_coc_ratio
         keep, keep_outs_m = self._keep_out_rows(ins), self._keep_outs_m(ins)
+        settling = self._rack_settle_rows(ins)
         rack_ahead, fps = self._rack_ahead(ins), _fps(ins)
         # rows centred on the subject whatever the background: marked as if it were absent
         centred = np.zeros_like(absent)
@@ -674,13 +691,7 @@ class Planner:
         switch_now = int(rack_ahead[now_row]) if 0 <= now_row < len(rack_ahead) else -1  # the switch led to now
         for k, r in enumerate(rows):
             t = (k + 1) * dt
-            if self._plan is not None:
-                xk, _ = self._plan.at((now_ns - self._plan.t0_ns) * 1e-9 + t)
-            else:
-                xk = x0
-            yaw, pitch, roll = lay.angles(xk)
-            depth = float(cam.world_to_camera(subj.centre + subj.vel * t, xk[lay.P], np.array([yaw, pitch, roll]))[0])
-            depth = max(depth, 0.5)
+            xk, depth = self._stage_view(now_ns, t, x0, subj)
             dref[k] = depth
             if not later_shot_previewed(shot_held, now_row, r):
                 continue  # a later shot flown in this take asks nothing yet: the lens keeps this shot's choice
@@ -692,6 +703,7 @@ class Planner:
                 # stopped down to f/1.36 on its last two rows before it (runner and band sharp three more frames)
                 made = switch_now
             now_k = max(now_row, made) if 0 <= made <= r else now_row
+            own = r  # the stage's own row, before a lead plans it as the switch's
             if ahead >= 0 and (ahead - r) / fps <= self._rack_lead_s(xk, subj, t, depth):
                 # the rack away from him starts so that his travel to soft straddles the switch, planned as made:
                 # previewed by the sharpness circle alone the focus stopped half-way (him 0.5 circles soft, his
@@ -723,6 +735,12 @@ class Planner:
                                                 far_margin_inv_m=0.0 if kept_out else st.far_margin_inv_m,
                                                 fg_absent=bool(absent[r, 0]) and not (near_out[r] or pinned))
                 dof[k, 7] = defocus_ratio(near_out[r] and switched_out(near_out, now_k, r), ratio, soft)
+                if own == r and r < len(settling) and settling[r] and switched_out(near_out, now_k, r):
+                    # past the switch the focus travels at its rate; the parkour framing meanwhile zoomed out
+                    # at the zoom's rate (88 -> 71 mm), widening the field by half, and the runner fell back
+                    # to 1.03-1.10 circles, read sharp in 8 frames: weighted (x2), the near limit held the
+                    # focal (77 mm) and him 1.14-1.20 circles soft
+                    dof[k, 0] *= self.cfg.rack_settle_near_weight
                 if focus[r, 0] and not absent[r, 0] and len(b_all) > r:
                     # a borderline foreground label asks its near limit as little as it is sharp
                     dof[k, 0] *= label_sharpness(float(b_all[r, 0]), float(ins.theta))
@@ -1124,6 +1142,19 @@ def rack_switch_ahead(focus: np.ndarray, absent: np.ndarray, lead_rows: int, min
                 and focus[first - 1, 1]:
             first -= 1
         out[first:k] = k
+    return out
+
+
+def rack_settle_rows(focus: np.ndarray, absent: np.ndarray, settle_rows: int, min_hold_rows: int,
+                     shot_start: np.ndarray | None = None) -> np.ndarray:
+    """(K,) bool: the first `settle_rows` rows from each rack away from the subject inside a shot (his label
+    sharp -> soft between two labelled rows, held soft at least `min_hold_rows`: the switches rack_switch_ahead
+    leads to), where the focus is still travelling past him. A change of label at a cut is no rack: each shot
+    is its own choice (tos_clip01's one- and two-row shots at rows 196-203)."""
+    switches = rack_switch_ahead(focus, absent, 1, min_hold_rows, shot_start)
+    out = np.zeros(len(switches), dtype=bool)
+    for k in np.unique(switches[switches >= 0]):
+        out[k:k + settle_rows] = True
     return out
 
 

@@ -10,8 +10,8 @@ from cinetransfer.services.planner.camera_motion import MOTION_MASKS
 from cinetransfer.services.planner.core import (LENS_MOTION_COLUMNS, RACK_LEAD_SHARE, Planner, _fps, absent_regions,
                                                 held_subject_labels, instructions_from_arrays, lens_for_focus_rows,
                                                 pins_field_before_soft_background, planned_focus_rows,
-                                                later_shot_previewed, predict_subject, rack_switch_ahead,
-                                                shot_choice_held, unmeasured_subject_rows)
+                                                later_shot_previewed, predict_subject, rack_settle_rows,
+                                                rack_switch_ahead, shot_choice_held, unmeasured_subject_rows)
 from cinetransfer.services.planner.focus_field import SHARP_SUBJECT_BLUR
 from cinetransfer.services.planner.kinematic_sim import KinematicSim
 from cinetransfer.services.planner.scenarios import reference_instructions, standing_shot, wrong_start_scene
@@ -369,6 +369,36 @@ def test_right_after_a_rack_onto_the_background_the_subject_is_kept_out_by_mu(pl
     np.testing.assert_allclose(dof[:, 6], [1.0, 1.0, 1.0 / planner.cfg.structure.sharp_coc_ratio])
 
 
+def test_the_soft_subjects_near_limit_weighs_more_while_a_rack_settles(planner, instructions):
+    # given a style that racks from the subject to the background at row 10 (24 rows a second)
+    k = instructions.image_targets.shape[0]
+    focus = np.tile([False, True, False], (k, 1))
+    focus[10:] = (False, False, True)
+    sm = np.where(focus, 1.0, 0.0).astype(np.float32)
+    sm[:, 0] = np.nan
+    ins = dataclasses.replace(instructions, focus_smoothed=sm, focus_raw=sm, focus_in=focus, fps=24.0)
+    sim = KinematicSim(wrong_start_scene())
+    x0 = planner._measured_state(T0, sim.vehicle_state(T0))
+    subj = predict_subject(sim.subject_state(T0), T0)
+    settle = int(round(planner.cfg.keep_out_settle_s * 24.0))
+    rows = [10, 10 + settle - 1, 10 + settle]
+    heavy = Planner(dataclasses.replace(planner.cfg, rack_settle_near_weight=2.0), solver=planner.solver)
+    # when followed from the switch on with the near limit weighted twice while a rack settles
+    dof, _ = heavy._dof_targets(T0, ins, rows, 10, x0, subj)
+    # then the rows of keep_out_settle_s after the switch weigh the near limit twice, the settled row after
+    # them once
+    np.testing.assert_allclose(dof[:, 0], [2.0, 2.0, 1.0])
+    # and followed from row 0, 10 rows before the switch (0.42 s, more than the lead here: these stages
+    # preview it) nothing is weighted
+    dof, _ = heavy._dof_targets(T0, ins, rows, 0, x0, subj)
+    np.testing.assert_allclose(dof[:, 0], [1.0, 1.0, 1.0])
+    # and by default (1: off) every row weighs as before
+    assert planner.cfg.rack_settle_near_weight == 1.0
+    np.testing.assert_allclose(planner._dof_targets(T0, ins, rows, 10, x0, subj)[0][:, 0], [1.0, 1.0, 1.0])
+    with pytest.raises(Exception, match="rack_settle_near_weight"):
+        dataclasses.replace(planner.cfg, rack_settle_near_weight=0.5).validate()
+
+
 def _roll_after(level: float, tilt_deg: float) -> float:
     """|camera roll| [deg] after 3 s of flying a standing shot whose targets are turned by tilt_deg."""
     from cinetransfer.services.planner.scenarios import run_closed_loop
@@ -507,6 +537,20 @@ def test_the_rows_that_may_plan_a_rack_away_from_the_subject_ahead():
     # and a lead stops at the start of the shot
     starts[6], starts[5] = False, True
     assert rack_switch_ahead(focus, absent, 3, 6, starts).tolist()[:7] == [-1] * 5 + [6, -1]
+
+
+def test_the_rows_a_rack_away_from_the_subject_settles_over():
+    # given a shot: subject sharp (0-5), only the background (6-11), the subject sharp again (12-13)
+    sharp, bg = [0, 1, 0], [0, 0, 1]
+    focus = np.array([sharp] * 6 + [bg] * 6 + [sharp] * 2, dtype=bool)
+    absent = np.zeros(focus.shape, dtype=bool)
+    # then with a settle of 3 rows and a hold of 6, rows 6-8 settle; the rack back settles nothing
+    assert np.flatnonzero(rack_settle_rows(focus, absent, 3, 6)).tolist() == [6, 7, 8]
+    # and a choice held for fewer rows than the hold, or switched at a cut (another shot's choice), settles nothing
+    assert not rack_settle_rows(focus, absent, 3, 7).any()
+    starts = np.zeros(len(focus), dtype=bool)
+    starts[6] = True
+    assert not rack_settle_rows(focus, absent, 3, 6, starts).any()
 
 
 def test_the_rows_round_a_switch_of_the_subjects_label_give_the_zoom_way():
