@@ -37,7 +37,7 @@ from cinetransfer.services.planner.camera_motion import (DOLLY_ZOOM_MASK, MOTION
 from cinetransfer.services.planner.side_of_subject import camera_bearing, side_targets
 from cinetransfer.services.planner.clear_side import clear_bearing, side_wanted_for, truck_travel
 from cinetransfer.services.planner.zoom_hold import framing_error_now, settled_hold_share
-from cinetransfer.services.planner.obstacles import obstacle_params
+from cinetransfer.services.planner.obstacles import obstacle_params, reachable_heights_m
 from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
 from cinetransfer.services.planner.lens_axes import pinned_bounds
 from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject_out, label_sharpness,
@@ -449,11 +449,15 @@ class Planner:
         return truck_travel(style.classes[lo:hi], style.travel[lo:hi], swing[lo:hi], _fps(ins), distance_m)
 
     def _obstacle_slots(self, x0: np.ndarray) -> np.ndarray:
-        """The obstacle slots of a solve from `x0`: the nearest keep-outs the horizon can reach at the speed limit."""
+        """The obstacle slots of a solve from `x0`: the nearest keep-outs the horizon can reach at the speed limit,
+        each as wide as at the nearest height the horizon can climb or sink to."""
         b, st = self.solver.bounds, self.cfg.structure
-        reach = b.speed_max_mps * st.horizon_steps * st.dt_s
-        return obstacle_params(self._obstacles, x0[self.layout.P], clearance_m=b.min_obstacle_distance_m,
-                               reach_m=reach)
+        horizon_s = st.horizon_steps * st.dt_s
+        p = x0[self.layout.P]
+        heights = reachable_heights_m(float(p[2]), climb_mps=min(b.climb_max_mps, b.speed_max_mps),
+                                      horizon_s=horizon_s, band_m=(b.altitude_min_m, b.altitude_max_m))
+        return obstacle_params(self._obstacles, p, clearance_m=b.min_obstacle_distance_m,
+                               reach_m=b.speed_max_mps * horizon_s, heights_m=heights)
 
     def _separation_m(self, ins: M.Instructions, now_row: int, jw: np.ndarray, jmask: np.ndarray) -> float:
         """The subject distance the rows of the next `separation_lookahead_s` (within the take) need for

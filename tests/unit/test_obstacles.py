@@ -10,10 +10,12 @@ from cinetransfer.services.autopilot_bridge.safety import envelope_breach, retur
 from cinetransfer.services.autopilot_bridge.sim.obstacles import CROWN_SLICES, crown_slices, scene_obstacles
 from cinetransfer.services.autopilot_bridge.sim.scene import load_scene
 from cinetransfer.services.planner import config as pc
-from cinetransfer.services.planner.obstacles import N_OBSTACLE_SLOTS, obstacle_params, obstacle_rows
+from cinetransfer.services.planner.obstacles import (N_OBSTACLE_SLOTS, obstacle_params, obstacle_rows,
+                                                     reachable_heights_m)
 from cinetransfer.shared.errors import ConfigError
-from cinetransfer.shared.obstacles import (Obstacle, intrusion_m, keep_out_radius_m, nearest_keep_outs, obstacles_from,
-                                           push_clear, push_out)
+from cinetransfer.shared.obstacles import (Obstacle, intrusion_m, keep_out_radius_m, keep_out_radius_over_m,
+                                           nearest_height_m, nearest_keep_outs, obstacles_from, push_clear, push_out,
+                                           towards)
 
 TRUNK = Obstacle(0.0, 0.0, 0.15, 0.0, 2.2)
 CROWN = Obstacle(0.0, 0.0, 1.3, 1.75, 4.75)
@@ -181,3 +183,116 @@ def test_a_return_point_between_two_keep_outs_clears_both():
     q = return_point(np.array([0.5, 0.3, 1.5]), cfg)
     obstacles = obstacles_from(cfg.obstacles_m)
     assert intrusion_m(obstacles, q, 0.5) <= 1e-9
+
+
+def test_keep_out_radius_over_heights_is_the_widest_at_the_nearest_height():
+    # heights reaching into the crown's band: radius + the whole clearance
+    assert nearest_height_m(CROWN, (0.1, 3.1)) == 1.75
+    assert keep_out_radius_over_m(CROWN, (0.1, 3.1), 1.0) == pytest.approx(2.3)
+    # all under it: at the top end, 0.15 m under; all over it: at the bottom end, 0.25 m over
+    assert keep_out_radius_over_m(CROWN, (0.1, 1.6), 1.0) == pytest.approx(1.3 + math.sqrt(1 - 0.15 ** 2))
+    assert keep_out_radius_over_m(CROWN, (5.0, 6.0), 1.0) == pytest.approx(1.3 + math.sqrt(1 - 0.25 ** 2))
+    assert keep_out_radius_over_m(CROWN, (0.1, 0.7), 1.0) is None  # 1.05 m under at best
+    # one height: keep_out_radius_m's
+    assert keep_out_radius_over_m(TRUNK, (3.0, 3.0), 1.0) == pytest.approx(0.75)
+
+
+def test_nearest_keep_outs_over_heights_widens_a_crown_within_climbing_reach():
+    # a camera 2.5 m from the axis at 1.6 m: the crown's keep-out 2.289 m (0.21 beyond it) at its own height,
+    # 2.3 m (0.2 beyond) once the heights reach 1.75 m
+    got = nearest_keep_outs([CROWN], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, count=1)
+    assert got == [(CROWN, pytest.approx(1.3 + math.sqrt(1 - 0.15 ** 2)))]
+    got = nearest_keep_outs([CROWN], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, count=1, heights_m=(1.0, 3.1))
+    assert got == [(CROWN, pytest.approx(2.3))]
+    # a crown 1.2 m over the camera is none at its height, and one within 1.5 m of climbing
+    high = Obstacle(0.0, 0.0, 1.3, 2.8, 4.0)
+    assert nearest_keep_outs([high], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, count=1) == []
+    got = nearest_keep_outs([high], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, count=1, heights_m=(1.0, 3.1))
+    assert got == [(high, pytest.approx(2.3))]
+
+
+def test_reachable_heights_are_the_climb_over_the_horizon_within_the_band():
+    # 1 m/s for 1.5 s from 1.6 m: 0.1 .. 3.1, the band's floor at 1 m
+    assert reachable_heights_m(1.6, climb_mps=1.0, horizon_s=1.5, band_m=(1.0, 40.0)) == pytest.approx((1.0, 3.1))
+    assert reachable_heights_m(39.0, climb_mps=1.0, horizon_s=1.5, band_m=(1.0, 40.0)) == pytest.approx((37.5, 40.0))
+    # a camera under the band (on the ground) is taken where it is
+    assert reachable_heights_m(0.5, climb_mps=1.0, horizon_s=1.5, band_m=(1.0, 40.0)) == pytest.approx((0.5, 2.0))
+
+
+def test_planner_slots_hold_a_crown_the_horizon_can_climb_into():
+    from cinetransfer.services.planner.core import Planner
+
+    obs = scene_obstacles(load_scene("courtyard"))
+    planner = Planner(pc.replace(pc.PlannerConfig(), obstacles_m=tuple(tuple(k.as_list()) for k in obs)))
+    x0 = np.zeros(planner.layout.nx)
+    x0[planner.layout.P] = (-6.5, -9.2, 1.6)
+    # the default vehicle climbs 1 m/s, the horizon is 15 x 0.1 s: heights 1.0 .. 3.1 m; tree_3's crown slice
+    # 3.125-3.25 m holds its centre (full 1.3 m radius), 0.025 m over the reachable top: 1.3 + sqrt(1 - 0.025^2)
+    # (1.82 m at the measured height alone: test_planner_slots_hold_the_nearest_with_the_clearance)
+    np.testing.assert_allclose(planner._obstacle_slots(x0)[:3], (-6.0, -9.0, 1.3 + math.sqrt(1 - 0.025 ** 2)))
+
+
+def test_towards_is_the_way_to_the_obstacles_own_cylinder():
+    # beside the crown's band, 1 m out from its side and 0.75 m under it: 1.25 m along (-0.8, 0, 0.6)
+    n, d = towards(CROWN, (2.3, 0.0, 1.0))
+    assert n == pytest.approx((-0.8, 0.0, 0.6)) and d == pytest.approx(1.25)
+    n, d = towards(CROWN, (0.0, 0.0, 0.5))  # on its axis, under it: straight up
+    assert n == pytest.approx((0.0, 0.0, 1.0)) and d == pytest.approx(1.25)
+    assert towards(TRUNK, (0.1, 0.0, 1.0)) == ((0.0, 0.0, 0.0), 0.0)  # inside the trunk itself
+
+
+#: a trunk and a crown apart, braking at 2 m/s^2 from 4 m/s: keep-outs within 4 m of a position bound it
+_BRAKE = dict(min_obstacle_distance_m=1.0, accel_max_mps2=2.0, speed_max_mps=4.0, climb_max_mps=4.0,
+              geofence_radius_m=50.0, altitude_min_m=0.0, altitude_max_m=20.0)
+
+
+def test_bridge_cuts_the_velocity_into_a_keep_out_to_the_braking_speed():
+    from cinetransfer.services.autopilot_bridge.safety import clamp_outward_velocity
+
+    cfg = SafetyConfig(obstacles_m=(TRUNK.as_list(),), **_BRAKE)
+    # 2 m from the trunk's keep-out (bark 3 m away): at most sqrt(2 x 2 x 2) m/s towards it; sideways untouched
+    v, hit = clamp_outward_velocity(np.array([3.15, 0.0, 1.6]), np.array([-3.0, 1.0, 0.0]), cfg)
+    assert hit and v == pytest.approx((-math.sqrt(8.0), 1.0, 0.0))
+    # at the keep-out's edge: nothing towards it; away from it: untouched
+    v, hit = clamp_outward_velocity(np.array([1.15, 0.0, 1.6]), np.array([-1.0, 0.5, 0.0]), cfg)
+    assert hit and v == pytest.approx((0.0, 0.5, 0.0))
+    v, hit = clamp_outward_velocity(np.array([1.15, 0.0, 1.6]), np.array([1.0, 0.5, 0.0]), cfg)
+    assert not hit and v == pytest.approx((1.0, 0.5, 0.0))
+    # 8.85 m from it, beyond the 4 m braking distance at full speed: untouched
+    v, hit = clamp_outward_velocity(np.array([10.0, 0.0, 1.6]), np.array([-4.0, 0.0, 0.0]), cfg)
+    assert not hit
+
+
+def test_bridge_cuts_a_climb_into_a_crown_overhead():
+    from cinetransfer.services.autopilot_bridge.safety import clamp_outward_accel, clamp_outward_velocity
+
+    cfg = SafetyConfig(obstacles_m=(CROWN.as_list(),), **_BRAKE)
+    # on the axis 1.25 m under the crown: 0.25 m under its keep-out, climbing at most sqrt(2 x 2 x 0.25) = 1 m/s
+    v, hit = clamp_outward_velocity(np.array([0.0, 0.0, 0.5]), np.array([0.3, 0.0, 1.5]), cfg)
+    assert hit and v == pytest.approx((0.3, 0.0, 1.0))
+    # beside and under its band, along (-0.8, 0, 0.6) 1.25 m from it: 1.4 m/s towards it cut to 1, by 0.4 along that
+    v, hit = clamp_outward_velocity(np.array([2.3, 0.0, 1.0]), np.array([-1.0, 0.0, 1.0]), cfg)
+    assert hit and v == pytest.approx((-1.0 + 0.32, 0.0, 1.0 - 0.24))
+    # and no acceleration towards it there (within the braking distance): less 0.8 along it leaves (-0.36, 0.5,
+    # -0.48), and the floor 1 m under (within the braking distance too) then takes the downward part: the band wins
+    a, hit = clamp_outward_accel(np.array([2.3, 0.0, 1.0]), np.array([-1.0, 0.5, 0.0]), cfg)
+    assert hit and a == pytest.approx((-1.0 + 0.64, 0.5, 0.0))
+
+
+def test_bridge_setpoints_and_ticks_do_not_move_into_a_keep_out():
+    from cinetransfer.services.autopilot_bridge.safety import SafetyLayer
+    from cinetransfer.shared import messages as M
+
+    s = SafetyLayer(SafetyConfig(obstacles_m=(TRUNK.as_list(),), **_BRAKE))
+    sp = M.Setpoint(stamp_ns=1, position_m=np.array([0.35, 0.0, 1.6]), velocity_mps=np.array([-1.0, 0.5, 0.0]),
+                    acceleration_mps2=np.array([-1.0, 0.0, 0.0]), camera_ypr_rad=np.zeros(3), lens=M.LensState())
+    # pushed out to the keep-out's edge at 1.15 m: no velocity nor acceleration towards the trunk is forwarded
+    r = s.check(sp)
+    assert r.accepted and r.setpoint.position_m == pytest.approx((1.15, 0.0, 1.6))
+    assert r.setpoint.velocity_mps == pytest.approx((0.0, 0.5, 0.0))
+    assert r.setpoint.acceleration_mps2 == pytest.approx((0.0, 0.0, 0.0))
+    assert s.counters["clamp_velocity_outward"] == 1 and s.counters["clamp_accel_outward"] == 1
+    # a tick's commanded position 1 m from the keep-out: at most sqrt(2 x 2 x 1) = 2 m/s towards it
+    mc = s.limit_motion(target_pos=np.array([2.15, 0.0, 1.6]), target_vel=np.array([-3.0, 0.0, 0.0]),
+                        prev_pos=np.array([2.15, 0.0, 1.6]), prev_vel=np.array([-3.0, 0.0, 0.0]), dt_s=0.01)
+    assert mc.velocity_mps == pytest.approx((-2.0, 0.0, 0.0)) and "clamp_velocity_outward" in mc.clamps
