@@ -11,7 +11,7 @@ from cinetransfer.services.autopilot_bridge.sim.obstacles import CROWN_SLICES, c
 from cinetransfer.services.autopilot_bridge.sim.scene import load_scene
 from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.obstacles import (N_OBSTACLE_SLOTS, obstacle_params, obstacle_rows,
-                                                     reachable_heights_m)
+                                                     reachable_heights_m, slots_and_ceiling)
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.obstacles import (Obstacle, intrusion_m, keep_out_radius_m, keep_out_radius_over_m,
                                            nearest_height_m, nearest_keep_outs, obstacles_from, push_clear, push_out,
@@ -219,17 +219,43 @@ def test_reachable_heights_are_the_climb_over_the_horizon_within_the_band():
     assert reachable_heights_m(0.5, climb_mps=1.0, horizon_s=1.5, band_m=(1.0, 40.0)) == pytest.approx((0.5, 2.0))
 
 
-def test_planner_slots_hold_a_crown_the_horizon_can_climb_into():
+def test_a_climb_that_would_widen_a_keep_out_is_capped_instead():
+    # a camera 2.5 m from the crown's axis at 1.6 m, heights 1.0 .. 3.1 reachable: 2.3 m wide over them all
+    wide = (0.0, 0.0, 2.3) + (0.0,) * 3 * (N_OBSTACLE_SLOTS - 1)
+    # its last plan stayed at 1.6 m: the ceiling is 1.7 m (CLIMB_ALLOWANCE_M), the slot as wide as 0.05 m under the band
+    slots, ceiling = slots_and_ceiling([CROWN], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, heights_m=(1.0, 3.1),
+                                       planned_top_m=1.6)
+    assert ceiling == pytest.approx(1.7) and slots[:3] == pytest.approx((0.0, 0.0, 1.3 + math.sqrt(1 - 0.05 ** 2)))
+    # a last plan that climbed to 3.05 m: no ceiling under the reachable top, the slot over every height
+    slots, ceiling = slots_and_ceiling([CROWN], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, heights_m=(1.0, 3.1),
+                                       planned_top_m=3.05)
+    assert ceiling == math.inf and slots == pytest.approx(wide)
+    # a trunk the camera is beside at every reachable height: a ceiling would narrow nothing
+    slots, ceiling = slots_and_ceiling([TRUNK], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, heights_m=(1.0, 2.0),
+                                       planned_top_m=1.6)
+    assert ceiling == math.inf and slots[:3] == pytest.approx((0.0, 0.0, 1.15))
+
+
+def test_planner_solves_near_tree_3_under_a_ceiling():
+    from cinetransfer.services.planner.constraints import soft_limits
     from cinetransfer.services.planner.core import Planner
 
     obs = scene_obstacles(load_scene("courtyard"))
     planner = Planner(pc.replace(pc.PlannerConfig(), obstacles_m=tuple(tuple(k.as_list()) for k in obs)))
     x0 = np.zeros(planner.layout.nx)
     x0[planner.layout.P] = (-6.5, -9.2, 1.6)
-    # the default vehicle climbs 1 m/s, the horizon is 15 x 0.1 s: heights 1.0 .. 3.1 m; tree_3's crown slice
-    # 3.125-3.25 m holds its centre (full 1.3 m radius), 0.025 m over the reachable top: 1.3 + sqrt(1 - 0.025^2)
-    # (1.82 m at the measured height alone: test_planner_slots_hold_the_nearest_with_the_clearance)
-    np.testing.assert_allclose(planner._obstacle_slots(x0)[:3], (-6.0, -9.0, 1.3 + math.sqrt(1 - 0.025 ** 2)))
+    # no plan yet: the ceiling is 1.7 m; tree_3's widest keep-out up to there is its crown slice 2.25-2.375 m
+    # (0.875 m under the crown's centre: radius 1.3 sqrt(1 - (0.875/1.5)^2)), 0.55 m over the ceiling
+    got = planner._obstacle_slots(x0)
+    r = 1.3 * math.sqrt(1 - (0.875 / 1.5) ** 2) + math.sqrt(1 - 0.55 ** 2)
+    assert got["ceiling_m"] == pytest.approx(1.7)
+    np.testing.assert_allclose(got["obstacles"][:3], (-6.0, -9.0, r))
+    # the ceiling is the altitude band's top for that solve only
+    b = planner.solver.bounds
+    assert soft_limits(b, 0.0, 1.7)[1] == 1.7 and soft_limits(b)[1] == b.altitude_max_m
+    # without keep-outs the slots are empty and no ceiling is set
+    bare = Planner(pc.PlannerConfig(), solver=planner.solver)
+    assert set(bare._obstacle_slots(x0)) == {"obstacles"} and not bare._obstacle_slots(x0)["obstacles"].any()
 
 
 def test_towards_is_the_way_to_the_obstacles_own_cylinder():
