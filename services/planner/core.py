@@ -456,11 +456,13 @@ class Planner:
         p = x0[self.layout.P]
         if not self._obstacles:
             return {"obstacles": obstacle_params((), p, clearance_m=b.min_obstacle_distance_m, reach_m=0.0)}
-        heights = reachable_heights_m(float(p[2]), climb_mps=min(b.climb_max_mps, b.speed_max_mps),
-                                      horizon_s=horizon_s, band_m=(b.altitude_min_m, b.altitude_max_m))
+        climb = min(b.climb_max_mps, b.speed_max_mps)
+        heights = reachable_heights_m(float(p[2]), climb_mps=climb, horizon_s=horizon_s,
+                                      band_m=(b.altitude_min_m, b.altitude_max_m))
         top = float(np.max(self._plan.x[:, self.layout.P][:, 2])) if self._plan is not None else float(p[2])
         slots, ceiling = slots_and_ceiling(self._obstacles, p, clearance_m=b.min_obstacle_distance_m,
-                                           reach_m=b.speed_max_mps * horizon_s, heights_m=heights, planned_top_m=top)
+                                           reach_m=b.speed_max_mps * horizon_s, heights_m=heights, planned_top_m=top,
+                                           allowance_m=climb / self.cfg.rate_hz)
         return {"obstacles": slots, "ceiling_m": ceiling}
 
     def _separation_m(self, ins: M.Instructions, now_row: int, jw: np.ndarray, jmask: np.ndarray) -> float:

@@ -35,10 +35,6 @@ from cinetransfer.shared.obstacles import Obstacle, nearest_keep_outs
 N_OBSTACLE_SLOTS = 2
 #: numbers per slot in the parameter vector: x, y, radius incl. the clearance
 SLOT_SIZE = 3
-#: how far over the last plan's highest stage (or the camera, if higher) a solve may climb where the
-#: climb would widen a keep-out [m]: one stage at the climb rate; re-centred every solve (20 Hz), so the
-#: camera itself is never held back, while the slots stay as narrow as at the heights it flies
-CLIMB_ALLOWANCE_M = 0.1
 
 
 def obstacle_rows(cam_xy, slack, params):  # noqa: ANN001, ANN201 - casadi or float
@@ -76,17 +72,20 @@ def reachable_heights_m(z_m: float, *, climb_mps: float, horizon_s: float,
 
 
 def slots_and_ceiling(obstacles: Sequence[Obstacle], position: Sequence[float], *, clearance_m: float,
-                      reach_m: float, heights_m: Sequence[float], planned_top_m: float) -> tuple[np.ndarray, float]:
+                      reach_m: float, heights_m: Sequence[float], planned_top_m: float,
+                      allowance_m: float) -> tuple[np.ndarray, float]:
     """The obstacle slots of a solve (obstacle_params) and the height its stages may climb to (inf: the
     altitude band's own top), so that every stage that keeps both keeps every clearance. Over all the
     heights the horizon can reach (`heights_m`, lo..hi) a slot is as wide as a crown the plan could climb
     into; where that is wider than over the heights up to `planned_top_m` (the last plan's highest stage,
-    or the camera's height if higher) plus CLIMB_ALLOWANCE_M, the solve takes the narrower slots and that
+    or the camera's height if higher) plus `allowance_m`, the solve takes the narrower slots and that
     height as its ceiling instead: a camera flying under a crown's edge keeps the clearance its height
-    needs and may not climb into the crown, rather than being pushed out from under it."""
+    needs and may not climb into the crown, rather than being pushed out from under it. With the
+    allowance the climb rate times the time to the next solve, the ceiling, re-centred every solve,
+    never holds the camera itself back."""
     lo, hi = float(heights_m[0]), float(heights_m[1])
     wide = obstacle_params(obstacles, position, clearance_m=clearance_m, reach_m=reach_m, heights_m=(lo, hi))
-    cap = max(float(planned_top_m), float(position[2])) + CLIMB_ALLOWANCE_M
+    cap = max(float(planned_top_m), float(position[2])) + allowance_m
     if cap >= hi:
         return wide, math.inf
     narrow = obstacle_params(obstacles, position, clearance_m=clearance_m, reach_m=reach_m, heights_m=(lo, cap))

@@ -222,17 +222,18 @@ def test_reachable_heights_are_the_climb_over_the_horizon_within_the_band():
 def test_a_climb_that_would_widen_a_keep_out_is_capped_instead():
     # a camera 2.5 m from the crown's axis at 1.6 m, heights 1.0 .. 3.1 reachable: 2.3 m wide over them all
     wide = (0.0, 0.0, 2.3) + (0.0,) * 3 * (N_OBSTACLE_SLOTS - 1)
-    # its last plan stayed at 1.6 m: the ceiling is 1.7 m (CLIMB_ALLOWANCE_M), the slot as wide as 0.05 m under the band
+    # its last plan stayed at 1.6 m: with a 0.1 m allowance the ceiling is 1.7 m, the slot as wide as 0.05 m under
+    # the band
     slots, ceiling = slots_and_ceiling([CROWN], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, heights_m=(1.0, 3.1),
-                                       planned_top_m=1.6)
+                                       planned_top_m=1.6, allowance_m=0.1)
     assert ceiling == pytest.approx(1.7) and slots[:3] == pytest.approx((0.0, 0.0, 1.3 + math.sqrt(1 - 0.05 ** 2)))
     # a last plan that climbed to 3.05 m: no ceiling under the reachable top, the slot over every height
     slots, ceiling = slots_and_ceiling([CROWN], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, heights_m=(1.0, 3.1),
-                                       planned_top_m=3.05)
+                                       planned_top_m=3.05, allowance_m=0.1)
     assert ceiling == math.inf and slots == pytest.approx(wide)
     # a trunk the camera is beside at every reachable height: a ceiling would narrow nothing
     slots, ceiling = slots_and_ceiling([TRUNK], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, heights_m=(1.0, 2.0),
-                                       planned_top_m=1.6)
+                                       planned_top_m=1.6, allowance_m=0.1)
     assert ceiling == math.inf and slots[:3] == pytest.approx((0.0, 0.0, 1.15))
 
 
@@ -244,11 +245,12 @@ def test_planner_solves_near_tree_3_under_a_ceiling():
     planner = Planner(pc.replace(pc.PlannerConfig(), obstacles_m=tuple(tuple(k.as_list()) for k in obs)))
     x0 = np.zeros(planner.layout.nx)
     x0[planner.layout.P] = (-6.5, -9.2, 1.6)
-    # no plan yet: the ceiling is 1.7 m; tree_3's widest keep-out up to there is its crown slice 2.25-2.375 m
-    # (0.875 m under the crown's centre: radius 1.3 sqrt(1 - (0.875/1.5)^2)), 0.55 m over the ceiling
+    # no plan yet: the ceiling is 1.6 m + the climb at 1 m/s until the next solve at 20 Hz, 1.65 m; tree_3's
+    # widest keep-out up to there is its crown slice 2.25-2.375 m (0.875 m under the crown's centre: radius
+    # 1.3 sqrt(1 - (0.875/1.5)^2)), 0.6 m over the ceiling
     got = planner._obstacle_slots(x0)
-    r = 1.3 * math.sqrt(1 - (0.875 / 1.5) ** 2) + math.sqrt(1 - 0.55 ** 2)
-    assert got["ceiling_m"] == pytest.approx(1.7)
+    r = 1.3 * math.sqrt(1 - (0.875 / 1.5) ** 2) + math.sqrt(1 - 0.6 ** 2)
+    assert got["ceiling_m"] == pytest.approx(1.65)
     np.testing.assert_allclose(got["obstacles"][:3], (-6.0, -9.0, r))
     # the ceiling is the altitude band's top for that solve only
     b = planner.solver.bounds
