@@ -71,19 +71,6 @@ def keep_out_radius_m(k: Obstacle, z_m: float, clearance_m: float) -> float | No
     return k.radius_m + math.sqrt(clearance_m * clearance_m - h * h)
 
 
-def nearest_height_m(k: Obstacle, heights_m: Sequence[float]) -> float:
-    """The height within `heights_m` (lo, hi) nearest to the obstacle's band: one inside the band where they
-    overlap, else the end nearer the band."""
-    return min(max(float(heights_m[0]), k.z_min_m), float(heights_m[1]))
-
-
-def keep_out_radius_over_m(k: Obstacle, heights_m: Sequence[float], clearance_m: float) -> float | None:
-    """The widest keep-out radius [m] round `k`'s axis at any height within `heights_m` (lo, hi): the radius
-    shrinks with the gap to the band (keep_out_radius_m), so it is the radius at the nearest height
-    (nearest_height_m); None when every height there passes over or under."""
-    return keep_out_radius_m(k, nearest_height_m(k, heights_m), clearance_m)
-
-
 def _axis_distance_m(k: Obstacle, xy: Sequence[float]) -> float:
     return math.hypot(float(xy[0]) - k.x_m, float(xy[1]) - k.y_m)
 
@@ -151,15 +138,13 @@ def push_clear(obstacles: Iterable[Obstacle], p: Sequence[float], distance_m: fl
 
 
 def nearest_keep_outs(obstacles: Iterable[Obstacle], p: Sequence[float], *, clearance_m: float, reach_m: float,
-                      count: int, heights_m: Sequence[float] | None = None) -> list[tuple[Obstacle, float]]:
-    """At most `count` (obstacle, keep-out radius over `heights_m`: keep_out_radius_over_m; over `p`'s
-    height alone when not given) whose keep-out circle lies within `reach_m` of `p` horizontally, nearest
-    first (ties by the order given); one whose keep-out circle lies inside a nearer one's is left out (a
-    trunk under its crown, a crown's slices)."""
-    heights = (float(p[2]), float(p[2])) if heights_m is None else heights_m
+                      count: int) -> list[tuple[Obstacle, float]]:
+    """At most `count` (obstacle, keep-out radius at `p`'s height: keep_out_radius_m) whose keep-out
+    circle lies within `reach_m` of `p` horizontally, nearest first (ties by the order given); one whose
+    keep-out circle lies inside a nearer one's is left out (a trunk under its crown, a crown's slices)."""
     near = []
     for i, k in enumerate(obstacles):
-        r = keep_out_radius_over_m(k, heights, clearance_m)
+        r = keep_out_radius_m(k, float(p[2]), clearance_m)
         if r is not None and _axis_distance_m(k, p) - r <= reach_m:
             near.append((_axis_distance_m(k, p) - r, i, k, r))
     out: list[tuple[Obstacle, float]] = []

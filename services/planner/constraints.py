@@ -19,8 +19,6 @@ problem infeasible; whenever the band can be kept, the exact penalty keeps it ex
 """
 from __future__ import annotations
 
-import math
-
 import casadi as ca
 import numpy as np
 
@@ -45,12 +43,11 @@ def soft_constraints(x_next, slack, centre_w, lim, obstacles):  # noqa: ANN001, 
                       v_max - speed + slack[3], obstacle_rows(x_next[0:2], slack[N_LIMITS:], obstacles))
 
 
-def soft_limits(bounds: Bounds, min_distance_m: float = 0.0, ceiling_m: float = math.inf) -> list[float]:
+def soft_limits(bounds: Bounds, min_distance_m: float = 0.0) -> list[float]:
     """The `lim` parameter of soft_constraints for these bounds; `min_distance_m` raises the
-    minimum subject distance for one solve (a standoff the focus choice needs: separation.py),
-    `ceiling_m` lowers the altitude band's top for one solve (under a keep-out: obstacles.py)."""
+    minimum subject distance for one solve (a standoff the focus choice needs: separation.py)."""
     d_min = max(bounds.min_subject_distance_m, min_distance_m)
-    return [bounds.altitude_min_m, min(bounds.altitude_max_m, ceiling_m), d_min, bounds.speed_max_mps]
+    return [bounds.altitude_min_m, bounds.altitude_max_m, d_min, bounds.speed_max_mps]
 
 
 def decision_bounds(layout: Layout, bounds: Bounds, n: int, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -37,7 +37,7 @@ from cinetransfer.services.planner.camera_motion import (DOLLY_ZOOM_MASK, MOTION
 from cinetransfer.services.planner.side_of_subject import camera_bearing, side_targets
 from cinetransfer.services.planner.clear_side import clear_bearing, side_wanted_for, truck_travel
 from cinetransfer.services.planner.zoom_hold import framing_error_now, settled_hold_share
-from cinetransfer.services.planner.obstacles import obstacle_params, reachable_heights_m, slots_and_ceiling
+from cinetransfer.services.planner.obstacles import obstacle_params
 from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
 from cinetransfer.services.planner.lens_axes import pinned_bounds
 from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject_out, label_sharpness,
@@ -414,7 +414,7 @@ class Planner:
             _, u_prev = self._plan.at((now_ns - self._plan.t0_ns) * 1e-9)
         data = StageData(x0=x0, u_prev=u_prev, joints_w=jw, subject_centre_w=subj.centre, subject_velocity=subj.vel,
                          targets=targets, mask=mask, dof=dof, distance_ref=dref, motion=motion,
-                         min_distance_m=standoff, **self._obstacle_slots(x0))
+                         min_distance_m=standoff, obstacles=self._obstacle_slots(x0))
         return data, frame
 
     def _truck_clear_side(self, motion: np.ndarray, settle: np.ndarray, ins: M.Instructions, x0: np.ndarray,
@@ -448,22 +448,12 @@ class Planner:
             swing = np.where(np.isfinite(swing), swing, style.swing_held_rate)
         return truck_travel(style.classes[lo:hi], style.travel[lo:hi], swing[lo:hi], _fps(ins), distance_m)
 
-    def _obstacle_slots(self, x0: np.ndarray) -> dict:
-        """The StageData fields `obstacles` and `ceiling_m` of a solve from `x0`: the nearest keep-outs the horizon
-        can reach at the speed limit, and the height it may climb to (obstacles.slots_and_ceiling)."""
+    def _obstacle_slots(self, x0: np.ndarray) -> np.ndarray:
+        """The obstacle slots of a solve from `x0`: the nearest keep-outs the horizon can reach at the speed limit."""
         b, st = self.solver.bounds, self.cfg.structure
-        horizon_s = st.horizon_steps * st.dt_s
-        p = x0[self.layout.P]
-        if not self._obstacles:
-            return {"obstacles": obstacle_params((), p, clearance_m=b.min_obstacle_distance_m, reach_m=0.0)}
-        climb = min(b.climb_max_mps, b.speed_max_mps)
-        heights = reachable_heights_m(float(p[2]), climb_mps=climb, horizon_s=horizon_s,
-                                      band_m=(b.altitude_min_m, b.altitude_max_m))
-        top = float(np.max(self._plan.x[:, self.layout.P][:, 2])) if self._plan is not None else float(p[2])
-        slots, ceiling = slots_and_ceiling(self._obstacles, p, clearance_m=b.min_obstacle_distance_m,
-                                           reach_m=b.speed_max_mps * horizon_s, heights_m=heights, planned_top_m=top,
-                                           allowance_m=climb / self.cfg.rate_hz)
-        return {"obstacles": slots, "ceiling_m": ceiling}
+        reach = b.speed_max_mps * st.horizon_steps * st.dt_s
+        return obstacle_params(self._obstacles, x0[self.layout.P], clearance_m=b.min_obstacle_distance_m,
+                               reach_m=reach)
 
     def _separation_m(self, ins: M.Instructions, now_row: int, jw: np.ndarray, jmask: np.ndarray) -> float:
         """The subject distance the rows of the next `separation_lookahead_s` (within the take) need for

@@ -1,7 +1,6 @@
 """What a solve of the planner's NLP takes (StageData) and gives (SolveResult)."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,7 +25,6 @@ class StageData:
     motion: np.ndarray | None = None  # (N, camera_motion.N_MOTION) side of the subject, camera motion; None = none
     min_distance_m: float = 0.0  # a minimum subject distance above the bounds' (separation.py) [m]; 0 = the bounds'
     obstacles: np.ndarray | None = None  # the obstacle slots (obstacles.obstacle_params); None = none
-    ceiling_m: float = math.inf  # a height limit below the bounds' (obstacles.slots_and_ceiling) [m]; inf = none
 
 
 @dataclass

@@ -175,7 +175,7 @@ class MpcSolver(SqpMixin, IpoptMixin):
         _, uhi = input_bounds(lay, self.bounds)
         p[sl["u_scale"]] = 1.0 / uhi
         p[sl["v_scale"]] = 1.0 / self.bounds.speed_max_mps
-        p[sl["soft"]] = C.soft_limits(self.bounds, data.min_distance_m, data.ceiling_m)
+        p[sl["soft"]] = C.soft_limits(self.bounds, data.min_distance_m)
         if data.obstacles is not None:
             p[sl["obstacles"]] = data.obstacles
         if not np.all(np.isfinite(p)):

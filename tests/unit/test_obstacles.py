@@ -10,12 +10,10 @@ from cinetransfer.services.autopilot_bridge.safety import envelope_breach, retur
 from cinetransfer.services.autopilot_bridge.sim.obstacles import CROWN_SLICES, crown_slices, scene_obstacles
 from cinetransfer.services.autopilot_bridge.sim.scene import load_scene
 from cinetransfer.services.planner import config as pc
-from cinetransfer.services.planner.obstacles import (N_OBSTACLE_SLOTS, obstacle_params, obstacle_rows,
-                                                     reachable_heights_m, slots_and_ceiling)
+from cinetransfer.services.planner.obstacles import N_OBSTACLE_SLOTS, obstacle_params, obstacle_rows
 from cinetransfer.shared.errors import ConfigError
-from cinetransfer.shared.obstacles import (Obstacle, intrusion_m, keep_out_radius_m, keep_out_radius_over_m,
-                                           nearest_height_m, nearest_keep_outs, obstacles_from, push_clear, push_out,
-                                           towards)
+from cinetransfer.shared.obstacles import (Obstacle, intrusion_m, keep_out_radius_m, nearest_keep_outs, obstacles_from,
+                                           push_clear, push_out, towards)
 
 TRUNK = Obstacle(0.0, 0.0, 0.15, 0.0, 2.2)
 CROWN = Obstacle(0.0, 0.0, 1.3, 1.75, 4.75)
@@ -183,81 +181,6 @@ def test_a_return_point_between_two_keep_outs_clears_both():
     q = return_point(np.array([0.5, 0.3, 1.5]), cfg)
     obstacles = obstacles_from(cfg.obstacles_m)
     assert intrusion_m(obstacles, q, 0.5) <= 1e-9
-
-
-def test_keep_out_radius_over_heights_is_the_widest_at_the_nearest_height():
-    # heights reaching into the crown's band: radius + the whole clearance
-    assert nearest_height_m(CROWN, (0.1, 3.1)) == 1.75
-    assert keep_out_radius_over_m(CROWN, (0.1, 3.1), 1.0) == pytest.approx(2.3)
-    # all under it: at the top end, 0.15 m under; all over it: at the bottom end, 0.25 m over
-    assert keep_out_radius_over_m(CROWN, (0.1, 1.6), 1.0) == pytest.approx(1.3 + math.sqrt(1 - 0.15 ** 2))
-    assert keep_out_radius_over_m(CROWN, (5.0, 6.0), 1.0) == pytest.approx(1.3 + math.sqrt(1 - 0.25 ** 2))
-    assert keep_out_radius_over_m(CROWN, (0.1, 0.7), 1.0) is None  # 1.05 m under at best
-    # one height: keep_out_radius_m's
-    assert keep_out_radius_over_m(TRUNK, (3.0, 3.0), 1.0) == pytest.approx(0.75)
-
-
-def test_nearest_keep_outs_over_heights_widens_a_crown_within_climbing_reach():
-    # a camera 2.5 m from the axis at 1.6 m: the crown's keep-out 2.289 m (0.21 beyond it) at its own height,
-    # 2.3 m (0.2 beyond) once the heights reach 1.75 m
-    got = nearest_keep_outs([CROWN], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, count=1)
-    assert got == [(CROWN, pytest.approx(1.3 + math.sqrt(1 - 0.15 ** 2)))]
-    got = nearest_keep_outs([CROWN], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, count=1, heights_m=(1.0, 3.1))
-    assert got == [(CROWN, pytest.approx(2.3))]
-    # a crown 1.2 m over the camera is none at its height, and one within 1.5 m of climbing
-    high = Obstacle(0.0, 0.0, 1.3, 2.8, 4.0)
-    assert nearest_keep_outs([high], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, count=1) == []
-    got = nearest_keep_outs([high], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, count=1, heights_m=(1.0, 3.1))
-    assert got == [(high, pytest.approx(2.3))]
-
-
-def test_reachable_heights_are_the_climb_over_the_horizon_within_the_band():
-    # 1 m/s for 1.5 s from 1.6 m: 0.1 .. 3.1, the band's floor at 1 m
-    assert reachable_heights_m(1.6, climb_mps=1.0, horizon_s=1.5, band_m=(1.0, 40.0)) == pytest.approx((1.0, 3.1))
-    assert reachable_heights_m(39.0, climb_mps=1.0, horizon_s=1.5, band_m=(1.0, 40.0)) == pytest.approx((37.5, 40.0))
-    # a camera under the band (on the ground) is taken where it is
-    assert reachable_heights_m(0.5, climb_mps=1.0, horizon_s=1.5, band_m=(1.0, 40.0)) == pytest.approx((0.5, 2.0))
-
-
-def test_a_climb_that_would_widen_a_keep_out_is_capped_instead():
-    # a camera 2.5 m from the crown's axis at 1.6 m, heights 1.0 .. 3.1 reachable: 2.3 m wide over them all
-    wide = (0.0, 0.0, 2.3) + (0.0,) * 3 * (N_OBSTACLE_SLOTS - 1)
-    # its last plan stayed at 1.6 m: with a 0.1 m allowance the ceiling is 1.7 m, the slot as wide as 0.05 m under
-    # the band
-    slots, ceiling = slots_and_ceiling([CROWN], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, heights_m=(1.0, 3.1),
-                                       planned_top_m=1.6, allowance_m=0.1)
-    assert ceiling == pytest.approx(1.7) and slots[:3] == pytest.approx((0.0, 0.0, 1.3 + math.sqrt(1 - 0.05 ** 2)))
-    # a last plan that climbed to 3.05 m: no ceiling under the reachable top, the slot over every height
-    slots, ceiling = slots_and_ceiling([CROWN], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, heights_m=(1.0, 3.1),
-                                       planned_top_m=3.05, allowance_m=0.1)
-    assert ceiling == math.inf and slots == pytest.approx(wide)
-    # a trunk the camera is beside at every reachable height: a ceiling would narrow nothing
-    slots, ceiling = slots_and_ceiling([TRUNK], (2.5, 0.0, 1.6), clearance_m=1.0, reach_m=3.0, heights_m=(1.0, 2.0),
-                                       planned_top_m=1.6, allowance_m=0.1)
-    assert ceiling == math.inf and slots[:3] == pytest.approx((0.0, 0.0, 1.15))
-
-
-def test_planner_solves_near_tree_3_under_a_ceiling():
-    from cinetransfer.services.planner.constraints import soft_limits
-    from cinetransfer.services.planner.core import Planner
-
-    obs = scene_obstacles(load_scene("courtyard"))
-    planner = Planner(pc.replace(pc.PlannerConfig(), obstacles_m=tuple(tuple(k.as_list()) for k in obs)))
-    x0 = np.zeros(planner.layout.nx)
-    x0[planner.layout.P] = (-6.5, -9.2, 1.6)
-    # no plan yet: the ceiling is 1.6 m + the climb at 1 m/s until the next solve at 20 Hz, 1.65 m; tree_3's
-    # widest keep-out up to there is its crown slice 2.25-2.375 m (0.875 m under the crown's centre: radius
-    # 1.3 sqrt(1 - (0.875/1.5)^2)), 0.6 m over the ceiling
-    got = planner._obstacle_slots(x0)
-    r = 1.3 * math.sqrt(1 - (0.875 / 1.5) ** 2) + math.sqrt(1 - 0.6 ** 2)
-    assert got["ceiling_m"] == pytest.approx(1.65)
-    np.testing.assert_allclose(got["obstacles"][:3], (-6.0, -9.0, r))
-    # the ceiling is the altitude band's top for that solve only
-    b = planner.solver.bounds
-    assert soft_limits(b, 0.0, 1.7)[1] == 1.7 and soft_limits(b)[1] == b.altitude_max_m
-    # without keep-outs the slots are empty and no ceiling is set
-    bare = Planner(pc.PlannerConfig(), solver=planner.solver)
-    assert set(bare._obstacle_slots(x0)) == {"obstacles"} and not bare._obstacle_slots(x0)["obstacles"].any()
 
 
 def test_towards_is_the_way_to_the_obstacles_own_cylinder():
