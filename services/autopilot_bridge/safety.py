@@ -15,7 +15,7 @@ What it enforces (limits in `SafetyConfig`):
   outward feed-forward used to park the vehicle 2 m outside the fence); a keep-out obstacle's
   clearance is such a boundary too, its outward direction the way to the obstacle's nearest point
   (shared/obstacles.towards); likewise no outward acceleration feed-forward within the braking
-  distance of a boundary; `limit_motion` also
+  distance of the fence or the band; `limit_motion` also
   moves the commanded position towards the requested one no faster than the speed limit and
   changes the commanded velocity no faster than the acceleration limit (so a jump in the plan
   becomes a bounded-speed transfer);
@@ -204,14 +204,11 @@ def _keep_outs_near(p: np.ndarray, cfg: SafetyConfig) -> list[tuple[np.ndarray, 
 def clamp_outward_accel(p: np.ndarray, a: np.ndarray, cfg: SafetyConfig) -> tuple[np.ndarray, bool]:
     """Acceleration feed-forward `a` at position `p` without an outward component wherever `p` is
     within the braking distance at full speed (speed_max² / 2·accel_max) of a boundary (the fence,
-    the altitude band, a keep-out's clearance): there, pushing outward only stores up an overshoot."""
+    the altitude band): there, pushing outward only stores up an overshoot. Not at a keep-out: the
+    camera moves fly round them within that distance, where this rule would strip their feed-forward
+    at any speed; the velocity clamp bounds the approach (clamp_outward_velocity)."""
     a = np.array(a, dtype=float)
     hit = False
-    for n, _ in _keep_outs_near(p, cfg):  # first: the fence and the band win
-        into = float(a @ n)
-        if into > 0:
-            a -= into * n
-            hit = True
     reach = cfg.speed_max_mps ** 2 / (2.0 * cfg.accel_max_mps2)
     home = np.asarray(cfg.home_m, dtype=float)
     d = np.asarray(p[:2], float) - home[:2]
