@@ -24,6 +24,7 @@ from cinetransfer.shared import messages as M
 from cinetransfer.shared.node import Presence
 from cinetransfer.shared.stopsignal import StopSignal
 from cinetransfer.take import TakeSummary, require_complete
+from cinetransfer.waiting import wait_while_moving
 
 log = logging.getLogger("cinetransfer.transfer")
 LIVELINESS_LOOK_S = 0.5  # how often the take looks at the bridge's liveliness between frames
@@ -74,29 +75,35 @@ def _progress(rec: Recorder, k: int, stall_s: float, *, what: str, bridge: Prese
 
     def moved() -> tuple:
         return rec.frames_written, (rec.last_clock.stamp_ns if steps_count and rec.last_clock else None)
+
+    def ended() -> bool:
+        return rec.frames_written >= k or rec.failure is not None or rec.lost is not None
+
+    def wait(s: float) -> None:
+        seen = moved()
+        rec.wait(lambda: moved() != seen or ended(), s)
+
     with tqdm(total=k, desc="recording", unit="frame", disable=None) as bar:
-        while rec.frames_written < k:
-            n, seen = rec.frames_written, moved()
-            stall_at = time.monotonic() + stall_s
-            while not rec.wait(lambda: moved() != seen or rec.failure is not None or rec.lost is not None,
-                               min(LIVELINESS_LOOK_S, stall_s)):
-                if bridge is not None and bridge.losses != losses:
-                    raise TransferError(f"{what}: the autopilot_bridge node died after {n} of {k} frames (its "
-                                        "liveliness token went away); what was recorded is kept in OUTDIR "
-                                        "(see OUTDIR/deploy/autopilot_bridge.log)")
-                if time.monotonic() >= stall_at:
-                    raise TransferError(f"{what}: no frame{' nor step' if steps_count else ''} for {stall_s:.0f} s "
-                                        f"after {n} of {k} "
-                                        "(see OUTDIR/deploy/*.log)")
-            if rec.failure is not None:
-                raise TransferError(_write_failure(rec, n, k))
-            if rec.lost is not None:
-                slot, index = rec.lost
-                raise TransferError(f"{what}: camera frame {index} (slot {slot} of {k}) was lost between the "
-                                    "autopilot_bridge and this transfer (a later frame or its truth came); the take "
-                                    f"stops after {rec.frames_written} of {k} frames; what was recorded is kept")
+        def check() -> None:
+            if bridge is not None and bridge.losses != losses:
+                raise TransferError(f"{what}: the autopilot_bridge node died after {rec.frames_written} of {k} "
+                                    "frames (its liveliness token went away); what was recorded is kept in OUTDIR "
+                                    "(see OUTDIR/deploy/autopilot_bridge.log)")
             bar.n = min(rec.frames_written, k)
             bar.refresh()
+        moving = wait_while_moving(ended, moved, stall_s, wait=wait, look_s=min(LIVELINESS_LOOK_S, stall_s),
+                                   check=check)
+    n = rec.frames_written
+    if not moving:
+        raise TransferError(f"{what}: no frame{' nor step' if steps_count else ''} for {stall_s:.0f} s "
+                            f"after {n} of {k} (see OUTDIR/deploy/*.log)")
+    if rec.failure is not None:
+        raise TransferError(_write_failure(rec, n, k))
+    if rec.lost is not None:
+        slot, index = rec.lost
+        raise TransferError(f"{what}: camera frame {index} (slot {slot} of {k}) was lost between the "
+                            "autopilot_bridge and this transfer (a later frame or its truth came); the take "
+                            f"stops after {n} of {k} frames; what was recorded is kept")
 
 
 def _write_failure(rec: Recorder, n: int, k: int) -> str:

@@ -29,6 +29,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from cinetransfer.waiting import wait_while_moving
+
 if TYPE_CHECKING:
     from cinetransfer.services.detector.core import FrameStream
 
@@ -128,11 +130,8 @@ class LiveOutputStyle:
         self._q.put(None)
         # as long as it takes while frames get measured (a loaded machine is slow), not past
         # `timeout_s` without one: the detector hangs
-        seen = -1
-        while self._worker.is_alive() and len(self._feats) != seen:
-            seen = len(self._feats)
-            self._worker.join(timeout_s)
-        if self._worker.is_alive():
+        if not wait_while_moving(lambda: not self._worker.is_alive(), lambda: len(self._feats), timeout_s,
+                                 wait=self._worker.join):
             self.error = f"no frame measured for {timeout_s:.0f} s ({len(self._feats)} measured)"
         elif self.error is None and len(self._feats) != n_frames:
             self.error = f"{len(self._feats)} frames measured, the video has {n_frames}"

@@ -39,6 +39,7 @@ from cinetransfer.shared import messages as M
 from cinetransfer.runlog import KEYFRAME_S, VIDEO_X264_PARAMS, RunWriter
 from cinetransfer.shared.video import H264Writer
 from cinetransfer.take import Placed, TakeAssembler, TakeSummary
+from cinetransfer.waiting import wait_while_moving
 
 log = logging.getLogger("cinetransfer.recorder")
 RESERVE_BYTES = 8 * 2**20  #: set aside at the start: room to close the files (see the module doc)
@@ -51,12 +52,13 @@ LOW_SPACE_BYTES = 4 * 2**20
 SPACE_LOOK_S = 0.2  #: how often the free space is looked at
 RESERVE = ".reserve"
 #: closing: the worker may take as long as it needs to drain its queue (a loaded machine encodes
-#: slowly), but it must handle a message at least this often; longer, it hangs: RecorderHang
+#: slowly), but it must finish a message (handled and written) at least this often; longer, it hangs:
+#: RecorderHang
 CLOSE_STALL_S = 120.0
 
 
 class RecorderHang(RuntimeError):
-    """The recorder's worker handled no message for CLOSE_STALL_S while the recording was closing."""
+    """The recorder's worker finished no message for CLOSE_STALL_S while the recording was closing."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,7 +145,7 @@ class Recorder:
         self._packet: bytes | None = None
         self._msg: Any = None  #: the message in hand, when decoded already (run.mcap's views need it too)
         self._q: queue.SimpleQueue = queue.SimpleQueue()
-        self._handled = 0  # messages the worker took: its progress while the recording closes
+        self._finished = 0  # messages the worker handled and wrote: its progress while the recording closes
         self._progress = threading.Condition()
         self._worker = threading.Thread(target=self._work, name="recorder", daemon=True)
         self._worker.start()
@@ -160,7 +162,6 @@ class Recorder:
             if item is None:
                 return
             key, payload = item
-            self._handled += 1
             keep = True
             self._packet = self._msg = None
             try:
@@ -174,6 +175,7 @@ class Recorder:
                 self.undecodable += 1
             if keep:
                 self._write(key, payload)
+            self._finished += 1  # counted once written: a write that hangs is no progress
 
     def _write(self, key: str, payload: bytes) -> None:
         if self.failure is not None:
@@ -357,15 +359,13 @@ class Recorder:
 
     def _join_worker(self) -> None:
         """Wait for the worker to drain its queue, however long that takes while it makes progress;
-        RecorderHang when it handled no message for `stall_s` (the files are left as they are: the
+        RecorderHang when it finished no message for CLOSE_STALL_S (the files are left as they are: the
         worker may be inside a write)."""
-        stall_s, seen = CLOSE_STALL_S, -1
-        while self._worker.is_alive():
-            if self._handled == seen:
-                raise RecorderHang(f"the recorder handled no message for {stall_s:.0f} s while closing, with "
-                                   f"{self._q.qsize()} still queued; run.mcap and output.mp4 may be incomplete")
-            seen = self._handled
-            self._worker.join(stall_s)
+        stall_s = CLOSE_STALL_S
+        if not wait_while_moving(lambda: not self._worker.is_alive(), lambda: self._finished, stall_s,
+                                 wait=self._worker.join):
+            raise RecorderHang(f"the recorder finished no message for {stall_s:.0f} s while closing, with "
+                               f"{self._q.qsize()} still queued; run.mcap and output.mp4 may be incomplete")
 
     def _truth_summary(self) -> TakeSummary:
         """Give each written slot the truth of the frame it shows; slots without one are missing."""

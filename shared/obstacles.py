@@ -87,6 +87,23 @@ def intrusion_m(obstacles: Iterable[Obstacle], p: Sequence[float], clearance_m: 
     return worst
 
 
+def towards(k: Obstacle, p: Sequence[float]) -> tuple[tuple[float, float, float], float]:
+    """(unit vector from `p` (x, y, z) to the nearest point of the obstacle's own cylinder, the distance [m]
+    to that point); ((0, 0, 0), 0) inside it. The keep-out is every point within the clearance of the
+    cylinder (keep_out_radius_m's round clearance is that distance), so the distance less the clearance
+    is how far `p` is from the keep-out, and the vector is the way into it."""
+    dx, dy = k.x_m - float(p[0]), k.y_m - float(p[1])
+    rho = math.hypot(dx, dy)
+    gap = max(rho - k.radius_m, 0.0)
+    gx, gy = (dx * gap / rho, dy * gap / rho) if rho > 1e-12 else (0.0, 0.0)
+    z = float(p[2])
+    gz = k.z_min_m - z if z < k.z_min_m else (k.z_max_m - z if z > k.z_max_m else 0.0)
+    d = math.sqrt(gx * gx + gy * gy + gz * gz)
+    if d < 1e-12:
+        return (0.0, 0.0, 0.0), 0.0
+    return (gx / d, gy / d, gz / d), d
+
+
 def push_out(obstacles: Iterable[Obstacle], p: Sequence[float], distance_m: float) -> np.ndarray:
     """`p` moved radially (horizontally) out of every obstacle's clearance `distance_m`, the nearest
     axis first; a point on an axis moves along +x."""

@@ -12,8 +12,10 @@ What it enforces (limits in `SafetyConfig`):
   acceleration limit, and directionally at the envelope: its outward component (through the
   geofence or the altitude band) is at most what the vehicle can still brake to zero before
   the boundary at the acceleration limit, so zero at or over it (a clamped position with an
-  outward feed-forward used to park the vehicle 2 m outside the fence); likewise no outward
-  acceleration feed-forward within the braking distance of a boundary; `limit_motion` also
+  outward feed-forward used to park the vehicle 2 m outside the fence); a keep-out obstacle's
+  clearance is such a boundary too, its outward direction the way to the obstacle's nearest point
+  (shared/obstacles.towards); likewise no outward acceleration feed-forward within the braking
+  distance of the fence or the band; `limit_motion` also
   moves the commanded position towards the requested one no faster than the speed limit and
   changes the commanded velocity no faster than the acceleration limit (so a jump in the plan
   becomes a bounded-speed transfer);
@@ -42,7 +44,7 @@ import numpy as np
 from cinetransfer.services.autopilot_bridge.config import SafetyConfig
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.angles import wrap_angle
-from cinetransfer.shared.obstacles import Obstacle, intrusion_m, obstacles_from, push_clear
+from cinetransfer.shared.obstacles import Obstacle, intrusion_m, obstacles_from, push_clear, towards
 
 MODES = ("track", "hold")
 
@@ -144,13 +146,20 @@ def _outward_limit(dist_m: float, max_accel: float) -> float:
 
 def clamp_outward_velocity(p: np.ndarray, v: np.ndarray, cfg: SafetyConfig) -> tuple[np.ndarray, bool]:
     """Velocity `v` at position `p` with its outward component (through the geofence or the
-    altitude band) cut to the braking speed for the distance left: none at or over a boundary.
-    Inward and tangential components are untouched, so tracking along the fence still works."""
+    altitude band, or into a keep-out obstacle's clearance) cut to the braking speed for the
+    distance left: none at or over a boundary. Inward and tangential components are untouched,
+    so tracking along the fence or round an obstacle still works."""
     v = np.array(v, dtype=float)
     hit = False
+    a = cfg.accel_max_mps2
+    for n, gap in _keep_outs_near(p, cfg):  # first: the fence and the band win (as in the position's clamps)
+        into = float(v @ n)
+        lim = _outward_limit(gap, a)
+        if into > lim:
+            v -= (into - lim) * n
+            hit = True
     home = np.asarray(cfg.home_m, dtype=float)
     d = np.asarray(p[:2], float) - home[:2]
-    a = cfg.accel_max_mps2
     if cfg.geofence_shape == "cylinder":
         r = float(np.linalg.norm(d))
         if r > 1e-9:
@@ -178,10 +187,26 @@ def clamp_outward_velocity(p: np.ndarray, v: np.ndarray, cfg: SafetyConfig) -> t
     return v, hit
 
 
+def _keep_outs_near(p: np.ndarray, cfg: SafetyConfig) -> list[tuple[np.ndarray, float]]:
+    """(unit vector into the keep-out, distance [m] to it: shared/obstacles.towards less the clearance) of
+    every keep-out within the braking distance at full speed (speed_max² / 2·accel_max) of `p`: a farther
+    one can be stopped short of from any speed the limits allow, so it bounds nothing."""
+    reach = cfg.speed_max_mps ** 2 / (2.0 * cfg.accel_max_mps2)
+    c = cfg.min_obstacle_distance_m
+    out = []
+    for k in _obstacles(cfg):
+        n, d = towards(k, p)
+        if d - c < reach and d > 0.0:
+            out.append((np.array(n), d - c))
+    return out
+
+
 def clamp_outward_accel(p: np.ndarray, a: np.ndarray, cfg: SafetyConfig) -> tuple[np.ndarray, bool]:
     """Acceleration feed-forward `a` at position `p` without an outward component wherever `p` is
-    within the braking distance at full speed (speed_max² / 2·accel_max) of a boundary: near the
-    fence, pushing outward only stores up an overshoot."""
+    within the braking distance at full speed (speed_max² / 2·accel_max) of a boundary (the fence,
+    the altitude band): there, pushing outward only stores up an overshoot. Not at a keep-out: the
+    camera moves fly round them within that distance, where this rule would strip their feed-forward
+    at any speed; the velocity clamp bounds the approach (clamp_outward_velocity)."""
     a = np.array(a, dtype=float)
     hit = False
     reach = cfg.speed_max_mps ** 2 / (2.0 * cfg.accel_max_mps2)

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from cinetransfer.services.planner.side_of_subject import FREE_ANGLE_RAD, carrot
-from cinetransfer.shared.obstacles import Obstacle, keep_out_radius_m
+from cinetransfer.shared.obstacles import Obstacle, intrusion_m
 
 STEP_RAD = math.radians(5.0)
 MAX_TURN_RAD = math.radians(90.0)
@@ -45,18 +45,20 @@ def truck_travel(classes: Sequence[frozenset[str] | None], travel: np.ndarray, s
 def segment_clear(start_xy: Sequence[float], travel_xy: Sequence[float], z_m: float,
                   obstacles: Sequence[Obstacle], clearance_m: float) -> bool:
     """Whether the straight path from `start_xy` by `travel_xy` (world, m) at height `z_m` keeps every
-    obstacle's keep-out radius (shared.obstacles.keep_out_radius_m) from its axis."""
+    obstacle's clearance: the path's point nearest each axis lies outside that obstacle's keep-out
+    (shared.obstacles.intrusion_m; `stands_clear` for a path of no travel)."""
     a, v = np.asarray(start_xy, float)[:2], np.asarray(travel_xy, float)[:2]
     vv = float(v @ v)
     for k in obstacles:
-        r = keep_out_radius_m(k, z_m, clearance_m)
-        if r is None:
-            continue
-        c = np.array([k.x_m, k.y_m])
-        t = 0.0 if vv < 1e-12 else min(1.0, max(0.0, float((c - a) @ v) / vv))
-        if float(np.linalg.norm(a + t * v - c)) < r:
+        t = 0.0 if vv < 1e-12 else min(1.0, max(0.0, float((np.array([k.x_m, k.y_m]) - a) @ v) / vv))
+        if not stands_clear(a + t * v, z_m, (k,), clearance_m):
             return False
     return True
+
+
+def stands_clear(xy: Sequence[float], z_m: float, obstacles: Sequence[Obstacle], clearance_m: float) -> bool:
+    """Whether a camera at `xy` (world, m) and height `z_m` keeps every obstacle's clearance."""
+    return intrusion_m(obstacles, (float(xy[0]), float(xy[1]), z_m), clearance_m) <= 0.0
 
 
 def travel_in_world(bearing_rad: float, travel_cam: Sequence[float]) -> np.ndarray:
@@ -86,7 +88,7 @@ def clear_bearing(subject_xy: Sequence[float], camera_xy: Sequence[float], z_m: 
         for way in list(open_ways):
             b = b0 + way * i * step_rad
             start = s + d * np.array([math.cos(b), math.sin(b)])
-            if not segment_clear(start, np.zeros(2), z_m, obstacles, clearance_m):
+            if not stands_clear(start, z_m, obstacles, clearance_m):
                 open_ways.remove(way)
             elif segment_clear(start, travel_in_world(b, travel_cam), z_m, obstacles, clearance_m):
                 return b

@@ -120,7 +120,7 @@ def test_a_recorder_whose_worker_hangs_fails_to_close_in_one_line(port, listener
         assert entered.wait(600.0)
         # only the stall limit is short here: the worker is blocked, it can never catch up
         monkeypatch.setattr(recorder, "CLOSE_STALL_S", 0.5)
-        with pytest.raises(recorder.RecorderHang, match="handled no message for .* while closing"):
+        with pytest.raises(recorder.RecorderHang, match="finished no message for .* while closing"):
             rec.close()
     finally:
         release.set()

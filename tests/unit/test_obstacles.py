@@ -13,7 +13,7 @@ from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.obstacles import N_OBSTACLE_SLOTS, obstacle_params, obstacle_rows
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.obstacles import (Obstacle, intrusion_m, keep_out_radius_m, nearest_keep_outs, obstacles_from,
-                                           push_clear, push_out)
+                                           push_clear, push_out, towards)
 
 TRUNK = Obstacle(0.0, 0.0, 0.15, 0.0, 2.2)
 CROWN = Obstacle(0.0, 0.0, 1.3, 1.75, 4.75)
@@ -181,3 +181,67 @@ def test_a_return_point_between_two_keep_outs_clears_both():
     q = return_point(np.array([0.5, 0.3, 1.5]), cfg)
     obstacles = obstacles_from(cfg.obstacles_m)
     assert intrusion_m(obstacles, q, 0.5) <= 1e-9
+
+
+def test_towards_is_the_way_to_the_obstacles_own_cylinder():
+    # beside the crown's band, 1 m out from its side and 0.75 m under it: 1.25 m along (-0.8, 0, 0.6)
+    n, d = towards(CROWN, (2.3, 0.0, 1.0))
+    assert n == pytest.approx((-0.8, 0.0, 0.6)) and d == pytest.approx(1.25)
+    n, d = towards(CROWN, (0.0, 0.0, 0.5))  # on its axis, under it: straight up
+    assert n == pytest.approx((0.0, 0.0, 1.0)) and d == pytest.approx(1.25)
+    assert towards(TRUNK, (0.1, 0.0, 1.0)) == ((0.0, 0.0, 0.0), 0.0)  # inside the trunk itself
+
+
+#: a trunk and a crown apart, braking at 2 m/s^2 from 4 m/s: keep-outs within 4 m of a position bound it
+_BRAKE = dict(min_obstacle_distance_m=1.0, accel_max_mps2=2.0, speed_max_mps=4.0, climb_max_mps=4.0,
+              geofence_radius_m=50.0, altitude_min_m=0.0, altitude_max_m=20.0)
+
+
+def test_bridge_cuts_the_velocity_into_a_keep_out_to_the_braking_speed():
+    from cinetransfer.services.autopilot_bridge.safety import clamp_outward_velocity
+
+    cfg = SafetyConfig(obstacles_m=(TRUNK.as_list(),), **_BRAKE)
+    # 2 m from the trunk's keep-out (bark 3 m away): at most sqrt(2 x 2 x 2) m/s towards it; sideways untouched
+    v, hit = clamp_outward_velocity(np.array([3.15, 0.0, 1.6]), np.array([-3.0, 1.0, 0.0]), cfg)
+    assert hit and v == pytest.approx((-math.sqrt(8.0), 1.0, 0.0))
+    # at the keep-out's edge: nothing towards it; away from it: untouched
+    v, hit = clamp_outward_velocity(np.array([1.15, 0.0, 1.6]), np.array([-1.0, 0.5, 0.0]), cfg)
+    assert hit and v == pytest.approx((0.0, 0.5, 0.0))
+    v, hit = clamp_outward_velocity(np.array([1.15, 0.0, 1.6]), np.array([1.0, 0.5, 0.0]), cfg)
+    assert not hit and v == pytest.approx((1.0, 0.5, 0.0))
+    # 8.85 m from it, beyond the 4 m braking distance at full speed: untouched
+    v, hit = clamp_outward_velocity(np.array([10.0, 0.0, 1.6]), np.array([-4.0, 0.0, 0.0]), cfg)
+    assert not hit
+
+
+def test_bridge_cuts_a_climb_into_a_crown_overhead():
+    from cinetransfer.services.autopilot_bridge.safety import clamp_outward_accel, clamp_outward_velocity
+
+    cfg = SafetyConfig(obstacles_m=(CROWN.as_list(),), **_BRAKE)
+    # on the axis 1.25 m under the crown: 0.25 m under its keep-out, climbing at most sqrt(2 x 2 x 0.25) = 1 m/s
+    v, hit = clamp_outward_velocity(np.array([0.0, 0.0, 0.5]), np.array([0.3, 0.0, 1.5]), cfg)
+    assert hit and v == pytest.approx((0.3, 0.0, 1.0))
+    # beside and under its band, along (-0.8, 0, 0.6) 1.25 m from it: 1.4 m/s towards it cut to 1, by 0.4 along that
+    v, hit = clamp_outward_velocity(np.array([2.3, 0.0, 1.0]), np.array([-1.0, 0.0, 1.0]), cfg)
+    assert hit and v == pytest.approx((-1.0 + 0.32, 0.0, 1.0 - 0.24))
+    # the acceleration towards it is left to the velocity's bound (only the fence and the band take it away)
+    a, hit = clamp_outward_accel(np.array([2.3, 0.0, 1.0]), np.array([-1.0, 0.5, 0.5]), cfg)
+    assert not hit and a == pytest.approx((-1.0, 0.5, 0.5))
+
+
+def test_bridge_setpoints_and_ticks_do_not_move_into_a_keep_out():
+    from cinetransfer.services.autopilot_bridge.safety import SafetyLayer
+    from cinetransfer.shared import messages as M
+
+    s = SafetyLayer(SafetyConfig(obstacles_m=(TRUNK.as_list(),), **_BRAKE))
+    sp = M.Setpoint(stamp_ns=1, position_m=np.array([0.35, 0.0, 1.6]), velocity_mps=np.array([-1.0, 0.5, 0.0]),
+                    acceleration_mps2=np.array([-1.0, 0.0, 0.0]), camera_ypr_rad=np.zeros(3), lens=M.LensState())
+    # pushed out to the keep-out's edge at 1.15 m: no velocity towards the trunk is forwarded
+    r = s.check(sp)
+    assert r.accepted and r.setpoint.position_m == pytest.approx((1.15, 0.0, 1.6))
+    assert r.setpoint.velocity_mps == pytest.approx((0.0, 0.5, 0.0))
+    assert s.counters["clamp_velocity_outward"] == 1
+    # a tick's commanded position 1 m from the keep-out: at most sqrt(2 x 2 x 1) = 2 m/s towards it
+    mc = s.limit_motion(target_pos=np.array([2.15, 0.0, 1.6]), target_vel=np.array([-3.0, 0.0, 0.0]),
+                        prev_pos=np.array([2.15, 0.0, 1.6]), prev_vel=np.array([-3.0, 0.0, 0.0]), dt_s=0.01)
+    assert mc.velocity_mps == pytest.approx((-2.0, 0.0, 0.0)) and "clamp_velocity_outward" in mc.clamps

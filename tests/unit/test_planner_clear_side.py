@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from cinetransfer.services.planner.clear_side import (clear_bearing, segment_clear, side_wanted_for,
+from cinetransfer.services.planner.clear_side import (clear_bearing, segment_clear, side_wanted_for, stands_clear,
                                                       travel_in_world, truck_travel)
 from cinetransfer.shared.obstacles import Obstacle
 
@@ -84,3 +84,13 @@ def test_side_wanted_for_asks_past_the_clear_bearing_by_the_free_angle():
     assert math.degrees(side_wanted_for(math.radians(170), math.radians(-170))) == pytest.approx(235.0)
     assert math.isnan(side_wanted_for(0.3, 0.3))
     assert math.isnan(side_wanted_for(0.3, math.nan))
+
+
+def test_stands_clear_is_outside_every_keep_out():
+    # post(5, 0) keeps 1.5 m from its axis at 1.5 m high, 0.5 + sqrt(1 - 0.36) = 1.3 m at 3.6 m
+    assert not stands_clear([6.4, 0.0], 1.5, [post(5, 0)], 1.0)
+    assert stands_clear([6.5, 0.0], 1.5, [post(5, 0)], 1.0)
+    assert stands_clear([6.4, 0.0], 3.6, [post(5, 0)], 1.0) and not stands_clear([6.2, 0.0], 3.6, [post(5, 0)], 1.0)
+    # a path of no travel is its start standing
+    assert segment_clear([6.4, 0.0], [0.0, 0.0], 1.5, [post(5, 0)], 1.0) is False
+    assert segment_clear([6.5, 0.0], [0.0, 0.0], 1.5, [post(5, 0)], 1.0) is True
