@@ -9,11 +9,18 @@ import time
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 from cinetransfer.data import data_dir
 from cinetransfer.shared.zenoh_config import ZenohOptions, free_tcp_port
 
 REPO = Path(__file__).resolve().parents[1]
+
+# Hypothesis judges wall time twice by default: a 200 ms deadline per example and a health check
+# that fails when generating examples is slow. On a loaded CI machine both fail for speed alone;
+# every property test states what it checks, and a test's own @settings still overrides this.
+settings.register_profile("clock_free", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("clock_free")
 
 
 free_port = free_tcp_port  # tests use the same helper as the transfer command

@@ -22,6 +22,10 @@ from conftest import connect_flags, cpu_seconds, spawn, stop, wait_for
 
 pytestmark = pytest.mark.timeout(150)
 RIG = "bt"
+#: how long a wait for the bridge's answer may take: a ceiling for a hang, not a measure of speed (the
+#: bridge process at load 50 gets a few % of a core; what a watchdog or hold does when is judged in
+#: the core's own time by tests/unit/test_bridge_core.py)
+WAIT_S = 30.0
 
 
 def free_udp_port() -> int:
@@ -116,7 +120,11 @@ def bus(listener_opts):
 
 def start_pair(tmp_path, port, *bridge_flags, start="0,0,3"):
     udp = free_udp_port()
-    veh = spawn("sim-vehicle", "--mavlink", f"udpin:127.0.0.1:{udp}", "--start", start, log=tmp_path / "vehicle.log")
+    # a generous offboard failsafe (default 0.5 s of wall time): a loaded machine can stall the bridge's
+    # setpoint stream that long, and the vehicle then rightly leaves OFFBOARD; that the stream goes on
+    # while holding is judged by the bridge's count of setpoints sent, not by the vehicle's clock
+    veh = spawn("sim-vehicle", "--mavlink", f"udpin:127.0.0.1:{udp}", "--start", start, "--offboard-timeout", "5",
+                log=tmp_path / "vehicle.log")
     br = spawn("autopilot_bridge", "--rig", RIG, "--backend", "mavlink", "--mavlink", f"udpout:127.0.0.1:{udp}",
                "--engage", "--health-period", "0.2", *bridge_flags, *connect_flags(port), log=tmp_path / "bridge.log")
     return veh, br
@@ -152,12 +160,16 @@ def test_tracks_setpoints_within_speed_limit_then_watchdog_holds(bus, port, tmp_
         # the setpoints stop: the watchdog holds within ~0.5 s
         streamer.pos = None
         t_stop = time.monotonic()
-        wait_for(lambda: bus.state().holding, 5, what="watchdog hold")
+        wait_for(lambda: bus.state().holding, WAIT_S, what="watchdog hold")
+        # not before the watchdog's 0.5 s (a loaded machine can only make it later, so only this side is
+        # judged on the wall clock; that it holds at its first tick past 0.5 s is test_bridge_core's)
         t_hold = time.monotonic() - t_stop
-        assert 0.4 < t_hold < 1.5
-        wait_for(lambda: bus.counters().get("hold_reason") == "watchdog", 3, what="hold reason in Health")
+        assert t_hold > 0.4, t_hold
+        wait_for(lambda: bus.counters().get("hold_reason") == "watchdog", WAIT_S, what="hold reason in Health")
         assert bus.counters()["holds_watchdog"] >= 1 and bus.counters()["connected"] is True
-        time.sleep(1.0)
+        # while it holds, the bridge keeps streaming (hold) setpoints, so the vehicle stays in OFFBOARD
+        sent = bus.counters()["mav_setpoints_sent"]
+        wait_for(lambda: bus.counters()["mav_setpoints_sent"] > sent + 10, WAIT_S, what="setpoints streamed in hold")
         s = bus.state()
         assert s.holding and s.mode == "OFFBOARD" and np.linalg.norm(s.position_m - target) < 0.3
     finally:
@@ -189,7 +201,7 @@ def test_rejects_nan_clamps_fence_keeps_subject_distance_and_marks_link_loss(bus
         rejected0 = bus.health.rejected if bus.health else 0
         for _ in range(3):
             bus.sp_pub.put(nan_setpoint_payload())
-        wait_for(lambda: bus.health.rejected >= rejected0 + 3, 5, what="NaN setpoints counted as rejected")
+        wait_for(lambda: bus.health.rejected >= rejected0 + 3, WAIT_S, what="NaN setpoints counted as rejected")
         assert "NaN" in bus.health.last_error or "non-finite" in bus.health.last_error
         # far outside the fence and above the altitude band: clamped to (5, 0, 6)
         t0 = time.monotonic()
@@ -221,14 +233,14 @@ def test_rejects_nan_clamps_fence_keeps_subject_distance_and_marks_link_loss(bus
             th.join(2)
         # operator hold while setpoints keep coming, then resume
         bus.cmd_pub.put(codec.encode(M.Command(stamp_ns=time.time_ns(), action="hold")))
-        wait_for(lambda: bus.state().holding, 5, what="operator hold")
-        wait_for(lambda: bus.counters().get("hold_reason") == "operator hold", 3, what="operator hold reason")
+        wait_for(lambda: bus.state().holding, WAIT_S, what="operator hold")
+        wait_for(lambda: bus.counters().get("hold_reason") == "operator hold", WAIT_S, what="operator hold reason")
         bus.cmd_pub.put(codec.encode(M.Command(stamp_ns=time.time_ns(), action="resume")))
-        wait_for(lambda: not bus.state().holding, 5, what="resume")
+        wait_for(lambda: not bus.state().holding, WAIT_S, what="resume")
         # link loss: the vehicle process freezes -> states invalid + holding; back -> valid again
         veh.send_signal(signal.SIGSTOP)
         try:
-            wait_for(lambda: not bus.state().valid and bus.state().holding, 5, what="link loss marked")
+            wait_for(lambda: not bus.state().valid and bus.state().holding, WAIT_S, what="link loss marked")
             # one Health report says all three: a tick's decision, state and Health use one sample of the
             # link, and no report is taken mid-tick (under load one report had connected False, hold_reason '')
             wait_for(lambda: (h := bus.health) is not None and h.counters.get("connected") is False
@@ -236,7 +248,7 @@ def test_rejects_nan_clamps_fence_keeps_subject_distance_and_marks_link_loss(bus
                      what="Health: connected False, link lost, invalid")
         finally:
             veh.send_signal(signal.SIGCONT)
-        wait_for(lambda: bus.state().valid, 5, what="link back")
+        wait_for(lambda: bus.state().valid, WAIT_S, what="link back")
         assert bus.counters()["mav_link_losses"] >= 1
     finally:
         streamer.stop()

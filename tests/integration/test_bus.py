@@ -131,7 +131,7 @@ def test_sigterm_exits_cleanly_and_liveliness_goes(port, listener, tmp_path):
                  log=tmp_path / "r2.log")
     wait_for(lambda: "r2" in listener.alive, what="r2 alive", progress=lambda: cpu_seconds(proc))
     proc.terminate()
-    assert proc.wait(15) == 0, (tmp_path / "r2.log").read_text()
+    assert proc.wait(60) == 0, (tmp_path / "r2.log").read_text()  # a hang ceiling: exit is slow under load
     wait_for(lambda: "r2" not in listener.alive, what="liveliness token dropped")
 
 

@@ -17,6 +17,9 @@ from cinetransfer.shared import messages as M
 from conftest import connect_flags, spawn, stop, wait_for
 
 pytestmark = pytest.mark.timeout(150)
+#: how long a wait for a service's answer may take: a ceiling for a hang, not a measure of speed (a
+#: service process at load 50 on 2 cores gets a few % of a core; the wait ends as soon as it answers)
+WAIT_S = 30.0
 RIG = "dm"
 
 
@@ -68,13 +71,13 @@ def test_the_planner_survives_the_deep_command(port, listener_opts, tmp_path):
                  log=log)
     try:
         wait_for(lambda: "planner" in peer.alive or proc.poll() is not None, timeout=60, what="planner liveliness")
-        wait_for(lambda: peer.rejected() >= 0, 10, what="first Health")
+        wait_for(lambda: peer.rejected() >= 0, WAIT_S, what="first Health")
         pub = peer.session.declare_publisher(keys.PLANNER_COMMAND.key(RIG))
         for _ in range(3):
             pub.put(deep_args_command())
-        wait_for(lambda: peer.rejected() >= 3, 10, what="deep Commands counted as rejected")
+        wait_for(lambda: peer.rejected() >= 3, WAIT_S, what="deep Commands counted as rejected")
         seen = peer.outputs
-        wait_for(lambda: peer.outputs >= seen + 5, 10, what="setpoints still published")
+        wait_for(lambda: peer.outputs >= seen + 5, WAIT_S, what="setpoints still published")
         assert proc.poll() is None, log.read_text()
         pub.undeclare()
     finally:
@@ -90,12 +93,12 @@ def test_the_smoother_survives_the_deep_command(port, listener_opts, tmp_path):
                  *connect_flags(port), log=log)
     try:
         wait_for(lambda: "smoother" in peer.alive or proc.poll() is not None, timeout=60, what="smoother liveliness")
-        wait_for(lambda: peer.rejected() >= 0, 10, what="first Health")
+        wait_for(lambda: peer.rejected() >= 0, WAIT_S, what="first Health")
         cc = zenoh.CongestionControl.BLOCK
         cmd = peer.session.declare_publisher(keys.SMOOTHER_COMMAND.key(RIG), congestion_control=cc)
         meas = peer.session.declare_publisher(keys.MEASUREMENT.key(RIG), congestion_control=cc)
         cmd.put(deep_args_command())
-        wait_for(lambda: peer.rejected() >= 1, 10, what="deep Command counted as rejected")
+        wait_for(lambda: peer.rejected() >= 1, WAIT_S, what="deep Command counted as rejected")
         for m in walking_sequence(24):
             meas.put(codec.encode(m))
         n0 = peer.outputs
@@ -123,7 +126,7 @@ def test_the_planner_refuses_instructions_nothing_can_fly(port, listener_opts, t
                  *connect_flags(port), log=log)
     try:
         wait_for(lambda: "planner" in peer.alive or proc.poll() is not None, timeout=60, what="planner liveliness")
-        wait_for(lambda: peer.rejected() >= 0, 10, what="first Health")
+        wait_for(lambda: peer.rejected() >= 0, WAIT_S, what="first Health")
         pub = peer.session.declare_publisher(keys.INSTRUCTIONS.key(RIG),
                                              congestion_control=zenoh.CongestionControl.BLOCK)
         for value in (np.nan, 1e6, -1e6):
@@ -131,7 +134,7 @@ def test_the_planner_refuses_instructions_nothing_can_fly(port, listener_opts, t
             pub.put(codec.encode(ins))
         # the service's Health may carry the rejection before the planner's counters catch up: wait
         # for a report that has both
-        wait_for(lambda: peer.rejected() >= 3 and "instructions_refused" in peer.counters(), 10,
+        wait_for(lambda: peer.rejected() >= 3 and "instructions_refused" in peer.counters(), WAIT_S,
                  what="unusable instructions counted as rejected")
         counters = peer.counters()
         assert counters["instructions_refused"] == 3

