@@ -353,10 +353,10 @@ def test_a_settled_soft_subject_is_asked_less_blur_where_the_ground_behind_him_i
     assert off._settled_blur(x0, subj, 0.0, 10.0 / ground) == 1.5
 
 
-def test_right_after_a_rack_onto_the_background_the_subject_is_kept_out_by_mu(planner, instructions):
-    # given a style that racks from the subject to the background at row 10 (24 rows a second)
+def _rack_at_row_10(planner, instructions):
+    """(instructions racking from the subject to the background at row 10, 24 rows a second; the measured
+    state; the predicted subject; keep_out_settle_s in rows) from the wrong-start scene."""
     k = instructions.image_targets.shape[0]
-    assert k > 10 + 48
     focus = np.tile([False, True, False], (k, 1))
     focus[10:] = (False, False, True)
     sm = np.where(focus, 1.0, 0.0).astype(np.float32)
@@ -365,7 +365,13 @@ def test_right_after_a_rack_onto_the_background_the_subject_is_kept_out_by_mu(pl
     sim = KinematicSim(wrong_start_scene())
     x0 = planner._measured_state(T0, sim.vehicle_state(T0))
     subj = predict_subject(sim.subject_state(T0), T0)
-    settle = int(round(planner.cfg.keep_out_settle_s * 24.0))
+    return ins, x0, subj, int(round(planner.cfg.keep_out_settle_s * 24.0))
+
+
+def test_right_after_a_rack_onto_the_background_the_subject_is_kept_out_by_mu(planner, instructions):
+    # given a style that racks from the subject to the background at row 10 (24 rows a second)
+    assert instructions.image_targets.shape[0] > 10 + 48
+    ins, x0, subj, settle = _rack_at_row_10(planner, instructions)
     dof, dref = planner._dof_targets(T0, ins, [10, 10 + settle - 1, 10 + settle], 10, x0, subj)
     # then the rows of the first keep_out_settle_s after the switch aim the near limit mu past his centre
     # with the sharpness circle's far limit at infinity, the later ones just past his back with the one
@@ -376,16 +382,7 @@ def test_right_after_a_rack_onto_the_background_the_subject_is_kept_out_by_mu(pl
 
 def test_the_soft_subjects_near_limit_weighs_more_while_a_rack_settles(planner, instructions):
     # given a style that racks from the subject to the background at row 10 (24 rows a second)
-    k = instructions.image_targets.shape[0]
-    focus = np.tile([False, True, False], (k, 1))
-    focus[10:] = (False, False, True)
-    sm = np.where(focus, 1.0, 0.0).astype(np.float32)
-    sm[:, 0] = np.nan
-    ins = dataclasses.replace(instructions, focus_smoothed=sm, focus_raw=sm, focus_in=focus, fps=24.0)
-    sim = KinematicSim(wrong_start_scene())
-    x0 = planner._measured_state(T0, sim.vehicle_state(T0))
-    subj = predict_subject(sim.subject_state(T0), T0)
-    settle = int(round(planner.cfg.keep_out_settle_s * 24.0))
+    ins, x0, subj, settle = _rack_at_row_10(planner, instructions)
     rows = [10, 10 + settle - 1, 10 + settle]
     heavy = Planner(dataclasses.replace(planner.cfg, rack_settle_near_weight=2.0), solver=planner.solver)
     # when followed from the switch on with the near limit weighted twice while a rack settles
