@@ -187,11 +187,17 @@ def clamp_outward_velocity(p: np.ndarray, v: np.ndarray, cfg: SafetyConfig) -> t
     return v, hit
 
 
+def _braking_reach_m(cfg: SafetyConfig) -> float:
+    """The braking distance at full speed [m]: speed_max² / 2·accel_max; a boundary farther than this
+    bounds nothing (the vehicle can stop short of it from any speed the limits allow)."""
+    return cfg.speed_max_mps ** 2 / (2.0 * cfg.accel_max_mps2)
+
+
 def _keep_outs_near(p: np.ndarray, cfg: SafetyConfig) -> list[tuple[np.ndarray, float]]:
     """(unit vector into the keep-out, distance [m] to it: shared/obstacles.towards less the clearance) of
     every keep-out within the braking distance at full speed (speed_max² / 2·accel_max) of `p`: a farther
     one can be stopped short of from any speed the limits allow, so it bounds nothing."""
-    reach = cfg.speed_max_mps ** 2 / (2.0 * cfg.accel_max_mps2)
+    reach = _braking_reach_m(cfg)
     c = cfg.min_obstacle_distance_m
     out = []
     for k in _obstacles(cfg):
@@ -209,7 +215,7 @@ def clamp_outward_accel(p: np.ndarray, a: np.ndarray, cfg: SafetyConfig) -> tupl
     at any speed; the velocity clamp bounds the approach (clamp_outward_velocity)."""
     a = np.array(a, dtype=float)
     hit = False
-    reach = cfg.speed_max_mps ** 2 / (2.0 * cfg.accel_max_mps2)
+    reach = _braking_reach_m(cfg)
     home = np.asarray(cfg.home_m, dtype=float)
     d = np.asarray(p[:2], float) - home[:2]
     if cfg.geofence_shape == "cylinder":
