@@ -27,14 +27,13 @@ class Reach:
     unreachable: np.ndarray  # (N, 3) bool
     reasons: np.ndarray  # (N, 3) object (str)
     judged: np.ndarray  # (N,) the frame had what the judgement needs (truth with depths and lens)
+    kinds: np.ndarray  # (N, 3) object (str): the kind of each verdict (focus_reach.Unreachable.kind; '' reachable)
     rate_windows: list[FR.RateWindow] = field(default_factory=list)
-    #: (N, 3) object (str): the kind of each verdict (focus_reach.Unreachable.kind; '' when reachable), None: not kept
-    kinds: np.ndarray | None = None
 
     @classmethod
     def none(cls, n: int) -> "Reach":
         return cls(np.zeros((n, 3), bool), np.full((n, 3), "", dtype=object), np.zeros(n, bool),
-                   kinds=np.full((n, 3), "", dtype=object))
+                   np.full((n, 3), "", dtype=object))
 
 
 def lens_of(t: M.GroundTruth) -> FR.Lens | None:
@@ -207,7 +206,7 @@ def _switch_words(switches: tuple[int, ...]) -> str:
 def runs(rch: Reach, t_s: np.ndarray, rows: np.ndarray, shot_rows: Sequence[int] = ()) -> list[dict[str, Any]]:
     """Consecutive unreachable frames per region (and shot) of one kind of verdict as report rows: region, shot
     (by the source row `rows` each frame follows; `shot_rows`: the first row of every shot after the first),
-    kind (focus_reach.Unreachable.kind, '' when not kept), first and last output frame, frames, time span, and the
+    kind (focus_reach.Unreachable.kind), first and last output frame, frames, time span, and the
     reason at its first and last frame. Cut where the kind changes: a run of frames needing a wider aperture with a
     knife edge at each end read as knife edges throughout when only its ends' reasons were shown."""
     bounds = [0, *sorted(int(r) for r in shot_rows)]
@@ -217,7 +216,7 @@ def runs(rch: Reach, t_s: np.ndarray, rows: np.ndarray, shot_rows: Sequence[int]
         if idx.size == 0:
             continue
         shot = np.searchsorted(bounds, np.asarray(rows)[idx], side="right") - 1
-        kind = rch.kinds[idx, r] if rch.kinds is not None else np.full(idx.size, "", dtype=object)
+        kind = rch.kinds[idx, r]
         cut = np.flatnonzero((np.diff(idx) > 1) | (np.diff(shot) != 0) | (kind[1:] != kind[:-1])) + 1
         for seg in np.split(np.arange(idx.size), cut):
             a, b = int(idx[seg[0]]), int(idx[seg[-1]])
