@@ -919,7 +919,6 @@ def parallax_untested(m: FrameMotion) -> FrameMotion:
     return FrameMotion(m.rotation_rad, math.nan, np.full(3, np.nan), m.points, m.explained)
 
 
-
 def dolly_carried(m: FrameMotion, before: FrameMotion | None) -> FrameMotion:
     """The motion of a frame that reads a zoom with no translation, where the frame `before` it read
     a dolly the same way: that dolly, carried on (its direction, no zoom). Any other frame as it is.
@@ -937,6 +936,7 @@ def dolly_carried(m: FrameMotion, before: FrameMotion | None) -> FrameMotion:
     if not np.isfinite(t).all() or abs(t[2]) < DOLLY_AXIS or np.sign(t[2]) != np.sign(m.log_zoom):
         return m
     return FrameMotion(m.rotation_rad, 0.0, t.copy(), m.points, m.explained)
+
 
 # --------------------------------------------------------------------------- per shot
 def smooth_rates(x: np.ndarray, window: int) -> np.ndarray:
