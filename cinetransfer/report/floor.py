@@ -72,8 +72,8 @@ def _cone_fit(q: np.ndarray, p: np.ndarray, on: np.ndarray, aspect: float, squar
     """(a (N,), b (N,), t (N, 2)) minimising the summed |(a X + tx - x, ty - b Y - y)| over the
     joints `on`, as Clarabel's conic form (min c'v s.t. A v + s = h, s in the cones) written out:
     variables a, b, tx, ty of each frame, then an epigraph s_j >= |residual_j| per compared joint.
-    Written here rather than through a modelling layer: importing cvxpy cost ~1 CPU s a transfer
-    (scipy.stats among its atoms), its canonicalisation ~0.5 more, for this one program."""
+    Written here rather than through a modelling layer: importing cvxpy cost ~0.8 CPU s a transfer
+    (scipy.stats among its atoms) and its canonicalisation ~0.1 more, for this one program."""
     n = on.shape[0]
     fr, jt = np.nonzero(on)
     m = fr.size
