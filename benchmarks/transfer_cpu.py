@@ -147,6 +147,7 @@ def report_parts(run: Path, meta: dict, scratch: Path) -> dict[str, float]:
     """CPU seconds of build_report on the run (figures drawn here), in all and by part."""
     import importlib
 
+    import cvxpy  # noqa: F401 - imported during the flight by the transfer: not the report's cost
     import matplotlib.backends.backend_agg  # noqa: F401
 
     from cinetransfer.report import build as B

@@ -31,6 +31,7 @@ import logging
 import shutil
 import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -53,6 +54,7 @@ from cinetransfer.shared.atomic import atomic_write
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.node import setup_logging
 from cinetransfer.shared.vehicle import add_vehicle_argument
+from cinetransfer.whole_import import import_whole
 from cinetransfer.stage_cpu import StageClock
 from cinetransfer.take import MissingFramesError
 
@@ -113,14 +115,30 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+#: the report's heaviest import in this process (cvxpy for the truth floor: 1.2 CPU s), done while
+#: the take is filmed: the bridge's renderer paces the flight and this process mostly waits for
+#: frames. matplotlib's figure modules are not among them: the figure process (report/workers.py)
+#: imports them and draws; this process needs them only if that process dies (0.35-0.39 CPU s saved)
+REPORT_IMPORTS = ("cvxpy",)
+
+
+def warm_imports(names: tuple[str, ...]) -> None:
+    """Import `names` now (on a background thread) so that the report does not wait for them;
+    one that fails is left to fail where it is used, with its own message."""
+    for name in names:
+        try:
+            import_whole(name)  # a part-way failure must not leave half a package behind for the report
+        except Exception as e:  # noqa: BLE001 - only a head start: the report imports it again
+            log.debug("warm import of %s failed: %s", name, e)
+
+
 def floor_ahead(style_path: Path, truths: list, meta: dict) -> cf.Future:
     """The report's truth floor (report/floor.py, frames aligned by index), on a thread from now,
     from the style as the report reads it."""
-    # imported here, not on the thread: an import beside the main thread's own can fail part-way
-    from cinetransfer.report.floor import run_floor
-    from cinetransfer.report.style import load_style_any
-
     def floor():
+        from cinetransfer.report.floor import run_floor
+        from cinetransfer.report.style import load_style_any
+
         return run_floor(load_style_any(style_path)[0], truths, meta, aligned_by_index=True)
 
     pool = cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="floor")
@@ -156,6 +174,7 @@ def _job(args, src: Path, out: Path, meta: dict, clock: StageClock, live: dict, 
         wait_alive(session, args.rig, FLIGHT_NODES, 180)
         measurer = live["output"] = None if args.no_eval else LiveOutputStyle(out / "output.mp4", style.fps)
         if not args.no_eval:
+            threading.Thread(target=warm_imports, args=(REPORT_IMPORTS,), name="warm-imports", daemon=True).start()
             live["figures"] = FigureWorker()  # starts now: its imports are done by the time the report draws
         rec = fly(style, outdir=out, session=session, rig=args.rig, preroll_s=args.preroll,
                   realtime=args.realtime, stall_s=args.stall_timeout, meta=meta,

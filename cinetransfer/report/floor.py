@@ -11,7 +11,7 @@ with a > 0 the scale (focal length over distance), and 0 <= b <= a W/H: the vert
 by the cosine of the angle the camera looks up or down at him (W/H turns pixels square). Any camera
 position, aim and focal length gives some (a, b, tx, ty), so the least joint error over all of them
 is a lower bound of what any flight could reach with this subject: per frame, the minimum of the
-summed Euclidean errors over (a, b, tx, ty) — a small second-order cone program (Clarabel), left/right
+summed Euclidean errors over (a, b, tx, ty) — a small second-order cone program (cvxpy), left/right
 matched either way. The bound ignores dynamics, limits, the scene and the focus; a camera that
 rolls could do better (the report says whether the flight rolled).
 
@@ -31,9 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Sequence
 
-import clarabel
 import numpy as np
-from scipy import sparse
 
 from cinetransfer.shared.facing import mirror_permutation
 
@@ -55,67 +53,32 @@ class Floor:
 
 def _least_errors(q: np.ndarray, p: np.ndarray, w: np.ndarray, aspect: float, square: bool = False) -> np.ndarray:
     """Per frame, the least summed joint error over (a, b, tx, ty) (the module doc), for all N
-    frames in one cone program: the frames share nothing, so one solve of their sum gives each
-    frame's own minimum at the cost of one problem set-up instead of N. q (N, E, 2) billboard
-    joints (X, Y) [m], p (N, E, 2) normalised targets, w (N, E) 1 = compared, 0 = not. `square`:
-    b = aspect a (a 3-D body: its foreshortening is already in Y)."""
+    frames in one cone program (cvxpy): the frames share nothing, so one solve of their sum gives
+    each frame's own minimum at the cost of one problem set-up instead of N. q (N, E, 2) billboard
+    joints (X, Y) [m], p (N, E, 2) normalised targets, w (N, E) 1 = compared, 0 = not (that joint's
+    residual row is multiplied out: w x, w y, w t). `square`: b = aspect a (a 3-D body: its
+    foreshortening is already in Y)."""
+    from cinetransfer.whole_import import import_whole
+
+    cp = import_whole("cvxpy")  # imported beside other threads' imports (transfer.warm_imports)
+
+    n, e = w.shape
     q = np.nan_to_num(q) * w[..., None]
     p = np.nan_to_num(p) * w[..., None]
-    a, b, t = _cone_fit(q, p, w > 0, aspect, square)
-    rx = a[:, None] * q[..., 0] + w * t[:, 0:1] - p[..., 0]
-    ry = w * t[:, 1:2] - b[:, None] * q[..., 1] - p[..., 1]
+    a, b, t = cp.Variable(n), cp.Variable(n), cp.Variable((n, 2))
+    ones = np.ones((1, e))
+    x = cp.multiply(a[:, None] @ ones, q[..., 0]) + cp.multiply(w, t[:, 0:1] @ ones) - p[..., 0]
+    y = cp.multiply(w, t[:, 1:2] @ ones) - cp.multiply(b[:, None] @ ones, q[..., 1]) - p[..., 1]
+    cost = cp.sum(cp.norm(cp.vstack([cp.vec(x, order="C"), cp.vec(y, order="C")]), 2, axis=0))
+    limits = [a >= 0, b == aspect * a] if square else [a >= 0, b >= 0, b <= aspect * a]
+    problem = cp.Problem(cp.Minimize(cost), limits)
+    problem.solve()
+    if problem.status not in ("optimal", "optimal_inaccurate"):
+        raise ValueError(f"floor fit failed: {problem.status}")
+    av, bv, tv = a.value[:, None], b.value[:, None], t.value
+    rx = av * q[..., 0] + w * tv[:, 0:1] - p[..., 0]
+    ry = w * tv[:, 1:2] - bv * q[..., 1] - p[..., 1]
     return np.maximum(np.hypot(rx, ry).sum(axis=1), 0.0)
-
-
-def _cone_fit(q: np.ndarray, p: np.ndarray, on: np.ndarray, aspect: float, square: bool
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(a (N,), b (N,), t (N, 2)) minimising the summed |(a X + tx - x, ty - b Y - y)| over the
-    joints `on`, as Clarabel's conic form (min c'v s.t. A v + s = h, s in the cones) written out:
-    variables a, b, tx, ty of each frame, then an epigraph s_j >= |residual_j| per compared joint.
-    Written here rather than through a modelling layer: importing cvxpy cost ~0.8 CPU s a transfer
-    (scipy.stats among its atoms) and its canonicalisation ~0.1 more, for this one program."""
-    n = on.shape[0]
-    fr, jt = np.nonzero(on)
-    m = fr.size
-    A_, B_, TX, TY, S = 0, n, 2 * n, 3 * n, 4 * n  # each variable's first column
-    # second-order cones (s_j, rx_j, ry_j): s = h - A v, so each row holds the negated expression
-    k = np.arange(m)
-    rows = [3 * k, 3 * k + 1, 3 * k + 1, 3 * k + 2, 3 * k + 2]
-    cols = [S + k, A_ + fr, TX + fr, TY + fr, B_ + fr]
-    vals = [-np.ones(m), -q[fr, jt, 0], -np.ones(m), -np.ones(m), q[fr, jt, 1]]
-    h = np.zeros(3 * m)
-    h[3 * k + 1], h[3 * k + 2] = -p[fr, jt, 0], -p[fr, jt, 1]
-    # then the scale's limits: b = aspect a (square), else a >= 0, b >= 0 and aspect a - b >= 0
-    f = np.arange(n)
-    r0 = 3 * m
-    if square:
-        rows += [r0 + f, r0 + f, r0 + n + f]
-        cols += [B_ + f, A_ + f, A_ + f]
-        vals += [np.ones(n), np.full(n, -aspect), -np.ones(n)]
-        cones = [clarabel.ZeroConeT(n), clarabel.NonnegativeConeT(n)]
-        n_lin = 2 * n
-    else:
-        rows += [r0 + f, r0 + n + f, r0 + 2 * n + f, r0 + 2 * n + f]
-        cols += [A_ + f, B_ + f, A_ + f, B_ + f]
-        vals += [-np.ones(n), -np.ones(n), np.full(n, -aspect), np.ones(n)]
-        cones = [clarabel.NonnegativeConeT(3 * n)]
-        n_lin = 3 * n
-    # Clarabel takes the cones in row order: the linear rows first, so they are moved ahead
-    rows = [np.where(r >= r0, r - r0, r + n_lin) for r in rows]
-    h = np.concatenate([np.zeros(n_lin), h])
-    nv = S + m
-    A = sparse.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(n_lin + 3 * m, nv))
-    c = np.zeros(nv)
-    c[S:] = 1.0
-    settings = clarabel.DefaultSettings()
-    settings.verbose = False
-    sol = clarabel.DefaultSolver(sparse.csc_matrix((nv, nv)), c, A, h,
-                                 cones + [clarabel.SecondOrderConeT(3)] * m, settings).solve()
-    if sol.status not in (clarabel.SolverStatus.Solved, clarabel.SolverStatus.AlmostSolved):
-        raise ValueError(f"floor fit failed: {sol.status}")
-    v = np.asarray(sol.x)
-    return v[A_:B_], v[B_:TX], np.stack([v[TX:TY], v[TY:S]], axis=1)
 
 
 def joint_error_floor(targets: np.ndarray, compared: np.ndarray, billboard: np.ndarray,

@@ -60,30 +60,6 @@ def test_uncompared_joints_do_not_count():
     assert np.isnan(none.mean()) and np.isnan(none.per_frame[0])
 
 
-def test_frames_solved_together_each_reach_their_own_minimum():
-    # one cone program for all frames: frame 0 the tilted pair (summed error 0.1 over 2 joints), frame 1
-    # a scaled and shifted pose with one joint not compared (0), frame 2 the tilted pair's mirror image
-    # (left/right swapped: matched the other way round, the tilt costs 0.1 again)
-    q = np.zeros((3, 4, 2))
-    p = np.zeros((3, 4, 2))
-    on = np.zeros((3, 4), bool)
-    q[0, :2], p[0, :2], on[0, :2] = [[1.0, 0.0], [-1.0, 0.0]], [[0.6, 0.5], [0.4, 0.6]], True
-    q[1] = [[0.2, 1.4], [-0.2, 1.4], [0.15, 0.9], [-0.15, 0.9]]
-    p[1] = [[0.5 + 0.1 * x, 0.6 - 0.1 * y] for x, y in q[1]]
-    p[1, 3] = [0.9, 0.1]  # far off, not compared
-    on[1, :3] = True
-    q[2, :2], p[2, :2], on[2, :2] = [[1.0, 0.0], [-1.0, 0.0]], [[0.4, 0.6], [0.6, 0.5]], True
-    fl = joint_error_floor(p, on, q, NAMES, 16 / 9)
-    assert fl.per_frame == pytest.approx([0.1, 0.0, 0.1], abs=1e-6)
-    assert list(fl.counts) == [2, 3, 2] and fl.mean() == pytest.approx(0.2 / 7, abs=1e-6)
-    # the same frames in a 3-D body's program (b = aspect a): the tilts cost the same; frame 1 wants
-    # b = a = 0.1, which a square program of aspect 1 gives and one of aspect 16/9 does not
-    sq = joint_error_floor(p, on, q, NAMES, 1.0, square=True)
-    assert sq.per_frame == pytest.approx([0.1, 0.0, 0.1], abs=1e-6)
-    wide = joint_error_floor(p, on, q, NAMES, 16 / 9, square=True)
-    assert wide.per_frame[[0, 2]] == pytest.approx([0.1, 0.1], abs=1e-6) and wide.per_frame[1] > 0.01
-
-
 def test_the_simulators_own_truth_is_within_the_weak_perspective_residual():
     """The simulator's truth joints, as targets, against the billboard poses billboard_joints
     gives for the same stamps: a floor of ~0 (what is left is perspective)."""
