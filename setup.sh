@@ -26,10 +26,16 @@ if [ ! -x "$VENV/bin/python" ]; then
   echo "setup.sh: creating $VENV"
   "$PY" -m venv "$VENV"
 fi
+# The package's own modules byte-compiled, as pip does for every package it installs but not for an
+# editable install: Python then reads them instead of compiling each module it imports, in each of a
+# transfer's ~10 processes at every start, wherever PYTHONDONTWRITEBYTECODE is set (compileall writes
+# regardless). Only changed files are compiled again; a stale one is ignored, never run.
+compile_package() { "$VENV/bin/python" -m compileall -q -j 0 cinetransfer shared services deploy >/dev/null; }
 stamp="$VENV/.cinetransfer-installed"
 want="$(cat pyproject.toml setup.sh | sha256sum | cut -d' ' -f1)"
 if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && "$VENV/bin/python" -c "import cinetransfer, mediapipe" 2>/dev/null \
     && { ! command -v npm >/dev/null || "$VENV/bin/python" -m cinetransfer.services.detector.box_models check >/dev/null; }; then
+  compile_package
   exit 0
 fi
 export PIP_DISABLE_PIP_VERSION_CHECK=1
@@ -52,4 +58,5 @@ export PIP_DISABLE_PIP_VERSION_CHECK=1
 # (services/detector/box_models.py, docs/detector.md).
 "$VENV/bin/python" -m cinetransfer.services.detector.box_models fetch
 "$VENV/bin/python" -c "import cinetransfer.cli, mediapipe, moderngl, torch, zenoh, casadi, cv2; print('setup.sh: ok — torch', torch.__version__, '| opencv', cv2.__version__)"
+compile_package
 echo "$want" > "$stamp"

@@ -256,3 +256,29 @@ def test_deployment_ends_with_its_owner(port, tmp_path):
     finally:
         owner.kill()
         deploy("down", str(RELAYS), "--run-dir", str(run_dir), env=env, cwd=tmp_path)
+
+
+def test_the_transfers_down_on_a_thread_stops_every_process_and_says_when_it_failed(port, tmp_path, monkeypatch):
+    """`job.DeployDown` (the transfer stops its own deployment on a thread, not a child interpreter):
+    every process ends, its `then` runs once it has, and a down that fails is a TransferError."""
+    from cinetransfer.job import DeployDown, TransferError
+
+    monkeypatch.setenv("CT_ROUTER_PORT", str(port))
+    env = {**os.environ, "CT_ROUTER_PORT": str(port)}
+    run_dir = tmp_path / "run"
+    r = deploy("up", str(RELAYS), "--run-dir", str(run_dir), env=env, cwd=tmp_path)
+    assert r.returncode == 0, r.stdout + r.stderr
+    state = json.loads((run_dir / "state.json").read_text())
+    pids = [state["supervisor_pid"], *(v["pid"] for v in state["procs"].values())]
+    assert len(pids) == 4 and all(_pid_alive(p) for p in pids)
+    done = []
+    try:
+        down = DeployDown(["down", str(RELAYS), "--run-dir", str(run_dir)], "stopping nodes",
+                          then=lambda: done.append(not any(_pid_alive(p) for p in pids)))
+        down.wait()
+    finally:  # whatever happened above, nothing is left running
+        deploy("down", str(RELAYS), "--run-dir", str(run_dir), env=env, cwd=tmp_path)
+    assert done == [True] and not (run_dir / "state.json").exists()
+    bad = DeployDown(["down", str(tmp_path / "no_such.yaml")], "stopping nodes")
+    with pytest.raises(TransferError, match=r"stopping nodes failed \(exit 2\)"):
+        bad.wait()
