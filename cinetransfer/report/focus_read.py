@@ -74,6 +74,22 @@ def blur_range(lens: FR.Lens, r: int, others: list[int], asked: np.ndarray, inv_
     return float(b.min()), float(b.max())
 
 
+def focus_for_blur(focal_mm: float, f_number: float, x: float, b: float, behind: bool,
+                   coc_mm: float = FR.COC_MM) -> float:
+    """The focus distance [m] that leaves a point at inverse depth x [1/m] b circles soft, the point behind the
+    focus when `behind` (1/s above x), else in front of it: 1/s = x -+ b sigma(s) with sigma = (1 - f/s) / (H - f)
+    (focus_reach.blur_circles), solved for 1/s; FOCUS_FAR_M where 1/s would be 0 or less (beyond infinity)."""
+    f = focal_mm / 1000.0
+    hf = focal_mm * focal_mm / (f_number * coc_mm) / 1000.0  # H - f [m]
+    sgn = 1.0 if behind else -1.0
+    u = (x + sgn * b / hf) / (1.0 + sgn * b * f / hf)
+    return 1.0 / u if u > 0 else FOCUS_FAR_M
+
+
+#: focus_for_blur's answer where the blur asked needs a focus past infinity
+FOCUS_FAR_M = 1.0e5
+
+
 def unreadable_labels(lens: FR.Lens, asked: np.ndarray, judged: np.ndarray, inv_depth: np.ndarray,
                       flips: np.ndarray) -> list[FR.Unreachable]:
     """The labels of `judged` (3,) bool (present and within the reach) that no setting of the lens lets the

@@ -110,3 +110,15 @@ def test_no_frame_a_brute_force_search_reads_as_asked_is_called_unreadable():
             checked += 1
             assert FD.unreadable_labels(lens, asked, judged, inv, flips) == [], (lens, asked, inv, flips)
     assert checked >= 10  # enough reachable frames drawn for the check to mean something
+
+
+def test_the_focus_for_a_blur_gives_that_blur():
+    # by hand: 50 mm f/1, H - f = 50^2 / 0.13365 mm = 18.706 m; a point at 10 m one circle behind the focus:
+    # 1/s = (0.1 + 1 / 18.706) / (1 + 0.05 / 18.706) = 0.15305, s = 6.534 m (as the iteration in the test above)
+    s = FD.focus_for_blur(50.0, 1.0, 0.1, 1.0, True)
+    assert s == pytest.approx(6.534, abs=0.002)
+    for x, b, behind in ((0.1, 1.0, True), (1 / 6.8, 1.25, False), (1 / 40.0, 0.6, True)):
+        s = FD.focus_for_blur(50.0, 1.4, x, b, behind)
+        assert FR.blur_circles(50.0, 1.4, s, x) == pytest.approx(b, rel=1e-9)
+        assert (1 / s > x) == behind
+    assert FD.focus_for_blur(50.0, 1.0, 0.01, 1.0, False) == FD.FOCUS_FAR_M  # 1/s would be below 0
