@@ -34,6 +34,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from harness import write_result  # noqa: E402
 
+from cinetransfer.report import focus_reach as FR  # noqa: E402
 from cinetransfer.report import focus_read as FD  # noqa: E402
 from cinetransfer.report import reach_frames as RF  # noqa: E402
 from cinetransfer.report.build import read_vehicle_states  # noqa: E402
@@ -119,10 +120,15 @@ def brute_force(fr: Frame, lens: Any, asked: np.ndarray, judged: np.ndarray) -> 
         for s in np.geomspace(max(lens.focus_m[0], s0 / 1.2), min(lens.focus_m[1], s0 * 1.2), FINE[1]):
             read(float(n), float(s))
     good = sum(all((sh[r] >= 0.5) == bool(asked[r]) for r in judged_r) for sh in found.values())
+    # per prefix of the order labels are granted (focus_reach.PRIORITY), the settings that read it as asked
+    order = [r for r in FR.PRIORITY if judged[r]]
+    prefix = [sum(all((sh[r] >= 0.5) == bool(asked[r]) for r in order[:k + 1]) for sh in found.values())
+              for k in range(len(order))]
     margin = {k: min((sh[r] - 0.5) if asked[r] else (0.5 - sh[r]) for r in judged_r) for k, sh in found.items()}
     (n, s), sh = max(margin, key=margin.get), found[max(margin, key=margin.get)]
     worst = min(judged_r, key=lambda r: (sh[r] - 0.5) if asked[r] else (0.5 - sh[r]))
     return {"readable_settings": int(good), "settings": len(found),
+            "readable_prefix": {REGIONS[r]: int(c) for r, c in zip(order, prefix)},
             "best": {"margin": round(float(margin[(n, s)]), 3), "f_number": n, "focus_m": s, "worst": REGIONS[worst],
                      "shares": [None if not np.isfinite(v) else round(float(v), 3) for v in sh]}}
 
@@ -186,19 +192,22 @@ def judge_run(run: Path, frames: list[int] | None = None) -> dict[str, Any]:
 
 
 def verdict(row: dict[str, Any]) -> dict[str, str]:
-    """The frame's regions no drawn setting lets the extraction read as asked (kind 'read'): none where some
-    setting reads every judged label as asked; else the region nearest flipping wrong at the best setting."""
+    """The frame's region no drawn setting lets the extraction read as asked together with the ones granted
+    before it (kind 'read'; the reach's order: subject, background, foreground): none where some setting reads
+    every judged label as asked."""
     b = row["brute_force"]
     if b["readable_settings"]:
         return {}
     best, asked = b["best"], row["asked"]
-    labels = ", ".join(f"{REGIONS[r]} {'sharp' if asked[r] else 'soft'}" for r in (1, 2, 0) if row["judged"][r])
-    r = REGIONS.index(best["worst"])
+    order = [r for r in FR.PRIORITY if row["judged"][r]]
+    r = next((REGIONS.index(k) for k, c in b["readable_prefix"].items() if c == 0), order[-1])
+    labels = ", ".join(f"{REGIONS[k]} {'sharp' if asked[k] else 'soft'}" for k in order[:order.index(r) + 1])
     flips = ", ".join(f"{k} {v:.2f}" for k, v in row["flips"].items())
-    return {best["worst"]: (f"{labels}: no lens setting of {b['settings']} drawn at the flight's pose lets the "
-                            f"extraction read them together; the closest, f/{best['f_number']:.3g} focused "
-                            f"{best['focus_m']:.3g} m, reads the {best['worst']} {best['shares'][r]:.0%} sharp "
-                            f"(the estimator flips, one region at a time, at {flips} circles)")}
+    shares = ", ".join(f"{REGIONS[k]} {best['shares'][k]:.0%}" for k in order)
+    return {REGIONS[r]: (f"{labels}: no lens setting of {b['settings']} drawn at the flight's pose lets the "
+                         f"extraction read them together; the closest, f/{best['f_number']:.3g} focused "
+                         f"{best['focus_m']:.3g} m, reads {shares} sharp (the estimator flips, one region at a "
+                         f"time, at {flips} circles)")}
 
 
 def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
