@@ -19,6 +19,10 @@ per source and region (foreground, subject, background):
   reachable column counts: the extraction's counts frames where the truth sees no such region but
   both styles show one, judged for reach only where the truth kept that band's depths
   (docs/report.md; each frame's reason is in report.json's focus_misses).
+With --read, each flown source's extraction misses within reach are drawn again at the flight's pose and
+read at every lens setting of a grid (benchmarks/focus_read_render.py): the frames no setting lets the
+extraction read as asked (kind 'read') are printed with their reason, and the extraction's agreement over
+the reachable frames with those left out too (`extraction_readable`, beside the report's, which keeps them).
 Goal: truth >= 0.90 and extraction >= 0.85 for every region present, over the reachable frames.
 Writes benchmarks/results/eval_focus_choices.json.
 """
@@ -34,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import focus_read_render  # noqa: E402
 import focus_sources  # noqa: E402
 from harness import write_result  # noqa: E402
 
@@ -84,6 +89,21 @@ def _reachable_frames(rep: dict, side: str) -> dict[str, int | None]:
     return {r: (focus.get(r) or {}).get("n_frames_reachable") for r in REGIONS}
 
 
+def read_verdicts(out: Path) -> dict:
+    """focus_read_render's verdicts on a run, and per region the extraction's agreement over the reachable frames
+    with the frames it calls unreadable for that region left out too (only those the extraction missed, so that
+    the agreeing frames stay counted)."""
+    res = focus_read_render.judge_run(out)
+    focus = (json.loads((out / "report.json").read_text()).get("extraction") or {}).get("focus") or {}
+    res["extraction_readable"] = {}
+    for r in REGIONS:
+        agree, n = (focus.get(r) or {}).get("agreement_reachable"), (focus.get(r) or {}).get("n_frames_reachable")
+        gone = sum(1 for x in res["frames"] if r in x["unreadable"] and r in x["missed"])
+        res["extraction_readable"][r] = (round(agree * n) / (n - gone)) if agree is not None and n and n > gone \
+            else None
+    return res
+
+
 def _fmt(v: float | None) -> str:
     return "  n/a" if v is None else f"{v:5.2f}"
 
@@ -95,6 +115,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--scene", default="focus_hedge")
     ap.add_argument("--work", type=Path, default=Path("runs/eval_focus_choices"))
     ap.add_argument("--max-frames", type=int, default=0)
+    ap.add_argument("--read", action="store_true", help="judge the extraction's misses within reach by drawing "
+                                                        "them at every lens setting (14-16 CPU s a frame)")
     ap.add_argument("--json", type=Path, default=HERE / "results" / "eval_focus_choices.json", help="results file")
     args = ap.parse_args(argv)
     results = {}
@@ -106,6 +128,8 @@ def main(argv: list[str]) -> int:
         res = transfer(src, args.scene, out, args.max_frames)
         if "error" not in res:
             res["labels"] = label_agreement(out / "style.json", src.with_suffix(".labels.json"))
+            if args.read:
+                res["read"] = read_verdicts(out)
         results[src.stem] = res
         if "error" in res:
             print(f"{src.stem:34s} failed: {res['error'].splitlines()[-1] if res['error'] else ''}")
@@ -127,6 +151,10 @@ def main(argv: list[str]) -> int:
         for run in res.get("controller_runs") or []:
             print(f"    within reach, filmed otherwise: {run['region']} frames {run['first_frame']}-"
                   f"{run['last_frame']}: {run['reason']}")
+        for r, frames in ((res.get("read") or {}).get("unreadable") or {}).items():
+            if frames:
+                print(f"    no lens lets the extraction read {r} as asked in frames {frames}; extraction over the "
+                      f"reachable frames without them: {_fmt(res['read']['extraction_readable'][r])}")
     write_result(args.json, {"clip": args.clip, "scene": args.scene,
                              "goal": {"truth_min": TRUTH_MIN, "extraction_min": EXTRACTION_MIN}, "results": results})
     return 0
