@@ -761,7 +761,7 @@ class Planner:
     def _switch_made(self, made: int, switch_now: int, now_row: int, row: int, fps: float, view: tuple) -> int:
         """The switch a stage at `row` plans as made: `made` where a stage before it set one, else `switch_now` (the
         switch the row followed now leads to) where the stage lies at or past it with that row inside its lead
-        (`view`: the stage's planned state, subject, time ahead and depth for _rack_lead_s), else -1. With the
+        (`view`: the stage's planned state, subject, time ahead and depth for _rack_lead_s), else none (-1). With the
         horizon's first stage past it no stage was a lead stage, these previewed it, and the parkour rack's lens
         stopped down to f/1.36 on its last two rows before it (runner and band sharp three more frames)."""
         if made >= 0 or not 0 <= switch_now <= row:
@@ -1017,10 +1017,10 @@ def realisable_rows(focus_in: np.ndarray) -> np.ndarray:
 
 
 #: the subject's blur [circles of the one circle] a lead stage before a rack onto the background holds him at
-#: (held_lead_dof), with margin under the one circle: the estimator read the parkour runner soft from 0.92
+#: (held_lead_dof), with margin under the one circle: the estimator read the parkour runner soft at 0.92-0.97
 LEAD_HOLD_BLUR = 0.7
-#: that hold's weight, as a factor of dof_near: once, the lens stopped down only to f/1.15 and let him reach 0.93
-#: circles (read soft); twice or three times he stayed under 0.91 circles to the switch
+#: that hold's weight, as a factor of dof_near: once, the lens stopped down only to f/1.13 and let him reach 0.93
+#: circles (read soft); twice, f/1.24 and 0.80-0.95 circles to the switch (read sharp)
 LEAD_HOLD_WEIGHT = 2.0
 #: the share of the focus's travel past the subject that a rack away from him is planned ahead
 #: (Planner._dof_targets): half, so that the frames the travel costs fall either side of the switch
