@@ -328,6 +328,10 @@ class PlannerConfig:
     #: the lead no longer than the focus may travel before the background enters the field of the one circle
     #: (core.Planner._rack_lead_s, focus_field.rack_lead_cap_s): the background soft up to the switch, as asked
     rack_lead_background_gate: bool = True
+    #: the lead stages at most this long before a rack from the subject onto the background [s] keep him sharp
+    #: (core.held_lead_dof: the focus travels on as the stages past the switch ask, the f-number rises) instead
+    #: of planning him soft already; 0 = off
+    rack_lead_hold_s: float = 0.25
     #: a row whose source has no label for the subject (core.unmeasured_subject_rows) asks nothing of his depth:
     #: the near limit is free unless the foreground is asked sharp, and a far limit at infinity aims at the ground
     #: behind him the camera sees. With his held label asked of the lens, tos_clip01's take 3 stopped down to f/9
@@ -392,7 +396,7 @@ class PlannerConfig:
             raise _bad("", "background_behind_m", self.background_behind_m, "a value > 0 (inf: unknown)")
         for name in ("tail_max_s", "setpoint_lead_s", "clamp_tolerance", "feasibility_tol", "separation_lookahead_s",
                      "subject_keep_out_m", "keep_out_settle_s", "zoom_yield_lead_s", "rack_lead_max_s",
-                     "rack_lead_min_hold_s", "rack_ahead_max_circles"):
+                     "rack_lead_min_hold_s", "rack_ahead_max_circles", "rack_lead_hold_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise _bad("", name, v, "a finite value >= 0")

@@ -696,12 +696,7 @@ class Planner:
             if not later_shot_previewed(shot_held, now_row, r):
                 continue  # a later shot flown in this take asks nothing yet: the lens keeps this shot's choice
             ahead = int(rack_ahead[r]) if r < len(rack_ahead) else -1
-            if made < 0 and 0 <= switch_now <= r \
-                    and (switch_now - now_row) / fps <= self._rack_lead_s(xk, subj, t, depth):
-                # past the switch, with the row followed now inside its lead: made as well. With the horizon's
-                # first stage past it no stage was a lead stage, these previewed it, and the parkour rack's lens
-                # stopped down to f/1.36 on its last two rows before it (runner and band sharp three more frames)
-                made = switch_now
+            made = self._switch_made(made, switch_now, now_row, r, fps, (xk, subj, t, depth))
             now_k = max(now_row, made) if 0 <= made <= r else now_row
             own = r  # the stage's own row, before a lead plans it as the switch's
             if ahead >= 0 and (ahead - r) / fps <= self._rack_lead_s(xk, subj, t, depth):
@@ -758,7 +753,27 @@ class Planner:
                     settled_ratio = blur / st.sharp_coc_ratio
                     dof[k, 7] = defocus_ratio(switched_out(near_out, now_row, r), settled_ratio, soft)
                 dof[k, 2] *= float(far_previewed(focus, near_out, now_k, r))
+            if self._lead_holds_subject(focus, absent, own, r, fps):
+                dof[k] = held_lead_dof(depth, blur=LEAD_HOLD_BLUR, sharp_coc_ratio=st.sharp_coc_ratio,
+                                       weight=LEAD_HOLD_WEIGHT)
         return dof, dref
+
+    def _switch_made(self, made: int, switch_now: int, now_row: int, row: int, fps: float, view: tuple) -> int:
+        """The switch a stage at `row` plans as made: `made` where a stage before it set one, else `switch_now` (the
+        switch the row followed now leads to) where the stage lies at or past it with that row inside its lead
+        (`view`: the stage's planned state, subject, time ahead and depth for _rack_lead_s), else none (-1). With the
+        horizon's first stage past it no stage was a lead stage, these previewed it, and the parkour rack's lens
+        stopped down to f/1.36 on its last two rows before it (runner and band sharp three more frames)."""
+        if made >= 0 or not 0 <= switch_now <= row:
+            return made
+        return switch_now if (switch_now - now_row) / fps <= self._rack_lead_s(*view) else made
+
+    def _lead_holds_subject(self, focus: np.ndarray, absent: np.ndarray, own: int, switch: int, fps: float) -> bool:
+        """Whether a stage whose own row `own` a lead plans as the row `switch` (a later row: the rack's switch) holds
+        the subject sharp (held_lead_dof) rather than planning him soft already: the own row wants him sharp and
+        the switch the background sharp (a rack onto the background), at most rack_lead_hold_s ahead of it."""
+        return (0 < switch - own <= self.cfg.rack_lead_hold_s * fps and focus.shape[-1:] == (3,)
+                and bool(focus[own, 1]) and not absent[own, 1] and bool(focus[switch, 2]) and not absent[switch, 2])
 
     def _row_limits(self, row: np.ndarray, depth: float, mu: float, band: Band | None,
                     focal_mm: float, far_ratio: float, keep_out_m: float,
@@ -979,6 +994,20 @@ class PredictedSubject:
     centre: np.ndarray  #: (3,) mean of the centre joints known (else of all known joints)
 
 
+def held_lead_dof(depth_m: float, *, blur: float, sharp_coc_ratio: float, weight: float) -> np.ndarray:
+    """(N_DOF,) the depth-of-field targets of a lead stage before a rack from the subject onto the background: his
+    centre `depth_m` away at most `blur` circles of the one circle soft (the near limit of that circle, a
+    `blur` / `sharp_coc_ratio` multiple of the planning circle, at or nearer than him; its weight `weight` times
+    dof_near) and the far limit free. The focus travels on as the stages past the switch ask (planned as made)
+    and the f-number rises to keep him sharp; at the switch the aperture, which opens 3 f-stops' worth a second
+    while the focus moves 15 m/s, leaves him soft. Planned soft instead, the parkour runner went soft 10 frames
+    before his switch."""
+    row = np.zeros(N_DOF)
+    row[0], row[1], row[5] = weight, 1.0 / depth_m, 1.0
+    row[6], row[7] = 1.0, blur / sharp_coc_ratio
+    return row
+
+
 def realisable_rows(focus_in: np.ndarray) -> np.ndarray:
     """The style's focus rows (K, 3) as one depth of field can give them (shared.camera.realisable_labels)."""
     focus = np.asarray(focus_in, dtype=bool)
@@ -987,6 +1016,12 @@ def realisable_rows(focus_in: np.ndarray) -> np.ndarray:
     return np.array([cam.realisable_labels(*row) for row in focus.tolist()], dtype=bool).reshape(focus.shape)
 
 
+#: the subject's blur [circles of the one circle] a lead stage before a rack onto the background holds him at
+#: (held_lead_dof), with margin under the one circle: the estimator read the parkour runner soft at 0.92-0.97
+LEAD_HOLD_BLUR = 0.7
+#: that hold's weight, as a factor of dof_near: once, the lens stopped down only to f/1.13 and let him reach 0.93
+#: circles (read soft); twice, f/1.24 and 0.80-0.95 circles to the switch (read sharp)
+LEAD_HOLD_WEIGHT = 2.0
 #: the share of the focus's travel past the subject that a rack away from him is planned ahead
 #: (Planner._dof_targets): half, so that the frames the travel costs fall either side of the switch
 RACK_LEAD_SHARE = 0.5

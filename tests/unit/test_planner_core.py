@@ -7,8 +7,10 @@ import pytest
 
 from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.camera_motion import MOTION_MASKS
-from cinetransfer.services.planner.core import (LENS_MOTION_COLUMNS, RACK_LEAD_SHARE, Planner, _fps, absent_regions,
-                                                held_subject_labels, instructions_from_arrays, lens_for_focus_rows,
+from cinetransfer.services.planner.core import (LEAD_HOLD_BLUR, LEAD_HOLD_WEIGHT, LENS_MOTION_COLUMNS,
+                                                RACK_LEAD_SHARE, Planner, _fps, absent_regions, held_lead_dof,
+                                                held_subject_labels,
+                                                instructions_from_arrays, lens_for_focus_rows,
                                                 pins_field_before_soft_background, planned_focus_rows,
                                                 later_shot_previewed, predict_subject, rack_settle_rows,
                                                 rack_switch_ahead, shot_choice_held, unmeasured_subject_rows)
@@ -401,6 +403,39 @@ def test_the_soft_subjects_near_limit_weighs_more_while_a_rack_settles(planner, 
         dataclasses.replace(planner.cfg, rack_settle_near_weight=0.5).validate()
 
 
+def test_a_lead_stage_before_a_rack_onto_the_background_holds_the_subject():
+    # given a subject 20 m away held at 0.9 circles, the planning circle 3/8 of the one circle, weighed twice
+    row = held_lead_dof(20.0, blur=0.9, sharp_coc_ratio=0.375, weight=2.0)
+    # then the near limit of the 0.9 circle (2.4 planning circles) aims at his centre, 1/20 m, one-sided (at or
+    # nearer), weighed twice, and the far limit is left free
+    np.testing.assert_allclose(row, [2.0, 0.05, 0.0, 0.0, 0.0, 1.0, 1.0, 2.4])
+
+
+def test_the_lead_of_a_rack_onto_the_background_keeps_the_subject_sharp(planner, instructions):
+    # given a style that racks from the subject to the background at row 10 (24 rows a second; the lead here
+    # 0.27 s: row 9 is a lead stage, 0.04 s before the switch, inside rack_lead_hold_s 0.25 s), followed from row 9
+    ins, x0, subj, _ = _rack_at_row_10(planner, instructions)
+    dof, dref = planner._dof_targets(T0, ins, [9, 10], 9, x0, subj)
+    # then the lead stage holds him at LEAD_HOLD_BLUR (0.7 circles: 0.7 / 0.375 = 1.8667 planning circles),
+    # weighed LEAD_HOLD_WEIGHT (2) times, with the far limit free, and the switch's own stage asks him soft: mu
+    # (1 m) past his centre on the visible circle (ratio 4)
+    assert (LEAD_HOLD_BLUR, LEAD_HOLD_WEIGHT) == (0.7, 2.0)
+    np.testing.assert_allclose(dof[0], [2.0, 1.0 / dref[0], 0.0, 0.0, 0.0, 1.0, 1.0, 0.7 / 0.375])
+    np.testing.assert_allclose(dof[1, [1, 7]], [1.0 / (dref[1] + 1.0), 4.0])
+    # and with the option off the lead stage plans the switch as made, as the switch's own stage
+    off = Planner(dataclasses.replace(planner.cfg, rack_lead_hold_s=0.0), solver=planner.solver)
+    np.testing.assert_allclose(off._dof_targets(T0, ins, [9, 10], 9, x0, subj)[0][0], dof[1])
+    # and so does a lead stage further ahead than rack_lead_hold_s (row 9 with a hold of 0.03 s, under a row)
+    short = Planner(dataclasses.replace(planner.cfg, rack_lead_hold_s=0.03), solver=planner.solver)
+    np.testing.assert_allclose(short._dof_targets(T0, ins, [9, 10], 9, x0, subj)[0][0], dof[1])
+    # and a rack onto nothing sharp keeps its lead planned soft: no background to bring in
+    focus = np.array(ins.focus_in)
+    focus[10:] = (False, False, False)
+    none = dataclasses.replace(ins, focus_in=focus)
+    held = planner._dof_targets(T0, none, [9, 10], 9, x0, subj)[0]
+    np.testing.assert_allclose(held, off._dof_targets(T0, none, [9, 10], 9, x0, subj)[0])
+
+
 def _roll_after(level: float, tilt_deg: float) -> float:
     """|camera roll| [deg] after 3 s of flying a standing shot whose targets are turned by tilt_deg."""
     from cinetransfer.services.planner.scenarios import run_closed_loop
@@ -788,8 +823,9 @@ def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instruc
     # switch's row, made: as once the switch is followed (its near limit's circle the visible one, its far target
     # kept), not previewed
     sw = 40
-    led = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=1.5, rack_lead_background_gate=False),
-                  solver=planner.solver)
+    # (the lead's last rack_lead_hold_s hold him sharp instead: off here, where the lead itself is judged)
+    led = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=1.5, rack_lead_background_gate=False,
+                                      rack_lead_hold_s=0.0), solver=planner.solver)
     assert k - sw >= led.cfg.rack_lead_min_hold_s * _fps(ins)
     focus = np.tile([False, True, False], (k, 1))
     focus[sw:] = (False, False, True)
@@ -825,13 +861,13 @@ def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instruc
     # switch whatever the lead, and the lead is the travel's, as ungated
     sigma = 1000.0 * 1.2 * b.f_number_min * st.coc_mm / x0[lay.F] ** 2
     assert 1.0 / dref[0] - sigma < 1.0 / (dref[0] + 20.0)
-    near_bg = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=1.5, background_behind_m=20.0),
+    near_bg = Planner(dataclasses.replace(led.cfg, background_behind_m=20.0, rack_lead_background_gate=True),
                       solver=planner.solver)
     np.testing.assert_allclose(near_bg._dof_targets(T0, rack, [sw - j], 0, x0, subj)[0], lead_row, rtol=1e-12)
     # and given 1000 m behind him, outside that field: planned as the switch's row only as long before it as the
     # focus takes from him to where the field's far limit reaches the background, 1/s = 1/(d + 1000) + sigma
     # (focus_field.rack_lead_cap_s), at the lens's rate
-    gated = Planner(dataclasses.replace(planner.cfg, rack_lead_max_s=1.5, background_behind_m=1000.0),
+    gated = Planner(dataclasses.replace(led.cfg, background_behind_m=1000.0, rack_lead_background_gate=True),
                     solver=planner.solver)
     cap = (1.0 / (1.0 / (dref[0] + 1000.0) + sigma) - dref[0]) / b.focus_rate_mps
     j_cap = int(cap * _fps(ins))
