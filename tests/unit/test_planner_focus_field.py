@@ -208,10 +208,12 @@ def test_the_three_labels_come_together_where_both_soft_regions_are_equally_blur
     # and a subject farther from the midpoint than a quarter circle keeps it: 0.1 + 0.25 x 0.1 = 0.125 /m, the
     # nearer region then 1.75 circles soft and the farther 1.25
     assert FF.three_label_focus_inv_m(10.0, 0.3, 0.0, spread=0.1, otherwise_inv_m=0.0) == pytest.approx(0.025)
-    # and where the two could share 1.0 circle at most the caller's move stands
-    assert FF.three_label_focus_inv_m(10.0, 0.15, 0.05, spread=0.05, otherwise_inv_m=0.01) == pytest.approx(0.01)
-    # and at 1.04 circles (the midpoint 0.1 /m on him, the regions 0.052 /m either side) half way between the two
-    assert FF.three_label_focus_inv_m(10.0, 0.152, 0.048, spread=0.05, otherwise_inv_m=0.01) == pytest.approx(0.005)
+    # and where the two could share 0.9 circles at most (under 0.95) the caller's move stands
+    assert FF.three_label_focus_inv_m(10.0, 0.145, 0.055, spread=0.05, otherwise_inv_m=0.01) == pytest.approx(0.01)
+    # and at 0.995 circles (the midpoint 0.1 /m on him, the regions 0.04975 /m either side), half way from 0.95 to
+    # 1.04: half way between the two moves
+    assert FF.three_label_focus_inv_m(10.0, 0.14975, 0.05025, spread=0.05, otherwise_inv_m=0.01) \
+        == pytest.approx(0.005)
     # and the caller's move with the foreground behind him, the background in front, or a depth unknown
     for fg, bg in ((0.05, 0.02), (0.3, 0.2), (math.nan, 0.02)):
         assert FF.three_label_focus_inv_m(10.0, fg, bg, spread=0.05, otherwise_inv_m=0.01) == 0.01
