@@ -113,6 +113,8 @@ def deploy_config(outdir: Path, port: int, rig: str, scene: str, *, realtime: bo
     # the scene's keep-out obstacles, derived once here: the planner keeps clear of them and the bridge's
     # safety layer counts the measured vehicle among them as outside its envelope
     obstacles = scene_obstacle_settings(scene, subject)
+    # and its fixed surfaces (a hedge, a backdrop) and ground: the planner's map of how deep what it frames lies
+    scene_map = scene_map_settings(scene, subject)
     bridge = ["--backend", "sim", "--scene", scene, *(["--subject", subject] if subject else []),
               *([] if realtime else ["--pace", str(IDLE_PACE), "--no-frames-before-reset"]),
               *(["--realtime"] if realtime else []), *(["--vehicle", vehicle] if vehicle else [])]
@@ -130,7 +132,7 @@ def deploy_config(outdir: Path, port: int, rig: str, scene: str, *, realtime: bo
             {"name": "autopilot_bridge", "command": "autopilot_bridge", "args": bridge,
              "settings": {"safety": {"obstacles_m": obstacles}}},
             {"name": "planner", "command": "planner", "args": ["--vehicle", vehicle] if vehicle else [],
-             "settings": {"obstacles_m": [list(o) for o in obstacles]}},  # a copy: no YAML alias
+             "settings": {"obstacles_m": [list(o) for o in obstacles], **scene_map}},
         ],
         "restart": {"backoff_initial_s": 0.5, "stop_grace_s": 10, "startup_timeout_s": 180},
     }
@@ -147,6 +149,19 @@ def scene_obstacle_settings(scene: str, subject: str | None = None) -> list[list
     from cinetransfer.services.autopilot_bridge.sim.scene import load_scene
 
     return [o.as_list() for o in scene_obstacles(load_scene(scene, subject=subject))]
+
+
+def scene_map_settings(scene: str, subject: str | None = None) -> dict[str, object]:
+    """The planner's map of simulator scene `scene` (a name or a YAML file) as its settings: the fixed upright
+    surfaces (`surfaces_m`, shared/surfaces.py) and the ground's height (`ground_z_m`, when the scene has one)."""
+    from cinetransfer.services.autopilot_bridge.sim.scene import load_scene
+    from cinetransfer.services.autopilot_bridge.sim.surfaces import scene_surfaces
+
+    sc = load_scene(scene, subject=subject)
+    out: dict[str, object] = {"surfaces_m": [s.as_list() for s in scene_surfaces(sc)]}
+    if sc.ground is not None:
+        out["ground_z_m"] = float(sc.ground.z_m)
+    return out
 
 
 @contextmanager

@@ -27,6 +27,7 @@ from cinetransfer.shared.paths import cache_dir
 from cinetransfer.shared.limits import (EnvelopeLimits, GimbalLimits, GimbalRateLimits, LensLimits, LensRateLimits,
                                         MotionLimits, vehicle_fields)
 from cinetransfer.shared.obstacles import obstacles_setting
+from cinetransfer.shared.surfaces import surfaces_setting
 from cinetransfer.shared.vehicle import VehicleProfile
 
 
@@ -372,6 +373,15 @@ class PlannerConfig:
     #: plan keeps the camera bounds.min_obstacle_distance_m from the surfaces of the nearest ones (obstacles.py). A
     #: runtime parameter; the transfer gives the scene's own (services/autopilot_bridge/sim/obstacles.py)
     obstacles_m: tuple[tuple[float, ...], ...] = ()
+    #: the scene's known upright surfaces, each [x0_m, y0_m, x1_m, y1_m, z_min_m, z_max_m] in the world frame
+    #: (shared/surfaces.py): with the ground, how deep what the foreground band and the background show lies
+    #: (scene_depth.py), for "only the subject sharp" (focus_field.three_label_focus_inv_m). A runtime parameter;
+    #: the transfer gives the scene's own fixed layers (services/autopilot_bridge/sim/surfaces.py)
+    surfaces_m: tuple[tuple[float, ...], ...] = ()
+    #: the ground's height in the scene's map [m] (with surfaces_m); NaN: not given, and the map's ground is taken
+    #: below the subject's soles, which in a jump (parkour, frames 18-34) raised it over the backdrop's foot and
+    #: made the background's median the lawn 31 m away instead of the backdrop 40 m away
+    ground_z_m: float = math.nan
 
     def joint_weight(self, name: str) -> float:
         return dict(self.joint_weights).get(name, 1.0)
@@ -407,6 +417,7 @@ class PlannerConfig:
         if self.left_right not in LEFT_RIGHT:
             raise _bad("", "left_right", self.left_right, " | ".join(LEFT_RIGHT))
         object.__setattr__(self, "obstacles_m", obstacles_setting(self.obstacles_m, "planner config: obstacles_m"))
+        object.__setattr__(self, "surfaces_m", surfaces_setting(self.surfaces_m, "planner config: surfaces_m"))
         return self
 
 

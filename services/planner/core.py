@@ -49,7 +49,8 @@ from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, GROUND_BE
                                                        focus_ahead_inv_m, foreground_limits, ground_behind_inv_m,
                                                        settled_subject_blur, foreground_near_m, shifted_limits,
                                                        rack_lead_cap_s, rack_ahead_inv_m, ground_band,
-                                                       narrowest_spread)
+                                                       narrowest_spread, three_label_focus_inv_m)
+from cinetransfer.services.planner.scene_depth import ray_inverse_depths, region_medians
 from cinetransfer.services.planner.separation import (APERTURE_MARGIN, background_soft_distance_m, framing_k,
                                                       separation_distance_m)
 from cinetransfer.services.planner.solver import N_DOF, MpcSolver, SolveResult, StageData
@@ -57,6 +58,7 @@ from cinetransfer.shared import camera as cam
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.facing import by_image_side
 from cinetransfer.shared.obstacles import obstacles_from
+from cinetransfer.shared.surfaces import surfaces_from
 from cinetransfer.shared.focus_regions import FOREGROUND_MIN_ROWS
 from cinetransfer.shared.plausible import unusable_targets
 
@@ -118,6 +120,7 @@ class Planner:
                                           feasibility_tol=self.cfg.feasibility_tol,
                                           accept_suboptimal=self.cfg.accept_suboptimal)
         self._obstacles = obstacles_from(self.cfg.obstacles_m)
+        self._surfaces = surfaces_from(self.cfg.surfaces_m)
         self.state = "idle"
         self._elapsed_s = 0.0  # recording time accumulated before the current run
         self._run_from_ns: int | None = None  # when the current (unpaused) run began
@@ -711,7 +714,9 @@ class Planner:
                 dof[k, 6] = defocus_ratio(keeps_out[r] and switched_out(keeps_out, now_row, r), ratio, soft)
                 near, far = self._row_limits(focus[r], depth, mu, band, float(xk[lay.F]), dof[k, 6],
                                              keep_out_m=float(keep_outs_m[r]),
-                                             absent_row=absent[r] | centred[r])
+                                             absent_row=absent[r] | centred[r],
+                                             map_medians=self._together_medians(focus[r], absent[r] | centred[r],
+                                                                                xk, subj, t))
                 if centred[r, 2] and not absent[r, 2] and tuple(focus[r]) == (False, True, False):
                     near, far = shifted_limits(near, far, self._rack_ahead_inv_m(xk, subj, t, depth))
                 free = bool(r < len(near_free) and near_free[r]) and near > 0
@@ -777,18 +782,20 @@ class Planner:
 
     def _row_limits(self, row: np.ndarray, depth: float, mu: float, band: Band | None,
                     focal_mm: float, far_ratio: float, keep_out_m: float,
-                    absent_row: np.ndarray) -> tuple[float, float]:
+                    absent_row: np.ndarray, map_medians: tuple[float, float] | None = None) -> tuple[float, float]:
         """Target limits (D_n*, D_f*) [m] of a row's labels (shared.camera.desired_dof_limits), with
         "only the background sharp" keeping the subject out by `keep_out_m` past his centre (the row's
         keep-out, _keep_outs_m), "only the subject sharp" before a present background moved in front of
-        him (_subject_only_limits), and "only the foreground sharp" aimed
+        him (_subject_only_limits; with the scene's map, `map_medians`, where the three labels come together), and
+        "only the foreground sharp" aimed
         at the ground the foreground band shows (focus_field; the far limit's circle is `far_ratio` times
         the planning circle)."""
         st = self.cfg.structure
         fg, subject, bg = cam.realisable_labels(*(bool(v) for v in row))
         near, far = cam.desired_dof_limits(fg, subject, bg, depth, mu, defocus_when_none=st.defocus_when_none)
         if subject and not (fg or bg) and not absent_row[2] and near > 0:
-            return self._subject_only_limits(near, far, depth, band, focal_mm, fg_absent=bool(absent_row[0]))
+            return self._subject_only_limits(near, far, depth, band, focal_mm, fg_absent=bool(absent_row[0]),
+                                             map_medians=map_medians)
         if bg and not subject:
             # only the subject is kept out, by the visible circle's near limit: with a keep-out given, past his
             # own back rather than mu past his centre (parkour, subject soft: the lawn right behind him went soft)
@@ -805,16 +812,47 @@ class Planner:
         return near, far
 
     def _subject_only_limits(self, near: float, far: float, depth: float, band: Band | None, focal_mm: float, *,
-                             fg_absent: bool) -> tuple[float, float]:
+                             fg_absent: bool, map_medians: tuple[float, float] | None = None) -> tuple[float, float]:
         """(D_n*, D_f*) [m] of "only the subject sharp" with the background present: d -+ mu moved in front of
         him by focus_ahead_inv_m, the one circle's spread taken at the widest aperture planned for. Centred on
         him, a field wider than he is deep left parkour's backdrop 1.0-1.35 circles soft: sharp to the focus
-        estimator (docs/planner.md, "Only the subject sharp: the focus in front of him")."""
-        if not self.cfg.subject_only_focus_ahead:
+        estimator (docs/planner.md, "Only the subject sharp: the focus in front of him"). With the scene's map
+        (`map_medians`, the band's and the background's median inverse depths) the focus goes where both are
+        softest together, wide open, as far as that is within reach (focus_field.three_label_focus_inv_m)."""
+        if not self.cfg.subject_only_focus_ahead and map_medians is None:
             return near, far
-        f_number = APERTURE_MARGIN * self.solver.bounds.f_number_min
-        spread = narrowest_spread(focal_mm, f_number, self.cfg.structure.coc_mm)
-        return shifted_limits(near, far, focus_ahead_inv_m(depth, band, fg_absent=fg_absent, spread=spread))
+        b, coc = self.solver.bounds, self.cfg.structure.coc_mm
+        ahead = 0.0
+        if self.cfg.subject_only_focus_ahead:
+            spread = narrowest_spread(focal_mm, APERTURE_MARGIN * b.f_number_min, coc)
+            ahead = focus_ahead_inv_m(depth, band, fg_absent=fg_absent, spread=spread)
+        if map_medians is not None:
+            ahead = three_label_focus_inv_m(depth, *map_medians, spread=narrowest_spread(focal_mm, b.f_number_min, coc),
+                                            otherwise_inv_m=ahead)
+        return shifted_limits(near, far, ahead)
+
+    def _together_medians(self, row: np.ndarray, absent_row: np.ndarray, xk: np.ndarray, subj: PredictedSubject,
+                          t: float) -> tuple[float, float] | None:
+        """For a row with only the subject sharp before a present foreground and background, what the scene's map
+        shows the planned camera `xk` `t` s ahead (_map_medians); None where no map is given or the row is another."""
+        if not self._surfaces or tuple(cam.realisable_labels(*(bool(v) for v in row))) != (False, True, False) \
+                or bool(absent_row[0]) or bool(absent_row[2]):
+            return None
+        return self._map_medians(xk, subj, t)
+
+    def _map_medians(self, xk: np.ndarray, subj: PredictedSubject, t: float) -> tuple[float, float] | None:
+        """(foreground band, background) median inverse depths [1/m] the planned camera `xk` sees `t` s ahead on the
+        scene's map (the ground and the known surfaces, scene_depth.region_medians); None without an ankle."""
+        view = self._ground_view(xk, subj, t)
+        if view is None:
+            return None
+        st, lay = self.cfg.structure, self.layout
+        ypr = np.array([float(a) for a in lay.angles(xk)])
+        sensor = cam.Sensor(st.sensor_width_mm, st.sensor_height_mm)
+        pos, focal = xk[lay.P], float(xk[lay.F])
+        ground_z = self.cfg.ground_z_m if math.isfinite(self.cfg.ground_z_m) else float(pos[2]) - view[1]["height_m"]
+        return region_medians(view[0], lambda pts: ray_inverse_depths(
+            pts, pos, ypr, focal_mm=focal, sensor=sensor, ground_z_m=ground_z, surfaces=self._surfaces))
 
     def _keep_out_m(self, mu: float) -> float:
         """How far past the subject's centre a row wanting only the background sharp keeps him out [m]:

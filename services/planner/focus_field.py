@@ -31,6 +31,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 #: height of the ankle joint above the sole [m]: where the ground lies below the ankles
 ANKLE_HEIGHT_M = 0.08
 #: the subject's blur with only the foreground sharp, in circles of the one circle of confusion: above
@@ -58,6 +60,15 @@ LEAST_SOFT_SUBJECT_BLUR = 1.3
 #: settled soft subject: the truth calls the background sharp from half its pixels inside the field, and the
 #: rows beside and above him hold more than the ground right behind him
 GROUND_BEHIND_SHARE = 0.35
+#: the blur [circles of the one circle] both soft regions' medians share, with the focus where the scene's map
+#: puts them equally soft (three_label_focus_inv_m), from which "only the subject sharp" starts to move the focus
+#: there (LEAST_TOGETHER_BLUR) and from which it stands there wholly (FULL_TOGETHER_BLUR). The truth calls them soft
+#: past 1 circle; parkour's frames 27-43 allow 1.09-1.37 circles at f/1, the frames before 1.0-1.07. In between the
+#: focus goes part of the way, so that it has mostly travelled (4 frames at the lens's 15 m/s) when the window
+#: opens: flown with 1.0-1.08 and 0.97-1.06 the plan's ramp straddled the window's edges (frames 27 and 43
+#: missed), with 0.95-1.04 only frame 43 (docs/planner.md)
+LEAST_TOGETHER_BLUR = 0.95
+FULL_TOGETHER_BLUR = 1.04
 #: the blur [circles] the foreground band's median keeps when the focus moves in front of a sharp subject: the
 #: visible circle's 1.5, where the focus estimator reads every texture soft
 SOFT_BAND_BLUR = 1.5
@@ -240,3 +251,27 @@ def rack_ahead_inv_m(depth_m: float, background_inv_m: float, *, spread: float, 
         return 0.0
     behind = (1.0 / depth_m - background_inv_m) / spread
     return min(max(background_blur - behind, 0.0), most) * spread
+
+
+def three_label_focus_inv_m(depth_m: float, fg_inv_m: float, bg_inv_m: float, *, spread: float, otherwise_inv_m: float,
+                            subject_blur: float = SHARP_SUBJECT_BLUR, least_blur: float = LEAST_TOGETHER_BLUR,
+                            full_blur: float = FULL_TOGETHER_BLUR) -> float:
+    """How far in front of a sharp subject `depth_m` away the focus stands [1/m, inverse depth; negative: behind
+    him] with only him sharp, from the foreground's and the background's median inverse depths (`fg_inv_m`,
+    `bg_inv_m`; scene_depth.region_medians): the focus where the two soft regions are equally blurred, 1/s =
+    (x_fg + x_bg) / 2, held within `subject_blur` circles of him (`spread`: the one circle's half-width in inverse
+    depth at the widest aperture), so both are as soft as the lens can make them together while he stays sharp.
+    Where, so placed, the less blurred of the two is under `least_blur` circles no lens gives the three labels and
+    the caller's own move `otherwise_inv_m` stands (the band is lost whatever the focus, and the background's blur
+    matters more); from `full_blur` on the focus stands there; in between it lies part of the way, linearly in that
+    blur. Parkour, frames 27-43: the hedge 6.8 m, the runner 10.6 m, the backdrop 40 m: the focus 11.6 m, 1 m
+    behind him, both 1.09-1.37 circles soft at f/1. The caller's move where a depth is unknown or out of order."""
+    values = (depth_m, fg_inv_m, bg_inv_m, spread)
+    if not (all(np.isfinite(values)) and depth_m > 0 and spread > 0) or not fg_inv_m > 1.0 / depth_m > bg_inv_m:
+        return otherwise_inv_m
+    x_s = 1.0 / depth_m
+    x = min(max(0.5 * (fg_inv_m + bg_inv_m), x_s - subject_blur * spread), x_s + subject_blur * spread)
+    shared = min(fg_inv_m - x, x - bg_inv_m) / spread
+    w = min(max((shared - least_blur) / (full_blur - least_blur), 0.0), 1.0) if full_blur > least_blur \
+        else float(shared >= least_blur)
+    return w * (x - x_s) + (1.0 - w) * otherwise_inv_m

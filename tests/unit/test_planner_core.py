@@ -790,6 +790,40 @@ def test_a_zoom_gives_way_round_a_rack_focus(planner, instructions):
     assert data.motion[:, LENS_MOTION_COLUMNS].any(axis=1).all()
 
 
+def test_only_the_subject_sharp_takes_the_focus_the_scene_map_gives_the_three_labels(planner, instructions):
+    from cinetransfer.services.planner.focus_field import FULL_TOGETHER_BLUR, SHARP_SUBJECT_BLUR, focus_ahead_inv_m
+
+    # given only the subject sharp, a soft foreground and background shown, the camera 9 m behind him, 1 m up,
+    # pitched 0.05 rad down, and a map with a hedge 3 m in front of the camera (0.6 m high, across the view) and a
+    # backdrop 30 m behind him
+    ins, x0, subj = _labels_seen_from(planner, instructions, (False, True, False), (-9.0, 0.0, 1.0), -0.05)
+    hedge, backdrop = [-6.0, 50.0, -6.0, -50.0, 0.0, 0.6], [30.0, 200.0, 30.0, -200.0, 0.0, 40.0]
+    mapped = Planner(dataclasses.replace(planner.cfg, surfaces_m=(hedge, backdrop)), solver=planner.solver)
+    dof, dref = mapped._dof_targets(T0, ins, [0], 0, x0, subj)
+    lay, st, b = planner.layout, planner.cfg.structure, planner.solver.bounds
+    # then the band's median is the hedge (3 cos 0.05 m along the axis at the camera's height, nearer below it)
+    # and the background's the backdrop (39 cos 0.05 m)
+    fg, bg = mapped._map_medians(x0, subj, st.dt_s)
+    assert 1.0 / fg == pytest.approx(3.0 * np.cos(0.05), abs=0.1)
+    assert 1.0 / bg == pytest.approx(39.0 * np.cos(0.05), abs=0.5)
+    # and where both are equally soft (1/s = 0.178 /m, 5.6 m) lies farther in front of him (1/d = 0.111 /m) than
+    # the quarter circle he may carry, so the focus stands a quarter circle of the widest aperture in front of
+    # him (1000 A c / f^2 per metre), the backdrop then 1.28 circles soft: d -+ mu move by that
+    spread = 1000.0 * b.f_number_min * st.coc_mm / x0[lay.F] ** 2
+    shift = SHARP_SUBJECT_BLUR * spread
+    assert (1.0 / dref[0] + shift - bg) / spread > FULL_TOGETHER_BLUR
+    assert dof[0, 1] == pytest.approx(1.0 / (dref[0] - ins.mu_m) + shift)
+    assert dof[0, 3] == pytest.approx(1.0 / (dref[0] + ins.mu_m) + shift)
+    # which is not the move the ground alone gives
+    band = planner._foreground_band(x0, subj, st.dt_s)
+    assert shift != pytest.approx(focus_ahead_inv_m(dref[0], band, fg_absent=False, spread=1.2 * spread))
+    # and a map whose hedge stands beside the view, with no backdrop, leaves the ground's rule
+    aside = Planner(dataclasses.replace(planner.cfg, surfaces_m=([-6.0, 40.0, -6.0, 50.0, 0.0, 0.6],)),
+                    solver=planner.solver)
+    np.testing.assert_allclose(aside._dof_targets(T0, ins, [0], 0, x0, subj)[0],
+                               planner._dof_targets(T0, ins, [0], 0, x0, subj)[0])
+
+
 def test_only_the_subject_sharp_moves_the_field_in_front_of_him(planner, instructions):
     from cinetransfer.services.planner import focus_field as FF
     from cinetransfer.services.planner.focus_field import focus_ahead_inv_m

@@ -195,3 +195,25 @@ def test_the_focus_before_a_rack_stands_in_front_of_him_by_the_background_by_han
     # and no ground seen behind him (0) or an unknown one asks nothing
     assert FF.rack_ahead_inv_m(15.0, 0.0, spread=0.03, background_blur=1.5, most=0.4) == 0.0
     assert FF.rack_ahead_inv_m(15.0, math.nan, spread=0.03, background_blur=1.5, most=0.4) == 0.0
+
+
+def test_the_three_labels_come_together_where_both_soft_regions_are_equally_blurred_by_hand():
+    kw = {"spread": 0.0536, "otherwise_inv_m": 0.02}
+    # given a runner 10.6 m away, the hedge in front at 6.8 m and the backdrop at 40 m, the one circle's spread
+    # 0.0536 /m: the focus where both are as soft, 1/s = (1/6.8 + 1/40) / 2 = 0.08603 /m (11.62 m), 0.155 circles
+    # behind him (within the quarter circle he may carry), both 1.139 circles soft: past 1.08, wholly there
+    x = FF.three_label_focus_inv_m(10.6, 1 / 6.8, 1 / 40.0, **kw)
+    assert x == pytest.approx(0.5 * (1 / 6.8 + 1 / 40.0) - 1 / 10.6)
+    assert x < 0
+    # and a subject farther from the midpoint than a quarter circle keeps it: 0.1 + 0.25 x 0.1 = 0.125 /m, the
+    # nearer region then 1.75 circles soft and the farther 1.25
+    assert FF.three_label_focus_inv_m(10.0, 0.3, 0.0, spread=0.1, otherwise_inv_m=0.0) == pytest.approx(0.025)
+    # and where the two could share 0.9 circles at most (under 0.95) the caller's move stands
+    assert FF.three_label_focus_inv_m(10.0, 0.145, 0.055, spread=0.05, otherwise_inv_m=0.01) == pytest.approx(0.01)
+    # and at 0.995 circles (the midpoint 0.1 /m on him, the regions 0.04975 /m either side), half way from 0.95 to
+    # 1.04: half way between the two moves
+    assert FF.three_label_focus_inv_m(10.0, 0.14975, 0.05025, spread=0.05, otherwise_inv_m=0.01) \
+        == pytest.approx(0.005)
+    # and the caller's move with the foreground behind him, the background in front, or a depth unknown
+    for fg, bg in ((0.05, 0.02), (0.3, 0.2), (math.nan, 0.02)):
+        assert FF.three_label_focus_inv_m(10.0, fg, bg, spread=0.05, otherwise_inv_m=0.01) == 0.01
