@@ -74,8 +74,10 @@ class LiveOutputStyle:
             from cinetransfer.services.smoother.config import SmootherConfig
             from cinetransfer.services.smoother.core import feature_options
 
-            # the settings `cinetransfer extract` measures output.mp4 with: the code defaults
-            det = Detector(DetectorConfig())
+            # the settings `cinetransfer extract` measures output.mp4 with (the code defaults), but the pose
+            # model's worker thread: its measurements are the same, and beside the flight, which keeps both
+            # cores busy, the SSD and a second crop cost less CPU after the caller's crop than beside it
+            det = Detector(DetectorConfig(bf_pose_worker=False))
             from cinetransfer.detector_backend import of_detector
 
             self.detector = of_detector(det)

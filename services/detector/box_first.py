@@ -167,9 +167,10 @@ class BoxFirstPose:
         if set(self._lmk_out) != {"landmarks", "flag", "seg"}:
             raise BoxFirstUnavailable(f"unexpected landmark model outputs: {self._lmk.get_output_details()}")
         # threads=2: the SSD and a second landmark interpreter run in a worker thread beside the caller's
-        # (LiteRT releases the GIL while it computes)
-        self._lmk2 = _interpreter(lmk_path, cfg.bf_threads) if cfg.threads > 1 else None
-        self._pool = cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="box_first") if cfg.threads > 1 else None
+        # (LiteRT releases the GIL while it computes), unless bf_pose_worker is off
+        worker = cfg.threads > 1 and cfg.bf_pose_worker
+        self._lmk2 = _interpreter(lmk_path, cfg.bf_threads) if worker else None
+        self._pool = cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="box_first") if worker else None
         self._prev: list[dict] = []  # the last frame's people: box, track id, tracking crop, frames coasted
         self._ghosts: list[dict] = []  # people not seen lately: last box, velocity, id (see _emit)
         self._next_id = 0
