@@ -32,7 +32,7 @@ import numpy as np
 from cinetransfer.waiting import wait_while_moving
 
 if TYPE_CHECKING:
-    from cinetransfer.services.detector.core import FrameStream
+    from cinetransfer.services.detector.core import Detector, FrameStream
 
 log = logging.getLogger("cinetransfer.transfer")
 #: frames waiting to be measured beyond which the measuring stops (~450 MB of 960x540 frames)
@@ -54,6 +54,7 @@ class LiveOutputStyle:
         self._q: queue.SimpleQueue = queue.SimpleQueue()
         self._feats: list[Any] = []
         self._next_slot = 0
+        self._ended = False  # the take has ended (`finish`): the backlog is measured with every thread
         self._worker = threading.Thread(target=self._work, name="output-style", daemon=True)
         self._worker.start()
 
@@ -74,8 +75,11 @@ class LiveOutputStyle:
             from cinetransfer.services.smoother.config import SmootherConfig
             from cinetransfer.services.smoother.core import feature_options
 
-            # the settings `cinetransfer extract` measures output.mp4 with: the code defaults
-            det = Detector(DetectorConfig())
+            # the settings `cinetransfer extract` measures output.mp4 with (the code defaults), but the pose
+            # model's worker thread until the take ends (`finish`): the same measurements, and beside the
+            # flight, which keeps both cores busy, the SSD and a second crop cost less CPU after the
+            # caller's crop than beside it; the backlog left after the flight has the cores to itself
+            det = Detector(DetectorConfig(bf_pose_worker=False))
             from cinetransfer.detector_backend import of_detector
 
             self.detector = of_detector(det)
@@ -99,6 +103,8 @@ class LiveOutputStyle:
             if self.error is not None:
                 continue  # drain: the evaluation falls back to the second pass
             slot, image = item
+            if self._ended:
+                _use_pose_worker(stream.det)
             if slot != self._next_slot:
                 self.error = f"frame for slot {slot} arrived where slot {self._next_slot} was due"
                 continue
@@ -127,6 +133,7 @@ class LiveOutputStyle:
     def finish(self, out_style: Path, *, n_frames: int, cuts: list[int] | None, timeout_s: float = 600.0) -> bool:
         """Wait for the queued frames, then smooth them into `out_style`. False (nothing written)
         when the measuring failed or holds another number of frames than the video."""
+        self._ended = True
         self._q.put(None)
         # as long as it takes while frames get measured (a loaded machine is slow), not past
         # `timeout_s` without one: the detector hangs
@@ -149,3 +156,10 @@ class LiveOutputStyle:
         log.info("output style from the frames measured while filming (%d frames, %.1f s of measuring)",
                  n_frames, self.busy_s)
         return True
+
+
+def _use_pose_worker(det: Detector) -> None:
+    """The detector's pose backend with its worker thread (a backend without one is left as it is)."""
+    use = getattr(det.backend, "use_worker", None)
+    if use is not None:
+        use(True)

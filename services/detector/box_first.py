@@ -166,16 +166,27 @@ class BoxFirstPose:
                 self._lmk_out["seg"] = o["index"]
         if set(self._lmk_out) != {"landmarks", "flag", "seg"}:
             raise BoxFirstUnavailable(f"unexpected landmark model outputs: {self._lmk.get_output_details()}")
-        # threads=2: the SSD and a second landmark interpreter run in a worker thread beside the caller's
-        # (LiteRT releases the GIL while it computes)
-        self._lmk2 = _interpreter(lmk_path, cfg.bf_threads) if cfg.threads > 1 else None
-        self._pool = cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="box_first") if cfg.threads > 1 else None
+        self._lmk_path = lmk_path
+        self._lmk2, self._pool = None, None
+        self.use_worker(cfg.bf_pose_worker)
         self._prev: list[dict] = []  # the last frame's people: box, track id, tracking crop, frames coasted
         self._ghosts: list[dict] = []  # people not seen lately: last box, velocity, id (see _emit)
         self._next_id = 0
         self._last_stamp: int | None = None
         self._since_ssd = 0  # frames since the SSD last ran (bf_ssd_every)
         self._look_gain, self._since_look = math.inf, 0  # the last second look's gain, frames since it
+
+    def use_worker(self, on: bool) -> None:
+        """With threads 2, run the SSD and a second landmark interpreter in a worker thread beside the
+        caller's crop (LiteRT releases the GIL while it computes), or (off) everything in the caller's
+        thread: the same measurements. Call it between frames, from the thread that calls `detect`."""
+        on = bool(on) and self.cfg.threads > 1
+        if on and self._pool is None:
+            self._lmk2 = _interpreter(self._lmk_path, self.cfg.bf_threads)
+            self._pool = cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="box_first")
+        elif not on and self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._lmk2, self._pool = None, None
 
     def close(self) -> None:
         if self._pool is not None:

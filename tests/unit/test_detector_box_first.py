@@ -290,6 +290,35 @@ def test_ssd_runs_every_nth_frame_on_a_followed_juggler_with_the_same_people():
 
 
 @needs_models
+def test_without_the_pose_worker_or_switching_it_on_midway_a_crowd_is_measured_the_same():
+    # given a crowd (several landmark crops a frame, split over two threads with the worker), measured with
+    # the worker, without it, and without it until the fourth frame
+    frames = list(iter_frames(data_dir() / "tud_stadtmitte_640x480.mp4", stop=6, prefetch=0))
+    runs = {}
+    for mode in ("worker", "none", "switched on"):
+        cfg = DetectorConfig(focus=False, camera_motion=False, bf_pose_worker=mode == "worker")
+        with Detector(cfg) as det:
+            assert (det.backend._pool is not None) is (mode == "worker")
+            runs[mode] = []
+            for k, f in enumerate(frames):
+                if mode == "switched on" and k == 3:
+                    det.backend.use_worker(True)
+                    assert det.backend._pool is not None
+                runs[mode].append(det.process(f.image, f.index, f.stamp_ns))
+    # then every person, mask and skeleton is the same to the bit
+    for mode in ("none", "switched on"):
+        for a, b in zip(runs["worker"], runs[mode]):
+            assert len(a.people) == len(b.people) >= 3 and len(a.skeletons) == len(b.skeletons)
+            for p, q in zip(a.people, b.people):
+                assert p.track_id == q.track_id and p.confidence == q.confidence
+                np.testing.assert_array_equal(p.box_xyxy, q.box_xyxy)
+                np.testing.assert_array_equal(p.mask, q.mask)
+            for p, q in zip(a.skeletons, b.skeletons):
+                np.testing.assert_array_equal(p.keypoints_px, q.keypoints_px)
+                np.testing.assert_array_equal(p.confidences, q.confidences)
+
+
+@needs_models
 def test_a_person_the_landmarks_lose_makes_the_ssd_look_on_that_frame():
     frames = list(iter_frames(data_dir() / "sam2_juggle_1280x720.mp4", stop=3, prefetch=0))
     cfg = DetectorConfig(focus=False, camera_motion=False, bf_ssd_every=10)
