@@ -18,7 +18,7 @@ import time
 
 from cinetransfer.services.smoother.config import SmootherConfig
 from cinetransfer.services.smoother.core import SmootherInputError
-from cinetransfer.services.smoother.stream import StreamState
+from cinetransfer.services.smoother.stream import StreamState, window_due
 from cinetransfer.shared import keys, nodeconfig
 from cinetransfer.shared import messages as M
 from cinetransfer.shared.errors import ConfigError, report_config_error
@@ -98,10 +98,8 @@ class SmootherLoop:
                 self.finish(f"end of stream: {end.reason}", source=end.source)
 
     def publish_window(self) -> None:
-        if self.cfg.publish_period_s <= 0:  # windows off: a job that needs only the whole sequence
-            return
         now = time.monotonic()
-        if self.state.dirty and now - self.last_pub >= self.cfg.publish_period_s:
+        if window_due(now, self.last_pub, self.cfg.publish_period_s, dirty=self.state.dirty):
             with self.node.timed():
                 win = self.state.window()
             if win is not None:

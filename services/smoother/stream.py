@@ -5,8 +5,10 @@ features of every frame of the current sequence by frame index (a duplicate is c
 ignored; a late frame is inserted where it belongs and is used by every later solve), and gives:
 
 - `window()`: instructions for the newest `window_s` seconds, solved over the newest `history_s`
-  seconds (final=False). Called at most every `publish_period_s` by the service, so the newest
-  frame is in a published window within that period plus one solve (the lag bound);
+  seconds (final=False), always ending at the newest frame held. The service calls it when
+  `window_due` says so: at most every `publish_period_s`, and at the first turn a period after
+  the last window once a frame has come, so the newest frame is in the next window published,
+  within that period plus one solve (the lag bound);
 - `final()`: the whole-sequence result (final=True), at end of stream.
 """
 from __future__ import annotations
@@ -19,6 +21,13 @@ from cinetransfer.services.smoother.core import SmootherInputError, feature_opti
 from cinetransfer.services.smoother.features import FrameFeatures, frame_features
 from cinetransfer.shared.instructions import slice_instructions
 from cinetransfer.shared import messages as M
+
+
+def window_due(now_s: float, last_window_s: float, period_s: float, *, dirty: bool) -> bool:
+    """Whether to solve and publish a window now: frames came since the last one (`dirty`) and a
+    whole period has passed since it. A frame thus waits at most one period for its window, and
+    an idle stream publishes nothing. `period_s` 0: windows off."""
+    return period_s > 0 and dirty and now_s - last_window_s >= period_s
 
 
 @dataclass

@@ -68,7 +68,7 @@ def test_deep_args_command_and_bad_takeoff_arguments_are_rejected_and_the_bridge
         assert "take-off to 10000" not in vlog.read_text()  # commands are handled in order: never sent
         # one Health report with both counts (a report can be taken between the two increments)
         wait_for(lambda: (h := bus.health).rejected >= rejected0 + 5 and h.counters.get("commands_bad_args", 0) >= 2,
-                 5, what="bad arguments counted as rejected")
+                 WAIT_S, what="bad arguments counted as rejected")
         assert bus.counters()["commands_bad_args"] == 2
         assert br.poll() is None, logs(tmp_path)
         assert max(s.position_m[2] for s in bus.states_since(0)) < 40.0
@@ -86,7 +86,7 @@ def test_a_future_stamped_setpoint_no_longer_locks_out_the_planner(bus, port, tm
         forged = M.Setpoint(stamp_ns=time.time_ns() + 3600 * 10**9, position_m=np.array([9.0, 9.0, 9.0]))
         bus.sp_pub.put(codec.encode(forged))
         wait_for(lambda: (h := bus.health).rejected >= rejected0 + 1 and h.counters.get("sp_future_stamp", 0) >= 1,
-                 5, what="future stamp counted as rejected")
+                 WAIT_S, what="future stamp counted as rejected")
         assert bus.counters()["sp_future_stamp"] == 1
         target = np.array([2.0, 1.0, 4.0])
         streamer.pos = target  # the honest planner, stamping with its own clock
@@ -108,14 +108,14 @@ def test_a_vehicle_outside_the_envelope_is_flagged_and_flown_back_inside(bus, po
         wait_for(lambda: "autopilot_bridge" in bus.alive or br.poll() is not None, what="bridge liveliness",
                  progress=lambda: cpu_seconds(br))
         wait_for(lambda: (s := bus.state()) is not None and s.envelope_breach, 20, what="breach flag in VehicleState")
-        wait_for(lambda: bus.counters().get("envelope_breach") is True and not bus.health.valid, 5,
+        wait_for(lambda: bus.counters().get("envelope_breach") is True and not bus.health.valid, WAIT_S,
                  what="breach flag in Health, Health invalid")
         assert bus.counters()["breaches"] >= 1
         streamer.pos = np.array([50.0, 0.0, 20.0])
         wait_for(lambda: not bus.state().envelope_breach, 30, what="back inside")
         s = bus.state()
         assert np.hypot(*s.position_m[:2]) <= 5.0 and s.position_m[2] <= 6.0
-        wait_for(lambda: bus.health.valid and bus.counters().get("envelope_breach") is False, 5,
+        wait_for(lambda: bus.health.valid and bus.counters().get("envelope_breach") is False, WAIT_S,
                  what="Health valid again")
         t_back = time.monotonic()
         wait_for(lambda: len(bus.states_since(t_back)) >= 25, WAIT_S, what="more states inside")
