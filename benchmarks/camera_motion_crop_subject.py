@@ -75,17 +75,23 @@ def person_track(joints: np.ndarray, homographies: list[np.ndarray],
 
 
 def camera_frame_path(centre_px: np.ndarray, torso_px: np.ndarray, src_size: tuple[int, int],
-                      torso_m: float = TORSO_M) -> np.ndarray:
+                      torso_m: float = TORSO_M, distance_m: float | None = None) -> np.ndarray:
     """The person's place [K x 2: sideways right, forward; m] in the static source camera's frame,
     relative to the first frame (pure). His depth comes from a straight-line fit of his torso's
     length over the clip: frame to frame it changes with his pose too (the juggler's torso grows
-    10 % in two frames as he straightens, which read as depth is a lunge at 2 m/s)."""
+    10 % in two frames as he straightens, which read as depth is a lunge at 2 m/s).
+
+    Sideways, a metre is the same share of the frame at any distance that frames the torso as the
+    source does; nearer or farther is not: his size changes by the share of his distance he moves.
+    `distance_m`, the output camera's distance from him, scales the depth so that it changes by the
+    same share as the source's (None: the source camera's own distance)."""
     f = cm.focal_px(src_size[0], SOURCE_HFOV_DEG)
     k = np.arange(len(torso_px), dtype=float)
     fit = np.polyval(np.polyfit(k, torso_px, 1), k) if len(k) > 1 else np.asarray(torso_px, float)
     z = f * torso_m / np.maximum(fit, 1.0)
     x = z * (centre_px[:, 0] - (src_size[0] - 1) / 2) / f
-    return np.c_[x - x[0], z - z[0]]
+    scale = 1.0 if distance_m is None else distance_m / z[0]
+    return np.c_[x - x[0], (z - z[0]) * scale]
 
 
 def knots(path: np.ndarray, every: int) -> tuple[np.ndarray, np.ndarray]:
@@ -162,8 +168,9 @@ def crop_subject(truth: dict[str, Any], style: dict[str, Any], subject: dict[str
     person, action = CLIP_PERSON[re.match(r"crop of (\S+)", truth["origin"]).group(1)]
     n = min(len(homs), len(ins["image_targets"]))
     centre, torso = person_track(np.asarray(ins["image_targets"][:n]), homs[:n], crop_size)
-    idx, pts = knots(camera_frame_path(centre, torso, src_size), KNOT_FRAMES[action])
     start = np.asarray(subject.get("start_m", [0.0, 0.0]), float)
+    distance = float(np.linalg.norm(start - np.asarray(vehicle_xy, float)))
+    idx, pts = knots(camera_frame_path(centre, torso, src_size, distance_m=distance), KNOT_FRAMES[action])
     right, fwd = world_axes(vehicle_xy, tuple(start))
     world = start + pts[:, :1] * right + pts[:, 1:2] * fwd
     fps = float(truth["fps"])

@@ -46,6 +46,9 @@ def test_camera_frame_path_places_the_person_by_his_torso(cs):
     fit = np.array([f * 0.1 + f * 0.1 / 6, f * 0.5 / 3, f * 0.2 + f * 0.1 / 6])
     depth = cs.camera_frame_path(centre[:1].repeat(3, 0), grow, (1000, 600))[:, 1]
     assert depth == pytest.approx(f * 0.5 / fit - f * 0.5 / fit[0])
+    # filmed from 8.572 m (twice the source's 4.286 m) he comes twice as far to grow by as much
+    far = cs.camera_frame_path(centre[:1].repeat(3, 0), grow, (1000, 600), distance_m=2 * f * 0.5 / fit[0])
+    assert far[:, 1] == pytest.approx(2 * depth) and far[:, 0] == pytest.approx(0.0)
 
 
 def test_knots_average_round_each_knot_and_keep_the_ends(cs):
@@ -99,5 +102,6 @@ def test_the_scene_walker_is_where_the_crop_person_was(cs, tmp_path):
     # 24 frames at 0.02 crop widths a frame: 0.48 * w crop px -> source px -> metres (depth constant)
     expect = 0.48 * w / scale * metres_per_src_px
     right, _ = cs.world_axes(tuple(load_scene("open_country").vehicle.position_m[:2]), (0.0, 0.0))
-    moved = np.asarray(script.pose_at(4.0 + 24.5 / 24.0).position_m[:2]) - np.asarray(script.pose_at(4.0).position_m[:2])
+    here = np.asarray(script.pose_at(4.0).position_m[:2])
+    moved = np.asarray(script.pose_at(4.0 + 24.5 / 24.0).position_m[:2]) - here
     assert moved == pytest.approx(expect * right, abs=1e-3)
