@@ -64,14 +64,30 @@ def crop_to_source(points_px: np.ndarray, h_src_to_crop: np.ndarray) -> np.ndarr
 def person_track(joints: np.ndarray, homographies: list[np.ndarray],
                  crop_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """(centre px [K x 2], torso px [K]) of the person in the static source, from his four joints
-    (left/right shoulder, left/right hip; K x 4 x 2, shares of the crop frame) per crop frame."""
+    (left/right shoulder, left/right hip; K x 4 x 2, shares of the crop frame) per crop frame. A
+    joint the style leaves out (NaN) is left out of the centre; a frame without a shoulder and a hip
+    takes its torso, and one without any joint its centre too, from the frames round it."""
     w, h = crop_size
     centre, torso = [], []
     for j, hom in zip(np.asarray(joints, float), homographies):
         src = crop_to_source(j * [w, h], hom)
-        centre.append(src.mean(axis=0))
-        torso.append(float(np.linalg.norm(src[:2].mean(axis=0) - src[2:].mean(axis=0))))
-    return np.array(centre), np.array(torso)
+        ok = np.isfinite(src).all(axis=1)
+        centre.append(src[ok].mean(axis=0) if ok.any() else [np.nan, np.nan])
+        top, low = src[:2][ok[:2]], src[2:][ok[2:]]
+        torso.append(float(np.linalg.norm(top.mean(axis=0) - low.mean(axis=0))) if len(top) and len(low) else np.nan)
+    return _fill(np.array(centre)), _fill(np.array(torso)[:, None])[:, 0]
+
+
+def _fill(v: np.ndarray) -> np.ndarray:
+    """Each column's NaNs filled by straight lines between its known values (held at the ends)."""
+    k = np.arange(len(v))
+    out = v.copy()
+    for c in range(v.shape[1]):
+        ok = np.isfinite(v[:, c])
+        if not ok.any():
+            raise ValueError("the style has no joints of its person to track")
+        out[:, c] = np.interp(k, k[ok], v[ok, c])
+    return out
 
 
 def camera_frame_path(centre_px: np.ndarray, torso_px: np.ndarray, src_size: tuple[int, int],

@@ -32,6 +32,20 @@ def test_person_track_is_the_joints_centre_and_torso_in_the_source(cs):
     assert centre[0] == pytest.approx([200.0, 100.0]) and torso[0] == pytest.approx(100.0)
 
 
+def test_person_track_bridges_joints_the_style_leaves_out(cs):
+    h = np.eye(3)
+    full = [[0.4, 0.25], [0.6, 0.25], [0.4, 0.75], [0.6, 0.75]]
+    no_shoulder = [[np.nan, np.nan], [0.6, 0.25], [0.4, 0.75], [0.6, 0.75]]
+    nothing = [[np.nan, np.nan]] * 4
+    joints = np.array([full, no_shoulder, nothing, [[x + 0.1, y] for x, y in full]])
+    centre, torso = cs.person_track(joints, [h] * 4, (100, 100))
+    # one shoulder left: the centre of the three others (46.67, 58.33), the torso from it to the hips' mid
+    assert centre[1] == pytest.approx([160 / 3, 175 / 3]) and torso[1] == pytest.approx(math.hypot(10.0, 50.0))
+    # no joint: halfway between its neighbours
+    assert centre[2] == pytest.approx([(160 / 3 + 60.0) / 2, (175 / 3 + 50.0) / 2])
+    assert torso[2] == pytest.approx((math.hypot(10.0, 50.0) + 50.0) / 2)
+
+
 def test_camera_frame_path_places_the_person_by_his_torso(cs):
     # a 1000 px wide source of 62 deg: f = 500 / tan(31 deg) = 832.1 px; a 0.5 m torso 83.21 px long
     # stands 5 m away; 100 px right of the centre column he is 100 / 832.1 * 5 = 0.6009 m right
