@@ -93,21 +93,32 @@ def _fill(v: np.ndarray) -> np.ndarray:
 def camera_frame_path(centre_px: np.ndarray, torso_px: np.ndarray, src_size: tuple[int, int],
                       torso_m: float = TORSO_M, distance_m: float | None = None) -> np.ndarray:
     """The person's place [K x 2: sideways right, forward; m] in the static source camera's frame,
-    relative to the first frame (pure). His depth comes from a straight-line fit of his torso's
+    relative to the first frame (pure). His depth comes from a straight line through his torso's
     length over the clip: frame to frame it changes with his pose too (the juggler's torso grows
-    10 % in two frames as he straightens, which read as depth is a lunge at 2 m/s).
+    10 % in two frames as he straightens, which read as depth is a lunge at 2 m/s), and a pose the
+    detector gets wrong is far off (sam2_pan_tilt's first row: 107 px where the rest read 150-190),
+    so the line is the median one (Theil-Sen), not the least-squares one.
 
     Sideways, a metre is the same share of the frame at any distance that frames the torso as the
     source does; nearer or farther is not: his size changes by the share of his distance he moves.
     `distance_m`, the output camera's distance from him, scales the depth so that it changes by the
     same share as the source's (None: the source camera's own distance)."""
     f = cm.focal_px(src_size[0], SOURCE_HFOV_DEG)
-    k = np.arange(len(torso_px), dtype=float)
-    fit = np.polyval(np.polyfit(k, torso_px, 1), k) if len(k) > 1 else np.asarray(torso_px, float)
-    z = f * torso_m / np.maximum(fit, 1.0)
+    z = f * torso_m / np.maximum(median_line(np.asarray(torso_px, float)), 1.0)
     x = z * (centre_px[:, 0] - (src_size[0] - 1) / 2) / f
     scale = 1.0 if distance_m is None else distance_m / z[0]
     return np.c_[x - x[0], (z - z[0]) * scale]
+
+
+def median_line(v: np.ndarray) -> np.ndarray:
+    """The Theil-Sen line through v over its indices: the median of the slopes between every two
+    samples, through the median of what is left (pure; a third of the samples may be wild)."""
+    k = np.arange(len(v), dtype=float)
+    if len(v) < 2:
+        return v.astype(float)
+    i, j = np.triu_indices(len(v), 1)
+    slope = float(np.median((v[j] - v[i]) / (j - i)))
+    return slope * k + float(np.median(v - slope * k))
 
 
 def knots(path: np.ndarray, every: int) -> tuple[np.ndarray, np.ndarray]:

@@ -54,15 +54,22 @@ def test_camera_frame_path_places_the_person_by_his_torso(cs):
     centre = np.array([[499.5, 0.0], [549.5, 0.0], [599.5, 0.0]])
     path = cs.camera_frame_path(centre, torso, (1000, 600))
     assert path == pytest.approx(np.array([[0.0, 0.0], [0.3004, 0.0], [0.6009, 0.0]]), abs=1e-4)
-    # his torso 83.21, 166.4, 166.4 px: the straight-line fit 97.08, 138.7, 180.3 px (depth 4.286, 3.0,
-    # 2.308 m), which the frames' jitter would not shake
-    grow = np.array([f * 0.1, f * 0.2, f * 0.2])
-    fit = np.array([f * 0.1 + f * 0.1 / 6, f * 0.5 / 3, f * 0.2 + f * 0.1 / 6])
+    # his torso 83.21, 124.8, 166.4 px on the median line: he comes from 5 m to 3.333 m to 2.5 m
+    grow = np.array([f * 0.1, f * 0.15, f * 0.2])
+    fit = grow
     depth = cs.camera_frame_path(centre[:1].repeat(3, 0), grow, (1000, 600))[:, 1]
     assert depth == pytest.approx(f * 0.5 / fit - f * 0.5 / fit[0])
     # filmed from 8.572 m (twice the source's 4.286 m) he comes twice as far to grow by as much
     far = cs.camera_frame_path(centre[:1].repeat(3, 0), grow, (1000, 600), distance_m=2 * f * 0.5 / fit[0])
     assert far[:, 1] == pytest.approx(2 * depth) and far[:, 0] == pytest.approx(0.0)
+
+
+def test_median_line_ignores_a_wild_sample(cs):
+    # 150 + 2k px on nine rows but the first read 100: slopes from it are 52, 27, ...; the median of
+    # the 36 pairs' slopes is 2, the line through the rest 150 + 2k
+    v = 150.0 + 2.0 * np.arange(9)
+    v[0] = 100.0
+    assert cs.median_line(v) == pytest.approx(150.0 + 2.0 * np.arange(9))
 
 
 def test_knots_average_round_each_knot_and_keep_the_ends(cs):
