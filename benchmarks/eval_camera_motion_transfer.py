@@ -139,8 +139,10 @@ def main(argv: list[str] | None = None) -> int:
         scene = args.scene
         if args.mark:
             scene = str(write_mark_scene(args.runs / v.stem / "scene.yaml", wait_s=args.preroll, scene=args.scene))
-        if args.crop_subject:
-            scene = str(crop_scene(v, args.runs / v.stem, args.scene, args.preroll))
+        if args.crop_subject:  # a run read again keeps the scene it was flown in
+            flown = not args.again and (args.runs / v.stem / "report.json").is_file()
+            scene = str(args.runs / v.stem / "scene.yaml") if flown else str(
+                crop_scene(v, args.runs / v.stem, args.scene, args.preroll))
         r = transfer(v, args.runs / v.stem, scene, args.again, args.preroll)
         results[v.stem] = r
         if "error" in r:
