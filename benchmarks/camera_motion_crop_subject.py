@@ -7,16 +7,18 @@ source never made. His own motion is his track in the uncropped, static footage:
 crop (the source's style: the joints' centre and the shoulder-to-hip length, per frame) carried back
 through the crop's known homography. Seen by a static pinhole camera of the source's field of view, a
 person whose torso is TORSO_M long stands at depth f * TORSO_M / torso_px, and his centre's column
-places him sideways. The walker of the scene walks that path, relative to where he stands, in the
-scene's view from the drone's start; he waits on his mark for the pre-roll as the rendered moves'
-walker does (camera_motion_mark.py).
+places him sideways. The clip's own person (CLIP_PERSON) follows that path across the view from
+where the drone stands when the take starts (found by flying the pre-roll in-process), after
+waiting on his mark for the pre-roll as the rendered moves' walker does (camera_motion_mark.py).
 
 Metres follow from one assumed torso length, but the frame does not care: at the distance that
 frames the torso as large as the source's, a sideways step of TORSO_M moves him by the same share
-of the frame as the source's person moved.
+of the frame as the source's person moved. In depth it does not: his approach is scaled to the
+output camera's distance (camera_frame_path). docs/camera_motion.md, "The crop sources flown with
+their person's own motion".
 
     from camera_motion_crop_subject import write_crop_scene
-    write_crop_scene(run / "scene.yaml", truth, style, wait_s=10.0)   # then transfer --preroll 10
+    write_crop_scene(run / "scene.yaml", truth, run / "source_style.json", wait_s=10.0)   # then --preroll 10
 """
 from __future__ import annotations
 
