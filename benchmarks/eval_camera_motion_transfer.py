@@ -20,6 +20,10 @@ subject moves as the source's did and only the camera is under test, but he walk
 (four turns) in that pre-roll and the drone starts the take wherever chasing him left it.
 `--mark --preroll S` lets him wait on his mark for the S s pre-roll instead, as an actor does
 (camera_motion_mark.py): the drone settles on the first frame's framing round a subject who stands.
+`--crop-subject --preroll S` is the same for the crop sources (camera_motion_sources.py, cut from
+static footage): the source's style is extracted first (`cinetransfer extract`), and the scene's
+subject becomes the walker moving in the world as the source's person moved in the static footage
+(camera_motion_crop_subject.py), after waiting on his mark for the pre-roll.
 benchmarks/camera_motion_flight.py flies the same styles in-process in seconds (no rendering).
 """
 from __future__ import annotations
@@ -32,9 +36,11 @@ from pathlib import Path
 from typing import Any
 
 try:
+    from camera_motion_crop_subject import write_crop_scene
     from camera_motion_mark import write_mark_scene
     from harness import write_result
 except ImportError:  # imported as a package
+    from benchmarks.camera_motion_crop_subject import write_crop_scene
     from benchmarks.camera_motion_mark import write_mark_scene
     from benchmarks.harness import write_result
 
@@ -84,6 +90,20 @@ def transfer(source: Path, run: Path, scene: str, again: bool, preroll_s: float 
     return judge_report(json.loads(report.read_text(encoding="utf-8")))
 
 
+def crop_scene(source: Path, run: Path, scene: str, wait_s: float) -> Path:
+    """The scene of one crop source: its style extracted (once per run folder), then the walker set
+    moving as its person did."""
+    style = run / "source_style.json"
+    if not style.is_file():
+        run.mkdir(parents=True, exist_ok=True)
+        cmd = [sys.executable, "-m", "cinetransfer", "extract", str(source), "-o", str(style), "--quiet"]
+        done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        if done.returncode != 0 or not style.is_file():
+            raise RuntimeError(f"extract exited {done.returncode}: {(done.stderr or done.stdout).strip()[-200:]}")
+    truth = json.loads(source.with_suffix(".truth.json").read_text(encoding="utf-8"))
+    return write_crop_scene(run / "scene.yaml", truth, style, wait_s=wait_s, scene=scene)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("sources", type=Path, help="folder of the rendered NAME.mp4 + NAME.truth.json pairs")
@@ -95,10 +115,18 @@ def main(argv: list[str] | None = None) -> int:
                     help="the transfer's pre-roll [s] (default: the transfer's own)")
     ap.add_argument("--mark", action="store_true",
                     help="the walker waits on his mark for the pre-roll (camera_motion_mark.py; needs --preroll)")
+    ap.add_argument("--crop-subject", action="store_true",
+                    help="crop sources: the subject moves as the source's person did (camera_motion_crop_subject.py; "
+                         "needs --preroll)")
     ap.add_argument("--result", default="eval_camera_motion_transfer", help="result name or path")
     args = ap.parse_args(argv)
-    if args.mark and args.preroll is None:
-        print("eval_camera_motion_transfer: --mark needs --preroll (how long the walker waits)", file=sys.stderr)
+    if (args.mark or args.crop_subject) and args.preroll is None:
+        opt = "--mark" if args.mark else "--crop-subject"
+        print(f"eval_camera_motion_transfer: {opt} needs --preroll (how long the walker waits)", file=sys.stderr)
+        return 2
+    if args.mark and args.crop_subject:
+        print("eval_camera_motion_transfer: --mark is for the rendered moves, --crop-subject for the crops",
+              file=sys.stderr)
         return 2
     videos = sorted(p for p in args.sources.glob("*.mp4") if p.with_suffix(".truth.json").is_file())
     if args.only:
@@ -111,6 +139,10 @@ def main(argv: list[str] | None = None) -> int:
         scene = args.scene
         if args.mark:
             scene = str(write_mark_scene(args.runs / v.stem / "scene.yaml", wait_s=args.preroll, scene=args.scene))
+        if args.crop_subject:  # a run read again keeps the scene it was flown in
+            flown = not args.again and (args.runs / v.stem / "report.json").is_file()
+            scene = str(args.runs / v.stem / "scene.yaml") if flown else str(
+                crop_scene(v, args.runs / v.stem, args.scene, args.preroll))
         r = transfer(v, args.runs / v.stem, scene, args.again, args.preroll)
         results[v.stem] = r
         if "error" in r:
@@ -124,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
     met = sum(r["met"] for r in results.values())
     print(f"\n{met} of {len(results)} moves flown with output class agreement >= {AGREEMENT_GOAL} and the framing "
           f"goals met")
-    out = {"scene": args.scene, "mark": args.mark, "preroll_s": args.preroll, "agreement_goal": AGREEMENT_GOAL,
+    out = {"scene": args.scene, "mark": args.mark, "crop_subject": args.crop_subject, "preroll_s": args.preroll,
+           "agreement_goal": AGREEMENT_GOAL,
            "moves_met": met, "per_source": results}
     print(f"wrote {write_result(args.result, out)}")
     return 0 if met == len(results) else 1

@@ -47,3 +47,12 @@ def test_the_mark_needs_the_pre_roll_it_waits_for(ev, tmp_path, capsys):
     assert ev.main([str(tmp_path), "-o", str(tmp_path / "runs"), "--mark"]) == 2
     assert "--mark needs --preroll" in capsys.readouterr().err
     assert not (tmp_path / "runs").exists()
+
+
+def test_the_crop_subject_needs_the_pre_roll_and_no_mark(ev, tmp_path, capsys):
+    # the crops' person waits on his mark for the pre-roll too; the courtyard's mark is for the rendered moves
+    assert ev.main([str(tmp_path), "-o", str(tmp_path / "runs"), "--crop-subject"]) == 2
+    assert "--crop-subject needs --preroll" in capsys.readouterr().err
+    assert ev.main([str(tmp_path), "-o", str(tmp_path / "runs"), "--crop-subject", "--mark", "--preroll", "5"]) == 2
+    assert "--mark is for the rendered moves" in capsys.readouterr().err
+    assert not (tmp_path / "runs").exists()
