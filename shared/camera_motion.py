@@ -39,6 +39,11 @@ CLASSES = ("static", "pan", "tilt", "roll", "zoom_in", "zoom_out", "dolly_in", "
 
 #: |rate| from which a rotation counts as a move [deg/s]
 ROTATION_MIN_DPS = 1.5
+#: a pan or tilt beside a translation counts from this rate (deg/s): the translation's direction is
+#: fitted freely, so a pan trades against its sideways part and a tilt against its vertical part
+#: (the rotation-translation ambiguity); the rendered moves' outputs read them up to 1.5 (pan beside a
+#: dolly or truck) and 2.7 (tilt beside a pedestal) deg/s off their poses, across ROTATION_MIN_DPS
+ROTATION_BESIDE_TRANSLATION_DPS = 3.0
 #: |d ln f / dt| from which a zoom counts as a move [1/s]
 ZOOM_MIN_PER_S = 0.03
 #: a point fits a model within this distance [px at the work width WORK_WIDTH]
@@ -969,10 +974,11 @@ def classify(pan_dps: float, tilt_dps: float, roll_dps: float, zoom_rate: float,
     r = np.nan_to_num(rates)
     moves = []
     trans = _translation_class(t)
+    turn = ROTATION_BESIDE_TRANSLATION_DPS if trans else ROTATION_MIN_DPS
     if trans == "truck" and abs(r[0]) >= ROTATION_MIN_DPS and np.sign(r[0]) == np.sign(t[0]):
         trans = "orbit"  # moving right while turning left (or the reverse): round a centre ahead
-    for name, on in (("pan", abs(r[0]) >= ROTATION_MIN_DPS and trans != "orbit"),
-                     ("tilt", abs(r[1]) >= ROTATION_MIN_DPS), ("roll", abs(r[2]) >= ROTATION_MIN_DPS)):
+    for name, on in (("pan", abs(r[0]) >= turn and trans != "orbit"),
+                     ("tilt", abs(r[1]) >= turn), ("roll", abs(r[2]) >= ROTATION_MIN_DPS)):
         if on:
             moves.append(name)
     zoom = "zoom_in" if r[3] >= ZOOM_MIN_PER_S else "zoom_out" if r[3] <= -ZOOM_MIN_PER_S else ""

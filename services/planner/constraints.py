@@ -10,7 +10,8 @@ Soft, with one non-negative slack each per stage and an exact penalty (L1 + L2) 
 - distance: horizontal distance to the predicted subject centre + s_dist >= min_distance
 - speed:    |v| - s_speed <= speed_max   (the norm, as the safety layer bounds it)
 - obstacles: horizontal distance to each nearby keep-out cylinder's axis + s_obst >= its radius +
-            the clearance (obstacles.py: N_OBSTACLE_SLOTS rows, an empty slot asks nothing)
+            the clearance at the stage's planned height (obstacles.py: N_OBSTACLE_SLOTS rows, an empty
+            slot asks nothing)
 The acceleration stays a box per axis: as a norm constraint it is active in every fast move, and
 the SQP's Gauss-Newton Hessian, which has no constraint curvature, then converges only linearly
 (a cold solve took > 300 iterations instead of < 30).
@@ -32,7 +33,7 @@ N_SOFT = N_LIMITS + N_OBSTACLE_SLOTS  # ... and one row per obstacle slot
 
 def soft_constraints(x_next, slack, centre_w, lim, obstacles):  # noqa: ANN001, ANN201
     """The soft-constraint expressions of one stage, each required to be >= 0; `lim` =
-    (z_min, z_max, d_min, v_max); `obstacles` the obstacle slots (obstacles.obstacle_params)."""
+    (z_min, z_max, d_min, v_max); `obstacles` the stage's obstacle slots (obstacles.obstacle_params)."""
     z_min, z_max, d_min, v_max = (lim[i] for i in range(N_LIMITS))
     z = x_next[2]
     dx = x_next[0] - centre_w[0]

@@ -37,7 +37,7 @@ from cinetransfer.services.planner.camera_motion import (DOLLY_ZOOM_MASK, MOTION
 from cinetransfer.services.planner.side_of_subject import camera_bearing, side_targets
 from cinetransfer.services.planner.clear_side import clear_bearing, side_wanted_for, truck_travel
 from cinetransfer.services.planner.zoom_hold import framing_error_now, settled_hold_share
-from cinetransfer.services.planner.obstacles import obstacle_params
+from cinetransfer.services.planner.obstacles import stage_heights, stage_obstacle_params
 from cinetransfer.services.planner.config import Bounds, PlannerConfig, Weights
 from cinetransfer.services.planner.lens_axes import pinned_bounds
 from cinetransfer.services.planner.cost import (defocus_ratio, far_keeps_subject_out, label_sharpness,
@@ -417,7 +417,7 @@ class Planner:
             _, u_prev = self._plan.at((now_ns - self._plan.t0_ns) * 1e-9)
         data = StageData(x0=x0, u_prev=u_prev, joints_w=jw, subject_centre_w=subj.centre, subject_velocity=subj.vel,
                          targets=targets, mask=mask, dof=dof, distance_ref=dref, motion=motion,
-                         min_distance_m=standoff, obstacles=self._obstacle_slots(x0))
+                         min_distance_m=standoff, obstacles=self._obstacle_slots(now_ns, x0))
         return data, frame
 
     def _truck_clear_side(self, motion: np.ndarray, settle: np.ndarray, ins: M.Instructions, x0: np.ndarray,
@@ -451,12 +451,16 @@ class Planner:
             swing = np.where(np.isfinite(swing), swing, style.swing_held_rate)
         return truck_travel(style.classes[lo:hi], style.travel[lo:hi], swing[lo:hi], _fps(ins), distance_m)
 
-    def _obstacle_slots(self, x0: np.ndarray) -> np.ndarray:
-        """The obstacle slots of a solve from `x0`: the nearest keep-outs the horizon can reach at the speed limit."""
+    def _obstacle_slots(self, now_ns: int, x0: np.ndarray) -> np.ndarray:
+        """(N, STAGE_SIZE) the obstacle slots of a solve from `x0` at `now_ns`: per stage, the nearest keep-outs the
+        horizon can reach at the speed limit, each at the stage's height in the last plan (stage_heights)."""
         b, st = self.solver.bounds, self.cfg.structure
         reach = b.speed_max_mps * st.horizon_steps * st.dt_s
-        return obstacle_params(self._obstacles, x0[self.layout.P], clearance_m=b.min_obstacle_distance_m,
-                               reach_m=reach)
+        p = x0[self.layout.P]
+        plan = self._plan
+        heights = stage_heights(None if plan is None else plan.x[:, self.layout.P][:, 2], st.dt_s,
+                                0.0 if plan is None else (now_ns - plan.t0_ns) * 1e-9, st.horizon_steps, float(p[2]))
+        return stage_obstacle_params(self._obstacles, p, heights, clearance_m=b.min_obstacle_distance_m, reach_m=reach)
 
     def _separation_m(self, ins: M.Instructions, now_row: int, jw: np.ndarray, jmask: np.ndarray) -> float:
         """The subject distance the rows of the next `separation_lookahead_s` (within the take) need for

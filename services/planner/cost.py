@@ -350,7 +350,7 @@ class ParamLayout:
         sizes = [("u_prev", lay.nu), ("joints", 3 * e), ("centre", 3), ("subj_vel", 3),
                  ("targets", n * e * 2), ("mask", n * e), ("dof", n * N_DOF), ("dref", n), ("motion", n * CM.N_MOTION),
                  ("weights", len(WEIGHT_NAMES)), ("u_scale", lay.nu), ("v_scale", 1), ("soft", C.N_LIMITS),
-                 ("obstacles", OB.N_OBSTACLE_SLOTS * OB.SLOT_SIZE)]
+                 ("obstacles", n * OB.STAGE_SIZE)]
         self.slices: dict[str, slice] = {}
         off = 0
         for name, size in sizes:
@@ -389,7 +389,7 @@ class NlpParams:
     v_scale: object
     soft: object  #: the soft constraints' limits (constraints.soft_limits)
     motion: object = 0  #: (N * N_MOTION) side of the subject and camera-motion style (camera_motion.py)
-    obstacles: object = 0  #: the obstacle slots (obstacles.obstacle_params)
+    obstacles: object = 0  #: (N * STAGE_SIZE) every stage's obstacle slots (obstacles.stage_obstacle_params)
 
     @classmethod
     def of(cls, p, sl: dict[str, slice], e: int) -> NlpParams:
@@ -436,11 +436,12 @@ class StageBuilder:
         tk = (k + 1) * dt
         terms.g.append(x - (ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)))
         centre = par.centre0 + par.vel * tk
-        terms.g.append(C.soft_constraints(x, slack, centre, par.soft, par.obstacles))
+        slots = par.obstacles[k * OB.STAGE_SIZE:(k + 1) * OB.STAGE_SIZE]
+        terms.g.append(C.soft_constraints(x, slack, centre, par.soft, slots))
         # the same rows in the stage-wise form of the QP (x_{k+1} through the dynamics; equal wherever
         # the dynamics hold, which every SQP iterate after the first satisfies exactly)
         x_pred = ca.mtimes(a_dm, x_prev) + ca.mtimes(b_dm, u)
-        terms.g_ocp += [x_pred - x, C.soft_constraints(x_pred, slack, centre, par.soft, par.obstacles)]
+        terms.g_ocp += [x_pred - x, C.soft_constraints(x_pred, slack, centre, par.soft, slots)]
 
         yaw, pitch, roll = lay.angles(x)
         cam = x[lay.P]

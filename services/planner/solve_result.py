@@ -24,7 +24,7 @@ class StageData:
     distance_ref: np.ndarray  # (N,) subject distance used to scale the DoF errors [m]
     motion: np.ndarray | None = None  # (N, camera_motion.N_MOTION) side of the subject, camera motion; None = none
     min_distance_m: float = 0.0  # a minimum subject distance above the bounds' (separation.py) [m]; 0 = the bounds'
-    obstacles: np.ndarray | None = None  # the obstacle slots (obstacles.obstacle_params); None = none
+    obstacles: np.ndarray | None = None  # obstacle slots: (N, STAGE_SIZE) per stage, or one set for all; None = none
 
 
 @dataclass

@@ -32,6 +32,7 @@ import numpy as np
 
 from cinetransfer.services.planner import constraints as C
 from cinetransfer.services.planner import cost as J
+from cinetransfer.services.planner import obstacles as OB
 from cinetransfer.services.planner.config import Bounds, Structure, Weights
 from cinetransfer.services.planner.cost import N_DOF, ParamLayout
 from cinetransfer.services.planner.ipopt import IpoptMixin
@@ -176,8 +177,9 @@ class MpcSolver(SqpMixin, IpoptMixin):
         p[sl["u_scale"]] = 1.0 / uhi
         p[sl["v_scale"]] = 1.0 / self.bounds.speed_max_mps
         p[sl["soft"]] = C.soft_limits(self.bounds, data.min_distance_m)
-        if data.obstacles is not None:
-            p[sl["obstacles"]] = data.obstacles
+        if data.obstacles is not None:  # one set of slots holds at every stage
+            p[sl["obstacles"]] = np.broadcast_to(np.asarray(data.obstacles, dtype=float),
+                                                 (self.n, OB.STAGE_SIZE)).reshape(-1)
         if not np.all(np.isfinite(p)):
             raise ValueError("non-finite solver parameter")
         return p

@@ -452,6 +452,15 @@ def test_a_dolly_whose_points_all_scale_one_way_keeps_its_sign():
     ((-6.0, 0.0, 0.0, 0.0), (1.0, 0.0, 0.0), "pan+truck"),   # right while turning right: no centre ahead
     ((0.0, 0.0, 0.0, -0.1), (0.0, 0.0, 1.0), "dolly_zoom"),
     ((math.nan,) * 4, None, ""),
+    # beside a translation a pan or tilt counts from ROTATION_BESIDE_TRANSLATION_DPS = 3.0, not 1.5
+    ((0.0, -1.8, 0.0, 0.0), (0.0, -1.0, 0.0), "pedestal"),   # the tilt a pedestal's reading trades
+    ((0.0, -3.2, 0.0, 0.0), (0.0, -1.0, 0.0), "tilt+pedestal"),
+    ((0.0, -1.8, 0.0, 0.0), None, "tilt"),                    # without a translation: 1.5
+    ((1.6, 0.0, 0.0, 0.0), (0.0, 0.0, 1.0), "dolly_in"),
+    ((-2.9, 0.0, 0.0, 0.0), (1.0, 0.0, 0.0), "truck"),
+    ((-3.1, 0.0, 0.0, 0.0), (1.0, 0.0, 0.0), "pan+truck"),
+    ((1.6, 0.0, 0.0, 0.0), (1.0, 0.0, 0.0), "orbit"),         # an orbit's pan still from 1.5
+    ((0.0, 0.0, 1.6, 0.0), (0.0, 0.0, 1.0), "roll+dolly_in"), # roll is not traded: 1.5
 ])
 def test_classes(rates, t, want):
     assert cm.classify(*rates, None if t is None else np.array(t)) == want

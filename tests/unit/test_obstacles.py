@@ -10,7 +10,8 @@ from cinetransfer.services.autopilot_bridge.safety import envelope_breach, retur
 from cinetransfer.services.autopilot_bridge.sim.obstacles import CROWN_SLICES, crown_slices, scene_obstacles
 from cinetransfer.services.autopilot_bridge.sim.scene import load_scene
 from cinetransfer.services.planner import config as pc
-from cinetransfer.services.planner.obstacles import N_OBSTACLE_SLOTS, obstacle_params, obstacle_rows
+from cinetransfer.services.planner.obstacles import (N_OBSTACLE_SLOTS, STAGE_SIZE, obstacle_params, obstacle_rows,
+                                                    stage_heights, stage_obstacle_params)
 from cinetransfer.shared.errors import ConfigError
 from cinetransfer.shared.obstacles import (Obstacle, intrusion_m, keep_out_radius_m, nearest_keep_outs, obstacles_from,
                                            push_clear, push_out, towards)
@@ -100,6 +101,42 @@ def test_planner_slots_hold_the_nearest_with_the_clearance():
     # keep-out there, 1.82 m; the other slices and the trunk (1.15) lie inside it; no pillar's keep-out within 3 m
     np.testing.assert_allclose(p[:3], (-6.0, -9.0, 1.3 * math.sqrt(1 - (1.0 / 1.5) ** 2) + math.sqrt(1 - 0.525 ** 2)))
     np.testing.assert_array_equal(p[3:], 0.0)
+
+
+def test_stage_heights_are_the_last_plan_at_each_stage_time():
+    plan_z = [1.0, 1.2, 1.4, 1.6]  # 0.1 s apart: 0.0-0.3 s
+    # 0.05 s after it, stages 1-4 lie at 0.15, 0.25, 0.35, 0.45 s: halfway twice, then held at its last
+    np.testing.assert_allclose(stage_heights(plan_z, 0.1, 0.05, 4, 9.0), [1.3, 1.5, 1.6, 1.6])
+    np.testing.assert_allclose(stage_heights(None, 0.1, 0.0, 3, 1.6), [1.6, 1.6, 1.6])  # no plan: the measured
+    for jump in (-0.01, 0.31):  # a clock that jumped outside the plan: the measured height, as the solve forgets it
+        np.testing.assert_allclose(stage_heights(plan_z, 0.1, jump, 2, 1.7), [1.7, 1.7])
+
+
+def test_each_stage_holds_the_keep_outs_at_its_own_height():
+    obs = scene_obstacles(load_scene("courtyard"))
+    p = stage_obstacle_params(obs, (-6.5, -9.2, 1.6), [1.6, 2.1, 6.0], clearance_m=1.0, reach_m=3.0)
+    assert p.shape == (3, STAGE_SIZE)
+    # at 1.6 m the slice 2.125-2.25 m, as obstacle_params at the measured height (1.82 m)
+    np.testing.assert_array_equal(p[0], obstacle_params(obs, (-6.5, -9.2, 1.6), clearance_m=1.0, reach_m=3.0))
+    # at 2.1 m (a climb of 0.5 m under tree_3's crown): the slice 2.5-2.625 m, 0.4 m over the camera and 0.625 m
+    # under the centre, is the widest keep-out: 1.3 sqrt(1 - (0.625/1.5)^2) + sqrt(1 - 0.4^2) = 2.098 m
+    want = 1.3 * math.sqrt(1 - (0.625 / 1.5) ** 2) + math.sqrt(1 - 0.4 ** 2)
+    np.testing.assert_allclose(p[1, :3], (-6.0, -9.0, want))
+    assert want == pytest.approx(2.098, abs=1e-3)
+    # 6.0 m is 1.25 m over the crown's top (4.75 m), past the clearance: nothing there
+    np.testing.assert_array_equal(p[2], 0.0)
+    np.testing.assert_array_equal(p[:2, 3:], 0.0)  # no pillar's keep-out within 3 m at any height
+
+
+def test_a_far_obstacle_is_out_of_reach_at_every_height():
+    # axis 5 m away, r 1 + c 1 at most: 3 m from its keep-out; a 2.9 m reach never holds it, 3.0 does
+    far = [Obstacle(5.0, 0.0, 1.0, 0.0, 3.0)]
+    np.testing.assert_array_equal(stage_obstacle_params(far, (0, 0, 1), [1.0, 2.0], clearance_m=1.0, reach_m=2.9),
+                                  0.0)
+    # with 3.0: held at 1.0 m (5 - 2 = 3); at 3.5 m, 0.5 over its top, the keep-out is 1 + sqrt(0.75) = 1.87 m,
+    # 3.13 m away: out of reach at that stage
+    p = stage_obstacle_params(far, (0, 0, 1), [1.0, 3.5], clearance_m=1.0, reach_m=3.0)
+    np.testing.assert_allclose(p[:, :3], [(5.0, 0.0, 2.0), (0.0, 0.0, 0.0)])
 
 
 def test_bridge_counts_the_measured_vehicle_in_a_keep_out_as_a_breach():

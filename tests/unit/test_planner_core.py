@@ -8,9 +8,8 @@ import pytest
 from cinetransfer.services.planner import config as pc
 from cinetransfer.services.planner.camera_motion import MOTION_MASKS
 from cinetransfer.services.planner.core import (LEAD_HOLD_BLUR, LEAD_HOLD_WEIGHT, LENS_MOTION_COLUMNS,
-                                                RACK_LEAD_SHARE, Planner, _fps, absent_regions, held_lead_dof,
-                                                held_subject_labels,
-                                                instructions_from_arrays, lens_for_focus_rows,
+                                                RACK_LEAD_SHARE, Plan, Planner, _fps, absent_regions, held_lead_dof,
+                                                held_subject_labels, instructions_from_arrays, lens_for_focus_rows,
                                                 pins_field_before_soft_background, planned_focus_rows,
                                                 later_shot_previewed, predict_subject, rack_settle_rows,
                                                 rack_switch_ahead, shot_choice_held, unmeasured_subject_rows)
@@ -1017,3 +1016,27 @@ def test_a_later_shot_asks_nothing_of_the_lens_before_the_cut(planner, instructi
     off = Planner(dataclasses.replace(planner.cfg, later_shot_after_choice=False), solver=planner.solver)
     dof_off, _ = off._dof_targets(T0, ins, [22], 10, x0, subj)
     assert dof_off[0].tolist() == dof[0].tolist()
+
+
+def test_each_stage_keeps_a_crown_out_at_the_last_plan_s_height(planner, instructions):
+    # given a crown 0.5 m over the camera, its axis 1 m away (radius 0.5 m, clearance 1 m): every stage
+    # at the measured height keeps 0.5 + sqrt(1 - 0.5^2) = 1.366 m from its axis
+    sim = KinematicSim(wrong_start_scene())
+    vs = sim.vehicle_state(T0)
+    x, y, z = (float(v) for v in vs.position_m)
+    crown = [[x + 1.0, y, 0.5, z + 0.5, z + 3.0]]
+    cfg = pc.replace(planner.cfg, obstacles_m=crown, **{"bounds.min_obstacle_distance_m": 1.0})
+    p = Planner(cfg, solver=planner.solver)
+    assert p.command(M.Command(action="start", args={"start_frame": 0, "end_frame": 96, "preroll_s": 1.0}), T0)
+    data, _ = p._stage_data(T0, instructions, vs, sim.subject_state(T0))
+    n = cfg.structure.horizon_steps
+    np.testing.assert_allclose(data.obstacles[:, :3], np.tile([x + 1.0, y, 0.5 + math.sqrt(0.75)], (n, 1)))
+    # when the last plan climbs 0.05 m a stage (0.5 m/s), stage k is 0.5 - 0.05 k under the band: 0.5 +
+    # sqrt(1 - (0.5 - 0.05 k)^2), from 1.393 m at stage 1 to the full 1.5 m from stage 10 on
+    states = np.tile(data.x0, (n + 1, 1))
+    states[:, 2] = z + 0.05 * np.arange(n + 1)
+    p._plan = Plan(T0, states, np.zeros((n, p.layout.nu)), cfg.structure.dt_s, "Solve_Succeeded", 0)
+    data, _ = p._stage_data(T0, instructions, vs, sim.subject_state(T0))
+    gap = np.maximum(0.5 - 0.05 * np.arange(1, n + 1), 0.0)
+    np.testing.assert_allclose(data.obstacles[:, 2], 0.5 + np.sqrt(1.0 - gap ** 2))
+    assert data.obstacles[0, 2] == pytest.approx(1.393, abs=1e-3) and data.obstacles[9, 2] == pytest.approx(1.5)
