@@ -373,8 +373,9 @@ class PlannerConfig:
     #: plan keeps the camera bounds.min_obstacle_distance_m from the surfaces of the nearest ones (obstacles.py). A
     #: runtime parameter; the transfer gives the scene's own (services/autopilot_bridge/sim/obstacles.py)
     obstacles_m: tuple[tuple[float, ...], ...] = ()
-    #: the scene's known upright surfaces, each [x0_m, y0_m, x1_m, y1_m, z_min_m, z_max_m] in the world frame
-    #: (shared/surfaces.py): with the ground, how deep what the foreground band and the background show lies
+    #: the scene's known upright surfaces, each [x0_m, y0_m, x1_m, y1_m, z_min_m, z_max_m] in the world frame and
+    #: optionally the focus estimator's flip on its texture [circles] (shared/surfaces.py): with the ground, how deep
+    #: what the foreground band and the background show lies, and from what blur each reads soft
     #: (scene_depth.py), for "only the subject sharp" (focus_field.three_label_focus_inv_m). A runtime parameter;
     #: the transfer gives the scene's own fixed layers (services/autopilot_bridge/sim/surfaces.py)
     surfaces_m: tuple[tuple[float, ...], ...] = ()

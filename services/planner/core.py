@@ -50,7 +50,7 @@ from cinetransfer.services.planner.focus_field import (ANKLE_HEIGHT_M, GROUND_BE
                                                        settled_subject_blur, foreground_near_m, shifted_limits,
                                                        rack_lead_cap_s, rack_ahead_inv_m, ground_band,
                                                        narrowest_spread, three_label_focus_inv_m)
-from cinetransfer.services.planner.scene_depth import ray_inverse_depths, region_medians
+from cinetransfer.services.planner.scene_depth import ray_hits, region_medians_and_flips
 from cinetransfer.services.planner.separation import (APERTURE_MARGIN, background_soft_distance_m, framing_k,
                                                       separation_distance_m)
 from cinetransfer.services.planner.solver import N_DOF, MpcSolver, SolveResult, StageData
@@ -786,7 +786,7 @@ class Planner:
 
     def _row_limits(self, row: np.ndarray, depth: float, mu: float, band: Band | None,
                     focal_mm: float, far_ratio: float, keep_out_m: float,
-                    absent_row: np.ndarray, map_medians: tuple[float, float] | None = None) -> tuple[float, float]:
+                    absent_row: np.ndarray, map_medians: tuple[float, ...] | None = None) -> tuple[float, float]:
         """Target limits (D_n*, D_f*) [m] of a row's labels (shared.camera.desired_dof_limits), with
         "only the background sharp" keeping the subject out by `keep_out_m` past his centre (the row's
         keep-out, _keep_outs_m), "only the subject sharp" before a present background moved in front of
@@ -816,12 +816,12 @@ class Planner:
         return near, far
 
     def _subject_only_limits(self, near: float, far: float, depth: float, band: Band | None, focal_mm: float, *,
-                             fg_absent: bool, map_medians: tuple[float, float] | None = None) -> tuple[float, float]:
+                             fg_absent: bool, map_medians: tuple[float, ...] | None = None) -> tuple[float, float]:
         """(D_n*, D_f*) [m] of "only the subject sharp" with the background present: d -+ mu moved in front of
         him by focus_ahead_inv_m, the one circle's spread taken at the widest aperture planned for. Centred on
         him, a field wider than he is deep left parkour's backdrop 1.0-1.35 circles soft: sharp to the focus
         estimator (docs/planner.md, "Only the subject sharp: the focus in front of him"). With the scene's map
-        (`map_medians`, the band's and the background's median inverse depths) the focus goes where both are
+        (`map_medians`, the band's and the background's median inverse depths and flips) the focus goes where both are
         softest together, wide open, as far as that is within reach (focus_field.three_label_focus_inv_m)."""
         if not self.cfg.subject_only_focus_ahead and map_medians is None:
             return near, far
@@ -831,12 +831,13 @@ class Planner:
             spread = narrowest_spread(focal_mm, APERTURE_MARGIN * b.f_number_min, coc)
             ahead = focus_ahead_inv_m(depth, band, fg_absent=fg_absent, spread=spread)
         if map_medians is not None:
-            ahead = three_label_focus_inv_m(depth, *map_medians, spread=narrowest_spread(focal_mm, b.f_number_min, coc),
-                                            otherwise_inv_m=ahead)
+            spread = narrowest_spread(focal_mm, b.f_number_min, coc)
+            ahead = three_label_focus_inv_m(depth, *map_medians[:2], spread=spread, otherwise_inv_m=ahead,
+                                            flips=map_medians[2:])
         return shifted_limits(near, far, ahead)
 
     def _together_medians(self, row: np.ndarray, absent_row: np.ndarray, xk: np.ndarray, subj: PredictedSubject,
-                          t: float) -> tuple[float, float] | None:
+                          t: float) -> tuple[float, ...] | None:
         """For a row with only the subject sharp before a present foreground and background, what the scene's map
         shows the planned camera `xk` `t` s ahead (_map_medians); None where no map is given or the row is another."""
         if not self._surfaces or tuple(cam.realisable_labels(*(bool(v) for v in row))) != (False, True, False) \
@@ -844,9 +845,10 @@ class Planner:
             return None
         return self._map_medians(xk, subj, t)
 
-    def _map_medians(self, xk: np.ndarray, subj: PredictedSubject, t: float) -> tuple[float, float] | None:
+    def _map_medians(self, xk: np.ndarray, subj: PredictedSubject, t: float) -> tuple[float, ...] | None:
         """(foreground band, background) median inverse depths [1/m] the planned camera `xk` sees `t` s ahead on the
-        scene's map (the ground and the known surfaces, scene_depth.region_medians); None without an ankle."""
+        scene's map (the ground and the known surfaces, scene_depth.region_medians_and_flips), then the focus
+        estimator's flips [circles] on what their medians show; None without an ankle."""
         view = self._ground_view(xk, subj, t)
         if view is None:
             return None
@@ -855,7 +857,7 @@ class Planner:
         sensor = cam.Sensor(st.sensor_width_mm, st.sensor_height_mm)
         pos, focal = xk[lay.P], float(xk[lay.F])
         ground_z = self.cfg.ground_z_m if math.isfinite(self.cfg.ground_z_m) else float(pos[2]) - view[1]["height_m"]
-        return region_medians(view[0], lambda pts: ray_inverse_depths(
+        return region_medians_and_flips(view[0], lambda pts: ray_hits(
             pts, pos, ypr, focal_mm=focal, sensor=sensor, ground_z_m=ground_z, surfaces=self._surfaces))
 
     def _keep_out_m(self, mu: float) -> float:

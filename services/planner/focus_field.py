@@ -72,6 +72,14 @@ FULL_TOGETHER_BLUR = 1.04
 #: the blur [circles] the foreground band's median keeps when the focus moves in front of a sharp subject: the
 #: visible circle's 1.5, where the focus estimator reads every texture soft
 SOFT_BAND_BLUR = 1.5
+#: the least blur [circles] the focus balanced by the estimator's flips (three_label_focus_inv_m) leaves either soft
+#: region: the truth calls a region soft past 1 circle
+TRUTH_SOFT_BLUR = 1.03
+#: the blur [circles] a sharp subject may carry with the three labels together (three_label_focus_inv_m): the focus
+#: balanced by the flips stands behind him, where the parkour runner reads sharp to 1.33-1.68 circles (docs/report.md)
+#: and the truth's rule (half his pixels inside the field) to 1; at the quarter circle of SHARP_SUBJECT_BLUR the
+#: balance was cut short in frames 31-37 (flown 0.26-0.30 circles behind him; docs/planner.md)
+TOGETHER_SUBJECT_BLUR = 0.35
 
 
 @dataclass(frozen=True)
@@ -255,12 +263,16 @@ def rack_ahead_inv_m(depth_m: float, background_inv_m: float, *, spread: float, 
 
 def three_label_focus_inv_m(depth_m: float, fg_inv_m: float, bg_inv_m: float, *, spread: float, otherwise_inv_m: float,
                             subject_blur: float = SHARP_SUBJECT_BLUR, least_blur: float = LEAST_TOGETHER_BLUR,
-                            full_blur: float = FULL_TOGETHER_BLUR) -> float:
+                            full_blur: float = FULL_TOGETHER_BLUR,
+                            flips: tuple[float, float] = (1.0, 1.0)) -> float:
     """How far in front of a sharp subject `depth_m` away the focus stands [1/m, inverse depth; negative: behind
     him] with only him sharp, from the foreground's and the background's median inverse depths (`fg_inv_m`,
-    `bg_inv_m`; scene_depth.region_medians): the focus where the two soft regions are equally blurred, 1/s =
-    (x_fg + x_bg) / 2, held within `subject_blur` circles of him (`spread`: the one circle's half-width in inverse
-    depth at the widest aperture), so both are as soft as the lens can make them together while he stays sharp.
+    `bg_inv_m`; scene_depth.region_medians_and_flips): the focus where the two soft regions lie equally far past
+    the focus estimator's flips on them (`flips`, circles: foreground, background; _read_balanced_inv_m), held
+    within TOGETHER_SUBJECT_BLUR circles of him (`spread`: the one circle's half-width in inverse depth at the widest
+    aperture), so both are read soft as far as the lens can make them together while he stays sharp. With equal
+    flips that is where they are equally blurred, 1/s = (x_fg + x_bg) / 2, held within `subject_blur` circles of
+    him; the reach below is judged there.
     Where, so placed, the less blurred of the two is under `least_blur` circles no lens gives the three labels and
     the caller's own move `otherwise_inv_m` stands (the band is lost whatever the focus, and the background's blur
     matters more); from `full_blur` on the focus stands there; in between it lies part of the way, linearly in that
@@ -272,6 +284,21 @@ def three_label_focus_inv_m(depth_m: float, fg_inv_m: float, bg_inv_m: float, *,
     x_s = 1.0 / depth_m
     x = min(max(0.5 * (fg_inv_m + bg_inv_m), x_s - subject_blur * spread), x_s + subject_blur * spread)
     shared = min(fg_inv_m - x, x - bg_inv_m) / spread
+    x = _read_balanced_inv_m(x, fg_inv_m, bg_inv_m, x_s, spread=spread, flips=flips)
     w = min(max((shared - least_blur) / (full_blur - least_blur), 0.0), 1.0) if full_blur > least_blur \
         else float(shared >= least_blur)
     return w * (x - x_s) + (1.0 - w) * otherwise_inv_m
+
+
+def _read_balanced_inv_m(x_equal: float, fg_inv_m: float, bg_inv_m: float, x_s: float, *, spread: float,
+                         flips: tuple[float, float]) -> float:
+    """The focus [1/m] moved from the equal-circle focus `x_equal` by (k_fg - k_bg) `spread` / 2 towards the region
+    flipping earlier (`flips`: the focus estimator's flips on the foreground and the background, in circles), so
+    that both lie equally far past their flips, only as far as keeps each region TRUTH_SOFT_BLUR circles soft and
+    the subject within TOGETHER_SUBJECT_BLUR circles; `x_equal` itself with equal flips or where that leaves no
+    room."""
+    step = -0.5 * (flips[0] - flips[1]) * spread
+    lo = max(bg_inv_m + TRUTH_SOFT_BLUR * spread, x_s - TOGETHER_SUBJECT_BLUR * spread)
+    hi = min(fg_inv_m - TRUTH_SOFT_BLUR * spread, x_s + TOGETHER_SUBJECT_BLUR * spread)
+    x = min(max(x_equal + step, lo), hi)
+    return x if (x - x_equal) * step > 0 else x_equal

@@ -26,6 +26,13 @@ def ray_inverse_depths(uv: np.ndarray, position: Sequence[float], ypr: Sequence[
     """(N,) inverse depth along the optical axis [1/m] of what each normalised image point `uv` (N, 2) sees from a
     camera at `position` with attitude `ypr`: the nearest of the ground plane at `ground_z_m` and the surfaces;
     0 where the ray meets none of them (the sky, or beyond the map)."""
+    return ray_hits(uv, position, ypr, focal_mm=focal_mm, sensor=sensor, ground_z_m=ground_z_m, surfaces=surfaces)[0]
+
+
+def ray_hits(uv: np.ndarray, position: Sequence[float], ypr: Sequence[float], *, focal_mm: float,
+             sensor: cam.Sensor, ground_z_m: float, surfaces: Sequence[Surface]) -> tuple[np.ndarray, np.ndarray]:
+    """(inverse depths, flips), each (N,): ray_inverse_depths and the focus estimator's flip [circles] on what each
+    ray meets (the surface's own; 1, the one circle's, on the ground and where it meets nothing)."""
     uv = np.asarray(uv, float).reshape(-1, 2)
     c = np.asarray(position, float)
     ray_c = np.column_stack([np.ones(len(uv)), (0.5 - uv[:, 0]) * sensor.width_mm / focal_mm,
@@ -36,9 +43,12 @@ def ray_inverse_depths(uv: np.ndarray, position: Sequence[float], ypr: Sequence[
     with np.errstate(divide="ignore", invalid="ignore"):
         tg = (ground_z_m - c[2]) / d[:, 2]
     t = np.where((d[:, 2] < 0) & (tg > 0), tg, t)
+    flip = np.ones(len(uv))
     for s in surfaces:
-        t = np.minimum(t, _surface_hits(s, c, d))
-    return np.where(np.isfinite(t), 1.0 / t, 0.0)
+        ts = _surface_hits(s, c, d)
+        flip = np.where(ts < t, s.flip_circles, flip)
+        t = np.minimum(t, ts)
+    return np.where(np.isfinite(t), 1.0 / t, 0.0), flip
 
 
 def _surface_hits(s: Surface, c: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -70,7 +80,21 @@ def region_medians(v_feet: float, depths_of) -> tuple[float, float]:
     their inverse depths (ray_inverse_depths). The map holds no subject, so the rays he hides see what stands behind
     him: the box of his joints left out instead (twice his silhouette with a runner's limbs spread) flipped parkour's
     background median between the lawn 31 m away and the backdrop 40 m away, where the truth's stayed at 40 m."""
-    v_feet = min(max(v_feet, 0.0), 1.0)
-    fg = float(np.median(depths_of(grid_points(v_feet, 1.0)))) if v_feet < 1.0 else float("nan")
-    bg = float(np.median(depths_of(grid_points(0.0, v_feet)))) if v_feet > 0.0 else float("nan")
+    fg, bg, _, _ = region_medians_and_flips(v_feet, lambda pts: (depths_of(pts), np.ones(len(pts))))
     return fg, bg
+
+
+def region_medians_and_flips(v_feet: float, hits_of) -> tuple[float, float, float, float]:
+    """(foreground, background) median inverse depths [1/m] as region_medians, then each region's flip [circles]:
+    that of what its median ray meets, the pixels the truth's and the extraction's rules turn on; `hits_of` maps
+    (N, 2) image points to (inverse depths, flips) (ray_hits). NaN for a region with no rows."""
+    v_feet = min(max(v_feet, 0.0), 1.0)
+    fg = _median_and_flip(*hits_of(grid_points(v_feet, 1.0))) if v_feet < 1.0 else (float("nan"),) * 2
+    bg = _median_and_flip(*hits_of(grid_points(0.0, v_feet))) if v_feet > 0.0 else (float("nan"),) * 2
+    return fg[0], bg[0], fg[1], bg[1]
+
+
+def _median_and_flip(inv: np.ndarray, flip: np.ndarray) -> tuple[float, float]:
+    """The median of `inv` and the flip of the ray at its upper middle (the median itself for an odd count)."""
+    k = int(np.argsort(inv, kind="stable")[len(inv) // 2])
+    return float(np.median(inv)), float(flip[k])

@@ -802,9 +802,13 @@ def test_only_the_subject_sharp_takes_the_focus_the_scene_map_gives_the_three_la
     lay, st, b = planner.layout, planner.cfg.structure, planner.solver.bounds
     # then the band's median is the hedge (3 cos 0.05 m along the axis at the camera's height, nearer below it)
     # and the background's the backdrop (39 cos 0.05 m)
-    fg, bg = mapped._map_medians(x0, subj, st.dt_s)
+    fg, bg, fg_flip, bg_flip = mapped._map_medians(x0, subj, st.dt_s)
     assert 1.0 / fg == pytest.approx(3.0 * np.cos(0.05), abs=0.1)
     assert 1.0 / bg == pytest.approx(39.0 * np.cos(0.05), abs=0.5)
+    # each with the one circle's flip, none given; a hedge given its flip hands it on
+    assert (fg_flip, bg_flip) == (1.0, 1.0)
+    flipped = Planner(dataclasses.replace(planner.cfg, surfaces_m=([*hedge, 1.3], backdrop)), solver=planner.solver)
+    assert flipped._map_medians(x0, subj, st.dt_s)[2:] == (1.3, 1.0)
     # and where both are equally soft (1/s = 0.178 /m, 5.6 m) lies farther in front of him (1/d = 0.111 /m) than
     # the quarter circle he may carry, so the focus stands a quarter circle of the widest aperture in front of
     # him (1000 A c / f^2 per metre), the backdrop then 1.28 circles soft: d -+ mu move by that

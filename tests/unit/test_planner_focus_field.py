@@ -201,7 +201,7 @@ def test_the_three_labels_come_together_where_both_soft_regions_are_equally_blur
     kw = {"spread": 0.0536, "otherwise_inv_m": 0.02}
     # given a runner 10.6 m away, the hedge in front at 6.8 m and the backdrop at 40 m, the one circle's spread
     # 0.0536 /m: the focus where both are as soft, 1/s = (1/6.8 + 1/40) / 2 = 0.08603 /m (11.62 m), 0.155 circles
-    # behind him (within the quarter circle he may carry), both 1.139 circles soft: past 1.08, wholly there
+    # behind him (within the quarter circle he may carry), both 1.139 circles soft: past 1.04, wholly there
     x = FF.three_label_focus_inv_m(10.6, 1 / 6.8, 1 / 40.0, **kw)
     assert x == pytest.approx(0.5 * (1 / 6.8 + 1 / 40.0) - 1 / 10.6)
     assert x < 0
@@ -217,3 +217,23 @@ def test_the_three_labels_come_together_where_both_soft_regions_are_equally_blur
     # and the caller's move with the foreground behind him, the background in front, or a depth unknown
     for fg, bg in ((0.05, 0.02), (0.3, 0.2), (math.nan, 0.02)):
         assert FF.three_label_focus_inv_m(10.0, fg, bg, spread=0.05, otherwise_inv_m=0.01) == 0.01
+
+
+def test_the_three_labels_are_balanced_by_margin_past_each_region_s_flip_by_hand():
+    kw = {"spread": 0.05, "otherwise_inv_m": 0.0}
+    # given a subject 10 m away (0.1 /m), the foreground at 0.16 /m and the background at 0.04 /m: equal circles
+    # put the focus on him, both 1.2 circles soft; with the foreground flipping at 1.3 circles and the background
+    # at 1.1 the focus moves (1.3 - 1.1) / 2 = 0.1 circles behind him, 0.005 /m: both then 0.1 circles past
+    x = FF.three_label_focus_inv_m(10.0, 0.16, 0.04, flips=(1.3, 1.1), **kw)
+    assert x == pytest.approx(-0.005)
+    assert (0.16 - (0.1 + x)) / 0.05 - 1.3 == pytest.approx((0.1 + x - 0.04) / 0.05 - 1.1)
+    # and equal flips leave the equal-circle focus, even where the truth's 1.03 circles would not hold there
+    assert FF.three_label_focus_inv_m(10.0, 0.16, 0.04, flips=(1.2, 1.2), **kw) == pytest.approx(0.0)
+    assert FF.three_label_focus_inv_m(10.0, 0.3, 0.0, spread=0.1, otherwise_inv_m=0.0, flips=(1.2, 1.2)) \
+        == pytest.approx(0.025)
+    # and the subject's 0.35 circles bound the move: with the regions at 0.2 and 0 /m (2 circles each), flips
+    # 2.0 and 1.0 would ask 0.5 circles behind him, 0.35 stand
+    assert FF.three_label_focus_inv_m(10.0, 0.2, 0.0, flips=(2.0, 1.0), **kw) == pytest.approx(-0.0175)
+    # and so does the truth's 1.03 circles on the less flipping region: 1.1 shared, the background may lose 0.07
+    # circles of blur only (0.0035 /m), although the flips ask 0.1
+    assert FF.three_label_focus_inv_m(10.0, 0.155, 0.045, flips=(1.3, 1.1), **kw) == pytest.approx(-0.0035)

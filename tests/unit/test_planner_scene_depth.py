@@ -52,3 +52,19 @@ def test_the_regions_medians_by_hand():
     fg, bg = SD.region_medians(1.0, rows)
     assert np.isnan(fg) and bg == pytest.approx(0.5)
     assert np.isnan(SD.region_medians(0.0, rows)[1])
+
+
+def test_each_region_s_flip_is_that_of_what_its_median_ray_meets():
+    hedge = Surface(3.0, -5.0, 3.0, 5.0, 0.0, 1.0, 1.27)
+    backdrop = Surface(30.0, 5.0, 30.0, -5.0, 0.0, 10.0, 1.1)
+    # given the same camera: the bottom row meets the hedge, the centre row the backdrop, and a row 0.05 below the
+    # centre the backdrop too (0.5 m up at 30 m) before the ground 2 / 0.05 = 40 m away; the left edge the sky
+    inv, flip = SD.ray_hits(np.array([[0.5, 1.0], [0.5, 0.5], [0.5, 0.55], [0.0, 0.5]]), (0.0, 0.0, 2.0),
+                            (0.0, 0.0, 0.0), focal_mm=H_S, sensor=SENSOR, ground_z_m=0.0, surfaces=(hedge, backdrop))
+    assert inv == pytest.approx([1 / 3.0, 1 / 30.0, 1 / 30.0, 0.0])
+    # the ground and the sky have the one circle's own flip
+    assert flip == pytest.approx([1.27, 1.1, 1.1, 1.0])
+    # and a region's flip is its median ray's: rows as depths, the flip 2 on the lower half of each region's rays
+    hits = lambda pts: (pts[:, 1], np.where(pts[:, 1] > np.median(pts[:, 1]), 2.0, 1.0))  # noqa: E731
+    fg, bg, fg_flip, bg_flip = SD.region_medians_and_flips(0.5, hits)
+    assert (fg, bg) == pytest.approx((0.75, 0.25)) and (fg_flip, bg_flip) == (2.0, 2.0)

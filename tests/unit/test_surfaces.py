@@ -49,3 +49,18 @@ def test_the_transfer_hands_the_planner_its_scenes_surfaces(tmp_path):
     assert got == [s.as_list() for s in scene_surfaces(load_scene("focus_hedge"))] and len(got) == 2
     assert nodes["planner"]["settings"]["ground_z_m"] == 0.0
     assert pc.PlannerConfig(surfaces_m=got).validate().surfaces_m == tuple(tuple(s) for s in got)
+
+
+def test_a_surface_s_flip_is_its_seventh_number():
+    s = surfaces_from([[0, -1, 0, 1, 0, 2, 1.27]])[0]
+    assert s.flip_circles == 1.27 and s.as_list() == [0.0, -1.0, 0.0, 1.0, 0.0, 2.0, 1.27]
+    assert surfaces_from([[0, -1, 0, 1, 0, 2]])[0].flip_circles == 1.0
+    for bad in ([0, -1, 0, 1, 0, 2, 0.0], [0, -1, 0, 1, 0, 2, 1.0, 1.0]):
+        with pytest.raises(ConfigError):
+            surfaces_from([bad])
+
+
+def test_focus_hedge_s_surfaces_carry_their_textures_measured_flips():
+    # the hedge's crisp texture is read soft from 1.31 circles, the lawn backdrop from 1.11 (docs/report.md)
+    flips = sorted(s.flip_circles for s in scene_surfaces(load_scene("focus_hedge")))
+    assert flips == [1.11, 1.31]

@@ -5,6 +5,11 @@ the sky) is the rectangle its quad spans (world_meshes.layer_quad): focus_hedge'
 camera's start and its backdrop 30 m behind the subject. A cut-out's transparent pixels (the hedge's
 irregular top) are inside the rectangle: the map is the quad, not its silhouette. Solid objects are left
 out: a tree or a pillar is a keep-out (sim/obstacles.py), a box no flat picture.
+
+Each rectangle carries its texture's flip: the blur [circles of the one circle] from which the focus estimator
+reads the texture soft as this renderer draws defocus (READ_FLIP_CIRCLES, measured; docs/report.md, "Read soft
+by the extraction"), so that the planner can ask each region for blur
+past its own flip; a texture not measured has the one circle's own, 1.
 """
 from __future__ import annotations
 
@@ -14,6 +19,12 @@ import numpy as np
 from cinetransfer.services.autopilot_bridge.sim.scene import LayerSpec, Scene
 from cinetransfer.services.autopilot_bridge.sim.world_meshes import layer_quad
 from cinetransfer.shared.surfaces import Surface
+
+#: the focus estimator's flip [circles] on each measured texture as this renderer draws defocus (docs/report.md):
+#: the hedge's and the lawn backdrop's the middle of what focus_hedge's frames gave one region at a time (hedge
+#: 1.27-1.34, backdrop 1.08-1.14, parkour frames 27-43; alone at 960 px 1.27 and 1.10), the forest backdrop's
+#: measured alone; the crisp hedge needs the most blur to be read soft
+READ_FLIP_CIRCLES = {"hedge.png": 1.31, "lawn_backdrop.jpg": 1.11, "forest_backdrop.png": 1.20}
 
 
 def layer_surface(spec: LayerSpec) -> Surface | None:
@@ -29,7 +40,7 @@ def layer_surface(spec: LayerSpec) -> Surface | None:
     corners, _ = layer_quad(spec, size, np.zeros(3), 0.0)
     z = corners[:, 2]
     return Surface(float(corners[0, 0]), float(corners[0, 1]), float(corners[1, 0]), float(corners[1, 1]),
-                   float(z.min()), float(z.max()))
+                   float(z.min()), float(z.max()), READ_FLIP_CIRCLES.get(spec.texture.name, 1.0))
 
 
 def scene_surfaces(scene: Scene) -> tuple[Surface, ...]:
