@@ -20,11 +20,10 @@ from cinetransfer.services.autopilot_bridge.sim.scene import LayerSpec, Scene
 from cinetransfer.services.autopilot_bridge.sim.world_meshes import layer_quad
 from cinetransfer.shared.surfaces import Surface
 
-#: the focus estimator's flip [circles] on each measured texture as this renderer draws defocus (docs/report.md):
-#: the hedge's and the lawn backdrop's the middle of what focus_hedge's frames gave one region at a time (hedge
-#: 1.27-1.34, backdrop 1.08-1.14, parkour frames 27-43; alone at 960 px 1.27 and 1.10), the forest backdrop's
-#: measured alone; the crisp hedge needs the most blur to be read soft
-READ_FLIP_CIRCLES = {"hedge.png": 1.31, "lawn_backdrop.jpg": 1.11, "forest_backdrop.png": 1.20}
+#: the focus estimator's flip [circles] on each measured texture as this renderer draws defocus (docs/report.md),
+#: each measured alone (one texture at 960 px), not on a flight's frames: the frames a flight is judged on must
+#: not tune what the planner asks of them; the crisp hedge needs the most blur to be read soft
+READ_FLIP_CIRCLES = {"hedge.png": 1.27, "lawn_backdrop.jpg": 1.10, "forest_backdrop.png": 1.20}
 
 
 def layer_surface(spec: LayerSpec) -> Surface | None:
