@@ -166,9 +166,15 @@ def _settings(lens: Lens, n_range: tuple[float, float], s_range: tuple[float, fl
     lo, hi = s_range
     ev = np.where((ev >= lo) & (ev <= hi), ev, np.nan)
     ev = np.sort(np.concatenate([ev, np.full((n.size, 1), lo), np.full((n.size, 1), hi)], axis=1), axis=1)
+    return with_midpoints(n, ev)
+
+
+def with_midpoints(n: np.ndarray, events: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(f-numbers, focus distances) of each f-number `n` (N,) with its sorted focus `events` (N, K; NaN
+    where none) and the geometric midpoints between consecutive ones: every share the events bound."""
     with np.errstate(invalid="ignore"):
-        mid = np.sqrt(ev[:, 1:] * ev[:, :-1])
-    s = np.concatenate([ev, mid], axis=1)
+        mid = np.sqrt(events[:, 1:] * events[:, :-1])
+    s = np.concatenate([events, mid], axis=1)
     nn = np.broadcast_to(n[:, None], s.shape)
     keep = np.isfinite(s)
     return nn[keep], s[keep]

@@ -38,13 +38,7 @@ def _settings(lens: FR.Lens, regions: list[int], inv_depth: np.ndarray,
         x = np.unique(x[np.isfinite(x) & (x > 0)])
         cols.append(FR._focus_events(lens.focal_mm, n * flips[r], x, lens.coc_mm))
     ev = np.concatenate(cols, axis=1)
-    ev = np.sort(np.where((ev >= lo) & (ev <= hi), ev, np.nan), axis=1)
-    with np.errstate(invalid="ignore"):
-        mid = np.sqrt(ev[:, 1:] * ev[:, :-1])
-    s = np.concatenate([ev, mid], axis=1)
-    nn = np.broadcast_to(n[:, None], s.shape)
-    keep = np.isfinite(s)
-    return nn[keep], s[keep]
+    return FR.with_midpoints(n, np.sort(np.where((ev >= lo) & (ev <= hi), ev, np.nan), axis=1))
 
 
 def read_as_asked(lens: FR.Lens, n: np.ndarray, s: np.ndarray, regions: list[int], asked: np.ndarray,
