@@ -131,11 +131,17 @@ def _grid(lo: float, hi: float, n: int) -> np.ndarray:
 
 
 def _feasible(lens: Lens, n: np.ndarray, s: np.ndarray, regions: list[int], asked: np.ndarray,
-              inv_depth: np.ndarray) -> np.ndarray:
-    """Per setting (n, s broadcast together): every region in `regions` gets its asked label."""
-    inv_far, inv_near = dof_inverse(lens.focal_mm, n, s, lens.coc_mm)
-    ok = np.ones(inv_far.shape, bool)
+              inv_depth: np.ndarray, flips: np.ndarray | None = None) -> np.ndarray:
+    """Per setting (n, s broadcast together): every region in `regions` gets its asked label. With `flips`
+    (3,) [circles of the one circle] each region is judged by its own circle (focus_read): a region flipping
+    at k circles has the one circle's field at k times the f-number."""
+    fields: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+    ok = np.ones(np.broadcast(np.asarray(n), np.asarray(s)).shape, bool)
     for r in regions:
+        k = 1.0 if flips is None else float(flips[r])
+        if k not in fields:
+            fields[k] = dof_inverse(lens.focal_mm, np.asarray(n, float) * k, s, lens.coc_mm)
+        inv_far, inv_near = fields[k]
         ok &= _reaches(inv_depth[r], inv_far.ravel(), inv_near.ravel(), bool(asked[r])).reshape(ok.shape)
     return ok
 

@@ -12,8 +12,9 @@ A region whose flip is k circles reads as if its circle were k times the one cir
 and f-number n is the one circle's field at f-number k n (the field's half-width in inverse depth is linear
 in n c, focus_reach.dof_inverse). So the search is focus_reach's with each region's f-number scaled by its
 flip: per f-number of the lens's grid, the focus distances where any region's own limit meets one of its
-samples and the ones between (its verdict changes only there), and focus_reach.may_reach's rule (a label
-stays readable unless the region's quantiles prove every setting wrong). No hold is asked (the reach has
+samples and the ones between (its verdict changes only there), and focus_reach's own test of a setting
+(`_feasible` given the flips; may_reach's rule: a label stays readable unless the region's quantiles prove
+every setting wrong). No hold is asked (the reach has
 judged it), so this verdict can only call fewer frames out of reach than a stricter one.
 """
 from __future__ import annotations
@@ -41,18 +42,6 @@ def _settings(lens: FR.Lens, regions: list[int], inv_depth: np.ndarray,
     return FR.with_midpoints(n, np.sort(np.where((ev >= lo) & (ev <= hi), ev, np.nan), axis=1))
 
 
-def read_as_asked(lens: FR.Lens, n: np.ndarray, s: np.ndarray, regions: list[int], asked: np.ndarray,
-                  inv_depth: np.ndarray, flips: np.ndarray) -> np.ndarray:
-    """Per setting (n, s): every region in `regions` may be read as asked, each judged by its own circle
-    (`flips` (3,) in circles of the one circle; 1 = the truth's rule)."""
-    ok = np.ones(np.shape(n), bool)
-    for r in regions:
-        inv_far, inv_near = FR.dof_inverse(lens.focal_mm, n * flips[r], s, lens.coc_mm)
-        inside = FR.in_focus_count(inv_depth[r], inv_far.ravel(), inv_near.ravel()).reshape(ok.shape)
-        ok &= FR.may_reach(inside, np.asarray(inv_depth[r]).size, bool(asked[r]))
-    return ok
-
-
 def blur_range(lens: FR.Lens, r: int, others: list[int], asked: np.ndarray, inv_depth: np.ndarray,
                flips: np.ndarray) -> tuple[float, float] | None:
     """The least and most blur [circles] region r's median has at a setting of the lens that lets the regions
@@ -61,7 +50,7 @@ def blur_range(lens: FR.Lens, r: int, others: list[int], asked: np.ndarray, inv_
     fine_n = np.repeat(FR._grid(*lens.f_number, FR.N_APERTURE), FR.N_FINE_WINDOW // 4)
     fine_s = np.tile(FR._grid(*lens.focus_m, FR.N_FINE_WINDOW // 4), FR.N_APERTURE)
     n, s = np.append(n, fine_n), np.append(s, fine_s)
-    ok = read_as_asked(lens, n, s, others, asked, inv_depth, flips)
+    ok = FR._feasible(lens, n, s, others, asked, inv_depth, flips)
     if not ok.any():
         return None
     b = FR.blur_circles(lens.focal_mm, n[ok], s[ok], float(np.median(inv_depth[r])), lens.coc_mm)
@@ -98,7 +87,7 @@ def unreadable_labels(lens: FR.Lens, asked: np.ndarray, judged: np.ndarray, inv_
     kept: list[int] = []
     out: list[FR.Unreachable] = []
     for r in regions:
-        if read_as_asked(lens, n, s, kept + [r], asked, inv_depth, flips).any():
+        if FR._feasible(lens, n, s, kept + [r], asked, inv_depth, flips).any():
             kept.append(r)
             continue
         out.append(_why(lens, r, kept, asked, inv_depth, flips))
