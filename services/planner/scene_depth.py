@@ -21,18 +21,13 @@ from cinetransfer.shared.surfaces import Surface
 GRID = (24, 32)
 
 
-def ray_inverse_depths(uv: np.ndarray, position: Sequence[float], ypr: Sequence[float], *, focal_mm: float,
-                       sensor: cam.Sensor, ground_z_m: float, surfaces: Sequence[Surface]) -> np.ndarray:
-    """(N,) inverse depth along the optical axis [1/m] of what each normalised image point `uv` (N, 2) sees from a
-    camera at `position` with attitude `ypr`: the nearest of the ground plane at `ground_z_m` and the surfaces;
-    0 where the ray meets none of them (the sky, or beyond the map)."""
-    return ray_hits(uv, position, ypr, focal_mm=focal_mm, sensor=sensor, ground_z_m=ground_z_m, surfaces=surfaces)[0]
-
-
 def ray_hits(uv: np.ndarray, position: Sequence[float], ypr: Sequence[float], *, focal_mm: float,
              sensor: cam.Sensor, ground_z_m: float, surfaces: Sequence[Surface]) -> tuple[np.ndarray, np.ndarray]:
-    """(inverse depths, flips), each (N,): ray_inverse_depths and the focus estimator's flip [circles] on what each
-    ray meets (the surface's own; 1, the one circle's, on the ground and where it meets nothing)."""
+    """(inverse depths, flips), each (N,): the inverse depth along the optical axis [1/m] of what each normalised
+    image point `uv` (N, 2) sees from a camera at `position` with attitude `ypr` (the nearest of the ground plane at
+    `ground_z_m` and the surfaces; 0 where the ray meets none of them: the sky, or beyond the map), and the focus
+    estimator's flip [circles] on it (the surface's own; 1, the one circle's, on the ground and where it meets
+    nothing)."""
     uv = np.asarray(uv, float).reshape(-1, 2)
     c = np.asarray(position, float)
     ray_c = np.column_stack([np.ones(len(uv)), (0.5 - uv[:, 0]) * sensor.width_mm / focal_mm,
@@ -74,20 +69,14 @@ def grid_points(v_top: float, v_bottom: float, grid: tuple[int, int] = GRID) -> 
     return np.column_stack([uu.ravel(), vv.ravel()])
 
 
-def region_medians(v_feet: float, depths_of) -> tuple[float, float]:
-    """(foreground band, background) median inverse depths [1/m]: the band the rows below the subject's feet
-    `v_feet` (shared/focus_regions.py), the background the rows above them; `depths_of` maps (N, 2) image points to
-    their inverse depths (ray_inverse_depths). The map holds no subject, so the rays he hides see what stands behind
-    him: the box of his joints left out instead (twice his silhouette with a runner's limbs spread) flipped parkour's
-    background median between the lawn 31 m away and the backdrop 40 m away, where the truth's stayed at 40 m."""
-    fg, bg, _, _ = region_medians_and_flips(v_feet, lambda pts: (depths_of(pts), np.ones(len(pts))))
-    return fg, bg
-
-
 def region_medians_and_flips(v_feet: float, hits_of) -> tuple[float, float, float, float]:
-    """(foreground, background) median inverse depths [1/m] as region_medians, then each region's flip [circles]:
-    that of what its median ray meets, the pixels the truth's and the extraction's rules turn on; `hits_of` maps
-    (N, 2) image points to (inverse depths, flips) (ray_hits). NaN for a region with no rows."""
+    """(foreground band, background) median inverse depths [1/m], then each region's flip [circles]: the band the
+    rows below the subject's feet `v_feet` (shared/focus_regions.py), the background the rows above them; a flip that
+    of what the region's median ray meets, the pixels the truth's and the extraction's rules turn on. `hits_of` maps
+    (N, 2) image points to (inverse depths, flips) (ray_hits). NaN for a region with no rows. The map holds no
+    subject, so the rays he hides see what stands behind him: the box of his joints left out instead (twice his
+    silhouette with a runner's limbs spread) flipped parkour's background median between the lawn 31 m away and
+    the backdrop 40 m away, where the truth's stayed at 40 m."""
     v_feet = min(max(v_feet, 0.0), 1.0)
     fg = _median_and_flip(*hits_of(grid_points(v_feet, 1.0))) if v_feet < 1.0 else (float("nan"),) * 2
     bg = _median_and_flip(*hits_of(grid_points(0.0, v_feet))) if v_feet > 0.0 else (float("nan"),) * 2

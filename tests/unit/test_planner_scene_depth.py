@@ -15,8 +15,8 @@ SENSOR = cam.Sensor()
 def _depths(uv, surfaces):
     # a level camera 2 m up at the origin whose bottom row looks 0.5 below its axis (the focal length equals the
     # sensor height)
-    return SD.ray_inverse_depths(np.array(uv, float), (0.0, 0.0, 2.0), (0.0, 0.0, 0.0), focal_mm=H_S, sensor=SENSOR,
-                                 ground_z_m=0.0, surfaces=surfaces)
+    return SD.ray_hits(np.array(uv, float), (0.0, 0.0, 2.0), (0.0, 0.0, 0.0), focal_mm=H_S, sensor=SENSOR,
+                       ground_z_m=0.0, surfaces=surfaces)[0]
 
 
 def test_the_ground_and_the_surfaces_by_hand():
@@ -40,18 +40,18 @@ def test_a_depth_is_along_the_optical_axis_as_the_projection_has_it():
     p = np.array([20.0, 4.0, 2.5])
     uv = cam.project_world(p, pos, ypr, 60.0)
     # then the ray through its image point sees it at its depth along the camera's axis
-    x = SD.ray_inverse_depths(uv[None], pos, ypr, focal_mm=60.0, sensor=SENSOR, ground_z_m=-5.0, surfaces=(wall,))
+    x, _ = SD.ray_hits(uv[None], pos, ypr, focal_mm=60.0, sensor=SENSOR, ground_z_m=-5.0, surfaces=(wall,))
     assert 1.0 / x[0] == pytest.approx(float(cam.world_to_camera(p, pos, ypr)[0]), rel=1e-9)
 
 
 def test_the_regions_medians_by_hand():
-    rows = lambda pts: pts[:, 1]  # noqa: E731 - each point's row as its "depth"
+    rows = lambda pts: (pts[:, 1], np.ones(len(pts)))  # noqa: E731 - each point's row as its "depth"
     # given the feet at mid-frame: the band's rows 0.5-1 (median 0.75), the rows above 0-0.5 (median 0.25)
-    assert SD.region_medians(0.5, rows) == pytest.approx((0.75, 0.25))
+    assert SD.region_medians_and_flips(0.5, rows)[:2] == pytest.approx((0.75, 0.25))
     # and with the feet at the bottom row no band; at the top no background
-    fg, bg = SD.region_medians(1.0, rows)
+    fg, bg = SD.region_medians_and_flips(1.0, rows)[:2]
     assert np.isnan(fg) and bg == pytest.approx(0.5)
-    assert np.isnan(SD.region_medians(0.0, rows)[1])
+    assert np.isnan(SD.region_medians_and_flips(0.0, rows)[1])
 
 
 def test_each_region_s_flip_is_that_of_what_its_median_ray_meets():
